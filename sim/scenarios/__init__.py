@@ -1,0 +1,1 @@
+"""Scenario TOML files shipped with the package (read by `sim.scenario`)."""

@@ -1,0 +1,10 @@
+"""Small shared type aliases for the numerical code."""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+
+__all__ = ["FloatArray"]

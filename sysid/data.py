@@ -1,0 +1,356 @@
+"""Dataset type and the logged-data CSV contract (``time_s,triac_pct,power_kw``).
+
+A `Dataset` is one uniformly sampled SISO record: time, TRIAC input, heater power.
+`read_csv` refuses any file that breaks the contract with a `DataFileError` naming
+the file, the 1-based line and the column; nothing is dropped, reordered or
+interpolated on read. Logs from other rigs (other names, other units) are read
+through an explicit column mapping; their units are recorded on the `Dataset`.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sysid._typing import FloatArray
+from sysid.errors import DataFileError
+
+#: The CSV contract's header, in order.
+CSV_COLUMNS: tuple[str, str, str] = ("time_s", "triac_pct", "power_kw")
+
+#: Default tolerance on sampling-interval jitter, relative to the nominal interval.
+#: 1 % accepts a logger's rounding of timestamps and refuses a skipped sample (100 %).
+DEFAULT_SAMPLING_RTOL = 0.01
+
+#: The fewest samples any model in this project can be fitted to.
+MIN_SAMPLES = 3
+
+
+def _readonly(values: Any) -> FloatArray:
+    arr = np.array(values, dtype=float, copy=True)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Dataset:
+    """One uniformly sampled record of TRIAC input and heater power.
+
+    Parameters
+    ----------
+    time_s :
+        Sample times [s], strictly increasing, shape ``(n_samples,)``.
+    triac_pct :
+        TRIAC input signal ``s`` [%] (or `input_unit` for logs of other rigs).
+    power_kw :
+        Measured heater power ``P`` [kW] (or `output_unit`).
+    ts_s :
+        Nominal sampling time [s].
+    input_unit, output_unit :
+        Units of the two signals as logged (``"%"`` and ``"kW"`` for a CZ puller).
+    source :
+        File the data came from, or None.
+    sha256 :
+        SHA-256 of the source file's bytes, or None.
+    preprocessing :
+        Every change made to the data since it was read (see `sysid.preprocess`).
+
+    Raises
+    ------
+    DataFileError
+        Arrays of unequal length or other than 1-D, non-finite values, fewer than
+        `MIN_SAMPLES` samples, time not strictly increasing, or a sampling interval
+        that differs from ``ts_s`` by more than `DEFAULT_SAMPLING_RTOL`.
+    """
+
+    time_s: FloatArray
+    triac_pct: FloatArray
+    power_kw: FloatArray
+    ts_s: float
+    input_unit: str = "%"
+    output_unit: str = "kW"
+    source: str | None = None
+    sha256: str | None = None
+    preprocessing: tuple[Mapping[str, Any], ...] = field(default=())
+    sampling_rtol: float = DEFAULT_SAMPLING_RTOL
+
+    def __post_init__(self) -> None:
+        for name in ("time_s", "triac_pct", "power_kw"):
+            arr = _readonly(getattr(self, name))
+            if arr.ndim != 1:
+                raise DataFileError(f"{name} must be 1-D; got shape {arr.shape}", path=self.source)
+            object.__setattr__(self, name, arr)
+        n = self.time_s.size
+        if self.triac_pct.size != n or self.power_kw.size != n:
+            raise DataFileError(
+                "time_s, triac_pct and power_kw must have equal lengths; got "
+                f"{n}, {self.triac_pct.size}, {self.power_kw.size}",
+                path=self.source,
+            )
+        if n < MIN_SAMPLES:
+            raise DataFileError(
+                f"a data set needs at least {MIN_SAMPLES} samples; got {n}", path=self.source
+            )
+        for name in ("time_s", "triac_pct", "power_kw"):
+            bad = np.flatnonzero(~np.isfinite(getattr(self, name)))
+            if bad.size:
+                raise DataFileError(
+                    f"sample {bad[0]}: expected a finite number; got {getattr(self, name)[bad[0]]}",
+                    path=self.source,
+                    column=name,
+                )
+        if not (math.isfinite(self.ts_s) and self.ts_s > 0):
+            raise DataFileError(f"ts_s must be a finite number > 0; got {self.ts_s}", path=self.source)
+        object.__setattr__(self, "ts_s", float(self.ts_s))
+        k = first_sampling_violation(self.time_s, self.ts_s, self.sampling_rtol)
+        if k is not None:
+            raise DataFileError(
+                sampling_violation_message(self.time_s, k, self.ts_s, self.sampling_rtol),
+                path=self.source,
+                column="time_s",
+            )
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples."""
+        return int(self.time_s.size)
+
+    @property
+    def duration_s(self) -> float:
+        """``time_s[-1] - time_s[0]`` [s]."""
+        return float(self.time_s[-1] - self.time_s[0])
+
+    def with_signals(
+        self,
+        *,
+        triac_pct: FloatArray | None = None,
+        power_kw: FloatArray | None = None,
+        change: Mapping[str, Any] | None = None,
+    ) -> Dataset:
+        """Return a copy with new signal values and, if given, one more recorded change."""
+        return Dataset(
+            time_s=self.time_s,
+            triac_pct=self.triac_pct if triac_pct is None else triac_pct,
+            power_kw=self.power_kw if power_kw is None else power_kw,
+            ts_s=self.ts_s,
+            input_unit=self.input_unit,
+            output_unit=self.output_unit,
+            source=self.source,
+            sha256=self.sha256,
+            preprocessing=self.preprocessing + ((dict(change),) if change else ()),
+            sampling_rtol=self.sampling_rtol,
+        )
+
+    def segment(self, start: int, stop: int) -> Dataset:
+        """Samples ``start:stop`` as a new data set (the change is recorded)."""
+        if not (0 <= start < stop <= self.n_samples):
+            raise DataFileError(
+                f"segment must satisfy 0 <= start < stop <= {self.n_samples}; got {start}:{stop}",
+                path=self.source,
+            )
+        return Dataset(
+            time_s=self.time_s[start:stop],
+            triac_pct=self.triac_pct[start:stop],
+            power_kw=self.power_kw[start:stop],
+            ts_s=self.ts_s,
+            input_unit=self.input_unit,
+            output_unit=self.output_unit,
+            source=self.source,
+            sha256=self.sha256,
+            preprocessing=self.preprocessing
+            + ({"what": "segment", "start_sample": start, "stop_sample": stop},),
+            sampling_rtol=self.sampling_rtol,
+        )
+
+
+def first_sampling_violation(time_s: FloatArray, ts_s: float, rtol: float) -> int | None:
+    """Index ``k`` of the first sample whose interval ``t[k] - t[k-1]`` is off, or None."""
+    steps = np.diff(time_s)
+    bad = np.flatnonzero((steps <= 0) | (np.abs(steps - ts_s) > rtol * ts_s))
+    return int(bad[0]) + 1 if bad.size else None
+
+
+def sampling_violation_message(time_s: FloatArray, k: int, ts_s: float, rtol: float) -> str:
+    """Explain why the interval ending at sample ``k`` breaks uniform sampling."""
+    step = time_s[k] - time_s[k - 1]
+    if step <= 0:
+        return (
+            f"time must be strictly increasing; got {time_s[k]:g} s after {time_s[k - 1]:g} s"
+        )
+    return (
+        f"sampling must be uniform (interval {ts_s:g} s within {100 * rtol:g} %); got an "
+        f"interval of {step:g} s from {time_s[k - 1]:g} s to {time_s[k]:g} s"
+    )
+
+
+def read_csv(
+    path: str | os.PathLike[str],
+    *,
+    columns: Mapping[str, str] | None = None,
+    ts_s: float | None = None,
+    sampling_rtol: float = DEFAULT_SAMPLING_RTOL,
+    min_samples: int = MIN_SAMPLES,
+    input_unit: str = "%",
+    output_unit: str = "kW",
+) -> Dataset:
+    """Read a logged-data CSV file into a `Dataset`.
+
+    Parameters
+    ----------
+    path :
+        File to read. Its header must be exactly ``time_s,triac_pct,power_kw`` unless
+        `columns` maps the contract's names to the file's.
+    columns :
+        Mapping from contract name (``time_s``, ``triac_pct``, ``power_kw``) to the
+        file's column name, for logs of other rigs. The file may then hold other
+        columns too; only the mapped ones are read.
+    ts_s :
+        Nominal sampling time [s]; default: the median interval of the file.
+    sampling_rtol :
+        Allowed relative deviation of any interval from `ts_s`.
+    min_samples :
+        Fewest samples accepted (a model of orders na, nb, nk needs more than
+        ``max(na, nb + nk)`` samples).
+    input_unit, output_unit :
+        Units of the input and output columns, recorded on the data set.
+
+    Returns
+    -------
+    Dataset
+
+    Raises
+    ------
+    DataFileError
+        An empty file; missing, extra or duplicated header fields; a non-numeric,
+        NaN or infinite cell; a row with too many or too few cells; time not strictly
+        increasing; non-uniform sampling; fewer than `min_samples` samples. The message
+        names the file, the 1-based line and the column.
+    OSError
+        The file cannot be opened.
+    """
+    path = Path(path)
+    raw = path.read_bytes()
+    digest = hashlib.sha256(raw).hexdigest()
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise DataFileError(f"expected UTF-8 text; got undecodable byte at offset {exc.start}",
+                            path=path) from None
+    if not text.strip():
+        raise DataFileError("the file is empty; expected a header 'time_s,triac_pct,power_kw' "
+                            "and at least one row", path=path)
+    rows = list(csv.reader(io.StringIO(text)))
+    header = [h.strip() for h in rows[0]]
+    wanted = dict(zip(CSV_COLUMNS, CSV_COLUMNS, strict=True)) if columns is None else dict(columns)
+    unknown_keys = set(wanted) - set(CSV_COLUMNS)
+    if unknown_keys or set(wanted) != set(CSV_COLUMNS):
+        raise DataFileError(
+            f"the column mapping must map exactly {list(CSV_COLUMNS)}; got {sorted(wanted)}",
+            path=path,
+        )
+    if len(set(header)) != len(header):
+        dup = next(h for h in header if header.count(h) > 1)
+        raise DataFileError(f"header field '{dup}' appears twice", path=path, line=1, column=dup)
+    for contract_name, file_name in wanted.items():
+        if file_name not in header:
+            raise DataFileError(
+                f"header must contain '{file_name}'"
+                + ("" if file_name == contract_name else f" (mapped to {contract_name})")
+                + f"; got fields {header}",
+                path=path, line=1, column=file_name,
+            )
+    if columns is None and header != list(CSV_COLUMNS):
+        extra = [h for h in header if h not in CSV_COLUMNS]
+        detail = f"extra field(s) {extra}" if extra else f"fields in the order {header}"
+        raise DataFileError(
+            f"header must be exactly 'time_s,triac_pct,power_kw'; got {detail} "
+            "(pass a column mapping to read other layouts)",
+            path=path, line=1, column=extra[0] if extra else None,
+        )
+    index = {name: header.index(wanted[name]) for name in CSV_COLUMNS}
+    values: dict[str, list[float]] = {name: [] for name in CSV_COLUMNS}
+    for line_no, row in enumerate(rows[1:], start=2):
+        if not row or all(not cell.strip() for cell in row):
+            raise DataFileError("blank line; expected a row of numbers", path=path, line=line_no)
+        if len(row) != len(header):
+            raise DataFileError(
+                f"expected {len(header)} cells like the header; got {len(row)}",
+                path=path, line=line_no,
+            )
+        for name in CSV_COLUMNS:
+            cell = row[index[name]].strip()
+            try:
+                value = float(cell)
+            except ValueError:
+                raise DataFileError(f"expected a number; got {cell!r}", path=path,
+                                    line=line_no, column=wanted[name]) from None
+            if not math.isfinite(value):
+                raise DataFileError(f"expected a finite number; got {cell!r}", path=path,
+                                    line=line_no, column=wanted[name])
+            values[name].append(value)
+    n = len(values["time_s"])
+    if n < max(min_samples, MIN_SAMPLES):
+        raise DataFileError(
+            f"expected at least {max(min_samples, MIN_SAMPLES)} samples; got {n}", path=path
+        )
+    time_s = np.asarray(values["time_s"])
+    steps = np.diff(time_s)
+    nonincreasing = np.flatnonzero(steps <= 0)
+    if nonincreasing.size:
+        k = int(nonincreasing[0]) + 1
+        raise DataFileError(
+            sampling_violation_message(time_s, k, 1.0, 0.0), path=path, line=k + 2,
+            column=wanted["time_s"],
+        )
+    nominal = float(np.median(steps)) if ts_s is None else float(ts_s)
+    k_bad = first_sampling_violation(time_s, nominal, sampling_rtol)
+    if k_bad is not None:
+        raise DataFileError(
+            sampling_violation_message(time_s, k_bad, nominal, sampling_rtol),
+            path=path, line=k_bad + 2, column=wanted["time_s"],
+        )
+    return Dataset(
+        time_s=time_s,
+        triac_pct=np.asarray(values["triac_pct"]),
+        power_kw=np.asarray(values["power_kw"]),
+        ts_s=nominal,
+        input_unit=input_unit,
+        output_unit=output_unit,
+        source=str(path),
+        sha256=digest,
+        sampling_rtol=sampling_rtol,
+    )
+
+
+def format_csv(data: Dataset) -> str:
+    """Render a data set in the CSV contract (shortest round-trip float text)."""
+    lines = [",".join(CSV_COLUMNS)]
+    for t, s, p in zip(data.time_s, data.triac_pct, data.power_kw, strict=True):
+        lines.append(f"{float(t)!r},{float(s)!r},{float(p)!r}")
+    return "\n".join(lines) + "\n"
+
+
+def write_csv(data: Dataset, path: str | os.PathLike[str]) -> None:
+    """Write a data set in the CSV contract, atomically (temporary file, then rename).
+
+    Floats are written with Python's shortest round-trip representation, so
+    ``read_csv(write_csv(d))`` reproduces every value bit for bit.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    with open(tmp, "w", newline="\n", encoding="utf-8") as fh:
+        fh.write(format_csv(data))
+    os.replace(tmp, path)
+
+
+__all__ = ["CSV_COLUMNS", "DEFAULT_SAMPLING_RTOL", "Dataset", "MIN_SAMPLES", "format_csv",
+           "read_csv", "write_csv"]

@@ -1,0 +1,308 @@
+"""The identified model: general polynomial Hammerstein form and its metadata.
+
+Notation
+--------
+The one general form of every model the project stores (DESIGN.md, "Model file")::
+
+    A(q) dP_k = B(q) f(ds_k) + C(q) e_k,      f(ds) = sum_i p_i ds^i,  i = 1..n
+
+``dP = P - P_nom`` [kW] and ``ds = s - s_nom`` [%] are deviations from the operating
+point (paper sec. 5.1). ``A``, ``B``, ``C`` hold ascending powers of q^-1; ``B``'s
+leading zeros are the delay ``nk`` and its first non-zero coefficient is 1 (the
+normalization of paper eqs. 22-25, which moves the gain into ``f``). ``e`` is white
+with standard deviation ``noise_std_kw``.
+
+* ARX (eq. 5): ``C = [1]``.  ARMAX (eq. 6): ``C`` free.  OE (eq. 7): stored with
+  ``C = A`` so that ``dP = B/A f(ds) + e``.
+* A linear model has ``kind = "linear"`` and one input coefficient ``p_1 = b_1``.
+* The paper's final models are eq. 27 (OE block) and eq. 30 (ARMAX block).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
+
+import numpy as np
+
+from sysid._typing import FloatArray
+from sysid.errors import ModelFileError, SamplingTimeError, UnstableModelError
+from sysid.polynomials import max_root_modulus
+
+ModelKind = Literal["hammerstein", "linear"]
+LinearBlock = Literal["armax", "oe", "arx"]
+
+#: |b_first| within this of 1 counts as normalized (JSON round trips are exact, so
+#: this only absorbs arithmetic in user code that builds models by hand).
+NORMALIZATION_ATOL = 1e-9
+
+
+def _frozen_array(values: Any, name: str) -> FloatArray:
+    arr = np.array(values, dtype=float, copy=True)
+    if arr.ndim != 1 or arr.size == 0:
+        raise ModelFileError(f"{name} must be a non-empty 1-D list of numbers; got {values!r}")
+    if not np.all(np.isfinite(arr)):
+        raise ModelFileError(f"{name} must hold finite numbers; got {arr.tolist()}")
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, kw_only=True)
+class OperatingPoint:
+    """Steady operating point the deviation variables are taken about (paper sec. 5.1).
+
+    Parameters
+    ----------
+    triac_pct :
+        Nominal TRIAC input ``s_nom`` [%].
+    power_kw :
+        Nominal heater power ``P_nom`` [kW].
+    """
+
+    triac_pct: float
+    power_kw: float
+
+    def __post_init__(self) -> None:
+        for name in ("triac_pct", "power_kw"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ModelFileError(f"OperatingPoint.{name} must be a finite number; got {value!r}")
+            object.__setattr__(self, name, float(value))
+
+
+@dataclass(frozen=True, kw_only=True)
+class Criteria:
+    """Fit criteria of a model on its identification data (paper eqs. 9-10).
+
+    Parameters
+    ----------
+    ballistic_mse_kw2 :
+        ``V``: mean squared ballistic simulation error [kW^2] (eq. 9), or None.
+    one_step_mse_kw2 :
+        ``W``: mean squared one-step-ahead prediction error [kW^2] (eq. 10), or None.
+    """
+
+    ballistic_mse_kw2: float | None = None
+    one_step_mse_kw2: float | None = None
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Provenance:
+    """Where a model came from: data, preprocessing, method, date.
+
+    Parameters
+    ----------
+    data_file :
+        Name of the identification data file, or None.
+    data_sha256 :
+        SHA-256 of that file's bytes, or None.
+    preprocessing :
+        Every change made to the data before fitting, in order; each a JSON-able
+        mapping with at least ``"what"`` (see `sysid.preprocess`).
+    method :
+        How the model was fitted (for example ``"pem-one-step"``).
+    created_utc :
+        ISO-8601 creation time, or None.
+    extra :
+        Any other keys of the file's ``provenance`` object, kept for round trips.
+    """
+
+    data_file: str | None = None
+    data_sha256: str | None = None
+    preprocessing: tuple[Mapping[str, Any], ...] = ()
+    method: str | None = None
+    created_utc: str | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class HammersteinModel:
+    """A SISO polynomial model ``A dP = B f(ds) + C e`` about an operating point.
+
+    Parameters
+    ----------
+    kind :
+        ``"hammerstein"`` (polynomial ``f``) or ``"linear"`` (``f(ds) = b1 ds``).
+    linear_block :
+        ``"arx"``, ``"armax"`` or ``"oe"``: which noise model the linear block has.
+    ts_s :
+        Sampling time [s].
+    operating_point :
+        ``(s_nom, P_nom)``.
+    a, b, c :
+        ``A(q)``, ``B(q)``, ``C(q)`` in ascending powers of q^-1; ``a[0] = c[0] = 1``;
+        the first non-zero of ``b`` is 1.
+    input_poly :
+        ``[p_1, ..., p_n]`` with ``f(ds) = sum p_i ds^i`` [kW per %^i]; no constant.
+    noise_std_kw :
+        Standard deviation of the innovation ``e`` [kW].
+    input_range_pct :
+        ``(s_min, s_max)``: range of the TRIAC input seen in the identification data [%].
+    criteria :
+        ``V`` and ``W`` on the identification data.
+    provenance :
+        Data, preprocessing and method.
+
+    Raises
+    ------
+    ModelFileError
+        Wrong lengths, non-finite numbers, a non-monic ``A``/``C``, an un-normalized
+        ``B``, or an inverted input range.
+    UnstableModelError
+        ``A`` or ``C`` with a root on or outside the unit circle.
+
+    Examples
+    --------
+    >>> m = HammersteinModel(kind="hammerstein", linear_block="oe", ts_s=2.0,
+    ...     operating_point=OperatingPoint(triac_pct=45.0, power_kw=45.0),
+    ...     a=[1.0, -0.99], b=[0.0, 1.0, -0.98], c=[1.0, -0.99],
+    ...     input_poly=[1.3, -0.01], noise_std_kw=0.013, input_range_pct=(10.0, 65.0))
+    >>> round(m.steady_state_power_kw(50.0), 3)
+    48.0
+    """
+
+    kind: ModelKind
+    linear_block: LinearBlock
+    ts_s: float
+    operating_point: OperatingPoint
+    a: FloatArray
+    b: FloatArray
+    c: FloatArray
+    input_poly: FloatArray
+    noise_std_kw: float
+    input_range_pct: tuple[float, float]
+    criteria: Criteria = field(default_factory=Criteria)
+    provenance: Provenance = field(default_factory=Provenance)
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("hammerstein", "linear"):
+            raise ModelFileError(f"kind must be 'hammerstein' or 'linear'; got {self.kind!r}")
+        if self.linear_block not in ("armax", "oe", "arx"):
+            raise ModelFileError(
+                f"linear_block must be 'armax', 'oe' or 'arx'; got {self.linear_block!r}"
+            )
+        if not isinstance(self.ts_s, (int, float)) or not (
+            math.isfinite(self.ts_s) and self.ts_s > 0
+        ):
+            raise ModelFileError(f"ts_s must be a finite number > 0 [s]; got {self.ts_s!r}")
+        object.__setattr__(self, "ts_s", float(self.ts_s))
+        for name in ("a", "b", "c", "input_poly"):
+            object.__setattr__(self, name, _frozen_array(getattr(self, name), name))
+        for name in ("a", "c"):
+            poly = getattr(self, name)
+            if poly[0] != 1.0:
+                raise ModelFileError(f"{name.upper()}(q) must be monic ({name}[0] = 1); got {poly[0]}")
+        nonzero = np.flatnonzero(self.b)
+        if nonzero.size == 0:
+            raise ModelFileError("B(q) must have a non-zero coefficient; got all zeros")
+        if abs(self.b[nonzero[0]] - 1.0) > NORMALIZATION_ATOL:
+            raise ModelFileError(
+                "B(q)'s first non-zero coefficient must be normalized to 1 (the gain lives "
+                f"in input_poly); got {self.b[nonzero[0]]}"
+            )
+        if self.kind == "linear" and self.input_poly.size != 1:
+            raise ModelFileError(
+                f"a linear model has one input coefficient (b1); got input_poly of "
+                f"length {self.input_poly.size}"
+            )
+        if not (math.isfinite(self.noise_std_kw) and self.noise_std_kw >= 0):
+            raise ModelFileError(f"noise_std_kw must be finite and >= 0; got {self.noise_std_kw!r}")
+        object.__setattr__(self, "noise_std_kw", float(self.noise_std_kw))
+        lo, hi = (float(v) for v in self.input_range_pct)
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise ModelFileError(
+                f"input_range_pct must be finite with min < max [%]; got {self.input_range_pct!r}"
+            )
+        object.__setattr__(self, "input_range_pct", (lo, hi))
+        for name in ("a", "c"):
+            rho = max_root_modulus(getattr(self, name))
+            if rho >= 1.0:
+                raise UnstableModelError(
+                    f"{name.upper()}(q) has a root at |z| = {rho:.4g}, outside the unit circle; "
+                    "the model is unstable"
+                )
+
+    # --- structure -------------------------------------------------------------
+    @property
+    def delay_steps(self) -> int:
+        """Input delay ``nk`` [samples]: the number of leading zeros of ``B``."""
+        return int(np.flatnonzero(self.b)[0])
+
+    @property
+    def input_degree(self) -> int:
+        """Degree ``n`` of the input polynomial ``f``."""
+        return int(self.input_poly.size)
+
+    # --- the input nonlinearity --------------------------------------------------
+    def input_nonlinearity(self, ds_pct: FloatArray | float) -> FloatArray:
+        """Evaluate ``f(ds) = sum_i p_i ds^i`` (eq. 28) [kW-equivalent input].
+
+        Parameters
+        ----------
+        ds_pct :
+            TRIAC deviation from the operating point [%], scalar or array.
+        """
+        ds = np.asarray(ds_pct, dtype=float)
+        out = np.zeros_like(ds)
+        for coef in self.input_poly[::-1]:
+            out = (out + coef) * ds
+        return out
+
+    def input_nonlinearity_slope(self, ds_pct: FloatArray | float) -> FloatArray:
+        """Evaluate ``f'(ds)`` [kW/%] (the instantaneous gain of the paper's sec. 7.3)."""
+        ds = np.asarray(ds_pct, dtype=float)
+        out = np.zeros_like(ds)
+        for i in range(self.input_poly.size, 0, -1):
+            out = out * ds + i * self.input_poly[i - 1]
+        return out
+
+    # --- steady state ------------------------------------------------------------
+    @property
+    def linear_static_gain(self) -> float:
+        """``B(1)/A(1)``: steady-state gain of the linear block [kW per unit of f]."""
+        return float(np.sum(self.b) / np.sum(self.a))
+
+    def steady_state_power_kw(self, triac_pct: FloatArray | float) -> FloatArray:
+        """Steady power ``P_nom + B(1)/A(1) f(s - s_nom)`` [kW] for a constant input [%]."""
+        ds = np.asarray(triac_pct, dtype=float) - self.operating_point.triac_pct
+        return self.operating_point.power_kw + self.linear_static_gain * self.input_nonlinearity(ds)
+
+    def with_updates(self, **changes: Any) -> HammersteinModel:
+        """Return a copy with the given fields replaced (validated again)."""
+        return replace(self, **changes)
+
+    def check_ts(self, ts_s: float, *, what: str = "data") -> None:
+        """Raise `SamplingTimeError` unless ``ts_s`` equals this model's sampling time."""
+        if not math.isclose(ts_s, self.ts_s, rel_tol=1e-9, abs_tol=1e-12):
+            raise SamplingTimeError(
+                f"{what} has sampling time {ts_s} s but the model has {self.ts_s} s"
+            )
+
+
+def normalize_input_gain(
+    b: FloatArray, input_poly: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Move B's first non-zero coefficient into ``f`` (paper eqs. 22-24).
+
+    Returns ``(b / b_first, input_poly * b_first)``, which describes the same
+    input-output map with ``B`` normalized as the model file requires.
+    """
+    b = np.asarray(b, dtype=float)
+    nonzero = np.flatnonzero(b)
+    if nonzero.size == 0:
+        raise ModelFileError("B(q) is all zeros: the input has no effect on the output")
+    scale = b[nonzero[0]]
+    return b / scale, np.asarray(input_poly, dtype=float) * scale
+
+
+__all__ = [
+    "Criteria",
+    "HammersteinModel",
+    "LinearBlock",
+    "ModelKind",
+    "OperatingPoint",
+    "Provenance",
+    "normalize_input_gain",
+]

@@ -1,0 +1,182 @@
+"""Read and write the ``czmpc-model/1`` JSON model file (DESIGN.md, "Model file").
+
+This is the only place that maps between the file's keys (``"A"``, ``"B"``, ``"C"``,
+``"V"``, ``"W"``) and the Python attribute names (``a``, ``b``, ``c``,
+``ballistic_mse_kw2``, ``one_step_mse_kw2``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+from sysid.errors import ModelFileError, UnstableModelError
+from sysid.model import Criteria, HammersteinModel, OperatingPoint, Provenance
+
+FORMAT = "czmpc-model/1"
+_TOP_KEYS = {
+    "format", "kind", "linear_block", "ts_s", "operating_point", "A", "B", "C",
+    "input_poly", "noise_std_kw", "input_range_pct", "criteria", "provenance",
+}
+_REQUIRED = _TOP_KEYS - {"criteria", "provenance"}
+_PROVENANCE_KEYS = ("data_file", "data_sha256", "preprocessing", "method", "created_utc")
+
+
+def model_to_dict(model: HammersteinModel) -> dict[str, Any]:
+    """The JSON object of the model file for ``model``."""
+    prov = model.provenance
+    provenance: dict[str, Any] = dict(prov.extra)
+    provenance.update(
+        data_file=prov.data_file,
+        data_sha256=prov.data_sha256,
+        preprocessing=[dict(step) for step in prov.preprocessing],
+        method=prov.method,
+        created_utc=prov.created_utc,
+    )
+    return {
+        "format": FORMAT,
+        "kind": model.kind,
+        "linear_block": model.linear_block,
+        "ts_s": model.ts_s,
+        "operating_point": {
+            "triac_pct": model.operating_point.triac_pct,
+            "power_kw": model.operating_point.power_kw,
+        },
+        "A": model.a.tolist(),
+        "B": model.b.tolist(),
+        "C": model.c.tolist(),
+        "input_poly": model.input_poly.tolist(),
+        "noise_std_kw": model.noise_std_kw,
+        "input_range_pct": list(model.input_range_pct),
+        "criteria": {
+            "V": model.criteria.ballistic_mse_kw2,
+            "W": model.criteria.one_step_mse_kw2,
+        },
+        "provenance": provenance,
+    }
+
+
+def _number(obj: Any, where: str) -> float:
+    if isinstance(obj, bool) or not isinstance(obj, (int, float)) or not math.isfinite(obj):
+        raise ModelFileError(f"{where} must be a finite number; got {obj!r}")
+    return float(obj)
+
+
+def _numbers(obj: Any, where: str, *, length: int | None = None) -> list[float]:
+    if not isinstance(obj, list) or not obj:
+        raise ModelFileError(f"{where} must be a non-empty list of numbers; got {obj!r}")
+    if length is not None and len(obj) != length:
+        raise ModelFileError(f"{where} must have {length} entries; got {len(obj)}")
+    return [_number(v, f"{where}[{i}]") for i, v in enumerate(obj)]
+
+
+def model_from_dict(obj: Any) -> HammersteinModel:
+    """Build a model from the JSON object of a model file, validating every field.
+
+    Raises
+    ------
+    ModelFileError
+        Unknown format, missing or unknown keys, wrong types or lengths, non-finite
+        numbers, or any invariant of `HammersteinModel`.
+    UnstableModelError
+        ``A`` or ``C`` with a root on or outside the unit circle.
+    """
+    if not isinstance(obj, dict):
+        raise ModelFileError(f"expected a JSON object; got {type(obj).__name__}")
+    fmt = obj.get("format")
+    if fmt != FORMAT:
+        raise ModelFileError(f"format must be {FORMAT!r}; got {fmt!r}")
+    missing = sorted(_REQUIRED - set(obj))
+    if missing:
+        raise ModelFileError(f"missing key(s) {missing}")
+    unknown = sorted(set(obj) - _TOP_KEYS)
+    if unknown:
+        raise ModelFileError(f"unknown key(s) {unknown}; expected only {sorted(_TOP_KEYS)}")
+    op = obj["operating_point"]
+    if not isinstance(op, dict) or set(op) != {"triac_pct", "power_kw"}:
+        raise ModelFileError(
+            f"operating_point must be {{'triac_pct': ..., 'power_kw': ...}}; got {op!r}"
+        )
+    crit = obj.get("criteria") or {}
+    if not isinstance(crit, dict) or not set(crit) <= {"V", "W"}:
+        raise ModelFileError(f"criteria must be an object with keys V and W; got {crit!r}")
+    prov_obj = obj.get("provenance") or {}
+    if not isinstance(prov_obj, dict):
+        raise ModelFileError(f"provenance must be an object; got {prov_obj!r}")
+    steps = prov_obj.get("preprocessing") or []
+    if not isinstance(steps, list) or not all(isinstance(s, dict) for s in steps):
+        raise ModelFileError(f"provenance.preprocessing must be a list of objects; got {steps!r}")
+    kind = obj["kind"]
+    poly = _numbers(obj["input_poly"], "input_poly", length=1 if kind == "linear" else None)
+    return HammersteinModel(
+        kind=kind,
+        linear_block=obj["linear_block"],
+        ts_s=_number(obj["ts_s"], "ts_s"),
+        operating_point=OperatingPoint(
+            triac_pct=_number(op["triac_pct"], "operating_point.triac_pct"),
+            power_kw=_number(op["power_kw"], "operating_point.power_kw"),
+        ),
+        a=_numbers(obj["A"], "A"),
+        b=_numbers(obj["B"], "B"),
+        c=_numbers(obj["C"], "C"),
+        input_poly=poly,
+        noise_std_kw=_number(obj["noise_std_kw"], "noise_std_kw"),
+        input_range_pct=tuple(_numbers(obj["input_range_pct"], "input_range_pct", length=2)),  # type: ignore[arg-type]
+        criteria=Criteria(
+            ballistic_mse_kw2=None if crit.get("V") is None else _number(crit["V"], "criteria.V"),
+            one_step_mse_kw2=None if crit.get("W") is None else _number(crit["W"], "criteria.W"),
+        ),
+        provenance=Provenance(
+            data_file=prov_obj.get("data_file"),
+            data_sha256=prov_obj.get("data_sha256"),
+            preprocessing=tuple(steps),
+            method=prov_obj.get("method"),
+            created_utc=prov_obj.get("created_utc"),
+            extra={k: v for k, v in prov_obj.items() if k not in _PROVENANCE_KEYS},
+        ),
+    )
+
+
+def save_model(model: HammersteinModel, path: str | os.PathLike[str]) -> None:
+    """Write ``model`` as a ``czmpc-model/1`` JSON file, atomically.
+
+    Floats are written with full precision, so `load_model` returns the same numbers.
+    """
+    path = Path(path)
+    text = json.dumps(model_to_dict(model), indent=2, allow_nan=False) + "\n"
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def load_model(path: str | os.PathLike[str]) -> HammersteinModel:
+    """Read a ``czmpc-model/1`` JSON file.
+
+    Raises
+    ------
+    ModelFileError
+        Not JSON, unknown format, wrong keys or lengths, non-finite numbers; the
+        message starts with the file name.
+    UnstableModelError
+        ``A`` or ``C`` has a root on or outside the unit circle.
+    OSError
+        The file cannot be read.
+    """
+    path = Path(path)
+    text = path.read_text(encoding="utf-8")
+    try:
+        obj = json.loads(text, parse_constant=lambda c: float(c))
+    except json.JSONDecodeError as exc:
+        raise ModelFileError(f"{path}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
+    try:
+        return model_from_dict(obj)
+    except UnstableModelError as exc:
+        raise UnstableModelError(f"{path}: {exc}") from None
+    except ModelFileError as exc:
+        raise ModelFileError(f"{path}: {exc}") from None
+
+
+__all__ = ["FORMAT", "load_model", "model_from_dict", "model_to_dict", "save_model"]

@@ -1,0 +1,60 @@
+"""Polynomials in the backward shift q^-1: roots, stability, normalization.
+
+Notation
+--------
+A polynomial ``p = [p0, p1, ..., pn]`` holds ascending powers of q^-1, so
+``p(q) = p0 + p1 q^-1 + ... + pn q^-n`` (paper eqs. 1-4). Its roots in the z-plane are
+the roots of ``p0 z^n + p1 z^(n-1) + ... + pn``, which is what `numpy.roots` computes
+from the same coefficient list.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sysid._typing import FloatArray
+
+
+def roots_z(poly: FloatArray) -> FloatArray:
+    """Return the z-plane roots of a q^-1 polynomial (complex array, possibly empty)."""
+    p = np.trim_zeros(np.asarray(poly, dtype=float), trim="b")
+    if p.size <= 1:
+        return np.zeros(0, dtype=complex)
+    return np.roots(p)
+
+
+def max_root_modulus(poly: FloatArray) -> float:
+    """Largest |z| among the roots of a monic q^-1 polynomial; 0.0 for a constant."""
+    r = roots_z(poly)
+    return float(np.max(np.abs(r))) if r.size else 0.0
+
+
+def is_stable(poly: FloatArray, *, margin: float = 0.0) -> bool:
+    """True if every root of ``poly`` lies strictly inside the circle |z| < 1 - margin."""
+    return max_root_modulus(poly) < 1.0 - margin
+
+
+def reflect_unstable_roots(poly: FloatArray) -> FloatArray:
+    """Mirror roots outside the unit circle to 1/conj(z) and return the monic polynomial.
+
+    Used by the prediction-error searches to keep F(q) and C(q) stable: mirroring a root
+    keeps the magnitude response up to a constant, the classical projection of
+    Ljung (1999, sec. 10.1).
+    """
+    p = np.asarray(poly, dtype=float)
+    r = roots_z(p)
+    if r.size == 0:
+        return p.copy()
+    big = np.abs(r) >= 1.0
+    if not np.any(big):
+        return p.copy()
+    r = r.copy()
+    r[big] = 1.0 / np.conj(r[big])
+    # keep strictly inside: a root exactly on the circle is pulled in slightly
+    on = np.abs(r) >= 1.0 - 1e-9
+    r[on] *= (1.0 - 1e-6) / np.abs(r[on])
+    out = np.real(np.poly(r))
+    return np.asarray(out, dtype=float)
+
+
+__all__ = ["is_stable", "max_root_modulus", "reflect_unstable_roots", "roots_z"]

@@ -1,0 +1,46 @@
+"""Shared fixtures: a seeded rng, the paper's final models, the shipped experiment."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sysid import HammersteinModel, OperatingPoint
+
+REPO = Path(__file__).resolve().parents[1]
+SHIPPED_EXPERIMENT = REPO / "data" / "cz_heater_experiment.csv"
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(20261121)
+
+
+def _paper_model(block: str) -> HammersteinModel:
+    # Paper-like values (eq. 27 / eq. 30 shape): slow pole near 0.99, b2 near a1,
+    # f'(0) about 1.35 kW/% and falling with ds (Table 3).
+    a1, b2, c1 = -0.99, -0.98, -0.9
+    return HammersteinModel(
+        kind="hammerstein",
+        linear_block=block,  # type: ignore[arg-type]
+        ts_s=2.0,
+        operating_point=OperatingPoint(triac_pct=45.0, power_kw=45.0),
+        a=[1.0, a1],
+        b=[0.0, 1.0, b2],
+        c=[1.0, a1] if block == "oe" else [1.0, c1],
+        input_poly=[1.35, -0.0065],
+        noise_std_kw=0.0134,
+        input_range_pct=(10.0, 70.0),
+    )
+
+
+@pytest.fixture(scope="session")
+def paper_oe_model() -> HammersteinModel:
+    return _paper_model("oe")
+
+
+@pytest.fixture(scope="session")
+def paper_armax_model() -> HammersteinModel:
+    return _paper_model("armax")
