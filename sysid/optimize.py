@@ -1,0 +1,333 @@
+"""Levenberg-Marquardt least squares with bounds, projection and standard errors.
+
+Notation
+--------
+``theta`` (p,) is the parameter vector (paper eq. 8), ``r(theta)`` (N,) the residual
+vector (simulation errors for V, eq. 9, or one-step prediction errors for W, eq. 10)
+and ``J = dr/dtheta`` (N, p) its Jacobian. The search minimizes ``sum_k r_k^2``, i.e.
+N times V or W.
+
+The step solves the damped Gauss-Newton system with Marquardt's diagonal scaling
+``D`` (MINPACK's non-decreasing column norms of ``J``)::
+
+    (J'J + mu D'D) s = -J'r
+
+through a QR factorization of ``J`` (never forming ``J'J``), and the damping ``mu`` is
+updated by Nielsen's rule (Madsen, Nielsen and Tingleff, 2004, sec. 3.2).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from sysid._typing import FloatArray
+from sysid.errors import IdentificationError
+
+#: Initial damping, relative to the scaled Gauss-Newton matrix.
+_MU_INITIAL = 1e-3
+#: Rejected trial steps tolerated in one iteration before giving up.
+_MAX_REJECTIONS = 60
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class LMResult:
+    """Outcome of `levenberg_marquardt`.
+
+    Parameters
+    ----------
+    theta :
+        Best parameter vector found, shape ``(p,)``.
+    residuals :
+        Residuals at `theta`, shape ``(N,)``.
+    jacobian :
+        Jacobian ``dr/dtheta`` at `theta`, shape ``(N, p)``.
+    cost :
+        Mean of the squared residuals at `theta` (V or W when the residuals are the
+        simulation or prediction errors).
+    n_iterations :
+        Iterations used (one Jacobian evaluation and a damping search each).
+    converged :
+        True if a convergence test (ftol, xtol, gtol or zero cost) was met.
+    message :
+        Why the search stopped, in words.
+    """
+
+    theta: FloatArray
+    residuals: FloatArray
+    jacobian: FloatArray
+    cost: float
+    n_iterations: int
+    converged: bool
+    message: str
+
+
+def _evaluate(
+    fun: Callable[[FloatArray], tuple[FloatArray, FloatArray]], theta: FloatArray, p: int
+) -> tuple[FloatArray, FloatArray] | None:
+    """``fun(theta)`` checked for shape; None if any value is non-finite."""
+    r_raw, jac_raw = fun(theta)
+    r = np.asarray(r_raw, dtype=float)
+    jac = np.asarray(jac_raw, dtype=float)
+    if r.ndim != 1 or jac.shape != (r.size, p):
+        raise IdentificationError(
+            "levenberg_marquardt: fun must return (r of shape (N,), J of shape (N, p)) with "
+            f"p = {p}; got shapes {r.shape} and {jac.shape}"
+        )
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
+        return None
+    return r, jac
+
+
+def _as_bound(bound: FloatArray | None, p: int, fill: float, name: str) -> FloatArray:
+    if bound is None:
+        return np.full(p, fill)
+    arr = np.array(bound, dtype=float, copy=True).reshape(-1)
+    if arr.size != p:
+        raise IdentificationError(
+            f"levenberg_marquardt: {name} must have one entry per parameter ({p}); "
+            f"got {arr.size}"
+        )
+    return arr
+
+
+def levenberg_marquardt(
+    fun: Callable[[FloatArray], tuple[FloatArray, FloatArray]],
+    theta0: FloatArray,
+    *,
+    lower: FloatArray | None = None,
+    upper: FloatArray | None = None,
+    project: Callable[[FloatArray], FloatArray] | None = None,
+    max_iterations: int = 100,
+    xtol: float = 1e-10,
+    ftol: float = 1e-12,
+    gtol: float = 1e-10,
+) -> LMResult:
+    """Minimize ``sum r(theta)^2`` by Levenberg-Marquardt with exact Jacobians.
+
+    Parameters
+    ----------
+    fun :
+        ``fun(theta) -> (r, J)``: residuals, shape ``(N,)``, and their Jacobian
+        ``dr/dtheta``, shape ``(N, p)``. It may return non-finite values at a trial point
+        (for example an unstable filter); that trial is rejected and the damping raised.
+    theta0 :
+        Starting point, shape ``(p,)``. It is clipped to the bounds and projected.
+    lower, upper :
+        Bounds on ``theta`` (``-inf``/``+inf`` entries allowed), or None. Trial points
+        are clipped into them; parameters at a bound whose gradient pushes outward are
+        held fixed for that step (a simple active set).
+    project :
+        Maps a trial point into the feasible set after clipping, or None. Used to keep
+        F(q) and C(q) stable (`sysid.polynomials.reflect_unstable_roots`).
+    max_iterations :
+        Largest number of iterations (each: one Jacobian, one damping search).
+    xtol :
+        Converged when a step satisfies ``||s|| <= xtol (xtol + ||theta||)``.
+    ftol :
+        Converged when an accepted step reduces the sum of squares by at most
+        ``ftol`` relative, both actually and as predicted by the linear model.
+    gtol :
+        Converged when ``max_i |J_i' r| / (||J_i|| ||r||) <= gtol`` over the free
+        parameters (MINPACK's scale-free gradient test: the largest cosine between
+        the residual and a Jacobian column).
+
+    Returns
+    -------
+    LMResult
+        The best iterate (the cost never increases, so the last accepted point), with
+        ``converged=False`` and a message if no test was met within `max_iterations`.
+
+    Raises
+    ------
+    IdentificationError
+        Bad option values, shapes that do not match, or non-finite residuals or Jacobian
+        at the starting point.
+
+    Examples
+    --------
+    >>> def line(theta):
+    ...     x = np.arange(5.0)
+    ...     r = theta[0] + theta[1] * x - (1.0 + 2.0 * x)
+    ...     return r, np.column_stack([np.ones(5), x])
+    >>> np.round(levenberg_marquardt(line, np.zeros(2)).theta, 12).tolist()
+    [1.0, 2.0]
+    """
+    if isinstance(max_iterations, bool) or not isinstance(max_iterations, int) or (
+        max_iterations < 1
+    ):
+        raise IdentificationError(
+            f"levenberg_marquardt: max_iterations must be an int >= 1; got {max_iterations!r}"
+        )
+    for name, tol in (("xtol", xtol), ("ftol", ftol), ("gtol", gtol)):
+        if not (np.isfinite(tol) and tol >= 0):
+            raise IdentificationError(
+                f"levenberg_marquardt: {name} must be a finite number >= 0; got {tol!r}"
+            )
+    theta = np.array(theta0, dtype=float, copy=True).reshape(-1)
+    p = theta.size
+    if p == 0 or not np.all(np.isfinite(theta)):
+        raise IdentificationError(
+            f"levenberg_marquardt: theta0 must be a non-empty finite vector; got {theta0!r}"
+        )
+    lo = _as_bound(lower, p, -np.inf, "lower")
+    hi = _as_bound(upper, p, np.inf, "upper")
+    if np.any(lo > hi):
+        raise IdentificationError(
+            f"levenberg_marquardt: lower must not exceed upper; got {lo} > {hi}"
+        )
+
+    def feasible(x: FloatArray) -> FloatArray:
+        x = np.clip(x, lo, hi)
+        return np.asarray(project(x), dtype=float) if project is not None else x
+
+    theta = feasible(theta)
+    first = _evaluate(fun, theta, p)
+    if first is None:
+        raise IdentificationError(
+            "levenberg_marquardt: the residuals or Jacobian at the starting point theta0 "
+            f"= {theta.tolist()} are not finite; start from a point where the model is "
+            "stable and defined"
+        )
+    r, jac = first
+    ssr = float(r @ r)
+    n = r.size
+    scale = np.zeros(p)
+    mu = _MU_INITIAL
+    nu = 2.0
+    converged = False
+    message = ""
+    iteration = 0
+    while iteration < max_iterations:
+        iteration += 1
+        if ssr <= np.finfo(float).tiny:
+            converged, message = True, "the sum of squared residuals is zero"
+            break
+        grad = jac.T @ r
+        col_norms = np.linalg.norm(jac, axis=0)
+        at_lo = (theta <= lo) & (grad > 0)
+        at_hi = (theta >= hi) & (grad < 0)
+        free = ~(at_lo | at_hi) & (col_norms > 0)
+        if not np.any(free):
+            converged, message = True, "every parameter is held at a bound or has no effect"
+            break
+        cosines = np.abs(grad[free]) / (col_norms[free] * np.sqrt(ssr))
+        if float(np.max(cosines)) <= gtol:
+            converged, message = True, f"gradient test met (max cosine <= gtol = {gtol:g})"
+            break
+        scale = np.maximum(scale, col_norms)
+        d = np.where(scale[free] > 0, scale[free], 1.0)
+        q_mat, r_mat = np.linalg.qr(jac[:, free])
+        qtr = q_mat.T @ r
+        accepted = False
+        for _ in range(_MAX_REJECTIONS):
+            system = np.vstack([r_mat, np.diag(np.sqrt(mu) * d)])
+            rhs = -np.concatenate([qtr, np.zeros(d.size)])
+            step_free = np.linalg.lstsq(system, rhs, rcond=None)[0]
+            step = np.zeros(p)
+            step[free] = step_free
+            trial = feasible(theta + step)
+            step = trial - theta
+            step_small = float(np.linalg.norm(step)) <= xtol * (
+                xtol + float(np.linalg.norm(theta))
+            )
+            evaluated = _evaluate(fun, trial, p)
+            ssr_new = float(evaluated[0] @ evaluated[0]) if evaluated is not None else np.inf
+            if evaluated is not None and ssr_new < ssr:
+                lin = qtr + r_mat @ step[free]
+                predicted = float(qtr @ qtr - lin @ lin)
+                actual = ssr - ssr_new
+                if predicted > 0:
+                    rho = actual / predicted
+                    mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                nu = 2.0
+                small_reduction = actual <= ftol * ssr and 0 <= predicted <= ftol * ssr
+                theta, (r, jac), ssr = trial, evaluated, ssr_new
+                accepted = True
+                if small_reduction:
+                    converged = True
+                    message = f"relative reduction of the cost below ftol = {ftol:g}"
+                elif step_small:
+                    converged = True
+                    message = f"step size below xtol = {xtol:g} (relative to |theta|)"
+                break
+            if step_small:
+                converged = True
+                message = (
+                    f"no cost reduction possible with a step above xtol = {xtol:g} "
+                    "(relative to |theta|)"
+                )
+                break
+            mu *= nu
+            nu *= 2.0
+        if converged:
+            break
+        if not accepted:
+            message = (
+                f"no trial step reduced the cost after {_MAX_REJECTIONS} increases of the "
+                "damping; the best iterate is kept"
+            )
+            break
+    if not converged and not message:
+        message = (
+            f"maximum number of iterations ({max_iterations}) reached before the ftol, xtol "
+            "or gtol test was met; the best iterate is kept"
+        )
+    return LMResult(
+        theta=theta,
+        residuals=r,
+        jacobian=jac,
+        cost=ssr / n,
+        n_iterations=iteration,
+        converged=converged,
+        message=message,
+    )
+
+
+def parameter_std_errors(jacobian: FloatArray, residuals: FloatArray) -> FloatArray:
+    """Standard errors ``sqrt(diag(s^2 (J'J)^-1))`` of least-squares parameters.
+
+    Parameters
+    ----------
+    jacobian :
+        ``dr/dtheta`` at the optimum, shape ``(N, p)``.
+    residuals :
+        Residuals at the optimum, shape ``(N,)``.
+
+    Returns
+    -------
+    FloatArray
+        Shape ``(p,)``. ``s^2 = sum r^2 / (N - p)``.
+
+    Notes
+    -----
+    ``(J'J)^-1`` is formed from the SVD ``J = U S V'`` as ``V S^-2 V'``. Singular
+    values below ``max(N, p) * eps * S_max`` mark unidentifiable directions: every
+    parameter with a component above ``sqrt(eps)`` along such a direction gets an
+    infinite standard error, the others keep their finite value. With ``N <= p``
+    every entry is infinite (no residual degrees of freedom).
+    """
+    jac = np.asarray(jacobian, dtype=float)
+    r = np.asarray(residuals, dtype=float)
+    n, p = jac.shape
+    if n <= p:
+        return np.full(p, np.inf)
+    s2 = float(r @ r) / (n - p)
+    _, sing, vt = np.linalg.svd(jac, full_matrices=False)
+    tol = max(n, p) * np.finfo(float).eps * (float(sing[0]) if sing.size else 0.0)
+    good = sing > tol
+    if not np.any(good):
+        return np.full(p, np.inf)
+    v_good = vt[good].T
+    variances = s2 * np.sum((v_good / sing[good]) ** 2, axis=1)
+    out = np.sqrt(variances)
+    if not np.all(good):
+        v_null = vt[~good].T
+        unidentifiable = np.max(np.abs(v_null), axis=1) > np.sqrt(np.finfo(float).eps)
+        out[unidentifiable] = np.inf
+    return np.asarray(out, dtype=float)
+
+
+__all__ = ["LMResult", "levenberg_marquardt", "parameter_std_errors"]
