@@ -1,0 +1,532 @@
+"""PNG figures of the identification report, one function per figure of the paper.
+
+Every function takes plain arrays and values (never a model or a pipeline result),
+draws one `matplotlib.figure.Figure` with the Agg canvas (no pyplot, no global
+figure registry, no display needed), writes it to ``path`` as a PNG and returns the
+figure, so that tests can inspect titles, labels and lines after the fact.
+
+Every axis is labelled with its unit in brackets, using the names of `AXIS_LABELS`.
+Figures are about 1000 x 500 px at `DPI` dots per inch: readable at a glance and a
+few tens of kB each.
+
+Paper figures (Komperød et al.) and the function that draws each::
+
+    fig. 2, 7     plot_dataset            input and power versus time
+    fig. 3, 6, 18 plot_residuals          one-step residuals, stacked panels
+    fig. 4, 5     plot_outlier_zoom       residual and power around one candidate
+    fig. 8, 12,   plot_simulations        ballistic simulations against the measurement
+      13, 15
+    fig. 9, 16    plot_simulation_errors  ballistic simulation errors
+    (none)        plot_correlations       residual autocorrelation and input
+                                          cross-correlation with confidence bounds
+    (Table 3)     plot_gain_curve         instantaneous gain f'(ds) against the step gains r
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from czmpc.errors import CzmpcError
+
+#: Resolution of every PNG [dots per inch].
+DPI = 110
+#: Default size of a one-panel figure [inch].
+WIDE_FIGSIZE_IN = (9.0, 4.2)
+#: Default size of a two-panel figure [inch].
+TALL_FIGSIZE_IN = (9.0, 6.0)
+
+#: Axis labels with units, shared by all figures (and by the tests that check them).
+AXIS_LABELS: dict[str, str] = {
+    "time": "time [s]",
+    "power": "power P [kW]",
+    "power_dev": "power deviation dP [kW]",
+    "triac": "TRIAC input s [%]",
+    "triac_dev": "TRIAC deviation ds [%]",
+    "residual": "residual e [kW]",
+    "sim_error": "simulation error [kW]",
+    "lag": "lag [samples]",
+    "autocorr": "autocorrelation of e [-]",
+    "crosscorr": "cross-correlation of ds and e [-]",
+    "gain": "gain [kW/%]",
+}
+
+_MEASURED_STYLE = {"color": "black", "linewidth": 1.2, "label": "measured"}
+_PALETTE = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
+
+
+class FigureError(CzmpcError, ValueError):
+    """Arrays handed to a figure function that cannot be drawn (wrong shapes, empty)."""
+
+
+def _vector(values: object, name: str, length: int | None = None) -> np.ndarray:
+    arr = np.asarray(values, dtype=float)
+    if arr.ndim != 1 or arr.size == 0:
+        raise FigureError(f"figure input {name} must be a non-empty 1-D array; got shape {arr.shape}")
+    if length is not None and arr.size != length:
+        raise FigureError(f"figure input {name} must have {length} samples like time_s; got {arr.size}")
+    return arr
+
+
+def _new_figure(n_rows: int, *, sharex: bool = True) -> tuple[Figure, list[Axes]]:
+    fig = Figure(figsize=WIDE_FIGSIZE_IN if n_rows == 1 else TALL_FIGSIZE_IN, dpi=DPI,
+                 layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(n_rows, 1, sharex=sharex, squeeze=False)[:, 0]
+    for ax in axes:
+        ax.grid(True, linewidth=0.5, alpha=0.6)
+    return fig, list(axes)
+
+
+def _save(fig: Figure, path: str | os.PathLike[str]) -> Figure:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, format="png", dpi=DPI)
+    return fig
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(values))))
+
+
+def plot_dataset(
+    time_s: Sequence[float] | np.ndarray,
+    triac_pct: Sequence[float] | np.ndarray,
+    power_kw: Sequence[float] | np.ndarray,
+    path: str | os.PathLike[str],
+    *,
+    deviation: bool = False,
+    title: str = "Identification data",
+    marked_time_s: Sequence[float] = (),
+) -> Figure:
+    """Input and power against time, two stacked panels (paper figs. 2 and 7).
+
+    Parameters
+    ----------
+    time_s :
+        Sample times [s], shape ``(n,)``.
+    triac_pct :
+        TRIAC input ``s`` [%] (or its deviation ``ds`` when `deviation`), shape ``(n,)``.
+    power_kw :
+        Heater power ``P`` [kW] (or ``dP`` when `deviation`), shape ``(n,)``.
+    path :
+        PNG file to write.
+    deviation :
+        True if the signals are deviations from the operating point (fig. 7).
+    title :
+        Figure title.
+    marked_time_s :
+        Times [s] to mark with vertical dotted lines (for example repaired samples).
+
+    Returns
+    -------
+    Figure
+        The drawn figure (already written to `path`).
+
+    Raises
+    ------
+    FigureError
+        Arrays that are not 1-D, empty, or of different lengths.
+    """
+    t = _vector(time_s, "time_s")
+    s = _vector(triac_pct, "triac_pct", t.size)
+    p = _vector(power_kw, "power_kw", t.size)
+    fig, (ax_p, ax_s) = _new_figure(2)
+    ax_p.plot(t, p, color="tab:red", linewidth=1.0, label="dP" if deviation else "P")
+    ax_p.set_ylabel(AXIS_LABELS["power_dev" if deviation else "power"])
+    ax_s.plot(t, s, color="tab:blue", linewidth=1.0, drawstyle="steps-post",
+              label="ds" if deviation else "s")
+    ax_s.set_ylabel(AXIS_LABELS["triac_dev" if deviation else "triac"])
+    ax_s.set_xlabel(AXIS_LABELS["time"])
+    for ax in (ax_p, ax_s):
+        for tm in marked_time_s:
+            ax.axvline(tm, color="tab:purple", linestyle=":", linewidth=1.0)
+        ax.legend(loc="upper left")
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_residuals(
+    time_s: Sequence[float] | np.ndarray,
+    residuals_kw: Mapping[str, Sequence[float] | np.ndarray],
+    path: str | os.PathLike[str],
+    *,
+    title: str = "One-step-ahead prediction errors",
+    marked_time_s: Sequence[float] = (),
+    marked_label: str = "outlier candidate",
+) -> Figure:
+    """One-step residuals against time, one panel per series, same y scale (figs. 3, 6, 18).
+
+    Parameters
+    ----------
+    time_s :
+        Sample times [s], shape ``(n,)``.
+    residuals_kw :
+        Panel label -> residuals ``e`` [kW], each shape ``(n,)``. Panels are stacked
+        in the mapping's order and share both axes so that their sizes compare.
+    path :
+        PNG file to write.
+    title :
+        Figure title.
+    marked_time_s :
+        Times [s] to mark with a triangle above the largest residual there
+        (the paper's blue arrows of fig. 3).
+    marked_label :
+        Legend text of the marks.
+
+    Returns
+    -------
+    Figure
+
+    Raises
+    ------
+    FigureError
+        No series, or arrays of the wrong shape.
+    """
+    t = _vector(time_s, "time_s")
+    if not residuals_kw:
+        raise FigureError("plot_residuals needs at least one residual series; got none")
+    series = {name: _vector(v, f"residuals_kw[{name!r}]", t.size) for name, v in residuals_kw.items()}
+    fig, axes = _new_figure(len(series))
+    if len(series) > 1:
+        for ax in axes[1:]:
+            ax.sharey(axes[0])
+    marks = np.asarray(list(marked_time_s), dtype=float)
+    for i, (ax, (name, e)) in enumerate(zip(axes, series.items(), strict=True)):
+        ax.plot(t, e, color=_PALETTE[i % len(_PALETTE)], linewidth=0.8,
+                label=f"{name} (RMS {_rms(e):.3g} kW)")
+        if marks.size:
+            idx = np.clip(np.searchsorted(t, marks), 0, t.size - 1)
+            top = float(np.max(np.abs(e)))
+            ax.plot(t[idx], np.full(idx.size, 1.05 * top), linestyle="none", marker="v",
+                    markersize=9, color="tab:purple", label=marked_label)
+        ax.set_ylabel(AXIS_LABELS["residual"])
+        ax.legend(loc="upper left")
+    axes[-1].set_xlabel(AXIS_LABELS["time"])
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_outlier_zoom(
+    time_s: Sequence[float] | np.ndarray,
+    residual_kw: Sequence[float] | np.ndarray,
+    power_dev_kw: Sequence[float] | np.ndarray,
+    center_time_s: float,
+    path: str | os.PathLike[str],
+    *,
+    half_width_s: float = 60.0,
+    title: str = "Outlier candidate",
+) -> Figure:
+    """Residual (upper) and measured ``dP`` (lower) around one candidate (figs. 4, 5).
+
+    Parameters
+    ----------
+    time_s :
+        Sample times [s], shape ``(n,)``.
+    residual_kw :
+        One-step residuals ``e`` of the high-order ARX model [kW], shape ``(n,)``.
+    power_dev_kw :
+        Measured power deviation ``dP`` [kW], shape ``(n,)``.
+    center_time_s :
+        Time of the candidate [s]; the window is ``center +- half_width_s``.
+    path :
+        PNG file to write.
+    half_width_s :
+        Half width of the zoom window [s].
+    title :
+        Figure title.
+
+    Returns
+    -------
+    Figure
+
+    Raises
+    ------
+    FigureError
+        Arrays of the wrong shape, or a window holding no sample.
+    """
+    t = _vector(time_s, "time_s")
+    e = _vector(residual_kw, "residual_kw", t.size)
+    p = _vector(power_dev_kw, "power_dev_kw", t.size)
+    window = np.abs(t - center_time_s) <= half_width_s
+    if not np.any(window):
+        raise FigureError(
+            f"plot_outlier_zoom: expected samples within {half_width_s:g} s of "
+            f"{center_time_s:g} s; got none in {t[0]:g}..{t[-1]:g} s"
+        )
+    fig, (ax_e, ax_p) = _new_figure(2)
+    ax_e.plot(t[window], e[window], marker=".", color="tab:blue", linewidth=0.8, label="e")
+    ax_e.set_ylabel(AXIS_LABELS["residual"])
+    ax_p.plot(t[window], p[window], marker=".", color="tab:red", linewidth=0.8, label="dP")
+    ax_p.set_ylabel(AXIS_LABELS["power_dev"])
+    ax_p.set_xlabel(AXIS_LABELS["time"])
+    for ax in (ax_e, ax_p):
+        ax.axvline(center_time_s, color="tab:purple", linestyle=":", linewidth=1.0,
+                   label=f"candidate at {center_time_s:g} s")
+        ax.legend(loc="upper left")
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_simulations(
+    time_s: Sequence[float] | np.ndarray,
+    measured_kw: Sequence[float] | np.ndarray,
+    simulated_kw: Mapping[str, Sequence[float] | np.ndarray],
+    path: str | os.PathLike[str],
+    *,
+    title: str = "Ballistic simulations",
+    input_pct: Sequence[float] | np.ndarray | None = None,
+) -> Figure:
+    """Ballistic simulations of several models against the measured ``dP`` (figs. 8, 12, 13, 15).
+
+    Parameters
+    ----------
+    time_s :
+        Sample times [s], shape ``(n,)``.
+    measured_kw :
+        Measured power deviation ``dP`` [kW], shape ``(n,)``.
+    simulated_kw :
+        Legend label -> simulated ``dP`` [kW], each shape ``(n,)``. Labels should
+        carry the criterion, for example ``"OE(2,1), V = 0.043 kW^2"``.
+    path :
+        PNG file to write.
+    title :
+        Figure title.
+    input_pct :
+        TRIAC deviation ``ds`` [%], shape ``(n,)``; if given, drawn in a lower panel.
+
+    Returns
+    -------
+    Figure
+
+    Raises
+    ------
+    FigureError
+        No simulation, or arrays of the wrong shape.
+    """
+    t = _vector(time_s, "time_s")
+    y = _vector(measured_kw, "measured_kw", t.size)
+    if not simulated_kw:
+        raise FigureError("plot_simulations needs at least one simulated series; got none")
+    sims = {name: _vector(v, f"simulated_kw[{name!r}]", t.size) for name, v in simulated_kw.items()}
+    fig, axes = _new_figure(1 if input_pct is None else 2)
+    ax = axes[0]
+    ax.plot(t, y, **_MEASURED_STYLE)  # type: ignore[arg-type]
+    for i, (name, sim) in enumerate(sims.items()):
+        ax.plot(t, sim, color=_PALETTE[i % len(_PALETTE)], linewidth=1.0,
+                linestyle=("--", "-.", ":", (0, (5, 1)))[i % 4], label=name)
+    ax.set_ylabel(AXIS_LABELS["power_dev"])
+    ax.legend(loc="upper left")
+    if input_pct is not None:
+        u = _vector(input_pct, "input_pct", t.size)
+        axes[1].plot(t, u, color="tab:gray", linewidth=1.0, drawstyle="steps-post", label="ds")
+        axes[1].set_ylabel(AXIS_LABELS["triac_dev"])
+        axes[1].legend(loc="upper left")
+    axes[-1].set_xlabel(AXIS_LABELS["time"])
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_simulation_errors(
+    time_s: Sequence[float] | np.ndarray,
+    errors_kw: Mapping[str, Sequence[float] | np.ndarray],
+    path: str | os.PathLike[str],
+    *,
+    title: str = "Ballistic simulation errors",
+) -> Figure:
+    """Ballistic simulation errors ``eps = dP - dP_sim`` against time (figs. 9, 16).
+
+    Parameters
+    ----------
+    time_s :
+        Sample times [s], shape ``(n,)``.
+    errors_kw :
+        Legend label -> simulation error [kW], each shape ``(n,)``; the legend adds
+        each series' mean square (the criterion ``V`` of eq. 9).
+    path :
+        PNG file to write.
+    title :
+        Figure title.
+
+    Returns
+    -------
+    Figure
+
+    Raises
+    ------
+    FigureError
+        No series, or arrays of the wrong shape.
+    """
+    t = _vector(time_s, "time_s")
+    if not errors_kw:
+        raise FigureError("plot_simulation_errors needs at least one error series; got none")
+    errs = {name: _vector(v, f"errors_kw[{name!r}]", t.size) for name, v in errors_kw.items()}
+    fig, (ax,) = _new_figure(1)
+    ax.axhline(0.0, color="black", linewidth=0.8)
+    for i, (name, eps) in enumerate(errs.items()):
+        ax.plot(t, eps, color=_PALETTE[i % len(_PALETTE)], linewidth=1.0,
+                label=f"{name} (V = {np.mean(eps ** 2):.3g} kW^2)")
+    ax.set_ylabel(AXIS_LABELS["sim_error"])
+    ax.set_xlabel(AXIS_LABELS["time"])
+    ax.legend(loc="upper left")
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_correlations(
+    lags_steps: Sequence[float] | np.ndarray,
+    autocorr: Sequence[float] | np.ndarray,
+    autocorr_bound: float,
+    cross_lags_steps: Sequence[float] | np.ndarray,
+    crosscorr: Sequence[float] | np.ndarray,
+    crosscorr_bound: float,
+    path: str | os.PathLike[str],
+    *,
+    title: str = "Residual tests",
+    confidence: float = 0.99,
+) -> Figure:
+    """Residual autocorrelation (upper) and input-residual cross-correlation (lower).
+
+    The whiteness and independence tests of a fitted model (Ljung 1999, sec. 16.6):
+    bars outside the dashed bands ``+-bound`` reject the hypothesis at the given
+    confidence. Lag 0 of the autocorrelation (always 1) is left out so that the
+    scale shows the lags that matter.
+
+    Parameters
+    ----------
+    lags_steps :
+        Lags of the autocorrelation [samples], shape ``(m,)``.
+    autocorr :
+        Normalized autocorrelation of the residuals at those lags [-], shape ``(m,)``.
+    autocorr_bound :
+        Half width of its confidence band [-].
+    cross_lags_steps :
+        Lags of the cross-correlation [samples], shape ``(m2,)`` (may be negative).
+    crosscorr :
+        Normalized cross-correlation of input and residuals [-], shape ``(m2,)``.
+    crosscorr_bound :
+        Half width of its confidence band [-].
+    path :
+        PNG file to write.
+    title :
+        Figure title.
+    confidence :
+        Confidence level of the bands, for the legend [-].
+
+    Returns
+    -------
+    Figure
+
+    Raises
+    ------
+    FigureError
+        Arrays of the wrong shape or a negative or non-finite bound.
+    """
+    lags = _vector(lags_steps, "lags_steps")
+    r_ee = _vector(autocorr, "autocorr", lags.size)
+    xlags = _vector(cross_lags_steps, "cross_lags_steps")
+    r_ue = _vector(crosscorr, "crosscorr", xlags.size)
+    for name, bound in (("autocorr_bound", autocorr_bound), ("crosscorr_bound", crosscorr_bound)):
+        if not (np.isfinite(bound) and bound >= 0):
+            raise FigureError(f"plot_correlations: {name} must be finite and >= 0; got {bound!r}")
+    keep = lags != 0
+    lags, r_ee = lags[keep], r_ee[keep]
+    if lags.size == 0:
+        raise FigureError("plot_correlations: autocorrelation needs a lag other than 0; got only lag 0")
+    fig, axes = _new_figure(2, sharex=False)
+    panels = (
+        (axes[0], lags, r_ee, autocorr_bound, "autocorr", "residual e"),
+        (axes[1], xlags, r_ue, crosscorr_bound, "crosscorr", "input ds -> residual e"),
+    )
+    for ax, x, r, bound, key, name in panels:
+        outside = np.abs(r) > bound
+        ax.vlines(x, 0.0, r, color="tab:blue", linewidth=1.5, label=name)
+        ax.plot(x[outside], r[outside], linestyle="none", marker="o", color="tab:red",
+                markersize=4, label=f"outside band ({int(outside.sum())} of {r.size})")
+        ax.axhline(bound, color="tab:gray", linestyle="--", linewidth=1.0,
+                   label=f"{100 * confidence:g} % band +-{bound:.3g}")
+        ax.axhline(-bound, color="tab:gray", linestyle="--", linewidth=1.0)
+        ax.axhline(0.0, color="black", linewidth=0.6)
+        ax.set_ylabel(AXIS_LABELS[key])
+        ax.set_xlabel(AXIS_LABELS["lag"])
+        ax.legend(loc="upper right")
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_gain_curve(
+    ds_grid_pct: Sequence[float] | np.ndarray,
+    gain_kw_per_pct: Mapping[str, Sequence[float] | np.ndarray],
+    path: str | os.PathLike[str],
+    *,
+    step_ds_pct: Sequence[float] | np.ndarray = (),
+    step_gain_kw_per_pct: Sequence[float] | np.ndarray = (),
+    title: str = "Instantaneous gain of the input nonlinearity",
+) -> Figure:
+    """Instantaneous gains ``f'(ds)`` of models against the measured step gains ``r`` (Table 3).
+
+    Parameters
+    ----------
+    ds_grid_pct :
+        TRIAC deviations ``ds`` [%] to draw the curves over, shape ``(m,)``.
+    gain_kw_per_pct :
+        Legend label -> gain on that grid [kW/%], each shape ``(m,)``.
+    path :
+        PNG file to write.
+    step_ds_pct :
+        Midpoints ``ds`` of the measured input steps [%], shape ``(k,)``.
+    step_gain_kw_per_pct :
+        Measured step gains ``r`` [kW/%], shape ``(k,)``.
+    title :
+        Figure title.
+
+    Returns
+    -------
+    Figure
+
+    Raises
+    ------
+    FigureError
+        Arrays of the wrong shape.
+    """
+    grid = _vector(ds_grid_pct, "ds_grid_pct")
+    curves = {name: _vector(v, f"gain_kw_per_pct[{name!r}]", grid.size)
+              for name, v in gain_kw_per_pct.items()}
+    step_ds = np.asarray(step_ds_pct, dtype=float)
+    step_r = np.asarray(step_gain_kw_per_pct, dtype=float)
+    if step_ds.shape != step_r.shape or step_ds.ndim != 1:
+        raise FigureError(
+            "plot_gain_curve: step_ds_pct and step_gain_kw_per_pct must be 1-D of equal length; "
+            f"got shapes {step_ds.shape} and {step_r.shape}"
+        )
+    fig, (ax,) = _new_figure(1)
+    for i, (name, g) in enumerate(curves.items()):
+        ax.plot(grid, g, color=_PALETTE[i % len(_PALETTE)], linewidth=1.2, label=name)
+    if step_ds.size:
+        ax.plot(step_ds, step_r, linestyle="none", marker="o", color="black",
+                label="measured step gains r")
+    ax.set_xlabel(AXIS_LABELS["triac_dev"])
+    ax.set_ylabel(AXIS_LABELS["gain"])
+    ax.legend(loc="best")
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+__all__ = [
+    "AXIS_LABELS",
+    "DPI",
+    "FigureError",
+    "plot_correlations",
+    "plot_dataset",
+    "plot_gain_curve",
+    "plot_outlier_zoom",
+    "plot_residuals",
+    "plot_simulation_errors",
+    "plot_simulations",
+]
