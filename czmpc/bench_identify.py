@@ -1,0 +1,444 @@
+"""Benchmark of the identification pipeline: wall time per stage, machine, optional SIPPY peer.
+
+Runs `sysid.pipeline.run_paper_pipeline` on one data set several times, takes the
+median wall time of every stage and of the whole run, records the machine (cores, CPU
+model, Python and library versions) and, on request, fits the paper's linear models
+with SIPPY (``sippy-unipi``, the ``bench`` extra) on the same preprocessed data so that
+times and criteria can be set side by side. The numbers go to stdout and into the
+``## Identification pipeline`` section of BENCHMARKS.md (`write_benchmarks_section`).
+
+SIPPY is imported inside `run_sippy_comparison` only; without it the comparison
+reports why it was skipped.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+import os
+import platform
+import statistics
+import time
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from czmpc.errors import CzmpcError
+
+#: Goal of issue 3: the whole pipeline on the shipped 12,000 samples, this machine [s].
+PIPELINE_GOAL_S = 2.0
+#: Heading of this benchmark's section in BENCHMARKS.md (other sections are kept).
+SECTION_HEADING = "## Identification pipeline"
+
+
+@dataclass(frozen=True, kw_only=True)
+class MachineInfo:
+    """The machine a benchmark ran on.
+
+    Parameters
+    ----------
+    n_cpus :
+        Logical cores available (``os.cpu_count``, what ``nproc`` prints without limits).
+    cpu_model :
+        ``model name`` from /proc/cpuinfo, or the platform's processor string.
+    python :
+        Python version.
+    libraries :
+        ``(name, version)`` of numpy, scipy, casadi and matplotlib (and sippy-unipi if
+        installed).
+    """
+
+    n_cpus: int
+    cpu_model: str
+    python: str
+    libraries: tuple[tuple[str, str], ...]
+
+    def describe(self) -> str:
+        """One line: cores, CPU, Python and library versions."""
+        libs = ", ".join(f"{name} {version}" for name, version in self.libraries)
+        return f"{self.n_cpus} cores ({self.cpu_model}); Python {self.python}; {libs}"
+
+
+def machine_info() -> MachineInfo:
+    """Describe this machine (cores, CPU model, Python and library versions)."""
+    from importlib import metadata
+
+    cpu_model = platform.processor() or platform.machine()
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text(encoding="utf-8").splitlines():
+            if line.startswith("model name"):
+                cpu_model = line.split(":", 1)[1].strip()
+                break
+    try:
+        n_cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        n_cpus = os.cpu_count() or 1
+    libraries = []
+    for name in ("numpy", "scipy", "casadi", "matplotlib", "sippy-unipi"):
+        try:
+            libraries.append((name, metadata.version(name)))
+        except metadata.PackageNotFoundError:
+            if name != "sippy-unipi":
+                libraries.append((name, "not installed"))
+    return MachineInfo(
+        n_cpus=n_cpus,
+        cpu_model=cpu_model,
+        python=platform.python_version(),
+        libraries=tuple(libraries),
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class StageTiming:
+    """Median and spread of one pipeline stage's wall time over the repeats.
+
+    Parameters
+    ----------
+    name :
+        Stage name as the pipeline reports it.
+    median_s :
+        Median wall time [s].
+    min_s, max_s :
+        Fastest and slowest repeat [s].
+    """
+
+    name: str
+    median_s: float
+    min_s: float
+    max_s: float
+
+
+def summarize_timings(name: str, samples_s: Sequence[float]) -> StageTiming:
+    """Median, min and max of one stage's wall times [s].
+
+    Raises
+    ------
+    CzmpcError
+        No samples, or a negative or non-finite time.
+    """
+    values = [float(v) for v in samples_s]
+    if not values or not all(math.isfinite(v) and v >= 0 for v in values):
+        raise CzmpcError(f"{name}: expected one or more finite times >= 0 [s]; got {values}")
+    return StageTiming(name=name, median_s=statistics.median(values), min_s=min(values),
+                       max_s=max(values))
+
+
+@dataclass(frozen=True, kw_only=True)
+class SippyRow:
+    """One SIPPY fit set beside ours.
+
+    Parameters
+    ----------
+    model :
+        Structure and orders, for example ``"ARX(1,2)"``.
+    sippy_time_s, ours_time_s :
+        Wall time of the SIPPY fit and of our fit of the same structure [s].
+    sippy_v_kw2, ours_v_kw2 :
+        ``V`` (eq. 9) of each model, both evaluated with `sysid.criteria` [kW^2].
+    sippy_w_kw2, ours_w_kw2 :
+        ``W`` (eq. 10), or None where it is not meaningful (OE: ``W = V``).
+    note :
+        Anything unusual (SIPPY's own method name, a failure message).
+    """
+
+    model: str
+    sippy_time_s: float | None
+    ours_time_s: float | None
+    sippy_v_kw2: float | None
+    ours_v_kw2: float | None
+    sippy_w_kw2: float | None
+    ours_w_kw2: float | None
+    note: str = ""
+
+
+@dataclass(frozen=True, kw_only=True)
+class SippyComparison:
+    """SIPPY's ARX/ARMAX/OE on our preprocessed data, or why that did not run.
+
+    Parameters
+    ----------
+    available :
+        True if SIPPY imported and ran.
+    version :
+        ``sippy-unipi`` version, or None.
+    reason :
+        Why the comparison is missing or partial (empty when all went well).
+    rows :
+        One `SippyRow` per model structure.
+    """
+
+    available: bool
+    version: str | None
+    reason: str
+    rows: tuple[SippyRow, ...] = ()
+
+
+@dataclass(frozen=True, kw_only=True)
+class BenchmarkResult:
+    """Everything `run_benchmark` measured.
+
+    Parameters
+    ----------
+    data_file :
+        The data set benchmarked.
+    n_samples :
+        Its length.
+    repeats :
+        Whole-pipeline runs timed.
+    stages :
+        Median time of every stage, in pipeline order.
+    total :
+        Median time of the whole pipeline (reading excluded).
+    read :
+        Median time of reading the CSV file.
+    machine :
+        Where it ran.
+    command :
+        The command line that produced the numbers.
+    sippy :
+        The SIPPY comparison, or None if not requested.
+    """
+
+    data_file: str
+    n_samples: int
+    repeats: int
+    stages: tuple[StageTiming, ...]
+    total: StageTiming
+    read: StageTiming
+    machine: MachineInfo
+    command: str
+    sippy: SippyComparison | None = field(default=None)
+
+    @property
+    def goal_met(self) -> bool:
+        """True if the median whole-pipeline time is below `PIPELINE_GOAL_S`."""
+        return self.total.median_s < PIPELINE_GOAL_S
+
+
+# --- SIPPY -------------------------------------------------------------------------
+
+def _linear_from_polys(
+    a: np.ndarray, b: np.ndarray, c: np.ndarray, *, block: str, ts_s: float, op: Any,
+    input_range_pct: tuple[float, float],
+) -> Any:
+    """A `HammersteinModel` of kind "linear" from unnormalized q^-1 polynomials."""
+    from sysid.model import HammersteinModel, normalize_input_gain
+
+    a = np.asarray(a, dtype=float)
+    b_norm, poly = normalize_input_gain(np.asarray(b, dtype=float), np.array([1.0]))
+    return HammersteinModel(
+        kind="linear", linear_block=block, ts_s=ts_s,  # type: ignore[arg-type]
+        operating_point=op, a=a / a[0], b=b_norm,
+        c=(a / a[0]) if block == "oe" else np.asarray(c, dtype=float) / c[0],
+        input_poly=poly, noise_std_kw=0.0, input_range_pct=input_range_pct,
+    )
+
+
+def _tf_coefficients(tf: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Numerator and denominator of a SISO python-control transfer function in q^-1.
+
+    python-control stores descending powers of z; with equal lengths (padded) they read
+    as ascending powers of q^-1.
+    """
+    num = np.atleast_1d(np.squeeze(np.asarray(tf.num[0][0], dtype=float)))
+    den = np.atleast_1d(np.squeeze(np.asarray(tf.den[0][0], dtype=float)))
+    n = max(num.size, den.size)
+    num = np.concatenate([np.zeros(n - num.size), num])
+    den = np.concatenate([np.zeros(n - den.size), den])
+    first = int(np.flatnonzero(den)[0])
+    return num[first:], den[first:]
+
+
+#: SIPPY's orders for the paper's models. SIPPY's delay ``theta`` counts samples
+#: *beyond* the one-sample delay its polynomials already have, so the paper's
+#: ``nk = 1`` is ``theta = 0``.
+SIPPY_CASES: tuple[tuple[str, str, dict[str, Any]], ...] = (
+    ("ARX(1,2)", "ARX", {"ARX_orders": [1, 2, 0]}),
+    ("ARMAX(1,2,1)", "ARMAX", {"ARMAX_orders": [1, 2, 1, 0]}),
+    ("OE(2,1)", "OE", {"OE_orders": [2, 1, 0]}),
+)
+
+
+def run_sippy_comparison(
+    data: Any,
+    *,
+    operating_point: Any,
+    ours: dict[str, tuple[float | None, float | None, float | None]],
+) -> SippyComparison:
+    """Fit the paper's ARX(1,2), ARMAX(1,2,1), OE(2,1) with SIPPY and score them like ours.
+
+    Parameters
+    ----------
+    data :
+        The preprocessed `sysid.data.Dataset` (absolute units) our linear fits used.
+    operating_point :
+        The `sysid.model.OperatingPoint` of the deviations.
+    ours :
+        Model label (as in `SIPPY_CASES`) -> ``(time_s, V, W)`` of our fit.
+
+    Returns
+    -------
+    SippyComparison
+        ``available=False`` with the reason if SIPPY is not installed or fails as a
+        whole; a row with a note for a structure it cannot fit.
+
+    Notes
+    -----
+    Both sides are scored with `sysid.criteria.ballistic_mse` and `one_step_mse`, that
+    is with the same held-past initial conditions, so the numbers compare. SIPPY
+    prints to stdout; that output is swallowed.
+    """
+    from importlib import metadata
+
+    from sysid.criteria import ballistic_mse, one_step_mse
+    from sysid.errors import UnstableModelError
+
+    try:
+        import sippy_unipi
+    except ImportError as exc:
+        return SippyComparison(available=False, version=None,
+                               reason=f"sippy-unipi is not installed ({exc}); "
+                                      "install the 'bench' extra to compare")
+    version = metadata.version("sippy-unipi")
+    ds = np.asarray(data.triac_pct, dtype=float) - operating_point.triac_pct
+    dp = np.asarray(data.power_kw, dtype=float) - operating_point.power_kw
+    span = (float(np.min(data.triac_pct)), float(np.max(data.triac_pct)))
+    rows = []
+    for label, method, orders in SIPPY_CASES:
+        ours_t, ours_v, ours_w = ours.get(label, (None, None, None))
+        t0 = time.perf_counter()
+        elapsed: float | None = None
+        try:
+            with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                fitted = sippy_unipi.system_identification(
+                    dp, ds, method, tsample=data.ts_s, **orders)
+            elapsed = time.perf_counter() - t0
+            num, den = _tf_coefficients(fitted.G)
+            hnum, hden = _tf_coefficients(fitted.H)
+            block = {"ARX": "arx", "ARMAX": "armax", "OE": "oe"}[method]
+            model = _linear_from_polys(den, num, hnum, block=block, ts_s=data.ts_s,
+                                       op=operating_point, input_range_pct=span)
+            v = ballistic_mse(model, data)
+            w = None if block == "oe" else one_step_mse(model, data)
+            rows.append(SippyRow(model=label, sippy_time_s=elapsed, ours_time_s=ours_t,
+                                 sippy_v_kw2=v, ours_v_kw2=ours_v, sippy_w_kw2=w,
+                                 ours_w_kw2=None if block == "oe" else ours_w,
+                                 note=f"SIPPY {method}"))
+        except UnstableModelError as exc:
+            rows.append(SippyRow(model=label, sippy_time_s=elapsed, ours_time_s=ours_t,
+                                 sippy_v_kw2=None, ours_v_kw2=ours_v, sippy_w_kw2=None,
+                                 ours_w_kw2=ours_w,
+                                 note=f"SIPPY {method} returned an unstable model: {exc}"))
+        except (Exception, SystemExit) as exc:  # SIPPY calls sys.exit on bad options
+            rows.append(SippyRow(model=label, sippy_time_s=None, ours_time_s=ours_t,
+                                 sippy_v_kw2=None, ours_v_kw2=ours_v, sippy_w_kw2=None,
+                                 ours_w_kw2=ours_w,
+                                 note=f"SIPPY failed: {type(exc).__name__}: {exc}"[:200]))
+    failed = [r.model for r in rows if r.sippy_v_kw2 is None]
+    return SippyComparison(
+        available=len(failed) < len(rows), version=version,
+        reason="" if not failed else f"SIPPY gave no usable model for {', '.join(failed)}",
+        rows=tuple(rows),
+    )
+
+
+# --- BENCHMARKS.md -----------------------------------------------------------------
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def format_report(result: BenchmarkResult) -> str:
+    """The benchmark's numbers as Markdown (stdout and BENCHMARKS.md share it)."""
+    lines = [
+        f"Command: `{result.command}`",
+        "",
+        f"Data: `{result.data_file}`, {result.n_samples} samples; {result.repeats} repeats, "
+        "median [min .. max] wall time per stage.",
+        "",
+        f"Machine: {result.machine.describe()}",
+        "",
+        "| stage | median [s] | min [s] | max [s] |",
+        "|---|---:|---:|---:|",
+        f"| read CSV | {result.read.median_s:.3f} | {result.read.min_s:.3f} | {result.read.max_s:.3f} |",
+    ]
+    for st in result.stages:
+        lines.append(f"| {st.name} | {st.median_s:.3f} | {st.min_s:.3f} | {st.max_s:.3f} |")
+    t = result.total
+    lines.append(f"| **whole pipeline** | **{t.median_s:.3f}** | {t.min_s:.3f} | {t.max_s:.3f} |")
+    lines += [
+        "",
+        f"Goal: whole pipeline under {PIPELINE_GOAL_S:g} s on this machine: "
+        + ("**met**" if result.goal_met else "**not met**")
+        + f" (median {t.median_s:.3f} s).",
+    ]
+    sippy = result.sippy
+    if sippy is not None:
+        lines += ["", f"### SIPPY comparison (sippy-unipi {sippy.version or 'not installed'})", ""]
+        if sippy.reason:
+            lines += [f"Note: {sippy.reason}.", ""]
+        if sippy.rows:
+            lines += [
+                "Same preprocessed data, same orders (delay 1), both scored with "
+                "`sysid.criteria` (held-past initial conditions). Times are single fits.",
+                "",
+                "| model | SIPPY time [s] | our time [s] | time ratio SIPPY/ours | "
+                "SIPPY V [kW^2] | our V [kW^2] | SIPPY W [kW^2] | our W [kW^2] | note |",
+                "|---|---:|---:|---:|---:|---:|---:|---:|---|",
+            ]
+            for r in sippy.rows:
+                ratio = (r.sippy_time_s / r.ours_time_s
+                         if r.sippy_time_s is not None and r.ours_time_s else None)
+                lines.append(
+                    f"| {r.model} | {_fmt(r.sippy_time_s, '.3f')} | {_fmt(r.ours_time_s, '.3f')} | "
+                    f"{_fmt(ratio, '.1f')} | {_fmt(r.sippy_v_kw2, '.4g')} | {_fmt(r.ours_v_kw2, '.4g')} | "
+                    f"{_fmt(r.sippy_w_kw2, '.3g')} | {_fmt(r.ours_w_kw2, '.3g')} | {r.note} |"
+                )
+    return "\n".join(lines) + "\n"
+
+
+def write_benchmarks_section(path: str | os.PathLike[str], body: str) -> None:
+    """Put ``body`` under `SECTION_HEADING` in a BENCHMARKS.md, keeping other sections.
+
+    The section runs from its heading to the next ``## `` heading (or the end). A
+    missing file is created with a title; a missing section is appended.
+    """
+    path = Path(path)
+    text = path.read_text(encoding="utf-8") if path.exists() else "# Benchmarks\n"
+    section = f"{SECTION_HEADING}\n\n{body.rstrip()}\n"
+    lines = text.splitlines(keepends=True)
+    start = next((i for i, ln in enumerate(lines) if ln.rstrip() == SECTION_HEADING), None)
+    if start is None:
+        new = text.rstrip("\n") + "\n\n" + section
+    else:
+        stop = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")),
+                    len(lines))
+        tail = "".join(lines[stop:])
+        new = "".join(lines[:start]) + section + ("\n" + tail if tail else "")
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_text(new, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+ProgressCallback = Callable[[str, float], None]
+
+__all__ = [
+    "PIPELINE_GOAL_S",
+    "SECTION_HEADING",
+    "BenchmarkResult",
+    "MachineInfo",
+    "SippyComparison",
+    "SippyRow",
+    "StageTiming",
+    "format_report",
+    "machine_info",
+    "run_sippy_comparison",
+    "summarize_timings",
+    "write_benchmarks_section",
+]
