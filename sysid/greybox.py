@@ -1,0 +1,771 @@
+"""Grey-box prediction-error method: fit named parameters of a state-space model.
+
+This is what MATLAB's ``idgrey`` + ``pem`` did for the paper (sec. 7.5-7.6): the
+user writes a discrete state-space model whose matrices are CasADi expressions of
+named parameters, says which parameters are free and how the model's input vector is
+formed from the measured input, and `fit_greybox` minimizes the ballistic criterion
+``V`` (eq. 9) or the one-step criterion ``W`` (eq. 10) with Levenberg-Marquardt.
+Derivatives are exact: the record is run by one CasADi ``mapaccum`` (the loop over
+samples runs in CasADi's virtual machine, not in Python) and the Jacobian of the
+residual sequence comes from forward-mode sensitivities, one direction per free
+parameter.
+
+Notation
+--------
+The model is in innovations form (Ljung 1999, sec. 4.3)::
+
+    x_{k+1} = A(theta) x_k + B(theta) u_k + K(theta) e_k
+    y_k     = C(theta) x_k + D(theta) u_k + e_k
+
+* ``y`` : measured output as deviation from the operating point (``dP`` [kW]).
+* ``u`` : model input vector, formed from the measured input by a fixed map (for
+  eq. 26: ``u = [ds^2, ds]`` with ``ds`` the TRIAC deviation [%]).
+* ``e`` : innovation (one-step-ahead prediction error) [kW].
+* ``theta`` : the named parameters, free or fixed.
+
+Criteria: ``"ballistic"`` ignores ``K`` and simulates ``x_{k+1} = A x_k + B u_k``,
+residual ``eps_k = y_k - C x_k - D u_k`` (eq. 9); ``"one_step"`` runs the predictor
+``x_{k+1} = A x_k + B u_k + K (y_k - C x_k - D u_k)``, residual ``e_k`` (eq. 10).
+The minimized cost is the mean square of the residuals.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
+
+import casadi as ca
+import numpy as np
+
+from sysid._typing import FloatArray
+from sysid.errors import IdentificationError, IdentificationWarning
+from sysid.optimize import LMResult, levenberg_marquardt, parameter_std_errors
+
+GreyBoxCriterion = Literal["ballistic", "one_step"]
+InitialState = Literal["steady", "estimate"]
+
+#: ``matrices(p)`` returns ``(A, B, C, D, K)``; ``D`` and ``K`` may be None (zero).
+MatrixBuilder = Callable[[Mapping[str, Any]], tuple[Any, Any, Any, Any, Any]]
+#: ``input_map(measured)`` returns the model input, shape ``(n_samples, n_inputs)``.
+InputMap = Callable[[FloatArray], FloatArray]
+#: ``project(theta_all)`` returns admissible parameter values (same shape).
+Projection = Callable[[FloatArray], FloatArray]
+
+
+def _as_tuple(values: Sequence[Any] | None, n: int, fill: Any, name: str) -> tuple[Any, ...]:
+    if values is None:
+        return (fill,) * n
+    out = tuple(values)
+    if len(out) != n:
+        raise IdentificationError(
+            f"GreyBoxStructure.{name} must have one entry per parameter ({n}); got {len(out)}"
+        )
+    return out
+
+
+@dataclass(frozen=True, kw_only=True)
+class GreyBoxStructure:
+    """A parameterized state-space model in innovations form (the ``idgrey`` of MATLAB).
+
+    Parameters
+    ----------
+    parameter_names :
+        Unique names of all parameters, fixed and free, in a fixed order.
+    initial_values :
+        Initial (or, for fixed parameters, the fixed) values, one per name.
+    free :
+        Which parameters the fit may change; default: all.
+    lower, upper :
+        Bounds per parameter (``-inf``/``inf`` for none); default: unbounded.
+    matrices :
+        ``matrices(p) -> (A, B, C, D, K)`` where ``p`` maps each parameter name to a
+        CasADi scalar symbol; written with CasADi operations (``ca.vertcat``,
+        ``ca.blockcat``, arithmetic). Shapes: ``A`` (n_x, n_x), ``B`` (n_x, n_u),
+        ``C`` (1, n_x), ``D`` (1, n_u) or None, ``K`` (n_x, 1) or None.
+    input_map :
+        Maps the measured input, shape ``(n_samples,)``, to the model input, shape
+        ``(n_samples, n_u)``; it must not depend on the parameters. Default: the
+        measured input itself (``n_u = 1``). For eq. 26 it is
+        ``lambda ds: np.column_stack([ds**2, ds])``.
+    project :
+        Optional map from all parameter values to admissible ones (for example,
+        mirroring unstable roots), applied to every trial point of the search.
+    name :
+        Label used in messages.
+
+    Raises
+    ------
+    IdentificationError
+        Duplicate or missing names, lengths that do not match, non-finite initial
+        values, inverted bounds, or initial values outside the bounds.
+
+    Examples
+    --------
+    A first-order output-error model ``y = b q^-1 / (1 + f q^-1) u``:
+
+    >>> import casadi as ca
+    >>> s = GreyBoxStructure(parameter_names=("f", "b"), initial_values=(-0.5, 1.0),
+    ...     matrices=lambda p: (ca.reshape(-p["f"], 1, 1), ca.reshape(p["b"], 1, 1),
+    ...                         ca.DM.ones(1, 1), None, None))
+    >>> s.n_free
+    2
+    """
+
+    parameter_names: tuple[str, ...]
+    initial_values: tuple[float, ...]
+    matrices: MatrixBuilder = field(repr=False)
+    free: tuple[bool, ...] | None = None
+    lower: tuple[float, ...] | None = None
+    upper: tuple[float, ...] | None = None
+    input_map: InputMap | None = field(default=None, repr=False)
+    project: Projection | None = field(default=None, repr=False)
+    name: str = "grey-box"
+
+    def __post_init__(self) -> None:
+        names = tuple(str(n) for n in self.parameter_names)
+        n = len(names)
+        if n == 0:
+            raise IdentificationError("GreyBoxStructure.parameter_names must not be empty")
+        if len(set(names)) != n:
+            dup = next(x for x in names if names.count(x) > 1)
+            raise IdentificationError(
+                f"GreyBoxStructure.parameter_names must be unique; got {dup!r} twice"
+            )
+        values = tuple(float(v) for v in _as_tuple(self.initial_values, n, 0.0, "initial_values"))
+        free = tuple(bool(v) for v in _as_tuple(self.free, n, True, "free"))
+        lower = tuple(float(v) for v in _as_tuple(self.lower, n, -math.inf, "lower"))
+        upper = tuple(float(v) for v in _as_tuple(self.upper, n, math.inf, "upper"))
+        for name, v, lo, hi in zip(names, values, lower, upper, strict=True):
+            if not math.isfinite(v):
+                raise IdentificationError(
+                    f"GreyBoxStructure: initial value of {name!r} must be finite; got {v}"
+                )
+            if not lo < hi:
+                raise IdentificationError(
+                    f"GreyBoxStructure: bounds of {name!r} must satisfy lower < upper; "
+                    f"got [{lo}, {hi}]"
+                )
+            if not lo <= v <= hi:
+                raise IdentificationError(
+                    f"GreyBoxStructure: initial value of {name!r} must lie in [{lo}, {hi}]; got {v}"
+                )
+        if not callable(self.matrices):
+            raise IdentificationError(
+                f"GreyBoxStructure.matrices must be callable; got {type(self.matrices).__name__}"
+            )
+        object.__setattr__(self, "parameter_names", names)
+        object.__setattr__(self, "initial_values", values)
+        object.__setattr__(self, "free", free)
+        object.__setattr__(self, "lower", lower)
+        object.__setattr__(self, "upper", upper)
+
+    @property
+    def n_parameters(self) -> int:
+        """Number of parameters, fixed and free."""
+        return len(self.parameter_names)
+
+    @property
+    def free_mask(self) -> tuple[bool, ...]:
+        """Which parameters are free (normalized `free`)."""
+        return self.free if self.free is not None else (True,) * self.n_parameters
+
+    @property
+    def n_free(self) -> int:
+        """Number of free parameters."""
+        return sum(self.free_mask)
+
+    def with_initial_values(self, values: Mapping[str, float]) -> GreyBoxStructure:
+        """Return a copy with some initial (or fixed) values replaced, by name."""
+        unknown = set(values) - set(self.parameter_names)
+        if unknown:
+            raise IdentificationError(
+                f"{self.name}: unknown parameter name(s) {sorted(unknown)}; "
+                f"expected some of {list(self.parameter_names)}"
+            )
+        new = tuple(
+            float(values.get(n, v)) for n, v in zip(self.parameter_names, self.initial_values,
+                                                    strict=True)
+        )
+        return replace(self, initial_values=new)
+
+    def with_free(self, names: Sequence[str]) -> GreyBoxStructure:
+        """Return a copy where exactly the named parameters are free (the rest fixed)."""
+        unknown = set(names) - set(self.parameter_names)
+        if unknown:
+            raise IdentificationError(
+                f"{self.name}: unknown parameter name(s) {sorted(unknown)}; "
+                f"expected some of {list(self.parameter_names)}"
+            )
+        return replace(self, free=tuple(n in names for n in self.parameter_names))
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class GreyBoxResult:
+    """Outcome of `fit_greybox`.
+
+    Parameters
+    ----------
+    structure :
+        The structure that was fitted (with its initial values).
+    criterion :
+        ``"ballistic"`` (V, eq. 9) or ``"one_step"`` (W, eq. 10).
+    parameter_names :
+        All parameter names, as in the structure.
+    parameters :
+        Final values of all parameters (fixed ones unchanged).
+    std_errors :
+        Standard errors from the final Jacobian, ``sqrt(diag(s^2 (J'J)^-1))``; 0.0 for
+        fixed parameters, ``inf`` for free ones the data cannot determine.
+    free :
+        Which parameters were free.
+    initial_state :
+        The initial state used, shape ``(n_x,)`` (steady state at the final
+        parameters, or the estimated one).
+    residuals :
+        Final residual sequence ``eps_k`` or ``e_k``, shape ``(n_samples,)``.
+    criterion_value :
+        Mean square of `residuals` (the V or W of the fit).
+    n_iterations :
+        Levenberg-Marquardt iterations used.
+    converged :
+        Whether the optimizer met its convergence test.
+    message :
+        The optimizer's reason for stopping.
+    raw :
+        The optimizer's own result, for experts.
+    """
+
+    structure: GreyBoxStructure = field(repr=False)
+    criterion: GreyBoxCriterion
+    parameter_names: tuple[str, ...]
+    parameters: FloatArray
+    std_errors: FloatArray
+    free: tuple[bool, ...]
+    initial_state: FloatArray
+    residuals: FloatArray = field(repr=False)
+    criterion_value: float
+    n_iterations: int
+    converged: bool
+    message: str
+    raw: LMResult | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        for name in ("parameters", "std_errors", "initial_state", "residuals"):
+            arr = np.array(getattr(self, name), dtype=float, copy=True)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+    def value(self, name: str) -> float:
+        """Final value of the parameter called ``name``."""
+        return float(self.parameters[self.parameter_names.index(name)])
+
+    def std_error(self, name: str) -> float:
+        """Standard error of the parameter called ``name`` (0.0 if it was fixed)."""
+        return float(self.std_errors[self.parameter_names.index(name)])
+
+    def as_dict(self) -> dict[str, float]:
+        """``{name: value}`` of all parameters."""
+        return {n: float(v) for n, v in zip(self.parameter_names, self.parameters, strict=True)}
+
+
+# --------------------------------------------------------------------------- building
+def _to_sx(value: Any, shape: tuple[int, int], what: str, structure: GreyBoxStructure) -> ca.SX:
+    if value is None:
+        return ca.SX.zeros(*shape)
+    if isinstance(value, (ca.SX, ca.DM)):
+        sx = ca.SX(value)
+    else:
+        arr = np.asarray(value, dtype=object)
+        if arr.ndim == 0:
+            arr = arr.reshape(1, 1)
+        if arr.ndim == 1:
+            arr = arr.reshape(shape) if arr.size == shape[0] * shape[1] else arr.reshape(1, -1)
+        rows = [ca.horzcat(*[ca.SX(v) for v in row]) for row in arr]
+        sx = ca.vertcat(*rows)
+    if sx.shape != shape:
+        raise IdentificationError(
+            f"{structure.name}: matrices() returned {what} of shape {sx.shape}; expected {shape}"
+        )
+    return sx
+
+
+@dataclass(frozen=True, kw_only=True)
+class _Matrices:
+    A: ca.SX
+    B: ca.SX
+    C: ca.SX
+    D: ca.SX
+    K: ca.SX
+    theta: ca.SX
+
+
+def _symbolic_matrices(structure: GreyBoxStructure, n_inputs: int) -> _Matrices:
+    theta = ca.SX.sym("theta", structure.n_parameters)
+    p = {n: theta[i] for i, n in enumerate(structure.parameter_names)}
+    try:
+        out = structure.matrices(p)
+    except IdentificationError:
+        raise
+    except Exception as exc:  # the user's code: report where it failed
+        raise IdentificationError(
+            f"{structure.name}: matrices() failed on symbolic parameters: {exc}"
+        ) from exc
+    if not isinstance(out, tuple) or len(out) != 5:
+        raise IdentificationError(
+            f"{structure.name}: matrices() must return (A, B, C, D, K); got {type(out).__name__}"
+        )
+    A_raw = out[0]
+    a_shape = ca.SX(A_raw).shape if isinstance(A_raw, (ca.SX, ca.DM)) else np.shape(A_raw)
+    if len(a_shape) != 2 or a_shape[0] != a_shape[1] or a_shape[0] < 1:
+        raise IdentificationError(
+            f"{structure.name}: A must be a square matrix; got shape {tuple(a_shape)}"
+        )
+    n_x = int(a_shape[0])
+    return _Matrices(
+        A=_to_sx(out[0], (n_x, n_x), "A", structure),
+        B=_to_sx(out[1], (n_x, n_inputs), "B", structure),
+        C=_to_sx(out[2], (1, n_x), "C", structure),
+        D=_to_sx(out[3], (1, n_inputs), "D", structure),
+        K=_to_sx(out[4], (n_x, 1), "K", structure),
+        theta=theta,
+    )
+
+
+#: Samples per CasADi ``mapaccum`` block. Building a ``mapaccum`` costs time that grows
+#: faster than linearly in its length (about 5 ms at 1000 samples, 100 ms at 12000 on
+#: this machine) while its per-sample cost is flat from a few hundred samples on, so
+#: long records are run as a Python loop over blocks of this many samples.
+_BLOCK_SAMPLES = 1000
+
+
+class _BlockRunner:
+    """Run a step function ``(z, u, y, *params) -> (z_next, out)`` over a record.
+
+    The record is cut into blocks of `_BLOCK_SAMPLES`; each block is one CasADi
+    ``mapaccum`` call (the per-sample loop runs inside CasADi), and the last state of a
+    block starts the next. Returns the per-sample outputs, shape ``(n_out, N)``.
+    """
+
+    def __init__(self, step: ca.Function, n_samples: int) -> None:
+        self._block = min(_BLOCK_SAMPLES, n_samples)
+        self._full = step.mapaccum("block", self._block)
+        tail = n_samples % self._block
+        self._tail = step.mapaccum("tail", tail) if tail else None
+        self._n_samples = n_samples
+
+    def __call__(
+        self, z0: FloatArray, U: FloatArray, Y: FloatArray, *params: FloatArray
+    ) -> FloatArray:
+        chunks = []
+        z = z0
+        start = 0
+        while start < self._n_samples:
+            stop = min(start + self._block, self._n_samples)
+            fun = self._full if stop - start == self._block else self._tail
+            if fun is None:  # pragma: no cover - the tail exists whenever it is needed
+                raise RuntimeError("internal: missing tail block")
+            states, out = fun(z, U[:, start:stop], Y[:, start:stop], *params)
+            chunks.append(np.asarray(out, dtype=float))
+            z = np.asarray(states[:, -1], dtype=float).ravel()
+            start = stop
+        return np.hstack(chunks)
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class _Evaluator:
+    """Residuals and exact Jacobian of one structure on one record (plain arrays).
+
+    ``theta`` below is the search vector: the free parameters, then the estimated
+    initial state (if any). ``run_with_sensitivities`` is one ``mapaccum`` over the
+    augmented step ``(x, S) -> (A x + B u (+ K e), A_eff S + dx+/dtheta)`` whose
+    per-sample outputs are ``[r_k, dr_k/dtheta]``: forward sensitivities computed in
+    the same pass as the residuals.
+    """
+
+    run: _BlockRunner                     # (x0, U, Y, theta_free, theta_fixed) -> R
+    run_with_sensitivities: _BlockRunner  # (z0, U, Y, theta_free, theta_fixed) -> [R; dR]
+    start: ca.Function                    # (theta, theta_fixed, u0, y0) -> (x0, S0)
+    steady: ca.Function                   # (theta_free, theta_fixed, u0, y0) -> x_ss
+    U: FloatArray
+    Y: FloatArray
+    theta_fixed: FloatArray
+    free: tuple[bool, ...]
+    n_states: int
+    n_estimated_states: int
+
+    def initial(self, theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Initial state ``x0`` (n_x,) and its sensitivity ``dx0/dtheta`` (n_x, q)."""
+        x0, s0 = self.start(theta, self.theta_fixed, self.U[:, 0], self.Y[0, 0])
+        return np.asarray(x0, dtype=float).ravel(), np.asarray(s0, dtype=float)
+
+    def steady_state(self, theta_free: FloatArray) -> FloatArray:
+        """Steady state for the first sample at the given free parameter values."""
+        x_ss = self.steady(theta_free, self.theta_fixed, self.U[:, 0], self.Y[0, 0])
+        return np.asarray(x_ss, dtype=float).ravel()
+
+    def residuals(self, theta: FloatArray) -> FloatArray:
+        """Residual sequence ``(N,)`` at the search vector ``theta``."""
+        x0, _ = self.initial(theta)
+        n_par = int(np.sum(self.free))
+        r = self.run(x0, self.U, self.Y, theta[:n_par], self.theta_fixed)
+        return np.asarray(r, dtype=float).ravel()
+
+    def residuals_and_jacobian(self, theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Residuals ``(N,)`` and their exact Jacobian ``(N, q)`` at ``theta``."""
+        x0, s0 = self.initial(theta)
+        z0 = np.concatenate([x0, s0.ravel(order="F")])
+        n_par = int(np.sum(self.free))
+        out = self.run_with_sensitivities(
+            z0, self.U, self.Y, theta[:n_par], self.theta_fixed
+        )
+        rows = np.asarray(out, dtype=float)
+        return rows[0].copy(), np.ascontiguousarray(rows[1:].T)
+
+
+def _build_evaluator(
+    structure: GreyBoxStructure,
+    *,
+    U: FloatArray,
+    Y: FloatArray,
+    criterion: GreyBoxCriterion,
+    initial_state: InitialState,
+) -> _Evaluator:
+    n_inputs, n_samples = U.shape
+    m = _symbolic_matrices(structure, n_inputs)
+    n_x = m.A.shape[0]
+    free = structure.free_mask
+    n_par = sum(free)
+    n_est = n_x if initial_state == "estimate" else 0
+    q = n_par + n_est
+
+    # the parameters as (free, fixed) symbols, substituted into the user's matrices
+    th_free = ca.SX.sym("theta_free", n_par)
+    th_fixed = ca.SX.sym("theta_fixed", len(free) - n_par)
+    parts = []
+    i_free = i_fixed = 0
+    for is_free in free:
+        if is_free:
+            parts.append(th_free[i_free])
+            i_free += 1
+        else:
+            parts.append(th_fixed[i_fixed])
+            i_fixed += 1
+    theta_all = ca.vertcat(*parts)
+    A, B, C, D, K = (
+        ca.substitute(mat, m.theta, theta_all) for mat in (m.A, m.B, m.C, m.D, m.K)
+    )
+
+    x = ca.SX.sym("x", n_x)
+    u = ca.SX.sym("u", n_inputs)
+    y = ca.SX.sym("y", 1)
+    residual = y - C @ x - D @ u
+    if criterion == "ballistic":
+        x_next = A @ x + B @ u
+        # steady state of x = A x + B u0 (the input held at its first value)
+        x_ss = ca.solve(ca.SX.eye(n_x) - A, B @ u)
+    else:
+        x_next = A @ x + B @ u + K @ residual
+        # steady state of the predictor with (u0, y0) held
+        x_ss = ca.solve(ca.SX.eye(n_x) - A + K @ C, (B - K @ D) @ u + K @ y)
+
+    # forward sensitivities S = dx/dtheta (n_x, q), carried with the state
+    S = ca.SX.sym("S", n_x, q)
+    pad = ca.SX.zeros(1, n_est)
+    S_next = ca.jacobian(x_next, x) @ S + ca.horzcat(
+        ca.jacobian(x_next, th_free), ca.SX.zeros(n_x, n_est)
+    )
+    d_residual = ca.jacobian(residual, x) @ S + ca.horzcat(ca.jacobian(residual, th_free), pad)
+    z = ca.vertcat(x, ca.vec(S))
+    step_sens = ca.Function(
+        "step_sens",
+        [z, u, y, th_free, th_fixed],
+        [ca.vertcat(x_next, ca.vec(S_next)), ca.vertcat(residual, ca.transpose(d_residual))],
+    )
+    step = ca.Function("step", [x, u, y, th_free, th_fixed], [x_next, residual])
+
+    if initial_state == "estimate":
+        th_est = ca.SX.sym("x0", n_est)
+        start = ca.Function(
+            "start",
+            [ca.vertcat(th_free, th_est), th_fixed, u, y],
+            [th_est, ca.horzcat(ca.SX.zeros(n_x, n_par), ca.SX.eye(n_x))],
+        )
+    else:
+        start = ca.Function(
+            "start", [th_free, th_fixed, u, y], [x_ss, ca.jacobian(x_ss, th_free)]
+        )
+    return _Evaluator(
+        run=_BlockRunner(step, n_samples),
+        run_with_sensitivities=_BlockRunner(step_sens, n_samples),
+        start=start,
+        steady=ca.Function("steady", [th_free, th_fixed, u, y], [x_ss]),
+        U=U,
+        Y=Y,
+        theta_fixed=np.asarray(structure.initial_values)[~np.asarray(free)],
+        free=free,
+        n_states=n_x,
+        n_estimated_states=n_est,
+    )
+
+
+# --------------------------------------------------------------------------- inputs
+def _model_inputs(structure: GreyBoxStructure, u: FloatArray) -> FloatArray:
+    if structure.input_map is None:
+        features = u.reshape(-1, 1) if u.ndim == 1 else u
+    else:
+        features = np.asarray(structure.input_map(u), dtype=float)
+        if features.ndim == 1:
+            features = features.reshape(-1, 1)
+    if features.ndim != 2 or features.shape[0] != u.shape[0]:
+        raise IdentificationError(
+            f"{structure.name}: input_map must return shape (n_samples, n_inputs) = "
+            f"({u.shape[0]}, n_u); got {features.shape}"
+        )
+    if not np.all(np.isfinite(features)):
+        raise IdentificationError(f"{structure.name}: input_map returned non-finite values")
+    return np.ascontiguousarray(features, dtype=float)
+
+
+def _check_signals(y: Any, u: Any, structure: GreyBoxStructure) -> tuple[FloatArray, FloatArray]:
+    y_arr = np.asarray(y, dtype=float)
+    u_arr = np.asarray(u, dtype=float)
+    if y_arr.ndim != 1:
+        raise IdentificationError(f"fit_greybox: y must be 1-D (n_samples,); got shape {y_arr.shape}")
+    if u_arr.ndim not in (1, 2) or u_arr.shape[0] != y_arr.shape[0]:
+        raise IdentificationError(
+            f"fit_greybox: u must have shape ({y_arr.shape[0]},) or ({y_arr.shape[0]}, m) like y; "
+            f"got {u_arr.shape}"
+        )
+    if not (np.all(np.isfinite(y_arr)) and np.all(np.isfinite(u_arr))):
+        raise IdentificationError(
+            "fit_greybox: y and u must be finite (repair missing samples before fitting)"
+        )
+    return y_arr, u_arr
+
+
+# --------------------------------------------------------------------------- public API
+def _prepare(
+    structure: GreyBoxStructure,
+    y: Any,
+    u: Any,
+    criterion: str,
+    initial_state: str,
+) -> _Evaluator:
+    if criterion not in ("ballistic", "one_step"):
+        raise IdentificationError(
+            f"fit_greybox: criterion must be 'ballistic' or 'one_step'; got {criterion!r}"
+        )
+    if initial_state not in ("steady", "estimate"):
+        raise IdentificationError(
+            f"fit_greybox: initial_state must be 'steady' or 'estimate'; got {initial_state!r}"
+        )
+    y_arr, u_arr = _check_signals(y, u, structure)
+    features = _model_inputs(structure, u_arr)
+    return _build_evaluator(
+        structure,
+        U=np.ascontiguousarray(features.T),
+        Y=y_arr.reshape(1, -1).copy(),
+        criterion=criterion,  # type: ignore[arg-type]
+        initial_state=initial_state,  # type: ignore[arg-type]
+    )
+
+
+def greybox_residuals(
+    structure: GreyBoxStructure,
+    y: FloatArray,
+    u: FloatArray,
+    *,
+    criterion: GreyBoxCriterion = "ballistic",
+) -> FloatArray:
+    """Residuals of a structure at its initial values (no fitting).
+
+    Parameters
+    ----------
+    structure :
+        The model; every parameter is taken at its initial value.
+    y :
+        Measured output (deviation) [kW], shape ``(n_samples,)``.
+    u :
+        Measured input (deviation), shape ``(n_samples,)`` or ``(n_samples, m)``.
+    criterion :
+        ``"ballistic"`` (simulation error, eq. 9) or ``"one_step"`` (innovations, eq. 10).
+
+    Returns
+    -------
+    FloatArray
+        Residual sequence, shape ``(n_samples,)``, started from the steady state of the
+        first sample.
+    """
+    evaluator = _prepare(structure, y, u, criterion, "steady")
+    values = np.asarray(structure.initial_values)
+    return evaluator.residuals(values[np.asarray(structure.free_mask)])
+
+
+def fit_greybox(
+    structure: GreyBoxStructure,
+    y: FloatArray,
+    u: FloatArray,
+    *,
+    criterion: GreyBoxCriterion = "ballistic",
+    initial_state: InitialState = "steady",
+    max_iterations: int = 100,
+    xtol: float = 1e-10,
+    ftol: float = 1e-12,
+    gtol: float = 1e-10,
+    warn: bool = True,
+) -> GreyBoxResult:
+    """Fit the free parameters of a grey-box structure by the prediction-error method.
+
+    Parameters
+    ----------
+    structure :
+        The parameterized model; its initial values start the search.
+    y :
+        Measured output as deviation from the operating point [kW], ``(n_samples,)``.
+    u :
+        Measured input as deviation (``ds`` [%]), ``(n_samples,)`` or
+        ``(n_samples, m)``; `GreyBoxStructure.input_map` turns it into the model input.
+    criterion :
+        ``"ballistic"``: minimize ``V`` (eq. 9), ``K`` ignored. ``"one_step"``:
+        minimize ``W`` (eq. 10) with the innovations predictor.
+    initial_state :
+        ``"steady"``: ``x_0`` is the steady state of the model (or predictor) for the
+        first sample's input (and output), a function of the parameters.
+        ``"estimate"``: ``x_0`` is estimated as ``n_x`` extra free parameters.
+    max_iterations :
+        Most Levenberg-Marquardt iterations.
+    xtol, ftol, gtol :
+        Convergence tolerances on the step, the relative cost decrease and the
+        gradient (see `sysid.optimize.levenberg_marquardt`).
+    warn :
+        Emit an `IdentificationWarning` if the search did not converge.
+
+    Returns
+    -------
+    GreyBoxResult
+        The best iterate found, its standard errors and residuals.
+
+    Raises
+    ------
+    IdentificationError
+        Bad options; ``y``/``u`` of wrong shape or non-finite; fewer samples than
+        free parameters plus one; a constant input (nothing to identify); a
+        structure whose ``matrices`` or ``input_map`` fail or return wrong shapes.
+
+    Warns
+    -----
+    IdentificationWarning
+        The search stopped before converging (the best iterate is returned, with
+        ``converged=False``).
+
+    Notes
+    -----
+    The residual sequence of the whole record is one CasADi ``mapaccum`` of the
+    one-step map ``(x_k, u_k, y_k) -> (x_{k+1}, r_k)``; its Jacobian with respect to
+    the free parameters (and the initial state if estimated) is exact, computed by
+    forward-mode sensitivities. Standard errors assume white residuals; for the
+    ballistic criterion on data with coloured noise they are optimistic.
+    """
+    if not (isinstance(max_iterations, int) and max_iterations >= 1):
+        raise IdentificationError(
+            f"fit_greybox: max_iterations must be an int >= 1; got {max_iterations!r}"
+        )
+    for tol_name, tol in (("xtol", xtol), ("ftol", ftol), ("gtol", gtol)):
+        if not (math.isfinite(tol) and tol >= 0):
+            raise IdentificationError(f"fit_greybox: {tol_name} must be finite and >= 0; got {tol}")
+    evaluator = _prepare(structure, y, u, criterion, initial_state)
+    n_samples = evaluator.Y.shape[1]
+    n_est = evaluator.n_estimated_states
+    n_unknown = structure.n_free + n_est
+    if n_unknown == 0:
+        raise IdentificationError(f"{structure.name}: no free parameter to fit")
+    if n_samples <= n_unknown:
+        raise IdentificationError(
+            f"fit_greybox: need more samples than free parameters ({n_unknown}); got {n_samples}"
+        )
+    if np.all(np.ptp(evaluator.U, axis=1) == 0.0):
+        raise IdentificationError(
+            "fit_greybox: the input never changes over the record; expected an exciting "
+            "input (steps or noise) to identify dynamics from"
+        )
+
+    free = np.asarray(structure.free_mask)
+    values = np.asarray(structure.initial_values)
+    lower = np.asarray(structure.lower)[free]
+    upper = np.asarray(structure.upper)[free]
+    theta0 = values[free]
+    if n_est:
+        theta0 = np.concatenate([theta0, evaluator.steady_state(theta0)])
+        lower = np.concatenate([lower, np.full(n_est, -np.inf)])
+        upper = np.concatenate([upper, np.full(n_est, np.inf)])
+    n_par_free = structure.n_free
+
+    def full_values(theta: FloatArray) -> FloatArray:
+        out = values.copy()
+        out[free] = theta[:n_par_free]
+        return out
+
+    project = None
+    if structure.project is not None:
+        user_project = structure.project
+
+        def project(theta: FloatArray) -> FloatArray:
+            projected = np.asarray(user_project(full_values(theta)), dtype=float)
+            out = theta.copy()
+            out[:n_par_free] = projected[free]
+            return out
+
+        theta0 = project(theta0)
+
+    lm = levenberg_marquardt(
+        evaluator.residuals_and_jacobian,
+        theta0,
+        lower=None if np.all(np.isinf(lower)) else lower,
+        upper=None if np.all(np.isinf(upper)) else upper,
+        project=project,
+        max_iterations=max_iterations,
+        xtol=xtol,
+        ftol=ftol,
+        gtol=gtol,
+    )
+    theta = np.asarray(lm.theta, dtype=float)
+    x0, _ = evaluator.initial(theta)
+    se_free = np.asarray(parameter_std_errors(lm.jacobian, lm.residuals), dtype=float)
+    std_errors = np.zeros(structure.n_parameters)
+    std_errors[free] = se_free[:n_par_free]
+    residuals = np.asarray(lm.residuals, dtype=float)
+    if warn and not lm.converged:
+        warnings.warn(
+            f"{structure.name}: the prediction-error search did not converge after "
+            f"{lm.n_iterations} iterations ({lm.message}); the best iterate is kept",
+            IdentificationWarning,
+            stacklevel=2,
+        )
+    return GreyBoxResult(
+        structure=structure,
+        criterion=criterion,
+        parameter_names=structure.parameter_names,
+        parameters=full_values(theta),
+        std_errors=std_errors,
+        free=structure.free_mask,
+        initial_state=x0,
+        residuals=residuals,
+        criterion_value=float(np.mean(residuals**2)),
+        n_iterations=int(lm.n_iterations),
+        converged=bool(lm.converged),
+        message=str(lm.message),
+        raw=lm,
+    )
+
+
+__all__ = [
+    "GreyBoxCriterion",
+    "GreyBoxResult",
+    "GreyBoxStructure",
+    "InitialState",
+    "fit_greybox",
+    "greybox_residuals",
+]
