@@ -17,13 +17,39 @@ Parameters are named after the paper's eq. 8 with the index of ``b`` equal to it
 
 from __future__ import annotations
 
+import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Literal
 
 import numpy as np
+from scipy.signal import lfilter, lfiltic
 
 from sysid._typing import FloatArray
-from sysid.errors import IdentificationError
-from sysid.optimize import parameter_std_errors
+from sysid.criteria import ballistic_mse, one_step_mse
+from sysid.data import Dataset
+from sysid.errors import IdentificationError, IdentificationWarning, UnstableModelError
+from sysid.model import (
+    Criteria,
+    HammersteinModel,
+    LinearBlock,
+    OperatingPoint,
+    Provenance,
+    normalize_input_gain,
+)
+from sysid.optimize import (
+    LMResult,
+    levenberg_marquardt,
+    parameter_std_errors,
+    sum_of_squares,
+)
+from sysid.polynomials import max_root_modulus, reflect_unstable_roots
+from sysid.result import CriterionName, IdentificationResult
+from sysid.simulate import equation_errors, simulate_arrays
+
+InitialConditions = Literal["held", "estimated"]
 
 
 def _check_order(name: str, value: object, minimum: int) -> int:
@@ -218,4 +244,713 @@ def arx_least_squares(
     )
 
 
-__all__ = ["ArxFit", "arx_least_squares", "arx_regressor", "lagged"]
+
+
+# --- prediction-error method: OE (V, eq. 9) and ARMAX (W, eq. 10) -------------------
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class PemFit:
+    """Prediction-error estimate of an OE or ARMAX model on plain arrays.
+
+    Parameters
+    ----------
+    structure :
+        ``"oe"`` (``y = B/F u + eps``, minimizes V, eq. 9) or ``"armax"``
+        (``A y = B u + C e``, minimizes W, eq. 10).
+    a :
+        ``A(q)``; for OE this is ``F(q)``.
+    b :
+        ``B(q)`` with ``nk`` leading zeros (not normalized).
+    c :
+        ``C(q)``; for OE ``C = F`` (the model-file convention, so the one-step predictor
+        is the simulation).
+    theta :
+        Model parameters: OE ``[b_nk.., f1..f_nf]``, ARMAX ``[a1.., b_nk.., c1..]``.
+    parameter_names :
+        Names of `theta` entries (``"b1"``, ``"f1"``, ...).
+    std_errors :
+        Standard errors of `theta` from the Jacobian (`parameter_std_errors`); when
+        the initial state is estimated, its parameters are part of the covariance.
+    residuals :
+        Simulation errors ``eps`` (OE) or prediction errors ``e`` (ARMAX), shape ``(N,)``.
+    cost :
+        ``mean(residuals**2)``: V (OE) or W (ARMAX) on the arrays.
+    initial_conditions :
+        ``"held"`` (the rule of `sysid.simulate`) or ``"estimated"``.
+    initial_past :
+        The past values used: OE ``[yhat_{-1}..yhat_{-nf}]``, ARMAX ``[e_{-1}..e_{-nc}]``.
+    converged, message, n_iterations :
+        From the optimizer.
+    lm :
+        The optimizer's full result.
+    """
+
+    structure: Literal["oe", "armax"]
+    a: FloatArray
+    b: FloatArray
+    c: FloatArray
+    theta: FloatArray
+    parameter_names: tuple[str, ...]
+    std_errors: FloatArray
+    residuals: FloatArray
+    cost: float
+    initial_conditions: InitialConditions
+    initial_past: FloatArray
+    converged: bool
+    message: str
+    n_iterations: int
+    lm: LMResult
+
+    def __post_init__(self) -> None:
+        for name in ("a", "b", "c", "theta", "std_errors", "residuals", "initial_past"):
+            arr = np.array(getattr(self, name), dtype=float, copy=True)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+
+def _lag_with_past(x: FloatArray, lag: int, past: FloatArray) -> FloatArray:
+    """``z[k] = x[k - lag]``, with ``x[-m] = past[m - 1]`` before the record."""
+    z = np.empty_like(x)
+    z[lag:] = x[: x.size - lag]
+    z[:lag] = past[:lag][::-1]
+    return z
+
+
+def _free_responses(den: FloatArray, n: int) -> FloatArray:
+    """Column ``j``: output of ``1/den`` for zero input from a unit past output at lag ``j+1``."""
+    order = len(den) - 1
+    zi = np.column_stack([lfiltic([1.0], den, np.eye(order)[j]) for j in range(order)])
+    out: FloatArray = lfilter([1.0], den, np.zeros((n, order)), axis=0, zi=zi)[0]
+    return out
+
+
+def _stabilizer(blocks: tuple[slice, ...]) -> Callable[[FloatArray], FloatArray]:
+    """Projection that mirrors unstable roots of the monic polynomials ``[1, theta[blk]]``."""
+
+    def project(theta: FloatArray) -> FloatArray:
+        out = np.array(theta, dtype=float, copy=True)
+        for blk in blocks:
+            poly = np.concatenate([[1.0], out[blk]])
+            if poly.size > 1 and max_root_modulus(poly) >= 1.0:
+                out[blk] = reflect_unstable_roots(poly)[1:]
+        return out
+
+    return project
+
+
+def _check_initial_conditions(value: object) -> InitialConditions:
+    if value == "held":
+        return "held"
+    if value == "estimated":
+        return "estimated"
+    raise IdentificationError(
+        f"initial_conditions must be 'held' or 'estimated'; got {value!r}"
+    )
+
+
+def _check_theta0(theta0: FloatArray | None, n_model: int, where: str) -> FloatArray | None:
+    if theta0 is None:
+        return None
+    arr = np.array(theta0, dtype=float, copy=True).reshape(-1)
+    if arr.size != n_model or not np.all(np.isfinite(arr)):
+        raise IdentificationError(
+            f"{where}: theta0 must hold {n_model} finite numbers (the model parameters in "
+            f"the order of parameter_names); got {theta0!r}"
+        )
+    return arr
+
+
+def _check_length(n: int, n_total: int, max_lag: int, where: str) -> None:
+    needed = max_lag + n_total + 1
+    if n < needed:
+        raise IdentificationError(
+            f"{where}: these orders need at least {needed} samples ({n_total} parameters "
+            f"and lags up to {max_lag}); got {n}; use a longer record or lower orders"
+        )
+
+
+def _oe_problem(
+    y: FloatArray, u: FloatArray, nb: int, nf: int, nk: int, estimate: bool
+) -> Callable[[FloatArray], tuple[FloatArray, FloatArray]]:
+    """Residuals ``eps = y - B/F u`` and their exact Jacobian via sensitivity filters.
+
+    ``d yhat/d b_j = u_{k-j} / F``, ``d yhat/d f_i = -yhat_{k-i} / F`` (zero-state
+    filters: the past values are parameters or data, independent of ``b`` and ``f``),
+    and ``d yhat/d yhat_{-j}`` is the free response of ``1/F``.
+    """
+    n = y.size
+    u_lags = np.column_stack([lagged(u, j) for j in range(nk, nk + nb)])
+    held = np.full(nf, y[0])
+
+    def fun(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+        b = np.concatenate([np.zeros(nk), theta[:nb]])
+        f = np.concatenate([[1.0], theta[nb : nb + nf]])
+        past = theta[nb + nf :] if estimate else held
+        yhat = simulate_arrays(b, f, u, y_past=past)
+        x = np.empty((n, nb + nf))
+        x[:, :nb] = u_lags
+        for i in range(1, nf + 1):
+            x[:, nb + i - 1] = -_lag_with_past(yhat, i, past)
+        sens = lfilter([1.0], f, x, axis=0)
+        if estimate and nf > 0:
+            sens = np.hstack([sens, _free_responses(f, n)])
+        return y - yhat, -sens
+
+    return fun
+
+
+def _armax_problem(
+    y: FloatArray, u: FloatArray, na: int, nb: int, nc: int, nk: int, estimate: bool
+) -> Callable[[FloatArray], tuple[FloatArray, FloatArray]]:
+    """Prediction errors ``e = (A y - B u)/C`` and their exact Jacobian.
+
+    ``de/da_i = y_{k-i}/C``, ``de/db_j = -u_{k-j}/C``, ``de/dc_i = -e_{k-i}/C`` (pasts held
+    or estimated, zero-state filters) and ``de/de_{-j}`` is the free response of ``1/C``.
+    """
+    n = y.size
+    n_model = na + nb + nc
+    data_cols = np.column_stack(
+        [lagged(y, i) for i in range(1, na + 1)] + [-lagged(u, j) for j in range(nk, nk + nb)]
+    )
+    zero_past = np.zeros(nc)
+
+    def fun(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+        a = np.concatenate([[1.0], theta[:na]])
+        b = np.concatenate([np.zeros(nk), theta[na : na + nb]])
+        c = np.concatenate([[1.0], theta[na + nb : n_model]])
+        past = theta[n_model:] if estimate else zero_past
+        v = equation_errors(a, b, y, u)
+        e = lfilter([1.0], c, v, zi=lfiltic([1.0], c, past))[0]
+        x = np.empty((n, n_model))
+        x[:, : na + nb] = data_cols
+        for i in range(1, nc + 1):
+            x[:, na + nb + i - 1] = -_lag_with_past(e, i, past)
+        sens = lfilter([1.0], c, x, axis=0)
+        if estimate and nc > 0:
+            sens = np.hstack([sens, _free_responses(c, n)])
+        return e, sens
+
+    return fun
+
+
+def _finish(
+    structure: Literal["oe", "armax"],
+    lm: LMResult,
+    n_model: int,
+    names: tuple[str, ...],
+    polys: tuple[FloatArray, FloatArray, FloatArray],
+    initial_conditions: InitialConditions,
+    held_past: FloatArray,
+) -> PemFit:
+    std = parameter_std_errors(lm.jacobian, lm.residuals)[:n_model]
+    past = lm.theta[n_model:] if initial_conditions == "estimated" else held_past
+    return PemFit(
+        structure=structure,
+        a=polys[0],
+        b=polys[1],
+        c=polys[2],
+        theta=lm.theta[:n_model],
+        parameter_names=names,
+        std_errors=std,
+        residuals=lm.residuals,
+        cost=lm.cost,
+        initial_conditions=initial_conditions,
+        initial_past=past,
+        converged=lm.converged,
+        message=lm.message,
+        n_iterations=lm.n_iterations,
+        lm=lm,
+    )
+
+
+def _oe_pem(
+    y: FloatArray,
+    u: FloatArray,
+    *,
+    nb: int,
+    nf: int,
+    nk: int,
+    theta0: FloatArray | None,
+    initial_conditions: object,
+    max_iterations: int,
+) -> PemFit:
+    nb = _check_order("nb", nb, 1)
+    nf = _check_order("nf", nf, 0)
+    nk = _check_order("nk", nk, 0)
+    ic = _check_initial_conditions(initial_conditions)
+    y, u = _check_signals(y, u, "oe_pem")
+    n_model = nb + nf
+    estimate = ic == "estimated"
+    n_total = n_model + (nf if estimate else 0)
+    _check_length(y.size, n_total, max(nf, nk + nb - 1), "oe_pem")
+    start = _check_theta0(theta0, n_model, "oe_pem")
+    if start is None:
+        arx = arx_least_squares(y, u, na=nf, nb=nb, nk=nk)
+        start = np.concatenate([arx.b[nk:], arx.a[1:]])
+    if estimate:
+        start = np.concatenate([start, np.full(nf, y[0])])
+    project = _stabilizer((slice(nb, nb + nf),))
+    lm = levenberg_marquardt(
+        _oe_problem(y, u, nb, nf, nk, estimate), start, project=project,
+        max_iterations=max_iterations,
+    )
+    f = np.concatenate([[1.0], lm.theta[nb : nb + nf]])
+    b = np.concatenate([np.zeros(nk), lm.theta[:nb]])
+    names = tuple(f"b{j}" for j in range(nk, nk + nb)) + tuple(
+        f"f{i}" for i in range(1, nf + 1)
+    )
+    return _finish("oe", lm, n_model, names, (f, b, f), ic, np.full(nf, y[0]))
+
+
+def oe_pem(
+    y: FloatArray,
+    u: FloatArray,
+    *,
+    nb: int,
+    nf: int,
+    nk: int,
+    theta0: FloatArray | None = None,
+    initial_conditions: InitialConditions = "held",
+    max_iterations: int = 100,
+) -> PemFit:
+    """Output-error model ``y = B/F u + eps`` minimizing V (paper eqs. 7, 9).
+
+    Parameters
+    ----------
+    y :
+        Output samples (deviation variables), shape ``(N,)``.
+    u :
+        Input samples (``ds`` or a Hammerstein input ``f(ds)``), shape ``(N,)``.
+    nb :
+        Number of ``B`` coefficients (>= 1).
+    nf :
+        Order of ``F`` (>= 0).
+    nk :
+        Input delay [samples] (>= 0).
+    theta0 :
+        Start ``[b_nk.., f1..f_nf]``; default: the ARX(na=nf, nb, nk) least-squares
+        estimate (its ``A`` as ``F``, its ``B``), as the paper's sec. 7.3 does.
+    initial_conditions :
+        ``"held"``: the held-past rule of `sysid.simulate` (past simulated output
+        ``= y[0]``, past input ``= u[0]``). ``"estimated"``: the ``nf`` past simulated
+        outputs are extra parameters, for records that do not start at rest.
+    max_iterations :
+        Levenberg-Marquardt iteration limit.
+
+    Returns
+    -------
+    PemFit
+        ``structure = "oe"``, ``a = c = F``. If the search did not converge, the best
+        iterate with ``converged = False``, and an `IdentificationWarning` is issued.
+
+    Raises
+    ------
+    IdentificationError
+        Bad orders or options, non-finite or mismatched arrays, a constant input, too
+        few samples for the orders, or a rank-deficient ARX start.
+
+    Notes
+    -----
+    Levenberg-Marquardt (`sysid.optimize`) with the exact Jacobian from the sensitivity
+    filters ``u_{k-j}/F`` and ``-yhat_{k-i}/F``; unstable roots of ``F`` are mirrored
+    into the unit circle at every trial point.
+    """
+    fit = _oe_pem(y, u, nb=nb, nf=nf, nk=nk, theta0=theta0,
+                  initial_conditions=initial_conditions, max_iterations=max_iterations)
+    if not fit.converged:
+        warnings.warn(f"oe_pem did not converge: {fit.message}", IdentificationWarning,
+                      stacklevel=2)
+    return fit
+
+
+def _armax_pem(
+    y: FloatArray,
+    u: FloatArray,
+    *,
+    na: int,
+    nb: int,
+    nc: int,
+    nk: int,
+    theta0: FloatArray | None,
+    initial_conditions: object,
+    max_iterations: int,
+) -> PemFit:
+    na = _check_order("na", na, 0)
+    nb = _check_order("nb", nb, 1)
+    nc = _check_order("nc", nc, 0)
+    nk = _check_order("nk", nk, 0)
+    ic = _check_initial_conditions(initial_conditions)
+    y, u = _check_signals(y, u, "armax_pem")
+    n_model = na + nb + nc
+    estimate = ic == "estimated"
+    n_total = n_model + (nc if estimate else 0)
+    _check_length(y.size, n_total, max(na, nc, nk + nb - 1), "armax_pem")
+    start = _check_theta0(theta0, n_model, "armax_pem")
+    project = _stabilizer((slice(0, na), slice(na + nb, n_model)))
+    if start is None:
+        arx = arx_least_squares(y, u, na=na, nb=nb, nk=nk)
+        start = project(np.concatenate([arx.theta, np.zeros(nc)]))
+    if estimate:
+        start = np.concatenate([start, np.zeros(nc)])
+    lm = levenberg_marquardt(
+        _armax_problem(y, u, na, nb, nc, nk, estimate), start, project=project,
+        max_iterations=max_iterations,
+    )
+    a = np.concatenate([[1.0], lm.theta[:na]])
+    b = np.concatenate([np.zeros(nk), lm.theta[na : na + nb]])
+    c = np.concatenate([[1.0], lm.theta[na + nb : n_model]])
+    names = (
+        tuple(f"a{i}" for i in range(1, na + 1))
+        + tuple(f"b{j}" for j in range(nk, nk + nb))
+        + tuple(f"c{i}" for i in range(1, nc + 1))
+    )
+    return _finish("armax", lm, n_model, names, (a, b, c), ic, np.zeros(nc))
+
+
+def armax_pem(
+    y: FloatArray,
+    u: FloatArray,
+    *,
+    na: int,
+    nb: int,
+    nc: int,
+    nk: int,
+    theta0: FloatArray | None = None,
+    initial_conditions: InitialConditions = "held",
+    max_iterations: int = 100,
+) -> PemFit:
+    """ARMAX model ``A y = B u + C e`` minimizing W (paper eqs. 6, 10).
+
+    Parameters
+    ----------
+    y :
+        Output samples (deviation variables), shape ``(N,)``.
+    u :
+        Input samples (``ds`` or a Hammerstein input ``f(ds)``), shape ``(N,)``.
+    na :
+        Order of ``A`` (>= 0).
+    nb :
+        Number of ``B`` coefficients (>= 1).
+    nc :
+        Order of ``C`` (>= 0).
+    nk :
+        Input delay [samples] (>= 0).
+    theta0 :
+        Start ``[a1.., b_nk.., c1..]``; default: the ARX(na, nb, nk) least-squares
+        estimate with ``C = 1`` (a Hannan-Rissanen two-stage start was tried and cost
+        more time than the iterations it saved on heater-like data).
+    initial_conditions :
+        ``"held"``: past ``y``, ``u`` held at their first values, past prediction errors
+        zero (`sysid.simulate`). ``"estimated"``: the ``nc`` past prediction errors are
+        extra parameters.
+    max_iterations :
+        Levenberg-Marquardt iteration limit.
+
+    Returns
+    -------
+    PemFit
+        ``structure = "armax"``. If the search did not converge, the best iterate with
+        ``converged = False``, and an `IdentificationWarning` is issued.
+
+    Raises
+    ------
+    IdentificationError
+        Bad orders or options, non-finite or mismatched arrays, a constant input, too
+        few samples for the orders, or a rank-deficient ARX start.
+
+    Notes
+    -----
+    Levenberg-Marquardt with the exact Jacobian from the sensitivity filters
+    ``y_{k-i}/C``, ``-u_{k-j}/C`` and ``-e_{k-i}/C``; unstable roots of ``A`` and ``C``
+    are mirrored into the unit circle at every trial point (``C`` keeps the predictor
+    stable; ``A`` keeps the model storable).
+    """
+    fit = _armax_pem(y, u, na=na, nb=nb, nc=nc, nk=nk, theta0=theta0,
+                     initial_conditions=initial_conditions, max_iterations=max_iterations)
+    if not fit.converged:
+        warnings.warn(f"armax_pem did not converge: {fit.message}", IdentificationWarning,
+                      stacklevel=2)
+    return fit
+
+
+# --- public fits on a Dataset ---------------------------------------------------------
+
+
+def _deviation_arrays(
+    data: Dataset, operating_point: OperatingPoint, where: str
+) -> tuple[FloatArray, FloatArray]:
+    if not isinstance(data, Dataset):
+        raise IdentificationError(f"{where}: data must be a sysid Dataset; got {type(data)}")
+    if not isinstance(operating_point, OperatingPoint):
+        raise IdentificationError(
+            f"{where}: operating_point must be an OperatingPoint; got {operating_point!r}"
+        )
+    return (
+        data.power_kw - operating_point.power_kw,
+        data.triac_pct - operating_point.triac_pct,
+    )
+
+
+def _linear_model(
+    data: Dataset,
+    operating_point: OperatingPoint,
+    *,
+    block: LinearBlock,
+    a: FloatArray,
+    b: FloatArray,
+    c: FloatArray,
+    residuals: FloatArray,
+    n_parameters: int,
+    method: str,
+    where: str,
+) -> HammersteinModel:
+    b_norm, input_poly = normalize_input_gain(b, np.array([1.0]))
+    dof = max(residuals.size - n_parameters, 1)
+    try:
+        model = HammersteinModel(
+            kind="linear",
+            linear_block=block,
+            ts_s=data.ts_s,
+            operating_point=operating_point,
+            a=a,
+            b=b_norm,
+            c=c,
+            input_poly=input_poly,
+            noise_std_kw=float(np.sqrt(sum_of_squares(residuals) / dof)),
+            input_range_pct=(float(np.min(data.triac_pct)), float(np.max(data.triac_pct))),
+            provenance=Provenance(
+                data_file=None if data.source is None else Path(data.source).name,
+                data_sha256=data.sha256,
+                preprocessing=data.preprocessing,
+                method=method,
+                created_utc=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            ),
+        )
+    except UnstableModelError as exc:
+        raise IdentificationError(
+            f"{where}: the estimate is not a usable model ({exc}); check the data and the "
+            "orders"
+        ) from None
+    criteria = Criteria(
+        ballistic_mse_kw2=ballistic_mse(model, data),
+        one_step_mse_kw2=one_step_mse(model, data),
+    )
+    return model.with_updates(criteria=criteria)
+
+
+def _result(
+    model: HammersteinModel,
+    *,
+    converged: bool,
+    message: str,
+    n_iterations: int,
+    criterion: CriterionName,
+    names: tuple[str, ...],
+    theta: FloatArray,
+    std_errors: FloatArray,
+    residuals: FloatArray,
+    raw: object,
+) -> IdentificationResult:
+    return IdentificationResult(
+        model=model,
+        converged=converged,
+        message=message,
+        n_iterations=n_iterations,
+        criterion=criterion,
+        parameter_names=names,
+        parameters=theta,
+        std_errors=std_errors,
+        residuals_kw=residuals,
+        raw=raw,
+    )
+
+
+def fit_arx(
+    data: Dataset,
+    *,
+    operating_point: OperatingPoint,
+    na: int = 1,
+    nb: int = 2,
+    nk: int = 1,
+) -> IdentificationResult:
+    """Fit a linear ARX model ``A dP = B ds + e`` by least squares (paper eq. 5, sec. 6).
+
+    Parameters
+    ----------
+    data :
+        The identification record (absolute units).
+    operating_point :
+        ``(s_nom, P_nom)`` for the deviation variables (paper sec. 5.1).
+    na :
+        Order of ``A`` (>= 0).
+    nb :
+        Number of ``B`` coefficients (>= 1).
+    nk :
+        Input delay [samples] (>= 0); the paper's data have ``nk = 1``.
+
+    Returns
+    -------
+    IdentificationResult
+        ``kind = "linear"``, ``linear_block = "arx"``, ``C = 1``, ``B`` normalized with
+        ``input_poly = [b_first]``, criteria V and W on `data`, ``criterion =
+        "least_squares"``; the residuals are the equation errors of the samples with a
+        complete regressor.
+
+    Raises
+    ------
+    IdentificationError
+        Bad orders, a constant input, too short a record, a rank-deficient regressor, or
+        an unstable estimated ``A``.
+    SamplingTimeError
+        Never for a valid `Dataset` (the model takes the data's sampling time).
+    """
+    dy, du = _deviation_arrays(data, operating_point, "fit_arx")
+    fit = arx_least_squares(dy, du, na=na, nb=nb, nk=nk)
+    model = _linear_model(
+        data, operating_point, block="arx", a=fit.a, b=fit.b, c=np.array([1.0]),
+        residuals=fit.residuals, n_parameters=fit.theta.size, method="arx-least-squares",
+        where="fit_arx",
+    )
+    return _result(
+        model, converged=True, message="least squares: exact solution", n_iterations=0,
+        criterion="least_squares", names=fit.parameter_names, theta=fit.theta,
+        std_errors=fit.std_errors, residuals=fit.residuals, raw=fit,
+    )
+
+
+def fit_oe(
+    data: Dataset,
+    *,
+    operating_point: OperatingPoint,
+    nb: int = 2,
+    nf: int = 1,
+    nk: int = 1,
+    initial_conditions: InitialConditions = "held",
+    max_iterations: int = 100,
+) -> IdentificationResult:
+    """Fit a linear OE model ``dP = B/F ds + eps`` minimizing V (paper eqs. 7, 9, sec. 6).
+
+    Parameters
+    ----------
+    data :
+        The identification record (absolute units).
+    operating_point :
+        ``(s_nom, P_nom)`` for the deviation variables (paper sec. 5.1).
+    nb :
+        Number of ``B`` coefficients (>= 1).
+    nf :
+        Order of ``F`` (>= 0).
+    nk :
+        Input delay [samples] (>= 0).
+    initial_conditions :
+        ``"held"`` or ``"estimated"`` (see `oe_pem`).
+    max_iterations :
+        Levenberg-Marquardt iteration limit.
+
+    Returns
+    -------
+    IdentificationResult
+        ``kind = "linear"``, ``linear_block = "oe"`` stored with ``A = C = F``, ``B``
+        normalized, criteria V and W (equal for OE with held initial conditions),
+        ``criterion = "ballistic"``. Not converged: ``converged = False``, the best
+        iterate, and an `IdentificationWarning`.
+
+    Raises
+    ------
+    IdentificationError
+        See `oe_pem`.
+    """
+    dy, du = _deviation_arrays(data, operating_point, "fit_oe")
+    fit = _oe_pem(dy, du, nb=nb, nf=nf, nk=nk, theta0=None,
+                  initial_conditions=initial_conditions, max_iterations=max_iterations)
+    if not fit.converged:
+        warnings.warn(f"fit_oe did not converge: {fit.message}", IdentificationWarning,
+                      stacklevel=2)
+    model = _linear_model(
+        data, operating_point, block="oe", a=fit.a, b=fit.b, c=fit.c,
+        residuals=fit.residuals, n_parameters=fit.theta.size, method="oe-pem-ballistic",
+        where="fit_oe",
+    )
+    return _result(
+        model, converged=fit.converged, message=fit.message, n_iterations=fit.n_iterations,
+        criterion="ballistic", names=fit.parameter_names, theta=fit.theta,
+        std_errors=fit.std_errors, residuals=fit.residuals, raw=fit,
+    )
+
+
+def fit_armax(
+    data: Dataset,
+    *,
+    operating_point: OperatingPoint,
+    na: int = 1,
+    nb: int = 2,
+    nc: int = 1,
+    nk: int = 1,
+    initial_conditions: InitialConditions = "held",
+    max_iterations: int = 100,
+) -> IdentificationResult:
+    """Fit a linear ARMAX model ``A dP = B ds + C e`` minimizing W (eqs. 6, 10, sec. 6).
+
+    Parameters
+    ----------
+    data :
+        The identification record (absolute units).
+    operating_point :
+        ``(s_nom, P_nom)`` for the deviation variables (paper sec. 5.1).
+    na :
+        Order of ``A`` (>= 0).
+    nb :
+        Number of ``B`` coefficients (>= 1).
+    nc :
+        Order of ``C`` (>= 0); the paper takes ``nc = na``.
+    nk :
+        Input delay [samples] (>= 0).
+    initial_conditions :
+        ``"held"`` or ``"estimated"`` (see `armax_pem`).
+    max_iterations :
+        Levenberg-Marquardt iteration limit.
+
+    Returns
+    -------
+    IdentificationResult
+        ``kind = "linear"``, ``linear_block = "armax"``, ``B`` normalized, criteria V
+        and W, ``criterion = "one_step"``. Not converged: ``converged = False``, the
+        best iterate, and an `IdentificationWarning`.
+
+    Raises
+    ------
+    IdentificationError
+        See `armax_pem`.
+    """
+    dy, du = _deviation_arrays(data, operating_point, "fit_armax")
+    fit = _armax_pem(dy, du, na=na, nb=nb, nc=nc, nk=nk, theta0=None,
+                     initial_conditions=initial_conditions, max_iterations=max_iterations)
+    if not fit.converged:
+        warnings.warn(f"fit_armax did not converge: {fit.message}", IdentificationWarning,
+                      stacklevel=2)
+    model = _linear_model(
+        data, operating_point, block="armax", a=fit.a, b=fit.b, c=fit.c,
+        residuals=fit.residuals, n_parameters=fit.theta.size, method="armax-pem-one-step",
+        where="fit_armax",
+    )
+    return _result(
+        model, converged=fit.converged, message=fit.message, n_iterations=fit.n_iterations,
+        criterion="one_step", names=fit.parameter_names, theta=fit.theta,
+        std_errors=fit.std_errors, residuals=fit.residuals, raw=fit,
+    )
+
+
+__all__ = [
+    "ArxFit",
+    "InitialConditions",
+    "PemFit",
+    "armax_pem",
+    "arx_least_squares",
+    "arx_regressor",
+    "fit_armax",
+    "fit_arx",
+    "fit_oe",
+    "lagged",
+    "oe_pem",
+]

@@ -64,6 +64,11 @@ class LMResult:
     message: str
 
 
+def sum_of_squares(x: FloatArray) -> float:
+    """``sum x^2`` of a 1-D array, without BLAS (whose threads stall on a loaded machine)."""
+    return float(np.einsum("i,i->", x, x))
+
+
 def _evaluate(
     fun: Callable[[FloatArray], tuple[FloatArray, FloatArray]], theta: FloatArray, p: int
 ) -> tuple[FloatArray, FloatArray] | None:
@@ -192,7 +197,7 @@ def levenberg_marquardt(
             "stable and defined"
         )
     r, jac = first
-    ssr = float(r @ r)
+    ssr = sum_of_squares(r)
     n = r.size
     scale = np.zeros(p)
     mu = _MU_INITIAL
@@ -205,7 +210,7 @@ def levenberg_marquardt(
         if ssr <= np.finfo(float).tiny:
             converged, message = True, "the sum of squared residuals is zero"
             break
-        grad = jac.T @ r
+        grad = np.einsum("ij,i->j", jac, r)
         col_norms = np.linalg.norm(jac, axis=0)
         at_lo = (theta <= lo) & (grad > 0)
         at_hi = (theta >= hi) & (grad < 0)
@@ -219,8 +224,11 @@ def levenberg_marquardt(
             break
         scale = np.maximum(scale, col_norms)
         d = np.where(scale[free] > 0, scale[free], 1.0)
-        q_mat, r_mat = np.linalg.qr(jac[:, free])
-        qtr = q_mat.T @ r
+        # R of the QR factorization of [J_free, r]: its last column holds Q'r.
+        r_aug = np.linalg.qr(np.column_stack([jac[:, free], r]), mode="r")
+        n_free = int(np.count_nonzero(free))
+        r_mat = r_aug[:n_free, :n_free]
+        qtr = r_aug[:n_free, n_free]
         accepted = False
         for _ in range(_MAX_REJECTIONS):
             system = np.vstack([r_mat, np.diag(np.sqrt(mu) * d)])
@@ -234,7 +242,7 @@ def levenberg_marquardt(
                 xtol + float(np.linalg.norm(theta))
             )
             evaluated = _evaluate(fun, trial, p)
-            ssr_new = float(evaluated[0] @ evaluated[0]) if evaluated is not None else np.inf
+            ssr_new = sum_of_squares(evaluated[0]) if evaluated is not None else np.inf
             if evaluated is not None and ssr_new < ssr:
                 lin = qtr + r_mat @ step[free]
                 predicted = float(qtr @ qtr - lin @ lin)
@@ -303,7 +311,8 @@ def parameter_std_errors(jacobian: FloatArray, residuals: FloatArray) -> FloatAr
 
     Notes
     -----
-    ``(J'J)^-1`` is formed from the SVD ``J = U S V'`` as ``V S^-2 V'``. Singular
+    ``(J'J)^-1`` is formed from the SVD ``J = U S V'`` (taken of the triangular
+    factor of ``J``) as ``V S^-2 V'``. Singular
     values below ``max(N, p) * eps * S_max`` mark unidentifiable directions: every
     parameter with a component above ``sqrt(eps)`` along such a direction gets an
     infinite standard error, the others keep their finite value. With ``N <= p``
@@ -314,8 +323,9 @@ def parameter_std_errors(jacobian: FloatArray, residuals: FloatArray) -> FloatAr
     n, p = jac.shape
     if n <= p:
         return np.full(p, np.inf)
-    s2 = float(r @ r) / (n - p)
-    _, sing, vt = np.linalg.svd(jac, full_matrices=False)
+    s2 = sum_of_squares(r) / (n - p)
+    # J = Q R, so J and the small R share singular values and right singular vectors.
+    _, sing, vt = np.linalg.svd(np.linalg.qr(jac, mode="r"))
     tol = max(n, p) * np.finfo(float).eps * (float(sing[0]) if sing.size else 0.0)
     good = sing > tol
     if not np.any(good):
@@ -330,4 +340,4 @@ def parameter_std_errors(jacobian: FloatArray, residuals: FloatArray) -> FloatAr
     return np.asarray(out, dtype=float)
 
 
-__all__ = ["LMResult", "levenberg_marquardt", "parameter_std_errors"]
+__all__ = ["LMResult", "levenberg_marquardt", "parameter_std_errors", "sum_of_squares"]

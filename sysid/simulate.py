@@ -1,0 +1,222 @@
+"""Ballistic simulation and one-step-ahead prediction of a model (paper eqs. 5-7, 9-10).
+
+Notation
+--------
+``y`` = ``dP = P - P_nom`` [kW], ``u`` = ``w = f(ds)`` [kW-equivalent input] with
+``ds = s - s_nom`` [%]; ``A``, ``B``, ``C``, ``F`` are q^-1 polynomials (ascending powers,
+paper eqs. 1-4). The kernels work on plain deviation arrays; `simulate` and
+`predict_one_step` take a `HammersteinModel` and a `Dataset` in absolute units.
+
+* Ballistic simulation (OE, eq. 7): ``F(q) yhat_k = B(q) u_k``; the model output
+  never sees the measured output after the start (the ``eps`` of eq. 9).
+* One-step prediction (eqs. 5-6): ``C(q) yhat_k = (C(q) - A(q)) y_k + B(q) u_k``,
+  i.e. the prediction error ``e = y - yhat`` obeys ``C(q) e_k = A(q) y_k - B(q) u_k``
+  (the ``e`` of eq. 10). ARX has ``C = 1``; OE (``C = A``) gives the simulation.
+
+Initial conditions (the *held-past* rule)
+-----------------------------------------
+No filter here starts from a zero state: its start-up transient would dominate V and W.
+The samples before the record (``k < 0``) are taken as
+
+* inputs held at the first input, ``u_k = u_0``;
+* measured outputs held at the first measured output, ``y_k = y_0``;
+* simulated outputs of the ballistic simulation equal to ``y_0`` as well, so the
+  simulation starts where the measurement starts (the record's first sample is
+  taken as a rest point);
+* past one-step prediction errors zero, ``e_k = 0`` (so the past predictions equal
+  the held measurement, and the OE predictor reproduces the OE simulation).
+
+These past values become the direct-form II transposed state of `scipy.signal.lfilter`
+through `scipy.signal.lfiltic`. Where a record does not start at rest, the identification
+kernels can instead estimate the past outputs (OE) or past prediction errors (ARMAX) as
+extra parameters (`sysid.linear`); the kernels here then take them explicitly
+(``y_past``, ``e_past``, most recent first: ``[y_{-1}, y_{-2}, ...]``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import lfilter, lfiltic
+
+from sysid._typing import FloatArray
+from sysid.data import Dataset
+from sysid.model import HammersteinModel
+
+
+def _past(values: FloatArray | float | None, fill: float, n: int) -> FloatArray:
+    if values is None:
+        return np.full(n, fill)
+    arr = np.asarray(values, dtype=float)
+    return np.full(n, float(arr)) if arr.ndim == 0 else arr
+
+
+def simulate_arrays(
+    b: FloatArray,
+    f: FloatArray,
+    u: FloatArray,
+    *,
+    y_past: FloatArray | float,
+) -> FloatArray:
+    """Ballistic simulation ``F(q) yhat = B(q) u`` (paper eq. 7) on deviation arrays.
+
+    Parameters
+    ----------
+    b :
+        ``B(q)`` coefficients, ascending powers of q^-1 (leading zeros = delay).
+    f :
+        ``F(q)`` coefficients, ``f[0] = 1``; must be stable for a bounded output.
+    u :
+        Input samples, shape ``(N,)``; the past is held at ``u[0]``.
+    y_past :
+        Simulated outputs before the record, ``[yhat_{-1}, ..., yhat_{-nf}]``, or one
+        value held for all of them: the first measured output ``y_0`` under the
+        held-past rule.
+
+    Returns
+    -------
+    FloatArray
+        ``yhat``, shape ``(N,)``.
+
+    Notes
+    -----
+    Implemented as ``lfilter(b, f, u, zi=lfiltic(b, f, y_past, [u_0]*(len(b)-1)))``.
+    Kernel: trusts its inputs (finite, 1-D, ``f[0] = 1``).
+    """
+    nf = len(f) - 1
+    zi = lfiltic(b, f, _past(y_past, 0.0, nf), np.full(max(len(b) - 1, 0), u[0]))
+    out: FloatArray = lfilter(b, f, u, zi=zi)[0]
+    return out
+
+
+def equation_errors(a: FloatArray, b: FloatArray, y: FloatArray, u: FloatArray) -> FloatArray:
+    """``v_k = A(q) y_k - B(q) u_k`` with the past of ``y`` and ``u`` held at their first values."""
+    zy = lfiltic(a, [1.0], [], np.full(max(len(a) - 1, 0), y[0]))
+    zu = lfiltic(b, [1.0], [], np.full(max(len(b) - 1, 0), u[0]))
+    out: FloatArray = lfilter(a, [1.0], y, zi=zy)[0] - lfilter(b, [1.0], u, zi=zu)[0]
+    return out
+
+
+def prediction_errors_arrays(
+    a: FloatArray,
+    b: FloatArray,
+    c: FloatArray,
+    y: FloatArray,
+    u: FloatArray,
+    *,
+    e_past: FloatArray | None = None,
+) -> FloatArray:
+    """One-step prediction errors ``e`` of ``A y = B u + C e`` (paper eqs. 5-6, 10).
+
+    Parameters
+    ----------
+    a, b, c :
+        ``A(q)``, ``B(q)``, ``C(q)``, ascending powers of q^-1; ``a[0] = c[0] = 1``;
+        ``C`` must be stable.
+    y, u :
+        Measured output and input, shape ``(N,)``; their pasts are held at ``y[0]``
+        and ``u[0]``.
+    e_past :
+        Prediction errors before the record, ``[e_{-1}, ..., e_{-nc}]``; default zeros.
+
+    Returns
+    -------
+    FloatArray
+        ``e = y - yhat``, shape ``(N,)``, from ``C(q) e_k = A(q) y_k - B(q) u_k``.
+    """
+    nc = len(c) - 1
+    v = equation_errors(a, b, y, u)
+    zi = lfiltic([1.0], c, _past(e_past, 0.0, nc))
+    out: FloatArray = lfilter([1.0], c, v, zi=zi)[0]
+    return out
+
+
+def predict_one_step_arrays(
+    a: FloatArray,
+    b: FloatArray,
+    c: FloatArray,
+    y: FloatArray,
+    u: FloatArray,
+    *,
+    e_past: FloatArray | None = None,
+) -> FloatArray:
+    """One-step-ahead prediction ``C yhat = (C - A) y + B u`` on deviation arrays.
+
+    Same arguments as `prediction_errors_arrays`; returns ``yhat = y - e``, shape ``(N,)``.
+    """
+    return np.asarray(y, dtype=float) - prediction_errors_arrays(a, b, c, y, u, e_past=e_past)
+
+
+def _deviations(model: HammersteinModel, data: Dataset) -> tuple[FloatArray, FloatArray]:
+    model.check_ts(data.ts_s)
+    op = model.operating_point
+    dp_kw = data.power_kw - op.power_kw
+    w = np.asarray(model.input_nonlinearity(data.triac_pct - op.triac_pct), dtype=float)
+    return dp_kw, w
+
+
+def simulate(model: HammersteinModel, data: Dataset) -> FloatArray:
+    """Ballistic simulation of the model's power over a data set [kW] (paper eq. 7).
+
+    Parameters
+    ----------
+    model :
+        The model; ``dP = B/A f(ds)`` is simulated whatever its noise model.
+    data :
+        The record: its TRIAC input drives the model; its first measured power sets
+        the initial condition (held-past rule, see the module docstring).
+
+    Returns
+    -------
+    FloatArray
+        Simulated power ``P_nom + yhat`` [kW], shape ``(n_samples,)``.
+
+    Raises
+    ------
+    SamplingTimeError
+        ``data.ts_s`` differs from ``model.ts_s``.
+    """
+    dp_kw, w = _deviations(model, data)
+    yhat = simulate_arrays(model.b, model.a, w, y_past=float(dp_kw[0]))
+    return yhat + model.operating_point.power_kw
+
+
+def predict_one_step(model: HammersteinModel, data: Dataset) -> FloatArray:
+    """One-step-ahead predicted power over a data set [kW] (paper eqs. 5-6, 10).
+
+    Uses the model's noise model ``C``: ``C yhat = (C - A) dP + B f(ds)``. For
+    ``linear_block = "oe"`` (stored with ``C = A``) this is the ballistic simulation,
+    and `simulate` is returned exactly; for ``"arx"`` ``C = 1``.
+
+    Parameters
+    ----------
+    model :
+        The model.
+    data :
+        The record (measured power and TRIAC input), held-past initial conditions.
+
+    Returns
+    -------
+    FloatArray
+        Predicted power ``P_nom + yhat`` [kW], shape ``(n_samples,)``.
+
+    Raises
+    ------
+    SamplingTimeError
+        ``data.ts_s`` differs from ``model.ts_s``.
+    """
+    if model.linear_block == "oe":
+        return simulate(model, data)
+    dp_kw, w = _deviations(model, data)
+    c = np.array([1.0]) if model.linear_block == "arx" else model.c
+    yhat = predict_one_step_arrays(model.a, model.b, c, dp_kw, w)
+    return yhat + model.operating_point.power_kw
+
+
+__all__ = [
+    "equation_errors",
+    "predict_one_step",
+    "predict_one_step_arrays",
+    "prediction_errors_arrays",
+    "simulate",
+    "simulate_arrays",
+]
