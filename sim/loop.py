@@ -1,0 +1,320 @@
+"""run_closed_loop -> ClosedLoopResult: the only place the order of one sample lives.
+
+One sample ``k`` (time ``t_k = k * ts_s``):
+
+1. the plant's measured power ``y_k`` gets the scenario's sensor faults (NaN while a
+   sample is missing, plus any spike) and goes, with the setpoint ``r_k``, to
+   ``controller.step`` (timed with `time.perf_counter`);
+2. the returned TRIAC input ``s_k`` goes to ``plant.step`` with the scenario's
+   `Exogenous` value for sample ``k``, which acts over ``[t_k, t_{k+1})`` and returns
+   ``y_{k+1}``;
+3. the runner records ``t_k``, ``r_k``, the measurement as delivered, the plant's true
+   power at ``t_k``, ``s_k``, the step time and the controller's ``last_step`` (if it
+   has one). Controllers never keep their own history; the runner does.
+
+Randomness: one seed is split (`numpy.random.SeedSequence.spawn`) into independent
+plant-noise and sensor-fault streams, so adding a fault does not change the noise.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from sim.disturbances import ExogenousProfile, exogenous_profile, fault_profile
+from sim.errors import ScenarioError, SimError
+from sim.protocols import NOMINAL, Controller, Exogenous, Plant
+from sim.scenario import Scenario
+from sysid._typing import FloatArray
+from sysid.errors import SamplingTimeError
+
+#: CSV columns written by `ClosedLoopResult.to_csv` (a disturbance estimate column
+#: ``disturbance_estimate_kw`` follows when the diagnostics carry one).
+CSV_COLUMNS = (
+    "time_s", "setpoint_kw", "power_measured_kw", "power_true_kw", "triac_pct", "step_time_s",
+)
+
+ProgressCallback = Callable[[int, int], None]
+
+
+def _readonly(values: object, name: str, n: int) -> FloatArray:
+    arr = np.array(values, dtype=float, copy=True)
+    if arr.shape != (n,):
+        raise ScenarioError(
+            f"ClosedLoopResult.{name}: expected shape ({n},) (the scenario's n_steps); "
+            f"got {arr.shape}"
+        )
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class ClosedLoopResult:
+    """What one closed-loop run recorded, one row per sample (read-only arrays).
+
+    Parameters
+    ----------
+    scenario :
+        The scenario that was run.
+    seed :
+        The integer seed the noise and fault streams were spawned from (the fresh
+        entropy when none was given, so the run can be repeated); None when a
+        `numpy.random.Generator` was passed.
+    time_s :
+        Sample times ``k * ts_s`` [s], shape ``(n_steps,)``.
+    setpoint_kw :
+        Setpoint given to the controller [kW].
+    power_measured_kw :
+        Measured power as delivered to the controller [kW]: NaN for missing samples,
+        spikes included.
+    power_true_kw :
+        The plant's true (noise-free) power at the same sample [kW].
+    triac_pct :
+        TRIAC input the controller returned [%] (applied over the next sample).
+    step_time_s :
+        Wall-clock time of each ``controller.step`` call [s].
+    diagnostics :
+        The controller's ``last_step`` after every step, or None if it has none.
+
+    Raises
+    ------
+    ScenarioError
+        A signal whose length is not the scenario's ``n_steps``.
+    """
+
+    scenario: Scenario
+    seed: int | None
+    time_s: FloatArray = field(repr=False)
+    setpoint_kw: FloatArray = field(repr=False)
+    power_measured_kw: FloatArray = field(repr=False)
+    power_true_kw: FloatArray = field(repr=False)
+    triac_pct: FloatArray = field(repr=False)
+    step_time_s: FloatArray = field(repr=False)
+    diagnostics: tuple[object, ...] | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        n = self.scenario.n_steps
+        for name in ("time_s", "setpoint_kw", "power_measured_kw", "power_true_kw",
+                     "triac_pct", "step_time_s"):
+            object.__setattr__(self, name, _readonly(getattr(self, name), name, n))
+        if self.diagnostics is not None:
+            diagnostics = tuple(self.diagnostics)
+            if len(diagnostics) != n:
+                raise ScenarioError(
+                    f"ClosedLoopResult.diagnostics: expected {n} entries; got {len(diagnostics)}"
+                )
+            object.__setattr__(self, "diagnostics", diagnostics)
+
+    @property
+    def n_steps(self) -> int:
+        """Number of samples recorded."""
+        return self.scenario.n_steps
+
+    @property
+    def ts_s(self) -> float:
+        """Sampling time [s]."""
+        return self.scenario.ts_s
+
+    @property
+    def disturbance_estimate_kw(self) -> FloatArray | None:
+        """The controller's disturbance estimate per sample [kW], if its diagnostics have one.
+
+        Read from the ``disturbance_estimate`` attribute of each ``last_step``; None when
+        there are no diagnostics or they lack that attribute.
+        """
+        diags = self.diagnostics
+        if not diags or not all(hasattr(d, "disturbance_estimate") for d in diags):
+            return None
+        arr = np.array([float(d.disturbance_estimate) for d in diags])  # type: ignore[attr-defined]
+        arr.setflags(write=False)
+        return arr
+
+    def to_csv(self, path: str | os.PathLike[str]) -> None:
+        """Write the run as CSV (columns `CSV_COLUMNS`, units in the names), atomically.
+
+        The file is written to a temporary name next to ``path`` and renamed, so a
+        reader never sees half a file. NaN (missing samples) is written as ``nan``;
+        numbers use Python's shortest round-trip form.
+
+        Parameters
+        ----------
+        path :
+            Output file.
+        """
+        path = Path(path)
+        columns: list[tuple[str, list[float]]] = [
+            (name, getattr(self, name).tolist()) for name in CSV_COLUMNS
+        ]
+        estimate = self.disturbance_estimate_kw
+        if estimate is not None:
+            columns.append(("disturbance_estimate_kw", estimate.tolist()))
+        header = ",".join(name for name, _ in columns)
+        rows = (",".join(map(repr, row)) for row in zip(*(vals for _, vals in columns), strict=True))
+        text = header + "\n" + "\n".join(rows) + "\n"
+        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+        try:
+            with open(tmp, "w", newline="\n", encoding="utf-8") as fh:
+                fh.write(text)
+            os.replace(tmp, path)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+
+
+def _check_sampling_times(plant: Plant, controller: Controller, scenario: Scenario) -> None:
+    for what, ts_s in (("plant", plant.ts_s), ("controller", controller.ts_s)):
+        if not math.isclose(ts_s, scenario.ts_s, rel_tol=1e-9, abs_tol=1e-12):
+            raise SamplingTimeError(
+                f"run_closed_loop: expected the {what}'s ts_s to equal scenario "
+                f"'{scenario.name}''s {scenario.ts_s:g} s; got {ts_s:g} s"
+            )
+
+
+def spawn_streams(
+    rng: np.random.Generator | int | None,
+) -> tuple[int | None, np.random.Generator, np.random.Generator]:
+    """Split ``rng`` into independent plant-noise and sensor-fault generators.
+
+    Parameters
+    ----------
+    rng :
+        An int seed, a generator (spawned from), or None (fresh entropy).
+
+    Returns
+    -------
+    seed, noise_rng, fault_rng
+        ``seed`` is the int seed (the fresh entropy for None) or None for a generator.
+    """
+    if isinstance(rng, np.random.Generator):
+        noise_rng, fault_rng = rng.spawn(2)
+        return None, noise_rng, fault_rng
+    if rng is None:
+        seq = np.random.SeedSequence()
+    elif isinstance(rng, (int, np.integer)) and not isinstance(rng, bool) and rng >= 0:
+        seq = np.random.SeedSequence(int(rng))
+    else:
+        raise TypeError(f"rng: expected a numpy Generator, an int >= 0 or None; got {rng!r}")
+    entropy = seq.entropy
+    noise_seq, fault_seq = seq.spawn(2)
+    seed = int(entropy) if isinstance(entropy, (int, np.integer)) else None
+    return seed, np.random.default_rng(noise_seq), np.random.default_rng(fault_seq)
+
+
+def _exogenous_per_sample(profile: ExogenousProfile) -> list[Exogenous]:
+    """One `Exogenous` per sample, reusing the object while the values do not change."""
+    out: list[Exogenous] = []
+    last = NOMINAL
+    for volt, offset in zip(profile.grid_voltage_factor.tolist(),
+                            profile.power_offset_kw.tolist(), strict=True):
+        if volt != last.grid_voltage_factor or offset != last.power_offset_kw:
+            last = Exogenous(grid_voltage_factor=volt, power_offset_kw=offset)
+        out.append(last)
+    return out
+
+
+def run_closed_loop(
+    plant: Plant,
+    controller: Controller,
+    scenario: Scenario,
+    *,
+    rng: np.random.Generator | int | None = None,
+    progress: ProgressCallback | None = None,
+) -> ClosedLoopResult:
+    """Run ``controller`` on ``plant`` through ``scenario`` and record every sample.
+
+    Both are reset first (``controller.reset()``, ``plant.reset(noise_rng)``), so an
+    instance can be reused and two runs with the same int seed are identical.
+
+    Parameters
+    ----------
+    plant :
+        Any `Plant`; it sets the initial state (see `ModelPlant.for_scenario`).
+    controller :
+        Any `Controller`; if it has a ``last_step`` attribute it is recorded each step.
+    scenario :
+        Setpoints, disturbances, faults and duration.
+    rng :
+        Seed of the run: split into independent plant-noise and fault streams.
+    progress :
+        Called as ``progress(samples_done, n_steps)`` about every 1 % and at the end.
+
+    Returns
+    -------
+    ClosedLoopResult
+        The recorded run.
+
+    Raises
+    ------
+    SamplingTimeError
+        The plant's or controller's ``ts_s`` differs from the scenario's.
+    SimError
+        The controller returned a non-finite input.
+    """
+    _check_sampling_times(plant, controller, scenario)
+    seed, noise_rng, fault_rng = spawn_streams(rng)
+    n = scenario.n_steps
+    ts_s = scenario.ts_s
+    setpoints = scenario.setpoint_profile_kw().tolist()
+    exogenous = _exogenous_per_sample(
+        exogenous_profile(scenario.disturbances, n_steps=n, ts_s=ts_s)
+    )
+    faults = fault_profile(scenario.faults, n_steps=n, ts_s=ts_s, rng=fault_rng)
+    missing = faults.missing.tolist()
+    spikes = faults.spike_kw.tolist()
+    has_diagnostics = hasattr(controller, "last_step")
+
+    measured_rec = [math.nan] * n
+    true_rec = [math.nan] * n
+    triac_rec = [math.nan] * n
+    time_rec = [math.nan] * n
+    diagnostics: list[object] = []
+    every = max(1, n // 100)
+
+    controller.reset()
+    y = plant.reset(noise_rng)
+    controller_step = controller.step
+    plant_step = plant.step
+    clock = time.perf_counter
+    isfinite = math.isfinite
+    nan = math.nan
+    for k in range(n):
+        measured = nan if missing[k] else y + spikes[k]
+        t0 = clock()
+        triac = controller_step(measured, setpoints[k])
+        t1 = clock()
+        if not isfinite(triac):
+            raise SimError(
+                f"run_closed_loop: expected a finite TRIAC input [%] from the controller; "
+                f"got {triac!r} at sample {k} (t = {k * ts_s:g} s)"
+            )
+        measured_rec[k] = measured
+        true_rec[k] = plant.true_power_kw
+        triac_rec[k] = triac
+        time_rec[k] = t1 - t0
+        if has_diagnostics:
+            diagnostics.append(controller.last_step)  # type: ignore[attr-defined]
+        y = plant_step(triac, exogenous[k])
+        if progress is not None and ((k + 1) % every == 0 or k + 1 == n):
+            progress(k + 1, n)
+
+    return ClosedLoopResult(
+        scenario=scenario,
+        seed=seed,
+        time_s=scenario.time_s(),
+        setpoint_kw=np.array(setpoints),
+        power_measured_kw=np.array(measured_rec),
+        power_true_kw=np.array(true_rec),
+        triac_pct=np.array(triac_rec),
+        step_time_s=np.array(time_rec),
+        diagnostics=tuple(diagnostics) if has_diagnostics else None,
+    )
+
+
+__all__ = ["CSV_COLUMNS", "ClosedLoopResult", "ProgressCallback", "run_closed_loop",
+           "spawn_streams"]
