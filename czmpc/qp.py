@@ -1,0 +1,473 @@
+"""MPCQP: OSQP problem built once, vectors updated, typed QPSolution.
+
+Notation
+--------
+``w_j`` [kW-equivalent]
+    Planned nonlinearity outputs ``f(ds_j)``, ``j = 0..N-1``: the decision variables.
+``x_j``
+    Predicted state of the linear block; ``x_j - x_s = dx_j``.
+``(x_s, w_s, y_s)``
+    The steady-state target (`czmpc.target`).
+``h``
+    ``dx_1`` with ``w_0 = w_s``: ``h = A (x_{k|k} - x_s) + G_x eps_k``. It carries the
+    filtered state and this sample's innovation (`czmpc.kalman`), so that
+    ``dx_1 = h + B (w_0 - w_s)`` and ``dx_{j+1} = A dx_j + B (w_j - w_s)``.
+``delta`` [%/step]
+    The TRIAC rate limit.
+
+The QP (DESIGN.md item 5), condensed in ``w`` (the states are eliminated)::
+
+    min   sum_{j=1}^{N-1} q_y (C dx_j)^2
+        + sum_{j=0}^{N-1} [ q_u (w_j - w_s)^2 + q_dw (w_j - w_{j-1})^2 ]
+        + [dx_N; w_{N-1} - w_s]^T P_f [dx_N; w_{N-1} - w_s]
+        + rho_2 v^2 + rho_1 v                                  (soft limits only)
+    s.t.  w_lo_j <= w_j <= w_hi_j                              (box, reachable set)
+          |w_j - w_{j-1}| <= m_j delta,  j >= 1                 (rate, conservative)
+          P_min - v <= P_nom + y_s + C dx_j <= P_max + v,  v >= 0   (soft, optional)
+
+``P_f`` solves the DARE of the same stage cost written as an LQ problem on
+``xi = [dx; w_{j-1} - w_s]`` (the move penalty is a cross term), so without active
+constraints the first move equals the infinite-horizon LQR law for any ``N``.
+
+Bounds are exact where that is possible: ``w_lo_0 = f(max(ds_min, ds_prev - delta))``
+and ``w_hi_0 = f(min(ds_max, ds_prev + delta))`` for the first move (f is increasing on
+the allowed range); later ``w_j`` are boxed by the image of the TRIAC inputs reachable
+in ``j + 1`` moves; and their moves are limited by ``m_j delta`` with ``m_j`` the
+smallest slope of ``f`` over those reachable inputs (not the global minimum slope), so
+``|ds_j - ds_{j-1}| <= delta`` holds by the mean value theorem.
+
+Formulation choice: condensed. With ``n = 2`` states and ``N = 50``, the condensed
+problem has 50 variables and 50 + 49 sparse rows; its KKT factor is a dense 50 x 50
+block, factorized once at set-up. The sparse form would carry 150 variables and 100
+equality rows through every ADMM iteration. Both are fixed-pattern; the condensed one
+needs fewer operations per iteration here and its vectors are cheaper to update
+(measured in `czmpc.bench_step`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import osqp
+import scipy.linalg
+import scipy.sparse as sp
+
+from czmpc.errors import DesignError
+from czmpc.inversion import InputMap, evaluate_array
+from czmpc.settings import OSQPOptions
+from sysid._typing import FloatArray
+
+#: OSQP's status values for a usable solution.
+_SOLVED = 1
+_SOLVED_INACCURATE = 2
+#: OSQP treats magnitudes at or above this as infinite.
+OSQP_INFINITY = 1e30
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class QPSolution:
+    """One solve of the MPC QP, in our own types (no OSQP object leaks out).
+
+    Parameters
+    ----------
+    status :
+        OSQP's status string (``"solved"``, ``"solved inaccurate"``,
+        ``"maximum iterations reached"``, ...).
+    is_usable :
+        True if the status is solved or solved-inaccurate and the plan is finite.
+    is_accurate :
+        True if the status is solved (to the set tolerances).
+    w :
+        (N,) planned nonlinearity outputs [kW-equivalent], read-only; NaN if not usable.
+    slack_kw :
+        Soft-limit violation ``v`` [kW] (0 without soft limits).
+    objective :
+        QP objective value (without constant terms).
+    n_iterations :
+        ADMM iterations.
+    solve_time_s :
+        OSQP's solve time [s] (reported, never used in decisions).
+    """
+
+    status: str
+    is_usable: bool
+    is_accurate: bool
+    w: FloatArray
+    slack_kw: float
+    objective: float
+    n_iterations: int
+    solve_time_s: float
+
+
+def terminal_cost(
+    A: FloatArray, B: FloatArray, C: FloatArray, *, output_weight: float,
+    input_target_weight: float, move_weight: float,
+) -> FloatArray:
+    """DARE terminal weight ``P_f`` on ``xi = [dx; w_prev - w_s]`` (module notes).
+
+    The LQ problem: ``xi+ = [[A, 0], [0, 0]] xi + [B; 1] u``, stage cost
+    ``q_y (C dx)^2 + q_dw prev^2 + (q_u + q_dw) u^2 - 2 q_dw prev u``.
+
+    Parameters
+    ----------
+    A, B, C :
+        The linear block (``n`` states).
+    output_weight, input_target_weight, move_weight :
+        ``q_y``, ``q_u``, ``q_dw`` [1/kW^2].
+
+    Raises
+    ------
+    DesignError
+        If the DARE has no stabilizing solution.
+    """
+    Axi, Bxi, Qxi, Rxi, Sxi = lq_problem(
+        A, B, C, output_weight=output_weight, input_target_weight=input_target_weight,
+        move_weight=move_weight,
+    )
+    try:
+        P = scipy.linalg.solve_discrete_are(Axi, Bxi, Qxi, Rxi, s=Sxi)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise DesignError(
+            f"MPC terminal cost: the control DARE must have a stabilizing solution; got: {exc}"
+        ) from exc
+    return np.asarray(0.5 * (P + P.T), dtype=float)
+
+
+def lq_problem(
+    A: FloatArray, B: FloatArray, C: FloatArray, *, output_weight: float,
+    input_target_weight: float, move_weight: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """``(A_xi, B_xi, Q_xi, R_xi, S_xi)`` of the LQ problem behind the MPC cost.
+
+    In scipy's convention: cost ``xi^T Q xi + u^T R u + 2 xi^T S u``.
+
+    Parameters
+    ----------
+    A, B, C :
+        The linear block.
+    output_weight, input_target_weight, move_weight :
+        ``q_y``, ``q_u``, ``q_dw`` [1/kW^2].
+    """
+    n = B.size
+    Axi = np.zeros((n + 1, n + 1))
+    Axi[:n, :n] = A
+    Bxi = np.zeros((n + 1, 1))
+    Bxi[:n, 0] = B
+    Bxi[n, 0] = 1.0
+    Qxi = np.zeros((n + 1, n + 1))
+    Qxi[:n, :n] = output_weight * np.outer(C, C)
+    Qxi[n, n] = move_weight
+    Rxi = np.array([[input_target_weight + move_weight]])
+    Sxi = np.zeros((n + 1, 1))
+    Sxi[n, 0] = -move_weight
+    return Axi, Bxi, Qxi, Rxi, Sxi
+
+
+def move_bounds(
+    input_map: InputMap, ds_prev_pct: float, max_move_pct_per_step: float | None,
+    horizon_steps: int,
+) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """Box and rate bounds on the planned ``w`` (module notes).
+
+    Parameters
+    ----------
+    input_map :
+        ``f`` on the allowed range.
+    ds_prev_pct :
+        TRIAC deviation applied at the previous sample [%], inside the allowed range.
+    max_move_pct_per_step :
+        ``delta`` [%/step], or None for no rate limit.
+    horizon_steps :
+        ``N``.
+
+    Returns
+    -------
+    w_lo, w_hi :
+        (N,) bounds on ``w_j`` [kW-equivalent]; element 0 is the exact first-move
+        interval.
+    rate :
+        (N-1,) limits ``m_j delta`` on ``|w_j - w_{j-1}|``, ``j = 1..N-1``
+        [kW-equivalent], or None without a rate limit.
+    """
+    n = horizon_steps
+    if max_move_pct_per_step is None:
+        return (np.full(n, input_map.w_min), np.full(n, input_map.w_max), None)
+    reach = max_move_pct_per_step * np.arange(1, n + 1, dtype=float)
+    ds_lo = np.maximum(input_map.ds_min_pct, ds_prev_pct - reach)
+    ds_hi = np.minimum(input_map.ds_max_pct, ds_prev_pct + reach)
+    c = input_map.coefficients
+    w_lo = evaluate_array(c, ds_lo)
+    w_hi = evaluate_array(c, ds_hi)
+    rate = input_map.min_slopes(ds_lo[1:], ds_hi[1:]) * max_move_pct_per_step
+    return w_lo, w_hi, rate
+
+
+class MPCQP:
+    """The MPC's OSQP problem: built once, then only ``q``, ``l``, ``u`` change.
+
+    Parameters
+    ----------
+    A, B, C :
+        The linear block (``n`` states; `czmpc.realization.InnovationsForm`).
+    horizon_steps :
+        ``N``.
+    output_weight, input_target_weight, move_weight :
+        ``q_y``, ``q_u``, ``q_dw`` [1/kW^2].
+    has_rate_limit :
+        Build the ``N - 1`` move rows.
+    has_soft_min, has_soft_max :
+        Build the ``N`` soft lower / upper power rows (and the slack).
+    soft_limit_weight, soft_limit_linear_weight :
+        ``rho_2`` [1/kW^2] and ``rho_1`` [1/kW].
+    options :
+        OSQP options.
+
+    Raises
+    ------
+    DesignError
+        If the terminal-cost DARE fails or OSQP rejects the problem at set-up.
+    """
+
+    def __init__(
+        self, *, A: FloatArray, B: FloatArray, C: FloatArray, horizon_steps: int,
+        output_weight: float, input_target_weight: float, move_weight: float,
+        has_rate_limit: bool = False, has_soft_min: bool = False, has_soft_max: bool = False,
+        soft_limit_weight: float = 1e3, soft_limit_linear_weight: float = 1e2,
+        options: OSQPOptions | None = None,
+    ) -> None:
+        options = OSQPOptions() if options is None else options
+        n_x = B.size
+        N = horizon_steps
+        self.horizon_steps = N
+        self.has_rate_limit = has_rate_limit
+        self.has_soft = has_soft_min or has_soft_max
+        self.has_soft_min = has_soft_min
+        self.has_soft_max = has_soft_max
+        self.options = options
+
+        # Prediction: dx_j = Phi_j h + sum_{i<j} Gamma_{j,i} (w_i - w_s), j = 1..N.
+        Phi = np.zeros((N, n_x, n_x))
+        Apow = np.eye(n_x)
+        for j in range(N):
+            Phi[j] = Apow
+            Apow = A @ Apow
+        Gam = np.zeros((N, n_x, N))
+        for j in range(N):
+            for i in range(j + 1):
+                Gam[j, :, i] = Phi[j - i] @ B
+        Cphi = np.einsum("i,jik->jk", C, Phi)  # (N, n_x): C Phi_j
+        Cgam = np.einsum("i,jik->jk", C, Gam)  # (N, N):   C Gamma_j
+        P_f = terminal_cost(
+            A, B, C, output_weight=output_weight, input_target_weight=input_target_weight,
+            move_weight=move_weight,
+        )
+        # Terminal rows: xi_N = [dx_N; w_{N-1} - w_s] = T_h h + T_w (w - w_s 1).
+        T_h = np.zeros((n_x + 1, n_x))
+        T_h[:n_x] = Phi[N - 1]
+        T_w = np.zeros((n_x + 1, N))
+        T_w[:n_x] = Gam[N - 1]
+        T_w[n_x, N - 1] = 1.0
+        # Moves: D (w - w_s 1) - e_0 (w_prev - w_s) = differences of w.
+        D = np.eye(N) - np.eye(N, k=-1)
+        Ey = Cgam[: N - 1]  # outputs j = 1..N-1
+        Eh = Cphi[: N - 1]
+        H = (
+            output_weight * Ey.T @ Ey
+            + input_target_weight * np.eye(N)
+            + move_weight * D.T @ D
+            + T_w.T @ P_f @ T_w
+        )
+        H = 0.5 * (H + H.T)
+        # J = dW^T H dW + 2 f^T dW, f = F_h h + f_p (w_prev - w_s), dW = w - w_s 1.
+        F_h = output_weight * Ey.T @ Eh + T_w.T @ P_f @ T_h
+        f_p = np.zeros(N)
+        f_p[0] = -move_weight
+        # In absolute w: q/2 = F_h h + f_p w_prev - (f_p + H 1) w_s.
+        self._q_h = 2.0 * F_h
+        self._q_prev = 2.0 * f_p
+        self._q_target = -2.0 * (f_p + H.sum(axis=1))
+        self._terminal_P: FloatArray = P_f
+        self._Cgam_rowsum = Cgam.sum(axis=1)
+        self._Cphi = Cphi
+        self._cost_hessian: FloatArray = np.asarray(H, dtype=float)
+
+        n_var = N + (1 if self.has_soft else 0)
+        blocks: list[sp.spmatrix] = [sp.eye(N, n_var, format="csc")]
+        if has_rate_limit:
+            blocks.append(sp.csc_matrix(D[1:]) @ sp.eye(N, n_var, format="csc"))
+        if self.has_soft:
+            soft_dense = np.zeros((N, n_var))
+            soft_dense[:, :N] = Cgam
+            if has_soft_max:
+                upper = soft_dense.copy()
+                upper[:, N] = -1.0
+                blocks.append(sp.csc_matrix(upper))
+            if has_soft_min:
+                lower = soft_dense.copy()
+                lower[:, N] = 1.0
+                blocks.append(sp.csc_matrix(lower))
+            slack_row = np.zeros((1, n_var))
+            slack_row[0, N] = 1.0
+            blocks.append(sp.csc_matrix(slack_row))
+        A_con = sp.vstack(blocks, format="csc")
+        self.n_constraints = A_con.shape[0]
+        self.n_variables = n_var
+
+        P_full = np.zeros((n_var, n_var))
+        P_full[:N, :N] = 2.0 * H
+        if self.has_soft:
+            P_full[N, N] = 2.0 * soft_limit_weight
+        P_upper = sp.csc_matrix(np.triu(P_full))
+
+        self._q = np.zeros(n_var)
+        if self.has_soft:
+            self._q[N] = soft_limit_linear_weight
+        self._l = np.full(self.n_constraints, -OSQP_INFINITY)
+        self._u = np.full(self.n_constraints, OSQP_INFINITY)
+        # Row offsets.
+        self._row_rate = N
+        self._row_soft = N + (N - 1 if has_rate_limit else 0)
+        if self.has_soft:
+            self._l[-1] = 0.0
+        self._solver = osqp.OSQP()
+        settings: dict[str, Any] = {
+            "verbose": False,
+            "eps_abs": options.eps_abs,
+            "eps_rel": options.eps_rel,
+            "max_iter": options.max_iter,
+            "polishing": options.polishing,
+            "check_termination": options.check_termination,
+            "adaptive_rho_interval": options.adaptive_rho_interval,
+            "warm_starting": True,
+        }
+        if options.time_limit_s is not None:
+            settings["time_limit"] = options.time_limit_s
+        try:
+            self._solver.setup(P_upper, self._q.copy(), A_con, self._l.copy(), self._u.copy(),
+                               **settings)
+        except (osqp.OSQPException, ValueError) as exc:
+            raise DesignError(f"MPC QP: OSQP set-up must succeed; got: {exc}") from exc
+        self._needs_cold_start = False
+        self._zero_x = np.zeros(n_var)
+        self._zero_y = np.zeros(self.n_constraints)
+        self._nan_plan = np.full(N, math.nan)
+        self._nan_plan.setflags(write=False)
+
+    def _failed(self, status: str) -> QPSolution:
+        self._needs_cold_start = True
+        return QPSolution(
+            status=status, is_usable=False, is_accurate=False, w=self._nan_plan,
+            slack_kw=math.nan if self.has_soft else 0.0, objective=math.nan, n_iterations=0,
+            solve_time_s=0.0,
+        )
+
+    @property
+    def cost_hessian(self) -> FloatArray:
+        """(N, N) ``H`` of ``J = dW^T H dW + 2 f^T dW`` (for tests and experts)."""
+        return self._cost_hessian
+
+    @property
+    def terminal_weight(self) -> FloatArray:
+        """(n+1, n+1) DARE terminal weight ``P_f`` on ``[dx_N; w_{N-1} - w_s]``."""
+        return self._terminal_P
+
+    def request_cold_start(self) -> None:
+        """Start the next solve from zero instead of the previous solution."""
+        self._needs_cold_start = True
+
+    def solve(
+        self, *, h: FloatArray, w_prev: float, w_target: float, y_target: float,
+        w_lo: FloatArray, w_hi: FloatArray, rate: FloatArray | None = None,
+        soft_min_rel_kw: float | None = None, soft_max_rel_kw: float | None = None,
+    ) -> QPSolution:
+        """Update ``q``, ``l``, ``u``, solve, and return the plan.
+
+        Parameters
+        ----------
+        h :
+            (n,) free first-step state error (module notes).
+        w_prev :
+            Nonlinearity output applied at the previous sample [kW-equivalent].
+        w_target :
+            ``w_s`` [kW-equivalent].
+        y_target :
+            ``y_s`` [kW deviation] (used by the soft limits only).
+        w_lo, w_hi :
+            (N,) box bounds on ``w_j`` (see `move_bounds`).
+        rate :
+            (N-1,) move limits, required if built with ``has_rate_limit``.
+        soft_min_rel_kw, soft_max_rel_kw :
+            Soft power limits as deviations from ``P_nom`` [kW], required for the rows
+            the problem was built with.
+
+        Notes
+        -----
+        A solve that does not end solved (or solved-inaccurate) with a finite plan makes
+        the next solve cold-start.
+        """
+        N = self.horizon_steps
+        q = self._q
+        q[:N] = self._q_h @ h + self._q_prev * w_prev + self._q_target * w_target
+        lo = self._l
+        up = self._u
+        lo[:N] = w_lo
+        up[:N] = w_hi
+        if self.has_rate_limit and rate is not None:
+            r0 = self._row_rate
+            lo[r0 : r0 + N - 1] = -rate
+            up[r0 : r0 + N - 1] = rate
+        if self.has_soft:
+            # C dx_j = Cphi_j h + Cgam_j w - (Cgam_j 1) w_s ; y_j = y_s + C dx_j.
+            base = self._Cphi @ h - self._Cgam_rowsum * w_target + y_target
+            r0 = self._row_soft
+            if self.has_soft_max and soft_max_rel_kw is not None:
+                up[r0 : r0 + N] = soft_max_rel_kw - base
+                r0 += N
+            if self.has_soft_min and soft_min_rel_kw is not None:
+                lo[r0 : r0 + N] = soft_min_rel_kw - base
+        if not (np.isfinite(q).all() and np.isfinite(lo).all() and np.isfinite(up).all()):
+            return self._failed("non-finite problem data")
+        solver = self._solver
+        try:
+            solver.update(q=q, l=lo, u=up)
+            if self._needs_cold_start:
+                solver.warm_start(x=self._zero_x, y=self._zero_y)
+                self._needs_cold_start = False
+            result = solver.solve(raise_error=False)
+        except osqp.OSQPException as exc:
+            return self._failed(f"osqp error: {exc}")
+        info = result.info
+        status_val = int(info.status_val)
+        x = result.x
+        usable = status_val in (_SOLVED, _SOLVED_INACCURATE) and bool(np.all(np.isfinite(x)))
+        if usable:
+            plan = np.array(x[:N], dtype=float)
+            plan.setflags(write=False)
+            slack = float(x[N]) if self.has_soft else 0.0
+        else:
+            plan = self._nan_plan
+            slack = math.nan if self.has_soft else 0.0
+            self._needs_cold_start = True
+        return QPSolution(
+            status=str(info.status),
+            is_usable=usable,
+            is_accurate=usable and status_val == _SOLVED,
+            w=plan,
+            slack_kw=slack,
+            objective=float(info.obj_val),
+            n_iterations=int(info.iter),
+            solve_time_s=float(info.solve_time),
+        )
+
+
+__all__ = [
+    "MPCQP",
+    "OSQP_INFINITY",
+    "QPSolution",
+    "lq_problem",
+    "move_bounds",
+    "terminal_cost",
+]

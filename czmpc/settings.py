@@ -1,0 +1,324 @@
+"""MPCSettings (+ OSQPOptions): frozen, validated, defaults from a model.
+
+Every tuning knob of `czmpc.controller.OffsetFreeMPC` lives here, checked once at
+construction (an invalid instance cannot exist). Model-dependent checks (is the allowed
+input range on the monotone branch of ``f``? is the augmented pair detectable?) happen
+when the controller is built and raise `czmpc.errors.DesignError`.
+
+Weights are on quantities in kW: the QP works in ``w = f(ds)`` [kW-equivalent], and the
+linear block's first ``B`` coefficient is normalized to 1 (DESIGN.md, model file), so one
+kW of ``w`` moves the power by one kW at once. That is why fixed numbers are sensible
+defaults for every model in this form.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Literal, get_args
+
+from czmpc.errors import SettingsError
+from sysid.model import HammersteinModel
+from sysid.polynomials import max_root_modulus
+
+DisturbanceModel = Literal["input", "output"]
+PresetName = Literal["default", "aggressive", "smooth"]
+
+#: Fraction of the slow time constant the default horizon covers (see `default_for`).
+HORIZON_FRACTION_OF_SLOW_MODE = 0.3
+#: Default horizons stay within these bounds [samples].
+MIN_DEFAULT_HORIZON_STEPS = 10
+MAX_DEFAULT_HORIZON_STEPS = 60
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check_finite(owner: str, name: str, value: object, *, minimum: float | None = None,
+                  strict: bool = False) -> None:
+    if not _is_number(value) or not math.isfinite(float(value)):  # type: ignore[arg-type]
+        raise SettingsError(f"{owner}.{name} must be a finite number; got {value!r}")
+    if minimum is not None:
+        v = float(value)  # type: ignore[arg-type]
+        if (strict and v <= minimum) or (not strict and v < minimum):
+            op = ">" if strict else ">="
+            raise SettingsError(f"{owner}.{name} must be a number {op} {minimum:g}; got {value!r}")
+
+
+def _check_int(owner: str, name: str, value: object, *, minimum: int) -> None:
+    if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
+        raise SettingsError(f"{owner}.{name} must be an int >= {minimum}; got {value!r}")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OSQPOptions:
+    """Options passed to OSQP by `czmpc.qp.MPCQP` (and nowhere else).
+
+    Parameters
+    ----------
+    eps_abs, eps_rel :
+        Absolute and relative termination tolerances. About 1e-5 keeps the input bounds
+        (in kW-equivalent) to about 1e-4 kW, well below anything physical.
+    max_iter :
+        Iteration cap per solve; a solve that hits it counts as failed and the
+        controller falls back (DESIGN.md item 7).
+    polishing :
+        Run OSQP's solution polishing (an extra active-set solve): bounds then hold to
+        about 1e-9 instead of about ``eps``, at the cost of one extra factorization.
+    time_limit_s :
+        Wall-clock cap per solve [s], or None for none. Setting it makes results depend
+        on machine speed (STYLE.md B.9), so it is off by default.
+    check_termination :
+        Check the termination criteria every this many iterations. Warm-started solves
+        need few iterations, so checking often saves time.
+    adaptive_rho_interval :
+        Update OSQP's step size ``rho`` every this many iterations. A fixed interval (not
+        OSQP's time-based choice) keeps runs bit-for-bit reproducible.
+    """
+
+    eps_abs: float = 1e-5
+    eps_rel: float = 1e-5
+    max_iter: int = 1000
+    polishing: bool = False
+    time_limit_s: float | None = None
+    check_termination: int = 5
+    adaptive_rho_interval: int = 25
+
+    def __post_init__(self) -> None:
+        owner = "OSQPOptions"
+        _check_finite(owner, "eps_abs", self.eps_abs, minimum=0.0, strict=True)
+        _check_finite(owner, "eps_rel", self.eps_rel, minimum=0.0)
+        _check_int(owner, "max_iter", self.max_iter, minimum=1)
+        if not isinstance(self.polishing, bool):
+            raise SettingsError(f"{owner}.polishing must be a bool; got {self.polishing!r}")
+        if self.time_limit_s is not None:
+            _check_finite(owner, "time_limit_s", self.time_limit_s, minimum=0.0, strict=True)
+        _check_int(owner, "check_termination", self.check_termination, minimum=1)
+        _check_int(owner, "adaptive_rho_interval", self.adaptive_rho_interval, minimum=1)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MPCSettings:
+    """Tuning of the offset-free MPC (DESIGN.md, "The controller, precisely").
+
+    Parameters
+    ----------
+    horizon_steps :
+        Prediction and control horizon ``N`` [samples].
+    output_weight :
+        Weight on ``(P - P_target)^2`` [1/kW^2] at every predicted sample.
+    move_weight :
+        Weight on ``(w_k - w_{k-1})^2`` [1/kW^2], ``w = f(ds)`` in kW-equivalent.
+    input_target_weight :
+        Weight on ``(w_k - w_s)^2`` [1/kW^2], ``w_s`` the steady-state target input.
+        ``move_weight + input_target_weight`` must be > 0 (the LQ problem needs a
+        positive input weight).
+    disturbance_model :
+        Where the integrating disturbance ``d`` acts: ``"input"`` (``w + d``) or
+        ``"output"`` (``P + d``). Both remove offset; see `default_for` for the choice.
+    disturbance_noise :
+        Variance of the disturbance's random-walk increment relative to the innovation
+        variance ``sigma_e^2`` [-]. Larger values track disturbances faster and pass more
+        measurement noise to the input. The estimator gains depend only on this ratio.
+    triac_min_pct, triac_max_pct :
+        Hard TRIAC limits [%], inside 0..100.
+    validity_margin_pct :
+        How far [%] beyond the model's identified input range ``input_range_pct`` the
+        controller may drive ``s``. The allowed range is
+        ``[s_min - margin, s_max + margin]`` intersected with the TRIAC limits; it must
+        stay on the monotone branch of ``f`` (else `DesignError` at construction).
+    max_move_pct_per_step :
+        Largest TRIAC change per sample [%/step], or None for no rate limit.
+    soft_power_min_kw, soft_power_max_kw :
+        Soft limits on the predicted absolute power [kW], or None. Violations are
+        allowed through one slack variable ``v >= 0`` [kW] penalised by
+        ``soft_limit_weight * v^2 + soft_limit_linear_weight * v``.
+    soft_limit_weight :
+        Quadratic slack weight [1/kW^2].
+    soft_limit_linear_weight :
+        Linear slack weight [1/kW]; large enough makes the soft limit exact when it can
+        be met (an exact penalty).
+    initial_triac_pct :
+        The TRIAC input the plant holds when the controller starts [%], or None for the
+        model's operating point. The estimator starts at that input's steady state and
+        the first rate limit is taken from it.
+    osqp :
+        Solver options.
+
+    Raises
+    ------
+    SettingsError
+        A value of the wrong type, non-finite, out of range, or inconsistent with another.
+    """
+
+    horizon_steps: int = 30
+    output_weight: float = 1.0
+    move_weight: float = 0.1
+    input_target_weight: float = 0.01
+    disturbance_model: DisturbanceModel = "input"
+    disturbance_noise: float = 0.1
+    triac_min_pct: float = 0.0
+    triac_max_pct: float = 100.0
+    validity_margin_pct: float = 5.0
+    max_move_pct_per_step: float | None = None
+    soft_power_min_kw: float | None = None
+    soft_power_max_kw: float | None = None
+    soft_limit_weight: float = 1e3
+    soft_limit_linear_weight: float = 1e2
+    initial_triac_pct: float | None = None
+    osqp: OSQPOptions = OSQPOptions()
+
+    def __post_init__(self) -> None:
+        owner = "MPCSettings"
+        _check_int(owner, "horizon_steps", self.horizon_steps, minimum=1)
+        _check_finite(owner, "output_weight", self.output_weight, minimum=0.0, strict=True)
+        _check_finite(owner, "move_weight", self.move_weight, minimum=0.0)
+        _check_finite(owner, "input_target_weight", self.input_target_weight, minimum=0.0)
+        if self.move_weight + self.input_target_weight <= 0.0:
+            raise SettingsError(
+                f"{owner}.move_weight + input_target_weight must be > 0 (the LQ problem "
+                f"needs a positive input weight); got {self.move_weight!r} + "
+                f"{self.input_target_weight!r}"
+            )
+        if self.disturbance_model not in get_args(DisturbanceModel):
+            raise SettingsError(
+                f"{owner}.disturbance_model must be 'input' or 'output'; "
+                f"got {self.disturbance_model!r}"
+            )
+        _check_finite(owner, "disturbance_noise", self.disturbance_noise, minimum=0.0,
+                      strict=True)
+        _check_finite(owner, "triac_min_pct", self.triac_min_pct, minimum=0.0)
+        _check_finite(owner, "triac_max_pct", self.triac_max_pct)
+        if not self.triac_min_pct < self.triac_max_pct <= 100.0:
+            raise SettingsError(
+                f"{owner}: expected 0 <= triac_min_pct < triac_max_pct <= 100 [%]; got "
+                f"triac_min_pct={self.triac_min_pct!r}, triac_max_pct={self.triac_max_pct!r}"
+            )
+        _check_finite(owner, "validity_margin_pct", self.validity_margin_pct, minimum=0.0)
+        if self.max_move_pct_per_step is not None:
+            _check_finite(owner, "max_move_pct_per_step", self.max_move_pct_per_step,
+                          minimum=0.0, strict=True)
+        for name in ("soft_power_min_kw", "soft_power_max_kw"):
+            if getattr(self, name) is not None:
+                _check_finite(owner, name, getattr(self, name))
+        if (
+            self.soft_power_min_kw is not None
+            and self.soft_power_max_kw is not None
+            and not self.soft_power_min_kw < self.soft_power_max_kw
+        ):
+            raise SettingsError(
+                f"{owner}: expected soft_power_min_kw < soft_power_max_kw [kW]; got "
+                f"{self.soft_power_min_kw!r} and {self.soft_power_max_kw!r}"
+            )
+        _check_finite(owner, "soft_limit_weight", self.soft_limit_weight, minimum=0.0,
+                      strict=True)
+        _check_finite(owner, "soft_limit_linear_weight", self.soft_limit_linear_weight,
+                      minimum=0.0)
+        if self.initial_triac_pct is not None:
+            _check_finite(owner, "initial_triac_pct", self.initial_triac_pct)
+            if not self.triac_min_pct <= self.initial_triac_pct <= self.triac_max_pct:
+                raise SettingsError(
+                    f"{owner}.initial_triac_pct must lie within [triac_min_pct, "
+                    f"triac_max_pct] = [{self.triac_min_pct:g}, {self.triac_max_pct:g}] [%]; "
+                    f"got {self.initial_triac_pct!r}"
+                )
+        if not isinstance(self.osqp, OSQPOptions):
+            raise SettingsError(f"{owner}.osqp must be an OSQPOptions; got {self.osqp!r}")
+
+    @property
+    def has_rate_limit(self) -> bool:
+        """True if a TRIAC rate limit is set."""
+        return self.max_move_pct_per_step is not None
+
+    @property
+    def has_soft_power_limits(self) -> bool:
+        """True if at least one soft power limit is set."""
+        return self.soft_power_min_kw is not None or self.soft_power_max_kw is not None
+
+    def with_updates(self, **changes: object) -> MPCSettings:
+        """Return a copy with the given fields replaced (validated again)."""
+        return replace(self, **changes)  # type: ignore[arg-type]
+
+    @classmethod
+    def default_for(cls, model: HammersteinModel) -> MPCSettings:
+        """Good default settings for ``model``.
+
+        The horizon covers `HORIZON_FRACTION_OF_SLOW_MODE` (30 %) of the slow time
+        constant ``tau = -1 / ln|z_max|`` of ``A(q)`` (samples), within 10..60 samples.
+        The DARE terminal cost already accounts for everything after the horizon in the
+        unconstrained case, so the horizon has to cover only the transient in which
+        constraints bind (the instantaneous step and the first part of the sag); for the
+        paper's model (``a1 = -0.99``, ``tau`` about 100 samples = 200 s) that gives
+        30 samples = 60 s, the horizon DESIGN.md names, at a third of the cost of a
+        full-``tau`` horizon.
+
+        The disturbance model is ``"input"``: on the paper's models, with a persistent
+        +0.15 kW output shift and noise, it gave lower closed-loop IAE than the
+        output disturbance (see the benchmark report), because an input disturbance
+        shapes the estimated disturbance through the process dynamics ``B/A`` and so
+        rejects the slow drift without amplifying measurement noise as much.
+
+        Parameters
+        ----------
+        model :
+            The identified model the controller is built from.
+        """
+        rho = max_root_modulus(model.a)
+        if rho <= 0.0:
+            horizon = MIN_DEFAULT_HORIZON_STEPS
+        else:
+            tau_steps = -1.0 / math.log(rho)
+            horizon = math.ceil(HORIZON_FRACTION_OF_SLOW_MODE * tau_steps)
+        horizon = min(MAX_DEFAULT_HORIZON_STEPS, max(MIN_DEFAULT_HORIZON_STEPS, horizon))
+        return cls(horizon_steps=horizon)
+
+    @classmethod
+    def preset(cls, name: PresetName, model: HammersteinModel) -> MPCSettings:
+        """Named tuning presets built on `default_for`.
+
+        ``"default"``
+            `default_for` unchanged: output weight 1, move weight 0.1, input-target
+            weight 0.01 [1/kW^2]; moves of a few kW cost about as much as a 1 kW error.
+        ``"aggressive"``
+            Output weight 1, move weight 1e-4, input-target weight 1e-5: close to the
+            one-sample-delay deadbeat response (the instantaneous gain of ``B`` is 1, so
+            the first move alone can put the power on its setpoint). Noise goes through
+            to the input nearly unfiltered.
+        ``"smooth"``
+            Move weight 1, input-target weight 0.01, disturbance noise ratio 0.02:
+            slower, smaller moves and a disturbance estimate that averages over more
+            samples.
+
+        Parameters
+        ----------
+        name :
+            ``"default"``, ``"aggressive"`` or ``"smooth"``.
+        model :
+            The identified model the controller is built from.
+
+        Raises
+        ------
+        SettingsError
+            An unknown preset name.
+        """
+        base = cls.default_for(model)
+        if name == "default":
+            return base
+        if name == "aggressive":
+            return base.with_updates(move_weight=1e-4, input_target_weight=1e-5)
+        if name == "smooth":
+            return base.with_updates(move_weight=1.0, input_target_weight=0.01,
+                                     disturbance_noise=0.02)
+        raise SettingsError(
+            f"MPCSettings.preset: name must be one of {list(get_args(PresetName))}; "
+            f"got {name!r}"
+        )
+
+
+__all__ = [
+    "DisturbanceModel",
+    "MPCSettings",
+    "OSQPOptions",
+    "PresetName",
+]
