@@ -1,0 +1,808 @@
+"""Data preprocessing (paper sec. 5): operating point, deviation variables, outliers.
+
+Every function that changes data returns a *new* `Dataset` made by
+`Dataset.with_signals` with one more entry in ``Dataset.preprocessing`` (what, where,
+old and new values), so each repair travels into the model's provenance. Nothing is
+changed silently: outlier detection only *reports* candidates; the user decides and
+applies `interpolate_spike` or `correct_level_shift`, as the paper's authors did.
+
+Notation
+--------
+``s`` / ``u`` : input (TRIAC signal [%] for the CZ heater; `Dataset.input_unit`).
+``P`` / ``y`` : output (heater power [kW]; `Dataset.output_unit`). Names ending in
+``_kw`` carry the output unit of the data set (kW for the CZ heater).
+``(s_nom, P_nom)`` : operating point (sec. 5.1); ``ds = s - s_nom``, ``dP = P - P_nom``.
+``e`` : one-step-ahead residuals of a high-order ARX model (paper Fig. 3, eq. 5).
+``sigma`` : robust residual scale ``1.4826 * median(|e - median(e)|)`` (MAD; equals the
+standard deviation for Gaussian residuals but ignores the outliers being sought).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from sysid._typing import FloatArray
+from sysid.data import Dataset
+from sysid.errors import DataFileError, IdentificationError
+from sysid.linear import arx_least_squares
+from sysid.model import OperatingPoint
+
+OperatingPointMethod = Literal["given", "means", "steady"]
+OutlierKind = Literal["spike", "level_shift"]
+
+#: MAD-to-standard-deviation factor for Gaussian data (1 / Phi^-1(3/4)).
+MAD_TO_STD = 1.4826
+
+#: Default outlier threshold [robust residual scales]. A Gaussian residual exceeds
+#: 5 sigma with probability 5.7e-7, so a 12 500-sample record (the paper's ~7 h at
+#: 2 s) yields about 0.007 false candidates.
+DEFAULT_OUTLIER_THRESHOLD = 5.0
+
+#: Default input-step threshold [robust scales of the input's first differences]
+#: when the input moves at most samples (a smooth input); for a staircase input
+#: that scale is 0 and every change is a step.
+INPUT_STEP_SIGMAS = 5.0
+
+#: Residual scale (MAD) at or below this fraction of the output's standard deviation
+#: means an exact fit up to rounding: nothing to measure outliers against.
+EXACT_FIT_RTOL = 1e-9
+
+#: Samples on each side used for the output levels around an outlier candidate.
+LEVEL_WINDOW_SAMPLES = 5
+
+#: Flagged samples at most this far apart belong to one event (a spike flags its
+#: own sample and the next one, whose prediction used the spike).
+EVENT_GAP_SAMPLES = 2
+
+
+def _robust_scale(x: FloatArray) -> float:
+    """``1.4826 * median(|x - median(x)|)``."""
+    return MAD_TO_STD * float(np.median(np.abs(x - np.median(x))))
+
+
+def _readonly(values: FloatArray) -> FloatArray:
+    arr = np.array(values, dtype=float, copy=True)
+    arr.setflags(write=False)
+    return arr
+
+
+# --------------------------------------------------------------------------- operating point
+
+
+@dataclass(frozen=True, kw_only=True)
+class SteadyWindow:
+    """A stretch of constant input and settled output (paper sec. 5.1, Fig. 2).
+
+    Parameters
+    ----------
+    start_sample, stop_sample :
+        The window is samples ``start_sample .. stop_sample - 1``.
+    start_time_s, end_time_s :
+        Times of its first and last sample [s].
+    input_spread :
+        ``max - min`` of the input in the window [input unit].
+    output_spread_kw :
+        ``max - min`` of the output in the window [output unit].
+    output_std_kw :
+        Standard deviation of the output in the window [output unit].
+    output_drift_kw :
+        ``|slope| * (n - 1)``: change across the window of a straight line fitted
+        to the output by least squares [output unit].
+    drift_limit_kw :
+        Largest drift (and first/last-quarter mean difference) that counted as
+        settled [output unit].
+    """
+
+    start_sample: int
+    stop_sample: int
+    start_time_s: float
+    end_time_s: float
+    input_spread: float
+    output_spread_kw: float
+    output_std_kw: float
+    output_drift_kw: float
+    drift_limit_kw: float
+
+    @property
+    def n_samples(self) -> int:
+        """Samples in the window."""
+        return self.stop_sample - self.start_sample
+
+
+@dataclass(frozen=True, kw_only=True)
+class OperatingPointChoice:
+    """The operating point used for detrending and how it was found (paper sec. 5.1).
+
+    Parameters
+    ----------
+    operating_point :
+        ``(s_nom, P_nom)`` in the data set's units.
+    method :
+        ``"given"`` (the user's value), ``"means"`` (sample means over the record) or
+        ``"steady"`` (means over the longest steady window).
+    window :
+        The steady window for ``"steady"``, else None.
+    """
+
+    operating_point: OperatingPoint
+    method: OperatingPointMethod
+    window: SteadyWindow | None = None
+
+
+def _constant_input_runs(u: FloatArray, tol: float) -> list[tuple[int, int]]:
+    """Maximal runs ``[a, b)`` in which every input lies within ``tol`` of ``u[a]``."""
+    runs: list[tuple[int, int]] = []
+    start = 0
+    for k in range(1, u.size):
+        if abs(u[k] - u[start]) > tol:
+            runs.append((start, k))
+            start = k
+    runs.append((start, u.size))
+    return runs
+
+
+def _settled_start(
+    y: FloatArray, a: int, b: int, min_len: int, limit: float
+) -> tuple[int, float] | None:
+    """Earliest ``m`` in ``[a, b - min_len]`` with ``y[m:b]`` settled, and its drift.
+
+    Settled: the straight-line drift ``|slope| (L - 1)`` and the difference of the
+    means of the first and last quarter are both ``<= limit`` (``L = b - m``).
+    """
+    if b - a < min_len:
+        return None
+    seg = y[a:b] - y[a]
+    k = np.arange(seg.size, dtype=float)
+    c0 = np.concatenate([[0.0], np.cumsum(seg)])
+    c1 = np.concatenate([[0.0], np.cumsum(k * seg)])
+    m = np.arange(0, seg.size - min_len + 1)
+    n = seg.size
+    length = (n - m).astype(float)
+    k_mean = (m + n - 1) / 2.0
+    s_xx = length * (length**2 - 1.0) / 12.0
+    s_xy = (c1[n] - c1[m]) - k_mean * (c0[n] - c0[m])
+    drift = np.abs(s_xy / s_xx) * (length - 1.0)
+    quarter = np.maximum((n - m) // 4, 1)
+    first_mean = (c0[m + quarter] - c0[m]) / quarter
+    last_mean = (c0[n] - c0[n - quarter]) / quarter
+    ok = (drift <= limit) & (np.abs(last_mean - first_mean) <= limit)
+    if not np.any(ok):
+        return None
+    i = int(np.argmax(ok))
+    return a + int(m[i]), float(drift[i])
+
+
+def find_operating_point(
+    data: Dataset,
+    *,
+    method: OperatingPointMethod,
+    given: OperatingPoint | None = None,
+    input_tol: float = 0.0,
+    min_window_samples: int = 20,
+    drift_sigmas: float = 3.0,
+    output_atol_kw: float = 0.0,
+) -> OperatingPointChoice:
+    """Choose the steady operating point ``(s_nom, P_nom)`` for detrending (paper sec. 5.1).
+
+    Parameters
+    ----------
+    data :
+        The record.
+    method :
+        ``"given"``: use `given` (a known steady state, e.g. the input before the
+        experiment). ``"means"``: sample means of input and output over the record
+        (the paper's fallback). ``"steady"``: means over the longest steady window
+        (the paper found ``t in [8700, 10300] s`` at (45 %, 45 kW)).
+    given :
+        The operating point for ``method="given"``; must be None otherwise.
+    input_tol :
+        ``"steady"``: the input counts as constant while it stays within this of
+        its value at the start of the stretch [input unit].
+    min_window_samples :
+        ``"steady"``: fewest samples of a steady window (>= 4).
+    drift_sigmas :
+        ``"steady"``: the drift limit in units of the output's white-noise scale
+        ``sigma_y = 1.4826 median|d y - median(d y)| / sqrt(2)`` (``d y`` the first
+        differences over the whole record; robust to steps).
+    output_atol_kw :
+        ``"steady"``: the drift limit never goes below this [output unit] (for a
+        quantized output whose differences are mostly 0).
+
+    Returns
+    -------
+    OperatingPointChoice
+        The point, the method used and, for ``"steady"``, the window.
+
+    Raises
+    ------
+    IdentificationError
+        Unknown `method`; `given` missing for ``"given"`` or passed with another
+        method; negative tolerances; `min_window_samples` < 4; or no steady window.
+
+    Notes
+    -----
+    The ``"steady"`` rule: split the record into maximal stretches of constant input
+    (within `input_tol`). In each stretch take the earliest start ``m`` such that,
+    over the window from ``m`` to the stretch's end, (i) the least-squares straight
+    line through the output changes by at most ``limit`` across the window and (ii)
+    the means of the window's first and last quarter differ by at most ``limit``,
+    with ``limit = max(drift_sigmas * sigma_y, output_atol_kw)``; the window must
+    hold at least `min_window_samples`. The longest such window wins (the earliest
+    on a tie); the operating point is the mean input and mean output in it.
+    """
+    if method not in ("given", "means", "steady"):
+        raise IdentificationError(
+            f"find_operating_point: method must be 'given', 'means' or 'steady'; got {method!r}"
+        )
+    if method == "given":
+        if given is None:
+            raise IdentificationError(
+                "find_operating_point: method='given' needs given=OperatingPoint(...); got None"
+            )
+        return OperatingPointChoice(operating_point=given, method="given")
+    if given is not None:
+        raise IdentificationError(
+            f"find_operating_point: given is only used with method='given'; got "
+            f"method={method!r} and given={given!r}"
+        )
+    u, y = data.triac_pct, data.power_kw
+    if method == "means":
+        op = OperatingPoint(triac_pct=float(u.mean()), power_kw=float(y.mean()))
+        return OperatingPointChoice(operating_point=op, method="means")
+    for name, value in (("input_tol", input_tol), ("drift_sigmas", drift_sigmas),
+                        ("output_atol_kw", output_atol_kw)):
+        if not (math.isfinite(value) and value >= 0.0):
+            raise IdentificationError(
+                f"find_operating_point: {name} must be a finite number >= 0; got {value!r}"
+            )
+    if isinstance(min_window_samples, bool) or not isinstance(min_window_samples, int) or \
+            min_window_samples < 4:
+        raise IdentificationError(
+            f"find_operating_point: min_window_samples must be an int >= 4; got "
+            f"{min_window_samples!r}"
+        )
+    sigma_y = _robust_scale(np.diff(y)) / math.sqrt(2.0)
+    limit = max(drift_sigmas * sigma_y, output_atol_kw)
+    best: tuple[int, int, float] | None = None
+    for a, b in _constant_input_runs(u, input_tol):
+        found = _settled_start(y, a, b, min_window_samples, limit)
+        if found is not None and (best is None or b - found[0] > best[1] - best[0]):
+            best = (found[0], b, found[1])
+    if best is None:
+        raise IdentificationError(
+            f"find_operating_point(method='steady'), {data.source or '<memory>'}: expected a "
+            f"window of at least {min_window_samples} samples with the input constant within "
+            f"{input_tol:g} and the output settled (drift <= {limit:.4g} {data.output_unit}); "
+            "got none. Use method='means' or 'given', or relax the tolerances"
+        )
+    start, stop, drift = best
+    yw, uw = y[start:stop], u[start:stop]
+    window = SteadyWindow(
+        start_sample=start, stop_sample=stop,
+        start_time_s=float(data.time_s[start]), end_time_s=float(data.time_s[stop - 1]),
+        input_spread=float(np.ptp(uw)), output_spread_kw=float(np.ptp(yw)),
+        output_std_kw=float(np.std(yw)), output_drift_kw=drift, drift_limit_kw=limit,
+    )
+    op = OperatingPoint(triac_pct=float(uw.mean()), power_kw=float(yw.mean()))
+    return OperatingPointChoice(operating_point=op, method="steady", window=window)
+
+
+def to_deviation(data: Dataset, op: OperatingPoint) -> tuple[FloatArray, FloatArray]:
+    """Deviation variables ``ds = s - s_nom``, ``dP = P - P_nom`` (paper sec. 5.1).
+
+    Parameters
+    ----------
+    data :
+        The record (absolute units).
+    op :
+        The operating point ``(s_nom, P_nom)``.
+
+    Returns
+    -------
+    tuple of FloatArray
+        ``(ds, dP)``, each shape ``(n_samples,)``, read-only [input unit], [output unit].
+    """
+    return (_readonly(data.triac_pct - op.triac_pct), _readonly(data.power_kw - op.power_kw))
+
+
+# --------------------------------------------------------------------------- outliers
+
+
+@dataclass(frozen=True, kw_only=True)
+class OutlierCandidate:
+    """A large-residual event away from input steps: an outlier candidate (paper Figs. 4-5).
+
+    Parameters
+    ----------
+    sample :
+        Onset: the first sample of the event whose residual exceeds the threshold.
+    time_s :
+        Time of `sample` [s].
+    last_sample :
+        Last flagged sample of the event (events merge flags <= 2 samples apart).
+    residual_kw :
+        ARX residual at `sample` [output unit].
+    peak_residual_kw :
+        The event's residual of largest magnitude, with its sign [output unit].
+    opposite_residual_follows :
+        True if a residual of opposite sign beyond half the threshold follows within
+        2 samples of the onset (the signature of a spike the ARX predicted from).
+    output_jump_kw :
+        Output deviation of largest magnitude over ``sample .. min(last_sample,
+        sample + 2)`` from the level before (median of the 5 samples before) [output unit].
+    persisting_change_kw :
+        Level after the event (median of the 5 samples after `last_sample`) minus
+        the level before [output unit].
+    kind :
+        ``"spike"`` if the output comes back (``|persisting| < |jump| / 2``): repair
+        with `interpolate_spike`. ``"level_shift"`` if it stays: measure with
+        `estimate_level_shift`, repair with `correct_level_shift`.
+    """
+
+    sample: int
+    time_s: float
+    last_sample: int
+    residual_kw: float
+    peak_residual_kw: float
+    opposite_residual_follows: bool
+    output_jump_kw: float
+    persisting_change_kw: float
+    kind: OutlierKind
+
+
+@dataclass(frozen=True, kw_only=True)
+class StepResidual:
+    """A large-residual event right after an input step: model imperfection, not an outlier.
+
+    Parameters
+    ----------
+    sample, last_sample, time_s, peak_residual_kw :
+        As for `OutlierCandidate`.
+    input_step_sample :
+        Sample ``j`` of the input change it follows (``u[j] != u[j-1]``).
+    """
+
+    sample: int
+    last_sample: int
+    time_s: float
+    peak_residual_kw: float
+    input_step_sample: int
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class OutlierReport:
+    """Outlier candidates from the residuals of a high-order ARX model (paper sec. 5.2).
+
+    Parameters
+    ----------
+    residuals_kw :
+        One-step-ahead ARX residuals aligned with the data's samples, shape
+        ``(n_samples,)`` [output unit]; NaN (no prediction) before `first_sample`.
+    first_sample :
+        First sample with a residual, ``max(na, nk + nb - 1)``.
+    scale_kw :
+        Robust residual scale ``sigma`` (MAD) [output unit].
+    threshold :
+        Flagging threshold in units of `scale_kw`.
+    threshold_kw :
+        ``threshold * scale_kw`` [output unit].
+    na, nb, nk :
+        ARX orders used.
+    input_step_samples :
+        Samples ``j`` at which the input changed by more than `input_step_tol`.
+    input_step_tol :
+        Input change that counted as a step [input unit].
+    candidates :
+        Events away from input steps, in time order.
+    step_residuals :
+        Events within the guard after an input step (excluded from `candidates`).
+    clipped_samples :
+        Samples where the output sits at its record maximum or minimum in an exactly
+        constant run of at least ``clip_min_run_samples`` samples (a saturated
+        sensor or overflow, e.g. the cascaded tanks at 10 V): reported, never repaired.
+    """
+
+    residuals_kw: FloatArray = field(repr=False)
+    first_sample: int
+    scale_kw: float
+    threshold: float
+    threshold_kw: float
+    na: int
+    nb: int
+    nk: int
+    input_step_samples: tuple[int, ...]
+    input_step_tol: float
+    candidates: tuple[OutlierCandidate, ...]
+    step_residuals: tuple[StepResidual, ...]
+    clipped_samples: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "residuals_kw", _readonly(self.residuals_kw))
+
+
+def _events(flagged: npt.NDArray[np.intp]) -> list[tuple[int, int]]:
+    """Group sorted sample indices into ``(first, last)`` events."""
+    events: list[tuple[int, int]] = []
+    for k in (int(i) for i in flagged):
+        if events and k - events[-1][1] <= EVENT_GAP_SAMPLES:
+            events[-1] = (events[-1][0], k)
+        else:
+            events.append((k, k))
+    return events
+
+
+def _clipped_samples(y: FloatArray, min_run: int) -> tuple[int, ...]:
+    out: list[int] = []
+    for extreme in {float(y.max()), float(y.min())}:
+        at = np.concatenate([[False], y == extreme, [False]])
+        edges = np.flatnonzero(np.diff(at.astype(np.int8)))
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            if b - a >= min_run:
+                out.extend(range(int(a), int(b)))
+    return tuple(sorted(out))
+
+
+def _check_int(where: str, name: str, value: object, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise IdentificationError(f"{where}: {name} must be an int >= {minimum}; got {value!r}")
+    return int(value)
+
+
+def find_outlier_candidates(
+    data: Dataset,
+    *,
+    operating_point: OperatingPoint,
+    na: int = 10,
+    nb: int = 10,
+    nk: int = 1,
+    threshold: float = DEFAULT_OUTLIER_THRESHOLD,
+    step_guard_samples: int = 5,
+    input_step_tol: float | None = None,
+    clip_min_run_samples: int = 10,
+) -> OutlierReport:
+    """Flag outlier candidates by the residuals of a high-order ARX model (paper sec. 5.2).
+
+    The method of Komperod et al. (2008) as used in the paper: fit ARX(na, nb, nk)
+    (default 10, 10, 1) to the deviation data by least squares, flag samples whose
+    one-step-ahead residual exceeds ``threshold * sigma``, drop those right after an
+    input step (model imperfection), and guess each remaining event's kind.
+
+    Parameters
+    ----------
+    data :
+        The record (absolute units).
+    operating_point :
+        ``(s_nom, P_nom)`` for the deviation variables.
+    na, nb, nk :
+        ARX orders (paper: ``na = nb = 10``).
+    threshold :
+        Flag ``|e_k| > threshold * sigma`` with ``sigma`` the MAD scale of the
+        residuals (module Notation) [dimensionless, > 0].
+    step_guard_samples :
+        An event whose onset lies ``nk .. nk + step_guard_samples`` samples after an
+        input step is a `StepResidual`, not a candidate (>= 0).
+    input_step_tol :
+        An input change ``|u_j - u_{j-1}|`` above this is a step [input unit]. Default:
+        ``5 * 1.4826 * MAD(diff(u))``, i.e. any change of a staircase input, and only
+        unusual jumps of a smooth input.
+    clip_min_run_samples :
+        Shortest exactly constant run at the output's extreme reported as clipping (>= 2).
+
+    Returns
+    -------
+    OutlierReport
+
+    Raises
+    ------
+    IdentificationError
+        Bad orders or options; a record too short or unexciting for the ARX orders;
+        residuals with zero robust scale (an exact fit, up to rounding, leaves nothing
+        to compare with; see `EXACT_FIT_RTOL`).
+
+    Notes
+    -----
+    Kind guess (paper Figs. 4-5): a spike returns to its level (Fig. 4: one low
+    sample, the ARX then predicts from it, so an opposite residual follows); a level
+    shift has same-sign residuals for 1-3 samples and the output stays (Fig. 5). The
+    rule used is ``|persisting_change| < |output_jump| / 2`` for a spike, computed from
+    the output levels 5 samples either side, which assumes a steady output there.
+    An event at the very end of the record has no "after" and counts as a level shift.
+    """
+    where = "find_outlier_candidates"
+    na = _check_int(where, "na", na, 0)
+    nb = _check_int(where, "nb", nb, 1)
+    nk = _check_int(where, "nk", nk, 0)
+    step_guard_samples = _check_int(where, "step_guard_samples", step_guard_samples, 0)
+    clip_min_run_samples = _check_int(where, "clip_min_run_samples", clip_min_run_samples, 2)
+    if not (math.isfinite(threshold) and threshold > 0.0):
+        raise IdentificationError(f"{where}: threshold must be a finite number > 0; got "
+                                  f"{threshold!r}")
+    if input_step_tol is not None and not (math.isfinite(input_step_tol) and input_step_tol >= 0):
+        raise IdentificationError(f"{where}: input_step_tol must be a finite number >= 0 or "
+                                  f"None; got {input_step_tol!r}")
+    ds, dp = to_deviation(data, operating_point)
+    fit = arx_least_squares(dp, ds, na=na, nb=nb, nk=nk)
+    n0 = fit.first_sample
+    e = fit.residuals
+    scale = _robust_scale(e)
+    if scale <= EXACT_FIT_RTOL * float(np.std(dp)):
+        raise IdentificationError(
+            f"{where}: expected residuals with a positive robust scale (MAD); got {scale:.3g} "
+            f"(the ARX({na},{nb},{nk}) fits at least half the samples exactly, to rounding), "
+            "so no outlier can be told from the rest"
+        )
+    residuals = np.full(data.n_samples, np.nan)
+    residuals[n0:] = e
+    du = np.diff(data.triac_pct)
+    step_tol = INPUT_STEP_SIGMAS * _robust_scale(du) if input_step_tol is None \
+        else float(input_step_tol)
+    steps = np.flatnonzero(np.abs(du) > step_tol) + 1
+    limit = threshold * scale
+    candidates: list[OutlierCandidate] = []
+    step_residuals: list[StepResidual] = []
+    y = data.power_kw
+    for first, last in _events(np.flatnonzero(np.abs(e) > limit) + n0):
+        peak = first + int(np.argmax(np.abs(residuals[first : last + 1])))
+        lags = first - nk - steps
+        near = steps[(lags >= 0) & (lags <= step_guard_samples)]
+        if near.size:
+            step_residuals.append(StepResidual(
+                sample=first, last_sample=last, time_s=float(data.time_s[first]),
+                peak_residual_kw=float(residuals[peak]), input_step_sample=int(near[-1]),
+            ))
+            continue
+        before = float(np.median(y[max(first - LEVEL_WINDOW_SAMPLES, 0) : first]))
+        onset = y[first : min(last, first + 2) + 1] - before
+        jump = float(onset[np.argmax(np.abs(onset))])
+        after_values = y[last + 1 : last + 1 + LEVEL_WINDOW_SAMPLES]
+        persisting = float(np.median(after_values)) - before if after_values.size else jump
+        follow = residuals[first + 1 : first + 3]
+        opposite = bool(np.any(np.sign(follow) == -np.sign(residuals[first]))
+                        and np.any(np.abs(follow) > limit / 2))
+        candidates.append(OutlierCandidate(
+            sample=first, time_s=float(data.time_s[first]), last_sample=last,
+            residual_kw=float(residuals[first]), peak_residual_kw=float(residuals[peak]),
+            opposite_residual_follows=opposite, output_jump_kw=jump,
+            persisting_change_kw=persisting,
+            kind="spike" if abs(persisting) < abs(jump) / 2 else "level_shift",
+        ))
+    return OutlierReport(
+        residuals_kw=residuals, first_sample=n0, scale_kw=scale, threshold=float(threshold),
+        threshold_kw=limit, na=na, nb=nb, nk=nk,
+        input_step_samples=tuple(int(j) for j in steps), input_step_tol=step_tol,
+        candidates=tuple(candidates), step_residuals=tuple(step_residuals),
+        clipped_samples=_clipped_samples(y, clip_min_run_samples),
+    )
+
+
+# --------------------------------------------------------------------------- repairs
+
+
+def _sample_at(data: Dataset, time_s: float, where: str) -> int:
+    """Index of the sample at `time_s` (within half a sampling interval)."""
+    if not math.isfinite(time_s):
+        raise DataFileError(f"{where}: time_s must be a finite number; got {time_s!r}",
+                            path=data.source)
+    k = int(np.argmin(np.abs(data.time_s - time_s)))
+    if abs(data.time_s[k] - time_s) > 0.5 * data.ts_s:
+        raise DataFileError(
+            f"{where}: expected a time within the record [{data.time_s[0]:g}, "
+            f"{data.time_s[-1]:g}] s; got {time_s:g} s", path=data.source,
+        )
+    return k
+
+
+def interpolate_spike(
+    data: Dataset, *, sample: int | None = None, time_s: float | None = None
+) -> Dataset:
+    """Replace one output sample by the mean of its two neighbours (paper sec. 5.2, Fig. 4).
+
+    Parameters
+    ----------
+    data :
+        The record.
+    sample :
+        Index of the spike; give exactly one of `sample` and `time_s`.
+    time_s :
+        Time of the spike [s] (the nearest sample, within half a sampling interval).
+
+    Returns
+    -------
+    Dataset
+        A new data set with ``P[k] = (P[k-1] + P[k+1]) / 2``; the change is recorded in
+        ``preprocessing`` as ``{"what": "interpolate_spike", "sample", "time_s",
+        "old_value", "new_value"}``.
+
+    Raises
+    ------
+    DataFileError
+        Neither or both of `sample` and `time_s`; a time outside the record; a sample
+        outside the record or at its first or last sample (one neighbour only).
+    """
+    where = "interpolate_spike"
+    if (sample is None) == (time_s is None):
+        raise DataFileError(f"{where}: give exactly one of sample and time_s; got sample="
+                            f"{sample!r}, time_s={time_s!r}", path=data.source)
+    if time_s is not None:
+        k = _sample_at(data, time_s, where)
+    else:
+        if isinstance(sample, bool) or not isinstance(sample, (int, np.integer)):
+            raise DataFileError(f"{where}: sample must be an int; got {sample!r}",
+                                path=data.source)
+        k = int(sample)
+    if not 1 <= k <= data.n_samples - 2:
+        raise DataFileError(
+            f"{where}: expected a sample with two neighbours, 1 <= sample <= "
+            f"{data.n_samples - 2}; got {k}", path=data.source,
+        )
+    power = np.array(data.power_kw, copy=True)
+    old = float(power[k])
+    power[k] = 0.5 * (power[k - 1] + power[k + 1])
+    return data.with_signals(power_kw=power, change={
+        "what": "interpolate_spike", "signal": "power_kw", "sample": k,
+        "time_s": float(data.time_s[k]), "old_value": old, "new_value": float(power[k]),
+    })
+
+
+def correct_level_shift(data: Dataset, *, from_time_s: float, shift_kw: float) -> Dataset:
+    """Subtract a level shift from the output from a time on (paper sec. 5.2, Fig. 5).
+
+    The paper subtracts 0.15 kW from ``dP(t)`` for all ``t >= 20714 s``.
+
+    Parameters
+    ----------
+    data :
+        The record.
+    from_time_s :
+        First time affected [s]; ``time_s[0] < from_time_s <= time_s[-1]``.
+    shift_kw :
+        Size of the shift to remove [output unit]; ``P[k] -= shift_kw`` for
+        ``t_k >= from_time_s``.
+
+    Returns
+    -------
+    Dataset
+        A new data set; the change is recorded as ``{"what": "correct_level_shift",
+        "from_time_s", "from_sample", "shift_kw", "n_samples_changed"}``.
+
+    Raises
+    ------
+    DataFileError
+        `from_time_s` not finite or outside ``(time_s[0], time_s[-1]]``; `shift_kw`
+        not finite.
+    """
+    where = "correct_level_shift"
+    t = data.time_s
+    if not (math.isfinite(from_time_s) and t[0] < from_time_s <= t[-1]):
+        raise DataFileError(
+            f"{where}: expected from_time_s inside the record ({t[0]:g}, {t[-1]:g}] s; got "
+            f"{from_time_s!r} s", path=data.source,
+        )
+    if not math.isfinite(shift_kw):
+        raise DataFileError(f"{where}: shift_kw must be a finite number; got {shift_kw!r}",
+                            path=data.source)
+    k0 = int(np.searchsorted(t, from_time_s, side="left"))
+    power = np.array(data.power_kw, copy=True)
+    power[k0:] -= shift_kw
+    return data.with_signals(power_kw=power, change={
+        "what": "correct_level_shift", "signal": "power_kw", "from_time_s": float(from_time_s),
+        "from_sample": k0, "shift_kw": float(shift_kw), "n_samples_changed": int(t.size - k0),
+    })
+
+
+@dataclass(frozen=True, kw_only=True)
+class LevelShiftEstimate:
+    """Size of a level shift in the output, measured from the data.
+
+    Parameters
+    ----------
+    shift_kw :
+        Estimated shift (after minus before) [output unit].
+    std_error_kw :
+        Its standard error from the regression residuals [output unit].
+    from_sample, from_time_s :
+        Onset of the shift.
+    before_samples, after_samples :
+        ``(start, stop)`` sample ranges used before and after the onset.
+    input_constant :
+        True if the input did not change over the samples used (otherwise the
+        process response to the input biases the estimate).
+    """
+
+    shift_kw: float
+    std_error_kw: float
+    from_sample: int
+    from_time_s: float
+    before_samples: tuple[int, int]
+    after_samples: tuple[int, int]
+    input_constant: bool
+
+
+def estimate_level_shift(
+    data: Dataset,
+    from_time_s: float,
+    *,
+    window_samples: int = 30,
+    transition_samples: int = 3,
+) -> LevelShiftEstimate:
+    """Measure a level shift starting at `from_time_s` by a local line-plus-step fit.
+
+    Parameters
+    ----------
+    data :
+        The record.
+    from_time_s :
+        Onset of the shift [s] (e.g. `OutlierCandidate.time_s`).
+    window_samples :
+        Samples used on each side (>= 2; fewer near the record's ends).
+    transition_samples :
+        Samples from the onset left out (the shift may take 1-3 samples, paper
+        Fig. 5) (>= 0).
+
+    Returns
+    -------
+    LevelShiftEstimate
+
+    Raises
+    ------
+    DataFileError
+        `from_time_s` outside the record.
+    IdentificationError
+        Bad window options, or fewer than 2 samples on either side.
+
+    Notes
+    -----
+    Fits ``P_k = alpha + beta (k - k0) + delta [k >= k0] + eps_k`` by least squares
+    on ``k0 - w .. k0 - 1`` and ``k0 + m .. k0 + m + w - 1`` (``w`` window, ``m``
+    transition); ``delta`` is the shift. The common slope absorbs a slow drift, such
+    as the heater's sag.
+    """
+    where = "estimate_level_shift"
+    w = _check_int(where, "window_samples", window_samples, 2)
+    m = _check_int(where, "transition_samples", transition_samples, 0)
+    k0 = _sample_at(data, from_time_s, where)
+    before = (max(k0 - w, 0), k0)
+    after = (min(k0 + m, data.n_samples), min(k0 + m + w, data.n_samples))
+    if before[1] - before[0] < 2 or after[1] - after[0] < 2:
+        raise IdentificationError(
+            f"{where}: expected at least 2 samples before {from_time_s:g} s and 2 after "
+            f"the {m}-sample transition; got {before[1] - before[0]} and "
+            f"{after[1] - after[0]}"
+        )
+    k = np.concatenate([np.arange(*before), np.arange(*after)])
+    phi = np.column_stack([np.ones(k.size), (k - k0).astype(float), (k >= k0).astype(float)])
+    theta, _, _, _ = np.linalg.lstsq(phi, data.power_kw[k], rcond=None)
+    res = data.power_kw[k] - phi @ theta
+    dof = max(k.size - 3, 1)
+    cov = float(res @ res) / dof * np.linalg.inv(phi.T @ phi)
+    u_used = data.triac_pct[before[0] : after[1]]
+    return LevelShiftEstimate(
+        shift_kw=float(theta[2]), std_error_kw=float(math.sqrt(cov[2, 2])),
+        from_sample=k0, from_time_s=float(data.time_s[k0]),
+        before_samples=before, after_samples=after,
+        input_constant=bool(np.ptp(u_used) == 0.0),
+    )
+
+
+__all__ = [
+    "DEFAULT_OUTLIER_THRESHOLD",
+    "LevelShiftEstimate",
+    "OperatingPointChoice",
+    "OperatingPointMethod",
+    "OutlierCandidate",
+    "OutlierKind",
+    "OutlierReport",
+    "SteadyWindow",
+    "StepResidual",
+    "correct_level_shift",
+    "estimate_level_shift",
+    "find_operating_point",
+    "find_outlier_candidates",
+    "interpolate_spike",
+    "to_deviation",
+]
