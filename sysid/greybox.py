@@ -45,7 +45,7 @@ from sysid.errors import IdentificationError, IdentificationWarning
 from sysid.optimize import LMResult, levenberg_marquardt, parameter_std_errors
 
 GreyBoxCriterion = Literal["ballistic", "one_step"]
-InitialState = Literal["steady", "estimate"]
+InitialState = Literal["held_past", "steady", "estimate"]
 
 #: ``matrices(p)`` returns ``(A, B, C, D, K)``; ``D`` and ``K`` may be None (zero).
 MatrixBuilder = Callable[[Mapping[str, Any]], tuple[Any, Any, Any, Any, Any]]
@@ -222,8 +222,8 @@ class GreyBoxResult:
     free :
         Which parameters were free.
     initial_state :
-        The initial state used, shape ``(n_x,)`` (steady state at the final
-        parameters, or the estimated one).
+        The initial state used, shape ``(n_x,)``, at the final parameters (held-past
+        or steady state, or the estimated one).
     residuals :
         Final residual sequence ``eps_k`` or ``e_k``, shape ``(n_samples,)``.
     criterion_value :
@@ -388,7 +388,7 @@ class _Evaluator:
     run: _BlockRunner                     # (x0, U, Y, theta_free, theta_fixed) -> R
     run_with_sensitivities: _BlockRunner  # (z0, U, Y, theta_free, theta_fixed) -> [R; dR]
     start: ca.Function                    # (theta, theta_fixed, u0, y0) -> (x0, S0)
-    steady: ca.Function                   # (theta_free, theta_fixed, u0, y0) -> x_ss
+    guess: ca.Function                    # (theta_free, theta_fixed, u0, y0) -> x_held
     U: FloatArray
     Y: FloatArray
     theta_fixed: FloatArray
@@ -401,10 +401,10 @@ class _Evaluator:
         x0, s0 = self.start(theta, self.theta_fixed, self.U[:, 0], self.Y[0, 0])
         return np.asarray(x0, dtype=float).ravel(), np.asarray(s0, dtype=float)
 
-    def steady_state(self, theta_free: FloatArray) -> FloatArray:
-        """Steady state for the first sample at the given free parameter values."""
-        x_ss = self.steady(theta_free, self.theta_fixed, self.U[:, 0], self.Y[0, 0])
-        return np.asarray(x_ss, dtype=float).ravel()
+    def held_past_state(self, theta_free: FloatArray) -> FloatArray:
+        """Held-past initial state at the given free parameter values."""
+        x0 = self.guess(theta_free, self.theta_fixed, self.U[:, 0], self.Y[0, 0])
+        return np.asarray(x0, dtype=float).ravel()
 
     def residuals(self, theta: FloatArray) -> FloatArray:
         """Residual sequence ``(N,)`` at the search vector ``theta``."""
@@ -423,6 +423,32 @@ class _Evaluator:
         )
         rows = np.asarray(out, dtype=float)
         return rows[0].copy(), np.ascontiguousarray(rows[1:].T)
+
+
+def _held_past_state(
+    A: ca.SX, B: ca.SX, C: ca.SX, D: ca.SX, u0: ca.SX, y0: ca.SX
+) -> ca.SX:
+    """State ``x_0`` of a model whose past inputs were ``u0`` and past outputs ``y0``.
+
+    Solves for ``z = x_{-n}`` such that ``x_{j+1} = A x_j + B u0`` gives outputs
+    ``C x_j + D u0 = y0`` at ``j = -n .. -1`` (``n`` = number of states; the
+    observability matrix must be invertible), then returns ``x_0``. For a polynomial
+    model in observer form this is exactly the held-past rule of `sysid.simulate`
+    (past inputs ``u_0``, past outputs ``y_0``, past innovations zero).
+    """
+    n_x = A.shape[0]
+    rows = []
+    forced = []
+    power = ca.SX.eye(n_x)
+    acc = ca.SX.zeros(n_x, 1)          # state reached from z = 0 by j steps of u0
+    for _ in range(n_x):
+        rows.append(C @ power)
+        forced.append(C @ acc + D @ u0)
+        acc = A @ acc + B @ u0
+        power = A @ power
+    obs = ca.vertcat(*rows)
+    z = ca.solve(obs, y0 - ca.vertcat(*forced))
+    return power @ z + acc
 
 
 def _build_evaluator(
@@ -470,6 +496,7 @@ def _build_evaluator(
         x_next = A @ x + B @ u + K @ residual
         # steady state of the predictor with (u0, y0) held
         x_ss = ca.solve(ca.SX.eye(n_x) - A + K @ C, (B - K @ D) @ u + K @ y)
+    x_held = _held_past_state(A, B, C, D, u, y)
 
     # forward sensitivities S = dx/dtheta (n_x, q), carried with the state
     S = ca.SX.sym("S", n_x, q)
@@ -494,14 +521,15 @@ def _build_evaluator(
             [th_est, ca.horzcat(ca.SX.zeros(n_x, n_par), ca.SX.eye(n_x))],
         )
     else:
+        x_start = x_ss if initial_state == "steady" else x_held
         start = ca.Function(
-            "start", [th_free, th_fixed, u, y], [x_ss, ca.jacobian(x_ss, th_free)]
+            "start", [th_free, th_fixed, u, y], [x_start, ca.jacobian(x_start, th_free)]
         )
     return _Evaluator(
         run=_BlockRunner(step, n_samples),
         run_with_sensitivities=_BlockRunner(step_sens, n_samples),
         start=start,
-        steady=ca.Function("steady", [th_free, th_fixed, u, y], [x_ss]),
+        guess=ca.Function("guess", [th_free, th_fixed, u, y], [x_held]),
         U=U,
         Y=Y,
         theta_fixed=np.asarray(structure.initial_values)[~np.asarray(free)],
@@ -558,9 +586,10 @@ def _prepare(
         raise IdentificationError(
             f"fit_greybox: criterion must be 'ballistic' or 'one_step'; got {criterion!r}"
         )
-    if initial_state not in ("steady", "estimate"):
+    if initial_state not in ("held_past", "steady", "estimate"):
         raise IdentificationError(
-            f"fit_greybox: initial_state must be 'steady' or 'estimate'; got {initial_state!r}"
+            "fit_greybox: initial_state must be 'held_past', 'steady' or 'estimate'; "
+            f"got {initial_state!r}"
         )
     y_arr, u_arr = _check_signals(y, u, structure)
     features = _model_inputs(structure, u_arr)
@@ -579,6 +608,7 @@ def greybox_residuals(
     u: FloatArray,
     *,
     criterion: GreyBoxCriterion = "ballistic",
+    initial_state: Literal["held_past", "steady"] = "held_past",
 ) -> FloatArray:
     """Residuals of a structure at its initial values (no fitting).
 
@@ -592,14 +622,20 @@ def greybox_residuals(
         Measured input (deviation), shape ``(n_samples,)`` or ``(n_samples, m)``.
     criterion :
         ``"ballistic"`` (simulation error, eq. 9) or ``"one_step"`` (innovations, eq. 10).
+    initial_state :
+        ``"held_past"`` or ``"steady"``, as in `fit_greybox`.
 
     Returns
     -------
     FloatArray
-        Residual sequence, shape ``(n_samples,)``, started from the steady state of the
-        first sample.
+        Residual sequence, shape ``(n_samples,)``.
+
+    Raises
+    ------
+    IdentificationError
+        As `fit_greybox` for malformed signals, options or structures.
     """
-    evaluator = _prepare(structure, y, u, criterion, "steady")
+    evaluator = _prepare(structure, y, u, criterion, initial_state)
     values = np.asarray(structure.initial_values)
     return evaluator.residuals(values[np.asarray(structure.free_mask)])
 
@@ -610,7 +646,7 @@ def fit_greybox(
     u: FloatArray,
     *,
     criterion: GreyBoxCriterion = "ballistic",
-    initial_state: InitialState = "steady",
+    initial_state: InitialState = "held_past",
     max_iterations: int = 100,
     xtol: float = 1e-10,
     ftol: float = 1e-12,
@@ -632,9 +668,16 @@ def fit_greybox(
         ``"ballistic"``: minimize ``V`` (eq. 9), ``K`` ignored. ``"one_step"``:
         minimize ``W`` (eq. 10) with the innovations predictor.
     initial_state :
+        ``"held_past"`` (default): ``x_0`` is the state of a model whose past inputs
+        were ``u_0`` and past outputs ``y_0`` (past innovations zero): the held-past
+        rule of `sysid.simulate`, so V and W agree with `sysid.criteria` for
+        polynomial models. Needs an observable ``(A, C)``.
         ``"steady"``: ``x_0`` is the steady state of the model (or predictor) for the
-        first sample's input (and output), a function of the parameters.
-        ``"estimate"``: ``x_0`` is estimated as ``n_x`` extra free parameters.
+        first sample's input (and output).
+        ``"estimate"``: ``x_0`` is estimated as ``n_x`` extra free parameters, started
+        from the held-past state.
+        In the first two ``x_0`` is a function of the parameters and is differentiated
+        with them.
     max_iterations :
         Most Levenberg-Marquardt iterations.
     xtol, ftol, gtol :
@@ -698,7 +741,7 @@ def fit_greybox(
     upper = np.asarray(structure.upper)[free]
     theta0 = values[free]
     if n_est:
-        theta0 = np.concatenate([theta0, evaluator.steady_state(theta0)])
+        theta0 = np.concatenate([theta0, evaluator.held_past_state(theta0)])
         lower = np.concatenate([lower, np.full(n_est, -np.inf)])
         upper = np.concatenate([upper, np.full(n_est, np.inf)])
     n_par_free = structure.n_free
