@@ -1,0 +1,82 @@
+"""Criteria V and W (paper eqs. 9-10) and the NRMSE fit percentage."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.signal import lfilter, lfiltic
+
+from sysid.criteria import ballistic_mse, fit_percent, mean_squared_error, one_step_mse
+from sysid.data import Dataset
+from sysid.errors import IdentificationError, SamplingTimeError
+from sysid.model import HammersteinModel
+
+#: Same float operations in a different order (sums over ~1000 samples).
+CRITERION_RTOL = 1e-10
+
+
+def _record(rng: np.random.Generator, n: int = 1000) -> Dataset:
+    triac = np.repeat(np.concatenate([[45.0], rng.uniform(25.0, 65.0, n // 50)]), 50)[:n]
+    power = 45.0 + 1.2 * (triac - 45.0) + 0.2 * rng.standard_normal(n)
+    return Dataset(time_s=2.0 * np.arange(n), triac_pct=triac, power_kw=power, ts_s=2.0)
+
+
+def test_ballistic_mse_is_mean_squared_simulation_error(
+    paper_oe_model: HammersteinModel, rng: np.random.Generator
+) -> None:
+    data = _record(rng)
+    m = paper_oe_model
+    op = m.operating_point
+    w = m.input_nonlinearity(data.triac_pct - op.triac_pct)
+    dp = data.power_kw - op.power_kw
+    sim = lfilter(m.b, m.a, w, zi=lfiltic(m.b, m.a, [dp[0]], [w[0], w[0]]))[0]
+    expected = float(np.mean((dp - sim) ** 2))
+    np.testing.assert_allclose(ballistic_mse(m, data), expected, rtol=CRITERION_RTOL, atol=0)
+
+
+def test_one_step_mse_uses_the_noise_model(
+    paper_oe_model: HammersteinModel, paper_armax_model: HammersteinModel,
+    rng: np.random.Generator,
+) -> None:
+    data = _record(rng)
+    m = paper_armax_model
+    op = m.operating_point
+    w = m.input_nonlinearity(data.triac_pct - op.triac_pct)
+    y = data.power_kw - op.power_kw
+    # Independent predictor: e = (A y - B w) / C with held past y, w and zero past e.
+    y_ext = np.concatenate([[y[0]], y])
+    w_ext = np.concatenate([[w[0], w[0]], w])
+    v = lfilter(m.a, [1.0], y_ext)[1:] - lfilter(m.b, [1.0], w_ext)[2:]
+    e = lfilter([1.0], m.c, v)
+    np.testing.assert_allclose(one_step_mse(m, data), float(np.mean(e**2)),
+                               rtol=CRITERION_RTOL, atol=0)
+    assert one_step_mse(m, data) < ballistic_mse(m, data)
+    assert one_step_mse(paper_oe_model, data) == ballistic_mse(paper_oe_model, data)
+
+
+def test_fit_percent_matches_matlab_compare_definition() -> None:
+    y = np.array([1.0, 3.0, 2.0, 6.0])
+    assert fit_percent(y, y) == 100.0
+    assert fit_percent(y, np.full(4, y.mean())) == 0.0
+    yhat = np.array([1.5, 2.5, 2.0, 5.0])
+    expected = 100.0 * (1.0 - np.sqrt(0.25 + 0.25 + 1.0) / np.sqrt(4 + 0 + 1 + 9))
+    np.testing.assert_allclose(fit_percent(y, yhat), expected, rtol=1e-14, atol=0)
+
+
+def test_mean_squared_error_and_fit_refuse_bad_arrays() -> None:
+    with pytest.raises(IdentificationError, match="equal length; got shapes"):
+        mean_squared_error(np.ones(3), np.ones(4))
+    with pytest.raises(IdentificationError, match="measured signal is constant"):
+        fit_percent(np.ones(5), np.zeros(5))
+
+
+def test_criteria_refuse_mismatched_sampling_time(
+    paper_oe_model: HammersteinModel, rng: np.random.Generator
+) -> None:
+    data = _record(rng)
+    slow = Dataset(time_s=data.time_s * 2.0, triac_pct=data.triac_pct,
+                   power_kw=data.power_kw, ts_s=4.0)
+    with pytest.raises(SamplingTimeError):
+        ballistic_mse(paper_oe_model, slow)
+    with pytest.raises(SamplingTimeError):
+        one_step_mse(paper_oe_model, slow)
