@@ -334,7 +334,8 @@ class OutlierCandidate:
         2 samples of the onset (the signature of a spike the ARX predicted from).
     output_jump_kw :
         Output deviation of largest magnitude over ``sample .. min(last_sample,
-        sample + 2)`` from the level before (median of the 5 samples before) [output unit].
+        sample + 2)`` from the level before (median of the 5 samples before; the first
+        sample itself for an event at the record's start) [output unit].
     persisting_change_kw :
         Level after the event (median of the 5 samples after `last_sample`) minus
         the level before [output unit].
@@ -556,14 +557,14 @@ def find_outlier_candidates(
                 peak_residual_kw=float(residuals[peak]), input_step_sample=int(near[-1]),
             ))
             continue
-        before = float(np.median(y[max(first - LEVEL_WINDOW_SAMPLES, 0) : first]))
+        before = float(np.median(y[max(first - LEVEL_WINDOW_SAMPLES, 0) : max(first, 1)]))
         onset = y[first : min(last, first + 2) + 1] - before
         jump = float(onset[np.argmax(np.abs(onset))])
         after_values = y[last + 1 : last + 1 + LEVEL_WINDOW_SAMPLES]
         persisting = float(np.median(after_values)) - before if after_values.size else jump
         follow = residuals[first + 1 : first + 3]
-        opposite = bool(np.any(np.sign(follow) == -np.sign(residuals[first]))
-                        and np.any(np.abs(follow) > limit / 2))
+        opposite = bool(np.any((np.sign(follow) == -np.sign(residuals[first]))
+                               & (np.abs(follow) > limit / 2)))
         candidates.append(OutlierCandidate(
             sample=first, time_s=float(data.time_s[first]), last_sample=last,
             residual_kw=float(residuals[first]), peak_residual_kw=float(residuals[peak]),

@@ -201,6 +201,7 @@ def test_planted_spike_and_level_shift_are_found_and_classified(dirty: Dataset) 
     assert shift.output_jump_kw == pytest.approx(SHIFT_KW, abs=LEVEL_ATOL_KW)
     assert shift.persisting_change_kw == pytest.approx(SHIFT_KW, abs=LEVEL_ATOL_KW)
     assert shift.residual_kw > report.threshold_kw
+    assert not shift.opposite_residual_follows  # same-sign residuals only (paper Fig. 5)
     # the scale is robust: the outliers barely move it from the clean record's
     clean_scale = find_outlier_candidates(_heater_record(), operating_point=OP).scale_kw
     assert report.scale_kw == pytest.approx(clean_scale, rel=0.05)  # reason: MAD ignores 4 samples
