@@ -1,0 +1,227 @@
+"""Step analysis: find the input steps of a record and their instantaneous gains (Table 3).
+
+The paper (sec. 7.3) reads the nonlinearity off the data before fitting anything: for
+each step of the input it divides the immediate jump of the output by the size of the
+step, the *instantaneous* gain ``r`` [kW/%], and finds that ``r`` falls as the
+operating point rises (Table 3: 1.35, 1.31, 1.23, 1.14 kW/%). The same analysis works
+on any SISO log (input in V, output in degC, ...): the functions use only the arrays of
+a `Dataset`, whose ``input_unit`` and ``output_unit`` say what the numbers are.
+
+Notation
+--------
+``u_k``  input at sample ``k`` (``Dataset.triac_pct``, unit ``Dataset.input_unit``)
+``y_k``  output at sample ``k`` (``Dataset.power_kw``, unit ``Dataset.output_unit``)
+``nk``   delay in samples (``delay_steps``): ``u_k`` first shows in ``y_{k+nk}``
+
+A step at sample ``k`` is a change ``|u_k - u_{k-1}| > min_step``. Its instantaneous
+gain is (paper eq. 15, with ``nk = 1``)::
+
+    r = (y_{k+nk} - y_{k+nk-1}) / (u_k - u_{k-1})
+
+the jump of the output across the one sample in which the step arrives.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sysid._typing import FloatArray
+from sysid.data import Dataset
+from sysid.errors import IdentificationError
+
+#: Default step threshold as a fraction of the input's range (max - min). A staircase
+#: experiment moves its input in steps of a few percent of its span; a logger's
+#: rounding and a controller's jitter move it by far less.
+DEFAULT_STEP_FRACTION_OF_RANGE = 0.05
+
+#: The default threshold is also at least this many robust standard deviations of
+#: the sample-to-sample input change, so that noise on a logged input is never a step
+#: (a 5-sigma Gaussian excursion occurs once in about 1.7 million samples).
+DEFAULT_STEP_NOISE_SIGMAS = 5.0
+
+#: Scale from the median absolute deviation to the standard deviation of a Gaussian.
+_MAD_TO_STD = 1.482602218505602
+
+
+@dataclass(frozen=True, kw_only=True)
+class InputStep:
+    """One step of the input and the output's immediate response to it.
+
+    Parameters
+    ----------
+    k :
+        Sample index at which the input takes its new value (``u_k != u_{k-1}``).
+    time_s :
+        Time of sample ``k`` [s].
+    triac_before_pct, triac_after_pct :
+        Input before (``u_{k-1}``) and after (``u_k``) the step [%, or the data set's
+        input unit].
+    power_before_kw, power_after_kw :
+        Output just before the step shows (``y_{k+nk-1}``) and the first output that
+        shows it (``y_{k+nk}``) [kW, or the data set's output unit].
+    gain_kw_per_pct :
+        Instantaneous gain ``r = (power_after - power_before) / (triac_after -
+        triac_before)`` [kW/%, or output unit per input unit] (paper sec. 7.3).
+    """
+
+    k: int
+    time_s: float
+    triac_before_pct: float
+    triac_after_pct: float
+    power_before_kw: float
+    power_after_kw: float
+    gain_kw_per_pct: float
+
+    @property
+    def step_pct(self) -> float:
+        """Size of the input step ``u_k - u_{k-1}`` [%]."""
+        return self.triac_after_pct - self.triac_before_pct
+
+
+def default_step_threshold(triac_pct: FloatArray) -> float:
+    """Smallest input change counted as a step when none is given.
+
+    Parameters
+    ----------
+    triac_pct :
+        Input signal, shape ``(n_samples,)`` [any unit].
+
+    Returns
+    -------
+    float
+        ``max(0.05 * (max - min), 5 * sigma)`` in the input's unit, where ``sigma`` is
+        the robust standard deviation (scaled median absolute deviation) of the
+        sample-to-sample changes. For a staircase input ``sigma`` is 0 and the
+        threshold is 5 % of the input's range; on a noisy input it stays 5 noise
+        standard deviations above the noise.
+    """
+    u = np.asarray(triac_pct, dtype=float)
+    if u.size < 2:
+        return 0.0
+    changes = np.diff(u)
+    sigma = _MAD_TO_STD * float(np.median(np.abs(changes - np.median(changes))))
+    span = float(np.max(u) - np.min(u))
+    return max(DEFAULT_STEP_FRACTION_OF_RANGE * span, DEFAULT_STEP_NOISE_SIGMAS * sigma)
+
+
+def detect_steps(
+    data: Dataset, *, min_step: float | None = None, delay_steps: int = 1
+) -> tuple[InputStep, ...]:
+    """Find every input step of a record and its instantaneous gain (paper Table 3).
+
+    Parameters
+    ----------
+    data :
+        The record (raw or preprocessed; the paper's Table 3 uses the preprocessed one).
+    min_step :
+        A change of the input between two samples counts as a step when its size is
+        larger than this [input unit]; default: `default_step_threshold` (5 % of the
+        input's range, and at least 5 noise standard deviations).
+    delay_steps :
+        Delay ``nk`` from input to output in samples (1 for the CZ heater, sec. 6.1).
+
+    Returns
+    -------
+    tuple of InputStep
+        The steps in time order. A step whose response ``y_{k+nk}`` falls after the
+        end of the record cannot be measured and is not listed. Steps closer together
+        than ``nk`` samples share output samples; their gains then mix.
+
+    Raises
+    ------
+    IdentificationError
+        `min_step` negative or not finite, or `delay_steps` not an int ``>= 0``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sysid.data import Dataset
+    >>> data = Dataset(time_s=np.arange(6) * 2.0, triac_pct=[45, 45, 50, 50, 50, 50],
+    ...                power_kw=[45, 45, 45, 51.75, 51.7, 51.65], ts_s=2.0)
+    >>> [round(step.gain_kw_per_pct, 2) for step in detect_steps(data)]
+    [1.35]
+    """
+    if isinstance(delay_steps, bool) or not isinstance(delay_steps, int) or delay_steps < 0:
+        raise IdentificationError(f"detect_steps: delay_steps must be an int >= 0; got {delay_steps!r}")
+    if min_step is None:
+        threshold = default_step_threshold(data.triac_pct)
+    else:
+        threshold = float(min_step)
+        if not (math.isfinite(threshold) and threshold >= 0.0):
+            raise IdentificationError(
+                f"detect_steps: min_step must be a finite number >= 0; got {min_step!r}"
+            )
+    u, y = data.triac_pct, data.power_kw
+    n = data.n_samples
+    candidates = np.flatnonzero(np.abs(np.diff(u)) > threshold) + 1
+    steps = []
+    for k in candidates.tolist():
+        after = k + delay_steps
+        if after >= n:
+            continue
+        before = after - 1
+        du = float(u[k] - u[k - 1])
+        steps.append(
+            InputStep(
+                k=k,
+                time_s=float(data.time_s[k]),
+                triac_before_pct=float(u[k - 1]),
+                triac_after_pct=float(u[k]),
+                power_before_kw=float(y[before]),
+                power_after_kw=float(y[after]),
+                gain_kw_per_pct=float(y[after] - y[before]) / du,
+            )
+        )
+    return tuple(steps)
+
+
+def format_step_table(
+    steps: tuple[InputStep, ...] | list[InputStep],
+    *,
+    input_unit: str = "%",
+    output_unit: str = "kW",
+) -> str:
+    """Render steps as a fixed-width text table, one line per step.
+
+    Parameters
+    ----------
+    steps :
+        Steps from `detect_steps`.
+    input_unit, output_unit :
+        Units shown in the header (``Dataset.input_unit`` and ``output_unit``).
+
+    Returns
+    -------
+    str
+        The table, ending with a newline; a single line saying so when there are no
+        steps.
+    """
+    if not steps:
+        return "no input steps found\n"
+    gain_unit = f"{output_unit}/{input_unit}"
+    header = (
+        f"{'k':>6}  {'time [s]':>9}  {'input [' + input_unit + ']':>18}  "
+        f"{'output [' + output_unit + ']':>20}  {'r [' + gain_unit + ']':>12}"
+    )
+    lines = [header]
+    for step in steps:
+        lines.append(
+            f"{step.k:>6}  {step.time_s:>9.1f}  "
+            f"{step.triac_before_pct:>7.2f} -> {step.triac_after_pct:>7.2f}  "
+            f"{step.power_before_kw:>8.3f} -> {step.power_after_kw:>8.3f}  "
+            f"{step.gain_kw_per_pct:>12.4f}"
+        )
+    return "\n".join(lines) + "\n"
+
+
+__all__ = [
+    "DEFAULT_STEP_FRACTION_OF_RANGE",
+    "DEFAULT_STEP_NOISE_SIGMAS",
+    "InputStep",
+    "default_step_threshold",
+    "detect_steps",
+    "format_step_table",
+]
