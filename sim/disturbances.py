@@ -64,7 +64,7 @@ def _check_number(obj: object, name: str, *, lo: float = -math.inf, lo_open: boo
     object.__setattr__(obj, name, float(value))
 
 
-def _active(time_s: FloatArray, start_s: float, end_s: float | None, ts_s: float) -> FloatArray:
+def _active(time_s: FloatArray, start_s: float, end_s: float | None, ts_s: float) -> BoolArray:
     """Boolean mask of ``start_s <= t < end_s`` with a rounding tolerance of ``TIME_RTOL*ts_s``."""
     tol = TIME_RTOL * ts_s
     mask = time_s >= start_s - tol
