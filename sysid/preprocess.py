@@ -93,9 +93,12 @@ class SteadyWindow:
     output_drift_kw :
         ``|slope| * (n - 1)``: change across the window of a straight line fitted
         to the output by least squares [output unit].
-    drift_limit_kw :
-        Largest drift (and first/last-quarter mean difference) that counted as
-        settled [output unit].
+    final_level_kw :
+        Final level of the constant-input stretch: mean of its last quarter (at
+        least `min_window_samples` samples) [output unit].
+    settle_limit_kw :
+        Band around `final_level_kw` that the moving average stays in, and the
+        largest drift accepted [output unit].
     """
 
     start_sample: int
@@ -106,7 +109,8 @@ class SteadyWindow:
     output_spread_kw: float
     output_std_kw: float
     output_drift_kw: float
-    drift_limit_kw: float
+    final_level_kw: float
+    settle_limit_kw: float
 
     @property
     def n_samples(self) -> int:
@@ -147,34 +151,31 @@ def _constant_input_runs(u: FloatArray, tol: float) -> list[tuple[int, int]]:
 
 
 def _settled_start(
-    y: FloatArray, a: int, b: int, min_len: int, limit: float
-) -> tuple[int, float] | None:
-    """Earliest ``m`` in ``[a, b - min_len]`` with ``y[m:b]`` settled, and its drift.
+    y: FloatArray, a: int, b: int, width: int, limit: float
+) -> tuple[int, float, float] | None:
+    """Settled part ``[m, b)`` of a constant-input stretch ``[a, b)``, or None.
 
-    Settled: the straight-line drift ``|slope| (L - 1)`` and the difference of the
-    means of the first and last quarter are both ``<= limit`` (``L = b - m``).
+    Returns ``(m, drift, final)``: the first sample after which every ``width``-sample
+    moving average stays within ``limit`` of the final level ``final`` (the mean of
+    the stretch's last ``max(width, (b - a) // 4)`` samples), provided the window
+    holds at least ``width`` samples and the straight line fitted to it drifts by
+    ``|slope| (L - 1) <= limit``.
     """
-    if b - a < min_len:
+    n = b - a
+    if n < width:
         return None
-    seg = y[a:b] - y[a]
-    k = np.arange(seg.size, dtype=float)
-    c0 = np.concatenate([[0.0], np.cumsum(seg)])
-    c1 = np.concatenate([[0.0], np.cumsum(k * seg)])
-    m = np.arange(0, seg.size - min_len + 1)
-    n = seg.size
-    length = (n - m).astype(float)
-    k_mean = (m + n - 1) / 2.0
-    s_xx = length * (length**2 - 1.0) / 12.0
-    s_xy = (c1[n] - c1[m]) - k_mean * (c0[n] - c0[m])
-    drift = np.abs(s_xy / s_xx) * (length - 1.0)
-    quarter = np.maximum((n - m) // 4, 1)
-    first_mean = (c0[m + quarter] - c0[m]) / quarter
-    last_mean = (c0[n] - c0[n - quarter]) / quarter
-    ok = (drift <= limit) & (np.abs(last_mean - first_mean) <= limit)
-    if not np.any(ok):
+    seg = y[a:b]
+    final = float(seg[-max(width, n // 4):].mean())
+    sums = np.concatenate([[0.0], np.cumsum(seg - final)])
+    moving_dev = np.abs(sums[width:] - sums[:-width]) / width  # |mean(seg[i:i+width]) - final|
+    outside = np.flatnonzero(moving_dev > limit)
+    if outside.size and outside[-1] == moving_dev.size - 1:
         return None
-    i = int(np.argmax(ok))
-    return a + int(m[i]), float(drift[i])
+    m = a + (int(outside[-1]) + 1 if outside.size else 0)
+    window = y[m:b]
+    k = np.arange(window.size, dtype=float) - (window.size - 1) / 2.0
+    drift = abs(float(k @ (window - window.mean())) / float(k @ k)) * (window.size - 1)
+    return (m, drift, final) if drift <= limit else None
 
 
 def find_operating_point(
@@ -204,14 +205,17 @@ def find_operating_point(
         ``"steady"``: the input counts as constant while it stays within this of
         its value at the start of the stretch [input unit].
     min_window_samples :
-        ``"steady"``: fewest samples of a steady window (>= 4).
+        ``"steady"``: fewest samples of a steady window, and the width of the
+        moving average that must settle (>= 4).
     drift_sigmas :
-        ``"steady"``: the drift limit in units of the output's white-noise scale
+        ``"steady"``: the settling band in units of the output's white-noise scale
         ``sigma_y = 1.4826 median|d y - median(d y)| / sqrt(2)`` (``d y`` the first
         differences over the whole record; robust to steps).
     output_atol_kw :
-        ``"steady"``: the drift limit never goes below this [output unit] (for a
-        quantized output whose differences are mostly 0).
+        ``"steady"``: the settling band never goes below this [output unit]. Set it
+        for an output with slow disturbances (the virtual CZ heater's grid wander
+        moves 200-s means by about 0.1 kW: ``output_atol_kw=0.1`` finds its 45 % rest)
+        or a quantized output whose differences are mostly 0.
 
     Returns
     -------
@@ -226,14 +230,16 @@ def find_operating_point(
 
     Notes
     -----
-    The ``"steady"`` rule: split the record into maximal stretches of constant input
-    (within `input_tol`). In each stretch take the earliest start ``m`` such that,
-    over the window from ``m`` to the stretch's end, (i) the least-squares straight
-    line through the output changes by at most ``limit`` across the window and (ii)
-    the means of the window's first and last quarter differ by at most ``limit``,
-    with ``limit = max(drift_sigmas * sigma_y, output_atol_kw)``; the window must
-    hold at least `min_window_samples`. The longest such window wins (the earliest
-    on a tie); the operating point is the mean input and mean output in it.
+    The ``"steady"`` rule (a settling-time test): split the record into maximal
+    stretches of constant input (within `input_tol`). In a stretch, the final level
+    is the mean of its last quarter (at least ``W = min_window_samples`` samples);
+    the window starts at the first sample ``m`` after which every ``W``-sample moving
+    average of the output stays within ``limit`` of that final level, and runs to the
+    stretch's end. It counts if it holds at least ``W`` samples and the least-squares
+    straight line through its output changes by at most ``limit`` across it (no
+    trend beyond noise). ``limit = max(drift_sigmas * sigma_y, output_atol_kw)``. The
+    longest window wins (the earliest on a tie); the operating point is the mean
+    input and mean output in it.
     """
     if method not in ("given", "means", "steady"):
         raise IdentificationError(
@@ -268,25 +274,26 @@ def find_operating_point(
         )
     sigma_y = _robust_scale(np.diff(y)) / math.sqrt(2.0)
     limit = max(drift_sigmas * sigma_y, output_atol_kw)
-    best: tuple[int, int, float] | None = None
+    best: tuple[int, int, float, float] | None = None
     for a, b in _constant_input_runs(u, input_tol):
         found = _settled_start(y, a, b, min_window_samples, limit)
         if found is not None and (best is None or b - found[0] > best[1] - best[0]):
-            best = (found[0], b, found[1])
+            best = (found[0], b, found[1], found[2])
     if best is None:
         raise IdentificationError(
             f"find_operating_point(method='steady'), {data.source or '<memory>'}: expected a "
             f"window of at least {min_window_samples} samples with the input constant within "
-            f"{input_tol:g} and the output settled (drift <= {limit:.4g} {data.output_unit}); "
+            f"{input_tol:g} and the output settled (within {limit:.4g} {data.output_unit}); "
             "got none. Use method='means' or 'given', or relax the tolerances"
         )
-    start, stop, drift = best
+    start, stop, drift, final = best
     yw, uw = y[start:stop], u[start:stop]
     window = SteadyWindow(
         start_sample=start, stop_sample=stop,
         start_time_s=float(data.time_s[start]), end_time_s=float(data.time_s[stop - 1]),
         input_spread=float(np.ptp(uw)), output_spread_kw=float(np.ptp(yw)),
-        output_std_kw=float(np.std(yw)), output_drift_kw=drift, drift_limit_kw=limit,
+        output_std_kw=float(np.std(yw)), output_drift_kw=drift, final_level_kw=final,
+        settle_limit_kw=limit,
     )
     op = OperatingPoint(triac_pct=float(uw.mean()), power_kw=float(yw.mean()))
     return OperatingPointChoice(operating_point=op, method="steady", window=window)

@@ -116,19 +116,18 @@ def test_cascaded_tanks_load_1024_samples_each_at_4_s(tanks: Dataset) -> None:
 # --------------------------------------------------------------------------- preprocessing
 
 
-def test_daisy_given_operating_point_and_steady_window(daisy: Dataset) -> None:
+def test_daisy_given_operating_point_and_no_settled_stair(daisy: Dataset) -> None:
     given = OperatingPoint(triac_pct=DAISY_U0_V, power_kw=float(daisy.power_kw[0]))
     choice = find_operating_point(daisy, method="given", given=given)
     assert choice.operating_point == OperatingPoint(triac_pct=6.0, power_kw=129.32)
-    steady = find_operating_point(daisy, method="steady")
-    window = steady.window
-    assert window is not None and window.input_spread == 0.0
-    # the window ends where its stair ends and sits at the stair's final temperature
-    stair_ends = (200, 400, 500, 600, 700, 801)
-    assert window.stop_sample in stair_ends
-    tail = daisy.power_kw[window.stop_sample - 5 : window.stop_sample]
-    assert abs(steady.operating_point.power_kw - tail.mean()) < 2 * window.drift_limit_kw
-    assert window.output_std_kw < 1.0  # degC: a settled plate, quantized in 0.244 steps
+    assert choice.method == "given"
+    # every stair (200-400 s) ends with the plate still drifting by more than the
+    # band, even a 2 degC one: the finder says so instead of inventing a steady state
+    for atol in (0.0, 2.0):
+        with pytest.raises(IdentificationError, match=r"degC\); got none"):
+            find_operating_point(daisy, method="steady", output_atol_kw=atol)
+    last_stair = daisy.power_kw[700:]
+    assert abs(last_stair[-20:].mean() - last_stair[-45:-25].mean()) > 2.0  # still moving
 
 
 def test_daisy_outlier_detector_flags_nothing_on_a_clean_lab_record(daisy: Dataset) -> None:
