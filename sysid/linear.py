@@ -278,8 +278,11 @@ class PemFit:
         ``mean(residuals**2)``: V (OE) or W (ARMAX) on the arrays.
     initial_conditions :
         ``"held"`` (the rule of `sysid.simulate`) or ``"estimated"``.
-    initial_past :
-        The past values used: OE ``[yhat_{-1}..yhat_{-nf}]``, ARMAX ``[e_{-1}..e_{-nc}]``.
+    initial_state :
+        ``w``: the part of the `scipy.signal.lfilter` (direct form II transposed) state of
+        ``1/F`` (OE, length ``nf``) or ``1/C`` (ARMAX, length ``nc``) that the samples
+        before the record leave. Held: OE ``lfiltic([1], F, [y_0]*nf)``, ARMAX zeros.
+        Estimated: fitted.
     converged, message, n_iterations :
         From the optimizer.
     lm :
@@ -296,32 +299,33 @@ class PemFit:
     residuals: FloatArray
     cost: float
     initial_conditions: InitialConditions
-    initial_past: FloatArray
+    initial_state: FloatArray
     converged: bool
     message: str
     n_iterations: int
     lm: LMResult
 
     def __post_init__(self) -> None:
-        for name in ("a", "b", "c", "theta", "std_errors", "residuals", "initial_past"):
+        for name in ("a", "b", "c", "theta", "std_errors", "residuals", "initial_state"):
             arr = np.array(getattr(self, name), dtype=float, copy=True)
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
 
 
-def _lag_with_past(x: FloatArray, lag: int, past: FloatArray) -> FloatArray:
-    """``z[k] = x[k - lag]``, with ``x[-m] = past[m - 1]`` before the record."""
+def _lag_with_past(x: FloatArray, lag: int, past: FloatArray | None) -> FloatArray:
+    """``z[k] = x[k - lag]``, with ``x[-m] = past[m - 1]`` (or 0 if None) before the record."""
     z = np.empty_like(x)
     z[lag:] = x[: x.size - lag]
-    z[:lag] = past[:lag][::-1]
+    z[:lag] = 0.0 if past is None else past[:lag][::-1]
     return z
 
 
 def _free_responses(den: FloatArray, n: int) -> FloatArray:
-    """Column ``j``: output of ``1/den`` for zero input from a unit past output at lag ``j+1``."""
+    """Column ``j``: output of ``1/den`` for zero input from the unit lfilter state ``j``."""
     order = len(den) - 1
-    zi = np.column_stack([lfiltic([1.0], den, np.eye(order)[j]) for j in range(order)])
-    out: FloatArray = lfilter([1.0], den, np.zeros((n, order)), axis=0, zi=zi)[0]
+    out: FloatArray = lfilter(
+        [1.0], den, np.zeros((n, order)), axis=0, zi=np.eye(order)
+    )[0]
     return out
 
 
@@ -375,23 +379,29 @@ def _oe_problem(
 ) -> Callable[[FloatArray], tuple[FloatArray, FloatArray]]:
     """Residuals ``eps = y - B/F u`` and their exact Jacobian via sensitivity filters.
 
-    ``d yhat/d b_j = u_{k-j} / F``, ``d yhat/d f_i = -yhat_{k-i} / F`` (zero-state
-    filters: the past values are parameters or data, independent of ``b`` and ``f``),
-    and ``d yhat/d yhat_{-j}`` is the free response of ``1/F``.
+    ``d yhat/d b_j = u_{k-j} / F`` (past input held: data), and ``d yhat/d f_i =
+    -yhat_{k-i} / F`` with the held past ``yhat = y_0`` (data) or, when the initial state
+    ``w`` of ``1/F`` is estimated, with a zero past (the past lives in ``w``); all
+    sensitivity filters start from zero. ``d yhat/d w_j`` is the free response of ``1/F``.
     """
     n = y.size
     u_lags = np.column_stack([lagged(u, j) for j in range(nk, nk + nb)])
     held = np.full(nf, y[0])
+    u_held = np.full(nk + nb - 1, u[0])
 
     def fun(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
         b = np.concatenate([np.zeros(nk), theta[:nb]])
         f = np.concatenate([[1.0], theta[nb : nb + nf]])
-        past = theta[nb + nf :] if estimate else held
-        yhat = simulate_arrays(b, f, u, y_past=past)
+        if estimate:
+            zi = lfiltic(b, f, np.zeros(nf), u_held)
+            zi[:nf] += theta[nb + nf :]
+            yhat = lfilter(b, f, u, zi=zi)[0]
+        else:
+            yhat = simulate_arrays(b, f, u, y_past=held)
         x = np.empty((n, nb + nf))
         x[:, :nb] = u_lags
         for i in range(1, nf + 1):
-            x[:, nb + i - 1] = -_lag_with_past(yhat, i, past)
+            x[:, nb + i - 1] = -_lag_with_past(yhat, i, None if estimate else held)
         sens = lfilter([1.0], f, x, axis=0)
         if estimate and nf > 0:
             sens = np.hstack([sens, _free_responses(f, n)])
@@ -405,27 +415,29 @@ def _armax_problem(
 ) -> Callable[[FloatArray], tuple[FloatArray, FloatArray]]:
     """Prediction errors ``e = (A y - B u)/C`` and their exact Jacobian.
 
-    ``de/da_i = y_{k-i}/C``, ``de/db_j = -u_{k-j}/C``, ``de/dc_i = -e_{k-i}/C`` (pasts held
-    or estimated, zero-state filters) and ``de/de_{-j}`` is the free response of ``1/C``.
+    ``de/da_i = y_{k-i}/C``, ``de/db_j = -u_{k-j}/C`` (pasts held: data),
+    ``de/dc_i = -e_{k-i}/C`` with a zero past (held: past errors are zero; estimated: the
+    past lives in the initial state ``w`` of ``1/C``), all from zero filter states;
+    ``de/dw_j`` is the free response of ``1/C``.
     """
     n = y.size
     n_model = na + nb + nc
     data_cols = np.column_stack(
         [lagged(y, i) for i in range(1, na + 1)] + [-lagged(u, j) for j in range(nk, nk + nb)]
     )
-    zero_past = np.zeros(nc)
+    zero_state = np.zeros(nc)
 
     def fun(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
         a = np.concatenate([[1.0], theta[:na]])
         b = np.concatenate([np.zeros(nk), theta[na : na + nb]])
         c = np.concatenate([[1.0], theta[na + nb : n_model]])
-        past = theta[n_model:] if estimate else zero_past
+        state = theta[n_model:] if estimate else zero_state
         v = equation_errors(a, b, y, u)
-        e = lfilter([1.0], c, v, zi=lfiltic([1.0], c, past))[0]
+        e = lfilter([1.0], c, v, zi=state)[0]
         x = np.empty((n, n_model))
         x[:, : na + nb] = data_cols
         for i in range(1, nc + 1):
-            x[:, na + nb + i - 1] = -_lag_with_past(e, i, past)
+            x[:, na + nb + i - 1] = -_lag_with_past(e, i, None)
         sens = lfilter([1.0], c, x, axis=0)
         if estimate and nc > 0:
             sens = np.hstack([sens, _free_responses(c, n)])
@@ -441,10 +453,10 @@ def _finish(
     names: tuple[str, ...],
     polys: tuple[FloatArray, FloatArray, FloatArray],
     initial_conditions: InitialConditions,
-    held_past: FloatArray,
+    held_state: FloatArray,
 ) -> PemFit:
     std = parameter_std_errors(lm.jacobian, lm.residuals)[:n_model]
-    past = lm.theta[n_model:] if initial_conditions == "estimated" else held_past
+    state = lm.theta[n_model:] if initial_conditions == "estimated" else held_state
     return PemFit(
         structure=structure,
         a=polys[0],
@@ -456,7 +468,7 @@ def _finish(
         residuals=lm.residuals,
         cost=lm.cost,
         initial_conditions=initial_conditions,
-        initial_past=past,
+        initial_state=state,
         converged=lm.converged,
         message=lm.message,
         n_iterations=lm.n_iterations,
@@ -488,9 +500,10 @@ def _oe_pem(
     if start is None:
         arx = arx_least_squares(y, u, na=nf, nb=nb, nk=nk)
         start = np.concatenate([arx.b[nk:], arx.a[1:]])
-    if estimate:
-        start = np.concatenate([start, np.full(nf, y[0])])
     project = _stabilizer((slice(nb, nb + nf),))
+    if estimate and nf > 0:
+        f0 = np.concatenate([[1.0], project(start)[nb:]])
+        start = np.concatenate([start, lfiltic([1.0], f0, np.full(nf, y[0]))])
     lm = levenberg_marquardt(
         _oe_problem(y, u, nb, nf, nk, estimate), start, project=project,
         max_iterations=max_iterations,
@@ -500,7 +513,8 @@ def _oe_pem(
     names = tuple(f"b{j}" for j in range(nk, nk + nb)) + tuple(
         f"f{i}" for i in range(1, nf + 1)
     )
-    return _finish("oe", lm, n_model, names, (f, b, f), ic, np.full(nf, y[0]))
+    held_state = lfiltic([1.0], f, np.full(nf, y[0])) if nf else np.zeros(0)
+    return _finish("oe", lm, n_model, names, (f, b, f), ic, held_state)
 
 
 def oe_pem(
@@ -533,8 +547,9 @@ def oe_pem(
         estimate (its ``A`` as ``F``, its ``B``), as the paper's sec. 7.3 does.
     initial_conditions :
         ``"held"``: the held-past rule of `sysid.simulate` (past simulated output
-        ``= y[0]``, past input ``= u[0]``). ``"estimated"``: the ``nf`` past simulated
-        outputs are extra parameters, for records that do not start at rest.
+        ``= y[0]``, past input ``= u[0]``). ``"estimated"``: past input held, and the
+        ``nf`` states of ``1/F`` that the past outputs leave (`PemFit.initial_state`)
+        are extra parameters, for records that do not start at rest.
     max_iterations :
         Levenberg-Marquardt iteration limit.
 
@@ -642,8 +657,9 @@ def armax_pem(
         more time than the iterations it saved on heater-like data).
     initial_conditions :
         ``"held"``: past ``y``, ``u`` held at their first values, past prediction errors
-        zero (`sysid.simulate`). ``"estimated"``: the ``nc`` past prediction errors are
-        extra parameters.
+        zero (`sysid.simulate`). ``"estimated"``: past ``y``, ``u`` held, and the ``nc``
+        states of ``1/C`` that the past prediction errors leave
+        (`PemFit.initial_state`) are extra parameters.
     max_iterations :
         Levenberg-Marquardt iteration limit.
 

@@ -225,7 +225,7 @@ def levenberg_marquardt(
         scale = np.maximum(scale, col_norms)
         d = np.where(scale[free] > 0, scale[free], 1.0)
         # R of the QR factorization of [J_free, r]: its last column holds Q'r.
-        r_aug = np.linalg.qr(np.column_stack([jac[:, free], r]), mode="r")
+        r_aug = np.asarray(np.linalg.qr(np.column_stack([jac[:, free], r]), mode="r"))
         n_free = int(np.count_nonzero(free))
         r_mat = r_aug[:n_free, :n_free]
         qtr = r_aug[:n_free, n_free]

@@ -27,10 +27,13 @@ The samples before the record (``k < 0``) are taken as
   the held measurement, and the OE predictor reproduces the OE simulation).
 
 These past values become the direct-form II transposed state of `scipy.signal.lfilter`
-through `scipy.signal.lfiltic`. Where a record does not start at rest, the identification
-kernels can instead estimate the past outputs (OE) or past prediction errors (ARMAX) as
-extra parameters (`sysid.linear`); the kernels here then take them explicitly
-(``y_past``, ``e_past``, most recent first: ``[y_{-1}, y_{-2}, ...]``).
+through `scipy.signal.lfiltic`. The kernels here also take explicit past values
+(``y_past``, ``e_past``, most recent first: ``[y_{-1}, y_{-2}, ...]``). Where a record
+does not start at rest, the identification kernels of `sysid.linear` can instead
+estimate the output-driven part of the initial filter state (the ``nf`` states of
+``1/F`` for OE, the ``nc`` states of ``1/C`` for ARMAX) as extra parameters; models and
+their criteria V and W always use the held-past rule, so they are reproducible from
+the model and the data alone.
 """
 
 from __future__ import annotations

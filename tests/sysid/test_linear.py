@@ -195,7 +195,7 @@ def test_estimated_initial_state_handles_a_record_that_does_not_start_at_rest() 
     ):
         assert estimated.converged, estimated.message
         assert estimated.cost < held.cost
-        assert estimated.initial_past.size == 1
+        assert estimated.initial_state.size == 1
         assert np.all(np.abs(estimated.theta - truth) <= RECOVERY_N_SE * estimated.std_errors)
 
 
@@ -332,3 +332,57 @@ def test_rank_deficient_regressor_is_refused() -> None:
     y = lfilter([0.0, 1.0], [1.0, -0.5], u) + 0.01 * np.random.default_rng(1).standard_normal(n)
     with pytest.raises(IdentificationError, match="rank 2 < 4 parameters"):
         arx_least_squares(y, u, na=1, nb=3, nk=1)
+
+
+# --- exact Jacobians (sensitivity filters) against central differences -------------------
+
+
+def _central_jacobian(fun: object, theta: np.ndarray, step: float = 1e-6) -> np.ndarray:
+    cols = []
+    for i in range(theta.size):
+        d = np.zeros(theta.size)
+        d[i] = step
+        cols.append((fun(theta + d) - fun(theta - d)) / (2 * step))  # type: ignore[operator]
+    return np.column_stack(cols)
+
+
+#: Central differences with step 1e-6 on residuals of size ~1: truncation ~1e-12 times
+#: third derivatives (large near a pole at 0.95, over ~100 samples) plus rounding
+#: ~1e-16/1e-6 = 1e-10; 1e-6 absolute covers both with margin and still catches any
+#: wrong or missing sensitivity term (those are of order 1).
+JACOBIAN_ATOL = 1e-6
+
+
+def test_oe_jacobian_is_exact_including_the_estimated_initial_state() -> None:
+    y, u = _oe_data(13, n=600)
+    fit = oe_pem(y, u, nb=3, nf=2, nk=1, initial_conditions="estimated")
+
+    def residuals(th: np.ndarray) -> np.ndarray:
+        b = np.array([0.0, th[0], th[1], th[2]])
+        f = np.array([1.0, th[3], th[4]])
+        # held past input; the output part of the lfilter state is the estimated w
+        zi = lfiltic(b, f, [0.0, 0.0], [u[0]] * 3)
+        zi[:2] += th[5:7]
+        return y - lfilter(b, f, u, zi=zi)[0]
+
+    full = fit.lm.theta
+    np.testing.assert_allclose(fit.lm.jacobian, _central_jacobian(residuals, full),
+                               rtol=0, atol=JACOBIAN_ATOL)
+    np.testing.assert_allclose(fit.initial_state, full[5:], rtol=0, atol=0)
+
+
+def test_armax_jacobian_is_exact_including_the_estimated_initial_state() -> None:
+    y, u = _armax_data(14, n=600)
+    fit = armax_pem(y, u, na=2, nb=2, nc=2, nk=1, initial_conditions="estimated")
+
+    def residuals(th: np.ndarray) -> np.ndarray:
+        y_ext = np.concatenate([[y[0]] * 2, y])
+        u_ext = np.concatenate([[u[0]] * 2, u])
+        v = (y_ext[2:] + th[0] * y_ext[1:-1] + th[1] * y_ext[:-2]
+             - th[2] * u_ext[1:-1] - th[3] * u_ext[:-2])
+        c = np.array([1.0, th[4], th[5]])
+        return lfilter([1.0], c, v, zi=th[6:8])[0]
+
+    np.testing.assert_allclose(fit.lm.jacobian, _central_jacobian(residuals, fit.lm.theta),
+                               rtol=0, atol=JACOBIAN_ATOL)
+    np.testing.assert_allclose(fit.lm.residuals, residuals(fit.lm.theta), rtol=0, atol=1e-12)
