@@ -156,7 +156,7 @@ class MPCSettings:
     output_weight: float = 1.0
     move_weight: float = 0.1
     input_target_weight: float = 0.01
-    disturbance_model: DisturbanceModel = "input"
+    disturbance_model: DisturbanceModel = "output"
     disturbance_noise: float = 0.1
     triac_min_pct: float = 0.0
     triac_max_pct: float = 100.0
@@ -253,11 +253,14 @@ class MPCSettings:
         30 samples = 60 s, the horizon DESIGN.md names, at a third of the cost of a
         full-``tau`` horizon.
 
-        The disturbance model is ``"input"``: on the paper's models, with a persistent
-        +0.15 kW output shift and noise, it gave lower closed-loop IAE than the
-        output disturbance (see the benchmark report), because an input disturbance
-        shapes the estimated disturbance through the process dynamics ``B/A`` and so
-        rejects the slow drift without amplifying measurement noise as much.
+        The disturbance model is ``"output"``, chosen by measurement on both paper
+        models (OE and ARMAX block; exact-model plant; all three presets): after a
+        +0.15 kW output shift (or a +0.33 % power-gain step) the noise-free IAE was
+        8-13 % lower than with the input disturbance; with the models' own noise the
+        IAE was within 1 % (output never worse); with a plant whose static gain is
+        11 % off, the input model was better by up to 8 % on the OE model only. Both
+        leave no offset. The input model stays available (it is refused when
+        ``B(1) = 0``, where it is not detectable).
 
         Parameters
         ----------
