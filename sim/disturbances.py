@@ -25,6 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sim.errors import ScenarioError
+from sim.protocols import Exogenous
 from sysid._typing import FloatArray
 
 #: Tolerance [s, relative to ts_s] when comparing sample times with event times, so
@@ -87,7 +88,7 @@ class VoltageStep:
     at_s :
         Time the step happens [s].
     factor :
-        Grid voltage relative to nominal while active [-], > 0 (0.97 is a 3 % sag).
+        Grid voltage relative to nominal while active [-], in (0, 2] (0.97 is a 3 % sag).
     duration_s :
         How long it lasts [s], > 0; None keeps it to the end of the run.
     """
@@ -117,7 +118,7 @@ class VoltageRamp:
     start_s, end_s :
         Start and end of the ramp [s], ``start_s < end_s``.
     factor :
-        Voltage relative to nominal at and after ``end_s`` [-], > 0.
+        Voltage relative to nominal at and after ``end_s`` [-], in (0, 2].
     """
 
     start_s: float
@@ -199,11 +200,9 @@ class MeasurementSpike:
     def spike_profile_kw(self, time_s: FloatArray, ts_s: float) -> FloatArray:
         """Additive measurement error [kW] at the sample times ``time_s`` [s]."""
         t = np.asarray(time_s, dtype=float)
-        out = np.zeros_like(t)
-        hits = np.flatnonzero(_active(t, self.at_s, None, ts_s))
-        if hits.size:
-            out[hits[0]] = self.spike_kw
-        return out
+        k_spike = math.ceil(self.at_s / ts_s - TIME_RTOL)
+        k = np.rint(t / ts_s)
+        return np.where(k == k_spike, self.spike_kw, 0.0)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -348,6 +347,28 @@ def exogenous_profile(
     return ExogenousProfile(grid_voltage_factor=volt, power_offset_kw=offset)
 
 
+def exogenous_at(disturbances: Sequence[Disturbance], k: int, ts_s: float) -> Exogenous:
+    """The `Exogenous` value of sample ``k`` (one sample of `exogenous_profile`).
+
+    Parameters
+    ----------
+    disturbances :
+        Voltage steps/ramps (multiplied) and power shifts (added).
+    k :
+        Sample index (time ``k * ts_s``).
+    ts_s :
+        Sampling time [s].
+    """
+    t = np.array([k * ts_s])
+    volt, offset = 1.0, 0.0
+    for dist in disturbances:
+        if isinstance(dist, PowerShift):
+            offset += float(dist.power_offset_kw(t, ts_s)[0])
+        else:
+            volt *= float(dist.voltage_factor(t, ts_s)[0])
+    return Exogenous(grid_voltage_factor=volt, power_offset_kw=offset)
+
+
 def fault_profile(
     faults: Sequence[Fault], *, n_steps: int, ts_s: float, rng: np.random.Generator
 ) -> FaultProfile:
@@ -400,6 +421,7 @@ __all__ = [
     "RandomSpikes",
     "VoltageRamp",
     "VoltageStep",
+    "exogenous_at",
     "exogenous_profile",
     "fault_profile",
     "sample_times_s",

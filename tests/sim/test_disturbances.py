@@ -12,12 +12,14 @@ from sim.disturbances import (
     RandomSpikes,
     VoltageRamp,
     VoltageStep,
+    exogenous_at,
     exogenous_profile,
     fault_profile,
     sample_times_s,
     scaled_times,
 )
 from sim.errors import ScenarioError
+from sim.protocols import Exogenous
 from tests.tolerances import IDENTITY_RTOL
 
 TS_S = 2.0
@@ -118,3 +120,12 @@ def test_scaled_times_scales_only_time_fields() -> None:
     assert scaled == VoltageStep(at_s=60, factor=0.97, duration_s=60)
     spikes = scaled_times(RandomSpikes(probability_per_sample=0.1, spike_kw=1.0, start_s=100), 0.5)
     assert spikes == RandomSpikes(probability_per_sample=0.1, spike_kw=1.0, start_s=50)
+
+
+def test_exogenous_at_one_sample_equals_the_profile() -> None:
+    events = [VoltageRamp(start_s=0, end_s=40, factor=0.9), PowerShift(at_s=10, offset_kw=0.15)]
+    profile = exogenous_profile(events, n_steps=30, ts_s=TS_S)
+    for k in (0, 4, 5, 12, 29):
+        assert exogenous_at(events, k, TS_S) == Exogenous(
+            grid_voltage_factor=float(profile.grid_voltage_factor[k]),
+            power_offset_kw=float(profile.power_offset_kw[k]))
