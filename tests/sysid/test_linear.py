@@ -264,13 +264,34 @@ def test_unconverged_pem_warns_and_keeps_the_best_iterate() -> None:
     start = arx_least_squares(y, u, na=1, nb=2, nk=1)
     start_theta = np.concatenate([start.theta, [0.0]])
     start_cost = float(np.mean(_armax_residuals_reference(y, u, start_theta) ** 2))
-    with pytest.warns(IdentificationWarning, match="armax_pem did not converge"):
-        fit = armax_pem(y, u, na=1, nb=2, nc=1, nk=1, max_iterations=1)
-    assert not fit.converged and "maximum number of iterations (1)" in fit.message
+    with pytest.warns(IdentificationWarning, match="armax_pem did not converge") as record:
+        fit = armax_pem(y, u, na=1, nb=2, nc=1, nk=1, max_iterations=2)
+    assert record[0].filename == __file__  # stacklevel=2 points at the caller
+    assert not fit.converged and "maximum number of iterations (2)" in fit.message
     assert fit.cost < start_cost
-    with pytest.warns(IdentificationWarning, match="fit_oe did not converge"):
+    with pytest.warns(IdentificationWarning, match="fit_oe did not converge") as record:
         result = fit_oe(_dataset(*_oe_data(8)), operating_point=OP, max_iterations=1)
+    assert record[0].filename == __file__
     assert not result.converged and result.n_iterations == 1
+    assert "maximum number of iterations (1)" in result.message
+
+
+def test_oe_from_an_unstable_start_is_projected_back_and_reaches_the_optimum() -> None:
+    y, u = _oe_data(15)
+    reference = oe_pem(y, u, nb=2, nf=1, nk=1)
+    # F = 1 - 1.25 q^-1 has its root at z = 1.25: mirrored to 0.8 before the first step.
+    fit = oe_pem(y, u, nb=2, nf=1, nk=1, theta0=np.array([1.0, -1.0, -1.25]))
+    assert fit.converged, fit.message
+    assert np.all(np.abs(fit.theta - reference.theta) <= SAME_OPTIMUM_SE * fit.std_errors)
+
+
+def test_unstable_arx_estimate_is_refused_with_a_clear_message() -> None:
+    rng = np.random.default_rng(16)
+    u = rng.standard_normal(200)
+    y = lfilter([0.0, 1.0], [1.0, -1.03], u)  # a growing (unstable) record
+    with pytest.raises(IdentificationError, match=r"fit_arx: the estimate is not a usable "
+                                                  r"model .*\|z\| = 1.03"):
+        fit_arx(_dataset(y, u), operating_point=OP)
 
 
 @pytest.mark.parametrize(
