@@ -1,0 +1,615 @@
+"""The paper's whole identification route on one log: preprocessing to noise-model Hammerstein.
+
+`run_paper_pipeline` is what ``czmpc identify`` calls. In order (paper secs. 5-7):
+
+1. operating point: given, or the longest steady window (sec. 5.1), else the means;
+2. outlier candidates from the residuals of ARX(10,10) (sec. 5.2, Fig. 3); spikes
+   repaired by interpolation, level shifts corrected (automatically from the
+   candidates, or as given, e.g. 0.15 kW from 20714 s); candidates again (Fig. 6);
+3. the linear models of Table 2: ARX, ARMAX and OE at the base orders and one higher;
+4. the input steps and their instantaneous gains (Table 3);
+5. the Hammerstein route (sec. 7.4-7.5): eq. 21 initial polynomial, ARX- and
+   OE-reidentified linear blocks, final PEM on V from those values and from zeros;
+6. the Hammerstein model with a noise model (eq. 30, sec. 7.6), PEM on W.
+
+Every model is kept as a named `HammersteinModel` with V and W, so the CLI can save
+them all; the wall time of each stage is recorded (for the benchmark only, never used
+in a decision). The route works on any SISO log (units from the `Dataset`); what a
+log cannot support (no steady window, fewer steps than the polynomial degree, a
+model that fails) is skipped and said in `PipelineResult.skipped`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from sysid.data import Dataset
+from sysid.errors import IdentificationError, SysidError
+from sysid.hammerstein import (
+    HammersteinFit,
+    HammersteinRoute,
+    hammerstein_model,
+    relative_parameter_difference,
+    run_hammerstein_route,
+)
+from sysid.linear import fit_armax, fit_arx, fit_oe
+from sysid.model import HammersteinModel, OperatingPoint
+from sysid.preprocess import (
+    OperatingPointChoice,
+    OutlierReport,
+    correct_level_shift,
+    estimate_level_shift,
+    find_operating_point,
+    find_outlier_candidates,
+    interpolate_spike,
+)
+from sysid.result import IdentificationResult
+from sysid.steps import InputStep, detect_steps
+
+#: ``level_shift`` argument: ``"auto"`` (from the outlier candidates), ``"none"``, or
+#: ``(from_time_s, shift_kw)`` to subtract ``shift_kw`` from the output from that time.
+LevelShiftOption = Literal["auto", "none"] | tuple[float, float]
+
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True, kw_only=True)
+class NamedModel:
+    """One model of the pipeline, with a file-friendly name.
+
+    Parameters
+    ----------
+    name :
+        File-friendly identifier, e.g. ``"oe_2_1"`` or ``"hammerstein_armax"``.
+    label :
+        Human-readable label, e.g. ``"OE(nb=2, nf=1)"``.
+    model :
+        The model, with criteria V and W on the preprocessed data.
+    n_parameters :
+        Number of estimated parameters.
+    n_iterations :
+        Iterations of its search (0 for least squares).
+    converged :
+        Whether its search converged.
+    """
+
+    name: str
+    label: str
+    model: HammersteinModel
+    n_parameters: int
+    n_iterations: int
+    converged: bool
+
+    @property
+    def ballistic_mse_kw2(self) -> float:
+        """``V`` (eq. 9) [kW^2]."""
+        v = self.model.criteria.ballistic_mse_kw2
+        return math.nan if v is None else float(v)
+
+    @property
+    def one_step_mse_kw2(self) -> float:
+        """``W`` (eq. 10) [kW^2]."""
+        w = self.model.criteria.one_step_mse_kw2
+        return math.nan if w is None else float(w)
+
+
+@dataclass(frozen=True, kw_only=True)
+class StageTime:
+    """Wall time of one pipeline stage [s] (reported, never used in numerics)."""
+
+    name: str
+    wall_time_s: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class PipelineFindings:
+    """The paper's findings, measured on this log (None where a model is missing).
+
+    Parameters
+    ----------
+    oe_beats_arx_armax :
+        OE at base orders has a lower V than ARX and ARMAX at base orders (Table 2).
+    higher_order_v_improvement :
+        Largest relative decrease of V from base to higher orders over ARX, ARMAX
+        and OE, ``(V_base - V_high) / V_base`` (the paper: none significant).
+    hammerstein_v_ratio :
+        V of the linear OE over V of the final Hammerstein (the paper: about 6).
+    noise_model_w_reduction :
+        ``1 - W_hammerstein_armax / W_armax`` (the paper: 0.42).
+    from_zeros_relative_difference :
+        Largest relative parameter difference of the final PEM from zeros and from
+        good initial values (the paper: the same parameters).
+    iterations_from_initial_values, iterations_from_zeros :
+        Iterations of the final PEM from each start (the paper: 3 and 17).
+    """
+
+    oe_beats_arx_armax: bool | None = None
+    higher_order_v_improvement: float | None = None
+    hammerstein_v_ratio: float | None = None
+    noise_model_w_reduction: float | None = None
+    from_zeros_relative_difference: float | None = None
+    iterations_from_initial_values: int | None = None
+    iterations_from_zeros: int | None = None
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class PipelineResult:
+    """Everything `run_paper_pipeline` produced.
+
+    Parameters
+    ----------
+    raw_data :
+        The log as given.
+    data :
+        The preprocessed log every model was fitted to (repairs in ``preprocessing``).
+    operating_point :
+        The operating point and how it was found.
+    outliers :
+        Outlier candidates before the repairs (Fig. 3), or None if the search failed.
+    outliers_after :
+        Candidates after the repairs (Fig. 6), or None.
+    linear :
+        Table 2 models in the order ARX, ARX+1, ARMAX, ARMAX+1, OE, OE+1.
+    steps :
+        Input steps and their instantaneous gains (Table 3).
+    route :
+        The Hammerstein route, or None if it could not run.
+    hammerstein :
+        Its models: eq. 21 (Fig. 12), ARX- and OE-reidentified (Fig. 13), final OE
+        (eq. 27), final OE from zeros, noise model (eq. 30).
+    final :
+        The model for control: the noise-model Hammerstein if it exists, else the
+        final OE Hammerstein, else the best linear model on W; None if no model at all.
+    findings :
+        The paper's findings measured on this log.
+    timings :
+        Wall time of every stage, in order.
+    skipped :
+        What could not be done and why, in words.
+    """
+
+    raw_data: Dataset = field(repr=False)
+    data: Dataset = field(repr=False)
+    operating_point: OperatingPointChoice
+    outliers: OutlierReport | None = field(repr=False)
+    outliers_after: OutlierReport | None = field(repr=False)
+    linear: tuple[NamedModel, ...]
+    steps: tuple[InputStep, ...]
+    route: HammersteinRoute | None = field(repr=False)
+    hammerstein: tuple[NamedModel, ...]
+    final: NamedModel | None
+    findings: PipelineFindings
+    timings: tuple[StageTime, ...]
+    skipped: tuple[str, ...]
+
+    @property
+    def models(self) -> tuple[NamedModel, ...]:
+        """Every model, linear first, then the Hammerstein route."""
+        return self.linear + self.hammerstein
+
+    def model(self, name: str) -> NamedModel:
+        """The model called ``name``.
+
+        Raises
+        ------
+        KeyError
+            No model of that name (for example one that was skipped).
+        """
+        for named in self.models:
+            if named.name == name:
+                return named
+        raise KeyError(
+            f"no model named {name!r}; have {[m.name for m in self.models]}"
+        )
+
+    @property
+    def total_time_s(self) -> float:
+        """Sum of the stage wall times [s]."""
+        return float(sum(t.wall_time_s for t in self.timings))
+
+    @property
+    def unconverged(self) -> tuple[str, ...]:
+        """Names of the models whose search did not converge."""
+        return tuple(m.name for m in self.models if not m.converged)
+
+
+class _Clock:
+    """Collects stage wall times and forwards stage names to the progress callback."""
+
+    def __init__(self, progress: Progress | None) -> None:
+        self._progress = progress
+        self._times: list[StageTime] = []
+        self._name: str | None = None
+        self._t0 = 0.0
+
+    def start(self, name: str) -> None:
+        self.stop()
+        self._name = name
+        self._t0 = time.perf_counter()
+        if self._progress is not None:
+            self._progress(name)
+
+    def stop(self) -> None:
+        if self._name is not None:
+            self._times.append(
+                StageTime(name=self._name, wall_time_s=time.perf_counter() - self._t0)
+            )
+            self._name = None
+
+    @property
+    def times(self) -> tuple[StageTime, ...]:
+        return tuple(self._times)
+
+
+def _named(name: str, label: str, result: IdentificationResult) -> NamedModel:
+    return NamedModel(
+        name=name,
+        label=label,
+        model=result.model,
+        n_parameters=len(result.parameter_names),
+        n_iterations=result.n_iterations,
+        converged=result.converged,
+    )
+
+
+def _named_fit(
+    name: str, label: str, fit: HammersteinFit, data: Dataset, op: OperatingPoint
+) -> NamedModel:
+    model = hammerstein_model(fit, data, operating_point=op, extra={"pipeline_name": name})
+    return NamedModel(
+        name=name,
+        label=label,
+        model=model,
+        n_parameters=len(fit.parameter_names),
+        n_iterations=fit.n_iterations,
+        converged=fit.converged,
+    )
+
+
+def _check_level_shift(level_shift: object) -> LevelShiftOption:
+    if level_shift in ("auto", "none"):
+        return level_shift  # type: ignore[return-value]
+    if (
+        isinstance(level_shift, tuple)
+        and len(level_shift) == 2
+        and all(isinstance(v, (int, float)) and math.isfinite(v) for v in level_shift)
+    ):
+        return (float(level_shift[0]), float(level_shift[1]))
+    raise IdentificationError(
+        "run_paper_pipeline: level_shift must be 'auto', 'none' or (from_time_s, shift_kw) "
+        f"with finite numbers; got {level_shift!r}"
+    )
+
+
+def _preprocess(
+    data: Dataset,
+    op: OperatingPoint,
+    level_shift: LevelShiftOption,
+    repair_spikes: bool,
+    skipped: list[str],
+) -> tuple[Dataset, OutlierReport | None]:
+    try:
+        report = find_outlier_candidates(data, operating_point=op)
+    except SysidError as exc:
+        skipped.append(f"outlier search skipped: {exc}")
+        report = None
+    repaired = data
+    if report is not None and repair_spikes:
+        for cand in report.candidates:
+            if cand.kind == "spike":
+                try:
+                    repaired = interpolate_spike(repaired, sample=cand.sample)
+                except SysidError as exc:
+                    skipped.append(f"spike at {cand.time_s:g} s not repaired: {exc}")
+    if isinstance(level_shift, tuple):
+        repaired = correct_level_shift(
+            repaired, from_time_s=level_shift[0], shift_kw=level_shift[1]
+        )
+    elif level_shift == "auto" and report is not None:
+        for cand in report.candidates:
+            if cand.kind != "level_shift":
+                continue
+            try:
+                est = estimate_level_shift(repaired, cand.time_s)
+                repaired = correct_level_shift(
+                    repaired, from_time_s=est.from_time_s, shift_kw=est.shift_kw
+                )
+            except SysidError as exc:
+                skipped.append(f"level shift at {cand.time_s:g} s not corrected: {exc}")
+    return repaired, report
+
+
+def _linear_models(
+    data: Dataset, op: OperatingPoint, nb: int, nf: int, nk: int, skipped: list[str]
+) -> tuple[NamedModel, ...]:
+    na = nf
+    specs = [
+        (f"arx_{na}_{nb}", f"ARX(na={na}, nb={nb})", fit_arx, {"na": na, "nb": nb}),
+        (f"arx_{na + 1}_{nb + 1}", f"ARX(na={na + 1}, nb={nb + 1})", fit_arx,
+         {"na": na + 1, "nb": nb + 1}),
+        (f"armax_{na}_{nb}_{na}", f"ARMAX(na={na}, nb={nb}, nc={na})", fit_armax,
+         {"na": na, "nb": nb, "nc": na}),
+        (f"armax_{na + 1}_{nb + 1}_{na + 1}", f"ARMAX(na={na + 1}, nb={nb + 1}, nc={na + 1})",
+         fit_armax, {"na": na + 1, "nb": nb + 1, "nc": na + 1}),
+        (f"oe_{nb}_{nf}", f"OE(nb={nb}, nf={nf})", fit_oe, {"nb": nb, "nf": nf}),
+        (f"oe_{nb + 1}_{nf + 1}", f"OE(nb={nb + 1}, nf={nf + 1})", fit_oe,
+         {"nb": nb + 1, "nf": nf + 1}),
+    ]
+    out = []
+    for name, label, fit, orders in specs:
+        try:
+            result = fit(data, operating_point=op, nk=nk, **orders)  # type: ignore[operator]
+        except SysidError as exc:
+            skipped.append(f"{label} skipped: {exc}")
+            continue
+        out.append(_named(name, label, result))
+    return tuple(out)
+
+
+def _findings(
+    linear: tuple[NamedModel, ...], hammerstein: tuple[NamedModel, ...],
+    route: HammersteinRoute | None, nb: int, nf: int,
+) -> PipelineFindings:
+    by_name = {m.name: m for m in linear + hammerstein}
+    na = nf
+    base = {
+        "arx": by_name.get(f"arx_{na}_{nb}"),
+        "armax": by_name.get(f"armax_{na}_{nb}_{na}"),
+        "oe": by_name.get(f"oe_{nb}_{nf}"),
+    }
+    high = {
+        "arx": by_name.get(f"arx_{na + 1}_{nb + 1}"),
+        "armax": by_name.get(f"armax_{na + 1}_{nb + 1}_{na + 1}"),
+        "oe": by_name.get(f"oe_{nb + 1}_{nf + 1}"),
+    }
+    oe_beats = None
+    if all(m is not None for m in base.values()):
+        oe_v = base["oe"].ballistic_mse_kw2  # type: ignore[union-attr]
+        oe_beats = bool(
+            oe_v < base["arx"].ballistic_mse_kw2  # type: ignore[union-attr]
+            and oe_v < base["armax"].ballistic_mse_kw2  # type: ignore[union-attr]
+        )
+    improvements = [
+        (b.ballistic_mse_kw2 - h.ballistic_mse_kw2) / b.ballistic_mse_kw2
+        for key in base
+        if (b := base[key]) is not None and (h := high[key]) is not None
+    ]
+    final_oe = by_name.get("hammerstein_oe")
+    noise = by_name.get("hammerstein_armax")
+    ratio = (
+        base["oe"].ballistic_mse_kw2 / final_oe.ballistic_mse_kw2
+        if base["oe"] is not None and final_oe is not None
+        else None
+    )
+    reduction = (
+        1.0 - noise.one_step_mse_kw2 / base["armax"].one_step_mse_kw2
+        if noise is not None and base["armax"] is not None
+        else None
+    )
+    zeros_diff = it_init = it_zeros = None
+    if route is not None:
+        it_init = route.final_oe.n_iterations
+        if route.final_oe_from_zeros is not None:
+            it_zeros = route.final_oe_from_zeros.n_iterations
+            zeros_diff = relative_parameter_difference(route.final_oe, route.final_oe_from_zeros)
+    return PipelineFindings(
+        oe_beats_arx_armax=oe_beats,
+        higher_order_v_improvement=max(improvements) if improvements else None,
+        hammerstein_v_ratio=ratio,
+        noise_model_w_reduction=reduction,
+        from_zeros_relative_difference=zeros_diff,
+        iterations_from_initial_values=it_init,
+        iterations_from_zeros=it_zeros,
+    )
+
+
+def _route_models(
+    route: HammersteinRoute, data: Dataset, op: OperatingPoint, skipped: list[str]
+) -> tuple[NamedModel, ...]:
+    entries: list[tuple[str, str, HammersteinFit | None]] = [
+        ("hammerstein_eq21", "Hammerstein, ARX block, f from eq. 21 (Fig. 12)",
+         None if route.initial_poly is None else route.initial_poly.fit),
+        ("hammerstein_arx_reidentified", "Hammerstein, f fixed, ARX re-identified (Fig. 13)",
+         route.arx_reidentified),
+        ("hammerstein_oe_reidentified", "Hammerstein, f fixed, OE re-identified (Fig. 13)",
+         route.oe_reidentified),
+        ("hammerstein_oe", "Hammerstein-OE, final PEM on V (eq. 27)", route.final_oe),
+        ("hammerstein_oe_from_zeros", "Hammerstein-OE, final PEM on V from zeros",
+         route.final_oe_from_zeros),
+        ("hammerstein_armax", "Hammerstein-ARMAX, PEM on W (eq. 30)", route.noise_model),
+    ]
+    out = []
+    for name, label, fit in entries:
+        if fit is None:
+            continue
+        try:
+            out.append(_named_fit(name, label, fit, data, op))
+        except SysidError as exc:
+            skipped.append(f"{label} not kept: {exc}")
+    return tuple(out)
+
+
+def run_paper_pipeline(
+    data: Dataset,
+    *,
+    operating_point: OperatingPoint | None = None,
+    level_shift: LevelShiftOption = "auto",
+    repair_spikes: bool = True,
+    steady_output_atol: float = 0.1,
+    degree: int = 2,
+    nb: int = 2,
+    nf: int = 1,
+    nk: int = 1,
+    from_zeros: bool = True,
+    progress: Progress | None = None,
+) -> PipelineResult:
+    """Run the paper's identification route on one SISO log (secs. 5-7).
+
+    Parameters
+    ----------
+    data :
+        The raw log (absolute units; `Dataset.input_unit`/`output_unit` say which).
+    operating_point :
+        ``(s_nom, P_nom)``; default: the longest steady window
+        (`sysid.preprocess.find_operating_point`, sec. 5.1), else the sample means.
+    level_shift :
+        ``"auto"``: correct every level-shift candidate of the outlier search by its
+        estimated size; ``"none"``; or ``(from_time_s, shift_kw)``: subtract
+        ``shift_kw`` from the output from that time (the paper: ``(20714.0, 0.15)``).
+    repair_spikes :
+        Replace every spike candidate by the mean of its neighbours (Fig. 4).
+    steady_output_atol :
+        Smallest settling band of the steady-window search [output unit] (slow
+        disturbances of the output; see `find_operating_point`).
+    degree :
+        Degree of the input polynomial ``f``.
+    nb, nf, nk :
+        Base orders: number of ``B`` coefficients, order of ``F`` (``A``, ``C``), and
+        the delay. Table 2 adds the models one order higher.
+    from_zeros :
+        Also run the final PEM from zeros (the paper's check, sec. 7.5).
+    progress :
+        Called with the name of each stage as it starts.
+
+    Returns
+    -------
+    PipelineResult
+        Preprocessed data, every model (named), steps, findings, timings, and what
+        was skipped.
+
+    Raises
+    ------
+    IdentificationError
+        Malformed options (a bad `level_shift`, orders), or data that support no model
+        at all (for example a constant input).
+    """
+    if not isinstance(data, Dataset):
+        raise IdentificationError(
+            f"run_paper_pipeline: data must be a sysid Dataset; got {type(data).__name__}"
+        )
+    shift = _check_level_shift(level_shift)
+    if operating_point is not None and not isinstance(operating_point, OperatingPoint):
+        raise IdentificationError(
+            f"run_paper_pipeline: operating_point must be an OperatingPoint or None; got "
+            f"{operating_point!r}"
+        )
+    for name, value, minimum in (("degree", degree, 1), ("nb", nb, 1), ("nf", nf, 0),
+                                 ("nk", nk, 0)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+            raise IdentificationError(
+                f"run_paper_pipeline: {name} must be an int >= {minimum}; got {value!r}"
+            )
+    if np.ptp(data.triac_pct) == 0.0:
+        raise IdentificationError(
+            "run_paper_pipeline: the input is constant over the whole record; expected a "
+            "record in which the input changes (steps or noise)"
+        )
+    skipped: list[str] = []
+    clock = _Clock(progress)
+
+    clock.start("operating point")
+    if operating_point is not None:
+        choice = find_operating_point(data, method="given", given=operating_point)
+    else:
+        try:
+            choice = find_operating_point(
+                data, method="steady", output_atol_kw=steady_output_atol
+            )
+        except SysidError as exc:
+            skipped.append(f"no steady operating window ({exc}); sample means used")
+            choice = find_operating_point(data, method="means")
+    op = choice.operating_point
+
+    clock.start("outliers and repairs")
+    clean, report = _preprocess(data, op, shift, repair_spikes, skipped)
+    outliers_after = None
+    if report is not None and clean is not data:
+        try:
+            outliers_after = find_outlier_candidates(clean, operating_point=op)
+        except SysidError as exc:
+            skipped.append(f"outlier search after repairs skipped: {exc}")
+
+    clock.start("linear models (Table 2)")
+    linear = _linear_models(clean, op, nb, nf, nk, skipped)
+
+    clock.start("input steps (Table 3)")
+    steps = detect_steps(clean, delay_steps=nk)
+    if len(steps) < degree:
+        skipped.append(
+            f"only {len(steps)} input step(s) found; eq. 21 needs at least {degree} for a "
+            f"degree-{degree} polynomial"
+        )
+
+    clock.start("Hammerstein route")
+    route: HammersteinRoute | None = None
+    try:
+        route = run_hammerstein_route(
+            clean.power_kw - op.power_kw,
+            clean.triac_pct - op.triac_pct,
+            steps=steps,
+            operating_point=op,
+            degree=degree,
+            nb=nb,
+            nf=nf,
+            nk=nk,
+            noise_model=True,
+            from_zeros=from_zeros,
+        )
+        skipped.extend(route.skipped)
+    except SysidError as exc:
+        skipped.append(f"Hammerstein route skipped: {exc}")
+
+    clock.start("Hammerstein models and criteria")
+    hammerstein = () if route is None else _route_models(route, clean, op, skipped)
+    clock.stop()
+
+    final = _choose_final(linear, hammerstein)
+    if final is None:
+        raise IdentificationError(
+            "run_paper_pipeline: no model could be identified from this record: "
+            + "; ".join(skipped)
+        )
+    return PipelineResult(
+        raw_data=data,
+        data=clean,
+        operating_point=choice,
+        outliers=report,
+        outliers_after=outliers_after,
+        linear=linear,
+        steps=steps,
+        route=route,
+        hammerstein=hammerstein,
+        final=final,
+        findings=_findings(linear, hammerstein, route, nb, nf),
+        timings=clock.times,
+        skipped=tuple(skipped),
+    )
+
+
+def _choose_final(
+    linear: tuple[NamedModel, ...], hammerstein: tuple[NamedModel, ...]
+) -> NamedModel | None:
+    by_name = {m.name: m for m in hammerstein}
+    for name in ("hammerstein_armax", "hammerstein_oe"):
+        if name in by_name:
+            return by_name[name]
+    if linear:
+        return min(linear, key=lambda m: m.one_step_mse_kw2)
+    return None
+
+
+__all__ = [
+    "LevelShiftOption",
+    "NamedModel",
+    "PipelineFindings",
+    "PipelineResult",
+    "Progress",
+    "StageTime",
+    "run_paper_pipeline",
+]
