@@ -1,0 +1,219 @@
+"""MPCQP: LQR equivalence, bounds and rate limits, soft limits, warm and cold starts."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import scipy.linalg
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from czmpc.inversion import InputMap, build_input_map
+from czmpc.qp import MPCQP, move_bounds
+from czmpc.realization import InnovationsForm, innovations_form
+from czmpc.settings import OSQPOptions
+from sysid.model import HammersteinModel
+
+#: OSQP run to eps 1e-9 with polishing: the polished unconstrained solution solves the
+#: KKT system directly, so it matches the closed form to about 1e-9 relative; 1e-6 kW
+#: leaves room for the conditioning of H (entries up to ~1e3).
+LQR_ATOL_KW = 1e-6
+#: Constraints hold to OSQP's primal tolerance eps_abs + eps_rel * |bound|; we allow 10x.
+QP_TOL_FACTOR = 10.0
+TIGHT = OSQPOptions(eps_abs=1e-9, eps_rel=1e-9, polishing=True, max_iter=50000)
+WEIGHTS = {"output_weight": 1.0, "input_target_weight": 0.01, "move_weight": 0.1}
+WIDE = 1e4  # box bounds that never bind [kW-equivalent]
+
+
+def _qp_tol(options: OSQPOptions, scale: float) -> float:
+    return QP_TOL_FACTOR * (options.eps_abs + options.eps_rel * scale)
+
+
+@pytest.fixture(scope="session")
+def linear_block(paper_armax_model: HammersteinModel) -> InnovationsForm:
+    return innovations_form(paper_armax_model)
+
+
+@pytest.fixture(scope="session")
+def input_map(paper_armax_model: HammersteinModel) -> InputMap:
+    return build_input_map(paper_armax_model, triac_min_pct=0.0, triac_max_pct=100.0,
+                           validity_margin_pct=5.0)
+
+
+def _lqr_gain(ss: InnovationsForm, q_y: float, q_u: float, q_dw: float
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Infinite-horizon LQR on xi = [dx; w_prev - w_s], built here independently.
+
+    Stage cost q_y (C dx)^2 + q_u u^2 + q_dw (u - prev)^2 with u = w - w_s.
+    """
+    n = ss.n_states
+    A = np.block([[ss.A, np.zeros((n, 1))], [np.zeros((1, n)), np.zeros((1, 1))]])
+    B = np.concatenate([ss.B, [1.0]]).reshape(n + 1, 1)
+    Q = np.zeros((n + 1, n + 1))
+    Q[:n, :n] = q_y * np.outer(ss.C, ss.C)
+    Q[n, n] = q_dw
+    R = np.array([[q_u + q_dw]])
+    S = np.zeros((n + 1, 1))
+    S[n, 0] = -q_dw
+    P = scipy.linalg.solve_discrete_are(A, B, Q, R, s=S)
+    F = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A + S.T)
+    return F.ravel(), A - B @ F
+
+
+@pytest.mark.parametrize("horizon_steps", [50, 5], ids=["N=50", "N=5"])
+def test_unconstrained_first_move_equals_the_lqr_law(
+    horizon_steps: int, linear_block: InnovationsForm, rng: np.random.Generator
+) -> None:
+    ss = linear_block
+    qp = MPCQP(A=ss.A, B=ss.B, C=ss.C, horizon_steps=horizon_steps, options=TIGHT, **WEIGHTS)
+    F, A_cl = _lqr_gain(ss, 1.0, 0.01, 0.1)
+    n = ss.n_states
+    for _ in range(3):
+        dx0 = rng.normal(size=n)
+        w_s, w_prev = float(rng.normal()), float(rng.normal())
+        xi = np.concatenate([dx0, [w_prev - w_s]])
+        sol = qp.solve(h=ss.A @ dx0, w_prev=w_prev, w_target=w_s, y_target=0.0,
+                       w_lo=np.full(horizon_steps, -WIDE), w_hi=np.full(horizon_steps, WIDE))
+        assert sol.is_accurate
+        # The whole plan is the LQR closed-loop rollout (the DARE terminal cost makes
+        # the finite horizon exact, for any N).
+        expected = []
+        for _j in range(horizon_steps):
+            expected.append(w_s - F @ xi)
+            xi = A_cl @ xi
+        np.testing.assert_allclose(sol.w[0], expected[0], rtol=0.0, atol=LQR_ATOL_KW)
+        np.testing.assert_allclose(sol.w, expected, rtol=0.0, atol=LQR_ATOL_KW)
+
+
+def test_box_bounds_hold_to_solver_tolerance(
+    linear_block: InnovationsForm, input_map: InputMap
+) -> None:
+    ss = linear_block
+    options = OSQPOptions()
+    qp = MPCQP(A=ss.A, B=ss.B, C=ss.C, horizon_steps=30, options=options, **WEIGHTS)
+    w_lo, w_hi, _ = move_bounds(input_map, 0.0, None, 30)
+    tol = _qp_tol(options, max(abs(input_map.w_min), abs(input_map.w_max)))
+    for w_s in (input_map.w_max, input_map.w_min):  # targets on the bounds
+        h = -2.0 * np.sign(w_s) * np.array([30.0, 0.0])  # far on the other side
+        sol = qp.solve(h=h, w_prev=0.0, w_target=w_s, y_target=0.0, w_lo=w_lo, w_hi=w_hi)
+        assert sol.is_usable
+        assert np.all(sol.w >= w_lo - tol) and np.all(sol.w <= w_hi + tol)
+        assert np.min(np.abs(sol.w - w_s)) <= tol  # a bound is active
+
+
+def test_rate_limits_hold_and_translate_to_triac_moves(
+    linear_block: InnovationsForm, input_map: InputMap
+) -> None:
+    ss = linear_block
+    options = OSQPOptions()
+    delta = 2.0
+    qp = MPCQP(A=ss.A, B=ss.B, C=ss.C, horizon_steps=30, has_rate_limit=True,
+               options=options, **WEIGHTS)
+    ds_prev = -20.0
+    w_lo, w_hi, rate = move_bounds(input_map, ds_prev, delta, 30)
+    assert rate is not None
+    sol = qp.solve(h=np.zeros(2), w_prev=input_map.f(ds_prev), w_target=input_map.w_max,
+                   y_target=0.0, w_lo=w_lo, w_hi=w_hi, rate=rate)
+    assert sol.is_usable
+    tol = _qp_tol(options, max(abs(input_map.w_min), abs(input_map.w_max)))
+    assert np.all(sol.w >= w_lo - tol) and np.all(sol.w <= w_hi + tol)
+    assert np.all(np.abs(np.diff(sol.w)) <= rate + tol)
+    ds = np.array([input_map.inverse(w) for w in sol.w])
+    moves = np.abs(np.diff(np.concatenate([[ds_prev], ds])))
+    min_slope = input_map.min_slope(input_map.ds_min_pct, input_map.ds_max_pct)
+    assert np.all(moves <= delta + tol / min_slope)
+    assert moves[0] >= delta - tol  # the rate limit binds on the first move
+
+
+def test_first_move_bounds_are_exact_and_later_slopes_local(input_map: InputMap) -> None:
+    delta, ds_prev = 2.0, -25.0
+    w_lo, w_hi, rate = move_bounds(input_map, ds_prev, delta, 30)
+    assert rate is not None
+    assert w_lo[0] == input_map.f(ds_prev - delta)
+    assert w_hi[0] == input_map.f(ds_prev + delta)
+    # Near the bottom of the range f' is high; the global minimum slope (at the top)
+    # would give a tighter, needlessly slow limit.
+    global_rate = delta * input_map.min_slope(input_map.ds_min_pct, input_map.ds_max_pct)
+    assert rate[0] == pytest.approx(delta * input_map.min_slope(ds_prev - 2 * delta,
+                                                                ds_prev + 2 * delta))
+    assert rate[0] > 1.2 * global_rate
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    ds_prev=st.floats(min_value=-30.0, max_value=30.0),
+    delta=st.floats(min_value=0.1, max_value=10.0),
+    steps=st.lists(st.floats(min_value=-1.0, max_value=1.0), min_size=20, max_size=20),
+)
+def test_any_plan_inside_the_w_constraints_moves_the_triac_at_most_delta(
+    ds_prev: float, delta: float, steps: list[float], input_map: InputMap
+) -> None:
+    w_lo, w_hi, rate = move_bounds(input_map, ds_prev, delta, 20)
+    assert rate is not None
+    # Build a plan that satisfies every w-constraint: a random walk kept in the boxes
+    # (each box contains the previous one, so clipping never lengthens a move).
+    w = [w_lo[0] + (steps[0] + 1.0) / 2.0 * (w_hi[0] - w_lo[0])]
+    for j in range(1, 20):
+        w.append(min(w_hi[j], max(w_lo[j], w[-1] + steps[j] * rate[j - 1])))
+    ds = [ds_prev] + [input_map.inverse(v) for v in w]
+    assert max(abs(b - a) for a, b in zip(ds, ds[1:], strict=False)) <= delta * (1 + 1e-9)
+
+
+def test_soft_power_limit_is_met_when_possible_and_slack_reports_violations(
+    linear_block: InnovationsForm, input_map: InputMap
+) -> None:
+    ss = linear_block
+    options = OSQPOptions()
+    qp = MPCQP(A=ss.A, B=ss.B, C=ss.C, horizon_steps=30, has_soft_max=True,
+               options=options, soft_limit_weight=1e3, soft_limit_linear_weight=1e2,
+               **WEIGHTS)
+    w_lo, w_hi, _ = move_bounds(input_map, 0.0, None, 30)
+    # Target at y_s = 2 kW with the soft maximum at 3 kW: no conflict, slack ~ 0.
+    g = ss.static_gain
+    free = qp.solve(h=np.zeros(2), w_prev=0.0, w_target=2.0 / g, y_target=2.0, w_lo=w_lo,
+                    w_hi=w_hi, soft_max_rel_kw=3.0)
+    assert free.is_usable and free.slack_kw == pytest.approx(0.0, abs=_qp_tol(options, 3.0))
+    # Soft maximum at 1 kW below the 2 kW target: the plan keeps y near 1 kW.
+    capped = qp.solve(h=np.zeros(2), w_prev=0.0, w_target=2.0 / g, y_target=2.0, w_lo=w_lo,
+                      w_hi=w_hi, soft_max_rel_kw=1.0)
+    assert capped.is_usable and 0.0 < capped.slack_kw < 0.1
+
+
+def test_warm_start_needs_few_iterations_and_failure_forces_a_cold_start(
+    linear_block: InnovationsForm, input_map: InputMap
+) -> None:
+    ss = linear_block
+    options = OSQPOptions()
+
+    def make() -> MPCQP:
+        return MPCQP(A=ss.A, B=ss.B, C=ss.C, horizon_steps=30, options=options, **WEIGHTS)
+
+    w_lo, w_hi, _ = move_bounds(input_map, 0.0, None, 30)
+    args = {"h": np.array([-3.0, 0.5]), "w_prev": 1.0, "w_target": 4.0, "y_target": 3.6,
+            "w_lo": w_lo, "w_hi": w_hi}
+    qp = make()
+    cold = qp.solve(**args)  # type: ignore[arg-type]
+    warm = qp.solve(**args)  # type: ignore[arg-type]
+    assert warm.n_iterations <= options.check_termination < cold.n_iterations
+    failed = qp.solve(**{**args, "h": np.array([math.nan, 0.0])})  # type: ignore[arg-type]
+    assert not failed.is_usable and np.all(np.isnan(failed.w))
+    after = qp.solve(**args)  # type: ignore[arg-type]
+    # A cold start repeats the fresh solve bit for bit.
+    assert after.n_iterations == cold.n_iterations
+    assert np.array_equal(after.w, cold.w)
+
+
+def test_max_iter_one_reports_an_unusable_solution(
+    linear_block: InnovationsForm, input_map: InputMap
+) -> None:
+    ss = linear_block
+    qp = MPCQP(A=ss.A, B=ss.B, C=ss.C, horizon_steps=30,
+               options=OSQPOptions(max_iter=1), **WEIGHTS)
+    w_lo, w_hi, _ = move_bounds(input_map, 0.0, None, 30)
+    sol = qp.solve(h=np.array([-3.0, 0.5]), w_prev=1.0, w_target=4.0, y_target=3.6,
+                   w_lo=w_lo, w_hi=w_hi)
+    assert sol.status == "maximum iterations reached"
+    assert not sol.is_usable and not sol.is_accurate
+    assert sol.n_iterations == 1
