@@ -446,7 +446,7 @@ class MPCQP:
         if usable:
             plan = np.array(x[:N], dtype=float)
             plan.setflags(write=False)
-            slack = float(x[N]) if self.has_soft else 0.0
+            slack = max(0.0, float(x[N])) if self.has_soft else 0.0  # >= 0 up to eps
         else:
             plan = self._nan_plan
             slack = math.nan if self.has_soft else 0.0
