@@ -137,7 +137,8 @@ def paper_model() -> HammersteinModel:
     return HammersteinModel(
         kind="hammerstein", linear_block="armax", ts_s=2.0,
         operating_point=OperatingPoint(triac_pct=45.0, power_kw=45.0),
-        a=[1.0, -0.99], b=[0.0, 1.0, -0.991], c=[1.0, -0.9], input_poly=[1.35, -0.0065],
+        a=np.array([1.0, -0.99]), b=np.array([0.0, 1.0, -0.991]), c=np.array([1.0, -0.9]),
+        input_poly=np.array([1.35, -0.0065]),
         noise_std_kw=0.0134, input_range_pct=(20.0, 70.0),
     )
 

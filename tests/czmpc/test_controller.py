@@ -87,7 +87,7 @@ def test_controller_satisfies_the_sim_protocol(paper_armax_model: HammersteinMod
     assert mpc.last_step is None and mpc.n_fallbacks == 0
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _cached_controller(model: HammersteinModel, settings: MPCSettings) -> OffsetFreeMPC:
     return OffsetFreeMPC(model, settings)
 
