@@ -257,6 +257,11 @@ def read_csv(
             f"the column mapping must map exactly {list(CSV_COLUMNS)}; got {sorted(wanted)}",
             path=path,
         )
+    if len(set(wanted.values())) != len(wanted):
+        raise DataFileError(
+            f"the column mapping must map each name to a different column; got {wanted}",
+            path=path,
+        )
     if len(set(header)) != len(header):
         dup = next(h for h in header if header.count(h) > 1)
         raise DataFileError(f"header field '{dup}' appears twice", path=path, line=1, column=dup)
