@@ -517,7 +517,8 @@ def hammerstein_oe_structure(
         delay [samples].
     initial_values :
         Starting values by name (``b2``, ``d1``, ``d2``, ``f1`` for the paper's
-        orders); missing names start at 0.
+        orders); missing names start at 0. An unstable ``F`` is mirrored into the
+        unit circle.
 
     Returns
     -------
@@ -584,7 +585,7 @@ def hammerstein_armax_structure(
         Orders of ``A``, ``B`` (including the normalized 1), ``C`` and the delay.
     initial_values :
         Starting values by name (``b2``, ``d1``, ``d2``, ``a1``, ``k1``); missing
-        names start at 0.
+        names start at 0. Unstable ``A`` or ``C`` are mirrored into the unit circle.
 
     Returns
     -------
@@ -719,10 +720,17 @@ def _fit_from_greybox(
 def _start_values(
     initial: HammersteinFit | Mapping[str, float] | None, names: tuple[str, ...]
 ) -> tuple[dict[str, float], str]:
+    """Start values by name; a previous fit gives what it shares with ``names``.
+
+    A user's mapping is passed on whole, so an unknown name is an error, not dropped.
+    """
     if initial is None:
         return {}, "zeros"
-    values = initial.values() if isinstance(initial, HammersteinFit) else dict(initial)
-    return {k: float(v) for k, v in values.items() if k in names}, "initial-values"
+    if isinstance(initial, HammersteinFit):
+        values = {k: v for k, v in initial.values().items() if k in names}
+    else:
+        values = dict(initial)
+    return {k: float(v) for k, v in values.items()}, "initial-values"
 
 
 def fit_hammerstein_oe(
@@ -841,10 +849,12 @@ def fit_hammerstein_armax(
     _check_excitation(ds_arr, degree, structure.n_parameters, where)
     if isinstance(initial, HammersteinFit) and initial.linear_block != "armax":
         values = initial.values()
-        for i in range(1, max(na, initial.a.size - 1) + 1):
+        for i in range(1, initial.a.size):
             if f"f{i}" in values:
                 values[f"a{i}"] = values.pop(f"f{i}")
-        start, label = _start_values(values, structure.parameter_names)
+        names = structure.parameter_names
+        start = {k: v for k, v in values.items() if k in names}
+        label = "initial-values"
     else:
         start, label = _start_values(initial, structure.parameter_names)
     structure = hammerstein_armax_structure(
