@@ -22,6 +22,7 @@ import numpy as np
 from sim.errors import ScenarioError, SimError
 from sim.heater import HeaterParams, VirtualHeater
 from sim.protocols import Exogenous
+from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.steps import detect_steps
 
@@ -139,7 +140,7 @@ class ExperimentSpec:
             )
         return k
 
-    def triac_schedule_pct(self) -> np.ndarray:
+    def triac_schedule_pct(self) -> FloatArray:
         """The input at every sample, shape ``(n_samples,)`` [%]."""
         triac_pct = np.full(self.n_samples, self.initial_triac_pct)
         for time_s, level in self.input_steps:
@@ -200,7 +201,7 @@ def identification_experiment(
         exogenous = Exogenous(grid_voltage_factor=voltage, power_offset_kw=offset_kw)
         power_kw[k] = heater.step(float(triac_pct[k - 1]), exogenous)
     return Dataset(
-        time_s=np.arange(spec.n_samples) * spec.ts_s,
+        time_s=np.arange(spec.n_samples, dtype=float) * spec.ts_s,
         triac_pct=triac_pct,
         power_kw=np.round(power_kw, spec.power_decimals),
         ts_s=spec.ts_s,

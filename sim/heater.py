@@ -207,7 +207,7 @@ def power_fraction(triac_pct: float, params: HeaterParams) -> float:
         return 0.0
     u = (triac_pct - s0) / (100.0 - s0)
     kappa = params.firing_droop
-    return u**params.firing_exponent * (1.0 - kappa * u) / (1.0 - kappa)
+    return float(u**params.firing_exponent * (1.0 - kappa * u) / (1.0 - kappa))
 
 
 def _relative_resistance(temp_k: float, params: HeaterParams) -> float:
