@@ -84,6 +84,13 @@ def _new_figure(n_rows: int, *, sharex: bool = True) -> tuple[Figure, list[Axes]
     return fig, list(axes)
 
 
+def _legend_above(ax: Axes) -> None:
+    """Legend in one row above the panel, so it never hides data."""
+    n = len(ax.get_legend_handles_labels()[1])
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncols=min(n, 3), frameon=False,
+              borderaxespad=0.2, fontsize="small")
+
+
 def _save(fig: Figure, path: str | os.PathLike[str]) -> Figure:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -92,7 +99,8 @@ def _save(fig: Figure, path: str | os.PathLike[str]) -> Figure:
 
 
 def _rms(values: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(values))))
+    """Root mean square over the finite samples (NaN marks "no value")."""
+    return float(np.sqrt(np.nanmean(np.square(values))))
 
 
 def plot_dataset(
@@ -147,7 +155,7 @@ def plot_dataset(
     for ax in (ax_p, ax_s):
         for tm in marked_time_s:
             ax.axvline(tm, color="tab:purple", linestyle=":", linewidth=1.0)
-        ax.legend(loc="upper left")
+        _legend_above(ax)
     fig.suptitle(title)
     return _save(fig, path)
 
@@ -168,8 +176,9 @@ def plot_residuals(
     time_s :
         Sample times [s], shape ``(n,)``.
     residuals_kw :
-        Panel label -> residuals ``e`` [kW], each shape ``(n,)``. Panels are stacked
-        in the mapping's order and share both axes so that their sizes compare.
+        Panel label -> residuals ``e`` [kW], each shape ``(n,)``; NaN marks samples
+        without a prediction (the start of a high-order ARX model). Panels are
+        stacked in the mapping's order and share both axes so that their sizes compare.
     path :
         PNG file to write.
     title :
@@ -203,11 +212,11 @@ def plot_residuals(
                 label=f"{name} (RMS {_rms(e):.3g} kW)")
         if marks.size:
             idx = np.clip(np.searchsorted(t, marks), 0, t.size - 1)
-            top = float(np.max(np.abs(e)))
+            top = float(np.nanmax(np.abs(e)))
             ax.plot(t[idx], np.full(idx.size, 1.05 * top), linestyle="none", marker="v",
                     markersize=9, color="tab:purple", label=marked_label)
         ax.set_ylabel(AXIS_LABELS["residual"])
-        ax.legend(loc="upper left")
+        _legend_above(ax)
     axes[-1].set_xlabel(AXIS_LABELS["time"])
     fig.suptitle(title)
     return _save(fig, path)
@@ -269,7 +278,7 @@ def plot_outlier_zoom(
     for ax in (ax_e, ax_p):
         ax.axvline(center_time_s, color="tab:purple", linestyle=":", linewidth=1.0,
                    label=f"candidate at {center_time_s:g} s")
-        ax.legend(loc="upper left")
+        _legend_above(ax)
     fig.suptitle(title)
     return _save(fig, path)
 
@@ -322,12 +331,12 @@ def plot_simulations(
         ax.plot(t, sim, color=_PALETTE[i % len(_PALETTE)], linewidth=1.0,
                 linestyle=("--", "-.", ":", (0, (5, 1)))[i % 4], label=name)
     ax.set_ylabel(AXIS_LABELS["power_dev"])
-    ax.legend(loc="upper left")
+    _legend_above(ax)
     if input_pct is not None:
         u = _vector(input_pct, "input_pct", t.size)
         axes[1].plot(t, u, color="tab:gray", linewidth=1.0, drawstyle="steps-post", label="ds")
         axes[1].set_ylabel(AXIS_LABELS["triac_dev"])
-        axes[1].legend(loc="upper left")
+        _legend_above(axes[1])
     axes[-1].set_xlabel(AXIS_LABELS["time"])
     fig.suptitle(title)
     return _save(fig, path)
@@ -374,7 +383,7 @@ def plot_simulation_errors(
                 label=f"{name} (V = {np.mean(eps ** 2):.3g} kW^2)")
     ax.set_ylabel(AXIS_LABELS["sim_error"])
     ax.set_xlabel(AXIS_LABELS["time"])
-    ax.legend(loc="upper left")
+    _legend_above(ax)
     fig.suptitle(title)
     return _save(fig, path)
 
@@ -513,7 +522,7 @@ def plot_gain_curve(
                 label="measured step gains r")
     ax.set_xlabel(AXIS_LABELS["triac_dev"])
     ax.set_ylabel(AXIS_LABELS["gain"])
-    ax.legend(loc="best")
+    ax.legend(loc="upper right")
     fig.suptitle(title)
     return _save(fig, path)
 
