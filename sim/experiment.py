@@ -1,6 +1,6 @@
 """The paper's identification experiment on the virtual heater -> Dataset (paper Fig. 2).
 
-About 24,000 s at 2 s sampling. The TRIAC input rises as a staircase from 18 % to
+About 24,000 s at 2 s sampling. The TRIAC input rises as a staircase from 21 % to
 45 %, rests at 45 % over ``t in [8700, 10300]`` s (the steady operating point of paper
 sec. 5.1, ``s = 45 %``, ``P = 45 kW``), then takes the four +5 % steps of paper Table 3,
 the last at ``t = 22170`` s (sec. 6.2). Two grid events of paper sec. 5.2 are replayed:
