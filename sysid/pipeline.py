@@ -23,14 +23,15 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
 
 from sysid.data import Dataset
-from sysid.errors import IdentificationError, SysidError
+from sysid.errors import IdentificationError, IdentificationWarning, SysidError
 from sysid.hammerstein import (
     HammersteinFit,
     HammersteinRoute,
@@ -118,6 +119,9 @@ class PipelineFindings:
     higher_order_v_improvement :
         Largest relative decrease of V from base to higher orders over ARX, ARMAX
         and OE, ``(V_base - V_high) / V_base`` (the paper: none significant).
+    higher_order_v_improvements :
+        The same per family, ``(("arx", ..), ("armax", ..), ("oe", ..))``; negative
+        where the higher order is worse.
     hammerstein_v_ratio :
         V of the linear OE over V of the final Hammerstein (the paper: about 6).
     noise_model_w_reduction :
@@ -131,6 +135,7 @@ class PipelineFindings:
 
     oe_beats_arx_armax: bool | None = None
     higher_order_v_improvement: float | None = None
+    higher_order_v_improvements: tuple[tuple[str, float], ...] = ()
     hammerstein_v_ratio: float | None = None
     noise_model_w_reduction: float | None = None
     from_zeros_relative_difference: float | None = None
@@ -172,6 +177,9 @@ class PipelineResult:
         Wall time of every stage, in order.
     skipped :
         What could not be done and why, in words.
+    warnings :
+        The messages of the `IdentificationWarning` s the fits raised (searches that
+        did not converge); `run_paper_pipeline` re-issues them as one warning.
     """
 
     raw_data: Dataset = field(repr=False)
@@ -187,6 +195,7 @@ class PipelineResult:
     findings: PipelineFindings
     timings: tuple[StageTime, ...]
     skipped: tuple[str, ...]
+    warnings: tuple[str, ...] = ()
 
     @property
     def models(self) -> tuple[NamedModel, ...]:
@@ -376,7 +385,7 @@ def _findings(
             and oe_v < base["armax"].ballistic_mse_kw2  # type: ignore[union-attr]
         )
     improvements = [
-        (b.ballistic_mse_kw2 - h.ballistic_mse_kw2) / b.ballistic_mse_kw2
+        (key, (b.ballistic_mse_kw2 - h.ballistic_mse_kw2) / b.ballistic_mse_kw2)
         for key in base
         if (b := base[key]) is not None and (h := high[key]) is not None
     ]
@@ -400,7 +409,8 @@ def _findings(
             zeros_diff = relative_parameter_difference(route.final_oe, route.final_oe_from_zeros)
     return PipelineFindings(
         oe_beats_arx_armax=oe_beats,
-        higher_order_v_improvement=max(improvements) if improvements else None,
+        higher_order_v_improvement=max(v for _, v in improvements) if improvements else None,
+        higher_order_v_improvements=tuple(improvements),
         hammerstein_v_ratio=ratio,
         noise_model_w_reduction=reduction,
         from_zeros_relative_difference=zeros_diff,
@@ -488,6 +498,12 @@ def run_paper_pipeline(
     IdentificationError
         Malformed options (a bad `level_shift`, orders), or data that support no model
         at all (for example a constant input).
+
+    Warns
+    -----
+    IdentificationWarning
+        One warning listing every search that did not converge (each model's
+        ``converged`` flag and `PipelineResult.warnings` say which).
     """
     if not isinstance(data, Dataset):
         raise IdentificationError(
@@ -512,6 +528,42 @@ def run_paper_pipeline(
         )
     skipped: list[str] = []
     clock = _Clock(progress)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", IdentificationWarning)
+        result = _run_stages(
+            data, operating_point, shift, repair_spikes, steady_output_atol, degree, nb, nf,
+            nk, from_zeros, clock, skipped,
+        )
+    messages: list[str] = []
+    for w in caught:
+        if issubclass(w.category, IdentificationWarning):
+            messages.append(str(w.message))
+        else:  # not ours to swallow: pass it on unchanged
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if messages:
+        warnings.warn(
+            f"run_paper_pipeline: {len(messages)} search(es) did not converge "
+            f"({', '.join(result.unconverged)}; best iterates kept): {'; '.join(messages)}",
+            IdentificationWarning,
+            stacklevel=2,
+        )
+    return replace(result, warnings=tuple(messages))
+
+
+def _run_stages(
+    data: Dataset,
+    operating_point: OperatingPoint | None,
+    shift: LevelShiftOption,
+    repair_spikes: bool,
+    steady_output_atol: float,
+    degree: int,
+    nb: int,
+    nf: int,
+    nk: int,
+    from_zeros: bool,
+    clock: _Clock,
+    skipped: list[str],
+) -> PipelineResult:
 
     clock.start("operating point")
     if operating_point is not None:
