@@ -39,6 +39,7 @@ from typing import Any, Literal
 
 import casadi as ca
 import numpy as np
+import numpy.typing as npt
 
 from sysid._typing import FloatArray
 from sysid.criteria import ballistic_mse, one_step_mse
@@ -227,8 +228,8 @@ class InputPolyInit:
 
 def initial_input_poly(
     steps: Sequence[InputStep],
-    arx_a: FloatArray,
-    arx_b: FloatArray,
+    arx_a: npt.ArrayLike,
+    arx_b: npt.ArrayLike,
     *,
     operating_point: OperatingPoint,
     degree: int = 2,
@@ -362,7 +363,7 @@ def initial_input_poly(
         regressor=_readonly(phi),
         target=_readonly(rhs),
         residuals=_readonly(residuals),
-        row_form=row_form,  # type: ignore[arg-type]
+        row_form=row_form,
         fit=fit,
     )
 
@@ -371,7 +372,7 @@ def initial_input_poly(
 def reidentify_linear_block(
     y: FloatArray,
     ds: FloatArray,
-    input_poly: FloatArray,
+    input_poly: npt.ArrayLike,
     *,
     method: Literal["arx", "oe"] = "oe",
     nb: int = 2,

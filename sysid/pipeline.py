@@ -283,7 +283,7 @@ def _named_fit(
 
 def _check_level_shift(level_shift: object) -> LevelShiftOption:
     if level_shift in ("auto", "none"):
-        return level_shift  # type: ignore[return-value]
+        return level_shift
     if (
         isinstance(level_shift, tuple)
         and len(level_shift) == 2
