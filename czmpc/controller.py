@@ -40,6 +40,11 @@ from sysid.model import HammersteinModel
 
 Fallback = Literal["none", "shifted_plan", "target"]
 
+#: A measurement whose innovation exceeds this [kW] is no heater power (CZ heaters run at
+#: tens to a few hundred kW); it is treated as missing, so absurd values such as 1e300
+#: cannot overflow the estimator. Recorded as ``measurement_used = False``.
+MAX_INNOVATION_KW = 1e6
+
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class StepDiagnostics:
@@ -61,7 +66,8 @@ class StepDiagnostics:
     triac_pct :
         What `OffsetFreeMPC.step` returned [%].
     measurement_used :
-        False if the measurement update was skipped (missing or non-finite sample).
+        False if the measurement update was skipped: a missing (NaN) or infinite
+        sample, or one whose innovation exceeds `MAX_INNOVATION_KW`.
     innovation_kw :
         ``eps_k = y_k - C z_{k|k-1}`` [kW] (0 when the measurement was not used).
     state_estimate :
@@ -272,6 +278,7 @@ class OffsetFreeMPC:
         w0 = im.f(self._ds_init)
         z = np.zeros(self._n_x + 1)
         z[: self._n_x] = self._ssm.xw * w0
+        z.flags.writeable = False
         self._z = z
         self._ds_prev = self._ds_init
         self._w_prev = w0
@@ -292,7 +299,8 @@ class OffsetFreeMPC:
         ----------
         power_kw :
             Measured heater power [kW] at this sample. NaN (or inf) marks a missing
-            sample; the measurement update is then skipped.
+            sample; the measurement update is then skipped (also for an absurd value,
+            see `MAX_INNOVATION_KW`).
         setpoint_kw :
             Power setpoint [kW]. A non-finite value holds the previous setpoint
             (recorded in `last_step`).
@@ -321,11 +329,12 @@ class OffsetFreeMPC:
         z = z_pred
         if math.isfinite(power):
             innovation = (power - self._p_nom) - float(self._Caug @ z_pred)
-            z_try = z_pred + self._M * innovation
-            if math.isfinite(innovation) and np.isfinite(z_try).all():
-                z = z_try
+            if abs(innovation) <= MAX_INNOVATION_KW:  # also False for NaN
+                z = z_pred + self._M * innovation
                 eps = innovation
                 used = True
+        if z is not z_pred:
+            z.flags.writeable = False  # handed out in the diagnostics
         n = self._n_x
         x = z[:n]
         d = float(z[n])
@@ -381,6 +390,7 @@ class OffsetFreeMPC:
         z_next = self._Aaug @ z + self._Baug * w_applied + self._G * eps
         if not np.isfinite(z_next).all():
             z_next = z.copy()
+        z_next.flags.writeable = False
         self._z = z_next
         self._ds_prev = ds
         self._w_prev = w_applied
@@ -401,4 +411,4 @@ class OffsetFreeMPC:
         return triac
 
 
-__all__ = ["Fallback", "OffsetFreeMPC", "StepDiagnostics"]
+__all__ = ["MAX_INNOVATION_KW", "Fallback", "OffsetFreeMPC", "StepDiagnostics"]
