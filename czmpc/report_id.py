@@ -572,7 +572,10 @@ def _table3_section(result: Any) -> str:
             "(ds after - ds before), the first output sample that shows the step against the last "
             "one before it. The paper lists the four steps of +5 % after t = 10^4 s.\n\n"
             + (_table(["t [s]", "step ds [%]", "step dP [kW]", "r [kW/%]", "paper step dP [kW]",
-                       "paper r [kW/%]"], rows, "rllrlr") if rows else "No input steps found."))
+                       "paper r [kW/%]"], rows, "rllrlr") if rows else "No input steps found.")
+            + "\n\nThe paper's Table 3 (ds [%]: dP [kW], r [kW/%]): "
+            + "; ".join(f"{a:g} -> {b:g}: {pa:.2f} -> {pb:.2f}, r = {r:.2f}"
+                        for a, b, pa, pb, r in PAPER_TABLE3) + ".")
 
 
 def _route_section(result: Any) -> str:
