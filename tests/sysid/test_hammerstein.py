@@ -16,6 +16,7 @@ from sysid.hammerstein import (
     fit_hammerstein_armax,
     fit_hammerstein_oe,
     hammerstein_armax_structure,
+    hammerstein_criteria,
     hammerstein_model,
     hammerstein_oe_structure,
     initial_input_poly,
@@ -329,3 +330,30 @@ def test_unexciting_or_short_data_and_bad_options_raise(rng: np.random.Generator
         fit_hammerstein(y, operating_point=OP)  # type: ignore[arg-type]
     with pytest.raises(IdentificationError, match="constant"):
         fit_hammerstein(_dataset(y, np.zeros_like(ds)), operating_point=OP)
+
+
+@pytest.mark.parametrize(
+    ("degree", "nb", "nf", "nk"),
+    [(3, 2, 1, 1), (2, 3, 2, 2), (1, 2, 1, 0)],
+    ids=["cubic", "nb3-nf2-delay2", "linear-no-delay"],
+)
+def test_oe_pem_recovers_general_orders_and_degrees_from_noise_free_data(
+    rng: np.random.Generator, degree: int, nb: int, nf: int, nk: int
+) -> None:
+    ds = _random_steps(rng, 2500, 50, -12.0, 12.0)
+    truth = {"d1": 1.1, "d2": -0.02, "d3": 0.0004}
+    truth = {f"d{i}": truth[f"d{i}"] for i in range(1, degree + 1)}
+    truth.update({f"b{j}": [-0.6, 0.1][j - nk - 1] for j in range(nk + 1, nk + nb)})
+    f = [1.0] + ([-0.85] if nf == 1 else [-1.3, 0.4])
+    truth.update({f"f{i}": f[i] for i in range(1, nf + 1)})
+    w = _poly([truth[f"d{i}"] for i in range(1, degree + 1)], ds)
+    b = [0.0] * nk + [1.0] + [truth[f"b{j}"] for j in range(nk + 1, nk + nb)]
+    y = _held(b, f, w, w[0] * sum(b) / sum(f))
+    fit = fit_hammerstein_oe(y, ds, initial={k: 0.8 * v for k, v in truth.items()},
+                             degree=degree, nb=nb, nf=nf, nk=nk)
+    values = fit.values()
+    for name, value in truth.items():
+        np.testing.assert_allclose(values[name], value, rtol=NOISE_FREE_RTOL, atol=0)
+    assert fit.delay_steps == nk
+    crit = hammerstein_criteria(fit, y, ds)
+    np.testing.assert_allclose(crit.ballistic_mse_kw2, fit.cost, rtol=IDENTITY_RTOL, atol=1e-30)
