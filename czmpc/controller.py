@@ -152,8 +152,8 @@ class OffsetFreeMPC:
     >>> from sysid.model import HammersteinModel, OperatingPoint
     >>> m = HammersteinModel(kind="hammerstein", linear_block="armax", ts_s=2.0,
     ...     operating_point=OperatingPoint(triac_pct=45.0, power_kw=45.0),
-    ...     a=[1.0, -0.99], b=[0.0, 1.0, -0.98], c=[1.0, -0.9],
-    ...     input_poly=[1.35, -0.0065], noise_std_kw=0.0134, input_range_pct=(10.0, 70.0))
+    ...     a=[1.0, -0.99], b=[0.0, 1.0, -0.991], c=[1.0, -0.9],
+    ...     input_poly=[1.35, -0.0065], noise_std_kw=0.0134, input_range_pct=(20.0, 70.0))
     >>> mpc = OffsetFreeMPC(m)
     >>> s = mpc.step(power_kw=45.0, setpoint_kw=46.0)
     >>> 45.0 < s < 50.0
