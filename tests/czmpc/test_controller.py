@@ -327,3 +327,14 @@ def test_input_disturbance_on_a_model_with_b_zero_at_one_is_refused(
     settings_ = MPCSettings.default_for(model).with_updates(disturbance_model="input")
     with pytest.raises(DesignError, match="must be detectable"):
         OffsetFreeMPC(model, settings_)
+
+
+def test_allowed_range_beyond_the_vertex_of_f_is_refused_at_construction(
+    paper_oe_model: HammersteinModel,
+) -> None:
+    steep = paper_oe_model.with_updates(input_poly=[1.35, -0.03])  # vertex at s = 67.5 %
+    with pytest.raises(DesignError, match="monotone branch"):
+        OffsetFreeMPC(steep)
+    # Lowering the TRIAC maximum below the vertex makes the design sound again.
+    settings_ = MPCSettings.default_for(steep).with_updates(triac_max_pct=65.0)
+    assert OffsetFreeMPC(steep, settings_).allowed_triac_range_pct == (15.0, 65.0)

@@ -217,3 +217,13 @@ def test_max_iter_one_reports_an_unusable_solution(
     assert sol.status == "maximum iterations reached"
     assert not sol.is_usable and not sol.is_accurate
     assert sol.n_iterations == 1
+
+
+def test_terminal_cost_without_stabilizing_solution_is_a_design_error() -> None:
+    from czmpc.errors import DesignError
+    from czmpc.qp import terminal_cost
+
+    A = np.diag([1.1, 0.5])  # unstable mode the input cannot reach
+    with pytest.raises(DesignError, match="control DARE must have a stabilizing solution"):
+        terminal_cost(A, np.array([0.0, 1.0]), np.array([1.0, 1.0]), output_weight=1.0,
+                      input_target_weight=0.01, move_weight=0.1)
