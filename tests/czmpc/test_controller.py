@@ -27,6 +27,8 @@ RATE_ATOL_PCT = 1e-9
 LQR_ATOL_KW = 1e-6
 #: Offset-free requirement of the issue [kW].
 OFFSET_TOL_KW = 0.01
+#: Same filter recursion in two algebraic arrangements, 60 steps of O(1) numbers.
+FILTER_ATOL = 1e-10
 
 
 class ExactPlant:
@@ -338,3 +340,25 @@ def test_allowed_range_beyond_the_vertex_of_f_is_refused_at_construction(
     # Lowering the TRIAC maximum below the vertex makes the design sound again.
     settings_ = MPCSettings.default_for(steep).with_updates(triac_max_pct=65.0)
     assert OffsetFreeMPC(steep, settings_).allowed_triac_range_pct == (15.0, 65.0)
+
+
+def test_estimator_matches_a_reference_predictor_fed_the_applied_input(
+    paper_armax_model: HammersteinModel, rng: np.random.Generator
+) -> None:
+    model = paper_armax_model
+    settings_ = MPCSettings.default_for(model).with_updates(max_move_pct_per_step=0.5)
+    mpc = OffsetFreeMPC(model, settings_)
+    aug, kf = mpc.augmented_model, mpc.estimator
+    z_pred = np.zeros(aug.n_states)  # starts at the operating point's steady state
+    for k in range(60):
+        power = math.nan if k % 7 == 3 else 45.0 + 0.5 * float(rng.standard_normal())
+        s = mpc.step(power, 47.0)  # the rate limit makes the applied w differ from plans
+        last = mpc.last_step
+        assert last is not None
+        measured = math.isfinite(power)
+        eps = (power - 45.0) - aug.C @ z_pred if measured else 0.0
+        np.testing.assert_allclose(last.state_estimate, z_pred + kf.M * eps,
+                                   rtol=0.0, atol=FILTER_ATOL)
+        w = float(model.input_nonlinearity(s - 45.0))
+        # Textbook one-step predictor: z+ = A z + B w + L eps (L = A M + G).
+        z_pred = aug.A @ z_pred + aug.B * w + kf.L * eps
