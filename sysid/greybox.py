@@ -5,10 +5,12 @@ user writes a discrete state-space model whose matrices are CasADi expressions o
 named parameters, says which parameters are free and how the model's input vector is
 formed from the measured input, and `fit_greybox` minimizes the ballistic criterion
 ``V`` (eq. 9) or the one-step criterion ``W`` (eq. 10) with Levenberg-Marquardt.
-Derivatives are exact: the record is run by one CasADi ``mapaccum`` (the loop over
-samples runs in CasADi's virtual machine, not in Python) and the Jacobian of the
-residual sequence comes from forward-mode sensitivities, one direction per free
-parameter.
+Derivatives are exact: the one-step map and its forward sensitivities (one
+direction per free parameter) are one CasADi function, run over the record by
+``mapaccum`` in blocks of 1000 samples (the loop over samples runs in CasADi's
+virtual machine, not in Python), so one pass gives the residual sequence and its
+Jacobian. On 12,000 samples with 4 parameters one pass takes about 10 ms on the
+development machine.
 
 Notation
 --------
@@ -706,11 +708,12 @@ def fit_greybox(
 
     Notes
     -----
-    The residual sequence of the whole record is one CasADi ``mapaccum`` of the
-    one-step map ``(x_k, u_k, y_k) -> (x_{k+1}, r_k)``; its Jacobian with respect to
-    the free parameters (and the initial state if estimated) is exact, computed by
-    forward-mode sensitivities. Standard errors assume white residuals; for the
-    ballistic criterion on data with coloured noise they are optimistic.
+    The residual sequence of the whole record is a CasADi ``mapaccum`` of the
+    one-step map ``(x_k, S_k, u_k, y_k) -> (x_{k+1}, S_{k+1}, r_k, dr_k/dtheta)``
+    with ``S = dx/dtheta``: the Jacobian with respect to the free parameters (and
+    the initial state if estimated) is exact, from forward-mode sensitivities.
+    Standard errors assume white residuals; for the ballistic criterion on data with
+    coloured noise they are optimistic.
     """
     if not (isinstance(max_iterations, int) and max_iterations >= 1):
         raise IdentificationError(
