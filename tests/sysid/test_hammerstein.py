@@ -11,6 +11,7 @@ from sysid.data import Dataset
 from sysid.errors import IdentificationError, IdentificationWarning
 from sysid.greybox import greybox_residuals
 from sysid.hammerstein import (
+    HammersteinFit,
     HammersteinRoute,
     fit_hammerstein,
     fit_hammerstein_armax,
@@ -357,3 +358,22 @@ def test_oe_pem_recovers_general_orders_and_degrees_from_noise_free_data(
     assert fit.delay_steps == nk
     crit = hammerstein_criteria(fit, y, ds)
     np.testing.assert_allclose(crit.ballistic_mse_kw2, fit.cost, rtol=IDENTITY_RTOL, atol=1e-30)
+
+
+def test_bad_arx_polynomials_and_unstable_fits_raise(rng: np.random.Generator) -> None:
+    steps = [_step(0, 5, 0.0, 6.7), _step(5, 10, 6.1, 12.6)]
+    with pytest.raises(IdentificationError, match="arx_a must be"):
+        initial_input_poly(steps, [2.0, -0.9], [0.0, 1.0, -0.8], operating_point=OP)
+    with pytest.raises(IdentificationError, match="arx_b must be"):
+        initial_input_poly(steps, [1.0, -0.9], [0.0, 0.0], operating_point=OP)
+    y, ds, _ = _oe_truth_record(rng, 600, 0.05)
+    fit = reidentify_linear_block(y, ds, [1.0], method="arx")
+    unstable = HammersteinFit(
+        linear_block="arx", a=np.array([1.0, -1.01]), b=fit.b, c=fit.c,
+        input_poly=fit.input_poly, parameter_names=fit.parameter_names,
+        parameters=fit.parameters, std_errors=fit.std_errors, residuals=fit.residuals,
+        criterion=fit.criterion, cost=fit.cost, n_iterations=0, converged=True,
+        message="", method="hand-made",
+    )
+    with pytest.raises(IdentificationError, match="not a usable model"):
+        hammerstein_model(unstable, _dataset(y, ds), operating_point=OP)
