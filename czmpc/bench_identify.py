@@ -14,6 +14,7 @@ reports why it was skipped.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import math
 import os
@@ -426,7 +427,120 @@ def write_benchmarks_section(path: str | os.PathLike[str], body: str) -> None:
     os.replace(tmp, path)
 
 
-ProgressCallback = Callable[[str, float], None]
+# --- running ---------------------------------------------------------------------------
+
+def _time_our_linear_fits(data: Any, op: Any) -> dict[str, tuple[float | None, float | None, float | None]]:
+    """Wall time, V and W of our fits of SIPPY's three structures on the same data."""
+    from sysid.errors import SysidError
+    from sysid.linear import fit_armax, fit_arx, fit_oe
+
+    cases: tuple[tuple[str, Callable[..., Any], dict[str, int]], ...] = (
+        ("ARX(1,2)", fit_arx, {"na": 1, "nb": 2}),
+        ("ARMAX(1,2,1)", fit_armax, {"na": 1, "nb": 2, "nc": 1}),
+        ("OE(2,1)", fit_oe, {"nb": 2, "nf": 1}),
+    )
+    out: dict[str, tuple[float | None, float | None, float | None]] = {}
+    for label, fit, orders in cases:
+        t0 = time.perf_counter()
+        try:
+            result = fit(data, operating_point=op, nk=1, **orders)
+        except SysidError:
+            out[label] = (None, None, None)
+            continue
+        elapsed = time.perf_counter() - t0
+        crit = result.model.criteria
+        out[label] = (elapsed, crit.ballistic_mse_kw2, crit.one_step_mse_kw2)
+    return out
+
+
+def run_benchmark(
+    data_path: str | os.PathLike[str],
+    *,
+    repeats: int = 5,
+    with_sippy: bool = False,
+    command: str = "czmpc bench-identify",
+    progress: Callable[[str], None] | None = None,
+) -> BenchmarkResult:
+    """Time the whole identification pipeline on one log, ``repeats`` times.
+
+    Parameters
+    ----------
+    data_path :
+        CSV file in the data contract (the shipped experiment by default in the CLI).
+    repeats :
+        Number of whole-pipeline runs; medians are taken over them.
+    with_sippy :
+        Also fit ARX/ARMAX/OE with SIPPY on the preprocessed data of the last run.
+    command :
+        The command line, recorded with the numbers.
+    progress :
+        Called with a short message before each run.
+
+    Returns
+    -------
+    BenchmarkResult
+
+    Raises
+    ------
+    CzmpcError
+        `repeats` < 1.
+    DataFileError
+        The file breaks the data contract.
+    IdentificationError
+        The pipeline cannot run on the data.
+    """
+    from sysid.data import read_csv
+    from sysid.pipeline import run_paper_pipeline
+
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
+        raise CzmpcError(f"run_benchmark: repeats must be an int >= 1; got {repeats!r}")
+    read_s: list[float] = []
+    total_s: list[float] = []
+    stage_s: dict[str, list[float]] = {}
+    result = None
+    data = None
+    for i in range(repeats):
+        if progress is not None:
+            progress(f"run {i + 1} of {repeats}")
+        t0 = time.perf_counter()
+        data = read_csv(data_path)
+        t1 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # non-convergence is the identify command's business
+            result = run_paper_pipeline(data)
+        t2 = time.perf_counter()
+        read_s.append(t1 - t0)
+        total_s.append(t2 - t1)
+        for st in result.timings:
+            stage_s.setdefault(st.name, []).append(st.wall_time_s)
+    if result is None or data is None:  # pragma: no cover - repeats >= 1 is checked above
+        raise CzmpcError("run_benchmark: no run completed")
+    sippy = None
+    if with_sippy:
+        if progress is not None:
+            progress("SIPPY comparison on the preprocessed data")
+        op = result.operating_point.operating_point
+        ours = _time_our_linear_fits(result.data, op)
+        sippy = run_sippy_comparison(result.data, operating_point=op, ours=ours)
+    return BenchmarkResult(
+        data_file=str(data_path),
+        n_samples=data.n_samples,
+        repeats=repeats,
+        stages=tuple(summarize_timings(name, v) for name, v in stage_s.items()),
+        total=summarize_timings("whole pipeline", total_s),
+        read=summarize_timings("read CSV", read_s),
+        machine=machine_info(),
+        command=command,
+        sippy=sippy,
+    )
+
+
+def result_to_dict(result: BenchmarkResult) -> dict[str, Any]:
+    """The benchmark's numbers as a JSON-able mapping (for ``--out DIR``)."""
+    out = dataclasses.asdict(result)
+    out["goal_s"] = PIPELINE_GOAL_S
+    out["goal_met"] = result.goal_met
+    return out
 
 __all__ = [
     "PIPELINE_GOAL_S",
@@ -438,6 +552,8 @@ __all__ = [
     "StageTiming",
     "format_report",
     "machine_info",
+    "result_to_dict",
+    "run_benchmark",
     "run_sippy_comparison",
     "summarize_timings",
     "write_benchmarks_section",

@@ -244,3 +244,66 @@ def test_shipped_experiment_shows_the_papers_findings(
     # The four findings these data do show (the higher-order one depends on the log: our
     # ARMAX(2,3,2) fits the sag much better than ARMAX(1,2,1), see the report).
     assert expected[0] and expected[2] and expected[3] and expected[4]
+
+
+# --- czmpc bench-identify ------------------------------------------------------------------
+
+def test_benchmarks_section_is_replaced_in_place_and_other_sections_are_kept(tmp_path: Path) -> None:
+    from czmpc.bench_identify import write_benchmarks_section
+
+    md = tmp_path / "BENCHMARKS.md"
+    md.write_text("# Benchmarks\n\n## Controller\n\nfast\n")
+    write_benchmarks_section(md, "first numbers")
+    write_benchmarks_section(md, "second numbers")
+    text = md.read_text()
+    assert text.count("## Identification pipeline") == 1
+    assert "second numbers" in text and "first numbers" not in text
+    assert "## Controller\n\nfast" in text
+    md.write_text(text.replace("# Benchmarks\n", "# Benchmarks\n\n## Later section\n\nkept\n")
+                  .replace("second numbers", "second numbers\n\n## After\n\nalso kept"))
+    write_benchmarks_section(md, "third")
+    text = md.read_text()
+    assert "kept" in text and "also kept" in text and "third" in text and "second" not in text
+
+
+def test_bench_identify_prints_stage_medians_and_records_them(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    data = _synthetic_log(tmp_path / "log.csv")
+    md = tmp_path / "B.md"
+    rc, out, err = _run(["bench-identify", "--data", str(data), "--repeats", "1", "--out",
+                         str(tmp_path / "bench"), "--benchmarks-md", str(md)], capsys)
+    assert rc == 0
+    for needle in ("| Hammerstein route |", "**whole pipeline**", "Goal: whole pipeline under 2 s",
+                   "cores (", "numpy", "scipy", "casadi", "Command: `czmpc bench-identify --data"):
+        assert needle in out, needle
+    assert "run 1 of 1" in err
+    assert md.read_text().startswith("# Benchmarks\n\n## Identification pipeline\n\nCommand:")
+    numbers = json.loads((tmp_path / "bench" / "bench_identify.json").read_text())
+    assert numbers["repeats"] == 1 and numbers["total"]["median_s"] > 0
+    stages = [s["name"] for s in numbers["stages"]]
+    assert stages[0] == "operating point" and "Hammerstein route" in stages
+
+
+def test_bench_identify_refuses_zero_repeats_with_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["bench-identify", "--repeats", "0"])
+    assert exc.value.code == 2
+    assert "expected an integer >= 1" in capsys.readouterr().err
+
+
+def test_sippy_comparison_says_why_when_sippy_is_not_installed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import sys
+
+    from czmpc.bench_identify import run_sippy_comparison
+    from sysid.data import read_csv
+    from sysid.model import OperatingPoint
+
+    monkeypatch.setitem(sys.modules, "sippy_unipi", None)  # makes the import raise ImportError
+    data = read_csv(_synthetic_log(tmp_path / "log.csv"))
+    result = run_sippy_comparison(data, operating_point=OperatingPoint(triac_pct=45.0, power_kw=45.0),
+                                  ours={})
+    assert not result.available and result.rows == ()
+    assert "not installed" in result.reason
