@@ -52,17 +52,22 @@ class MachineInfo:
     libraries :
         ``(name, version)`` of numpy, scipy, casadi and matplotlib (and sippy-unipi if
         installed).
+    load_average :
+        1-minute load average when the benchmark started (other work on a shared
+        machine slows the numbers), or None where the platform has none.
     """
 
     n_cpus: int
     cpu_model: str
     python: str
     libraries: tuple[tuple[str, str], ...]
+    load_average: float | None = None
 
     def describe(self) -> str:
-        """One line: cores, CPU, Python and library versions."""
+        """One line: cores, CPU, Python and library versions, load."""
         libs = ", ".join(f"{name} {version}" for name, version in self.libraries)
-        return f"{self.n_cpus} cores ({self.cpu_model}); Python {self.python}; {libs}"
+        load = "" if self.load_average is None else f"; load average {self.load_average:.2f} at start"
+        return f"{self.n_cpus} cores ({self.cpu_model}); Python {self.python}; {libs}{load}"
 
 
 def machine_info() -> MachineInfo:
@@ -86,11 +91,16 @@ def machine_info() -> MachineInfo:
         except metadata.PackageNotFoundError:
             if name != "sippy-unipi":
                 libraries.append((name, "not installed"))
+    try:
+        load: float | None = os.getloadavg()[0]
+    except (AttributeError, OSError):  # pragma: no cover - not Unix
+        load = None
     return MachineInfo(
         n_cpus=n_cpus,
         cpu_model=cpu_model,
         python=platform.python_version(),
         libraries=tuple(libraries),
+        load_average=load,
     )
 
 
@@ -361,7 +371,9 @@ def format_report(result: BenchmarkResult) -> str:
         f"Command: `{result.command}`",
         "",
         f"Data: `{result.data_file}`, {result.n_samples} samples; {result.repeats} repeats, "
-        "median [min .. max] wall time per stage.",
+        "median [min .. max] wall time per stage. Timed: `sysid.pipeline.run_paper_pipeline` as "
+        "`czmpc identify` runs it (all 12 models, PEM from zeros included), without writing "
+        "model files or drawing figures.",
         "",
         f"Machine: {result.machine.describe()}",
         "",
@@ -494,6 +506,7 @@ def run_benchmark(
 
     if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
         raise CzmpcError(f"run_benchmark: repeats must be an int >= 1; got {repeats!r}")
+    machine = machine_info()
     read_s: list[float] = []
     total_s: list[float] = []
     stage_s: dict[str, list[float]] = {}
@@ -529,7 +542,7 @@ def run_benchmark(
         stages=tuple(summarize_timings(name, v) for name, v in stage_s.items()),
         total=summarize_timings("whole pipeline", total_s),
         read=summarize_timings("read CSV", read_s),
-        machine=machine_info(),
+        machine=machine,
         command=command,
         sippy=sippy,
     )

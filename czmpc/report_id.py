@@ -13,6 +13,7 @@ with the table, figure or section it comes from.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from collections.abc import Callable, Mapping, Sequence
@@ -288,7 +289,8 @@ class _Figure:
 def _sim_dev(model: Any, result: Any) -> np.ndarray:
     from sysid.simulate import simulate
 
-    return np.asarray(simulate(model, result.data)) - model.operating_point.power_kw
+    sim: np.ndarray = np.asarray(simulate(model, result.data), dtype=float)
+    return sim - float(model.operating_point.power_kw)
 
 
 def _pred_error(model: Any, result: Any) -> np.ndarray:
@@ -303,7 +305,8 @@ def _label(named: Any, short: str) -> str:
 
 def _draw_figures(result: Any, fig_dir: Path) -> list[_Figure]:
     """Draw every figure the result supports; return them in report order."""
-    from sysid.residuals import autocorrelation, cross_correlation
+    from sysid.errors import SysidError
+    from sysid.residuals import CorrelationResult, autocorrelation, cross_correlation
 
     m = _models(result)
     raw = result.raw_data
@@ -330,10 +333,11 @@ def _draw_figures(result: Any, fig_dir: Path) -> list[_Figure]:
         for i, cand in enumerate(out.candidates, start=1):
             add(f"fig04_zoom_{i}",
                 f"Figs. 4-5 analogue: candidate {i} ({cand.kind}) at t = {cand.time_s:g} s, zoomed.",
-                lambda p, c=cand, k=i: figs.plot_outlier_zoom(
-                    raw.time_s, out.residuals_kw, np.asarray(raw.power_kw) - op.power_kw,
-                    c.time_s, p, half_width_s=ZOOM_HALF_WIDTH_S,
-                    title=f"Outlier candidate {k}: {c.kind} at {c.time_s:g} s (paper Figs. 4-5)"))
+                functools.partial(
+                    figs.plot_outlier_zoom, raw.time_s, out.residuals_kw,
+                    np.asarray(raw.power_kw) - op.power_kw, cand.time_s,
+                    half_width_s=ZOOM_HALF_WIDTH_S,
+                    title=f"Outlier candidate {i}: {cand.kind} at {cand.time_s:g} s (paper Figs. 4-5)"))
     after = result.outliers_after
     if after is not None:
         add("fig06_residuals_after", "Fig. 6 analogue: residuals of the same ARX model after "
@@ -402,12 +406,13 @@ def _draw_figures(result: Any, fig_dir: Path) -> list[_Figure]:
     final = result.final
     if final is not None:
         e = _pred_error(final.model, result)
+        tests: tuple[CorrelationResult, CorrelationResult] | None
         try:
-            auto = autocorrelation(e)
-            cross = cross_correlation(e, ds)
-        except Exception:  # a constant residual or input: no test to draw
-            auto = cross = None
-        if auto is not None and cross is not None:
+            tests = (autocorrelation(e), cross_correlation(e, ds))
+        except SysidError:  # a constant residual or input: no test to draw
+            tests = None
+        if tests is not None:
+            auto, cross = tests
             add("residual_tests", f"Residual tests of the model in model.json ({final.label}): "
                 "autocorrelation of its one-step errors and their cross-correlation with ds, "
                 "with 99 % bounds.",
