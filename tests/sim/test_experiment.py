@@ -75,7 +75,7 @@ def test_experiment_has_the_papers_shape(shipped: Dataset) -> None:
     assert steps[-1].time_s == 22170.0
     assert [s.triac_after_pct for s in steps if s.time_s > 1.0e4] == [50.0, 55.0, 60.0, 65.0]
     assert np.all(np.diff(shipped.triac_pct) >= 0.0)       # s rises through the run
-    assert shipped.triac_pct[0] <= 25.0
+    assert shipped.triac_pct[0] <= 35.0                   # starts well below the 45 % rest
 
 
 def test_level_shift_of_0_15_kw_from_20714_s(shipped: Dataset) -> None:

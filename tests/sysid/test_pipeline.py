@@ -67,12 +67,6 @@ def test_shipped_experiment_final_pem_from_zeros_reaches_the_same_parameters(
     assert it_good is not None and it_zeros is not None and it_zeros > it_good
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the virtual heater of fc8a241 does not show it: ARMAX(2,3,2) improves V by 98 % "
-    "over ARMAX(1,2,1) (V = 7.8 -> 0.17, a1 = -0.99995) and OE(3,2) by 12 % over OE(2,1); "
-    "remove this mark once the heater is tuned",
-)
 def test_shipped_experiment_higher_orders_do_not_improve_v_much(
     shipped: PipelineResult,
 ) -> None:
