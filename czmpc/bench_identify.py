@@ -22,14 +22,18 @@ import platform
 import statistics
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from czmpc.errors import CzmpcError
+
+if TYPE_CHECKING:
+    from sysid.data import Dataset
+    from sysid.model import HammersteinModel, OperatingPoint
 
 #: Goal of issue 3: the whole pipeline on the shipped 12,000 samples, this machine [s].
 PIPELINE_GOAL_S = 2.0
@@ -234,9 +238,9 @@ class BenchmarkResult:
 # --- SIPPY -------------------------------------------------------------------------
 
 def _linear_from_polys(
-    a: np.ndarray, b: np.ndarray, c: np.ndarray, *, block: str, ts_s: float, op: Any,
+    a: np.ndarray, b: np.ndarray, c: np.ndarray, *, block: str, ts_s: float, op: OperatingPoint,
     input_range_pct: tuple[float, float],
-) -> Any:
+) -> HammersteinModel:
     """A `HammersteinModel` of kind "linear" from unnormalized q^-1 polynomials."""
     from sysid.model import HammersteinModel, normalize_input_gain
 
@@ -276,10 +280,10 @@ SIPPY_CASES: tuple[tuple[str, str, dict[str, Any]], ...] = (
 
 
 def run_sippy_comparison(
-    data: Any,
+    data: Dataset,
     *,
-    operating_point: Any,
-    ours: dict[str, tuple[float | None, float | None, float | None]],
+    operating_point: OperatingPoint,
+    ours: Mapping[str, tuple[float | None, float | None, float | None]],
 ) -> SippyComparison:
     """Fit the paper's ARX(1,2), ARMAX(1,2,1), OE(2,1) with SIPPY and score them like ours.
 
@@ -441,7 +445,11 @@ def write_benchmarks_section(path: str | os.PathLike[str], body: str) -> None:
 
 # --- running ---------------------------------------------------------------------------
 
-def _time_our_linear_fits(data: Any, op: Any) -> dict[str, tuple[float | None, float | None, float | None]]:
+#: ``(time [s], V [kW^2], W [kW^2])`` of one fit; None where the fit failed.
+FitNumbers = tuple[float | None, float | None, float | None]
+
+
+def _time_our_linear_fits(data: Dataset, op: OperatingPoint) -> dict[str, FitNumbers]:
     """Wall time, V and W of our fits of SIPPY's three structures on the same data."""
     from sysid.errors import SysidError
     from sysid.linear import fit_armax, fit_arx, fit_oe
@@ -451,7 +459,7 @@ def _time_our_linear_fits(data: Any, op: Any) -> dict[str, tuple[float | None, f
         ("ARMAX(1,2,1)", fit_armax, {"na": 1, "nb": 2, "nc": 1}),
         ("OE(2,1)", fit_oe, {"nb": 2, "nf": 1}),
     )
-    out: dict[str, tuple[float | None, float | None, float | None]] = {}
+    out: dict[str, FitNumbers] = {}
     for label, fit, orders in cases:
         t0 = time.perf_counter()
         try:

@@ -19,11 +19,16 @@ import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
 from czmpc import figures_id as figs
+
+if TYPE_CHECKING:
+    from sysid.model import HammersteinModel, OperatingPoint
+    from sysid.pipeline import NamedModel, PipelineResult
+    from sysid.steps import InputStep
 
 #: Table 2: V [kW^2] of the linear models, by pipeline model name.
 PAPER_TABLE2_V: dict[str, float] = {
@@ -107,7 +112,7 @@ class ReportFiles:
 
 # --- small helpers ---------------------------------------------------------------------
 
-def _models(result: Any) -> dict[str, Any]:
+def _models(result: PipelineResult) -> dict[str, NamedModel]:
     return {m.name: m for m in result.models}
 
 
@@ -125,14 +130,14 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]], align: str | No
     return "\n".join(lines)
 
 
-def _deviation(result: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _deviation(result: PipelineResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     op = result.operating_point.operating_point
     data = result.data
     return (np.asarray(data.time_s), np.asarray(data.triac_pct) - op.triac_pct,
             np.asarray(data.power_kw) - op.power_kw)
 
 
-def _lagged_sum(coefs: Sequence[float], term: Callable[[str], str]) -> str:
+def _lagged_sum(coefs: Sequence[float] | np.ndarray, term: Callable[[str], str]) -> str:
     """``sum_i coefs[i] term(k-i)`` as text, e.g. ``dP_k - 0.99 dP_{k-1}``."""
     parts: list[str] = []
     for lag, c in enumerate(coefs):
@@ -148,7 +153,7 @@ def _lagged_sum(coefs: Sequence[float], term: Callable[[str], str]) -> str:
     return " ".join(parts) if parts else "0"
 
 
-def model_equation(model: Any) -> str:
+def model_equation(model: HammersteinModel) -> str:
     """The model's difference equation in the paper's notation (eqs. 27, 30), as text.
 
     Parameters
@@ -179,7 +184,7 @@ def model_equation(model: Any) -> str:
 
 # --- findings --------------------------------------------------------------------------
 
-def findings_checklist(result: Any) -> tuple[Finding, ...]:
+def findings_checklist(result: PipelineResult) -> tuple[Finding, ...]:
     """The issue's five findings of the paper, each checked on the pipeline's models.
 
     Parameters
@@ -286,24 +291,24 @@ class _Figure:
     path: Path
 
 
-def _sim_dev(model: Any, result: Any) -> np.ndarray:
+def _sim_dev(model: HammersteinModel, result: PipelineResult) -> np.ndarray:
     from sysid.simulate import simulate
 
     sim: np.ndarray = np.asarray(simulate(model, result.data), dtype=float)
     return sim - float(model.operating_point.power_kw)
 
 
-def _pred_error(model: Any, result: Any) -> np.ndarray:
+def _pred_error(model: HammersteinModel, result: PipelineResult) -> np.ndarray:
     from sysid.simulate import predict_one_step
 
     return np.asarray(result.data.power_kw) - np.asarray(predict_one_step(model, result.data))
 
 
-def _label(named: Any, short: str) -> str:
+def _label(named: NamedModel, short: str) -> str:
     return f"{short}, V = {named.ballistic_mse_kw2:.3g} kW^2"
 
 
-def _draw_figures(result: Any, fig_dir: Path) -> list[_Figure]:
+def _draw_figures(result: PipelineResult, fig_dir: Path) -> list[_Figure]:
     """Draw every figure the result supports; return them in report order."""
     from sysid.errors import SysidError
     from sysid.residuals import CorrelationResult, autocorrelation, cross_correlation
@@ -438,7 +443,7 @@ def _draw_figures(result: Any, fig_dir: Path) -> list[_Figure]:
     return drawn
 
 
-def _instant_gain(model: Any, ds_grid: np.ndarray) -> np.ndarray:
+def _instant_gain(model: HammersteinModel, ds_grid: np.ndarray) -> np.ndarray:
     """Gain of the first output sample after an input step: ``b_nk f'(ds)`` [kW/%]."""
     b_first = float(model.b[model.delay_steps])
     return b_first * np.asarray(model.input_nonlinearity_slope(ds_grid), dtype=float)
@@ -446,7 +451,7 @@ def _instant_gain(model: Any, ds_grid: np.ndarray) -> np.ndarray:
 
 # --- the report ------------------------------------------------------------------------
 
-def _data_section(result: Any) -> str:
+def _data_section(result: PipelineResult) -> str:
     raw = result.raw_data
     src = raw.source or "(in memory)"
     rows = [
@@ -477,7 +482,7 @@ def _describe_repair(step: Mapping[str, Any]) -> tuple[str, str, str]:
     return what, where, how
 
 
-def _preprocessing_section(result: Any) -> str:
+def _preprocessing_section(result: PipelineResult) -> str:
     choice = result.operating_point
     op = choice.operating_point
     how = {"given": "given on the command line",
@@ -529,7 +534,7 @@ def _preprocessing_section(result: Any) -> str:
     return "\n".join(lines)
 
 
-def _table2_section(result: Any) -> str:
+def _table2_section(result: PipelineResult) -> str:
     m = _models(result)
     specs = [("arx_1_2", "ARX", "1", "2", "-", "-"), ("arx_2_3", "ARX", "2", "3", "-", "-"),
              ("armax_1_2_1", "ARMAX", "1", "2", "1", "-"), ("armax_2_3_2", "ARMAX", "2", "3", "2", "-"),
@@ -551,7 +556,7 @@ def _table2_section(result: Any) -> str:
                       "paper V [kW^2]"], rows, "lrrrrrrrr"))
 
 
-def _match_paper_step(step: Any, op: Any) -> tuple[float, float, float, float, float] | None:
+def _match_paper_step(step: InputStep, op: OperatingPoint) -> tuple[float, float, float, float, float] | None:
     before = step.triac_before_pct - op.triac_pct
     after = step.triac_after_pct - op.triac_pct
     for row in PAPER_TABLE3:
@@ -560,7 +565,7 @@ def _match_paper_step(step: Any, op: Any) -> tuple[float, float, float, float, f
     return None
 
 
-def _table3_section(result: Any) -> str:
+def _table3_section(result: PipelineResult) -> str:
     op = result.operating_point.operating_point
     rows = []
     for st in result.steps:
@@ -583,7 +588,7 @@ def _table3_section(result: Any) -> str:
                         for a, b, pa, pb, r in PAPER_TABLE3) + ".")
 
 
-def _route_section(result: Any) -> str:
+def _route_section(result: PipelineResult) -> str:
     m = _models(result)
     labels = [("hammerstein_eq21", "eq. 21 initial (ARX block, f from the step gains; Fig. 12)"),
               ("hammerstein_arx_reidentified", "f fixed, ARX-reidentified (Fig. 13)"),
@@ -621,7 +626,7 @@ def _route_section(result: Any) -> str:
     return text
 
 
-def _final_section(result: Any, model_file: str) -> str:
+def _final_section(result: PipelineResult, model_file: str) -> str:
     final = result.final
     if final is None:
         return "## Final model\n\nNo model could be identified."
@@ -658,14 +663,14 @@ def _findings_section(findings: Sequence[Finding]) -> str:
     return "\n".join(lines)
 
 
-def _timing_section(result: Any) -> str:
+def _timing_section(result: PipelineResult) -> str:
     rows = [[t.name, f"{t.wall_time_s:.3f}"] for t in result.timings]
     rows.append(["**total**", f"**{result.total_time_s:.3f}**"])
     return "## Wall time per stage\n\n" + _table(["stage", "time [s]"], rows)
 
 
 def render_report(
-    result: Any,
+    result: PipelineResult,
     figures: Sequence[tuple[str, str]],
     *,
     model_file: str = "model.json",
@@ -718,7 +723,7 @@ def render_report(
 
 
 def write_report(
-    result: Any,
+    result: PipelineResult,
     out_dir: str | os.PathLike[str],
     *,
     model_file: str = "model.json",

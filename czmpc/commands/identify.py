@@ -158,6 +158,8 @@ def identify_to_directory(
     OSError
         A file cannot be read or written.
     """
+    if progress is not None:
+        progress("loading the numerical libraries")
     from czmpc.report_id import write_report
     from sysid.data import read_csv
     from sysid.model import OperatingPoint
