@@ -464,7 +464,7 @@ def plot_correlations(
         ax.axhline(0.0, color="black", linewidth=0.6)
         ax.set_ylabel(AXIS_LABELS[key])
         ax.set_xlabel(AXIS_LABELS["lag"])
-        ax.legend(loc="upper right")
+        _legend_above(ax)
     fig.suptitle(title)
     return _save(fig, path)
 

@@ -669,6 +669,20 @@ def _timing_section(result: PipelineResult) -> str:
     return "## Wall time per stage\n\n" + _table(["stage", "time [s]"], rows)
 
 
+#: Report section each figure belongs to, by the start of its file name.
+_FIGURE_SECTIONS: tuple[tuple[str, str], ...] = (
+    ("fig02", "data"), ("fig03", "preprocessing"), ("fig04", "preprocessing"),
+    ("fig06", "preprocessing"), ("fig07", "preprocessing"), ("fig08", "linear"),
+    ("fig09", "linear"), ("gain_curve", "steps"), ("fig12", "route"), ("fig13", "route"),
+    ("fig15", "route"), ("fig16", "route"), ("fig18", "route"), ("residual_tests", "final"),
+)
+
+
+def _section_of(rel_path: str) -> str | None:
+    stem = Path(rel_path).stem
+    return next((sec for prefix, sec in _FIGURE_SECTIONS if stem.startswith(prefix)), None)
+
+
 def render_report(
     result: PipelineResult,
     figures: Sequence[tuple[str, str]],
@@ -710,14 +724,23 @@ def render_report(
                      + ".** Their numbers are the optimizer's last iterate.")
     if result.skipped:
         parts.append("Skipped: " + "; ".join(result.skipped) + ".")
-    parts += [_findings_section(findings), _data_section(result), _preprocessing_section(result),
-              _table2_section(result), _table3_section(result), _route_section(result),
-              _final_section(result, model_file)]
+    parts.append(_findings_section(findings))
+    sections = (("data", _data_section(result)), ("preprocessing", _preprocessing_section(result)),
+                ("linear", _table2_section(result)), ("steps", _table3_section(result)),
+                ("route", _route_section(result)), ("final", _final_section(result, model_file)))
+    placed: set[str] = set()
+    for key, text in sections:
+        parts.append(text)
+        for caption, rel in figures:
+            if _section_of(rel) == key:
+                parts.append(f"![{Path(rel).stem}]({rel})\n\n*{caption}*")
+                placed.add(rel)
+    rest = [(c, r) for c, r in figures if r not in placed]
+    if rest:
+        parts.append("## Other figures\n\n" + "\n\n".join(
+            f"![{Path(rel).stem}]({rel})\n\n*{caption}*" for caption, rel in rest))
     if model_files:
         parts.append("## Model files\n\n" + "\n".join(f"- [`{p}`]({p})" for p in model_files))
-    if figures:
-        parts.append("## Figures\n\n" + "\n\n".join(
-            f"{caption}\n\n![{Path(rel).stem}]({rel})" for caption, rel in figures))
     parts.append(_timing_section(result))
     return "\n\n".join(parts) + "\n"
 
