@@ -33,7 +33,7 @@ from czmpc.errors import CzmpcError
 
 if TYPE_CHECKING:
     from sysid.data import Dataset
-    from sysid.model import HammersteinModel, OperatingPoint
+    from sysid.model import OperatingPoint
 
 #: Goal of issue 3: the whole pipeline on the shipped 12,000 samples, this machine [s].
 PIPELINE_GOAL_S = 2.0
@@ -237,21 +237,37 @@ class BenchmarkResult:
 
 # --- SIPPY -------------------------------------------------------------------------
 
-def _linear_from_polys(
-    a: np.ndarray, b: np.ndarray, c: np.ndarray, *, block: str, ts_s: float, op: OperatingPoint,
-    input_range_pct: tuple[float, float],
-) -> HammersteinModel:
-    """A `HammersteinModel` of kind "linear" from unnormalized q^-1 polynomials."""
-    from sysid.model import HammersteinModel, normalize_input_gain
+def _score_sippy_model(
+    fitted: Any, method: str, ds: np.ndarray, dp: np.ndarray
+) -> tuple[float | None, float | None, str]:
+    """V, W (None for OE) and a note for one SIPPY model, with our held-past kernels.
 
-    a = np.asarray(a, dtype=float)
-    b_norm, poly = normalize_input_gain(np.asarray(b, dtype=float), np.array([1.0]))
-    return HammersteinModel(
-        kind="linear", linear_block=block, ts_s=ts_s,  # type: ignore[arg-type]
-        operating_point=op, a=a / a[0], b=b_norm,
-        c=(a / a[0]) if block == "oe" else np.asarray(c, dtype=float) / c[0],
-        input_poly=poly, noise_std_kw=0.0, input_range_pct=input_range_pct,
-    )
+    The kernels of `sysid.simulate` are the ones `sysid.criteria` uses for our models,
+    so both columns are computed the same way. A SIPPY model with an unstable ``A`` is
+    still scored (the record is finite) and the note gives its largest pole.
+    """
+    from sysid.polynomials import max_root_modulus
+    from sysid.simulate import prediction_errors_arrays, simulate_arrays
+
+    num, den = _tf_coefficients(fitted.G)
+    hnum, hden = _tf_coefficients(fitted.H)
+    a = den / den[0]
+    b = num / den[0]
+    eps = dp - simulate_arrays(b, a, ds, y_past=float(dp[0]))
+    v = float(eps @ eps) / eps.size
+    note = f"SIPPY {method}"
+    rho = max_root_modulus(a)
+    if rho >= 1.0:
+        note += f"; unstable: largest pole modulus {rho:.6f}"
+    w = None
+    if method != "OE":
+        c = hnum / hnum[0]
+        if max_root_modulus(c) >= 1.0:
+            note += "; C(q) unstable, no one-step predictor"
+        else:
+            e = prediction_errors_arrays(a, b, c, dp, ds)
+            w = float(e @ e) / e.size
+    return (v if np.isfinite(v) else None), w, note
 
 
 def _tf_coefficients(tf: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -304,14 +320,12 @@ def run_sippy_comparison(
 
     Notes
     -----
-    Both sides are scored with `sysid.criteria.ballistic_mse` and `one_step_mse`, that
-    is with the same held-past initial conditions, so the numbers compare. SIPPY
-    prints to stdout; that output is swallowed.
+    Both sides are scored with the held-past kernels of `sysid.simulate` that
+    `sysid.criteria` uses, so the numbers compare. SIPPY prints to stdout; that output
+    is swallowed.
     """
     from importlib import metadata
 
-    from sysid.criteria import ballistic_mse, one_step_mse
-    from sysid.errors import UnstableModelError
 
     try:
         import sippy_unipi
@@ -322,45 +336,34 @@ def run_sippy_comparison(
     version = metadata.version("sippy-unipi")
     ds = np.asarray(data.triac_pct, dtype=float) - operating_point.triac_pct
     dp = np.asarray(data.power_kw, dtype=float) - operating_point.power_kw
-    span = (float(np.min(data.triac_pct)), float(np.max(data.triac_pct)))
     rows = []
     for label, method, orders in SIPPY_CASES:
         ours_t, ours_v, ours_w = ours.get(label, (None, None, None))
+        if method == "OE":
+            ours_w = None  # W = V for an output-error model: not a separate criterion
         t0 = time.perf_counter()
-        elapsed: float | None = None
         try:
             with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 fitted = sippy_unipi.system_identification(
                     dp, ds, method, tsample=data.ts_s, **orders)
-            elapsed = time.perf_counter() - t0
-            num, den = _tf_coefficients(fitted.G)
-            hnum, hden = _tf_coefficients(fitted.H)
-            block = {"ARX": "arx", "ARMAX": "armax", "OE": "oe"}[method]
-            model = _linear_from_polys(den, num, hnum, block=block, ts_s=data.ts_s,
-                                       op=operating_point, input_range_pct=span)
-            v = ballistic_mse(model, data)
-            w = None if block == "oe" else one_step_mse(model, data)
-            rows.append(SippyRow(model=label, sippy_time_s=elapsed, ours_time_s=ours_t,
-                                 sippy_v_kw2=v, ours_v_kw2=ours_v, sippy_w_kw2=w,
-                                 ours_w_kw2=None if block == "oe" else ours_w,
-                                 note=f"SIPPY {method}"))
-        except UnstableModelError as exc:
-            rows.append(SippyRow(model=label, sippy_time_s=elapsed, ours_time_s=ours_t,
-                                 sippy_v_kw2=None, ours_v_kw2=ours_v, sippy_w_kw2=None,
-                                 ours_w_kw2=ours_w,
-                                 note=f"SIPPY {method} returned an unstable model: {exc}"))
         except (Exception, SystemExit) as exc:  # SIPPY calls sys.exit on bad options
             rows.append(SippyRow(model=label, sippy_time_s=None, ours_time_s=ours_t,
                                  sippy_v_kw2=None, ours_v_kw2=ours_v, sippy_w_kw2=None,
                                  ours_w_kw2=ours_w,
                                  note=f"SIPPY failed: {type(exc).__name__}: {exc}"[:200]))
-    failed = [r.model for r in rows if r.sippy_v_kw2 is None]
-    return SippyComparison(
-        available=len(failed) < len(rows), version=version,
-        reason="" if not failed else f"SIPPY gave no usable model for {', '.join(failed)}",
-        rows=tuple(rows),
-    )
+            continue
+        elapsed = time.perf_counter() - t0
+        v, w, note = _score_sippy_model(fitted, method, ds, dp)
+        rows.append(SippyRow(model=label, sippy_time_s=elapsed, ours_time_s=ours_t,
+                             sippy_v_kw2=v, ours_v_kw2=ours_v, sippy_w_kw2=w,
+                             ours_w_kw2=ours_w, note=note))
+    failed = [r.model for r in rows if r.sippy_time_s is None]
+    unstable = [r.model for r in rows if "unstable" in r.note]
+    reasons = ([f"SIPPY failed on {', '.join(failed)}"] if failed else []) + (
+        [f"SIPPY's estimate is unstable for {', '.join(unstable)} (see the note)"] if unstable else [])
+    return SippyComparison(available=len(failed) < len(rows), version=version,
+                           reason="; ".join(reasons), rows=tuple(rows))
 
 
 # --- BENCHMARKS.md -----------------------------------------------------------------
@@ -402,8 +405,9 @@ def format_report(result: BenchmarkResult) -> str:
             lines += [f"Note: {sippy.reason}.", ""]
         if sippy.rows:
             lines += [
-                "Same preprocessed data, same orders (delay 1), both scored with "
-                "`sysid.criteria` (held-past initial conditions). Times are single fits.",
+                "Same preprocessed data, same orders (delay 1, SIPPY's default settings), both "
+                "scored with the held-past kernels of `sysid.simulate` that `sysid.criteria` "
+                "uses. Times are single fits; W is not listed for OE (W = V).",
                 "",
                 "| model | SIPPY time [s] | our time [s] | time ratio SIPPY/ours | "
                 "SIPPY V [kW^2] | our V [kW^2] | SIPPY W [kW^2] | our W [kW^2] | note |",
