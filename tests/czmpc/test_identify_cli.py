@@ -306,3 +306,22 @@ def test_sippy_comparison_says_why_when_sippy_is_not_installed(
                                   ours={})
     assert not result.available and result.rows == ()
     assert "not installed" in result.reason
+
+
+def test_sippy_arx_scores_like_our_least_squares_arx_on_the_same_data(tmp_path: Path) -> None:
+    pytest.importorskip("sippy_unipi")
+    from czmpc.bench_identify import run_sippy_comparison
+    from sysid.data import read_csv
+    from sysid.linear import fit_arx
+    from sysid.model import OperatingPoint
+
+    op = OperatingPoint(triac_pct=45.0, power_kw=45.0)
+    data = read_csv(_synthetic_log(tmp_path / "log.csv"))
+    ours = fit_arx(data, operating_point=op, na=1, nb=2, nk=1).model.criteria
+    result = run_sippy_comparison(data, operating_point=op, ours={})
+    arx = next(r for r in result.rows if r.model == "ARX(1,2)")
+    assert arx.sippy_v_kw2 is not None and arx.sippy_w_kw2 is not None
+    # Both solve the same least-squares problem; they differ only in which first rows
+    # enter the regression (SIPPY drops max(na, nb) rows), which moves V and W by < 0.1 %.
+    np.testing.assert_allclose(arx.sippy_v_kw2, ours.ballistic_mse_kw2, rtol=1e-3, atol=0)
+    np.testing.assert_allclose(arx.sippy_w_kw2, ours.one_step_mse_kw2, rtol=1e-3, atol=0)
