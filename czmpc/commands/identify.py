@@ -29,6 +29,7 @@ import math
 import shlex
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -108,7 +109,10 @@ class IdentifyOutcome:
     figure_files :
         The report's PNG figures.
     unconverged :
-        ``"name: optimizer message"`` of each fit that did not converge (empty if all did).
+        ``"name (n iterations)"`` of each fit that did not converge (empty if all did).
+    warnings :
+        Every warning raised while identifying (for example an optimizer's
+        non-convergence message), as ``"Category: message"``.
     """
 
     model_path: Path
@@ -116,6 +120,7 @@ class IdentifyOutcome:
     report_path: Path
     figure_files: tuple[Path, ...]
     unconverged: tuple[str, ...]
+    warnings: tuple[str, ...] = ()
 
 
 def identify_to_directory(
@@ -171,9 +176,12 @@ def identify_to_directory(
     data = read_csv(data_path)
     op = None if operating_point is None else OperatingPoint(
         triac_pct=operating_point[0], power_kw=operating_point[1])
-    result = run_paper_pipeline(
-        data, operating_point=op, level_shift="auto" if level_shift is None else level_shift,
-        progress=progress)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = run_paper_pipeline(
+            data, operating_point=op, level_shift="auto" if level_shift is None else level_shift,
+            progress=progress)
+    messages = tuple(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught))
     out = Path(out_dir)
     models_dir = out / "models"
     models_dir.mkdir(parents=True, exist_ok=True)
@@ -195,7 +203,7 @@ def identify_to_directory(
         f"{m.name} ({m.n_iterations} iterations)" for m in result.models if not m.converged)
     return IdentifyOutcome(model_path=model_path, model_files=tuple(model_files),
                            report_path=files.report_path, figure_files=files.figure_files,
-                           unconverged=unconverged)
+                           unconverged=unconverged, warnings=messages)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -220,6 +228,8 @@ def run(args: argparse.Namespace) -> int:
     progress(f"wrote {outcome.model_path}, {len(outcome.model_files)} model files in "
              f"{outcome.model_path.parent / 'models'}, {outcome.report_path} and "
              f"{len(outcome.figure_files)} figures")
+    for message in outcome.warnings:
+        print(f"czmpc: warning: {message}", file=sys.stderr)
     if outcome.unconverged:
         detail = ", ".join(outcome.unconverged)
         if args.allow_unconverged:

@@ -7,6 +7,7 @@ import dataclasses
 import io
 import json
 import re
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,7 @@ from scipy.signal import lfilter
 import sysid.pipeline
 from czmpc.cli import main
 from sysid.data import Dataset, write_csv
+from sysid.errors import IdentificationWarning
 from sysid.modelfile import load_model
 
 REPO = Path(__file__).resolve().parents[2]
@@ -132,6 +134,7 @@ def test_operating_point_and_level_shift_options_are_used_and_recorded(
 def _unconverged_pipeline(real: Callable[..., Any]) -> Callable[..., Any]:
     def run(*args: Any, **kwargs: Any) -> Any:
         result = real(*args, **kwargs)
+        warnings.warn("PEM on W stopped at the iteration limit", IdentificationWarning, stacklevel=2)
         broken = dataclasses.replace(result.hammerstein[-1], converged=False)
         return dataclasses.replace(result, hammerstein=result.hammerstein[:-1] + (broken,))
     return run
@@ -150,6 +153,7 @@ def test_unconverged_fit_exits_1_unless_allowed_and_the_report_flags_it(
     rc, _, err = _run(argv, capsys)
     assert rc == expected_rc
     assert "not converged: hammerstein_armax" in err
+    assert "czmpc: warning: IdentificationWarning: PEM on W stopped at the iteration limit" in err
     assert (tmp_path / "o" / "model.json").is_file()
     assert "Warning: not converged: hammerstein_armax" in (tmp_path / "o" / "report.md").read_text()
 
