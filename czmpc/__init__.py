@@ -1,5 +1,30 @@
-"""czmpc: offset-free Hammerstein MPC of CZ heater power, solved by OSQP."""
+"""czmpc: offset-free Hammerstein MPC of CZ heater power, solved by OSQP.
 
-from czmpc.errors import CzmpcError, DesignError, SettingsError
+Public names load on first use (see `sysid._lazy`), so that importing `czmpc.cli`
+does not import numpy before the CLI has pinned BLAS threads::
 
-__all__ = ["CzmpcError", "DesignError", "SettingsError"]
+    mpc = czmpc.OffsetFreeMPC(sysid.load_model("model.json"))
+    triac_pct = mpc.step(power_kw=p_measured, setpoint_kw=p_ref)
+
+`czmpc.realization`, `kalman`, `target`, `qp` and `inversion` are importable and
+documented for tests and experts but not re-exported.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from sysid._lazy import lazy_exports
+
+_EXPORTS = {
+    **dict.fromkeys(["CzmpcError", "DesignError", "SettingsError"], "czmpc.errors"),
+    **dict.fromkeys(["MPCSettings", "OSQPOptions"], "czmpc.settings"),
+    **dict.fromkeys(["OffsetFreeMPC", "StepDiagnostics"], "czmpc.controller"),
+}
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
+__all__ = sorted(_EXPORTS)
+
+if TYPE_CHECKING:
+    from czmpc.controller import OffsetFreeMPC, StepDiagnostics
+    from czmpc.errors import CzmpcError, DesignError, SettingsError
+    from czmpc.settings import MPCSettings, OSQPOptions
