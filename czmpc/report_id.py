@@ -26,7 +26,7 @@ import numpy as np
 from czmpc import figures_id as figs
 
 if TYPE_CHECKING:
-    from sysid.model import HammersteinModel, OperatingPoint
+    from sysid.model import HammersteinModel
     from sysid.pipeline import NamedModel, PipelineResult
     from sysid.steps import InputStep
 
@@ -35,6 +35,9 @@ PAPER_TABLE2_V: dict[str, float] = {
     "arx_1_2": 0.106, "arx_2_3": 0.109, "armax_1_2_1": 0.108, "armax_2_3_2": 0.110,
     "oe_2_1": 0.043, "oe_3_2": 0.042,
 }
+#: Sec. 5.1: the paper's operating point (s_nom [%], P_nom [kW]); Table 3's ds and dP are
+#: deviations from it.
+PAPER_OPERATING_POINT = (45.0, 45.0)
 #: Table 3: (ds before, ds after [%], dP before, dP after [kW], r [kW/%]).
 PAPER_TABLE3: tuple[tuple[float, float, float, float, float], ...] = (
     (0.0, 5.0, 0.04, 6.78, 1.35),
@@ -556,9 +559,10 @@ def _table2_section(result: PipelineResult) -> str:
                       "paper V [kW^2]"], rows, "lrrrrrrrr"))
 
 
-def _match_paper_step(step: InputStep, op: OperatingPoint) -> tuple[float, float, float, float, float] | None:
-    before = step.triac_before_pct - op.triac_pct
-    after = step.triac_after_pct - op.triac_pct
+def _match_paper_step(step: InputStep) -> tuple[float, float, float, float, float] | None:
+    """The paper's Table 3 row of the same absolute input step (the paper's s_nom = 45 %)."""
+    before = step.triac_before_pct - PAPER_OPERATING_POINT[0]
+    after = step.triac_after_pct - PAPER_OPERATING_POINT[0]
     for row in PAPER_TABLE3:
         if abs(before - row[0]) < 0.5 and abs(after - row[1]) < 0.5:
             return row
@@ -569,9 +573,10 @@ def _table3_section(result: PipelineResult) -> str:
     op = result.operating_point.operating_point
     rows = []
     for st in result.steps:
-        paper = _match_paper_step(st, op)
+        paper = _match_paper_step(st)
         rows.append([
             f"{st.time_s:g}",
+            f"{st.triac_before_pct:.4g} -> {st.triac_after_pct:.4g}",
             f"{st.triac_before_pct - op.triac_pct:.2f} -> {st.triac_after_pct - op.triac_pct:.2f}",
             f"{st.power_before_kw - op.power_kw:.2f} -> {st.power_after_kw - op.power_kw:.2f}",
             f"{st.gain_kw_per_pct:.2f}",
@@ -580,9 +585,12 @@ def _table3_section(result: PipelineResult) -> str:
         ])
     return ("## Input steps and instantaneous gains (paper Table 3)\n\nr = (dP after - dP before) / "
             "(ds after - ds before), the first output sample that shows the step against the last "
-            "one before it. The paper lists the four steps of +5 % after t = 10^4 s.\n\n"
-            + (_table(["t [s]", "step ds [%]", "step dP [kW]", "r [kW/%]", "paper step dP [kW]",
-                       "paper r [kW/%]"], rows, "rllrlr") if rows else "No input steps found.")
+            "one before it. The paper lists the four steps of +5 % after t = 10^4 s; its rows "
+            "stand beside ours for the same absolute input step (its s_nom = 45 %, P_nom = 45 kW; "
+            f"ours: {op.triac_pct:.4g} %, {op.power_kw:.4g} kW).\n\n"
+            + (_table(["t [s]", "step s [%]", "step ds [%]", "step dP [kW]", "r [kW/%]",
+                       "paper step dP [kW]", "paper r [kW/%]"], rows, "rlllrlr")
+               if rows else "No input steps found.")
             + "\n\nThe paper's Table 3 (ds [%]: dP [kW], r [kW/%]): "
             + "; ".join(f"{a:g} -> {b:g}: {pa:.2f} -> {pb:.2f}, r = {r:.2f}"
                         for a, b, pa, pb, r in PAPER_TABLE3) + ".")
