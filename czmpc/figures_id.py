@@ -85,10 +85,12 @@ def _new_figure(n_rows: int, *, sharex: bool = True) -> tuple[Figure, list[Axes]
 
 
 def _legend_above(ax: Axes) -> None:
-    """Legend in one row above the panel, so it never hides data."""
-    n = len(ax.get_legend_handles_labels()[1])
-    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncols=min(n, 3), frameon=False,
-              borderaxespad=0.2, fontsize="small")
+    """Legend above the panel, so it never hides data; long labels get fewer columns."""
+    labels = ax.get_legend_handles_labels()[1]
+    longest = max((len(label) for label in labels), default=0)
+    per_row = 3 if longest <= 28 else 2 if longest <= 48 else 1
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncols=max(1, min(len(labels), per_row)),
+              frameon=False, borderaxespad=0.2, fontsize="small")
 
 
 def _save(fig: Figure, path: str | os.PathLike[str]) -> Figure:
@@ -112,6 +114,7 @@ def plot_dataset(
     deviation: bool = False,
     title: str = "Identification data",
     marked_time_s: Sequence[float] = (),
+    marked_label: str = "marked",
 ) -> Figure:
     """Input and power against time, two stacked panels (paper figs. 2 and 7).
 
@@ -131,6 +134,8 @@ def plot_dataset(
         Figure title.
     marked_time_s :
         Times [s] to mark with vertical dotted lines (for example repaired samples).
+    marked_label :
+        Legend text of those lines.
 
     Returns
     -------
@@ -153,8 +158,9 @@ def plot_dataset(
     ax_s.set_ylabel(AXIS_LABELS["triac_dev" if deviation else "triac"])
     ax_s.set_xlabel(AXIS_LABELS["time"])
     for ax in (ax_p, ax_s):
-        for tm in marked_time_s:
-            ax.axvline(tm, color="tab:purple", linestyle=":", linewidth=1.0)
+        for i, tm in enumerate(marked_time_s):
+            ax.axvline(tm, color="tab:purple", linestyle=":", linewidth=1.0,
+                       label=marked_label if i == 0 else None)
         _legend_above(ax)
     fig.suptitle(title)
     return _save(fig, path)

@@ -360,6 +360,7 @@ def _draw_figures(result: PipelineResult, fig_dir: Path) -> list[_Figure]:
     add("fig07_preprocessed", "Fig. 7 analogue: the preprocessed data as deviations from the "
         "operating point; repairs marked.",
         lambda p: figs.plot_dataset(t, ds, dp, p, deviation=True, marked_time_s=repair_times,
+                                    marked_label="repair",
                                     title="Preprocessed data (paper Fig. 7)"))
     lin = [(n, s) for n, s in (("arx_1_2", "ARX(1,2)"), ("armax_1_2_1", "ARMAX(1,2,1)"),
                                ("oe_2_1", "OE(2,1)")) if n in m]
