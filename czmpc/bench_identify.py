@@ -403,6 +403,10 @@ def format_report(result: BenchmarkResult) -> str:
         lines += ["", f"### SIPPY comparison (sippy-unipi {sippy.version or 'not installed'})", ""]
         if sippy.reason:
             lines += [f"Note: {sippy.reason}.", ""]
+        if any("unstable" in r.note for r in sippy.rows):
+            lines += ["An unstable estimate can score a lower V on a finite record (its slow "
+                      "divergence follows the record's slow drift) but it is no usable model; our "
+                      "fits are kept stable.", ""]
         if sippy.rows:
             lines += [
                 "Same preprocessed data, same orders (delay 1, SIPPY's default settings), both "

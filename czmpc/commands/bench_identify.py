@@ -20,6 +20,7 @@ Exit codes: 0 done (goal met or not, unless --strict); 1 goal missed with --stri
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import shlex
 import sys
@@ -103,6 +104,9 @@ def run(args: argparse.Namespace) -> int:
     )
 
     data = args.data if args.data is not None else _SHIPPED
+    if args.data is None:
+        with contextlib.suppress(ValueError):  # show the shipped file relative to here if below
+            data = _SHIPPED.relative_to(Path.cwd())
     if args.data is None and not _SHIPPED.is_file():
         print(f"czmpc: error: the shipped experiment {_SHIPPED} is not there; pass --data FILE",
               file=sys.stderr)
