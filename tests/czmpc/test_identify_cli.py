@@ -329,3 +329,15 @@ def test_sippy_arx_scores_like_our_least_squares_arx_on_the_same_data(tmp_path: 
     # enter the regression (SIPPY drops max(na, nb) rows), which moves V and W by < 0.1 %.
     np.testing.assert_allclose(arx.sippy_v_kw2, ours.ballistic_mse_kw2, rtol=1e-3, atol=0)
     np.testing.assert_allclose(arx.sippy_w_kw2, ours.one_step_mse_kw2, rtol=1e-3, atol=0)
+
+
+def test_report_writes_the_model_equation_in_the_papers_notation(paper_armax_model: Any,
+                                                                  paper_oe_model: Any) -> None:
+    from czmpc.report_id import model_equation
+
+    assert model_equation(paper_armax_model).splitlines() == [
+        "dP_k - 0.99 dP_{k-1} = f(ds_{k-1}) - 0.991 f(ds_{k-2}) + e_k - 0.9 e_{k-1}",  # eq. 30
+        "f(ds) = 1.35 ds - 0.0065 ds^2   [kW]",  # eq. 31
+    ]
+    assert model_equation(paper_oe_model).splitlines()[0].endswith(  # eq. 27
+        "= f(ds_{k-1}) - 0.991 f(ds_{k-2}) + eps_k   (output error: no noise model)")
