@@ -33,8 +33,12 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sysid.errors import IdentificationError
+
+if TYPE_CHECKING:
+    from czmpc.report_id import Finding
 
 NAME = "identify"
 HELP = "identify the Hammerstein heater model from logged data and write model, report, figures"
@@ -113,6 +117,9 @@ class IdentifyOutcome:
     warnings :
         Every warning raised while identifying (for example an optimizer's
         non-convergence message), as ``"Category: message"``.
+    findings :
+        The paper's findings checked on these data (`czmpc.report_id.findings_checklist`),
+        as in the report.
     """
 
     model_path: Path
@@ -121,6 +128,7 @@ class IdentifyOutcome:
     figure_files: tuple[Path, ...]
     unconverged: tuple[str, ...]
     warnings: tuple[str, ...] = ()
+    findings: tuple[Finding, ...] = ()
 
 
 def identify_to_directory(
@@ -165,7 +173,7 @@ def identify_to_directory(
     """
     if progress is not None:
         progress("loading the numerical libraries")
-    from czmpc.report_id import write_report
+    from czmpc.report_id import findings_checklist, write_report
     from sysid.data import read_csv
     from sysid.model import OperatingPoint
     from sysid.modelfile import save_model
@@ -203,7 +211,8 @@ def identify_to_directory(
         f"{m.name} ({m.n_iterations} iterations)" for m in result.models if not m.converged)
     return IdentifyOutcome(model_path=model_path, model_files=tuple(model_files),
                            report_path=files.report_path, figure_files=files.figure_files,
-                           unconverged=unconverged, warnings=messages)
+                           unconverged=unconverged, warnings=messages,
+                           findings=findings_checklist(result))
 
 
 def run(args: argparse.Namespace) -> int:

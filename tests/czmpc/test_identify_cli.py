@@ -341,3 +341,17 @@ def test_report_writes_the_model_equation_in_the_papers_notation(paper_armax_mod
     ]
     assert model_equation(paper_oe_model).splitlines()[0].endswith(  # eq. 27
         "= f(ds_{k-1}) - 0.991 f(ds_{k-2}) + eps_k   (output error: no noise model)")
+
+
+def test_identify_to_directory_returns_the_reports_findings_and_files(tmp_path: Path) -> None:
+    from czmpc.commands.identify import identify_to_directory
+
+    stages: list[str] = []
+    outcome = identify_to_directory(_synthetic_log(tmp_path / "log.csv"), tmp_path / "o",
+                                    progress=stages.append)
+    assert "Hammerstein route" in stages
+    assert outcome.model_path == tmp_path / "o" / "model.json"
+    assert all(p.is_file() for p in (*outcome.model_files, *outcome.figure_files))
+    assert len(outcome.findings) == 5 and outcome.unconverged == ()
+    lines = _finding_lines(outcome.report_path.read_text())
+    assert [f"**{f.verdict}**" in ln for f, ln in zip(outcome.findings, lines, strict=True)] == [True] * 5
