@@ -23,7 +23,6 @@ import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -32,6 +31,7 @@ from sim.errors import ScenarioError, SimError
 from sim.protocols import NOMINAL, Controller, Exogenous, Plant
 from sim.scenario import Scenario
 from sysid._typing import FloatArray
+from sysid.atomic import atomic_write_text
 from sysid.errors import SamplingTimeError
 
 #: CSV columns written by `ClosedLoopResult.to_csv` (a disturbance estimate column
@@ -138,8 +138,8 @@ class ClosedLoopResult:
     def to_csv(self, path: str | os.PathLike[str]) -> None:
         """Write the run as CSV (columns `CSV_COLUMNS`, units in the names), atomically.
 
-        The file is written to a temporary name next to ``path`` and renamed, so a
-        reader never sees half a file. NaN (missing samples) is written as ``nan``;
+        The file is written to a temporary name next to ``path`` and renamed
+        (`sysid.atomic`), so a reader never sees half a file. NaN (missing samples) is written as ``nan``;
         numbers use Python's shortest round-trip form.
 
         Parameters
@@ -147,7 +147,6 @@ class ClosedLoopResult:
         path :
             Output file.
         """
-        path = Path(path)
         columns: list[tuple[str, list[float]]] = [
             (name, getattr(self, name).tolist()) for name in CSV_COLUMNS
         ]
@@ -157,14 +156,7 @@ class ClosedLoopResult:
         header = ",".join(name for name, _ in columns)
         rows = (",".join(map(repr, row)) for row in zip(*(vals for _, vals in columns), strict=True))
         text = header + "\n" + "\n".join(rows) + "\n"
-        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-        try:
-            with open(tmp, "w", newline="\n", encoding="utf-8") as fh:
-                fh.write(text)
-            os.replace(tmp, path)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
+        atomic_write_text(path, text)
 
 
 def _check_sampling_times(plant: Plant, controller: Controller, scenario: Scenario) -> None:

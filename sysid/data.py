@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from sysid._typing import FloatArray
+from sysid.atomic import atomic_write_text
 from sysid.errors import DataFileError
 
 #: The CSV contract's header, in order.
@@ -350,11 +351,7 @@ def write_csv(data: Dataset, path: str | os.PathLike[str]) -> None:
     Floats are written with Python's shortest round-trip representation, so
     ``read_csv(write_csv(d))`` reproduces every value bit for bit.
     """
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with open(tmp, "w", newline="\n", encoding="utf-8") as fh:
-        fh.write(format_csv(data))
-    os.replace(tmp, path)
+    atomic_write_text(path, format_csv(data))
 
 
 __all__ = ["CSV_COLUMNS", "DEFAULT_SAMPLING_RTOL", "Dataset", "MIN_SAMPLES", "format_csv",

@@ -13,6 +13,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from sysid.atomic import atomic_write_text
 from sysid.errors import ModelFileError, UnstableModelError
 from sysid.model import Criteria, HammersteinModel, OperatingPoint, Provenance
 
@@ -145,11 +146,8 @@ def save_model(model: HammersteinModel, path: str | os.PathLike[str]) -> None:
 
     Floats are written with full precision, so `load_model` returns the same numbers.
     """
-    path = Path(path)
     text = json.dumps(model_to_dict(model), indent=2, allow_nan=False) + "\n"
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
+    atomic_write_text(path, text)
 
 
 def load_model(path: str | os.PathLike[str]) -> HammersteinModel:
