@@ -14,7 +14,11 @@ faults; a shipped name or a TOML file), and writes into DIR:
   figure.png      power with setpoint (and soft limits) [kW], TRIAC input with its
                   allowed range [%], disturbance estimate [kW], on one time axis
 
-and prints the metrics table. Errors are those of the plant's true (noise-free) power.
+and prints the metrics table. Errors are those of the plant's true power (without
+sensor noise, spikes, missing samples); the steady-state errors of the measured power
+are given beside them (metrics_measured in metrics.json): on the model plant they
+are the ones to judge offsets by, since its noise C/A e is a slow disturbance the
+controller rightly rejects, which moves the noise-free power.
 
 Plants: 'model' runs the model's own difference equation (no model mismatch) from the
 scenario's initial input; 'heater' runs the virtual CZ heater (grey-box physics: model

@@ -58,7 +58,9 @@ def test_simulate_writes_trajectory_metrics_and_figure(
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
     # the table: one row per setpoint change, units in the headers, then the whole run
     assert "IAE [kW s]" in out and "overshoot [kW]" in out and "settling [s]" in out
-    assert "steady error [kW]" in out and "overall:" in out
+    assert "steady error true [kW]" in out and "steady error measured [kW]" in out
+    assert "overall:" in out
+    assert doc["metrics_measured"]["power_signal"] == "measured"
     assert re.search(r"^\s+\d+\s+45\.0 -> 50\.0 ", out, flags=re.M)
     assert "trajectory.csv" in out and "figure.png" in out
 
