@@ -8,33 +8,105 @@ state (`czmpc.realization`); ``eps`` [kW] the innovation.
 
 One step (DESIGN.md item 3), for measured ``P_k`` and setpoint ``P_ref``:
 
-1. measurement update with ``y_k`` (skipped if ``P_k`` is NaN or infinite);
-2. target ``(x_s, w_s)`` for the current ``d`` (`czmpc.target`);
-3. QP over the horizon in ``w`` (`czmpc.qp`);
-4. apply: ``ds = f^-1(w_0)`` on the monotone branch, clipped to the allowed range and
-   the rate limit (`czmpc.inversion`);
-5. time update with the ``w = f(ds)`` actually applied (`czmpc.kalman`).
+0. if the caller reports the input actually applied over the last sample
+   (``applied_triac_pct``), the estimator's prediction is corrected to it (the time
+   update is linear in ``w``), and the rate limit starts from it: no windup, and
+   manual-to-auto is bumpless;
+1. validity checks (`czmpc.validation`), then the measurement update with ``y_k`` only
+   for a valid sample; otherwise the estimator runs on the model alone (soft sensor);
+2. target ``(x_s, w_s)`` for the current ``d`` (`czmpc.target`) inside the effective
+   TRIAC limits, for the (optionally ramped and filtered) setpoint;
+3. QP over the horizon in ``w`` (`czmpc.qp`); every result is checked (status, finite,
+   inside its bounds); on failure the shifted previous plan, then the target;
+4. apply (``ON`` only): ``ds = f^-1(w_0)`` on the monotone branch, clipped to the
+   effective limits and the rate limit (`czmpc.inversion`);
+5. time update with the ``w`` applied (in ``OFF``/``PREDICT`` the caller's input).
 
-Run-time trouble never raises (STYLE.md B.8): a failed solve falls back to the
-previous plan shifted by the samples since it was made, and when that is used up, to
-the target ``w_s``; each fallback is recorded in `StepDiagnostics` and counted.
+Modes and statuses: `czmpc.modes`. Run-time trouble never raises (STYLE.md B.8).
+
+Failure behaviour
+-----------------
+Defaults in brackets (`czmpc.settings.ReliabilitySettings`); ``Ts`` = 2 s. For each
+fault: what the controller does -> what it reports (`StepDiagnostics`, counters).
+
+Missing sample (NaN/inf), short (<= ``max_predicted_samples`` [60 = 120 s])
+    Soft sensor: the estimator runs on the model alone and control continues on its
+    predictions; the spike gate widens with the grown prediction error covariance ->
+    ``status PREDICTED``, ``verdict MISSING``, ``samples_without_measurement``,
+    ``n_rejected_measurements``.
+Missing samples, long (> ``max_predicted_samples``)
+    Sheds: holds the last input (or moves to ``shed_triac_pct`` at the rate limit)
+    until a valid sample returns; then tracking resumes from the held input within the
+    rate limit -> ``status SHED``, ``n_shed_steps``; ``GOOD`` again at the first valid
+    sample.
+Stuck sensor (the same value for ``stuck_samples`` [10] while the prediction moves by
+>= ``stuck_min_predicted_change_kw`` [0.1 kW])
+    Frozen readings are rejected (soft sensor, then shed as above); a quiet signal at a
+    constant input never trips -> ``verdict STUCK``, ``PREDICTED``/``SHED``.
+Spike (``|eps| > max(k sigma, floor)`` [off; e.g. 8 sigma, 0.5 kW], sigma the predicted
+innovation std)
+    The sample is rejected (soft sensor for it); after ``reopen_after_samples`` [3]
+    rejections in a row the value is accepted as a level change and the gate stays
+    open until the innovation is back inside -> ``verdict SPIKE``,
+    ``status PREDICTED``; ``level_change_accepted`` when re-opened. Off by default (a
+    genuine step disturbance looks like a level change for a few samples).
+Negative power / beyond the rating (``power_min_kw`` [0], ``power_max_kw`` [off])
+    The sample is rejected (soft sensor, then shed) -> ``verdict BELOW_LIMIT`` /
+    ``ABOVE_LIMIT``.
+Too fast a change (``max_change_kw_per_sample`` [off])
+    As a spike (re-opens the same way) -> ``verdict TOO_FAST``.
+Solver failure (status not solved, non-finite, outside its bounds by more than
+``solver_bound_tol_kw`` [0.01 kW], OSQP time limit ``osqp.time_limit_s`` [off])
+    Shifted previous plan, then the target; the next solve cold-starts; after
+    ``max_bad_solves`` [5] in a row it sheds to the offset-free target and keeps trying
+    -> ``fallback``, ``solver_status``, ``status HELD``, ``n_fallbacks``,
+    ``bad_solves_in_row``; ``SHED`` from ``max_bad_solves`` on; ``GOOD`` at the first
+    good solve.
+Manual operation (``OFF``/``PREDICT``, `request_mode`)
+    The caller's input is returned and fed to the estimator (``PREDICT``); ``ON`` starts
+    from the applied input within the rate limit (bumpless) and needs
+    ``warmup_samples`` [5] valid samples first -> ``mode``, ``status HELD``,
+    ``advised_triac_pct``; every request in ``transition`` and `drain_transitions`.
+Manual override, stuck TRIAC, downstream saturation (``applied_triac_pct`` differs from
+the command)
+    The estimator uses the applied input, so ``d`` does not wind up; the next move
+    starts from it; tracking resumes when the actuator frees -> ``status CLAMPED``,
+    ``applied_triac_pct``.
+Tightened limit (`set_triac_limits`)
+    The limit moves in at ``limit_ramp_pct_per_s`` [0.5 %/s] from the current input;
+    widening applies at once -> ``triac_limits_pct`` (effective), ``CLAMPED`` while the
+    input sits on it.
+Unreachable setpoint
+    The target is clipped to the limits, not chased -> ``setpoint_reachable False``,
+    ``CLAMPED``.
+Biased sensor, plant drifted from the model
+    Control unchanged (the integrating disturbance absorbs it) -> ``mismatch``
+    (`czmpc.mismatch.MismatchStats`: ``biased`` / ``drifted``).
+
+The returned input is always finite and inside the effective TRIAC limits in ``ON``;
+it respects the rate limit except where a limit forces it (an input applied outside
+the limits by the caller, or a limit ramp faster than the rate limit).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from collections import deque
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
 
-from czmpc.errors import DesignError
+from czmpc.errors import DesignError, SettingsError
 from czmpc.inversion import InputMap, build_input_map
-from czmpc.kalman import SteadyStateKalman, design_estimator
+from czmpc.kalman import SteadyStateKalman, design_estimator, innovation_variance_after_gap
+from czmpc.mismatch import InnovationMonitor, MismatchStats
+from czmpc.modes import Mode, ModeTransition, Status, transition
 from czmpc.qp import MPCQP, QPSolution, move_bounds
 from czmpc.realization import AugmentedModel, augment, innovations_form
 from czmpc.settings import MPCSettings
 from czmpc.target import SteadyStateMap, compute_target, steady_state_map
+from czmpc.validation import MeasurementChecker, Verdict
 from sysid._typing import FloatArray
 from sysid.model import HammersteinModel
 
@@ -44,6 +116,10 @@ Fallback = Literal["none", "shifted_plan", "target"]
 #: tens to a few hundred kW); it is treated as missing, so absurd values such as 1e300
 #: cannot overflow the estimator. Recorded as ``measurement_used = False``.
 MAX_INNOVATION_KW = 1e6
+#: Tolerance [% or kW-equivalent] for "the input sits on a bound" (status CLAMPED).
+CLAMP_TOL = 1e-6
+#: Tolerance [%] for "the applied input differs from the command".
+APPLIED_TOL_PCT = 1e-6
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -59,15 +135,16 @@ class StepDiagnostics:
     setpoint_kw :
         Setpoint as received [kW] (may be non-finite).
     setpoint_used_kw :
-        Setpoint the step worked with [kW]: the received one, or the previous one
-        held when the received one was not finite.
+        Setpoint the step worked with [kW]: the received one (or the previous one
+        held when the received one was not finite) after the optional ramp and filter.
     setpoint_held :
         True if the received setpoint was not finite and the previous one was held.
     triac_pct :
         What `OffsetFreeMPC.step` returned [%].
     measurement_used :
-        False if the measurement update was skipped: a missing (NaN) or infinite
-        sample, or one whose innovation exceeds `MAX_INNOVATION_KW`.
+        False if the measurement update was skipped: a sample that failed a validity
+        check (`verdict`), one whose innovation exceeds `MAX_INNOVATION_KW`, or any
+        sample in ``OFF``.
     innovation_kw :
         ``eps_k = y_k - C z_{k|k-1}`` [kW] (0 when the measurement was not used).
     state_estimate :
@@ -96,6 +173,32 @@ class StepDiagnostics:
         ``"none"`` (QP plan used), ``"shifted_plan"`` or ``"target"``.
     soft_limit_slack_kw :
         Soft power limit violation planned by the QP [kW] (0 without soft limits).
+    mode :
+        The mode this step ran in (`czmpc.modes.Mode`).
+    status :
+        What the step did (`czmpc.modes.Status`; module notes).
+    verdict :
+        Measurement validity (`czmpc.validation.Verdict`).
+    level_change_accepted :
+        True if the measurement was accepted only because the rate/spike check
+        re-opened after repeated rejections.
+    innovation_std_kw :
+        Predicted innovation std the spike gate used [kW].
+    samples_without_measurement :
+        Consecutive samples (this one included) without a valid measurement.
+    bad_solves_in_row :
+        Consecutive QP solves (this one included) whose result was not used.
+    advised_triac_pct :
+        The input the controller would apply in ``ON`` [%] (equals ``triac_pct`` in
+        ``ON``; the shadow advice in ``PREDICT``; the held input in ``OFF``).
+    applied_triac_pct :
+        The input applied over the previous sample as the estimator used it [%].
+    triac_limits_pct :
+        Effective ``(min, max)`` TRIAC limits this step [%] (ramping after a change).
+    mismatch :
+        Model-mismatch statistics (`czmpc.mismatch.MismatchStats`).
+    transition :
+        The mode request handled since the previous step, or None.
     """
 
     k: int
@@ -119,6 +222,18 @@ class StepDiagnostics:
     n_iterations: int
     fallback: Fallback
     soft_limit_slack_kw: float
+    mode: Mode = Mode.ON
+    status: Status = Status.GOOD
+    verdict: Verdict = Verdict.VALID
+    level_change_accepted: bool = False
+    innovation_std_kw: float = math.nan
+    samples_without_measurement: int = 0
+    bad_solves_in_row: int = 0
+    advised_triac_pct: float = math.nan
+    applied_triac_pct: float = math.nan
+    triac_limits_pct: tuple[float, float] = (math.nan, math.nan)
+    mismatch: MismatchStats | None = None
+    transition: ModeTransition | None = None
 
 
 class OffsetFreeMPC:
@@ -142,6 +257,8 @@ class OffsetFreeMPC:
 
     Raises
     ------
+    SettingsError
+        If ``settings.ts_s`` is given and differs from the model's sampling time.
     DesignError
         If the allowed input range leaves the monotone branch of ``f``, the augmented
         pair is not detectable, the model has no delay or no static gain, a DARE has
@@ -158,17 +275,27 @@ class OffsetFreeMPC:
     >>> s = mpc.step(power_kw=45.0, setpoint_kw=46.0)
     >>> 45.0 < s < 50.0
     True
+    >>> mpc.last_step.status.name
+    'GOOD'
     """
 
     def __init__(self, model: HammersteinModel, settings: MPCSettings | None = None) -> None:
         settings = MPCSettings.default_for(model) if settings is None else settings
         if not isinstance(settings, MPCSettings):
             raise TypeError(f"OffsetFreeMPC: settings must be MPCSettings; got {settings!r}")
+        if settings.ts_s is not None and not math.isclose(settings.ts_s, model.ts_s,
+                                                          rel_tol=1e-9, abs_tol=0.0):
+            raise SettingsError(
+                f"MPCSettings.ts_s: expected the model's sampling time {model.ts_s:g} s; "
+                f"got {settings.ts_s:g} s"
+            )
         self.model = model
         self.settings = settings
         self.ts_s = model.ts_s
         self._p_nom = model.operating_point.power_kw
         self._s_nom = model.operating_point.triac_pct
+        rel = settings.reliability
+        self._rel = rel
 
         self._input_map: InputMap = build_input_map(
             model, triac_min_pct=settings.triac_min_pct, triac_max_pct=settings.triac_max_pct,
@@ -187,7 +314,7 @@ class OffsetFreeMPC:
             has_soft_max=settings.soft_power_max_kw is not None,
             soft_limit_weight=settings.soft_limit_weight,
             soft_limit_linear_weight=settings.soft_limit_linear_weight,
-            options=settings.osqp,
+            options=settings.osqp, bound_tol_kw=rel.solver_bound_tol_kw,
         )
         s_init = self._s_nom if settings.initial_triac_pct is None else settings.initial_triac_pct
         ds_init = s_init - self._s_nom
@@ -217,13 +344,32 @@ class OffsetFreeMPC:
             None if settings.soft_power_max_kw is None else settings.soft_power_max_kw - self._p_nom
         )
         self._max_move = settings.max_move_pct_per_step
-        if self._max_move is None:
-            w_lo, w_hi, _ = move_bounds(im, 0.0, None, settings.horizon_steps)
-            self._fixed_w_lo: FloatArray | None = w_lo
-            self._fixed_w_hi: FloatArray | None = w_hi
+        sigma = model.noise_std_kw
+        gap_var = innovation_variance_after_gap(
+            self._aug, self._kf, settings.disturbance_noise, rel.max_predicted_samples + 1)
+        self._innovation_std_kw = [sigma * math.sqrt(v) for v in gap_var.tolist()]
+        self._checker = MeasurementChecker(
+            power_min_kw=rel.power_min_kw, power_max_kw=rel.power_max_kw,
+            max_change_kw=rel.max_change_kw_per_sample, stuck_samples=rel.stuck_samples,
+            stuck_min_predicted_change_kw=rel.stuck_min_predicted_change_kw,
+            gate_k_sigma=rel.spike_gate_k_sigma, gate_floor_kw=rel.spike_gate_floor_kw,
+            reopen_after=rel.reopen_after_samples,
+        )
+        self._monitor = InnovationMonitor(
+            window_samples=rel.mismatch_window_samples,
+            sigma_kw=self._innovation_std_kw[0],
+            disturbance_limit_kw=rel.mismatch_disturbance_limit_kw,
+        )
+        if rel.setpoint_filter_time_s is None:
+            self._sp_alpha = 1.0
         else:
-            self._fixed_w_lo = None
-            self._fixed_w_hi = None
+            self._sp_alpha = 1.0 - math.exp(-self.ts_s / rel.setpoint_filter_time_s)
+        self._sp_max_step = (None if rel.setpoint_ramp_kw_per_s is None
+                             else rel.setpoint_ramp_kw_per_s * self.ts_s)
+        self._limit_step_pct = rel.limit_ramp_pct_per_s * self.ts_s
+        self._shed_ds = (None if rel.shed_triac_pct is None
+                         else min(im.ds_max_pct, max(im.ds_min_pct,
+                                                     rel.shed_triac_pct - self._s_nom)))
         self.reset()
 
     # --- public state -----------------------------------------------------------
@@ -231,6 +377,11 @@ class OffsetFreeMPC:
     def last_step(self) -> StepDiagnostics | None:
         """Diagnostics of the latest `step`, or None before the first."""
         return self._last
+
+    @property
+    def mode(self) -> Mode:
+        """The current mode (`czmpc.modes.Mode`)."""
+        return self._mode
 
     @property
     def n_fallbacks(self) -> int:
@@ -243,10 +394,28 @@ class OffsetFreeMPC:
         return self._n_inaccurate
 
     @property
+    def n_rejected_measurements(self) -> int:
+        """Samples (in ``PREDICT``/``ON``) not fed to the estimator since reset."""
+        return self._n_rejected
+
+    @property
+    def n_shed_steps(self) -> int:
+        """Steps reported ``SHED`` since reset."""
+        return self._n_shed
+
+    @property
     def allowed_triac_range_pct(self) -> tuple[float, float]:
-        """``(s_min, s_max)`` the controller keeps its output in [%]."""
+        """``(s_min, s_max)`` the controller keeps its output in [%] (settings and model).
+
+        `set_triac_limits` narrows this further at run time (`triac_limits_pct`).
+        """
         return (self._input_map.ds_min_pct + self._s_nom,
                 self._input_map.ds_max_pct + self._s_nom)
+
+    @property
+    def triac_limits_pct(self) -> tuple[float, float]:
+        """Effective ``(min, max)`` TRIAC limits now [%] (ramping after a tightening)."""
+        return (self._lo + self._s_nom, self._hi + self._s_nom)
 
     @property
     def input_map(self) -> InputMap:
@@ -272,47 +441,213 @@ class OffsetFreeMPC:
         """Forget all state, as if newly constructed.
 
         The estimator restarts at the steady state of the initial input
-        (``initial_triac_pct`` or the operating point) with ``d = 0``.
+        (``initial_triac_pct`` or the operating point) with ``d = 0``; mode, limits and
+        counters return to their initial values and the transition log is emptied.
         """
         im = self._input_map
         w0 = im.f(self._ds_init)
-        z = np.zeros(self._n_x + 1)
-        z[: self._n_x] = self._ssm.xw * w0
-        z.flags.writeable = False
-        self._z = z
+        self._restart_estimator(w0)
         self._ds_prev = self._ds_init
         self._w_prev = w0
         self._setpoint_kw = self._p_nom + self._ssm.static_gain * w0
+        self._sp_ramped = self._setpoint_kw
+        self._sp_filtered = self._setpoint_kw
         self._k = 0
         self._plan: FloatArray | None = None
         self._plan_k = 0
         self._n_fallbacks = 0
         self._n_inaccurate = 0
+        self._n_rejected = 0
+        self._n_shed = 0
+        self._bad_in_row = 0
+        self._mode = Mode(self._rel.initial_mode)
+        self._warm = self._rel.warmup_samples if self._mode is Mode.ON else 0
+        self._transitions: deque[ModeTransition] = deque(maxlen=self._rel.transition_log_size)
+        self._pending: ModeTransition | None = None
+        self._lo = im.ds_min_pct
+        self._hi = im.ds_max_pct
+        self._lo_goal = im.ds_min_pct
+        self._hi_goal = im.ds_max_pct
+        self._eff_map = im
         self._last: StepDiagnostics | None = None
         self._qp.request_cold_start()
 
+    def _restart_estimator(self, w: float) -> None:
+        """Estimator at the steady state of input ``w`` with ``d = 0``; checks reset."""
+        z = np.zeros(self._n_x + 1)
+        z[: self._n_x] = self._ssm.xw * w
+        z.flags.writeable = False
+        self._z = z
+        self._warm = 0
+        self._gap = 0
+        self._checker.reset()
+        self._monitor.reset()
+
+    # --- mode and limits ----------------------------------------------------------
+    def request_mode(self, mode: Mode | str) -> ModeTransition:
+        """Ask for a mode change; it applies from the next `step` (`czmpc.modes.transition`).
+
+        Entering ``OFF`` stops the estimator; leaving ``OFF`` restarts it at the steady
+        state of the applied input, so ``ON`` needs ``warmup_samples`` valid samples in
+        ``PREDICT`` first. Every request is logged (`drain_transitions`).
+
+        Parameters
+        ----------
+        mode :
+            A `Mode` or its value (``"off"``, ``"predict"``, ``"on"``).
+
+        Returns
+        -------
+        ModeTransition
+            The request and its outcome (refused requests leave the mode unchanged).
+        """
+        requested: Mode | str = mode
+        if isinstance(mode, str):
+            try:
+                requested = Mode(mode)
+            except ValueError:
+                requested = mode
+        ready = self._warm >= self._rel.warmup_samples
+        new, reason = transition(self._mode, requested,  # type: ignore[arg-type]
+                                 estimator_ready=ready)
+        record = ModeTransition(
+            k=self._k, from_mode=self._mode, to_mode=new,
+            requested=requested if isinstance(requested, Mode) else self._mode,
+            accepted=new is not self._mode, reason=reason,
+        )
+        if new is not self._mode:
+            if new is Mode.OFF:
+                self._warm = 0
+            elif self._mode is Mode.OFF:
+                self._restart_estimator(self._w_prev)
+            if new is Mode.ON:
+                self._qp.request_cold_start()
+                self._plan = None
+            self._mode = new
+        self._transitions.append(record)
+        self._pending = record
+        return record
+
+    def drain_transitions(self) -> tuple[ModeTransition, ...]:
+        """Mode requests logged since the last call (oldest first; the log is bounded)."""
+        out = tuple(self._transitions)
+        self._transitions.clear()
+        return out
+
+    def set_triac_limits(self, triac_min_pct: float, triac_max_pct: float) -> None:
+        """Change the TRIAC limits at run time [%].
+
+        The limits are intersected with `allowed_triac_range_pct` (the settings' limits
+        and the model's validity range). A tightened limit moves in at
+        ``limit_ramp_pct_per_s`` starting from the current input (so it bites at once
+        but never makes the input jump); a widened limit applies at once.
+
+        Raises
+        ------
+        SettingsError
+            Non-finite or inverted limits, or limits that leave nothing of the allowed
+            range.
+        """
+        lo_pct, hi_pct = float(triac_min_pct), float(triac_max_pct)
+        if not (math.isfinite(lo_pct) and math.isfinite(hi_pct) and lo_pct < hi_pct):
+            raise SettingsError(
+                f"OffsetFreeMPC.set_triac_limits: expected finite min < max [%]; got "
+                f"({triac_min_pct!r}, {triac_max_pct!r})"
+            )
+        im = self._input_map
+        lo = max(im.ds_min_pct, lo_pct - self._s_nom)
+        hi = min(im.ds_max_pct, hi_pct - self._s_nom)
+        if not lo < hi:
+            a_lo, a_hi = self.allowed_triac_range_pct
+            raise SettingsError(
+                f"OffsetFreeMPC.set_triac_limits: expected limits overlapping the allowed "
+                f"range [{a_lo:g}, {a_hi:g}] %; got ({lo_pct:g}, {hi_pct:g})"
+            )
+        cur = self._ds_prev
+        self._lo_goal, self._hi_goal = lo, hi
+        self._lo = lo if lo <= self._lo else min(lo, max(self._lo, cur))
+        self._hi = hi if hi >= self._hi else max(hi, min(self._hi, cur))
+        self._update_eff_map()
+
+    def _update_eff_map(self) -> None:
+        im = self._input_map
+        if self._lo == im.ds_min_pct and self._hi == im.ds_max_pct:
+            self._eff_map = im
+        else:
+            self._eff_map = replace(im, ds_min_pct=self._lo, ds_max_pct=self._hi,
+                                    w_min=im.f(self._lo), w_max=im.f(self._hi))
+
+    def _ramp_limits(self) -> None:
+        step = self._limit_step_pct
+        lo = min(self._lo_goal, self._lo + step) if self._lo < self._lo_goal else self._lo_goal
+        hi = max(self._hi_goal, self._hi - step) if self._hi > self._hi_goal else self._hi_goal
+        if lo != self._lo or hi != self._hi:
+            self._lo, self._hi = lo, hi
+            self._update_eff_map()
+
+    def _shape_setpoint(self, setpoint: float) -> float:
+        ramped = setpoint
+        if self._sp_max_step is not None:
+            delta = setpoint - self._sp_ramped
+            ramped = self._sp_ramped + min(self._sp_max_step, max(-self._sp_max_step, delta))
+        self._sp_ramped = ramped
+        filtered = self._sp_filtered + self._sp_alpha * (ramped - self._sp_filtered)
+        self._sp_filtered = filtered
+        return filtered
+
     # --- the step -------------------------------------------------------------------
-    def step(self, power_kw: float, setpoint_kw: float) -> float:
+    def step(self, power_kw: float, setpoint_kw: float, *,
+             applied_triac_pct: float | None = None) -> float:
         """Return the TRIAC input [%] to apply now.
 
         Parameters
         ----------
         power_kw :
             Measured heater power [kW] at this sample. NaN (or inf) marks a missing
-            sample; the measurement update is then skipped (also for an absurd value,
-            see `MAX_INNOVATION_KW`).
+            sample; it and any sample failing a validity check (`czmpc.validation`) is
+            not fed to the estimator (also an absurd value, see `MAX_INNOVATION_KW`).
         setpoint_kw :
             Power setpoint [kW]. A non-finite value holds the previous setpoint
             (recorded in `last_step`).
+        applied_triac_pct :
+            The TRIAC input actually applied over the previous sample [%], when the
+            caller knows it differs from what was returned (saturation downstream,
+            manual override, stuck TRIAC); None (or non-finite): as returned. In
+            ``OFF``/``PREDICT`` it is the caller's own input.
 
         Returns
         -------
         float
-            TRIAC input [%]: finite, inside the allowed range (so inside the TRIAC
-            limits), and within ``max_move_pct_per_step`` of the previous input.
+            TRIAC input [%]. In ``ON``: finite, inside the effective limits and within
+            ``max_move_pct_per_step`` of the previous input (module notes). In
+            ``OFF``/``PREDICT``: the caller's input (the last one known).
         """
         power = float(power_kw)
         setpoint_in = float(setpoint_kw)
+        im = self._input_map
+        rel = self._rel
+        mode = self._mode
+        transition_record = self._pending
+        self._pending = None
+
+        # 0. the input actually applied over the last sample
+        applied_differs = False
+        if applied_triac_pct is not None:
+            applied = float(applied_triac_pct)
+            if math.isfinite(applied):
+                ds_a = min(100.0, max(0.0, applied)) - self._s_nom
+                if abs(ds_a - self._ds_prev) > APPLIED_TOL_PCT:
+                    applied_differs = True
+                    w_a = im.f(ds_a)
+                    if mode is not Mode.OFF:
+                        z_corr = self._z + self._Baug * (w_a - self._w_prev)
+                        if np.isfinite(z_corr).all():
+                            z_corr.flags.writeable = False
+                            self._z = z_corr
+                    self._ds_prev = ds_a
+                    self._w_prev = w_a
+        self._ramp_limits()
+
         if math.isfinite(setpoint_in):
             setpoint = setpoint_in
             held = False
@@ -320,38 +655,51 @@ class OffsetFreeMPC:
             setpoint = self._setpoint_kw
             held = True
         self._setpoint_kw = setpoint
-        im = self._input_map
+        setpoint_used = self._shape_setpoint(setpoint)
 
-        # 1. measurement update
+        if mode is Mode.OFF:
+            return self._record_off(power, setpoint_in, setpoint_used, held, transition_record)
+
+        # 1. validity checks and measurement update
         z_pred = self._z
+        predicted_kw = self._p_nom + float(self._Caug @ z_pred)
+        gap = self._gap
+        std_kw = self._innovation_std_kw[min(gap, len(self._innovation_std_kw) - 1)]
+        check = self._checker.check(power, predicted_kw=predicted_kw, innovation_std_kw=std_kw,
+                                    gate=self._warm >= rel.warmup_samples)
         used = False
         eps = 0.0
         z = z_pred
-        if math.isfinite(power):
-            innovation = (power - self._p_nom) - float(self._Caug @ z_pred)
-            if abs(innovation) <= MAX_INNOVATION_KW:  # also False for NaN
+        if check.is_valid:
+            innovation = power - predicted_kw
+            if abs(innovation) <= MAX_INNOVATION_KW:
                 z = z_pred + self._M * innovation
                 eps = innovation
                 used = True
-        if z is not z_pred:
+        if used:
             z.flags.writeable = False  # handed out in the diagnostics
+            self._gap = 0
+            self._warm += 1
+        else:
+            self._gap += 1
+            self._n_rejected += 1
         n = self._n_x
         x = z[:n]
         d = float(z[n])
 
-        # 2. target
-        tgt = compute_target(self._ssm, setpoint=setpoint - self._p_nom, disturbance=d,
-                             w_min=im.w_min, w_max=im.w_max)
+        # 2. target inside the effective limits
+        em = self._eff_map
+        tgt = compute_target(self._ssm, setpoint=setpoint_used - self._p_nom, disturbance=d,
+                             w_min=em.w_min, w_max=em.w_max)
 
-        # 3. QP
+        # 3. QP, checked; fallbacks
+        ds_prev = self._ds_prev
+        ds_base = min(em.ds_max_pct, max(em.ds_min_pct, ds_prev))
+        w_base = self._w_prev if ds_base == ds_prev else em.f(ds_base)
         h = self._A @ (x - tgt.x_s) + self._Gx * eps
-        if self._fixed_w_lo is not None and self._fixed_w_hi is not None:
-            w_lo, w_hi, rate = self._fixed_w_lo, self._fixed_w_hi, None
-        else:
-            w_lo, w_hi, rate = move_bounds(im, self._ds_prev, self._max_move,
-                                           self.settings.horizon_steps)
+        w_lo, w_hi, rate = move_bounds(em, ds_base, self._max_move, self.settings.horizon_steps)
         sol: QPSolution = self._qp.solve(
-            h=h, w_prev=self._w_prev, w_target=tgt.w_s, y_target=tgt.y_s, w_lo=w_lo,
+            h=h, w_prev=w_base, w_target=tgt.w_s, y_target=tgt.y_s, w_lo=w_lo,
             w_hi=w_hi, rate=rate, soft_min_rel_kw=self._soft_min_rel,
             soft_max_rel_kw=self._soft_max_rel,
         )
@@ -361,54 +709,120 @@ class OffsetFreeMPC:
             fallback = "none"
             self._plan = sol.w
             self._plan_k = self._k
+            self._bad_in_row = 0
             if not sol.is_accurate:
                 self._n_inaccurate += 1
         else:
             self._n_fallbacks += 1
+            self._bad_in_row += 1
             age = self._k - self._plan_k
-            if self._plan is not None and age < self._plan.size:
+            if (self._bad_in_row < rel.max_bad_solves and self._plan is not None
+                    and age < self._plan.size):
                 w0 = float(self._plan[age])
                 fallback = "shifted_plan"
             else:
                 w0 = tgt.w_s
                 fallback = "target"
                 self._plan = None
+        solver_shed = self._bad_in_row >= rel.max_bad_solves
+        measurement_shed = self._gap > rel.max_predicted_samples
 
-        # 4. apply: invert and clip to the allowed range and the rate limit
-        ds_prev = self._ds_prev
-        lo, hi = im.ds_min_pct, im.ds_max_pct
+        # 4. the input: plan (or fallback), or the safe input when shed
+        lo, hi = em.ds_min_pct, em.ds_max_pct
         if self._max_move is not None:
-            lo = max(lo, ds_prev - self._max_move)
-            hi = min(hi, ds_prev + self._max_move)
-        ds = im.inverse(w0)
-        if not math.isfinite(ds):
-            ds = ds_prev
-        ds = min(hi, max(lo, ds))
-        w_applied = im.f(ds)
+            r_lo, r_hi = ds_prev - self._max_move, ds_prev + self._max_move
+        else:
+            r_lo, r_hi = -math.inf, math.inf
+        if measurement_shed:
+            ds_raw = ds_prev if self._shed_ds is None else self._shed_ds
+        else:
+            ds_raw = em.inverse(w0)
+            if not math.isfinite(ds_raw):
+                ds_raw = ds_prev
+        ds_rate = min(r_hi, max(r_lo, ds_raw))
+        ds = min(hi, max(lo, ds_rate))
+        advised = self._s_nom + ds
 
-        # 5. time update with the w actually applied
+        # 5. status, time update with the applied w
+        if mode is Mode.ON:
+            shed = measurement_shed or solver_shed
+            if shed:
+                status = Status.SHED
+                self._n_shed += 1
+            elif fallback != "none":
+                status = Status.HELD
+            elif not used:
+                status = Status.PREDICTED
+            elif (applied_differs or not tgt.is_reachable or abs(ds - ds_raw) > CLAMP_TOL
+                  or abs(w0 - float(w_lo[0])) <= CLAMP_TOL
+                  or abs(w0 - float(w_hi[0])) <= CLAMP_TOL):
+                status = Status.CLAMPED
+            else:
+                status = Status.GOOD
+            w_applied = im.f(ds)
+            self._ds_prev = ds
+            self._w_prev = w_applied
+        else:  # PREDICT: the caller keeps its input
+            status = Status.HELD
+            w_applied = self._w_prev
         z_next = self._Aaug @ z + self._Baug * w_applied + self._G * eps
         if not np.isfinite(z_next).all():
             z_next = z.copy()
         z_next.flags.writeable = False
         self._z = z_next
-        self._ds_prev = ds
-        self._w_prev = w_applied
-        triac = self._s_nom + ds
+        triac = self._s_nom + self._ds_prev
+        d_power = d * self._d_power_gain
+        stats = self._monitor.update(eps if used else None, disturbance_kw=d_power)
 
         self._last = StepDiagnostics(
-            k=self._k, power_kw=power, setpoint_kw=setpoint_in, setpoint_used_kw=setpoint,
+            k=self._k, power_kw=power, setpoint_kw=setpoint_in, setpoint_used_kw=setpoint_used,
             setpoint_held=held, triac_pct=triac, measurement_used=used, innovation_kw=eps,
-            state_estimate=z, disturbance_estimate=d,
-            disturbance_power_kw=d * self._d_power_gain, target_w=tgt.w_s,
-            target_triac_pct=self._s_nom + im.inverse(tgt.w_s),
+            state_estimate=z, disturbance_estimate=d, disturbance_power_kw=d_power,
+            target_w=tgt.w_s, target_triac_pct=self._s_nom + em.inverse(tgt.w_s),
             target_power_kw=self._p_nom + tgt.y_s, setpoint_reachable=tgt.is_reachable,
             planned_w=sol.w, solver_status=sol.status, solve_time_s=sol.solve_time_s,
             n_iterations=sol.n_iterations, fallback=fallback,
-            soft_limit_slack_kw=sol.slack_kw,
+            soft_limit_slack_kw=sol.slack_kw, mode=mode, status=status,
+            verdict=check.verdict, level_change_accepted=check.reopened,
+            innovation_std_kw=std_kw, samples_without_measurement=self._gap,
+            bad_solves_in_row=self._bad_in_row, advised_triac_pct=advised,
+            applied_triac_pct=self._s_nom + ds_prev,
+            triac_limits_pct=(self._lo + self._s_nom, self._hi + self._s_nom),
+            mismatch=stats, transition=transition_record,
+        )
+        self._k += 1
+        return triac
+
+    def _record_off(self, power: float, setpoint_in: float, setpoint_used: float, held: bool,
+                    transition_record: ModeTransition | None) -> float:
+        """``OFF``: nothing runs; record the held input and return it."""
+        triac = self._s_nom + self._ds_prev
+        z = self._z
+        d = float(z[self._n_x])
+        nan_plan = np.full(self.settings.horizon_steps, math.nan)
+        nan_plan.flags.writeable = False
+        self._last = StepDiagnostics(
+            k=self._k, power_kw=power, setpoint_kw=setpoint_in, setpoint_used_kw=setpoint_used,
+            setpoint_held=held, triac_pct=triac, measurement_used=False, innovation_kw=0.0,
+            state_estimate=z, disturbance_estimate=d,
+            disturbance_power_kw=d * self._d_power_gain, target_w=math.nan,
+            target_triac_pct=math.nan, target_power_kw=math.nan, setpoint_reachable=True,
+            planned_w=nan_plan, solver_status="skipped (mode off)", solve_time_s=0.0,
+            n_iterations=0, fallback="none", soft_limit_slack_kw=0.0, mode=Mode.OFF,
+            status=Status.HELD, verdict=check_verdict_off(power), innovation_std_kw=math.nan,
+            samples_without_measurement=self._gap, bad_solves_in_row=self._bad_in_row,
+            advised_triac_pct=triac, applied_triac_pct=triac,
+            triac_limits_pct=(self._lo + self._s_nom, self._hi + self._s_nom),
+            mismatch=None, transition=transition_record,
         )
         self._k += 1
         return triac
 
 
-__all__ = ["MAX_INNOVATION_KW", "Fallback", "OffsetFreeMPC", "StepDiagnostics"]
+def check_verdict_off(power_kw: float) -> Verdict:
+    """Verdict recorded in ``OFF`` (no checks run): missing or not."""
+    return Verdict.VALID if math.isfinite(power_kw) else Verdict.MISSING
+
+
+__all__ = ["APPLIED_TOL_PCT", "CLAMP_TOL", "MAX_INNOVATION_KW", "Fallback", "OffsetFreeMPC",
+           "StepDiagnostics"]

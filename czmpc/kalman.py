@@ -189,9 +189,47 @@ def time_update(
     return A @ z_filt + B * w + G * eps
 
 
+def innovation_variance_after_gap(
+    model: AugmentedModel, kf: SteadyStateKalman, disturbance_noise: float, max_gap: int
+) -> FloatArray:
+    """Predicted innovation variance after ``m = 0..max_gap`` skipped measurement updates.
+
+    Without an update the one-step prediction error grows as
+    ``P_{m+1} = A P_m A^T + Q`` from the stationary ``P_0 = P``, so the next innovation
+    has variance ``C P_m C^T + R`` (units of ``s2``, see the module notes; multiply by
+    ``sigma_e^2``). The spike gate (`czmpc.validation`) widens with it after an outage.
+
+    Parameters
+    ----------
+    model :
+        The augmented model.
+    kf :
+        Its steady-state gains (``kf.P`` is ``P_0``).
+    disturbance_noise :
+        ``rho``, as given to `design_estimator`.
+    max_gap :
+        Largest gap [samples] to tabulate, >= 0.
+
+    Returns
+    -------
+    FloatArray
+        (max_gap + 1,) variances, read-only; element 0 is ``kf.innovation_variance``.
+    """
+    Q, R, _ = noise_covariances(model, disturbance_noise)
+    A = model.A
+    C = model.C
+    P = np.array(kf.P, dtype=float)
+    out = np.empty(max_gap + 1)
+    for m in range(max_gap + 1):
+        out[m] = float(C @ P @ C) + R
+        P = A @ P @ A.T + Q
+    return _readonly(out)
+
+
 __all__ = [
     "SteadyStateKalman",
     "design_estimator",
+    "innovation_variance_after_gap",
     "measurement_update",
     "noise_covariances",
     "steady_state_kalman",

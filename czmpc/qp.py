@@ -224,6 +224,10 @@ class MPCQP:
         ``rho_2`` [1/kW^2] and ``rho_1`` [1/kW].
     options :
         OSQP options.
+    bound_tol_kw :
+        How far [kW-equivalent] a returned plan may violate its box and rate bounds and
+        still count as usable; OSQP can stop at its iteration or time limit (or report
+        "solved inaccurate") with a point outside them.
 
     Raises
     ------
@@ -236,9 +240,10 @@ class MPCQP:
         output_weight: float, input_target_weight: float, move_weight: float,
         has_rate_limit: bool = False, has_soft_min: bool = False, has_soft_max: bool = False,
         soft_limit_weight: float = 1e3, soft_limit_linear_weight: float = 1e2,
-        options: OSQPOptions | None = None,
+        options: OSQPOptions | None = None, bound_tol_kw: float = 1e-2,
     ) -> None:
         options = OSQPOptions() if options is None else options
+        self.bound_tol_kw = float(bound_tol_kw)
         n_x = B.size
         N = horizon_steps
         self.horizon_steps = N
@@ -364,6 +369,14 @@ class MPCQP:
             solve_time_s=0.0,
         )
 
+    def _bound_violation(self, w: FloatArray, w_lo: FloatArray, w_hi: FloatArray,
+                         rate: FloatArray | None) -> float:
+        """Largest violation [kW-equivalent] of the box and rate bounds by plan ``w``."""
+        worst = float(max(np.max(w_lo - w), np.max(w - w_hi), 0.0))
+        if self.has_rate_limit and rate is not None and w.size > 1:
+            worst = max(worst, float(np.max(np.abs(np.diff(w)) - rate)))
+        return worst
+
     @property
     def cost_hessian(self) -> FloatArray:
         """(N, N) ``H`` of ``J = dW^T H dW + 2 f^T dW`` (for tests and experts)."""
@@ -405,8 +418,9 @@ class MPCQP:
 
         Notes
         -----
-        A solve that does not end solved (or solved-inaccurate) with a finite plan makes
-        the next solve cold-start.
+        A solve that does not end solved (or solved-inaccurate) with a finite plan
+        inside its bounds (to ``bound_tol_kw``) is not usable and makes the next solve
+        cold-start.
         """
         N = self.horizon_steps
         q = self._q
@@ -442,7 +456,13 @@ class MPCQP:
         info = result.info
         status_val = int(info.status_val)
         x = result.x
+        status = str(info.status)
         usable = status_val in (_SOLVED, _SOLVED_INACCURATE) and bool(np.all(np.isfinite(x)))
+        if usable:
+            violation = self._bound_violation(np.asarray(x[:N], dtype=float), w_lo, w_hi, rate)
+            if violation > self.bound_tol_kw:
+                usable = False
+                status = f"{status}; outside bounds by {violation:.3g} kW"
         if usable:
             plan = np.array(x[:N], dtype=float)
             plan.setflags(write=False)
@@ -452,7 +472,7 @@ class MPCQP:
             slack = math.nan if self.has_soft else 0.0
             self._needs_cold_start = True
         return QPSolution(
-            status=str(info.status),
+            status=status,
             is_usable=usable,
             is_accurate=usable and status_val == _SOLVED,
             w=plan,

@@ -98,6 +98,147 @@ class OSQPOptions:
         _check_int(owner, "adaptive_rho_interval", self.adaptive_rho_interval, minimum=1)
 
 
+ModeName = Literal["off", "predict", "on"]
+
+
+def _check_optional(owner: str, name: str, value: object, *, minimum: float | None = None,
+                    strict: bool = False) -> None:
+    if value is not None:
+        _check_finite(owner, name, value, minimum=minimum, strict=strict)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ReliabilitySettings:
+    """How the controller behaves under faults, bad data and solver trouble.
+
+    The defaults leave clean-data behaviour unchanged: no check trips on a healthy
+    signal, no setpoint shaping, and limits change only when asked.
+
+    Parameters
+    ----------
+    initial_mode :
+        Mode after construction and `reset` (``"off"``, ``"predict"`` or ``"on"``).
+    warmup_samples :
+        Valid measurements the estimator needs after a (re)start before ``ON`` may be
+        entered; the spike gate is skipped while warming up.
+    power_min_kw, power_max_kw :
+        Plausible measured power [kW] (negative power, beyond the heater's rating);
+        None for no bound.
+    max_change_kw_per_sample :
+        Largest plausible change of the measurement per sample [kW]; None for none.
+    stuck_samples :
+        Identical readings in a row that count as a stuck sensor while the model's
+        prediction moved by ``stuck_min_predicted_change_kw`` [kW]; 0 disables.
+    spike_gate_k_sigma :
+        Spike gate width in predicted innovation standard deviations; None (the
+        default) disables it: a genuine step disturbance (a grid voltage sag) looks like
+        a level change for ``reopen_after_samples`` samples and would be answered that
+        much later. About 8 with a floor of 0.5 kW rejects the paper's 1-3 kW spikes.
+    spike_gate_floor_kw :
+        Smallest spike gate half-width [kW]; covers the model mismatch the noise model
+        does not describe (setpoint steps on the real heater).
+    reopen_after_samples :
+        Consecutive rate/spike rejections after which the next value is accepted as a
+        genuine level change.
+    max_predicted_samples :
+        Samples the controller runs on the model alone (soft sensor) without a valid
+        measurement before it sheds.
+    shed_triac_pct :
+        Safe input held while shed [%] (approached at the rate limit); None holds the
+        last input.
+    max_bad_solves :
+        Failed QP solves in a row after which the controller sheds (it then applies the
+        steady-state target and keeps trying); >= 1.
+    solver_bound_tol_kw :
+        How far [kW-equivalent] a QP solution may lie outside its bounds and still be used.
+    setpoint_ramp_kw_per_s :
+        Largest setpoint change rate [kW/s] the controller follows; None for none.
+    setpoint_filter_time_s :
+        Time constant of a first-order setpoint filter [s]; None for none.
+    limit_ramp_pct_per_s :
+        Rate [%/s] at which a tightened TRIAC limit (`OffsetFreeMPC.set_triac_limits`)
+        moves in; widened limits apply at once.
+    mismatch_window_samples :
+        Window of the model-mismatch statistics [samples] (`czmpc.mismatch`).
+    mismatch_disturbance_limit_kw :
+        ``|d|`` power effect [kW] above which the mismatch diagnostic flags a bias;
+        None disables that flag.
+    transition_log_size :
+        Mode transitions kept until drained (`OffsetFreeMPC.drain_transitions`).
+    """
+
+    initial_mode: ModeName = "on"
+    warmup_samples: int = 5
+    power_min_kw: float | None = 0.0
+    power_max_kw: float | None = None
+    max_change_kw_per_sample: float | None = None
+    stuck_samples: int = 10
+    stuck_min_predicted_change_kw: float = 0.1
+    spike_gate_k_sigma: float | None = None
+    spike_gate_floor_kw: float = 0.5
+    reopen_after_samples: int = 3
+    max_predicted_samples: int = 60
+    shed_triac_pct: float | None = None
+    max_bad_solves: int = 5
+    solver_bound_tol_kw: float = 1e-2
+    setpoint_ramp_kw_per_s: float | None = None
+    setpoint_filter_time_s: float | None = None
+    limit_ramp_pct_per_s: float = 0.5
+    mismatch_window_samples: int = 150
+    mismatch_disturbance_limit_kw: float | None = 2.0
+    transition_log_size: int = 32
+
+    def __post_init__(self) -> None:
+        owner = "ReliabilitySettings"
+        if self.initial_mode not in get_args(ModeName):
+            raise SettingsError(
+                f"{owner}.initial_mode must be 'off', 'predict' or 'on'; got {self.initial_mode!r}"
+            )
+        _check_int(owner, "warmup_samples", self.warmup_samples, minimum=0)
+        _check_optional(owner, "power_min_kw", self.power_min_kw)
+        _check_optional(owner, "power_max_kw", self.power_max_kw)
+        if (self.power_min_kw is not None and self.power_max_kw is not None
+                and not self.power_min_kw < self.power_max_kw):
+            raise SettingsError(
+                f"{owner}: expected power_min_kw < power_max_kw [kW]; got "
+                f"{self.power_min_kw!r} and {self.power_max_kw!r}"
+            )
+        _check_optional(owner, "max_change_kw_per_sample", self.max_change_kw_per_sample,
+                        minimum=0.0, strict=True)
+        _check_int(owner, "stuck_samples", self.stuck_samples, minimum=0)
+        if self.stuck_samples == 1:
+            raise SettingsError(
+                f"{owner}.stuck_samples must be 0 (off) or >= 2 (one reading is never "
+                f"stuck); got 1"
+            )
+        _check_finite(owner, "stuck_min_predicted_change_kw",
+                      self.stuck_min_predicted_change_kw, minimum=0.0, strict=True)
+        _check_optional(owner, "spike_gate_k_sigma", self.spike_gate_k_sigma, minimum=0.0,
+                        strict=True)
+        _check_finite(owner, "spike_gate_floor_kw", self.spike_gate_floor_kw, minimum=0.0)
+        _check_int(owner, "reopen_after_samples", self.reopen_after_samples, minimum=0)
+        _check_int(owner, "max_predicted_samples", self.max_predicted_samples, minimum=0)
+        if self.shed_triac_pct is not None:
+            _check_finite(owner, "shed_triac_pct", self.shed_triac_pct, minimum=0.0)
+            if self.shed_triac_pct > 100.0:
+                raise SettingsError(
+                    f"{owner}.shed_triac_pct must lie in 0..100 [%]; got {self.shed_triac_pct!r}"
+                )
+        _check_int(owner, "max_bad_solves", self.max_bad_solves, minimum=1)
+        _check_finite(owner, "solver_bound_tol_kw", self.solver_bound_tol_kw, minimum=0.0,
+                      strict=True)
+        _check_optional(owner, "setpoint_ramp_kw_per_s", self.setpoint_ramp_kw_per_s,
+                        minimum=0.0, strict=True)
+        _check_optional(owner, "setpoint_filter_time_s", self.setpoint_filter_time_s,
+                        minimum=0.0, strict=True)
+        _check_finite(owner, "limit_ramp_pct_per_s", self.limit_ramp_pct_per_s, minimum=0.0,
+                      strict=True)
+        _check_int(owner, "mismatch_window_samples", self.mismatch_window_samples, minimum=2)
+        _check_optional(owner, "mismatch_disturbance_limit_kw",
+                        self.mismatch_disturbance_limit_kw, minimum=0.0, strict=True)
+        _check_int(owner, "transition_log_size", self.transition_log_size, minimum=1)
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class MPCSettings:
     """Tuning of the offset-free MPC (DESIGN.md, "The controller, precisely").
@@ -143,8 +284,13 @@ class MPCSettings:
         The TRIAC input the plant holds when the controller starts [%], or None for the
         model's operating point. The estimator starts at that input's steady state and
         the first rate limit is taken from it.
+    ts_s :
+        The sampling time [s] these settings were tuned for, or None; if given it must
+        equal the model's (checked when the controller is built).
     osqp :
         Solver options.
+    reliability :
+        Fault, bad-data and solver-trouble behaviour (`ReliabilitySettings`).
 
     Raises
     ------
@@ -167,7 +313,9 @@ class MPCSettings:
     soft_limit_weight: float = 1e3
     soft_limit_linear_weight: float = 1e2
     initial_triac_pct: float | None = None
+    ts_s: float | None = None
     osqp: OSQPOptions = OSQPOptions()
+    reliability: ReliabilitySettings = ReliabilitySettings()
 
     def __post_init__(self) -> None:
         owner = "MPCSettings"
@@ -225,6 +373,19 @@ class MPCSettings:
                 )
         if not isinstance(self.osqp, OSQPOptions):
             raise SettingsError(f"{owner}.osqp must be an OSQPOptions; got {self.osqp!r}")
+        if self.ts_s is not None:
+            _check_finite(owner, "ts_s", self.ts_s, minimum=0.0, strict=True)
+        if not isinstance(self.reliability, ReliabilitySettings):
+            raise SettingsError(
+                f"{owner}.reliability must be a ReliabilitySettings; got {self.reliability!r}"
+            )
+        shed = self.reliability.shed_triac_pct
+        if shed is not None and not self.triac_min_pct <= shed <= self.triac_max_pct:
+            raise SettingsError(
+                f"{owner}.reliability.shed_triac_pct must lie within [triac_min_pct, "
+                f"triac_max_pct] = [{self.triac_min_pct:g}, {self.triac_max_pct:g}] [%]; "
+                f"got {shed!r}"
+            )
 
     @property
     def has_rate_limit(self) -> bool:
@@ -322,6 +483,8 @@ class MPCSettings:
 __all__ = [
     "DisturbanceModel",
     "MPCSettings",
+    "ModeName",
     "OSQPOptions",
     "PresetName",
+    "ReliabilitySettings",
 ]
