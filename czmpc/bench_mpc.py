@@ -387,6 +387,7 @@ __all__ = [
     "DayRun",
     "MPCBenchmark",
     "StepTimeRun",
+    "bench_machine_info",
     "day_scenario",
     "format_report",
     "measure_day_simulation",
