@@ -293,7 +293,7 @@ def _build_plant(
     """The plant, its initial input [%], and its steady-state power [kW] at an input [%]."""
     if variant.kind == "heater":
         quiet = {} if noise else {"sensor_noise_std_kw": 0.0, "grid_wander_std": 0.0}
-        base = HeaterParams(ts_s=scenario.ts_s, **quiet)  # type: ignore[arg-type]
+        base = HeaterParams(ts_s=scenario.ts_s, **quiet)
         s0 = _heater_triac_for_power_pct(scenario.initial_setpoint_kw, base)
         params = replace(base, initial_triac_pct=s0)
         return VirtualHeater(params), s0, lambda s: heater_steady_state(s, params)[0]
@@ -433,6 +433,7 @@ def run_robustness(
     SamplingTimeError
         The scenario's sampling time differs from the model's.
     """
+    grid_name: str
     if isinstance(grid, str):
         if grid not in GRIDS:
             raise RobustnessError(
