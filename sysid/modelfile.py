@@ -13,6 +13,9 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from sysid._typing import FloatArray
 from sysid.atomic import atomic_write_text
 from sysid.errors import ModelFileError, UnstableModelError
 from sysid.model import Criteria, HammersteinModel, OperatingPoint, Provenance
@@ -66,12 +69,12 @@ def _number(obj: Any, where: str) -> float:
     return float(obj)
 
 
-def _numbers(obj: Any, where: str, *, length: int | None = None) -> list[float]:
+def _numbers(obj: Any, where: str, *, length: int | None = None) -> FloatArray:
     if not isinstance(obj, list) or not obj:
         raise ModelFileError(f"{where} must be a non-empty list of numbers; got {obj!r}")
     if length is not None and len(obj) != length:
         raise ModelFileError(f"{where} must have {length} entries; got {len(obj)}")
-    return [_number(v, f"{where}[{i}]") for i, v in enumerate(obj)]
+    return np.array([_number(v, f"{where}[{i}]") for i, v in enumerate(obj)], dtype=float)
 
 
 def model_from_dict(obj: Any) -> HammersteinModel:
@@ -111,6 +114,7 @@ def model_from_dict(obj: Any) -> HammersteinModel:
     if not isinstance(steps, list) or not all(isinstance(s, dict) for s in steps):
         raise ModelFileError(f"provenance.preprocessing must be a list of objects; got {steps!r}")
     kind = obj["kind"]
+    lo_pct, hi_pct = _numbers(obj["input_range_pct"], "input_range_pct", length=2)
     poly = _numbers(obj["input_poly"], "input_poly", length=1 if kind == "linear" else None)
     return HammersteinModel(
         kind=kind,
@@ -125,7 +129,7 @@ def model_from_dict(obj: Any) -> HammersteinModel:
         c=_numbers(obj["C"], "C"),
         input_poly=poly,
         noise_std_kw=_number(obj["noise_std_kw"], "noise_std_kw"),
-        input_range_pct=tuple(_numbers(obj["input_range_pct"], "input_range_pct", length=2)),  # type: ignore[arg-type]
+        input_range_pct=(float(lo_pct), float(hi_pct)),
         criteria=Criteria(
             ballistic_mse_kw2=None if crit.get("V") is None else _number(crit["V"], "criteria.V"),
             one_step_mse_kw2=None if crit.get("W") is None else _number(crit["W"], "criteria.W"),

@@ -11,16 +11,17 @@ from the same coefficient list.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from sysid._typing import FloatArray
 
 
-def roots_z(poly: FloatArray) -> FloatArray:
+def roots_z(poly: FloatArray) -> npt.NDArray[np.complex128]:
     """Return the z-plane roots of a q^-1 polynomial (complex array, possibly empty)."""
     p = np.trim_zeros(np.asarray(poly, dtype=float), trim="b")
     if p.size <= 1:
         return np.zeros(0, dtype=complex)
-    return np.roots(p)
+    return np.asarray(np.roots(p), dtype=complex)
 
 
 def max_root_modulus(poly: FloatArray) -> float:
