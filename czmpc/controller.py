@@ -662,7 +662,8 @@ class OffsetFreeMPC:
 
         # 1. validity checks and measurement update
         z_pred = self._z
-        predicted_kw = self._p_nom + float(self._Caug @ z_pred)
+        y_pred = float(self._Caug @ z_pred)
+        predicted_kw = self._p_nom + y_pred
         gap = self._gap
         std_kw = self._innovation_std_kw[min(gap, len(self._innovation_std_kw) - 1)]
         check = self._checker.check(power, predicted_kw=predicted_kw, innovation_std_kw=std_kw,
@@ -671,7 +672,7 @@ class OffsetFreeMPC:
         eps = 0.0
         z = z_pred
         if check.is_valid:
-            innovation = power - predicted_kw
+            innovation = (power - self._p_nom) - y_pred
             if abs(innovation) <= MAX_INNOVATION_KW:
                 z = z_pred + self._M * innovation
                 eps = innovation
