@@ -236,7 +236,7 @@ class NonlinearMPC:
                 if j + 1 < N:
                     dxj = Am @ dxj + Bm * (w[j + 1] - w_s)
         nlp = {"x": ca.vertcat(ds, v), "p": p, "f": cost, "g": ca.vertcat(*constraints)}
-        opts = {
+        opts: dict[str, Any] = {
             "print_time": False,
             "ipopt": {"print_level": 0, "sb": "yes", "tol": self.ipopt_tol,
                       "max_iter": IPOPT_MAX_ITER},
