@@ -636,8 +636,8 @@ class OffsetFreeMPC:
             applied = float(applied_triac_pct)
             if math.isfinite(applied):
                 ds_a = min(100.0, max(0.0, applied)) - self._s_nom
-                if abs(ds_a - self._ds_prev) > APPLIED_TOL_PCT:
-                    applied_differs = True
+                applied_differs = abs(ds_a - self._ds_prev) > APPLIED_TOL_PCT
+                if ds_a != self._ds_prev:
                     w_a = im.f(ds_a)
                     if mode is not Mode.OFF:
                         z_corr = self._z + self._Baug * (w_a - self._w_prev)
