@@ -66,7 +66,7 @@ class Rig:
         self.frozen = math.nan
         self.applied_log: list[float] = []
 
-    def reset(self, rng: np.random.Generator) -> float:
+    def reset(self, rng: np.random.Generator | int | None = None) -> float:
         self.k = 0
         self.applied = math.nan
         self.applied_log = []
@@ -79,13 +79,13 @@ class Rig:
 
     @property
     def true_power_kw(self) -> float:
-        return float(self.plant.true_power_kw)  # type: ignore[attr-defined]
+        return float(self.plant.true_power_kw)
 
     def step(self, triac_pct: float, exogenous: Exogenous = NOMINAL) -> float:
         applied = triac_pct if self.actuator is None else self.actuator(self.k, triac_pct)
         self.applied = applied
         self.applied_log.append(applied)
-        y = self._quantize(self.plant.step(applied, exogenous))  # type: ignore[call-arg]
+        y = self._quantize(self.plant.step(applied, exogenous))
         self.k += 1
         if self.stuck_sensor is not None:
             k0, k1 = self.stuck_sensor
@@ -156,7 +156,7 @@ def _run(kind: str, model: HammersteinModel, faults: tuple[Fault, ...] = (), *,
          ) -> tuple[ClosedLoopResult, OffsetFreeMPC, Rig]:
     plant = _plant(kind, model)
     plant.reset(np.random.default_rng(0))
-    p0 = round(float(plant.true_power_kw), 3)  # type: ignore[attr-defined]
+    p0 = round(float(plant.true_power_kw), 3)
     scenario = Scenario(
         name="fault", duration_s=duration_s, initial_setpoint_kw=p0, initial_triac_pct=S0_PCT,
         setpoints=(SetpointStep(at_s=step_at_s, power_kw=p0 + step_kw),), faults=faults,

@@ -94,11 +94,12 @@ class ControllerModeMachine(RuleBasedStateMachine):
     def request(self, requested: Mode) -> None:
         before = self.mpc.mode
         record = self.mpc.request_mode(requested)
-        assert record.from_mode is before and record.to_mode is self.mpc.mode
-        assert record.accepted == (before is not self.mpc.mode)
-        if self.mpc.mode is Mode.ON and before is not Mode.ON:
+        after: Mode = self.mpc.mode
+        assert record.from_mode is before and record.to_mode is after
+        assert record.accepted == (before is not after)
+        if after is Mode.ON and before is not Mode.ON:
             assert self.valid_since_restart >= 3
-        if self.mpc.mode is Mode.OFF or (before is Mode.OFF and self.mpc.mode is not Mode.OFF):
+        if Mode.OFF in (before, after):  # entering OFF, or leaving it: a restart
             self.valid_since_restart = 0
         self.logged.append(record)
 
@@ -155,7 +156,8 @@ def test_off_to_on_is_refused_until_predict_warmed_up(paper_armax_model: Hammers
     assert not mpc.request_mode(Mode.ON).accepted
     mpc.step(45.0, 47.0)
     record = mpc.request_mode(Mode.ON)
-    assert record.accepted and mpc.mode is Mode.ON
+    now: Mode = mpc.mode
+    assert record.accepted and now is Mode.ON
     s = mpc.step(45.0, 47.0)
     last = mpc.last_step
     assert last is not None and last.transition == record and last.mode is Mode.ON
