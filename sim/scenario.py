@@ -221,9 +221,9 @@ class Scenario:
         object.__setattr__(self, "ts_s", ts_s)
         object.__setattr__(self, "duration_s", duration_s)
         n = duration_s / ts_s
-        if abs(n - round(n)) > 1e-6 * max(1.0, n):
+        if not math.isfinite(n) or round(n) < 1 or abs(n - round(n)) > 1e-6 * max(1.0, n):
             raise ScenarioError(
-                f"Scenario.duration_s: expected a whole number of samples of {ts_s:g} s; "
+                f"Scenario.duration_s: expected a whole number (>= 1) of samples of {ts_s:g} s; "
                 f"got {duration_s:g} s"
             )
         object.__setattr__(
@@ -372,6 +372,9 @@ class Scenario:
 
 # --- TOML files ------------------------------------------------------------------------
 _NUM = "number"
+#: Largest integer a float can hold (TOML integers are unbounded in tomllib; beyond this
+#: ``float(value)`` overflows).
+_MAX_INT_FLOAT = int(np.finfo(float).max)
 _TOP_KEYS: dict[str, str] = {
     "name": "string", "description": "string", "duration_s": _NUM, "ts_s": _NUM,
     "plant_noise": "boolean", "initial_setpoint_kw": _NUM, "initial_triac_pct": _NUM,
@@ -426,6 +429,8 @@ def _typed(value: Any, kind: str, key: str, src: str) -> Any:
     if not ok:
         raise ScenarioError(f"{src}: key '{key}': expected a {kind}; got {value!r}")
     if kind == _NUM:
+        if isinstance(value, int) and not -_MAX_INT_FLOAT <= value <= _MAX_INT_FLOAT:
+            raise ScenarioError(f"{src}: key '{key}': expected a finite number; got {value!r}")
         if not math.isfinite(value):
             raise ScenarioError(f"{src}: key '{key}': expected a finite number; got {value!r}")
         return float(value)
@@ -442,7 +447,7 @@ def _events(doc: Mapping[str, Any], group: str, src: str) -> list[Any]:
             raise ScenarioError(
                 f"{src}: key '{where}.kind': missing; expected one of {', '.join(kinds)}"
             )
-        if kind not in kinds:
+        if not isinstance(kind, str) or kind not in kinds:
             raise ScenarioError(
                 f"{src}: key '{where}.kind': expected one of {', '.join(kinds)}"
                 f"{_hint(str(kind), list(kinds))}; got {kind!r}"

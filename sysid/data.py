@@ -249,7 +249,12 @@ def read_csv(
     if not text.strip():
         raise DataFileError("the file is empty; expected a header 'time_s,triac_pct,power_kw' "
                             "and at least one row", path=path)
-    rows = list(csv.reader(io.StringIO(text)))
+    reader = csv.reader(io.StringIO(text))
+    try:
+        rows = list(reader)
+    except csv.Error as exc:    # e.g. a bare carriage return inside a field
+        raise DataFileError(f"not readable as CSV: {exc}", path=path,
+                            line=reader.line_num) from None
     header = [h.strip() for h in rows[0]]
     wanted = dict(zip(CSV_COLUMNS, CSV_COLUMNS, strict=True)) if columns is None else dict(columns)
     unknown_keys = set(wanted) - set(CSV_COLUMNS)

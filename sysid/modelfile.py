@@ -168,11 +168,18 @@ def load_model(path: str | os.PathLike[str]) -> HammersteinModel:
         The file cannot be read.
     """
     path = Path(path)
-    text = path.read_text(encoding="utf-8")
+    raw = path.read_bytes()
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ModelFileError(
+            f"{path}: expected UTF-8 text; got undecodable byte at offset {exc.start}") from None
     try:
         obj = json.loads(text, parse_constant=lambda c: float(c))
     except json.JSONDecodeError as exc:
         raise ModelFileError(f"{path}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
+    except RecursionError:
+        raise ModelFileError(f"{path}: not a model file: JSON nested too deeply") from None
     try:
         return model_from_dict(obj)
     except UnstableModelError as exc:
