@@ -810,7 +810,7 @@ class OffsetFreeMPC:
             target_triac_pct=math.nan, target_power_kw=math.nan, setpoint_reachable=True,
             planned_w=nan_plan, solver_status="skipped (mode off)", solve_time_s=0.0,
             n_iterations=0, fallback="none", soft_limit_slack_kw=0.0, mode=Mode.OFF,
-            status=Status.HELD, verdict=check_verdict_off(power), innovation_std_kw=math.nan,
+            status=Status.HELD, verdict=_verdict_off(power), innovation_std_kw=math.nan,
             samples_without_measurement=self._gap, bad_solves_in_row=self._bad_in_row,
             advised_triac_pct=triac, applied_triac_pct=triac,
             triac_limits_pct=(self._lo + self._s_nom, self._hi + self._s_nom),
@@ -820,7 +820,7 @@ class OffsetFreeMPC:
         return triac
 
 
-def check_verdict_off(power_kw: float) -> Verdict:
+def _verdict_off(power_kw: float) -> Verdict:
     """Verdict recorded in ``OFF`` (no checks run): missing or not."""
     return Verdict.VALID if math.isfinite(power_kw) else Verdict.MISSING
 
