@@ -34,6 +34,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from czmpc.errors import CzmpcError
+from sysid.atomic import atomic_path
 
 #: Resolution of every PNG [dots per inch].
 DPI = 110
@@ -96,7 +97,8 @@ def _legend_above(ax: Axes) -> None:
 def _save(fig: Figure, path: str | os.PathLike[str]) -> Figure:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, format="png", dpi=DPI)
+    with atomic_path(path) as tmp:     # a failed draw never leaves half a PNG
+        fig.savefig(tmp, format="png", dpi=DPI)
     return fig
 
 

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from czmpc import figures_id as figs
+from sysid.atomic import atomic_write_text
 
 if TYPE_CHECKING:
     from sysid.model import HammersteinModel
@@ -792,9 +793,7 @@ def write_report(
         result, [(f.caption, f.path.relative_to(out).as_posix()) for f in drawn],
         model_file=model_file, model_files=model_files, command=command)
     report = out / "report.md"
-    tmp = report.with_name(f".{report.name}.tmp-{os.getpid()}")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, report)
+    atomic_write_text(report, text)
     return ReportFiles(report_path=report, figure_files=tuple(f.path for f in drawn))
 
 
