@@ -172,3 +172,21 @@ def test_the_switched_writers_still_round_trip(
     np.testing.assert_array_equal(load_model(tmp_path / "model.json").b, paper_armax_model.b)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data.csv", "model.json"]
     assert os.access(tmp_path / "data.csv", os.R_OK)
+
+
+def test_identification_figure_failing_mid_save_leaves_no_png(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from matplotlib.figure import Figure
+
+    from czmpc.figures_id import plot_dataset
+
+    def half_then_fail(self: Figure, fname: Any, *args: Any, **kwargs: Any) -> None:
+        Path(fname).write_bytes(b"\x89PNG half")
+        raise MemoryError("renderer ran out of memory")
+
+    monkeypatch.setattr(Figure, "savefig", half_then_fail)
+    t = np.arange(5.0)
+    with pytest.raises(MemoryError):
+        plot_dataset(t, 45.0 + t, 45.0 + t, path=tmp_path / "fig2.png")
+    assert list(tmp_path.iterdir()) == []
