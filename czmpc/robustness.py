@@ -662,7 +662,10 @@ def draw_heatmap(report: RobustnessReport) -> object:
     vmin = min(1.0, float(finite.min())) if finite.size else 0.5
     vmax = max(1.0 + 1e-9, float(finite.max())) if finite.size else 2.0
     norm = LogNorm(vmin=vmin, vmax=vmax)
-    fig = Figure(figsize=(4.6 * len(delays) + 1.2, 4.4), dpi=110, layout="constrained")
+    panel_w_in = max(4.6, 0.62 * len(gains) + 1.6)
+    fontsize = "small" if len(gains) <= 7 else 7
+    fig = Figure(figsize=(panel_w_in * len(delays) + 1.2, max(4.4, 0.42 * len(taus) + 1.8)),
+                 dpi=110, layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(1, len(delays), squeeze=False)[0]
     image = None
@@ -679,8 +682,8 @@ def draw_heatmap(report: RobustnessReport) -> object:
                 value = ratios[d, t, k]
                 if fails[d, t, k]:
                     ax.plot(k, t, marker="x", color="red", markersize=18, markeredgewidth=2.5)
-                note = f"\n{unreachable[d, t, k]} unreach." if unreachable[d, t, k] else ""
-                ax.text(k, t, f"{value:.2f}{note}", ha="center", va="center", fontsize="small",
+                note = "*" if unreachable[d, t, k] else ""
+                ax.text(k, t, f"{value:.2f}{note}", ha="center", va="center", fontsize=fontsize,
                         color="white" if np.isfinite(value) and norm(value) < 0.6 else "black")
     if image is not None:
         bar = fig.colorbar(image, ax=list(axes), shrink=0.9)
@@ -689,8 +692,8 @@ def draw_heatmap(report: RobustnessReport) -> object:
         bar.ax.yaxis.set_major_formatter(plain)
         bar.ax.yaxis.set_minor_formatter(plain)
     fig.suptitle(f"Offset-free MPC on perturbed plants, scenario '{report.scenario.name}' "
-                 "(red x: offset-free tracking fails; 'unreach.': setpoint changes the plant "
-                 "cannot reach)", fontsize="medium")
+                 "\n(red x: offset-free tracking fails; *: some setpoint changes are out of "
+                 "that plant's reach, errors taken to its limit)", fontsize="medium")
     return fig
 
 
