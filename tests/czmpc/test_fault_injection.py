@@ -282,7 +282,9 @@ def test_quiet_signal_at_constant_input_never_trips_the_stuck_check(
     result = run_closed_loop(plant, mpc, scenario, rng=0)
     measured = result.power_measured_kw[50:]
     if noise:
-        assert np.count_nonzero(np.diff(measured) == 0.0) > 10  # repeats do occur
+        # repeats do occur: P(diff == 0) ~ 1 W / (sqrt(2 pi) * 19 W) ~ 2 %, about 11 expected
+        # in 550 samples; 3 or more has probability > 0.99 under Poisson(11)
+        assert np.count_nonzero(np.diff(measured) == 0.0) >= 3
     else:
         assert np.unique(measured).size == 1  # it is really quiet
     assert mpc.n_rejected_measurements == 0
