@@ -288,6 +288,20 @@ def _met(ok: bool) -> str:
     return "**met**" if ok else "**missed**"
 
 
+def _load_note(machine: MachineInfo) -> list[str]:
+    """A note when other work shared the machine (it shows in p99 and max, not the median)."""
+    load = machine.load_average
+    if load is None or load < 0.5 * machine.n_cpus:
+        return []
+    return [
+        "",
+        f"Note: other jobs shared the machine (load average {load:.2f} on {machine.n_cpus} "
+        "cores). A step that loses its core to another process for one time slice takes "
+        "milliseconds: that shows in p99 and max, which vary from run to run, not in the "
+        "median.",
+    ]
+
+
 def format_report(bench: MPCBenchmark) -> str:
     """The numbers as Markdown (stdout and BENCHMARKS.md share it)."""
     lines = [
@@ -316,6 +330,7 @@ def format_report(bench: MPCBenchmark) -> str:
         f"Goal: median <= {STEP_MEDIAN_GOAL_MS:g} ms and p99 <= {STEP_P99_GOAL_MS:g} ms "
         f"(medians over the runs: {bench.step_median_ms:.3f} ms, {bench.step_p99_ms:.3f} ms): "
         f"{_met(bench.step_goal_met)}.",
+        *_load_note(bench.machine),
         "",
         "### 24 h closed-loop simulation",
         "",

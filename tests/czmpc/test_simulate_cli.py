@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -182,13 +183,14 @@ def test_figure_has_three_labelled_panels_sharing_time(tmp_path: Path) -> None:
 
 
 # --- czmpc bench-mpc: the pieces (the benchmark itself runs for seconds, see BENCHMARKS.md) ---
-def _bench(step_median_ms: float, day_wall_s: float) -> MPCBenchmark:
+def _bench(step_median_ms: float, day_wall_s: float, load: float = 0.1) -> MPCBenchmark:
     step = StepTimeRun(n_steps=3900, median_ms=step_median_ms, p95_ms=0.1, p99_ms=0.2,
                        max_ms=3.0, mean_iterations=5.0, n_fallbacks=0)
     day = tuple(DayRun(plant=p, n_steps=43_200, wall_s=day_wall_s, controller_s=1.0,
                        horizon_steps=38, max_abs_steady_state_error_kw=0.001)
                 for p in ("model", "heater"))
-    return MPCBenchmark(machine=bench_machine_info(), model_label="m", step_runs=(step, step),
+    machine = replace(bench_machine_info(), n_cpus=2, load_average=load)
+    return MPCBenchmark(machine=machine, model_label="m", step_runs=(step, step),
                         day_runs=day, command="czmpc bench-mpc --repeats 2")
 
 
@@ -199,6 +201,9 @@ def test_bench_report_says_whether_each_goal_is_met() -> None:
     slow = _bench(0.5, 31.0)
     assert not slow.step_goal_met and not slow.day_goal_met
     assert format_report(slow).count("**missed**") == 2
+    assert "other jobs shared the machine" not in good
+    assert "other jobs shared the machine (load average 2.00 on 2 cores)" in format_report(
+        _bench(0.07, 3.0, load=2.0))
 
 
 def test_bench_section_replaces_only_its_own_body(tmp_path: Path) -> None:
