@@ -189,7 +189,8 @@ def test_output_variance_in_regulation_is_within_13_times_the_innovation_varianc
         model: HammersteinModel) -> None:
     """With one sample of delay the best any controller can do is ``var(y - r) = sigma_e^2``
     (the innovation cannot be predicted); default tuning must come within 1.3 times it.
-    Measured on this model: 1.003 (seed 3, 20,000 samples)."""
+    Measured on this model: 1.024 at disturbance_noise 0.3 (1.003 at 0.1; seed 3, 20,000
+    samples)."""
     scenario = Scenario(name="regulation-45kW", duration_s=2.0 * 20_000,
                         initial_setpoint_kw=45.0, initial_triac_pct=45.0)
     outcome = run_simulation(model, scenario, plant="model", seed=3,
