@@ -45,7 +45,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from scipy.optimize import brentq
@@ -69,6 +69,9 @@ from sim.perturbed import perturb_model
 from sim.protocols import Plant
 from sim.scenario import Scenario
 from sysid.model import HammersteinModel
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 GridName = Literal["quick", "full"]
 PlantKind = Literal["model", "heater"]
@@ -633,7 +636,7 @@ def format_markdown(report: RobustnessReport, *, command: str | None = None,
     return "\n".join(parts)
 
 
-def draw_heatmap(report: RobustnessReport) -> object:
+def draw_heatmap(report: RobustnessReport) -> Figure:
     """Heat map of the IAE ratio: gain factor x time-constant factor, one panel per delay.
 
     Cells where offset-free tracking fails carry a red cross; every cell is annotated

@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     csv_path, md_path, fig_path = out / CSV_NAME, out / REPORT_NAME, out / FIGURE_NAME
     figure = draw_heatmap(report)
     with atomic_path(fig_path) as tmp:
-        figure.savefig(tmp, format="png")  # type: ignore[attr-defined]
+        figure.savefig(tmp, format="png")
     atomic_write_text(csv_path, format_csv(report))
     atomic_write_text(md_path, format_markdown(report, command=_command_line(args),
                                                figure_name=FIGURE_NAME))

@@ -187,7 +187,7 @@ def test_heatmap_has_a_panel_per_delay_labelled_axes_and_crosses_where_it_fails(
     hard_report: RobustnessReport,
 ) -> None:
     fig = draw_heatmap(hard_report)
-    panels = [ax for ax in fig.axes if ax.get_title().startswith("extra input delay")]  # type: ignore[attr-defined]
+    panels = [ax for ax in fig.axes if ax.get_title().startswith("extra input delay")]
     assert len(panels) == len(HARD_GRID.extra_delays_steps)
     for ax in panels:
         assert ax.get_xlabel() == "plant gain relative to the model [%]"
