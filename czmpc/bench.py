@@ -25,7 +25,6 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -35,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from czmpc.baselines import OpenLoopInversion, PIController
+from czmpc.benchmarks_md import write_benchmarks_section as _write_section
 from czmpc.controller import OffsetFreeMPC
 from czmpc.errors import CzmpcError
 from czmpc.nmpc import NonlinearMPC
@@ -46,6 +46,7 @@ from sim.metrics import ClosedLoopMetrics, compute_metrics
 from sim.model_plant import ModelPlant
 from sim.protocols import Controller, Plant
 from sim.scenario import Scenario
+from sysid.atomic import atomic_path, atomic_write_text
 from sysid.model import HammersteinModel
 from sysid.modelfile import load_model
 
@@ -391,7 +392,7 @@ def write_csv(runs: Sequence[BenchRun], path: str | Path, *, seed: int = BENCH_S
     for run in runs:
         writer.writerow({k: (repr(v) if isinstance(v, float) else v)
                          for k, v in run_row(run, seed=seed).items()})
-    Path(path).write_text(buf.getvalue(), encoding="utf-8")
+    atomic_write_text(path, buf.getvalue())
 
 
 def _find(runs: Sequence[BenchRun], scenario: str, plant: str, controller: str) -> BenchRun | None:
@@ -545,26 +546,8 @@ def section_text(runs: Sequence[BenchRun], goals: Sequence[GoalCheck], *, comman
 
 def write_benchmarks_section(path: str | Path, body: str, *,
                              heading: str = SECTION_HEADING) -> None:
-    """Put ``body`` under ``heading`` in a BENCHMARKS.md, keeping every other section.
-
-    The section runs from its heading to the next ``## `` heading (or the end); a
-    missing file is created with a title, a missing section appended.
-    """
-    path = Path(path)
-    text = path.read_text(encoding="utf-8") if path.exists() else "# Benchmarks\n"
-    section = f"{heading}\n\n{body.rstrip()}\n"
-    lines = text.splitlines(keepends=True)
-    start = next((i for i, ln in enumerate(lines) if ln.rstrip() == heading), None)
-    if start is None:
-        new = text.rstrip("\n") + "\n\n" + section
-    else:
-        stop = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")),
-                    len(lines))
-        tail = "".join(lines[stop:])
-        new = "".join(lines[:start]) + section + ("\n" + tail if tail else "")
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(new, encoding="utf-8")
-    os.replace(tmp, path)
+    """Put ``body`` under ``heading`` (default: this benchmark's) in a BENCHMARKS.md."""
+    _write_section(path, body, heading=heading)
 
 
 def plot_scenario(runs: Sequence[BenchRun], path: str | Path) -> None:
@@ -604,7 +587,8 @@ def plot_scenario(runs: Sequence[BenchRun], path: str | Path) -> None:
     axes[1, 0].set_ylabel("TRIAC input s [%]")
     axes[0, 0].legend(loc="best", fontsize="small", ncols=2)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, format="png")
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
 
 
 def write_outputs(runs: Sequence[BenchRun], goals: Sequence[GoalCheck], out_dir: str | Path,
@@ -613,8 +597,7 @@ def write_outputs(runs: Sequence[BenchRun], goals: Sequence[GoalCheck], out_dir:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     md = out / "bench.md"
-    md.write_text(format_markdown(runs, goals, header=header + "\nAll runs:\n"),
-                  encoding="utf-8")
+    atomic_write_text(md, format_markdown(runs, goals, header=header + "\nAll runs:\n"))
     csv_path = out / "bench.csv"
     write_csv(runs, csv_path, seed=seed)
     paths = [md, csv_path]

@@ -18,17 +18,17 @@ import dataclasses
 import io
 import math
 import os
-import platform
 import statistics
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from czmpc.benchmarks_md import MachineInfo, machine_info
+from czmpc.benchmarks_md import write_benchmarks_section as _write_section
 from czmpc.errors import CzmpcError
 
 if TYPE_CHECKING:
@@ -39,73 +39,6 @@ if TYPE_CHECKING:
 PIPELINE_GOAL_S = 2.0
 #: Heading of this benchmark's section in BENCHMARKS.md (other sections are kept).
 SECTION_HEADING = "## Identification pipeline"
-
-
-@dataclass(frozen=True, kw_only=True)
-class MachineInfo:
-    """The machine a benchmark ran on.
-
-    Parameters
-    ----------
-    n_cpus :
-        Logical cores available (``os.cpu_count``, what ``nproc`` prints without limits).
-    cpu_model :
-        ``model name`` from /proc/cpuinfo, or the platform's processor string.
-    python :
-        Python version.
-    libraries :
-        ``(name, version)`` of numpy, scipy, casadi and matplotlib (and sippy-unipi if
-        installed).
-    load_average :
-        1-minute load average when the benchmark started (other work on a shared
-        machine slows the numbers), or None where the platform has none.
-    """
-
-    n_cpus: int
-    cpu_model: str
-    python: str
-    libraries: tuple[tuple[str, str], ...]
-    load_average: float | None = None
-
-    def describe(self) -> str:
-        """One line: cores, CPU, Python and library versions, load."""
-        libs = ", ".join(f"{name} {version}" for name, version in self.libraries)
-        load = "" if self.load_average is None else f"; load average {self.load_average:.2f} at start"
-        return f"{self.n_cpus} cores ({self.cpu_model}); Python {self.python}; {libs}{load}"
-
-
-def machine_info() -> MachineInfo:
-    """Describe this machine (cores, CPU model, Python and library versions)."""
-    from importlib import metadata
-
-    cpu_model = platform.processor() or platform.machine()
-    with contextlib.suppress(OSError):
-        for line in Path("/proc/cpuinfo").read_text(encoding="utf-8").splitlines():
-            if line.startswith("model name"):
-                cpu_model = line.split(":", 1)[1].strip()
-                break
-    try:
-        n_cpus = len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        n_cpus = os.cpu_count() or 1
-    libraries = []
-    for name in ("numpy", "scipy", "casadi", "matplotlib", "sippy-unipi"):
-        try:
-            libraries.append((name, metadata.version(name)))
-        except metadata.PackageNotFoundError:
-            if name != "sippy-unipi":
-                libraries.append((name, "not installed"))
-    try:
-        load: float | None = os.getloadavg()[0]
-    except (AttributeError, OSError):  # pragma: no cover - not Unix
-        load = None
-    return MachineInfo(
-        n_cpus=n_cpus,
-        cpu_model=cpu_model,
-        python=platform.python_version(),
-        libraries=tuple(libraries),
-        load_average=load,
-    )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -429,26 +362,8 @@ def format_report(result: BenchmarkResult) -> str:
 
 
 def write_benchmarks_section(path: str | os.PathLike[str], body: str) -> None:
-    """Put ``body`` under `SECTION_HEADING` in a BENCHMARKS.md, keeping other sections.
-
-    The section runs from its heading to the next ``## `` heading (or the end). A
-    missing file is created with a title; a missing section is appended.
-    """
-    path = Path(path)
-    text = path.read_text(encoding="utf-8") if path.exists() else "# Benchmarks\n"
-    section = f"{SECTION_HEADING}\n\n{body.rstrip()}\n"
-    lines = text.splitlines(keepends=True)
-    start = next((i for i, ln in enumerate(lines) if ln.rstrip() == SECTION_HEADING), None)
-    if start is None:
-        new = text.rstrip("\n") + "\n\n" + section
-    else:
-        stop = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")),
-                    len(lines))
-        tail = "".join(lines[stop:])
-        new = "".join(lines[:start]) + section + ("\n" + tail if tail else "")
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(new, encoding="utf-8")
-    os.replace(tmp, path)
+    """Put ``body`` under this benchmark's `SECTION_HEADING` in a BENCHMARKS.md."""
+    _write_section(path, body, heading=SECTION_HEADING)
 
 
 # --- running ---------------------------------------------------------------------------

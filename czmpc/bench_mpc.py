@@ -23,12 +23,12 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 
-from czmpc.bench_identify import MachineInfo, machine_info
+from czmpc.benchmarks_md import MachineInfo, machine_info
+from czmpc.benchmarks_md import write_benchmarks_section as _write_section
 from czmpc.settings import MPCSettings
 from czmpc.simulation import PLANT_DESCRIPTIONS, PlantKind, run_simulation
 from sim.disturbances import PowerShift, VoltageStep
@@ -244,19 +244,6 @@ def measure_day_simulation(
     return run
 
 
-def bench_machine_info() -> MachineInfo:
-    """`machine_info` with the libraries this benchmark depends on (numpy, scipy, osqp)."""
-    from importlib import metadata
-
-    libraries = []
-    for name in ("numpy", "scipy", "osqp"):
-        try:
-            libraries.append((name, metadata.version(name)))
-        except metadata.PackageNotFoundError:  # pragma: no cover - osqp is a dependency
-            libraries.append((name, "not installed"))
-    return replace(machine_info(), libraries=tuple(libraries))
-
-
 def run_benchmark(
     model: HammersteinModel, *, model_label: str, repeats: int = 5, command: str,
     progress: Progress | None = None,
@@ -276,7 +263,7 @@ def run_benchmark(
     progress :
         Called with a short message after each run.
     """
-    machine = bench_machine_info()
+    machine = machine_info()
     step_runs = measure_step_times(model, repeats=repeats, progress=progress)
     day_runs = tuple(measure_day_simulation(model, plant, progress=progress)
                      for plant in ("model", "heater"))
@@ -356,40 +343,8 @@ def format_report(bench: MPCBenchmark) -> str:
 
 def write_benchmarks_section(path: str | os.PathLike[str], body: str,
                              heading: str = SECTION_HEADING) -> None:
-    """Put ``body`` under ``heading`` in a BENCHMARKS.md, keeping every other section.
-
-    The section runs from its heading to the next ``## `` heading (or the end of the
-    file); its body is replaced. A missing file is created with a title, a missing
-    section is appended. Written atomically (temporary sibling, then rename).
-
-    Parameters
-    ----------
-    path :
-        The Markdown file.
-    body :
-        The section's text (without the heading).
-    heading :
-        The section's ``## `` heading line.
-    """
-    path = Path(path)
-    text = path.read_text(encoding="utf-8") if path.exists() else "# Benchmarks\n"
-    section = f"{heading}\n\n{body.rstrip()}\n"
-    lines = text.splitlines(keepends=True)
-    start = next((i for i, ln in enumerate(lines) if ln.rstrip() == heading), None)
-    if start is None:
-        new = text.rstrip("\n") + "\n\n" + section
-    else:
-        stop = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")),
-                    len(lines))
-        tail = "".join(lines[stop:])
-        new = "".join(lines[:start]) + section + ("\n" + tail if tail else "")
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        tmp.write_text(new, encoding="utf-8")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    """Put ``body`` under ``heading`` (default: this benchmark's) in a BENCHMARKS.md."""
+    _write_section(path, body, heading=heading)
 
 
 __all__ = [
@@ -402,7 +357,6 @@ __all__ = [
     "DayRun",
     "MPCBenchmark",
     "StepTimeRun",
-    "bench_machine_info",
     "day_scenario",
     "format_report",
     "measure_day_simulation",

@@ -38,7 +38,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _command_modules() -> list[ModuleType]:
-    names = sorted(m.name for m in pkgutil.iter_modules(czmpc.commands.__path__))
+    names = sorted(m.name for m in pkgutil.iter_modules(czmpc.commands.__path__)
+                   if not m.name.startswith("_"))   # _argtypes etc. are helpers
     modules = [importlib.import_module(f"czmpc.commands.{name}") for name in names]
     return sorted(modules, key=lambda m: (getattr(m, "ORDER", 50), m.NAME))
 

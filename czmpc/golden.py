@@ -39,6 +39,7 @@ from czmpc.bench import (
 from czmpc.errors import CzmpcError
 from czmpc.settings import OSQPOptions
 from sim.scenario import Scenario, list_scenarios, load_scenario
+from sysid.atomic import atomic_write_text
 
 GOLDEN_FORMAT = "czmpc-golden/1"
 #: The repository's golden directory.
@@ -226,8 +227,7 @@ def write_golden_set(
                 tol = tolerances(nominal, tight)
                 entries[_case_key(plant, ctrl)] = {m: (nominal[m], tol[m]) for m in GOLDEN_METRICS}
         path = out / f"{scenario.name.removesuffix('-short')}.json"
-        path.write_text(json.dumps(golden_document(scenario, entries), indent=2) + "\n",
-                        encoding="utf-8")
+        atomic_write_text(path, json.dumps(golden_document(scenario, entries), indent=2) + "\n")
         paths.append(path)
     return tuple(paths)
 

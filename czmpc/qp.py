@@ -39,7 +39,7 @@ smallest slope of ``f`` over those reachable inputs (not the global minimum slop
 Formulation choice: condensed, by measurement. With ``n = 2`` states and ``N = 50``
 the condensed problem has 50 variables and 50 (+ 49 rate) sparse rows; its KKT factor
 is a dense 50 x 50 block, factorized once at set-up. Replaying the 1500 QPs of a
-closed-loop staircase run (`czmpc.bench_step` model, same OSQP options) took 22 us and
+closed-loop staircase run (paper-like model, same OSQP options) took 22 us and
 8.7 iterations per solve on average condensed, against 79 us and 28 iterations for the
 sparse form (150 variables, 100 equality rows), with the same first moves to 4e-5.
 """

@@ -40,6 +40,7 @@ from sim.metrics import ClosedLoopMetrics, compute_metrics
 from sim.model_plant import ModelPlant
 from sim.protocols import Plant
 from sim.scenario import Scenario
+from sysid.atomic import atomic_write_text
 from sysid.model import HammersteinModel
 
 PlantKind = Literal["model", "heater"]
@@ -346,16 +347,6 @@ def run_simulation(
     )
 
 
-def _write_text_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
 def write_outputs(outcome: SimulationOutcome, out_dir: str | os.PathLike[str]) -> tuple[Path, ...]:
     """Write a run's trajectory, metrics and figure into ``out_dir`` (created if needed).
 
@@ -382,7 +373,7 @@ def write_outputs(outcome: SimulationOutcome, out_dir: str | os.PathLike[str]) -
     trajectory = out / TRAJECTORY_FILE
     outcome.result.to_csv(trajectory)
     metrics = out / METRICS_FILE
-    _write_text_atomic(metrics, json.dumps(outcome.to_dict(), indent=2, allow_nan=False) + "\n")
+    atomic_write_text(metrics, json.dumps(outcome.to_dict(), indent=2, allow_nan=False) + "\n")
     figure = out / FIGURE_FILE
     plot_outcome(outcome, figure)
     return trajectory, metrics, figure

@@ -31,16 +31,12 @@ import sys
 import time
 from pathlib import Path
 
+from czmpc.commands import _argtypes
+
 NAME = "bench"
 HELP = "benchmark MPC, NMPC, linear MPC, PI and open loop on every scenario and plant"
 ORDER = 82
 
-_REPO = Path(__file__).resolve().parents[2]
-
-
-def _default_benchmarks_md() -> Path:
-    """BENCHMARKS.md at the project root of a source checkout, else in the working directory."""
-    return _REPO / "BENCHMARKS.md" if (_REPO / "pyproject.toml").is_file() else Path("BENCHMARKS.md")
 
 
 def _csv_names(text: str) -> list[str]:
@@ -48,16 +44,6 @@ def _csv_names(text: str) -> list[str]:
     if not names:
         raise argparse.ArgumentTypeError(f"expected comma-separated names; got {text!r}")
     return names
-
-
-def _factor(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1]; got {text!r}") from None
-    if not 0.0 < value <= 1.0:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1]; got {value:g}")
-    return value
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -69,7 +55,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="mpc, nmpc, linear_mpc, pi_gs, pi, open_loop (default: all)")
     parser.add_argument("--plants", metavar="A,B", type=_csv_names, default=None,
                         help="model, heater (default: both)")
-    parser.add_argument("--short", metavar="FACTOR", type=_factor, default=None,
+    parser.add_argument("--short", metavar="FACTOR", type=_argtypes.shortening_factor, default=None,
                         help="shorten every scenario: times x FACTOR, 0 < FACTOR <= 1")
     parser.add_argument("--model", metavar="MODEL.json", type=Path, default=None,
                         help="Hammerstein model (default: data/cz_heater_model.json)")
@@ -106,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
         write_benchmarks_section,
         write_outputs,
     )
-    from czmpc.bench_identify import machine_info
+    from czmpc.benchmarks_md import machine_info
     from sim.scenario import list_scenarios, load_scenario
     from sysid.modelfile import load_model
 
@@ -150,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
     write_outputs(runs, goals, args.out, header=text)
     progress(f"wrote {args.out / 'bench.md'}, {args.out / 'bench.csv'} and figures")
     if not args.no_record:
-        target = args.benchmarks_md if args.benchmarks_md is not None else _default_benchmarks_md()
+        target = args.benchmarks_md if args.benchmarks_md is not None else _argtypes.default_benchmarks_md()
         write_benchmarks_section(target, text)
         progress(f"recorded the section in {target}")
     if args.strict and not all(g.met for g in goals):

@@ -27,27 +27,14 @@ import sys
 import time
 from pathlib import Path
 
+from czmpc.commands import _argtypes
+
 NAME = "bench-identify"
 HELP = "time the whole identification pipeline per stage and record it in BENCHMARKS.md"
 ORDER = 80
 
 _REPO = Path(__file__).resolve().parents[2]
 _SHIPPED = _REPO / "data" / "cz_heater_experiment.csv"
-
-
-def _default_benchmarks_md() -> Path:
-    """BENCHMARKS.md at the project root of a source checkout, else in the working directory."""
-    return _REPO / "BENCHMARKS.md" if (_REPO / "pyproject.toml").is_file() else Path("BENCHMARKS.md")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1; got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1; got {value}")
-    return value
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -59,7 +46,7 @@ def register(parser: argparse.ArgumentParser) -> None:
              f"shipped experiment {_SHIPPED.relative_to(_REPO)}",
     )
     parser.add_argument(
-        "--repeats", metavar="N", type=_positive_int, default=5,
+        "--repeats", metavar="N", type=_argtypes.positive_int, default=5,
         help="whole-pipeline runs to take the median over (default: 5)",
     )
     parser.add_argument(
@@ -102,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
         run_benchmark,
         write_benchmarks_section,
     )
+    from sysid.atomic import atomic_write_text
 
     data = args.data if args.data is not None else _SHIPPED
     if args.data is None:
@@ -120,14 +108,14 @@ def run(args: argparse.Namespace) -> int:
                            command=_command_line(args), progress=progress)
     text = format_report(result)
     print(text, end="")
-    target = args.benchmarks_md if args.benchmarks_md is not None else _default_benchmarks_md()
+    target = args.benchmarks_md if args.benchmarks_md is not None else _argtypes.default_benchmarks_md()
     write_benchmarks_section(target, text)
     progress(f"wrote the numbers to {target}")
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "bench_identify.md").write_text(text, encoding="utf-8")
-        (args.out / "bench_identify.json").write_text(
-            json.dumps(result_to_dict(result), indent=2) + "\n", encoding="utf-8")
+        atomic_write_text(args.out / "bench_identify.md", text)
+        atomic_write_text(args.out / "bench_identify.json",
+                          json.dumps(result_to_dict(result), indent=2) + "\n")
         progress(f"wrote {args.out / 'bench_identify.json'} and bench_identify.md")
     if args.strict and not result.goal_met:
         print(f"czmpc: error: the whole pipeline took {result.total.median_s:.3f} s (median), "

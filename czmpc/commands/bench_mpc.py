@@ -28,27 +28,14 @@ import sys
 import time
 from pathlib import Path
 
+from czmpc.commands import _argtypes
+
 NAME = "bench-mpc"
 HELP = "time the MPC step (N = 50) and a 24 h closed-loop simulation; record in BENCHMARKS.md"
 ORDER = 81
 
 _REPO = Path(__file__).resolve().parents[2]
 _SHIPPED_MODEL = _REPO / "data" / "cz_heater_model.json"
-
-
-def _default_benchmarks_md() -> Path:
-    """BENCHMARKS.md at the project root of a source checkout, else in the working directory."""
-    return _REPO / "BENCHMARKS.md" if (_REPO / "pyproject.toml").is_file() else Path("BENCHMARKS.md")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1; got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1; got {value}")
-    return value
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -60,7 +47,7 @@ def register(parser: argparse.ArgumentParser) -> None:
              "shipped data/cz_heater_model.json)",
     )
     parser.add_argument(
-        "--repeats", metavar="N", type=_positive_int, default=5,
+        "--repeats", metavar="N", type=_argtypes.positive_int, default=5,
         help="step-time runs of the staircase (3,900 steps each) (default: 5)",
     )
     parser.add_argument(
@@ -108,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     text = format_report(bench)
     print(text, end="")
     if not args.no_record:
-        target = args.benchmarks_md if args.benchmarks_md is not None else _default_benchmarks_md()
+        target = args.benchmarks_md if args.benchmarks_md is not None else _argtypes.default_benchmarks_md()
         write_benchmarks_section(target, text)
         progress(f"wrote the numbers to {target}")
     if args.strict and not (bench.step_goal_met and bench.day_goal_met):

@@ -18,26 +18,18 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from sim.experiment import Table3Row
 
+from czmpc.commands import _argtypes
+
 NAME = "experiment"
 HELP = "simulate the paper's identification experiment on the virtual heater; write CSV"
 ORDER = 6
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer seed; got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a seed >= 0; got {text!r}")
-    return value
 
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument(
-        "--seed", metavar="N", type=_seed, default=None,
+        "--seed", metavar="N", type=_argtypes.seed, default=None,
         help="seed of the sensor noise and grid wander (default: the seed of the shipped "
              "data/cz_heater_experiment.csv)",
     )

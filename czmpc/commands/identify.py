@@ -25,7 +25,6 @@ Progress (stage names with elapsed seconds) goes to stderr. Exit codes: 0 succes
 from __future__ import annotations
 
 import argparse
-import math
 import shlex
 import sys
 import time
@@ -40,19 +39,11 @@ from sysid.errors import IdentificationError
 if TYPE_CHECKING:
     from czmpc.report_id import Finding
 
+from czmpc.commands import _argtypes
+
 NAME = "identify"
 HELP = "identify the Hammerstein heater model from logged data and write model, report, figures"
 ORDER = 10
-
-
-def _finite_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number; got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number; got {text!r}")
-    return value
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -68,14 +59,14 @@ def register(parser: argparse.ArgumentParser) -> None:
         help="output directory (created if missing; files in it are overwritten)",
     )
     parser.add_argument(
-        "--operating-point", metavar=("TRIAC_PCT", "POWER_KW"), nargs=2, type=_finite_float,
+        "--operating-point", metavar=("TRIAC_PCT", "POWER_KW"), nargs=2, type=_argtypes.finite_float,
         default=None,
         help="steady operating point s_nom [%%] and P_nom [kW] to take deviations about; "
              "default: the longest steady window of the data (paper sec. 5.1), or the "
              "sample means if there is none",
     )
     parser.add_argument(
-        "--level-shift", metavar=("TIME_S", "KW"), nargs=2, type=_finite_float, default=None,
+        "--level-shift", metavar=("TIME_S", "KW"), nargs=2, type=_argtypes.finite_float, default=None,
         help="correct a level shift of the measured power: subtract KW [kW] from P at and "
              "after TIME_S [s] (the paper subtracts 0.15 kW from t = 20714 s); default: "
              "repair the level shifts the outlier search finds, with the size it estimates",

@@ -10,7 +10,8 @@ breaks the data contract is refused with its file name, line and column (exit co
 from __future__ import annotations
 
 import argparse
-import math
+
+from czmpc.commands import _argtypes
 
 NAME = "inspect"
 HELP = "check a logged data file: samples, sampling time, ranges, input steps and gains"
@@ -41,36 +42,6 @@ def _column_mapping(text: str) -> dict[str, str]:
     return mapping
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number; got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0; got {text!r}")
-    return value
-
-
-def _non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number; got {text!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0; got {text!r}")
-    return value
-
-
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer; got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0; got {text!r}")
-    return value
-
-
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -82,11 +53,11 @@ def register(parser: argparse.ArgumentParser) -> None:
              "(other columns are ignored)",
     )
     parser.add_argument(
-        "--ts-s", metavar="X", type=_positive_float, default=None,
+        "--ts-s", metavar="X", type=_argtypes.positive_float, default=None,
         help="nominal sampling time [s]; default: the median interval of the file",
     )
     parser.add_argument(
-        "--sampling-rtol", metavar="R", type=_non_negative_float, default=None,
+        "--sampling-rtol", metavar="R", type=_argtypes.non_negative_float, default=None,
         help="allowed relative deviation of any interval from the sampling time "
              "(default 0.01)",
     )
@@ -99,12 +70,12 @@ def register(parser: argparse.ArgumentParser) -> None:
         help="unit of the output column, for the printout (default: kW)",
     )
     parser.add_argument(
-        "--min-step", metavar="X", type=_non_negative_float, default=None,
+        "--min-step", metavar="X", type=_argtypes.non_negative_float, default=None,
         help="smallest input change counted as a step [input unit]; default: 5 %% of the "
              "input's range, and at least 5 noise standard deviations",
     )
     parser.add_argument(
-        "--delay-steps", metavar="N", type=_non_negative_int, default=1,
+        "--delay-steps", metavar="N", type=_argtypes.non_negative_int, default=1,
         help="delay from input to output in samples (default 1)",
     )
 

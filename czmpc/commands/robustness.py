@@ -25,6 +25,8 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from czmpc.robustness import PlantVariant
 
+from czmpc.commands import _argtypes
+
 NAME = "robustness"
 HELP = "MPC against plants with other gain, time constant and delay (table, heat map)"
 ORDER = 30
@@ -34,16 +36,6 @@ DEFAULT_MODEL = Path("data/cz_heater_model.json")
 CSV_NAME = "robustness.csv"
 REPORT_NAME = "robustness.md"
 FIGURE_NAME = "robustness_heatmap.png"
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer seed; got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a seed >= 0; got {text!r}")
-    return value
 
 
 def _threshold(text: str) -> float:
@@ -63,7 +55,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help=f"model the controller is built from (default: {DEFAULT_MODEL})")
     parser.add_argument("--scenario", metavar="NAME", default="staircase",
                         help="shipped scenario name or TOML file (default: staircase)")
-    parser.add_argument("--seed", metavar="N", type=_seed, default=1,
+    parser.add_argument("--seed", metavar="N", type=_argtypes.seed, default=1,
                         help="seed of every run (default: 1)")
     parser.add_argument("--grid", choices=("quick", "full"), default="quick",
                         help="quick: 5 gains x 3 time constants x 2 delays (about 10 s); "

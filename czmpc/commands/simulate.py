@@ -38,32 +38,14 @@ import sys
 import time
 from pathlib import Path
 
+from czmpc.commands import _argtypes
+
 NAME = "simulate"
 HELP = "run the offset-free MPC through a scenario on a plant; write trajectory, metrics, figure"
 ORDER = 30
 
 #: A run reports its progress on stderr once it has taken this long [s].
 PROGRESS_AFTER_S = 1.0
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer seed >= 0; got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer seed >= 0; got {text!r}")
-    return value
-
-
-def _factor(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1]; got {text!r}") from None
-    if not 0.0 < value <= 1.0:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1]; got {text!r}")
-    return value
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -84,7 +66,7 @@ def register(parser: argparse.ArgumentParser) -> None:
              "heater (model mismatch) (default: model)",
     )
     parser.add_argument(
-        "--seed", metavar="N", type=_seed, default=0,
+        "--seed", metavar="N", type=_argtypes.seed, default=0,
         help="seed of the plant noise and sensor faults; the same seed gives the same run "
              "bit for bit (default: 0)",
     )
@@ -101,7 +83,7 @@ def register(parser: argparse.ArgumentParser) -> None:
              "(default: as the scenario's plant_noise says)",
     )
     parser.add_argument(
-        "--short", metavar="FACTOR", type=_factor, default=None,
+        "--short", metavar="FACTOR", type=_argtypes.shortening_factor, default=None,
         help="multiply every time of the scenario (duration, events) by FACTOR in (0, 1] "
              "for a quick run; Ts is kept, so responses may not settle (default: 1)",
     )

@@ -17,11 +17,11 @@ from czmpc.bench_mpc import (
     DayRun,
     MPCBenchmark,
     StepTimeRun,
-    bench_machine_info,
     day_scenario,
     format_report,
     write_benchmarks_section,
 )
+from czmpc.benchmarks_md import machine_info
 from czmpc.cli import build_parser, main
 from czmpc.figures_id import FigureError
 from czmpc.figures_sim import DISTURBANCE_LABEL, plot_closed_loop
@@ -189,7 +189,7 @@ def _bench(step_median_ms: float, day_wall_s: float, load: float = 0.1) -> MPCBe
     day = tuple(DayRun(plant=p, n_steps=43_200, wall_s=day_wall_s, controller_s=1.0,
                        horizon_steps=38, max_abs_steady_state_error_kw=0.001)
                 for p in ("model", "heater"))
-    machine = replace(bench_machine_info(), n_cpus=2, load_average=load)
+    machine = replace(machine_info(), n_cpus=2, load_average=load)
     return MPCBenchmark(machine=machine, model_label="m", step_runs=(step, step),
                         day_runs=day, command="czmpc bench-mpc --repeats 2")
 

@@ -1,0 +1,115 @@
+"""BENCHMARKS.md plumbing shared by every benchmark: the machine, and one section each.
+
+Each benchmark owns one ``## `` section of BENCHMARKS.md and rewrites only that one,
+so benchmarks run at different times keep each other's numbers.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import platform
+from dataclasses import dataclass
+from pathlib import Path
+
+from sysid.atomic import atomic_write_text
+
+#: Libraries whose versions every benchmark records; optional ones only if installed.
+CORE_LIBRARIES = ("numpy", "scipy", "osqp", "casadi", "matplotlib")
+OPTIONAL_LIBRARIES = ("sippy-unipi",)
+
+
+@dataclass(frozen=True, kw_only=True)
+class MachineInfo:
+    """The machine a benchmark ran on.
+
+    Parameters
+    ----------
+    n_cpus :
+        Logical cores available to this process (what ``nproc`` prints).
+    cpu_model :
+        ``model name`` from /proc/cpuinfo, or the platform's processor string.
+    python :
+        Python version.
+    libraries :
+        ``(name, version)`` of `CORE_LIBRARIES` and the installed `OPTIONAL_LIBRARIES`.
+    load_average :
+        1-minute load average when the benchmark started (other work on a shared
+        machine slows the numbers), or None where the platform has none.
+    """
+
+    n_cpus: int
+    cpu_model: str
+    python: str
+    libraries: tuple[tuple[str, str], ...]
+    load_average: float | None = None
+
+    def describe(self) -> str:
+        """One line: cores, CPU, Python and library versions, load."""
+        libs = ", ".join(f"{name} {version}" for name, version in self.libraries)
+        load = "" if self.load_average is None else f"; load average {self.load_average:.2f} at start"
+        return f"{self.n_cpus} cores ({self.cpu_model}); Python {self.python}; {libs}{load}"
+
+
+def machine_info() -> MachineInfo:
+    """Describe this machine (cores, CPU model, Python and library versions, load)."""
+    from importlib import metadata
+
+    cpu_model = platform.processor() or platform.machine()
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text(encoding="utf-8").splitlines():
+            if line.startswith("model name"):
+                cpu_model = line.split(":", 1)[1].strip()
+                break
+    try:
+        n_cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        n_cpus = os.cpu_count() or 1
+    libraries = []
+    for name in CORE_LIBRARIES + OPTIONAL_LIBRARIES:
+        try:
+            libraries.append((name, metadata.version(name)))
+        except metadata.PackageNotFoundError:
+            if name not in OPTIONAL_LIBRARIES:
+                libraries.append((name, "not installed"))
+    try:
+        load: float | None = os.getloadavg()[0]
+    except (AttributeError, OSError):  # pragma: no cover - not Unix
+        load = None
+    return MachineInfo(n_cpus=n_cpus, cpu_model=cpu_model, python=platform.python_version(),
+                       libraries=tuple(libraries), load_average=load)
+
+
+def write_benchmarks_section(path: str | os.PathLike[str], body: str, *, heading: str) -> None:
+    """Put ``body`` under ``heading`` in a BENCHMARKS.md, keeping every other section.
+
+    The section runs from its heading to the next ``## `` heading (or the end of the
+    file); its body is replaced. A missing file is created with a title, a missing
+    section is appended. Written atomically (`sysid.atomic`).
+
+    Parameters
+    ----------
+    path :
+        The Markdown file.
+    body :
+        The section's text (without the heading).
+    heading :
+        The section's ``## `` heading line.
+    """
+    path = Path(path)
+    text = path.read_text(encoding="utf-8") if path.exists() else "# Benchmarks\n"
+    section = f"{heading}\n\n{body.rstrip()}\n"
+    lines = text.splitlines(keepends=True)
+    start = next((i for i, ln in enumerate(lines) if ln.rstrip() == heading), None)
+    if start is None:
+        new = text.rstrip("\n") + "\n\n" + section
+    else:
+        stop = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")),
+                    len(lines))
+        tail = "".join(lines[stop:])
+        new = "".join(lines[:start]) + section + ("\n" + tail if tail else "")
+    atomic_write_text(path, new)
+
+
+__all__ = ["CORE_LIBRARIES", "OPTIONAL_LIBRARIES", "MachineInfo", "machine_info",
+           "write_benchmarks_section"]
