@@ -17,10 +17,17 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(VENV)/bin/ruff check sysid sim czmpc tests
+	$(VENV)/bin/mypy sysid sim czmpc
 	$(PY) -m pytest -q -p no:cacheprovider
 
+# Every benchmark; each rewrites its own section of BENCHMARKS.md with the command and
+# the machine. SIPPY (a benchmark-only peer) is installed from the 'bench' extra.
 bench: $(STAMP)
-	$(VENV)/bin/czmpc bench-identify --out out/bench
+	$(PY) -m pip install --quiet -e ".[dev,bench]"
+	$(VENV)/bin/czmpc bench-identify --repeats 5 --with-sippy --out out/bench/identify
+	$(VENV)/bin/czmpc bench-mpc --repeats 5
+	$(VENV)/bin/czmpc bench --out out/bench/tracking
+	$(VENV)/bin/czmpc robustness --grid full --out out/bench/robustness
 
 clean:
 	rm -rf $(VENV) out
