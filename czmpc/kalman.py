@@ -34,13 +34,8 @@ import scipy.linalg
 
 from czmpc.errors import DesignError
 from czmpc.realization import AugmentedModel
+from sysid._arrays import readonly_array as _readonly
 from sysid._typing import FloatArray
-
-
-def _readonly(arr: FloatArray) -> FloatArray:
-    arr = np.array(arr, dtype=float, copy=True)
-    arr.setflags(write=False)
-    return arr
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)

@@ -41,6 +41,7 @@ import numpy as np
 
 from czmpc.errors import DesignError
 from czmpc.settings import DisturbanceModel
+from sysid._arrays import readonly_array as _readonly
 from sysid._typing import FloatArray
 from sysid.model import HammersteinModel
 
@@ -48,11 +49,6 @@ from sysid.model import HammersteinModel
 #: as rank loss. Far above round-off (1e-16), far below any real model's margin.
 PBH_RTOL = 1e-9
 
-
-def _readonly(arr: FloatArray) -> FloatArray:
-    arr = np.array(arr, dtype=float, copy=True)
-    arr.setflags(write=False)
-    return arr
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)

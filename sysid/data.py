@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from sysid._arrays import readonly_array as _readonly
 from sysid._typing import FloatArray
 from sysid.atomic import atomic_write_text
 from sysid.errors import DataFileError
@@ -35,11 +36,6 @@ DEFAULT_SAMPLING_RTOL = 0.01
 #: The fewest samples any model in this project can be fitted to.
 MIN_SAMPLES = 3
 
-
-def _readonly(values: Any) -> FloatArray:
-    arr = np.array(values, dtype=float, copy=True)
-    arr.setflags(write=False)
-    return arr
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)

@@ -41,6 +41,7 @@ import casadi as ca
 import numpy as np
 import numpy.typing as npt
 
+from sysid._arrays import readonly_array as _readonly
 from sysid._typing import FloatArray
 from sysid.criteria import ballistic_mse, one_step_mse
 from sysid.data import Dataset
@@ -58,11 +59,6 @@ RowForm = Literal["eq21", "jump"]
 
 
 # =========================================================================== values
-def _readonly(values: Any) -> FloatArray:
-    arr = np.array(values, dtype=float, copy=True)
-    arr.setflags(write=False)
-    return arr
-
 
 @dataclass(frozen=True, kw_only=True, eq=False)
 class HammersteinFit:

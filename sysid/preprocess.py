@@ -26,6 +26,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from sysid._arrays import readonly_array as _readonly
 from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import DataFileError, IdentificationError
@@ -64,11 +65,6 @@ def _robust_scale(x: FloatArray) -> float:
     """``1.4826 * median(|x - median(x)|)``."""
     return MAD_TO_STD * float(np.median(np.abs(x - np.median(x))))
 
-
-def _readonly(values: FloatArray) -> FloatArray:
-    arr = np.array(values, dtype=float, copy=True)
-    arr.setflags(write=False)
-    return arr
 
 
 # --------------------------------------------------------------------------- operating point

@@ -32,6 +32,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from sysid._arrays import readonly_array as _readonly
 from sysid._typing import FloatArray
 from sysid.errors import IdentificationError
 
@@ -45,11 +46,6 @@ DEFAULT_MAX_LAG = 25
 
 CorrelationKind = Literal["auto", "cross"]
 
-
-def _readonly(values: FloatArray) -> FloatArray:
-    arr = np.array(values, dtype=float, copy=True)
-    arr.setflags(write=False)
-    return arr
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
