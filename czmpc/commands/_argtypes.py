@@ -10,6 +10,10 @@ import argparse
 import math
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from sysid.data import Dataset
 
 _REPO = Path(__file__).resolve().parents[2]
 
@@ -67,6 +71,68 @@ positive_float = number(above=0.0)
 non_negative_float = number(at_least=0.0)
 #: A shortening factor for scenarios: times x FACTOR, 0 < FACTOR <= 1.
 shortening_factor = number(above=0.0, at_most=1.0)
+
+
+#: The data contract's column names (DESIGN.md, "Contracts").
+CONTRACT_COLUMNS = ("time_s", "triac_pct", "power_kw")
+
+
+def column_mapping(text: str) -> dict[str, str]:
+    """Parse ``time_s=NAME,triac_pct=NAME,power_kw=NAME`` (all three, each once)."""
+    mapping: dict[str, str] = {}
+    for item in text.split(","):
+        key, sep, name = (part.strip() for part in item.partition("="))
+        if not sep or not key or not name:
+            raise argparse.ArgumentTypeError(
+                f"expected CONTRACT_NAME=FILE_NAME items separated by commas; got {item!r}"
+            )
+        if key not in CONTRACT_COLUMNS:
+            raise argparse.ArgumentTypeError(
+                f"expected a contract name in {list(CONTRACT_COLUMNS)}; got {key!r}"
+            )
+        if key in mapping:
+            raise argparse.ArgumentTypeError(f"{key!r} is mapped twice")
+        mapping[key] = name
+    missing = [key for key in CONTRACT_COLUMNS if key not in mapping]
+    if missing:
+        raise argparse.ArgumentTypeError(f"every contract name must be mapped; missing {missing}")
+    return mapping
+
+
+def add_log_options(parser: argparse.ArgumentParser) -> None:
+    """Options to read a log of another rig: column names, sampling, units."""
+    parser.add_argument(
+        "--columns", metavar="time_s=NAME,triac_pct=NAME,power_kw=NAME", type=column_mapping,
+        default=None,
+        help="read a log of another rig: map each contract name to the file's column "
+             "(other columns are ignored)",
+    )
+    parser.add_argument(
+        "--ts-s", metavar="X", type=positive_float, default=None,
+        help="nominal sampling time [s]; default: the median interval of the file",
+    )
+    parser.add_argument(
+        "--sampling-rtol", metavar="R", type=non_negative_float, default=None,
+        help="allowed relative deviation of any interval from the sampling time "
+             "(default 0.01)",
+    )
+    parser.add_argument(
+        "--input-unit", metavar="UNIT", default="%",
+        help="unit of the input column (default: %%)",
+    )
+    parser.add_argument(
+        "--output-unit", metavar="UNIT", default="kW",
+        help="unit of the output column (default: kW)",
+    )
+
+
+def read_log(path: str | Path, args: argparse.Namespace) -> Dataset:
+    """Read ``path`` with the options of `add_log_options`."""
+    from sysid.data import DEFAULT_SAMPLING_RTOL, read_csv
+
+    rtol = DEFAULT_SAMPLING_RTOL if args.sampling_rtol is None else args.sampling_rtol
+    return read_csv(path, columns=args.columns, ts_s=args.ts_s, sampling_rtol=rtol,
+                    input_unit=args.input_unit, output_unit=args.output_unit)
 
 
 def default_benchmarks_md() -> Path:

@@ -38,6 +38,7 @@ from sysid.errors import IdentificationError
 
 if TYPE_CHECKING:
     from czmpc.report_id import Finding
+    from sysid.data import Dataset
 
 from czmpc.commands import _argtypes
 
@@ -71,6 +72,7 @@ def register(parser: argparse.ArgumentParser) -> None:
              "after TIME_S [s] (the paper subtracts 0.15 kW from t = 20714 s); default: "
              "repair the level shifts the outlier search finds, with the size it estimates",
     )
+    _argtypes.add_log_options(parser)
     parser.add_argument(
         "--allow-unconverged", action="store_true",
         help="exit 0 even if an iterative fit (OE, ARMAX, PEM) did not converge; the "
@@ -123,7 +125,7 @@ class IdentifyOutcome:
 
 
 def identify_to_directory(
-    data_path: str | Path,
+    data_path: str | Path | Dataset,
     out_dir: str | Path,
     *,
     operating_point: tuple[float, float] | None = None,
@@ -136,7 +138,8 @@ def identify_to_directory(
     Parameters
     ----------
     data_path :
-        CSV file in the data contract.
+        CSV file in the data contract, or a `sysid.data.Dataset` already read (for
+        example with a column mapping).
     out_dir :
         Output directory (created if missing).
     operating_point :
@@ -165,14 +168,17 @@ def identify_to_directory(
     if progress is not None:
         progress("loading the numerical libraries")
     from czmpc.report_id import findings_checklist, write_report
-    from sysid.data import read_csv
+    from sysid.data import Dataset, read_csv
     from sysid.model import OperatingPoint
     from sysid.modelfile import save_model
     from sysid.pipeline import run_paper_pipeline
 
-    if progress is not None:
-        progress(f"reading {data_path}")
-    data = read_csv(data_path)
+    if isinstance(data_path, Dataset):
+        data = data_path
+    else:
+        if progress is not None:
+            progress(f"reading {data_path}")
+        data = read_csv(data_path)
     op = None if operating_point is None else OperatingPoint(
         triac_pct=operating_point[0], power_kw=operating_point[1])
     with warnings.catch_warnings(record=True) as caught:
@@ -217,8 +223,10 @@ def run(args: argparse.Namespace) -> int:
     if args.allow_unconverged:
         words.append("--allow-unconverged")
     command = " ".join(shlex.quote(w) for w in words)
+    if progress is not None:
+        progress(f"reading {args.data}")
     outcome = identify_to_directory(
-        args.data,
+        _argtypes.read_log(args.data, args),
         args.out,
         operating_point=None if args.operating_point is None else tuple(args.operating_point),
         level_shift=None if args.level_shift is None else tuple(args.level_shift),

@@ -17,58 +17,11 @@ NAME = "inspect"
 HELP = "check a logged data file: samples, sampling time, ranges, input steps and gains"
 ORDER = 5
 
-_CONTRACT = ("time_s", "triac_pct", "power_kw")
-
-
-def _column_mapping(text: str) -> dict[str, str]:
-    """Parse ``time_s=NAME,triac_pct=NAME,power_kw=NAME`` (all three, each once)."""
-    mapping: dict[str, str] = {}
-    for item in text.split(","):
-        key, sep, name = (part.strip() for part in item.partition("="))
-        if not sep or not key or not name:
-            raise argparse.ArgumentTypeError(
-                f"expected CONTRACT_NAME=FILE_NAME items separated by commas; got {item!r}"
-            )
-        if key not in _CONTRACT:
-            raise argparse.ArgumentTypeError(
-                f"expected a contract name in {list(_CONTRACT)}; got {key!r}"
-            )
-        if key in mapping:
-            raise argparse.ArgumentTypeError(f"{key!r} is mapped twice")
-        mapping[key] = name
-    missing = [key for key in _CONTRACT if key not in mapping]
-    if missing:
-        raise argparse.ArgumentTypeError(f"every contract name must be mapped; missing {missing}")
-    return mapping
-
-
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("file", metavar="FILE.csv", help="logged data file")
-    parser.add_argument(
-        "--columns", metavar="time_s=NAME,triac_pct=NAME,power_kw=NAME", type=_column_mapping,
-        default=None,
-        help="read a log of another rig: map each contract name to the file's column "
-             "(other columns are ignored)",
-    )
-    parser.add_argument(
-        "--ts-s", metavar="X", type=_argtypes.positive_float, default=None,
-        help="nominal sampling time [s]; default: the median interval of the file",
-    )
-    parser.add_argument(
-        "--sampling-rtol", metavar="R", type=_argtypes.non_negative_float, default=None,
-        help="allowed relative deviation of any interval from the sampling time "
-             "(default 0.01)",
-    )
-    parser.add_argument(
-        "--input-unit", metavar="UNIT", default="%",
-        help="unit of the input column, for the printout (default: %%)",
-    )
-    parser.add_argument(
-        "--output-unit", metavar="UNIT", default="kW",
-        help="unit of the output column, for the printout (default: kW)",
-    )
+    _argtypes.add_log_options(parser)
     parser.add_argument(
         "--min-step", metavar="X", type=_argtypes.non_negative_float, default=None,
         help="smallest input change counted as a step [input unit]; default: 5 %% of the "
@@ -82,20 +35,15 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Read, check and summarize the file; print the summary to stdout."""
-    from sysid.data import DEFAULT_SAMPLING_RTOL, read_csv
     from sysid.steps import default_step_threshold, detect_steps, format_step_table
 
-    rtol = DEFAULT_SAMPLING_RTOL if args.sampling_rtol is None else args.sampling_rtol
-    data = read_csv(
-        args.file, columns=args.columns, ts_s=args.ts_s, sampling_rtol=rtol,
-        input_unit=args.input_unit, output_unit=args.output_unit,
-    )
+    data = _argtypes.read_log(args.file, args)
     threshold = (
         default_step_threshold(data.triac_pct) if args.min_step is None else args.min_step
     )
     steps = detect_steps(data, min_step=threshold, delay_steps=args.delay_steps)
     u_unit, y_unit = data.input_unit, data.output_unit
-    names = args.columns or {name: name for name in _CONTRACT}
+    names = args.columns or {name: name for name in _argtypes.CONTRACT_COLUMNS}
     lines = [
         f"file:           {data.source}",
         f"sha256:         {data.sha256}",
@@ -103,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
         f"output {names['power_kw']!r}",
         f"samples:        {data.n_samples}",
         f"duration:       {data.duration_s:g} s ({data.time_s[0]:g} s to {data.time_s[-1]:g} s)",
-        f"sampling time:  {data.ts_s:g} s (every interval within {100 * rtol:g} %)",
+        f"sampling time:  {data.ts_s:g} s (every interval within {100 * data.sampling_rtol:g} %)",
         f"input range:    {data.triac_pct.min():g} to {data.triac_pct.max():g} {u_unit}",
         f"output range:   {data.power_kw.min():g} to {data.power_kw.max():g} {y_unit}",
         f"input steps:    {len(steps)} larger than {threshold:g} {u_unit} "
