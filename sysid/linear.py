@@ -835,6 +835,26 @@ def fit_arx(
     )
 
 
+def _pem_result(
+    data: Dataset, operating_point: OperatingPoint, fit: PemFit, *,
+    block: Literal["oe", "armax"], criterion: Literal["ballistic", "one_step"], method: str,
+    where: str,
+) -> IdentificationResult:
+    """Model and result of an OE/ARMAX fit; warns (at the public caller) if not converged."""
+    if not fit.converged:
+        warnings.warn(f"{where} did not converge: {fit.message}", IdentificationWarning,
+                      stacklevel=3)
+    model = _linear_model(
+        data, operating_point, block=block, a=fit.a, b=fit.b, c=fit.c,
+        residuals=fit.residuals, n_parameters=fit.theta.size, method=method, where=where,
+    )
+    return _result(
+        model, converged=fit.converged, message=fit.message, n_iterations=fit.n_iterations,
+        criterion=criterion, names=fit.parameter_names, theta=fit.theta,
+        std_errors=fit.std_errors, residuals=fit.residuals, raw=fit,
+    )
+
+
 def fit_oe(
     data: Dataset,
     *,
@@ -880,19 +900,8 @@ def fit_oe(
     dy, du = _deviation_arrays(data, operating_point, "fit_oe")
     fit = _oe_pem(dy, du, nb=nb, nf=nf, nk=nk, theta0=None,
                   initial_conditions=initial_conditions, max_iterations=max_iterations)
-    if not fit.converged:
-        warnings.warn(f"fit_oe did not converge: {fit.message}", IdentificationWarning,
-                      stacklevel=2)
-    model = _linear_model(
-        data, operating_point, block="oe", a=fit.a, b=fit.b, c=fit.c,
-        residuals=fit.residuals, n_parameters=fit.theta.size, method="oe-pem-ballistic",
-        where="fit_oe",
-    )
-    return _result(
-        model, converged=fit.converged, message=fit.message, n_iterations=fit.n_iterations,
-        criterion="ballistic", names=fit.parameter_names, theta=fit.theta,
-        std_errors=fit.std_errors, residuals=fit.residuals, raw=fit,
-    )
+    return _pem_result(data, operating_point, fit, block="oe", criterion="ballistic",
+                       method="oe-pem-ballistic", where="fit_oe")
 
 
 def fit_armax(
@@ -942,19 +951,8 @@ def fit_armax(
     dy, du = _deviation_arrays(data, operating_point, "fit_armax")
     fit = _armax_pem(dy, du, na=na, nb=nb, nc=nc, nk=nk, theta0=None,
                      initial_conditions=initial_conditions, max_iterations=max_iterations)
-    if not fit.converged:
-        warnings.warn(f"fit_armax did not converge: {fit.message}", IdentificationWarning,
-                      stacklevel=2)
-    model = _linear_model(
-        data, operating_point, block="armax", a=fit.a, b=fit.b, c=fit.c,
-        residuals=fit.residuals, n_parameters=fit.theta.size, method="armax-pem-one-step",
-        where="fit_armax",
-    )
-    return _result(
-        model, converged=fit.converged, message=fit.message, n_iterations=fit.n_iterations,
-        criterion="one_step", names=fit.parameter_names, theta=fit.theta,
-        std_errors=fit.std_errors, residuals=fit.residuals, raw=fit,
-    )
+    return _pem_result(data, operating_point, fit, block="armax", criterion="one_step",
+                       method="armax-pem-one-step", where="fit_armax")
 
 
 __all__ = [
