@@ -1,4 +1,19 @@
-"""Import direction contract (DESIGN.md, "Layout"): sysid <- sim; sysid <- czmpc core."""
+"""Import-direction contract (DESIGN.md "Layout", STYLE.md B.2), per subpackage.
+
+Layers, lowest first; a module imports only from lower layers and from its own room::
+
+    5  czmpc.cli
+    4  czmpc.commissioning   czmpc.testing
+    3  czmpc.runtime         czmpc.campaigns
+    2  czmpc.peers           czmpc.reports
+    1  czmpc (the core)      sim
+    0  sysid
+
+On top of the layers: neither the core nor `czmpc.peers` imports `sim` (they talk to
+plants only through the structural `sim.protocols.Controller`). Every import counts,
+also those inside functions and under ``TYPE_CHECKING``: a lazy import is still a
+dependency.
+"""
 
 from __future__ import annotations
 
@@ -8,45 +23,89 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-#: czmpc modules allowed to import sim: the CLI and the benchmarks sit on top of all three.
-CZMPC_MODULES_ALLOWED_SIM = {
-    "cli.py", "commands", "bench.py", "bench_mpc.py", "bench_identify.py", "golden.py",
-    "figures_sim.py", "robustness.py", "simulation.py",
+
+#: Layer of each room. A room is ``sysid``, ``sim``, ``czmpc`` (the core: the modules at
+#: the top of czmpc/) or ``czmpc.<subpackage>``.
+LAYERS = {
+    "sysid": 0,
+    "sim": 1,
+    "czmpc": 1,
+    "czmpc.peers": 2,
+    "czmpc.reports": 2,
+    "czmpc.campaigns": 3,
+    "czmpc.runtime": 3,
+    "czmpc.commissioning": 4,
+    "czmpc.testing": 4,
+    "czmpc.cli": 5,
 }
+#: Imports forbidden although the layers would allow them.
+FORBIDDEN = {("czmpc", "sim"), ("czmpc.peers", "sim")}
 
 
-def _imported_roots(path: Path) -> set[str]:
+def room_of_module(module: str) -> str | None:
+    """The room a dotted module name belongs to, or None for a third-party module."""
+    parts = module.split(".")
+    if parts[0] not in {"sysid", "sim", "czmpc"}:
+        return None
+    if parts[0] == "czmpc" and len(parts) > 1 and f"czmpc.{parts[1]}" in LAYERS:
+        return f"czmpc.{parts[1]}"
+    return parts[0]
+
+
+def room_of_path(path: Path) -> str:
+    rel = path.relative_to(REPO).with_suffix("")
+    module = ".".join(p for p in rel.parts if p != "__init__")
+    room = room_of_module(module)
+    if room is None:  # pragma: no cover - only our packages are walked
+        raise AssertionError(path)
+    return room
+
+
+def imported_modules(path: Path) -> set[str]:
     tree = ast.parse(path.read_text(encoding="utf-8"))
-    roots: set[str] = set()
+    names: set[str] = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            roots.update(alias.name.split(".")[0] for alias in node.names)
+            names.update(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            roots.add(node.module.split(".")[0])
-    return roots
+            names.add(node.module)
+            names.update(f"{node.module}.{alias.name}" for alias in node.names)
+    return names
 
 
-def _sources(package: str) -> list[Path]:
-    return sorted((REPO / package).rglob("*.py"))
+def _sources() -> list[Path]:
+    return sorted(p for pkg in ("sysid", "sim", "czmpc") for p in (REPO / pkg).rglob("*.py"))
 
 
-@pytest.mark.parametrize("path", _sources("sysid"), ids=lambda p: p.name)
-def test_sysid_imports_neither_sim_nor_czmpc(path: Path) -> None:
-    assert not (_imported_roots(path) & {"sim", "czmpc"})
+def violations(own: str, modules: set[str]) -> list[str]:
+    """Every import of ``modules`` by room ``own`` that breaks the contract, as readable lines."""
+    bad = []
+    for module in sorted(modules):
+        room = room_of_module(module)
+        if room is None or room == own:
+            continue
+        if (own, room) in FORBIDDEN or LAYERS[room] >= LAYERS[own]:
+            bad.append(f"{own} (layer {LAYERS[own]}) imports {module} ({room}, layer {LAYERS[room]})")
+    return bad
 
 
-@pytest.mark.parametrize("path", _sources("sim"), ids=lambda p: p.name)
-def test_sim_never_imports_czmpc(path: Path) -> None:
-    assert "czmpc" not in _imported_roots(path)
+@pytest.mark.parametrize("path", _sources(), ids=lambda p: str(p.relative_to(REPO)))
+def test_module_imports_only_downward(path: Path) -> None:
+    assert violations(room_of_path(path), imported_modules(path)) == []
 
 
-def _czmpc_core_sources() -> list[Path]:
-    return [
-        p for p in _sources("czmpc")
-        if p.relative_to(REPO / "czmpc").parts[0] not in CZMPC_MODULES_ALLOWED_SIM
-    ]
+def test_every_czmpc_subpackage_has_a_layer() -> None:
+    subpackages = {f"czmpc.{p.parent.name}" for p in (REPO / "czmpc").glob("*/__init__.py")}
+    subpackages.discard("czmpc.data")   # package data, no code
+    assert subpackages <= set(LAYERS), subpackages - set(LAYERS)
 
 
-@pytest.mark.parametrize("path", _czmpc_core_sources(), ids=lambda p: p.name)
-def test_czmpc_core_does_not_import_sim(path: Path) -> None:
-    assert "sim" not in _imported_roots(path)
+def test_contract_catches_upward_and_forbidden_imports() -> None:
+    assert violations("czmpc", {"czmpc.cli.identify"}) == [
+        "czmpc (layer 1) imports czmpc.cli.identify (czmpc.cli, layer 5)"]
+    assert violations("czmpc.peers", {"sim.loop"})
+    assert violations("czmpc.reports", {"czmpc.campaigns.bench"})
+    assert violations("sim", {"czmpc.settings"})
+    assert violations("sysid", {"sim"})
+    assert violations("czmpc.cli", {"czmpc.campaigns.bench", "sim.loop", "sysid.data", "numpy"}) == []
+    assert violations("czmpc.campaigns", {"czmpc.campaigns.golden", "czmpc.peers.pi", "sim"}) == []

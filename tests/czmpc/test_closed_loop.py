@@ -1,4 +1,4 @@
-"""Closed-loop done-when checks of the offset-free MPC (issue 4), via czmpc.simulation.
+"""Closed-loop done-when checks of the offset-free MPC (issue 4), via czmpc.campaigns.simulation.
 
 The controller is built from the shipped identified model data/cz_heater_model.json and
 run against the plant built from that model (no mismatch) or against the virtual CZ
@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from czmpc.controller import StepDiagnostics
-from czmpc.settings import MPCSettings
-from czmpc.simulation import (
+from czmpc.campaigns.simulation import (
     SimulationOutcome,
     controller_settings,
     heater_steady_state_triac_pct,
     run_simulation,
 )
+from czmpc.controller import StepDiagnostics
+from czmpc.settings import MPCSettings
 from sim.disturbances import PowerShift, VoltageStep
 from sim.heater import HeaterParams, steady_state
 from sim.metrics import LIMIT_ATOL_PCT

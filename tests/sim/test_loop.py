@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from czmpc.baselines import PIController
+from czmpc.peers.pi import PIController
 from sim.disturbances import MeasurementSpike, MissingSamples, PowerShift, RandomSpikes
 from sim.errors import SimError
 from sim.loop import CSV_COLUMNS, ClosedLoopResult, run_closed_loop

@@ -179,7 +179,7 @@ def test_identification_figure_failing_mid_save_leaves_no_png(
 ) -> None:
     from matplotlib.figure import Figure
 
-    from czmpc.figures_id import plot_dataset
+    from czmpc.reports.identification_figures import plot_dataset
 
     def half_then_fail(self: Figure, fname: Any, *args: Any, **kwargs: Any) -> None:
         Path(fname).write_bytes(b"\x89PNG half")

@@ -1,0 +1,504 @@
+"""Benchmark of the identification pipeline: wall time per stage, machine, optional SIPPY peer.
+
+Runs `sysid.pipeline.run_paper_pipeline` on one data set several times, takes the
+median wall time of every stage and of the whole run, records the machine (cores, CPU
+model, Python and library versions) and, on request, fits the paper's linear models
+with SIPPY (``sippy-unipi``, the ``bench`` extra) on the same preprocessed data so that
+times and criteria can be set side by side. The numbers go to stdout and into the
+``## Identification pipeline`` section of BENCHMARKS.md (`write_benchmarks_section`).
+
+SIPPY is imported inside `run_sippy_comparison` only; without it the comparison
+reports why it was skipped.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import io
+import math
+import os
+import statistics
+import time
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from czmpc.errors import CzmpcError
+from czmpc.reports.benchmarks_md import MachineInfo, machine_info
+from czmpc.reports.benchmarks_md import write_benchmarks_section as _write_section
+
+if TYPE_CHECKING:
+    from sysid.data import Dataset
+    from sysid.model import OperatingPoint
+
+#: Goal of issue 3: the whole pipeline on the shipped 12,000 samples, this machine [s].
+PIPELINE_GOAL_S = 2.0
+#: Heading of this benchmark's section in BENCHMARKS.md (other sections are kept).
+SECTION_HEADING = "## Identification pipeline"
+
+
+@dataclass(frozen=True, kw_only=True)
+class StageTiming:
+    """Median and spread of one pipeline stage's wall time over the repeats.
+
+    Parameters
+    ----------
+    name :
+        Stage name as the pipeline reports it.
+    median_s :
+        Median wall time [s].
+    min_s, max_s :
+        Fastest and slowest repeat [s].
+    """
+
+    name: str
+    median_s: float
+    min_s: float
+    max_s: float
+
+
+def summarize_timings(name: str, samples_s: Sequence[float]) -> StageTiming:
+    """Median, min and max of one stage's wall times [s].
+
+    Raises
+    ------
+    CzmpcError
+        No samples, or a negative or non-finite time.
+    """
+    values = [float(v) for v in samples_s]
+    if not values or not all(math.isfinite(v) and v >= 0 for v in values):
+        raise CzmpcError(f"{name}: expected one or more finite times >= 0 [s]; got {values}")
+    return StageTiming(name=name, median_s=statistics.median(values), min_s=min(values),
+                       max_s=max(values))
+
+
+@dataclass(frozen=True, kw_only=True)
+class SippyRow:
+    """One SIPPY fit set beside ours.
+
+    Parameters
+    ----------
+    model :
+        Structure and orders, for example ``"ARX(1,2)"``.
+    sippy_time_s, ours_time_s :
+        Wall time of the SIPPY fit and of our fit of the same structure [s].
+    sippy_v_kw2, ours_v_kw2 :
+        ``V`` (eq. 9) of each model, both evaluated with `sysid.criteria` [kW^2].
+    sippy_w_kw2, ours_w_kw2 :
+        ``W`` (eq. 10), or None where it is not meaningful (OE: ``W = V``).
+    note :
+        Anything unusual (SIPPY's own method name, a failure message).
+    """
+
+    model: str
+    sippy_time_s: float | None
+    ours_time_s: float | None
+    sippy_v_kw2: float | None
+    ours_v_kw2: float | None
+    sippy_w_kw2: float | None
+    ours_w_kw2: float | None
+    note: str = ""
+
+
+@dataclass(frozen=True, kw_only=True)
+class SippyComparison:
+    """SIPPY's ARX/ARMAX/OE on our preprocessed data, or why that did not run.
+
+    Parameters
+    ----------
+    available :
+        True if SIPPY imported and ran.
+    version :
+        ``sippy-unipi`` version, or None.
+    reason :
+        Why the comparison is missing or partial (empty when all went well).
+    rows :
+        One `SippyRow` per model structure.
+    """
+
+    available: bool
+    version: str | None
+    reason: str
+    rows: tuple[SippyRow, ...] = ()
+
+
+@dataclass(frozen=True, kw_only=True)
+class BenchmarkResult:
+    """Everything `run_benchmark` measured.
+
+    Parameters
+    ----------
+    data_file :
+        The data set benchmarked.
+    n_samples :
+        Its length.
+    repeats :
+        Whole-pipeline runs timed.
+    stages :
+        Median time of every stage, in pipeline order.
+    total :
+        Median time of the whole pipeline (reading excluded).
+    read :
+        Median time of reading the CSV file.
+    machine :
+        Where it ran.
+    command :
+        The command line that produced the numbers.
+    sippy :
+        The SIPPY comparison, or None if not requested.
+    """
+
+    data_file: str
+    n_samples: int
+    repeats: int
+    stages: tuple[StageTiming, ...]
+    total: StageTiming
+    read: StageTiming
+    machine: MachineInfo
+    command: str
+    sippy: SippyComparison | None = field(default=None)
+
+    @property
+    def goal_met(self) -> bool:
+        """True if the median whole-pipeline time is below `PIPELINE_GOAL_S`."""
+        return self.total.median_s < PIPELINE_GOAL_S
+
+
+# --- SIPPY -------------------------------------------------------------------------
+
+def _score_sippy_model(
+    fitted: Any, method: str, ds: np.ndarray, dp: np.ndarray
+) -> tuple[float | None, float | None, str]:
+    """V, W (None for OE) and a note for one SIPPY model, with our held-past kernels.
+
+    The kernels of `sysid.simulate` are the ones `sysid.criteria` uses for our models,
+    so both columns are computed the same way. A SIPPY model with an unstable ``A`` is
+    still scored (the record is finite) and the note gives its largest pole.
+    """
+    from sysid.polynomials import max_root_modulus
+    from sysid.simulate import prediction_errors_arrays, simulate_arrays
+
+    num, den = _tf_coefficients(fitted.G)
+    hnum, hden = _tf_coefficients(fitted.H)
+    a = den / den[0]
+    b = num / den[0]
+    eps = dp - simulate_arrays(b, a, ds, y_past=float(dp[0]))
+    v = float(eps @ eps) / eps.size
+    note = f"SIPPY {method}"
+    rho = max_root_modulus(a)
+    if rho >= 1.0:
+        note += f"; unstable: largest pole modulus {rho:.6f}"
+    w = None
+    if method != "OE":
+        c = hnum / hnum[0]
+        if max_root_modulus(c) >= 1.0:
+            note += "; C(q) unstable, no one-step predictor"
+        else:
+            e = prediction_errors_arrays(a, b, c, dp, ds)
+            w = float(e @ e) / e.size
+    return (v if np.isfinite(v) else None), w, note
+
+
+def _tf_coefficients(tf: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Numerator and denominator of a SISO python-control transfer function in q^-1.
+
+    python-control stores descending powers of z; with equal lengths (padded) they read
+    as ascending powers of q^-1.
+    """
+    num = np.atleast_1d(np.squeeze(np.asarray(tf.num[0][0], dtype=float)))
+    den = np.atleast_1d(np.squeeze(np.asarray(tf.den[0][0], dtype=float)))
+    n = max(num.size, den.size)
+    num = np.concatenate([np.zeros(n - num.size), num])
+    den = np.concatenate([np.zeros(n - den.size), den])
+    first = int(np.flatnonzero(den)[0])
+    return num[first:], den[first:]
+
+
+#: SIPPY's orders for the paper's models. SIPPY's delay ``theta`` counts samples
+#: *beyond* the one-sample delay its polynomials already have, so the paper's
+#: ``nk = 1`` is ``theta = 0``.
+SIPPY_CASES: tuple[tuple[str, str, dict[str, Any]], ...] = (
+    ("ARX(1,2)", "ARX", {"ARX_orders": [1, 2, 0]}),
+    ("ARMAX(1,2,1)", "ARMAX", {"ARMAX_orders": [1, 2, 1, 0]}),
+    ("OE(2,1)", "OE", {"OE_orders": [2, 1, 0]}),
+)
+
+
+def run_sippy_comparison(
+    data: Dataset,
+    *,
+    operating_point: OperatingPoint,
+    ours: Mapping[str, tuple[float | None, float | None, float | None]],
+) -> SippyComparison:
+    """Fit the paper's ARX(1,2), ARMAX(1,2,1), OE(2,1) with SIPPY and score them like ours.
+
+    Parameters
+    ----------
+    data :
+        The preprocessed `sysid.data.Dataset` (absolute units) our linear fits used.
+    operating_point :
+        The `sysid.model.OperatingPoint` of the deviations.
+    ours :
+        Model label (as in `SIPPY_CASES`) -> ``(time_s, V, W)`` of our fit.
+
+    Returns
+    -------
+    SippyComparison
+        ``available=False`` with the reason if SIPPY is not installed or fails as a
+        whole; a row with a note for a structure it cannot fit.
+
+    Notes
+    -----
+    Both sides are scored with the held-past kernels of `sysid.simulate` that
+    `sysid.criteria` uses, so the numbers compare. SIPPY prints to stdout; that output
+    is swallowed.
+    """
+    from importlib import metadata
+
+
+    try:
+        import sippy_unipi
+    except ImportError as exc:
+        return SippyComparison(available=False, version=None,
+                               reason=f"sippy-unipi is not installed ({exc}); "
+                                      "install the 'bench' extra to compare")
+    version = metadata.version("sippy-unipi")
+    ds = np.asarray(data.triac_pct, dtype=float) - operating_point.triac_pct
+    dp = np.asarray(data.power_kw, dtype=float) - operating_point.power_kw
+    rows = []
+    for label, method, orders in SIPPY_CASES:
+        ours_t, ours_v, ours_w = ours.get(label, (None, None, None))
+        if method == "OE":
+            ours_w = None  # W = V for an output-error model: not a separate criterion
+        t0 = time.perf_counter()
+        try:
+            with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                fitted = sippy_unipi.system_identification(
+                    dp, ds, method, tsample=data.ts_s, **orders)
+        except (Exception, SystemExit) as exc:  # SIPPY calls sys.exit on bad options
+            rows.append(SippyRow(model=label, sippy_time_s=None, ours_time_s=ours_t,
+                                 sippy_v_kw2=None, ours_v_kw2=ours_v, sippy_w_kw2=None,
+                                 ours_w_kw2=ours_w,
+                                 note=f"SIPPY failed: {type(exc).__name__}: {exc}"[:200]))
+            continue
+        elapsed = time.perf_counter() - t0
+        v, w, note = _score_sippy_model(fitted, method, ds, dp)
+        rows.append(SippyRow(model=label, sippy_time_s=elapsed, ours_time_s=ours_t,
+                             sippy_v_kw2=v, ours_v_kw2=ours_v, sippy_w_kw2=w,
+                             ours_w_kw2=ours_w, note=note))
+    failed = [r.model for r in rows if r.sippy_time_s is None]
+    unstable = [r.model for r in rows if "unstable" in r.note]
+    reasons = ([f"SIPPY failed on {', '.join(failed)}"] if failed else []) + (
+        [f"SIPPY's estimate is unstable for {', '.join(unstable)} (see the note)"] if unstable else [])
+    return SippyComparison(available=len(failed) < len(rows), version=version,
+                           reason="; ".join(reasons), rows=tuple(rows))
+
+
+# --- BENCHMARKS.md -----------------------------------------------------------------
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def format_report(result: BenchmarkResult) -> str:
+    """The benchmark's numbers as Markdown (stdout and BENCHMARKS.md share it)."""
+    lines = [
+        f"Command: `{result.command}`",
+        "",
+        f"Data: `{result.data_file}`, {result.n_samples} samples; {result.repeats} repeats, "
+        "median [min .. max] wall time per stage. Timed: `sysid.pipeline.run_paper_pipeline` as "
+        "`czmpc identify` runs it (all 12 models, PEM from zeros included), without writing "
+        "model files or drawing figures.",
+        "",
+        f"Machine: {result.machine.describe()}",
+        "",
+        "| stage | median [s] | min [s] | max [s] |",
+        "|---|---:|---:|---:|",
+        f"| read CSV | {result.read.median_s:.3f} | {result.read.min_s:.3f} | {result.read.max_s:.3f} |",
+    ]
+    for st in result.stages:
+        lines.append(f"| {st.name} | {st.median_s:.3f} | {st.min_s:.3f} | {st.max_s:.3f} |")
+    t = result.total
+    lines.append(f"| **whole pipeline** | **{t.median_s:.3f}** | {t.min_s:.3f} | {t.max_s:.3f} |")
+    lines += [
+        "",
+        f"Goal: whole pipeline under {PIPELINE_GOAL_S:g} s on this machine: "
+        + ("**met**" if result.goal_met else "**not met**")
+        + f" (median {t.median_s:.3f} s).",
+    ]
+    sippy = result.sippy
+    if sippy is not None:
+        lines += ["", f"### SIPPY comparison (sippy-unipi {sippy.version or 'not installed'})", ""]
+        if sippy.reason:
+            lines += [f"Note: {sippy.reason}.", ""]
+        if any("unstable" in r.note for r in sippy.rows):
+            lines += ["An unstable estimate can score a lower V on a finite record (its slow "
+                      "divergence follows the record's slow drift) but it is no usable model; our "
+                      "fits are kept stable.", ""]
+        if sippy.rows:
+            lines += [
+                "Same preprocessed data, same orders (delay 1, SIPPY's default settings), both "
+                "scored with the held-past kernels of `sysid.simulate` that `sysid.criteria` "
+                "uses. Times are single fits; W is not listed for OE (W = V).",
+                "",
+                "| model | SIPPY time [s] | our time [s] | time ratio SIPPY/ours | "
+                "SIPPY V [kW^2] | our V [kW^2] | SIPPY W [kW^2] | our W [kW^2] | note |",
+                "|---|---:|---:|---:|---:|---:|---:|---:|---|",
+            ]
+            for r in sippy.rows:
+                ratio = (r.sippy_time_s / r.ours_time_s
+                         if r.sippy_time_s is not None and r.ours_time_s else None)
+                lines.append(
+                    f"| {r.model} | {_fmt(r.sippy_time_s, '.3f')} | {_fmt(r.ours_time_s, '.3f')} | "
+                    f"{_fmt(ratio, '.1f')} | {_fmt(r.sippy_v_kw2, '.4g')} | {_fmt(r.ours_v_kw2, '.4g')} | "
+                    f"{_fmt(r.sippy_w_kw2, '.3g')} | {_fmt(r.ours_w_kw2, '.3g')} | {r.note} |"
+                )
+    return "\n".join(lines) + "\n"
+
+
+def write_benchmarks_section(path: str | os.PathLike[str], body: str) -> None:
+    """Put ``body`` under this benchmark's `SECTION_HEADING` in a BENCHMARKS.md."""
+    _write_section(path, body, heading=SECTION_HEADING)
+
+
+# --- running ---------------------------------------------------------------------------
+
+#: ``(time [s], V [kW^2], W [kW^2])`` of one fit; None where the fit failed.
+FitNumbers = tuple[float | None, float | None, float | None]
+
+
+def _time_our_linear_fits(data: Dataset, op: OperatingPoint) -> dict[str, FitNumbers]:
+    """Wall time, V and W of our fits of SIPPY's three structures on the same data."""
+    from sysid.errors import SysidError
+    from sysid.linear import fit_armax, fit_arx, fit_oe
+
+    cases: tuple[tuple[str, Callable[..., Any], dict[str, int]], ...] = (
+        ("ARX(1,2)", fit_arx, {"na": 1, "nb": 2}),
+        ("ARMAX(1,2,1)", fit_armax, {"na": 1, "nb": 2, "nc": 1}),
+        ("OE(2,1)", fit_oe, {"nb": 2, "nf": 1}),
+    )
+    out: dict[str, FitNumbers] = {}
+    for label, fit, orders in cases:
+        t0 = time.perf_counter()
+        try:
+            result = fit(data, operating_point=op, nk=1, **orders)
+        except SysidError:
+            out[label] = (None, None, None)
+            continue
+        elapsed = time.perf_counter() - t0
+        crit = result.model.criteria
+        out[label] = (elapsed, crit.ballistic_mse_kw2, crit.one_step_mse_kw2)
+    return out
+
+
+def run_benchmark(
+    data_path: str | os.PathLike[str],
+    *,
+    repeats: int = 5,
+    with_sippy: bool = False,
+    command: str = "czmpc bench-identify",
+    progress: Callable[[str], None] | None = None,
+) -> BenchmarkResult:
+    """Time the whole identification pipeline on one log, ``repeats`` times.
+
+    Parameters
+    ----------
+    data_path :
+        CSV file in the data contract (the shipped experiment by default in the CLI).
+    repeats :
+        Number of whole-pipeline runs; medians are taken over them.
+    with_sippy :
+        Also fit ARX/ARMAX/OE with SIPPY on the preprocessed data of the last run.
+    command :
+        The command line, recorded with the numbers.
+    progress :
+        Called with a short message before each run.
+
+    Returns
+    -------
+    BenchmarkResult
+
+    Raises
+    ------
+    CzmpcError
+        `repeats` < 1.
+    DataFileError
+        The file breaks the data contract.
+    IdentificationError
+        The pipeline cannot run on the data.
+    """
+    from sysid.data import read_csv
+    from sysid.pipeline import run_paper_pipeline
+
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
+        raise CzmpcError(f"run_benchmark: repeats must be an int >= 1; got {repeats!r}")
+    machine = machine_info()
+    read_s: list[float] = []
+    total_s: list[float] = []
+    stage_s: dict[str, list[float]] = {}
+    result = None
+    data = None
+    for i in range(repeats):
+        if progress is not None:
+            progress(f"run {i + 1} of {repeats}")
+        t0 = time.perf_counter()
+        data = read_csv(data_path)
+        t1 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # non-convergence is the identify command's business
+            result = run_paper_pipeline(data)
+        t2 = time.perf_counter()
+        read_s.append(t1 - t0)
+        total_s.append(t2 - t1)
+        for st in result.timings:
+            stage_s.setdefault(st.name, []).append(st.wall_time_s)
+    if result is None or data is None:  # pragma: no cover - repeats >= 1 is checked above
+        raise CzmpcError("run_benchmark: no run completed")
+    sippy = None
+    if with_sippy:
+        if progress is not None:
+            progress("SIPPY comparison on the preprocessed data")
+        op = result.operating_point.operating_point
+        ours = _time_our_linear_fits(result.data, op)
+        sippy = run_sippy_comparison(result.data, operating_point=op, ours=ours)
+    return BenchmarkResult(
+        data_file=str(data_path),
+        n_samples=data.n_samples,
+        repeats=repeats,
+        stages=tuple(summarize_timings(name, v) for name, v in stage_s.items()),
+        total=summarize_timings("whole pipeline", total_s),
+        read=summarize_timings("read CSV", read_s),
+        machine=machine,
+        command=command,
+        sippy=sippy,
+    )
+
+
+def result_to_dict(result: BenchmarkResult) -> dict[str, Any]:
+    """The benchmark's numbers as a JSON-able mapping (for ``--out DIR``)."""
+    out = dataclasses.asdict(result)
+    out["goal_s"] = PIPELINE_GOAL_S
+    out["goal_met"] = result.goal_met
+    return out
+
+__all__ = [
+    "PIPELINE_GOAL_S",
+    "SECTION_HEADING",
+    "BenchmarkResult",
+    "MachineInfo",
+    "SippyComparison",
+    "SippyRow",
+    "StageTiming",
+    "format_report",
+    "machine_info",
+    "result_to_dict",
+    "run_benchmark",
+    "run_sippy_comparison",
+    "summarize_timings",
+    "write_benchmarks_section",
+]

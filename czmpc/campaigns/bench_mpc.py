@@ -1,0 +1,366 @@
+"""Benchmark of the MPC in closed loop: controller step time (N = 50) and a 24 h simulation.
+
+Two measurements, each run through `czmpc.campaigns.simulation.run_simulation` (so the loop,
+plants and controller are exactly those of ``czmpc simulate``):
+
+* **step time**: the wall time of `OffsetFreeMPC.step` alone (`time.perf_counter`
+  around each call, recorded by `sim.loop.run_closed_loop`) on the shipped staircase
+  scenario (3,900 samples) against the plant built from the model (noisy), with the
+  default tuning at horizon ``N = 50``; median, p95, p99 and maximum over each run,
+  repeated. Goal (issue 4): median <= 0.3 ms and p99 <= 2 ms on this machine, judged
+  on the median over the repeats.
+* **24 h simulation**: `day_scenario` (43,200 samples of 2 s: a staircase up and down
+  with a grid level shift and a voltage sag) with the MPC in the loop at its default
+  tuning, on both plants; wall time of the whole `run_simulation` call (plant and
+  controller set-up, the loop, metrics). Goal: under 30 s.
+
+The numbers go to stdout and, with the machine they ran on, under
+`SECTION_HEADING` in BENCHMARKS.md (`write_benchmarks_section`; other sections are kept).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from czmpc.campaigns.simulation import PLANT_DESCRIPTIONS, PlantKind, run_simulation
+from czmpc.reports.benchmarks_md import MachineInfo, machine_info
+from czmpc.reports.benchmarks_md import write_benchmarks_section as _write_section
+from czmpc.settings import MPCSettings
+from sim.disturbances import PowerShift, VoltageStep
+from sim.scenario import Scenario, SetpointStep, load_scenario
+from sysid.model import HammersteinModel
+
+#: Heading of this benchmark's section in BENCHMARKS.md.
+SECTION_HEADING = "## Controller step time and 24 h simulation"
+#: Horizon of the step-time benchmark [samples] (issue 4).
+BENCH_HORIZON_STEPS = 50
+#: Step-time goals of issue 4 [ms].
+STEP_MEDIAN_GOAL_MS = 0.3
+STEP_P99_GOAL_MS = 2.0
+#: Wall-time goal of the 24 h closed-loop simulation [s].
+DAY_SIMULATION_GOAL_S = 30.0
+#: Plant time of the long simulation [s]: 24 h = 43,200 samples of 2 s.
+DAY_DURATION_S = 86_400.0
+#: Seed of every benchmark run (the numbers do not depend on it beyond noise).
+BENCH_SEED = 0
+
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StepTimeRun:
+    """Step-time statistics of one closed-loop run [ms].
+
+    Parameters
+    ----------
+    n_steps :
+        Controller steps timed.
+    median_ms, p95_ms, p99_ms, max_ms :
+        Median, 95th and 99th percentile and maximum of the step time [ms].
+    mean_iterations :
+        Mean OSQP iterations per step.
+    n_fallbacks :
+        Steps whose QP result was not used.
+    """
+
+    n_steps: int
+    median_ms: float
+    p95_ms: float
+    p99_ms: float
+    max_ms: float
+    mean_iterations: float
+    n_fallbacks: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DayRun:
+    """Wall time of one 24 h closed-loop simulation.
+
+    Parameters
+    ----------
+    plant :
+        ``"model"`` or ``"heater"``.
+    n_steps :
+        Samples simulated.
+    wall_s :
+        Wall time of the whole `run_simulation` call [s].
+    controller_s :
+        Sum of the controller's step times within it [s].
+    horizon_steps :
+        ``N`` of the controller.
+    max_abs_steady_state_error_kw :
+        Largest steady-state error of the measured power over the setpoint segments
+        [kW] (a sanity check that the run did control; see
+        `SimulationOutcome.metrics_measured` for why the measured power).
+    """
+
+    plant: PlantKind
+    n_steps: int
+    wall_s: float
+    controller_s: float
+    horizon_steps: int
+    max_abs_steady_state_error_kw: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class MPCBenchmark:
+    """Everything `run_benchmark` measured.
+
+    Parameters
+    ----------
+    machine :
+        The machine (cores, CPU, Python, numpy/scipy/osqp versions, load average).
+    model_label :
+        Which model the controller (and the model plant) used.
+    step_runs :
+        One `StepTimeRun` per repeat.
+    day_runs :
+        One `DayRun` per plant.
+    command :
+        The command line that produced the numbers.
+    """
+
+    machine: MachineInfo
+    model_label: str
+    step_runs: tuple[StepTimeRun, ...]
+    day_runs: tuple[DayRun, ...]
+    command: str
+
+    @property
+    def step_median_ms(self) -> float:
+        """Median over the repeats of each run's median step time [ms]."""
+        return float(np.median([r.median_ms for r in self.step_runs]))
+
+    @property
+    def step_p99_ms(self) -> float:
+        """Median over the repeats of each run's p99 step time [ms]."""
+        return float(np.median([r.p99_ms for r in self.step_runs]))
+
+    @property
+    def step_goal_met(self) -> bool:
+        """Median <= 0.3 ms and p99 <= 2 ms (medians over the repeats)."""
+        return self.step_median_ms <= STEP_MEDIAN_GOAL_MS and self.step_p99_ms <= STEP_P99_GOAL_MS
+
+    @property
+    def day_goal_met(self) -> bool:
+        """Every 24 h simulation under 30 s."""
+        return all(r.wall_s < DAY_SIMULATION_GOAL_S for r in self.day_runs)
+
+
+def day_scenario(ts_s: float = 2.0) -> Scenario:
+    """24 h of plant time: the staircase up and down twice, a grid level shift, a sag.
+
+    Setpoint 45 kW, then 50, 55, 60, 65, 60, 55, 50, 45 kW every 80 min (two cycles
+    in 24 h); the paper's +0.15 kW level shift (sec. 5.2) at 6 h for good; a 3 % grid
+    voltage sag of 10 min at 15 h; plant noise on.
+
+    Parameters
+    ----------
+    ts_s :
+        Sampling time [s] (the model's).
+    """
+    levels_kw = (50.0, 55.0, 60.0, 65.0, 60.0, 55.0, 50.0, 45.0)
+    period_s = 4800.0
+    steps = tuple(
+        SetpointStep(at_s=period_s * (1 + i), power_kw=levels_kw[i % len(levels_kw)])
+        for i in range(int(DAY_DURATION_S // period_s) - 1)
+    )
+    return Scenario(
+        name="day-24h",
+        description="24 h: staircase 45..65 kW up and down (80 min per level), +0.15 kW "
+                    "level shift at 6 h, 3 % voltage sag for 10 min at 15 h",
+        duration_s=DAY_DURATION_S, ts_s=ts_s, initial_setpoint_kw=45.0, initial_triac_pct=45.0,
+        setpoints=steps,
+        disturbances=(PowerShift(at_s=6 * 3600.0, offset_kw=0.15),
+                      VoltageStep(at_s=15 * 3600.0, factor=0.97, duration_s=600.0)),
+    )
+
+
+def measure_step_times(
+    model: HammersteinModel, *, repeats: int, progress: Progress | None = None,
+) -> tuple[StepTimeRun, ...]:
+    """Time `OffsetFreeMPC.step` at ``N = 50`` on the staircase, model plant, ``repeats`` times.
+
+    Parameters
+    ----------
+    model :
+        Controller model and plant.
+    repeats :
+        Closed-loop runs (>= 1); each gives its own statistics.
+    progress :
+        Called with a short message after each run.
+    """
+    scenario = load_scenario("staircase")
+    settings = MPCSettings.default_for(model).with_updates(horizon_steps=BENCH_HORIZON_STEPS)
+    runs = []
+    for i in range(repeats):
+        outcome = run_simulation(model, scenario, plant="model", seed=BENCH_SEED + i,
+                                 settings=settings)
+        ms = outcome.result.step_time_s * 1e3
+        diags = outcome.result.diagnostics or ()
+        iterations = [float(getattr(d, "n_iterations", 0)) for d in diags]
+        runs.append(StepTimeRun(
+            n_steps=int(ms.size), median_ms=float(np.median(ms)),
+            p95_ms=float(np.percentile(ms, 95)), p99_ms=float(np.percentile(ms, 99)),
+            max_ms=float(ms.max()), mean_iterations=float(np.mean(iterations)) if iterations else 0.0,
+            n_fallbacks=int(outcome.metrics.n_solver_failures or 0),
+        ))
+        if progress is not None:
+            progress(f"step time, run {i + 1}/{repeats}: median {runs[-1].median_ms:.3f} ms")
+    return tuple(runs)
+
+
+def measure_day_simulation(
+    model: HammersteinModel, plant: PlantKind, *, progress: Progress | None = None,
+) -> DayRun:
+    """Wall time of `run_simulation` over `day_scenario` with the default tuning.
+
+    Parameters
+    ----------
+    model :
+        Controller model (and plant for ``plant="model"``).
+    plant :
+        ``"model"`` or ``"heater"``.
+    progress :
+        Called with a short message when done.
+    """
+    scenario = day_scenario(model.ts_s)
+    t0 = time.perf_counter()
+    outcome = run_simulation(model, scenario, plant=plant, seed=BENCH_SEED)
+    wall_s = time.perf_counter() - t0
+    run = DayRun(
+        plant=plant, n_steps=outcome.result.n_steps, wall_s=wall_s,
+        controller_s=float(np.sum(outcome.result.step_time_s)),
+        horizon_steps=outcome.settings.horizon_steps,
+        max_abs_steady_state_error_kw=outcome.metrics_measured.max_abs_steady_state_error_kw,
+    )
+    if progress is not None:
+        progress(f"24 h simulation on the {plant} plant: {wall_s:.2f} s")
+    return run
+
+
+def run_benchmark(
+    model: HammersteinModel, *, model_label: str, repeats: int = 5, command: str,
+    progress: Progress | None = None,
+) -> MPCBenchmark:
+    """Run both measurements (the machine is described before they start).
+
+    Parameters
+    ----------
+    model :
+        The controller's model.
+    model_label :
+        How to name the model in the report (e.g. its file).
+    repeats :
+        Step-time runs.
+    command :
+        The command line, recorded with the numbers.
+    progress :
+        Called with a short message after each run.
+    """
+    machine = machine_info()
+    step_runs = measure_step_times(model, repeats=repeats, progress=progress)
+    day_runs = tuple(measure_day_simulation(model, plant, progress=progress)
+                     for plant in ("model", "heater"))
+    return MPCBenchmark(machine=machine, model_label=model_label, step_runs=step_runs,
+                        day_runs=day_runs, command=command)
+
+
+def _met(ok: bool) -> str:
+    return "**met**" if ok else "**missed**"
+
+
+def _load_note(machine: MachineInfo) -> list[str]:
+    """A note when other work shared the machine (it shows in p99 and max, not the median)."""
+    load = machine.load_average
+    if load is None or load < 0.5 * machine.n_cpus:
+        return []
+    return [
+        "",
+        f"Note: other jobs shared the machine (load average {load:.2f} on {machine.n_cpus} "
+        "cores). A step that loses its core to another process for one time slice takes "
+        "milliseconds: that shows in p99 and max, which vary from run to run, not in the "
+        "median.",
+    ]
+
+
+def format_report(bench: MPCBenchmark) -> str:
+    """The numbers as Markdown (stdout and BENCHMARKS.md share it)."""
+    lines = [
+        f"Command: `{bench.command}`",
+        "",
+        f"Machine: {bench.machine.describe()}",
+        "",
+        f"Model: {bench.model_label}. Controller: `OffsetFreeMPC`, default tuning; OSQP "
+        "warm-started, eps 1e-5.",
+        "",
+        f"### Step time, N = {BENCH_HORIZON_STEPS}",
+        "",
+        f"Wall time of `OffsetFreeMPC.step` alone (perf_counter around each call) on the "
+        f"shipped staircase (45 -> 65 kW, {bench.step_runs[0].n_steps} samples) against the "
+        "plant built from the model (noise on), one row per run (seeds "
+        f"{BENCH_SEED}..{BENCH_SEED + len(bench.step_runs) - 1}).",
+        "",
+        "| run | median [ms] | p95 [ms] | p99 [ms] | max [ms] | OSQP iterations (mean) | fallbacks |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for i, r in enumerate(bench.step_runs, start=1):
+        lines.append(f"| {i} | {r.median_ms:.3f} | {r.p95_ms:.3f} | {r.p99_ms:.3f} | "
+                     f"{r.max_ms:.3f} | {r.mean_iterations:.1f} | {r.n_fallbacks} |")
+    lines += [
+        "",
+        f"Goal: median <= {STEP_MEDIAN_GOAL_MS:g} ms and p99 <= {STEP_P99_GOAL_MS:g} ms "
+        f"(medians over the runs: {bench.step_median_ms:.3f} ms, {bench.step_p99_ms:.3f} ms): "
+        f"{_met(bench.step_goal_met)}.",
+        *_load_note(bench.machine),
+        "",
+        "### 24 h closed-loop simulation",
+        "",
+        f"{int(DAY_DURATION_S / 3600)} h of plant time ({bench.day_runs[0].n_steps} samples "
+        "of 2 s): staircase 45..65 kW up and down, +0.15 kW level shift, 3 % voltage sag, "
+        "noise on; wall time of the whole `czmpc.campaigns.simulation.run_simulation` call (set-up, "
+        "loop, metrics).",
+        "",
+        "| plant | N | wall time [s] | of which controller [s] | largest steady error, measured [kW] |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for d in bench.day_runs:
+        lines.append(f"| {PLANT_DESCRIPTIONS[d.plant]} | {d.horizon_steps} | {d.wall_s:.2f} | "
+                     f"{d.controller_s:.2f} | {d.max_abs_steady_state_error_kw:.4f} |")
+    slowest = max(d.wall_s for d in bench.day_runs)
+    lines += [
+        "",
+        f"Goal: under {DAY_SIMULATION_GOAL_S:g} s (slowest plant: {slowest:.2f} s): "
+        f"{_met(bench.day_goal_met)}.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def write_benchmarks_section(path: str | os.PathLike[str], body: str,
+                             heading: str = SECTION_HEADING) -> None:
+    """Put ``body`` under ``heading`` (default: this benchmark's) in a BENCHMARKS.md."""
+    _write_section(path, body, heading=heading)
+
+
+__all__ = [
+    "BENCH_HORIZON_STEPS",
+    "DAY_DURATION_S",
+    "DAY_SIMULATION_GOAL_S",
+    "SECTION_HEADING",
+    "STEP_MEDIAN_GOAL_MS",
+    "STEP_P99_GOAL_MS",
+    "DayRun",
+    "MPCBenchmark",
+    "StepTimeRun",
+    "day_scenario",
+    "format_report",
+    "measure_day_simulation",
+    "measure_step_times",
+    "run_benchmark",
+    "write_benchmarks_section",
+]

@@ -1,0 +1,420 @@
+"""run_simulation and write_outputs: one closed-loop run of the offset-free MPC, wired up.
+
+The one place that puts an identified model, a plant, a scenario and `OffsetFreeMPC`
+together for a closed-loop run (`czmpc simulate` and `czmpc demo` call it):
+
+* **plant** ``"model"``: `sim.model_plant.ModelPlant`, the model's own difference
+  equation (no model mismatch), built by `ModelPlant.for_scenario` (it starts in steady
+  state at the scenario's ``initial_triac_pct``, or at the input whose steady power is
+  the initial setpoint);
+* **plant** ``"heater"``: `sim.heater.VirtualHeater`, the grey-box physics (model
+  mismatch). It starts in steady state at the TRIAC input whose steady power on the
+  heater is the scenario's initial setpoint (`heater_steady_state_triac_pct`), so a run
+  starts without a transient.
+
+The controller starts at the plant's initial input (`MPCSettings.initial_triac_pct`,
+clipped to the controller's allowed range) and takes the scenario's TRIAC limits and
+rate limit (the tighter of the scenario's and the given settings'), so that the
+metrics check the controller against the limits it was told.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any, Literal, get_args
+
+import numpy as np
+from matplotlib.figure import Figure
+from scipy.optimize import brentq
+
+from czmpc.controller import OffsetFreeMPC
+from czmpc.inversion import allowed_triac_range
+from czmpc.reports.closed_loop_figure import plot_closed_loop
+from czmpc.settings import MPCSettings
+from sim.errors import PlantError, SimError
+from sim.heater import HeaterParams, VirtualHeater, steady_state
+from sim.loop import ClosedLoopResult, ProgressCallback, run_closed_loop
+from sim.metrics import ClosedLoopMetrics, compute_metrics
+from sim.model_plant import ModelPlant
+from sim.protocols import Plant
+from sim.scenario import Scenario
+from sysid.atomic import atomic_write_text
+from sysid.model import HammersteinModel
+
+PlantKind = Literal["model", "heater"]
+
+#: What each plant kind is, for tables, figures and metrics.json.
+PLANT_DESCRIPTIONS: dict[str, str] = {
+    "model": "plant built from the identified model (no model mismatch)",
+    "heater": "virtual CZ heater (grey-box physics: model mismatch)",
+}
+
+#: Files `write_outputs` writes into its directory.
+TRAJECTORY_FILE = "trajectory.csv"
+METRICS_FILE = "metrics.json"
+FIGURE_FILE = "figure.png"
+
+#: Tolerance of the bisection for the heater's initial input [%].
+_INITIAL_TRIAC_XTOL_PCT = 1e-9
+
+
+@dataclass(frozen=True, kw_only=True)
+class SimulationOutcome:
+    """One closed-loop run of the offset-free MPC with what it was run with.
+
+    Parameters
+    ----------
+    plant :
+        ``"model"`` or ``"heater"`` (see the module docstring).
+    noise :
+        Whether the plant's noise was on.
+    seed :
+        Seed of the run's noise and fault streams.
+    initial_triac_pct :
+        TRIAC input the plant started in steady state at [%].
+    settings :
+        The controller settings used (limits from the scenario, initial input set).
+    allowed_triac_range_pct :
+        ``(s_min, s_max)`` the controller kept its output in [%] (model validity range
+        widened by the margin, within the TRIAC limits).
+    result :
+        The recorded run.
+    metrics :
+        Its metrics on the plant's true power (without sensor noise, spikes and missing
+        samples).
+    metrics_measured :
+        Its metrics on the measured power (NaN samples skipped; spikes included). On
+        the model plant this is the signal to judge offsets by: the model's noise
+        ``v = C/A e`` is mostly slow (``C(1)/A(1)`` is about 50 for the shipped model),
+        the controller rejects it as the disturbance it is, and so the noise-free power
+        ``y_det`` wanders by ``-v``'s slow part (a few hundredths of a kW over a
+        segment's last quarter) while the measured power sits on the setpoint.
+    """
+
+    plant: PlantKind
+    noise: bool
+    seed: int
+    initial_triac_pct: float
+    settings: MPCSettings
+    allowed_triac_range_pct: tuple[float, float]
+    result: ClosedLoopResult
+    metrics: ClosedLoopMetrics
+    metrics_measured: ClosedLoopMetrics
+
+    @property
+    def scenario(self) -> Scenario:
+        """The scenario that was run."""
+        return self.result.scenario
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary: the run's configuration and its metrics (metrics.json)."""
+        settings = asdict(self.settings)
+        return {
+            "format": "czmpc-simulation-metrics/1",
+            "scenario": self.scenario.name,
+            "scenario_source": self.scenario.source,
+            "plant": self.plant,
+            "plant_description": PLANT_DESCRIPTIONS[self.plant],
+            "noise": self.noise,
+            "seed": self.seed,
+            "n_steps": self.result.n_steps,
+            "ts_s": self.result.ts_s,
+            "initial_triac_pct": self.initial_triac_pct,
+            "allowed_triac_range_pct": list(self.allowed_triac_range_pct),
+            "controller_settings": settings,
+            "metrics": self.metrics.to_dict(),
+            "metrics_measured": self.metrics_measured.to_dict(),
+        }
+
+    def metrics_table(self) -> str:
+        """The metrics as a plain-text table: one row per setpoint change, then the run.
+
+        Units are in the column headers; ``-`` marks a response that did not settle
+        within its segment.
+        """
+        return format_metrics_table(self.metrics, self.metrics_measured, title=(
+            f"scenario '{self.scenario.name}', {PLANT_DESCRIPTIONS[self.plant]}, "
+            f"seed {self.seed}, noise {'on' if self.noise else 'off'}"
+        ))
+
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "-" if value is None or not math.isfinite(value) else format(value, spec)
+
+
+def format_metrics_table(metrics: ClosedLoopMetrics, measured: ClosedLoopMetrics | None = None,
+                         *, title: str) -> str:
+    """Render `ClosedLoopMetrics` as text: per setpoint change, then overall.
+
+    Parameters
+    ----------
+    metrics :
+        The run's metrics on the true power.
+    measured :
+        The same run's metrics on the measured power, or None; adds its steady-state
+        errors as a column.
+    title :
+        First line of the table.
+    """
+    lines = [title]
+    if metrics.changes:
+        header = (f"{'change at [s]':>13}  {'setpoint [kW]':>15}  {'IAE [kW s]':>10}  "
+                  f"{'overshoot [kW]':>14}  {'overshoot [%]':>13}  {'settling [s]':>12}  "
+                  f"{'steady error true [kW]':>22}")
+        if measured is not None:
+            header += f"  {'steady error measured [kW]':>26}"
+        lines += ["per setpoint change (errors of the true power unless marked 'measured'; "
+                  "2 % settling band; steady error: mean over the segment's last quarter):", header]
+        for i, c in enumerate(metrics.changes):
+            row = (
+                f"{c.time_s:>13.0f}  {c.from_kw:>6.1f} -> {c.to_kw:<5.1f}  "
+                f"{c.iae_kw_s:>10.2f}  {c.overshoot_kw:>14.3f}  {_fmt(c.overshoot_pct, '.1f'):>13}  "
+                f"{_fmt(c.settling_time_s, '.0f'):>12}  {c.steady_state_error_kw:>22.4f}"
+            )
+            if measured is not None:
+                row += f"  {_fmt(measured.changes[i].steady_state_error_kw, '.4f'):>26}"
+            lines.append(row)
+    failures = "-" if metrics.n_solver_failures is None else str(metrics.n_solver_failures)
+    lines += [
+        "overall:",
+        f"  IAE {metrics.iae_kw_s:.2f} kW s, ISE {metrics.ise_kw2_s:.3f} kW^2 s, "
+        f"largest |steady error| {_fmt(metrics.max_abs_steady_state_error_kw, '.4f')} kW"
+        + ("" if measured is None else
+           f" (measured power: {_fmt(measured.max_abs_steady_state_error_kw, '.4f')} kW)"),
+        f"  input total variation {metrics.input_total_variation_pct:.1f} %, largest move "
+        f"{metrics.max_move_pct:.2f} %/step, limit violations {metrics.n_limit_violations}, "
+        f"rate violations {metrics.n_rate_violations}, solver fallbacks {failures}",
+        f"  controller step time: median {metrics.step_time_median_ms:.3f} ms, p95 "
+        f"{metrics.step_time_p95_ms:.3f} ms, max {metrics.step_time_max_ms:.3f} ms",
+    ]
+    return "\n".join(lines)
+
+
+# --- plants ----------------------------------------------------------------------------
+def heater_steady_state_triac_pct(power_kw: float, params: HeaterParams | None = None) -> float:
+    """TRIAC input [%] whose steady power on the virtual heater is ``power_kw`` [kW].
+
+    Bisection (`scipy.optimize.brentq`) on `sim.heater.steady_state` at nominal grid
+    voltage between the firing threshold and 100 %; the steady power rises
+    monotonically with the input there, so the root is unique.
+
+    Parameters
+    ----------
+    power_kw :
+        Desired steady power [kW].
+    params :
+        Heater parameters; default `HeaterParams()`.
+
+    Raises
+    ------
+    PlantError
+        ``power_kw`` is not reachable with 0..100 % input.
+    """
+    params = HeaterParams() if params is None else params
+    lo, hi = params.firing_threshold_pct, 100.0
+    p_hi = steady_state(hi, params)[0]
+    if not (math.isfinite(power_kw) and 0.0 < power_kw <= p_hi):
+        raise PlantError(
+            f"heater_steady_state_triac_pct: expected a steady power in (0, {p_hi:.4g}] kW "
+            f"(the virtual heater's range at 0..100 % input); got {power_kw!r}"
+        )
+    if power_kw == p_hi:
+        return hi
+    return float(brentq(lambda s: steady_state(s, params)[0] - power_kw, lo, hi,
+                        xtol=_INITIAL_TRIAC_XTOL_PCT))
+
+
+def _build_plant(model: HammersteinModel, scenario: Scenario, plant: PlantKind,
+                 noise: bool) -> tuple[Plant, float]:
+    """The plant and the TRIAC input [%] it starts in steady state at."""
+    if plant == "model":
+        built = ModelPlant.for_scenario(model, scenario)
+        if built.noise != noise:
+            built = ModelPlant(model, noise=noise, initial_triac_pct=built.initial_triac_pct)
+        return built, built.initial_triac_pct
+    params = HeaterParams(ts_s=scenario.ts_s)
+    if not noise:
+        params = replace(params, sensor_noise_std_kw=0.0, grid_wander_std=0.0)
+    s0 = heater_steady_state_triac_pct(scenario.initial_setpoint_kw, params)
+    params = replace(params, initial_triac_pct=s0)
+    return VirtualHeater(params), s0
+
+
+def controller_settings(
+    model: HammersteinModel, scenario: Scenario, *, initial_triac_pct: float,
+    settings: MPCSettings | None = None,
+) -> MPCSettings:
+    """Settings for a run: ``settings`` with the scenario's limits and the plant's start.
+
+    The TRIAC limits become the intersection of the settings' and the scenario's, the
+    rate limit the tighter of the two (None if neither has one), and
+    ``initial_triac_pct`` the plant's initial input clipped to the controller's allowed
+    range (a plant may start where the model is not valid, e.g. a low meltdown power).
+
+    Parameters
+    ----------
+    model :
+        The controller's model.
+    scenario :
+        Supplies ``triac_limits_pct`` and ``max_move_pct_per_step``.
+    initial_triac_pct :
+        The plant's initial TRIAC input [%].
+    settings :
+        Base settings; None: `MPCSettings.default_for` ``(model)``.
+
+    Raises
+    ------
+    SettingsError, DesignError
+        The combined limits are empty or leave no allowed range.
+    """
+    base = MPCSettings.default_for(model) if settings is None else settings
+    lo = max(base.triac_min_pct, scenario.triac_limits_pct[0])
+    hi = min(base.triac_max_pct, scenario.triac_limits_pct[1])
+    rates = [r for r in (base.max_move_pct_per_step, scenario.max_move_pct_per_step)
+             if r is not None]
+    s_lo, s_hi = allowed_triac_range(model, triac_min_pct=lo, triac_max_pct=hi,
+                                     validity_margin_pct=base.validity_margin_pct)
+    return base.with_updates(
+        triac_min_pct=lo, triac_max_pct=hi,
+        max_move_pct_per_step=min(rates) if rates else None,
+        initial_triac_pct=min(s_hi, max(s_lo, float(initial_triac_pct))),
+    )
+
+
+def run_simulation(
+    model: HammersteinModel,
+    scenario: Scenario,
+    *,
+    plant: PlantKind,
+    seed: int,
+    settings: MPCSettings | None = None,
+    noise: bool = True,
+    progress: ProgressCallback | None = None,
+) -> SimulationOutcome:
+    """Run the offset-free MPC of ``model`` through ``scenario`` on one plant.
+
+    Parameters
+    ----------
+    model :
+        The identified model the controller is built from (and, for ``plant="model"``,
+        the plant).
+    scenario :
+        Setpoints, disturbances, faults and duration; its ``ts_s`` must be the model's.
+    plant :
+        ``"model"`` (`ModelPlant`, no mismatch) or ``"heater"`` (`VirtualHeater`).
+    seed :
+        Seed of the plant noise and sensor faults (int >= 0); the same seed gives
+        bit-identical runs.
+    settings :
+        Controller tuning; None: `MPCSettings.default_for` ``(model)``. Limits and the
+        initial input are completed by `controller_settings`.
+    noise :
+        Plant noise on (the model's innovations through ``C/A``, or the heater's sensor
+        noise and grid wander) or off.
+    progress :
+        Called as ``progress(samples_done, n_steps)`` about every 1 % of the run.
+
+    Returns
+    -------
+    SimulationOutcome
+        The run, its metrics and the settings used.
+
+    Raises
+    ------
+    SamplingTimeError
+        The scenario's sampling time differs from the model's.
+    SimError
+        An unknown plant kind, an initial setpoint no plant input reaches.
+    SettingsError, DesignError
+        No sound controller from ``model`` and the (completed) settings.
+    """
+    if plant not in get_args(PlantKind):
+        raise SimError(f"run_simulation: expected plant 'model' or 'heater'; got {plant!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise SimError(f"run_simulation: expected an int seed >= 0; got {seed!r}")
+    model.check_ts(scenario.ts_s, what=f"scenario '{scenario.name}'")
+    the_plant, s0 = _build_plant(model, scenario, plant, bool(noise))
+    used = controller_settings(model, scenario, initial_triac_pct=s0, settings=settings)
+    controller = OffsetFreeMPC(model, used)
+    result = run_closed_loop(the_plant, controller, scenario, rng=int(seed), progress=progress)
+    return SimulationOutcome(
+        plant=plant, noise=bool(noise), seed=int(seed), initial_triac_pct=s0, settings=used,
+        allowed_triac_range_pct=controller.allowed_triac_range_pct, result=result,
+        metrics=compute_metrics(result),
+        metrics_measured=compute_metrics(result, power_signal="measured"),
+    )
+
+
+def write_outputs(outcome: SimulationOutcome, out_dir: str | os.PathLike[str]) -> tuple[Path, ...]:
+    """Write a run's trajectory, metrics and figure into ``out_dir`` (created if needed).
+
+    Files: ``trajectory.csv`` (`ClosedLoopResult.to_csv`: one row per sample, units in
+    the column names), ``metrics.json`` (`SimulationOutcome.to_dict`) and
+    ``figure.png`` (`czmpc.reports.closed_loop_figure.plot_closed_loop`).
+
+    Parameters
+    ----------
+    outcome :
+        The run.
+    out_dir :
+        Output directory; existing files of the same names are replaced.
+
+    Returns
+    -------
+    tuple of Path
+        The files written, in the order above.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    trajectory = out / TRAJECTORY_FILE
+    outcome.result.to_csv(trajectory)
+    metrics = out / METRICS_FILE
+    atomic_write_text(metrics, json.dumps(outcome.to_dict(), indent=2, allow_nan=False) + "\n")
+    figure = out / FIGURE_FILE
+    plot_outcome(outcome, figure)
+    return trajectory, metrics, figure
+
+
+def plot_outcome(outcome: SimulationOutcome, path: str | os.PathLike[str]) -> Figure:
+    """`czmpc.reports.closed_loop_figure.plot_closed_loop` of one `SimulationOutcome`.
+
+    The disturbance panel shows ``disturbance_power_kw`` of each step's diagnostics
+    (the estimated ``d`` as the steady power change it causes, kW for either
+    disturbance model).
+    """
+    result = outcome.result
+    diags = result.diagnostics
+    dist = None
+    if diags and all(hasattr(d, "disturbance_power_kw") for d in diags):
+        dist = np.array([float(d.disturbance_power_kw) for d in diags])  # type: ignore[attr-defined]
+    settings = outcome.settings
+    return plot_closed_loop(
+        result.time_s, result.setpoint_kw, result.power_measured_kw, result.power_true_kw,
+        result.triac_pct, dist,
+        allowed_triac_range_pct=outcome.allowed_triac_range_pct,
+        triac_limits_pct=(settings.triac_min_pct, settings.triac_max_pct),
+        soft_power_limits_kw=(settings.soft_power_min_kw, settings.soft_power_max_kw),
+        title=(f"Offset-free MPC, scenario '{outcome.scenario.name}': "
+               f"{PLANT_DESCRIPTIONS[outcome.plant]}, seed {outcome.seed}"),
+        path=path,
+    )
+
+
+__all__ = [
+    "FIGURE_FILE",
+    "METRICS_FILE",
+    "PLANT_DESCRIPTIONS",
+    "TRAJECTORY_FILE",
+    "PlantKind",
+    "SimulationOutcome",
+    "controller_settings",
+    "format_metrics_table",
+    "heater_steady_state_triac_pct",
+    "plot_outcome",
+    "run_simulation",
+    "write_outputs",
+]

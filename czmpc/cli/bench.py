@@ -1,0 +1,144 @@
+"""Setpoint-tracking benchmark: every controller on every scenario and both plants.
+
+Runs the offset-free MPC (OSQP), the CasADi/IPOPT NMPC on the same Hammerstein, the
+linear offset-free MPC on the ARMAX(1,2,1), a PI with and without gain scheduling and
+the open-loop inversion on every shipped scenario (or --scenarios), on the model plant
+and the virtual heater (or --plants), with one fixed seed, and writes DIR/bench.md
+(metrics table and goals), DIR/bench.csv (one row per run: IAE, ISE, overshoot,
+settling time, steady-state error, input total variation, violations, failures, step
+time median/p95/max) and DIR/figures/<scenario>.png (power and input of every
+controller on shared axes). Progress (which run, elapsed, ETA) goes to stderr.
+
+The goals (MPC IAE within 2 % of the NMPC's, its median step time at least 100x lower,
+MPC beats the linear MPC on large_step and meltdown_ramp and the gain-scheduled PI
+everywhere) are printed with the measured ratios; unless --no-record, the report goes
+under '## Setpoint-tracking benchmark' in BENCHMARKS.md with this command line and the
+machine. --short FACTOR shortens every scenario (times x FACTOR) for a quick look.
+
+--update-golden rewrites the controller regression files tests/golden/*.json (short
+scenarios, metrics with tolerances derived from the solver tolerance and platform
+floating point) instead of running the benchmark.
+
+Exit codes: 0 done (goals met or not, unless --strict); 1 a goal missed with --strict;
+2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import time
+from pathlib import Path
+
+from czmpc.cli import _argtypes
+
+NAME = "bench"
+HELP = "benchmark MPC, NMPC, linear MPC, PI and open loop on every scenario and plant"
+ORDER = 82
+
+
+
+def _csv_names(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f"expected comma-separated names; got {text!r}")
+    return names
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """Add this command's options."""
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.add_argument("--scenarios", metavar="A,B", type=_csv_names, default=None,
+                        help="shipped scenario names or TOML files (default: all shipped)")
+    parser.add_argument("--controllers", metavar="A,B", type=_csv_names, default=None,
+                        help="mpc, nmpc, linear_mpc, pi_gs, pi, open_loop (default: all)")
+    parser.add_argument("--plants", metavar="A,B", type=_csv_names, default=None,
+                        help="model, heater (default: both)")
+    parser.add_argument("--short", metavar="FACTOR", type=_argtypes.shortening_factor, default=None,
+                        help="shorten every scenario: times x FACTOR, 0 < FACTOR <= 1")
+    parser.add_argument("--model", metavar="MODEL.json", type=Path, default=None,
+                        help="Hammerstein model (default: data/cz_heater_model.json)")
+    parser.add_argument("--linear-model", metavar="MODEL.json", type=Path, default=None,
+                        help="linear model of the linear MPC (default: "
+                             "data/cz_heater_armax_model.json)")
+    parser.add_argument("--out", metavar="DIR", type=Path, default=None,
+                        help="write DIR/bench.md, DIR/bench.csv, DIR/figures/*.png "
+                             "(required unless --update-golden)")
+    parser.add_argument("--benchmarks-md", metavar="FILE", type=Path, default=None,
+                        help="Markdown file for the '## Setpoint-tracking benchmark' section "
+                             "(default: BENCHMARKS.md at the project root)")
+    parser.add_argument("--no-record", action="store_true",
+                        help="do not write the section into BENCHMARKS.md")
+    parser.add_argument("--update-golden", action="store_true",
+                        help="rewrite tests/golden/*.json (controller regression metrics) "
+                             "and exit")
+    parser.add_argument("--golden-dir", metavar="DIR", type=Path, default=None,
+                        help="where --update-golden writes (default: tests/golden)")
+    parser.add_argument("--strict", action="store_true", help="exit 1 if a goal is missed")
+
+
+def _command_line(args: argparse.Namespace) -> str:
+    return "czmpc bench " + shlex.join(sys.argv[2:]) if len(sys.argv) > 1 else "czmpc bench"
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the benchmark (or rewrite the golden files)."""
+    from czmpc.campaigns.bench import (
+        BenchModels,
+        check_goals,
+        run_bench,
+        section_text,
+        write_benchmarks_section,
+        write_outputs,
+    )
+    from czmpc.reports.benchmarks_md import machine_info
+    from sim.scenario import list_scenarios, load_scenario
+    from sysid.modelfile import load_model
+
+    t0 = time.perf_counter()
+
+    def progress(message: str) -> None:
+        print(f"[{time.perf_counter() - t0:7.1f} s] {message}", file=sys.stderr, flush=True)
+
+    shipped = BenchModels.shipped() if args.model is None or args.linear_model is None else None
+    models = BenchModels(
+        hammerstein=load_model(args.model) if args.model is not None else shipped.hammerstein,  # type: ignore[union-attr]
+        linear=(load_model(args.linear_model) if args.linear_model is not None
+                else shipped.linear),  # type: ignore[union-attr]
+    )
+    if args.update_golden:
+        from czmpc.campaigns.golden import GOLDEN_DIR, write_golden_set
+
+        paths = write_golden_set(args.golden_dir or GOLDEN_DIR, models=models,
+                                 scenario_names=args.scenarios, progress=progress)
+        progress(f"wrote {len(paths)} golden files to {paths[0].parent if paths else '-'}")
+        return 0
+    if args.out is None:
+        print("czmpc: error: --out DIR is required (unless --update-golden)", file=sys.stderr)
+        return 2
+    names = args.scenarios if args.scenarios is not None else list(list_scenarios())
+    scenarios = [load_scenario(n) for n in names]
+    if args.short is not None:
+        scenarios = [s.shortened(args.short) for s in scenarios]
+    machine = machine_info()
+    kwargs = {}
+    if args.controllers is not None:
+        kwargs["controllers"] = args.controllers
+    if args.plants is not None:
+        kwargs["plants"] = args.plants
+    runs = run_bench(scenarios, models=models, progress=progress, **kwargs)
+    wall_s = time.perf_counter() - t0
+    goals = check_goals(runs)
+    text = section_text(runs, goals, command=_command_line(args), machine=machine.describe(),
+                        wall_time_s=wall_s, short_factor=args.short)
+    print(text, end="")
+    write_outputs(runs, goals, args.out, header=text)
+    progress(f"wrote {args.out / 'bench.md'}, {args.out / 'bench.csv'} and figures")
+    if not args.no_record:
+        target = args.benchmarks_md if args.benchmarks_md is not None else _argtypes.default_benchmarks_md()
+        write_benchmarks_section(target, text)
+        progress(f"recorded the section in {target}")
+    if args.strict and not all(g.met for g in goals):
+        return 1
+    return 0

@@ -1,0 +1,251 @@
+"""Identify the heater's Hammerstein model from a logged CSV file, the paper's whole route.
+
+Reads DATA.csv (header time_s,triac_pct,power_kw; uniform sampling) and runs
+Komperod et al.'s pipeline: operating point (sec. 5.1), outlier candidates from an
+ARX(10,10) model and their repair (sec. 5.2), the linear ARX/ARMAX/OE models of
+Table 2, the input-step gains of Table 3, the Hammerstein route of sec. 7.4-7.5
+(eq. 21 initial values, ARX- and OE-reidentified, final PEM from those values and
+from zeros) and the Hammerstein model with a noise model (eq. 30, sec. 7.6).
+
+It writes into DIR:
+
+  model.json      the noise-model Hammerstein (eq. 30), the MPC's prediction model
+                  (czmpc-model/1; read it with 'czmpc show-model DIR/model.json')
+  models/*.json   every intermediate model, one czmpc-model/1 file each
+  report.md       data, preprocessing, Table 2 and Table 3 analogues, the
+                  Hammerstein route beside the paper's values, the final model's
+                  parameters with standard errors, and a checklist of the paper's
+                  findings, with the figures (figures/*.png) linked
+
+Progress (stage names with elapsed seconds) goes to stderr. Exit codes: 0 success;
+1 an optimizer did not converge (the files are still written; pass
+--allow-unconverged to accept that); 2 bad input (file, options).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from sysid.errors import IdentificationError
+
+if TYPE_CHECKING:
+    from czmpc.reports.identification import Finding
+    from sysid.data import Dataset
+
+from czmpc.cli import _argtypes
+
+NAME = "identify"
+HELP = "identify the Hammerstein heater model from logged data and write model, report, figures"
+ORDER = 10
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """Add this command's options."""
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.add_argument(
+        "data", metavar="DATA.csv",
+        help="logged data, header time_s,triac_pct,power_kw (time [s], TRIAC input s [%%], "
+             "heater power P [kW]), uniform sampling",
+    )
+    parser.add_argument(
+        "--out", metavar="DIR", required=True, type=Path,
+        help="output directory (created if missing; files in it are overwritten)",
+    )
+    parser.add_argument(
+        "--operating-point", metavar=("TRIAC_PCT", "POWER_KW"), nargs=2, type=_argtypes.finite_float,
+        default=None,
+        help="steady operating point s_nom [%%] and P_nom [kW] to take deviations about; "
+             "default: the longest steady window of the data (paper sec. 5.1), or the "
+             "sample means if there is none",
+    )
+    parser.add_argument(
+        "--level-shift", metavar=("TIME_S", "KW"), nargs=2, type=_argtypes.finite_float, default=None,
+        help="correct a level shift of the measured power: subtract KW [kW] from P at and "
+             "after TIME_S [s] (the paper subtracts 0.15 kW from t = 20714 s); default: "
+             "repair the level shifts the outlier search finds, with the size it estimates",
+    )
+    _argtypes.add_log_options(parser)
+    parser.add_argument(
+        "--allow-unconverged", action="store_true",
+        help="exit 0 even if an iterative fit (OE, ARMAX, PEM) did not converge; the "
+             "report then flags it (default: exit 1)",
+    )
+
+
+class _StderrProgress:
+    """Prints ``[  1.23 s] stage`` lines to stderr as the pipeline reports stages."""
+
+    def __init__(self) -> None:
+        self._t0 = time.perf_counter()
+
+    def __call__(self, stage: str, *_: object) -> None:
+        elapsed = time.perf_counter() - self._t0
+        print(f"[{elapsed:7.2f} s] {stage}", file=sys.stderr, flush=True)
+
+
+@dataclass(frozen=True, kw_only=True)
+class IdentifyOutcome:
+    """What `identify_to_directory` wrote and whether every fit converged.
+
+    Parameters
+    ----------
+    model_path :
+        The model for control (the noise-model Hammerstein, eq. 30).
+    model_files :
+        Every intermediate model file.
+    report_path :
+        report.md.
+    figure_files :
+        The report's PNG figures.
+    unconverged :
+        ``"name (n iterations)"`` of each fit that did not converge (empty if all did).
+    warnings :
+        Every warning raised while identifying (for example an optimizer's
+        non-convergence message), as ``"Category: message"``.
+    findings :
+        The paper's findings checked on these data (`czmpc.reports.identification.findings_checklist`),
+        as in the report.
+    """
+
+    model_path: Path
+    model_files: tuple[Path, ...]
+    report_path: Path
+    figure_files: tuple[Path, ...]
+    unconverged: tuple[str, ...]
+    warnings: tuple[str, ...] = ()
+    findings: tuple[Finding, ...] = ()
+
+
+def identify_to_directory(
+    data_path: str | Path | Dataset,
+    out_dir: str | Path,
+    *,
+    operating_point: tuple[float, float] | None = None,
+    level_shift: tuple[float, float] | None = None,
+    progress: Callable[[str], None] | None = None,
+    command: str | None = None,
+) -> IdentifyOutcome:
+    """Read a log, run the paper's pipeline and write model.json, models/, report.md.
+
+    Parameters
+    ----------
+    data_path :
+        CSV file in the data contract, or a `sysid.data.Dataset` already read (for
+        example with a column mapping).
+    out_dir :
+        Output directory (created if missing).
+    operating_point :
+        ``(s_nom [%], P_nom [kW])``, or None to find a steady window.
+    level_shift :
+        ``(from_time_s [s], shift_kw [kW])`` to subtract from the power, or None to
+        correct the level shifts the outlier search finds.
+    progress :
+        Called with a stage name as each stage starts.
+    command :
+        The command line, recorded in the report.
+
+    Returns
+    -------
+    IdentifyOutcome
+
+    Raises
+    ------
+    DataFileError
+        The file breaks the data contract.
+    IdentificationError
+        Options the pipeline refuses, or data that support no model.
+    OSError
+        A file cannot be read or written.
+    """
+    if progress is not None:
+        progress("loading the numerical libraries")
+    from czmpc.reports.identification import findings_checklist, write_report
+    from sysid.data import Dataset, read_csv
+    from sysid.model import OperatingPoint
+    from sysid.modelfile import save_model
+    from sysid.pipeline import run_paper_pipeline
+
+    if isinstance(data_path, Dataset):
+        data = data_path
+    else:
+        if progress is not None:
+            progress(f"reading {data_path}")
+        data = read_csv(data_path)
+    op = None if operating_point is None else OperatingPoint(
+        triac_pct=operating_point[0], power_kw=operating_point[1])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = run_paper_pipeline(
+            data, operating_point=op, level_shift="auto" if level_shift is None else level_shift,
+            progress=progress)
+    messages = tuple(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught))
+    out = Path(out_dir)
+    models_dir = out / "models"
+    models_dir.mkdir(parents=True, exist_ok=True)
+    if progress is not None:
+        progress(f"writing {len(result.models)} model files and the report")
+    model_files = []
+    for named in result.models:
+        path = models_dir / f"{named.name}.json"
+        save_model(named.model, path)
+        model_files.append(path)
+    model_path = out / "model.json"
+    if result.final is None:  # pragma: no cover - the pipeline raises instead
+        raise IdentificationError("identify: the pipeline returned no model")
+    save_model(result.final.model, model_path)
+    files = write_report(
+        result, out, model_file="model.json",
+        model_files=[p.relative_to(out).as_posix() for p in model_files], command=command)
+    unconverged = tuple(
+        f"{m.name} ({m.n_iterations} iterations)" for m in result.models if not m.converged)
+    return IdentifyOutcome(model_path=model_path, model_files=tuple(model_files),
+                           report_path=files.report_path, figure_files=files.figure_files,
+                           unconverged=unconverged, warnings=messages,
+                           findings=findings_checklist(result))
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the pipeline and write model.json, models/*.json and report.md into --out."""
+    progress = _StderrProgress()
+    words = ["czmpc", NAME, str(args.data), "--out", str(args.out)]
+    if args.operating_point is not None:
+        words += ["--operating-point", *(f"{v:g}" for v in args.operating_point)]
+    if args.level_shift is not None:
+        words += ["--level-shift", *(f"{v:g}" for v in args.level_shift)]
+    if args.allow_unconverged:
+        words.append("--allow-unconverged")
+    command = " ".join(shlex.quote(w) for w in words)
+    if progress is not None:
+        progress(f"reading {args.data}")
+    outcome = identify_to_directory(
+        _argtypes.read_log(args.data, args),
+        args.out,
+        operating_point=None if args.operating_point is None else tuple(args.operating_point),
+        level_shift=None if args.level_shift is None else tuple(args.level_shift),
+        progress=progress,
+        command=command,
+    )
+    progress(f"wrote {outcome.model_path}, {len(outcome.model_files)} model files in "
+             f"{outcome.model_path.parent / 'models'}, {outcome.report_path} and "
+             f"{len(outcome.figure_files)} figures")
+    for message in outcome.warnings:
+        print(f"czmpc: warning: {message}", file=sys.stderr)
+    if outcome.unconverged:
+        detail = ", ".join(outcome.unconverged)
+        if args.allow_unconverged:
+            print(f"czmpc: warning: not converged: {detail}; accepted (--allow-unconverged)",
+                  file=sys.stderr)
+            return 0
+        print(f"czmpc: error: not converged: {detail}. The files are written and the report "
+              "flags them; check the data, or pass --allow-unconverged to accept the last "
+              "iterate.", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,62 @@
+"""Check a logged data file before identifying: size, sampling, ranges and input steps.
+
+Reads FILE.csv (header time_s,triac_pct,power_kw, or other names through --columns)
+and prints the number of samples, the duration, the sampling time, the ranges of the
+input and the output with their units, and every input step with the output's
+immediate response and the instantaneous gain r (paper sec. 7.3, Table 3). A file that
+breaks the data contract is refused with its file name, line and column (exit code 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from czmpc.cli import _argtypes
+
+NAME = "inspect"
+HELP = "check a logged data file: samples, sampling time, ranges, input steps and gains"
+ORDER = 5
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """Add this command's options."""
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.add_argument("file", metavar="FILE.csv", help="logged data file")
+    _argtypes.add_log_options(parser)
+    parser.add_argument(
+        "--min-step", metavar="X", type=_argtypes.non_negative_float, default=None,
+        help="smallest input change counted as a step [input unit]; default: 5 %% of the "
+             "input's range, and at least 5 noise standard deviations",
+    )
+    parser.add_argument(
+        "--delay-steps", metavar="N", type=_argtypes.non_negative_int, default=1,
+        help="delay from input to output in samples (default 1)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Read, check and summarize the file; print the summary to stdout."""
+    from sysid.steps import default_step_threshold, detect_steps, format_step_table
+
+    data = _argtypes.read_log(args.file, args)
+    threshold = (
+        default_step_threshold(data.triac_pct) if args.min_step is None else args.min_step
+    )
+    steps = detect_steps(data, min_step=threshold, delay_steps=args.delay_steps)
+    u_unit, y_unit = data.input_unit, data.output_unit
+    names = args.columns or {name: name for name in _argtypes.CONTRACT_COLUMNS}
+    lines = [
+        f"file:           {data.source}",
+        f"sha256:         {data.sha256}",
+        f"columns:        time {names['time_s']!r}, input {names['triac_pct']!r}, "
+        f"output {names['power_kw']!r}",
+        f"samples:        {data.n_samples}",
+        f"duration:       {data.duration_s:g} s ({data.time_s[0]:g} s to {data.time_s[-1]:g} s)",
+        f"sampling time:  {data.ts_s:g} s (every interval within {100 * data.sampling_rtol:g} %)",
+        f"input range:    {data.triac_pct.min():g} to {data.triac_pct.max():g} {u_unit}",
+        f"output range:   {data.power_kw.min():g} to {data.power_kw.max():g} {y_unit}",
+        f"input steps:    {len(steps)} larger than {threshold:g} {u_unit} "
+        f"(output read {args.delay_steps} sample(s) after the step)",
+    ]
+    print("\n".join(lines))
+    print(format_step_table(steps, input_unit=u_unit, output_unit=y_unit), end="")
+    return 0
