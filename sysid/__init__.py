@@ -18,7 +18,9 @@ _EXPORTS = {
     **dict.fromkeys(
         ["DataFileError", "IdentificationError", "IdentificationWarning", "ModelFileError",
          "SamplingTimeError", "SysidError", "UnstableModelError"], "sysid.errors"),
-    **dict.fromkeys(["Criteria", "HammersteinModel", "OperatingPoint", "Provenance"], "sysid.model"),
+    **dict.fromkeys(
+        ["Criteria", "HammersteinModel", "OperatingPoint", "Provenance", "Units"], "sysid.model"
+    ),
     **dict.fromkeys(["load_model", "save_model"], "sysid.modelfile"),
     "IdentificationResult": "sysid.result",
     **dict.fromkeys(["simulate", "predict_one_step"], "sysid.simulate"),
@@ -51,7 +53,7 @@ if TYPE_CHECKING:
     from sysid.greybox import GreyBoxStructure, fit_greybox
     from sysid.hammerstein import fit_hammerstein
     from sysid.linear import fit_armax, fit_arx, fit_oe
-    from sysid.model import Criteria, HammersteinModel, OperatingPoint, Provenance
+    from sysid.model import Criteria, HammersteinModel, OperatingPoint, Provenance, Units
     from sysid.modelfile import load_model, save_model
     from sysid.pipeline import PipelineResult, run_paper_pipeline
     from sysid.preprocess import (

@@ -60,13 +60,20 @@ class Dataset:
         SHA-256 of the source file's bytes, or None.
     preprocessing :
         Every change made to the data since it was read (see `sysid.preprocess`).
+    sampling_rtol :
+        Allowed relative deviation of any interval (within a segment) from ``ts_s``.
+    segment_starts :
+        Sample indices where each segment (experiment) starts: strictly increasing,
+        the first 0. Each segment is uniformly sampled with ``ts_s``; across a
+        segment boundary time may jump (a gap), but still increases.
 
     Raises
     ------
     DataFileError
         Arrays of unequal length or other than 1-D, non-finite values, fewer than
-        `MIN_SAMPLES` samples, time not strictly increasing, or a sampling interval
-        that differs from ``ts_s`` by more than `DEFAULT_SAMPLING_RTOL`.
+        `MIN_SAMPLES` samples (in any segment), time not strictly increasing, a
+        sampling interval within a segment that differs from ``ts_s`` by more than
+        `DEFAULT_SAMPLING_RTOL`, or malformed ``segment_starts``.
     """
 
     time_s: FloatArray
@@ -79,6 +86,7 @@ class Dataset:
     sha256: str | None = None
     preprocessing: tuple[Mapping[str, Any], ...] = field(default=())
     sampling_rtol: float = DEFAULT_SAMPLING_RTOL
+    segment_starts: tuple[int, ...] = (0,)
 
     def __post_init__(self) -> None:
         for name in ("time_s", "triac_pct", "power_kw"):
@@ -108,13 +116,70 @@ class Dataset:
         if not (math.isfinite(self.ts_s) and self.ts_s > 0):
             raise DataFileError(f"ts_s must be a finite number > 0; got {self.ts_s}", path=self.source)
         object.__setattr__(self, "ts_s", float(self.ts_s))
-        k = first_sampling_violation(self.time_s, self.ts_s, self.sampling_rtol)
-        if k is not None:
+        starts = self._checked_segment_starts(n)
+        object.__setattr__(self, "segment_starts", starts)
+        bounds = (*starts, n)
+        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+            k = first_sampling_violation(self.time_s[lo:hi], self.ts_s, self.sampling_rtol)
+            if k is not None:
+                raise DataFileError(
+                    sampling_violation_message(
+                        self.time_s, lo + k, self.ts_s, self.sampling_rtol),
+                    path=self.source,
+                    column="time_s",
+                )
+        for lo in starts[1:]:
+            if not self.time_s[lo] > self.time_s[lo - 1]:
+                raise DataFileError(
+                    f"time must be strictly increasing across segments; segment at sample "
+                    f"{lo} starts at {self.time_s[lo]:g} s after {self.time_s[lo - 1]:g} s",
+                    path=self.source,
+                    column="time_s",
+                )
+
+    def _checked_segment_starts(self, n: int) -> tuple[int, ...]:
+        raw = self.segment_starts
+        if isinstance(raw, (str, bytes)) or not hasattr(raw, "__iter__"):
             raise DataFileError(
-                sampling_violation_message(self.time_s, k, self.ts_s, self.sampling_rtol),
-                path=self.source,
-                column="time_s",
-            )
+                f"segment_starts must be a tuple of sample indices; got {raw!r}", path=self.source)
+        starts = tuple(raw)
+        if not starts or not all(
+                isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in starts):
+            raise DataFileError(
+                f"segment_starts must be a non-empty tuple of integers; got {raw!r}",
+                path=self.source)
+        starts = tuple(int(v) for v in starts)
+        if starts[0] != 0:
+            raise DataFileError(
+                f"segment_starts must begin with 0; got {starts[0]}", path=self.source)
+        bounds = (*starts, n)
+        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+            if hi - lo < MIN_SAMPLES:
+                raise DataFileError(
+                    f"segment_starts must be strictly increasing with at least {MIN_SAMPLES} "
+                    f"samples per segment (n_samples = {n}); got {starts}",
+                    path=self.source)
+        return starts
+
+    @property
+    def n_segments(self) -> int:
+        """Number of segments (experiments)."""
+        return len(self.segment_starts)
+
+    def segment_bounds(self) -> tuple[tuple[int, int], ...]:
+        """``(start, stop)`` sample indices of each segment, in order."""
+        bounds = (*self.segment_starts, self.n_samples)
+        return tuple(zip(bounds[:-1], bounds[1:], strict=True))
+
+    def segments(self) -> tuple[Dataset, ...]:
+        """Each segment as a data set of its own (its own time axis, one segment each).
+
+        A data set of one segment returns ``(self,)``. Each part records which samples
+        of this data set it holds in its ``preprocessing``.
+        """
+        if self.n_segments == 1:
+            return (self,)
+        return tuple(self.segment(lo, hi) for lo, hi in self.segment_bounds())
 
     @property
     def n_samples(self) -> int:
@@ -145,10 +210,14 @@ class Dataset:
             sha256=self.sha256,
             preprocessing=self.preprocessing + ((dict(change),) if change else ()),
             sampling_rtol=self.sampling_rtol,
+            segment_starts=self.segment_starts,
         )
 
     def segment(self, start: int, stop: int) -> Dataset:
-        """Samples ``start:stop`` as a new data set (the change is recorded)."""
+        """Samples ``start:stop`` as a new data set (the change is recorded).
+
+        Segment boundaries inside ``start:stop`` are kept.
+        """
         if not (0 <= start < stop <= self.n_samples):
             raise DataFileError(
                 f"segment must satisfy 0 <= start < stop <= {self.n_samples}; got {start}:{stop}",
@@ -166,6 +235,7 @@ class Dataset:
             preprocessing=self.preprocessing
             + ({"what": "segment", "start_sample": start, "stop_sample": stop},),
             sampling_rtol=self.sampling_rtol,
+            segment_starts=(0, *(b - start for b in self.segment_starts if start < b < stop)),
         )
 
 

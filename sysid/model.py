@@ -38,6 +38,11 @@ LinearBlock = Literal["armax", "oe", "arx"]
 #: this only absorbs arithmetic in user code that builds models by hand).
 NORMALIZATION_ATOL = 1e-9
 
+#: Smallest innovation standard deviation a model may have [output unit]. The
+#: controller divides by ``noise_std_kw`` and its square; below this the square is
+#: no longer a normal float. Zero (a perfect fit) is refused: what loads, runs.
+MIN_NOISE_STD_KW = 1e-150
+
 
 def _frozen_array(values: Any, name: str) -> FloatArray:
     arr = np.array(values, dtype=float, copy=True)
@@ -88,6 +93,46 @@ class Criteria:
     one_step_mse_kw2: float | None = None
 
 
+@dataclass(frozen=True, kw_only=True)
+class Units:
+    """What the model's input and output measure (model-file key ``"units"``).
+
+    The file's field names (``triac_pct``, ``power_kw``, ``noise_std_kw``) name the
+    roles input and output; these strings say what they measure on the rig.
+
+    Parameters
+    ----------
+    input :
+        Unit of the input signal (``"%"`` for a CZ puller's TRIAC).
+    output :
+        Unit of the output signal (``"kW"`` for heater power).
+
+    Raises
+    ------
+    ModelFileError
+        A unit that is not a non-empty string of at most `MAX_UNIT_CHARS` characters.
+    """
+
+    input: str = "%"
+    output: str = "kW"
+
+    def __post_init__(self) -> None:
+        for name in ("input", "output"):
+            value = getattr(self, name)
+            if not isinstance(value, str) or not value.strip() or len(value) > MAX_UNIT_CHARS:
+                raise ModelFileError(
+                    f"units.{name} must be a non-empty string of at most {MAX_UNIT_CHARS} "
+                    f"characters; got {value!r}"
+                )
+
+
+#: Longest unit string accepted (a unit, not a description).
+MAX_UNIT_CHARS = 32
+
+#: The units a model has when its file has no ``"units"`` object.
+DEFAULT_UNITS = Units()
+
+
 @dataclass(frozen=True, kw_only=True, eq=False)
 class Provenance:
     """Where a model came from: data, preprocessing, method, date.
@@ -106,7 +151,8 @@ class Provenance:
     created_utc :
         ISO-8601 creation time, or None.
     extra :
-        Any other keys of the file's ``provenance`` object, kept for round trips.
+        Any other keys of the file's ``provenance`` object, kept for round trips
+        (for example ``parameter_names``, ``parameters``, ``std_errors``).
     """
 
     data_file: str | None = None
@@ -115,6 +161,17 @@ class Provenance:
     method: str | None = None
     created_utc: str | None = None
     extra: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def parameter_names(self) -> tuple[str, ...] | None:
+        """Names of the estimated parameters (``extra["parameter_names"]``), or None.
+
+        These name the rows and columns of `HammersteinModel.covariance`.
+        """
+        names = self.extra.get("parameter_names")
+        if not isinstance(names, (list, tuple)) or not all(isinstance(n, str) for n in names):
+            return None
+        return tuple(names)
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -144,12 +201,20 @@ class HammersteinModel:
         ``V`` and ``W`` on the identification data.
     provenance :
         Data, preprocessing and method.
+    units :
+        What input and output measure, or None (then ``%`` and ``kW``; see
+        `effective_units`).
+    covariance :
+        Full covariance of the estimated parameters, a symmetric ``p x p`` matrix in
+        the order of ``provenance.parameter_names`` (when those are recorded), or None.
 
     Raises
     ------
     ModelFileError
         Wrong lengths, non-finite numbers, a non-monic ``A``/``C``, an un-normalized
-        ``B``, or an inverted input range.
+        ``B``, an inverted input range, ``noise_std_kw`` below `MIN_NOISE_STD_KW`
+        (zero included), or a covariance that is not a finite symmetric
+        square matrix with a non-negative diagonal matching the parameter names.
     UnstableModelError
         ``A`` or ``C`` with a root on or outside the unit circle.
 
@@ -175,6 +240,8 @@ class HammersteinModel:
     input_range_pct: tuple[float, float]
     criteria: Criteria = field(default_factory=Criteria)
     provenance: Provenance = field(default_factory=Provenance)
+    units: Units | None = None
+    covariance: tuple[tuple[float, ...], ...] | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in ("hammerstein", "linear"):
@@ -207,8 +274,12 @@ class HammersteinModel:
                 f"a linear model has one input coefficient (b1); got input_poly of "
                 f"length {self.input_poly.size}"
             )
-        if not (math.isfinite(self.noise_std_kw) and self.noise_std_kw >= 0):
-            raise ModelFileError(f"noise_std_kw must be finite and >= 0; got {self.noise_std_kw!r}")
+        if not (math.isfinite(self.noise_std_kw) and self.noise_std_kw >= MIN_NOISE_STD_KW):
+            raise ModelFileError(
+                f"noise_std_kw must be finite and >= {MIN_NOISE_STD_KW:g} (the controller's "
+                "estimator and mismatch monitor divide by it; a model with no noise cannot "
+                f"be run); got {self.noise_std_kw!r}"
+            )
         object.__setattr__(self, "noise_std_kw", float(self.noise_std_kw))
         lo, hi = (float(v) for v in self.input_range_pct)
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
@@ -216,6 +287,11 @@ class HammersteinModel:
                 f"input_range_pct must be finite with min < max [%]; got {self.input_range_pct!r}"
             )
         object.__setattr__(self, "input_range_pct", (lo, hi))
+        if self.units is not None and not isinstance(self.units, Units):
+            raise ModelFileError(f"units must be a Units or None; got {self.units!r}")
+        if self.covariance is not None:
+            object.__setattr__(self, "covariance", _checked_covariance(
+                self.covariance, self.provenance.parameter_names))
         for name in ("a", "c"):
             rho = max_root_modulus(getattr(self, name))
             if rho >= 1.0:
@@ -225,6 +301,20 @@ class HammersteinModel:
                 )
 
     # --- structure -------------------------------------------------------------
+    @property
+    def effective_units(self) -> Units:
+        """`units`, or ``%`` and ``kW`` when the model does not say."""
+        return DEFAULT_UNITS if self.units is None else self.units
+
+    @property
+    def covariance_matrix(self) -> FloatArray | None:
+        """`covariance` as a read-only ``(p, p)`` array, or None."""
+        if self.covariance is None:
+            return None
+        arr = np.array(self.covariance, dtype=float)
+        arr.setflags(write=False)
+        return arr
+
     @property
     def delay_steps(self) -> int:
         """Input delay ``nk`` [samples]: the number of leading zeros of ``B``."""
@@ -281,6 +371,41 @@ class HammersteinModel:
             )
 
 
+#: Relative asymmetry ``|C - C^T| / max|C|`` tolerated in a covariance (rounding of a
+#: product ``J^T J`` computed in floating point; a real asymmetry is far larger).
+COVARIANCE_SYMMETRY_RTOL = 1e-9
+
+
+def _checked_covariance(
+    values: Any, names: tuple[str, ...] | None
+) -> tuple[tuple[float, ...], ...]:
+    """Validate a covariance matrix and return it as a tuple of float tuples."""
+    try:
+        arr = np.array(values, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise ModelFileError(
+            f"covariance must be a square matrix of finite numbers; got {values!r}"[:300]
+        ) from None
+    if arr.ndim != 2 or arr.shape[0] != arr.shape[1] or arr.size == 0:
+        raise ModelFileError(f"covariance must be a non-empty square matrix; got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ModelFileError("covariance must hold finite numbers; got a NaN or infinity")
+    if names is not None and len(names) != arr.shape[0]:
+        raise ModelFileError(
+            f"covariance is {arr.shape[0]} x {arr.shape[0]} but provenance.parameter_names "
+            f"lists {len(names)} parameters {list(names)}"
+        )
+    scale = float(np.max(np.abs(arr)))
+    asym = float(np.max(np.abs(arr - arr.T)))
+    if asym > COVARIANCE_SYMMETRY_RTOL * max(scale, np.finfo(float).tiny):
+        raise ModelFileError(f"covariance must be symmetric; got |C - C^T| up to {asym:.3g}")
+    diag = np.diag(arr)
+    if np.any(diag < 0):
+        k = int(np.flatnonzero(diag < 0)[0])
+        raise ModelFileError(f"covariance diagonal must be >= 0; got {diag[k]!r} at [{k}][{k}]")
+    return tuple(tuple(float(v) for v in row) for row in arr)
+
+
 def normalize_input_gain(
     b: FloatArray, input_poly: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
@@ -304,5 +429,6 @@ __all__ = [
     "ModelKind",
     "OperatingPoint",
     "Provenance",
+    "Units",
     "normalize_input_gain",
 ]

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -18,14 +19,15 @@ import numpy as np
 from sysid._typing import FloatArray
 from sysid.atomic import atomic_write_text
 from sysid.errors import ModelFileError, UnstableModelError
-from sysid.model import Criteria, HammersteinModel, OperatingPoint, Provenance
+from sysid.model import Criteria, HammersteinModel, OperatingPoint, Provenance, Units
 
 FORMAT = "czmpc-model/1"
 _TOP_KEYS = {
     "format", "kind", "linear_block", "ts_s", "operating_point", "A", "B", "C",
     "input_poly", "noise_std_kw", "input_range_pct", "criteria", "provenance",
+    "units", "covariance",
 }
-_REQUIRED = _TOP_KEYS - {"criteria", "provenance"}
+_REQUIRED = _TOP_KEYS - {"criteria", "provenance", "units", "covariance"}
 _PROVENANCE_KEYS = ("data_file", "data_sha256", "preprocessing", "method", "created_utc")
 
 
@@ -40,7 +42,7 @@ def model_to_dict(model: HammersteinModel) -> dict[str, Any]:
         method=prov.method,
         created_utc=prov.created_utc,
     )
-    return {
+    out: dict[str, Any] = {
         "format": FORMAT,
         "kind": model.kind,
         "linear_block": model.linear_block,
@@ -61,12 +63,33 @@ def model_to_dict(model: HammersteinModel) -> dict[str, Any]:
         },
         "provenance": provenance,
     }
+    if model.units is not None:
+        out["units"] = {"input": model.units.input, "output": model.units.output}
+    if model.covariance is not None:
+        out["covariance"] = [list(row) for row in model.covariance]
+    return out
+
+
+def _short(obj: Any) -> str:
+    """``repr`` of a file value, cut so that a huge value cannot flood a message."""
+    try:
+        text = repr(obj)
+    except ValueError:  # an int too long to convert to text
+        return f"an integer of more than {sys.get_int_max_str_digits()} digits"
+    return text if len(text) <= 80 else text[:60] + f"... ({len(text)} characters)"
 
 
 def _number(obj: Any, where: str) -> float:
-    if isinstance(obj, bool) or not isinstance(obj, (int, float)) or not math.isfinite(obj):
-        raise ModelFileError(f"{where} must be a finite number; got {obj!r}")
-    return float(obj)
+    if isinstance(obj, bool) or not isinstance(obj, (int, float)):
+        raise ModelFileError(f"{where} must be a finite number; got {_short(obj)}")
+    try:
+        value = float(obj)
+    except OverflowError:
+        value = math.inf
+    if not math.isfinite(value):
+        raise ModelFileError(
+            f"{where} must be a finite number within float range; got {_short(obj)}")
+    return value
 
 
 def _numbers(obj: Any, where: str, *, length: int | None = None) -> FloatArray:
@@ -83,7 +106,9 @@ def model_from_dict(obj: Any) -> HammersteinModel:
     Raises
     ------
     ModelFileError
-        Unknown format, missing or unknown keys, wrong types or lengths, non-finite
+        Unknown format, missing keys (unknown keys are ignored), wrong types or lengths,
+        non-finite numbers or numbers beyond float range, malformed ``units`` or
+        ``covariance``, non-finite
         numbers, or any invariant of `HammersteinModel`.
     UnstableModelError
         ``A`` or ``C`` with a root on or outside the unit circle.
@@ -96,9 +121,8 @@ def model_from_dict(obj: Any) -> HammersteinModel:
     missing = sorted(_REQUIRED - set(obj))
     if missing:
         raise ModelFileError(f"missing key(s) {missing}")
-    unknown = sorted(set(obj) - _TOP_KEYS)
-    if unknown:
-        raise ModelFileError(f"unknown key(s) {unknown}; expected only {sorted(_TOP_KEYS)}")
+    # Keys outside _TOP_KEYS are ignored: optional fields may be added to
+    # czmpc-model/1 and readers ignore what they do not know (DESIGN.md).
     op = obj["operating_point"]
     if not isinstance(op, dict) or set(op) != {"triac_pct", "power_kw"}:
         raise ModelFileError(
@@ -113,6 +137,23 @@ def model_from_dict(obj: Any) -> HammersteinModel:
     steps = prov_obj.get("preprocessing") or []
     if not isinstance(steps, list) or not all(isinstance(s, dict) for s in steps):
         raise ModelFileError(f"provenance.preprocessing must be a list of objects; got {steps!r}")
+    units_obj = obj.get("units")
+    units: Units | None = None
+    if units_obj is not None:
+        if not isinstance(units_obj, dict) or set(units_obj) != {"input", "output"}:
+            raise ModelFileError(
+                f"units must be {{'input': ..., 'output': ...}}; got {_short(units_obj)}")
+        units = Units(input=units_obj["input"], output=units_obj["output"])
+    cov_obj = obj.get("covariance")
+    covariance: tuple[tuple[float, ...], ...] | None = None
+    if cov_obj is not None:
+        if not isinstance(cov_obj, list) or not cov_obj or not all(
+                isinstance(row, list) and len(row) == len(cov_obj) for row in cov_obj):
+            raise ModelFileError(
+                f"covariance must be a non-empty square list of lists; got {_short(cov_obj)}")
+        covariance = tuple(
+            tuple(_number(v, f"covariance[{i}][{j}]") for j, v in enumerate(row))
+            for i, row in enumerate(cov_obj))
     kind = obj["kind"]
     lo_pct, hi_pct = _numbers(obj["input_range_pct"], "input_range_pct", length=2)
     poly = _numbers(obj["input_poly"], "input_poly", length=1 if kind == "linear" else None)
@@ -142,6 +183,8 @@ def model_from_dict(obj: Any) -> HammersteinModel:
             created_utc=prov_obj.get("created_utc"),
             extra={k: v for k, v in prov_obj.items() if k not in _PROVENANCE_KEYS},
         ),
+        units=units,
+        covariance=covariance,
     )
 
 
@@ -180,6 +223,8 @@ def load_model(path: str | os.PathLike[str]) -> HammersteinModel:
         raise ModelFileError(f"{path}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
     except RecursionError:
         raise ModelFileError(f"{path}: not a model file: JSON nested too deeply") from None
+    except ValueError as exc:  # an integer literal beyond the int-to-text digit limit
+        raise ModelFileError(f"{path}: not a model file: {exc}") from None
     try:
         return model_from_dict(obj)
     except UnstableModelError as exc:
