@@ -1,7 +1,7 @@
 """Readers for three public real-rig logs (DaISy heater, TCLab, cascaded tanks) into `Dataset`.
 
 These logs come from rigs other than the CZ puller, in other formats, units and
-sampling (see ``shared/data/real/README.md`` for provenance). Each reader keeps every
+sampling (see ``data/real/README.md`` in the repository for provenance). Each reader keeps every
 value as logged, records the file's SHA-256 and the units, and refuses a malformed
 file with a `DataFileError` naming the file, the 1-based line and the column, like
 `sysid.data.read_csv`. The signals still live in the `Dataset` fields ``triac_pct``

@@ -1,4 +1,4 @@
-"""Real logs from other rigs (shared/data/real): readers, preprocessing and an ARX fit on them."""
+"""Real logs from other rigs (data/real): readers, preprocessing and an ARX fit on them."""
 
 from __future__ import annotations
 
@@ -19,11 +19,11 @@ from sysid.residuals import autocorrelation
 from sysid.simulate import simulate
 
 REPO = Path(__file__).resolve().parents[2]
-REAL = REPO.parent / "shared" / "data" / "real"
+REAL = REPO / "data" / "real"
 DAISY = REAL / "daisy_heating_system.dat"
 TCLAB = REAL / "tclab_mimo_steps_data.txt"
 TANKS = REAL / "cascaded_tanks_dataBenchmark.csv"
-#: shared/data/real/README.md: the first 16 hex digits of each file's SHA-256.
+#: data/real/README.md: the first 16 hex digits of each file's SHA-256.
 SHA256_PREFIX = {DAISY: "928866ebcfadf998", TCLAB: "10278caee2b095cc",
                  TANKS: "7416cb2aeb97c077"}
 #: DaISy's description: the steady input before the experiment; y0 = y[0].
