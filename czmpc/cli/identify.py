@@ -169,7 +169,7 @@ def identify_to_directory(
         progress("loading the numerical libraries")
     from czmpc.reports.identification import findings_checklist, write_report
     from sysid.data import Dataset, read_csv
-    from sysid.model import OperatingPoint
+    from sysid.model import OperatingPoint, Units
     from sysid.modelfile import save_model
     from sysid.pipeline import run_paper_pipeline
 
@@ -192,15 +192,16 @@ def identify_to_directory(
     models_dir.mkdir(parents=True, exist_ok=True)
     if progress is not None:
         progress(f"writing {len(result.models)} model files and the report")
+    units = Units(input=data.input_unit, output=data.output_unit)
     model_files = []
     for named in result.models:
         path = models_dir / f"{named.name}.json"
-        save_model(named.model, path)
+        save_model(named.model.with_updates(units=units), path)
         model_files.append(path)
     model_path = out / "model.json"
     if result.final is None:  # pragma: no cover - the pipeline raises instead
         raise IdentificationError("identify: the pipeline returned no model")
-    save_model(result.final.model, model_path)
+    save_model(result.final.model.with_updates(units=units), model_path)
     files = write_report(
         result, out, model_file="model.json",
         model_files=[p.relative_to(out).as_posix() for p in model_files], command=command)

@@ -34,17 +34,22 @@ def describe_model(model: object) -> str:
         terms = [f"{c:+.6g} q^-{i}" if i else f"{c:.6g}" for i, c in enumerate(coefs) if c != 0]
         return f"{name}(q) = " + " ".join(terms)
 
+    units = model.effective_units
+    u_in, u_out = units.input, units.output
     f_terms = " ".join(f"{p:+.6g} ds^{i + 1}" for i, p in enumerate(model.input_poly))
     lines = [
         f"kind: {model.kind} ({model.linear_block} linear block), Ts = {model.ts_s:g} s, "
         f"delay = {model.delay_steps} sample(s)",
-        f"operating point: s_nom = {op.triac_pct:g} %, P_nom = {op.power_kw:g} kW",
-        "A(q) dP = B(q) f(ds) + C(q) e   with dP = P - P_nom [kW], ds = s - s_nom [%]",
+        f"units: input {u_in}, output {u_out}"
+        + ("" if model.units is not None else " (the file has no units: % and kW assumed)"),
+        f"operating point: s_nom = {op.triac_pct:g} {u_in}, P_nom = {op.power_kw:g} {u_out}",
+        f"A(q) dP = B(q) f(ds) + C(q) e   with dP = P - P_nom [{u_out}], "
+        f"ds = s - s_nom [{u_in}]",
         "  " + poly("A", model.a),
         "  " + poly("B", model.b),
         "  " + poly("C", model.c),
-        f"  f(ds) = {f_terms}   [kW]",
-        f"  noise std(e) = {model.noise_std_kw:.4g} kW",
+        f"  f(ds) = {f_terms}   [{u_out}]",
+        f"  noise std(e) = {model.noise_std_kw:.4g} {u_out}",
         f"linear-block static gain B(1)/A(1) = {model.linear_static_gain:.4g}",
     ]
     poles = roots_z(model.a)
@@ -57,22 +62,84 @@ def describe_model(model: object) -> str:
     grid = np.linspace(lo, hi, 5)
     slopes = model.input_nonlinearity_slope(grid - op.triac_pct)
     steady = model.steady_state_power_kw(grid)
-    lines.append(f"identified input range: {lo:g} .. {hi:g} %")
-    lines.append("      s [%]   f'(ds) [kW/%]   steady P [kW]")
+    lines.append(f"identified input range: {lo:g} .. {hi:g} {u_in}")
+    lines.append(f"      s [{u_in}]   f'(ds) [{u_out}/{u_in}]   steady P [{u_out}]")
     for s, g, p in zip(grid, slopes, steady, strict=True):
         lines.append(f"  {s:9.2f}   {g:13.4f}   {p:13.3f}")
     crit = model.criteria
     if crit.ballistic_mse_kw2 is not None or crit.one_step_mse_kw2 is not None:
         lines.append(
-            f"criteria: V = {crit.ballistic_mse_kw2!s} kW^2 (eq. 9), "
-            f"W = {crit.one_step_mse_kw2!s} kW^2 (eq. 10)"
+            f"criteria: V = {crit.ballistic_mse_kw2!s} {u_out}^2 (eq. 9), "
+            f"W = {crit.one_step_mse_kw2!s} {u_out}^2 (eq. 10)"
         )
     prov = model.provenance
     if prov.data_file or prov.method:
         lines.append(f"provenance: data {prov.data_file}, method {prov.method}")
     for step in prov.preprocessing:
         lines.append(f"  preprocessing: {dict(step)}")
+    lines.extend(f"WARNING: {w}" for w in model_warnings(model))
     return "\n".join(lines)
+
+
+#: A pole this close to |z| = 1 (time constant over 1e5 samples) acts as an integrator
+#: over any record a user can log.
+UNIT_CIRCLE_MARGIN = 1e-5
+#: A zero of B closer to a pole p of A than this fraction of |1 - p| nearly cancels it:
+#: the mode then carries under 1 % of the static response (the paper's slow drift mode,
+#: |z - p| about 0.1 |1 - p|, is a real mode and is not flagged).
+CANCELLATION_RTOL = 1e-2
+#: B normalized to its first coefficient with a later one this many times larger: the
+#: normalization divides by a coefficient near zero, so f's scale is ill-determined.
+NORMALIZATION_RATIO_LIMIT = 20.0
+
+
+def model_warnings(model: object) -> tuple[str, ...]:
+    """What an engineer must know before trusting ``model`` (a `sysid.HammersteinModel`).
+
+    Poles on or near the unit circle, near pole-zero cancellations between ``A`` and
+    ``B``, an ill-conditioned normalization of ``B`` (a later coefficient much larger
+    than the first, which is 1), and an instantaneous gain ``f'(0)`` of zero or of
+    the wrong sign.
+    """
+    import numpy as np
+
+    from sysid.model import HammersteinModel
+    from sysid.polynomials import roots_z
+
+    if not isinstance(model, HammersteinModel):
+        raise TypeError(f"expected a HammersteinModel; got {type(model).__name__}")
+    out: list[str] = []
+    poles = roots_z(model.a)
+    for z in poles:
+        if abs(z) >= 1.0 - UNIT_CIRCLE_MARGIN:
+            out.append(
+                f"pole z = {complex(z):.6f} (|z| = {abs(z):.6f}) is on or within "
+                f"{UNIT_CIRCLE_MARGIN:g} of the unit circle: the model is (nearly) an integrator")
+    b_tail = np.trim_zeros(model.b, "f")
+    zeros = roots_z(b_tail) if b_tail.size > 1 else np.array([], dtype=complex)
+    for z in zeros:
+        if abs(z) >= 1.0:
+            out.append(f"zero z = {complex(z):.5f} of B(q) lies on or outside the unit circle "
+                       "(non-minimum phase: an inverse-response)")
+        for p in poles:
+            if abs(z - p) <= CANCELLATION_RTOL * abs(1.0 - p):
+                out.append(
+                    f"zero z = {complex(z):.5f} of B(q) nearly cancels pole z = {complex(p):.5f} "
+                    "of A(q): the order is higher than the data support; try lower orders")
+    ratio = float(np.max(np.abs(b_tail))) if b_tail.size else 0.0
+    if ratio > NORMALIZATION_RATIO_LIMIT:
+        out.append(
+            f"B(q) normalized to its first non-zero coefficient has a coefficient {ratio:.4g} "
+            f"times larger: the first coefficient is near zero (delay too short?), so f's "
+            "scale is ill-conditioned; try a longer delay")
+    slope = float(model.input_nonlinearity_slope(0.0))
+    gain = slope * model.linear_static_gain
+    if not gain > 0:
+        units = model.effective_units
+        out.append(
+            f"static gain at the operating point is {gain:.4g} {units.output}/{units.input} "
+            "(not positive): a heater controller refuses it; for other processes check the sign")
+    return tuple(out)
 
 
 def run(args: argparse.Namespace) -> int:

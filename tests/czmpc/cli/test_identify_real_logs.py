@@ -72,3 +72,11 @@ def test_identify_cli_reads_a_log_of_another_rig_through_a_column_mapping(
     assert model.operating_point == OperatingPoint(triac_pct=6.0, power_kw=129.32)
     assert model.ts_s == 2.0 and model.input_range_pct == (3.0, 9.0)
     assert "degC" in (out / "report.md").read_text(encoding="utf-8")
+    assert model.units is not None
+    assert (model.units.input, model.units.output) == ("V", "degC")
+    capsys.readouterr()
+    assert main(["show-model", str(out / "model.json")]) == 0
+    shown = capsys.readouterr().out
+    assert "units: input V, output degC" in shown
+    assert "s_nom = 6 V, P_nom = 129.32 degC" in shown
+    assert " kW" not in shown and "[%]" not in shown
