@@ -39,6 +39,7 @@ from sysid.hammerstein import (
     relative_parameter_difference,
     run_hammerstein_route,
 )
+from sysid.hammerstein.filtering import InitialState, check_initial_state
 from sysid.linear import fit_armax, fit_arx, fit_oe
 from sysid.model import HammersteinModel, OperatingPoint
 from sysid.preprocess import (
@@ -180,6 +181,10 @@ class PipelineResult:
     warnings :
         The messages of the `IdentificationWarning` s the fits raised (searches that
         did not converge); `run_paper_pipeline` re-issues them as one warning.
+    initial_state :
+        Initial-state policy of the Hammerstein PEM fits (``"estimate"``, ``"held"`` or
+        ``"zero"``); each Hammerstein model's provenance repeats it as
+        ``extra["initial_state"]``.
     """
 
     raw_data: Dataset = field(repr=False)
@@ -196,6 +201,7 @@ class PipelineResult:
     timings: tuple[StageTime, ...]
     skipped: tuple[str, ...]
     warnings: tuple[str, ...] = ()
+    initial_state: InitialState = "estimate"
 
     @property
     def models(self) -> tuple[NamedModel, ...]:
@@ -228,6 +234,10 @@ class PipelineResult:
         return tuple(m.name for m in self.models if not m.converged)
 
 
+#: Smallest interval between two progress lines from inside one fit [s].
+_FIT_PROGRESS_S = 1.0
+
+
 class _Clock:
     """Collects stage wall times and forwards stage names to the progress callback."""
 
@@ -236,6 +246,7 @@ class _Clock:
         self._times: list[StageTime] = []
         self._name: str | None = None
         self._t0 = 0.0
+        self._last_fit_note = time.perf_counter()
 
     def start(self, name: str) -> None:
         self.stop()
@@ -254,6 +265,15 @@ class _Clock:
     @property
     def times(self) -> tuple[StageTime, ...]:
         return tuple(self._times)
+
+    def fit_progress(self, step: str, iteration: int, cost: float) -> None:
+        """Forward ``step: iteration i, cost c`` at most once per `_FIT_PROGRESS_S`."""
+        if self._progress is None:
+            return
+        now = time.perf_counter()
+        if now - self._last_fit_note >= _FIT_PROGRESS_S:
+            self._last_fit_note = now
+            self._progress(f"  {step}: iteration {iteration}, cost {cost:.6g} (mean square)")
 
 
 def _named(name: str, label: str, result: IdentificationResult) -> NamedModel:
@@ -458,6 +478,7 @@ def run_paper_pipeline(
     nk: int = 1,
     from_zeros: bool = True,
     progress: Progress | None = None,
+    initial_state: InitialState = "estimate",
 ) -> PipelineResult:
     """Run the paper's identification route on one SISO log (secs. 5-7).
 
@@ -485,7 +506,12 @@ def run_paper_pipeline(
     from_zeros :
         Also run the final PEM from zeros (the paper's check, sec. 7.5).
     progress :
-        Called with the name of each stage as it starts.
+        Called with the name of each stage as it starts, and inside the long
+        Hammerstein fits with their iteration and cost (at most once a second).
+    initial_state :
+        Initial-state policy of the Hammerstein PEM fits: ``"estimate"`` (default; each
+        segment's initial state fitted, as MATLAB's ``'estimate'``), ``"held"`` or
+        ``"zero"``. Stated in `PipelineResult.initial_state` and each model's provenance.
 
     Returns
     -------
@@ -532,7 +558,7 @@ def run_paper_pipeline(
         warnings.simplefilter("always", IdentificationWarning)
         result = _run_stages(
             data, operating_point, shift, repair_spikes, steady_output_atol, degree, nb, nf,
-            nk, from_zeros, clock, skipped,
+            nk, from_zeros, clock, skipped, check_initial_state(initial_state, "run_paper_pipeline"),
         )
     messages: list[str] = []
     for w in caught:
@@ -563,6 +589,7 @@ def _run_stages(
     from_zeros: bool,
     clock: _Clock,
     skipped: list[str],
+    initial_state: InitialState,
 ) -> PipelineResult:
 
     clock.start("operating point")
@@ -612,6 +639,8 @@ def _run_stages(
             nk=nk,
             noise_model=True,
             from_zeros=from_zeros,
+            initial_state=initial_state,
+            progress=clock.fit_progress,
         )
         skipped.extend(route.skipped)
     except SysidError as exc:
@@ -641,6 +670,7 @@ def _run_stages(
         findings=_findings(linear, hammerstein, route, nb, nf),
         timings=clock.times,
         skipped=tuple(skipped),
+        initial_state=initial_state,
     )
 
 

@@ -1,20 +1,33 @@
 """Fitting routines of the Hammerstein model: joint PEM on V (OE block) and on W (ARMAX block).
 
 Steps 3 and 4 of the paper's route (secs. 7.5-7.6), each a pure function of deviation
-arrays returning a `HammersteinFit`. Notation as in `sysid.hammerstein`.
+arrays returning a `HammersteinFit`. Residuals and exact Jacobians come from the
+sensitivity filters of `sysid.hammerstein.filtering` (scipy ``lfilter``), the search is
+`sysid.optimize.levenberg_marquardt` with the unstable roots of ``F`` (``A``, ``C``)
+mirrored into the unit circle, and every fit returns its full parameter covariance.
+A record may hold several segments (experiments), each with its own initial state.
+Notation as in `sysid.hammerstein`.
 """
 
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Literal
 
 import numpy as np
 
 from sysid._typing import FloatArray
-from sysid.errors import IdentificationWarning
-from sysid.greybox import GreyBoxResult, fit_greybox
+from sysid.errors import IdentificationError, IdentificationWarning
+from sysid.greybox import GreyBoxStructure
+from sysid.hammerstein.filtering import (
+    HammersteinOrders,
+    InitialState,
+    Segment,
+    check_initial_state,
+    estimate_transients,
+    residual_function,
+)
 from sysid.hammerstein.model import (
     HammersteinFit,
     _check_arrays,
@@ -22,50 +35,109 @@ from sysid.hammerstein.model import (
     hammerstein_armax_structure,
     hammerstein_oe_structure,
 )
+from sysid.optimize import LMResult, levenberg_marquardt, parameter_std_errors
+
+#: ``progress(iteration, cost)`` after every Levenberg-Marquardt iteration.
+ProgressCallback = Callable[[int, float], None]
 
 
 # =========================================================================== steps 3 and 4
-def _fit_from_greybox(
-    result: GreyBoxResult,
-    *,
-    linear_block: Literal["oe", "armax"],
-    degree: int,
-    nb: int,
-    na: int,
-    nc: int,
-    nk: int,
+def split_segments(
+    y: FloatArray, ds: FloatArray, segment_starts: Sequence[int] | None, where: str
+) -> list[Segment]:
+    """Cut deviation arrays into segments at `segment_starts` (first index of each)."""
+    if segment_starts is None:
+        return [(y, ds)]
+    starts = [int(s) for s in segment_starts]
+    if not starts or starts[0] != 0 or any(b <= a for a, b in zip(starts, starts[1:], strict=False)) \
+            or starts[-1] >= y.size:
+        raise IdentificationError(
+            f"{where}: segment_starts must start at 0 and increase strictly below {y.size}; "
+            f"got {starts}"
+        )
+    bounds = [*starts, y.size]
+    return [(y[lo:hi], ds[lo:hi]) for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]
+
+
+def covariance_from_jacobian(jacobian: FloatArray, residuals: FloatArray) -> FloatArray:
+    """``sigma^2 (J'J)^-1`` with ``sigma^2 = sum r^2 / (N - p)``, by the SVD of ``J``.
+
+    Directions the data do not determine (singular values below ``N eps s_max``) are
+    left out (pseudo-inverse); their standard errors come out as `inf` from
+    `sysid.optimize.parameter_std_errors` instead.
+    """
+    n, p = jacobian.shape
+    sigma2 = float(residuals @ residuals) / max(n - p, 1)
+    _, sv, vt = np.linalg.svd(jacobian, full_matrices=False)
+    keep = sv > max(n, p) * np.finfo(float).eps * (sv[0] if sv.size else 0.0)
+    inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0) ** 2, 0.0)
+    out: FloatArray = sigma2 * (vt.T * inv) @ vt
+    return out
+
+
+def _pem(
+    orders: HammersteinOrders,
+    structure: GreyBoxStructure,
+    segments: list[Segment],
+    initial_state: InitialState,
+    max_iterations: int,
+    progress: ProgressCallback | None,
+) -> tuple[LMResult, FloatArray, FloatArray, FloatArray]:
+    """The search; returns the LM result, model covariance, std errors and transients."""
+    p = orders.n_model
+    theta0 = np.array(structure.initial_values, dtype=float)
+    project = structure.project
+    if initial_state == "estimate":
+        theta0 = np.concatenate([theta0, estimate_transients(orders, theta0, segments)])
+
+    def project_full(theta: FloatArray) -> FloatArray:
+        out = np.array(theta, dtype=float, copy=True)
+        if project is not None:
+            out[:p] = project(out[:p])
+        return out
+
+    lm = levenberg_marquardt(
+        residual_function(orders, segments, initial_state), theta0, project=project_full,
+        max_iterations=max_iterations, callback=progress,
+    )
+    cov = covariance_from_jacobian(lm.jacobian, lm.residuals)[:p, :p]
+    std = parameter_std_errors(lm.jacobian, lm.residuals)[:p]
+    return lm, cov, std, lm.theta[p:]
+
+
+def _fit_from_lm(
+    orders: HammersteinOrders,
+    lm: LMResult,
+    cov: FloatArray,
+    std: FloatArray,
+    transients: FloatArray,
+    initial_state: InitialState,
     start: str,
 ) -> HammersteinFit:
-    values = result.as_dict()
-    b = np.concatenate(
-        [np.zeros(nk), [1.0], [values[f"b{j}"] for j in range(nk + 1, nk + nb)]]
+    p = orders.n_model
+    a, beta, c, poly = orders.polynomials(lm.theta[:p])
+    criterion: Literal["ballistic", "one_step"] = (
+        "ballistic" if orders.block == "oe" else "one_step"
     )
-    poly = np.array([values[f"d{i}"] for i in range(1, degree + 1)])
-    letter = "f" if linear_block == "oe" else "a"
-    a = np.concatenate([[1.0], [values[f"{letter}{i}"] for i in range(1, na + 1)]])
-    if linear_block == "oe":
-        c = a
-    else:
-        a_pad = np.zeros(max(na, nc) + 1)
-        a_pad[: na + 1] = a
-        c = np.concatenate([[1.0], [a_pad[i] + values[f"k{i}"] for i in range(1, nc + 1)]])
     return HammersteinFit(
-        linear_block=linear_block,
+        linear_block=orders.block,
         a=a,
-        b=b,
+        b=beta,
         c=c,
         input_poly=poly,
-        parameter_names=result.parameter_names,
-        parameters=result.parameters,
-        std_errors=result.std_errors,
-        residuals=result.residuals,
-        criterion=result.criterion,
-        cost=result.criterion_value,
-        n_iterations=result.n_iterations,
-        converged=result.converged,
-        message=result.message,
-        method=f"hammerstein-{linear_block}-pem-{result.criterion}-from-{start}",
-        greybox=result,
+        parameter_names=orders.parameter_names(),
+        parameters=lm.theta[:p],
+        std_errors=std,
+        residuals=lm.residuals,
+        criterion=criterion,
+        cost=lm.cost,
+        n_iterations=lm.n_iterations,
+        converged=lm.converged,
+        message=lm.message,
+        method=f"hammerstein-{orders.block}-pem-{criterion}-from-{start}",
+        covariance=cov,
+        initial_state=initial_state,
+        initial_transients=transients,
     )
 
 
@@ -95,6 +167,9 @@ def fit_hammerstein_oe(
     nf: int = 1,
     nk: int = 1,
     max_iterations: int = 100,
+    initial_state: InitialState = "estimate",
+    segment_starts: Sequence[int] | None = None,
+    progress: ProgressCallback | None = None,
 ) -> HammersteinFit:
     """Estimate all parameters of the normalized Hammerstein-OE model by PEM on V (sec. 7.5).
 
@@ -112,13 +187,22 @@ def fit_hammerstein_oe(
         Degree of ``f``, number of ``B`` coefficients, order of ``F``, delay.
     max_iterations :
         Levenberg-Marquardt iteration limit.
+    initial_state :
+        ``"estimate"`` (default: each segment's initial state is fitted with the model,
+        as MATLAB's ``'estimate'``), ``"held"`` (past held at the first sample, the rule
+        of `sysid.simulate`) or ``"zero"`` (the record starts at rest).
+    segment_starts :
+        First sample of each segment (experiment) of the record, starting with 0;
+        default one segment. Each segment has its own initial state.
+    progress :
+        ``progress(iteration, cost)`` after every iteration (sign of life on long logs).
 
     Returns
     -------
     HammersteinFit
         ``linear_block = "oe"``, ``C = A = F``, ``B = q^-nk (1 + b2 q^-1 ..)``,
-        criterion ``"ballistic"`` with ``cost`` = V (held-past initial conditions, as
-        `sysid.criteria.ballistic_mse`).
+        criterion ``"ballistic"`` with ``cost`` = V under `initial_state` (with
+        ``"held"`` equal to `sysid.criteria.ballistic_mse`), and the full `covariance`.
 
     Raises
     ------
@@ -139,14 +223,12 @@ def fit_hammerstein_oe(
     structure = hammerstein_oe_structure(
         degree=degree, nb=nb, nf=nf, nk=nk, initial_values=start
     )
-    result = fit_greybox(
-        structure, y_arr, ds_arr, criterion="ballistic", max_iterations=max_iterations,
-        warn=False,
-    )
-    _warn_unconverged(result, where)
-    return _fit_from_greybox(
-        result, linear_block="oe", degree=degree, nb=nb, na=nf, nc=nf, nk=nk, start=label
-    )
+    policy = check_initial_state(initial_state, where)
+    orders = HammersteinOrders(block="oe", degree=degree, nb=nb, na=nf, nc=0, nk=nk)
+    segments = split_segments(y_arr, ds_arr, segment_starts, where)
+    lm, cov, std, transients = _pem(orders, structure, segments, policy, max_iterations, progress)
+    _warn_unconverged(lm, where)
+    return _fit_from_lm(orders, lm, cov, std, transients, policy, label)
 
 
 def fit_hammerstein_armax(
@@ -160,6 +242,9 @@ def fit_hammerstein_armax(
     nc: int = 1,
     nk: int = 1,
     max_iterations: int = 100,
+    initial_state: InitialState = "estimate",
+    segment_starts: Sequence[int] | None = None,
+    progress: ProgressCallback | None = None,
 ) -> HammersteinFit:
     """Estimate the Hammerstein model with an ARMAX noise model by PEM on W (sec. 7.6).
 
@@ -176,13 +261,22 @@ def fit_hammerstein_armax(
         Degree of ``f`` and the orders of ``A``, ``B``, ``C`` and the delay.
     max_iterations :
         Levenberg-Marquardt iteration limit.
+    initial_state :
+        ``"estimate"`` (default: each segment's initial state is fitted with the model,
+        as MATLAB's ``'estimate'``), ``"held"`` (past held at the first sample, the rule
+        of `sysid.simulate`) or ``"zero"`` (the record starts at rest).
+    segment_starts :
+        First sample of each segment (experiment) of the record, starting with 0;
+        default one segment. Each segment has its own initial state.
+    progress :
+        ``progress(iteration, cost)`` after every iteration (sign of life on long logs).
 
     Returns
     -------
     HammersteinFit
         ``linear_block = "armax"`` with ``c_i = a_i + k_i`` (eq. 32), criterion
-        ``"one_step"``, ``cost`` = W (held-past initial conditions, zero past
-        innovations, as `sysid.criteria.one_step_mse`).
+        ``"one_step"``, ``cost`` = W under `initial_state` (with ``"held"``: zero past
+        innovations, equal to `sysid.criteria.one_step_mse`), and the full `covariance`.
 
     Raises
     ------
@@ -212,17 +306,15 @@ def fit_hammerstein_armax(
     structure = hammerstein_armax_structure(
         degree=degree, na=na, nb=nb, nc=nc, nk=nk, initial_values=start
     )
-    result = fit_greybox(
-        structure, y_arr, ds_arr, criterion="one_step", max_iterations=max_iterations,
-        warn=False,
-    )
-    _warn_unconverged(result, where)
-    return _fit_from_greybox(
-        result, linear_block="armax", degree=degree, nb=nb, na=na, nc=nc, nk=nk, start=label
-    )
+    policy = check_initial_state(initial_state, where)
+    orders = HammersteinOrders(block="armax", degree=degree, nb=nb, na=na, nc=nc, nk=nk)
+    segments = split_segments(y_arr, ds_arr, segment_starts, where)
+    lm, cov, std, transients = _pem(orders, structure, segments, policy, max_iterations, progress)
+    _warn_unconverged(lm, where)
+    return _fit_from_lm(orders, lm, cov, std, transients, policy, label)
 
 
-def _warn_unconverged(result: GreyBoxResult, where: str) -> None:
+def _warn_unconverged(result: LMResult, where: str) -> None:
     if not result.converged:
         warnings.warn(
             f"{where}: the prediction-error search did not converge after "

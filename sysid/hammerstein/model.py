@@ -23,7 +23,8 @@ from sysid._typing import FloatArray
 from sysid.criteria import ballistic_mse, one_step_mse
 from sysid.data import Dataset
 from sysid.errors import IdentificationError, UnstableModelError
-from sysid.greybox import GreyBoxResult, GreyBoxStructure, greybox_residuals
+from sysid.greybox import GreyBoxResult, GreyBoxStructure
+from sysid.hammerstein.filtering import HammersteinOrders, mean_square_criterion
 from sysid.model import Criteria, HammersteinModel, OperatingPoint, Provenance
 from sysid.polynomials import reflect_unstable_roots
 
@@ -64,6 +65,17 @@ class HammersteinFit:
         Short label of the step that produced it (for provenance).
     greybox :
         The grey-box result behind a joint PEM, or None.
+    covariance :
+        Full covariance of `parameters`, ``sigma^2 (J'J)^-1`` with ``sigma^2 = sum r^2 /
+        (N - p)`` and ``J`` the Jacobian at the optimum (the initial states, when
+        estimated, are part of ``J`` and marginalized out), shape ``(p, p)``; empty
+        ``(0, 0)`` when not computed.
+    initial_state :
+        How each segment's initial state was treated: ``"estimate"`` (fitted),
+        ``"held"`` (past held at the first sample), ``"zero"``, or ``"none"`` (ARX
+        equation errors, no state).
+    initial_transients :
+        The estimated initial transients, ``n_state`` per segment (empty otherwise).
     """
 
     linear_block: HammersteinBlock
@@ -82,9 +94,13 @@ class HammersteinFit:
     message: str
     method: str
     greybox: GreyBoxResult | None = field(default=None, repr=False)
+    covariance: FloatArray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
+    initial_state: Literal["estimate", "held", "zero", "none"] = "held"
+    initial_transients: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
 
     def __post_init__(self) -> None:
-        for name in ("a", "b", "c", "input_poly", "parameters", "std_errors", "residuals"):
+        for name in ("a", "b", "c", "input_poly", "parameters", "std_errors", "residuals",
+                     "covariance", "initial_transients"):
             object.__setattr__(self, name, _readonly(getattr(self, name)))
 
     @property
@@ -399,46 +415,32 @@ def relative_parameter_difference(first: HammersteinFit, second: HammersteinFit)
 
 
 def hammerstein_criteria(fit: HammersteinFit, y: FloatArray, ds: FloatArray) -> Criteria:
-    """V (eq. 9) and W (eq. 10) of a fit on deviation arrays (held-past rule).
+    """V (eq. 9) and W (eq. 10) of a fit on deviation arrays, under the fit's initial-state policy.
 
-    Returns a `Criteria` computed with the grey-box simulator, which matches
-    `sysid.criteria` on the corresponding `HammersteinModel`.
+    The fit's policy (``estimate``: re-fitted by least squares; ``held``; ``zero``; ARX
+    fits: ``held``) is applied by the filters of `sysid.hammerstein.filtering`; with
+    ``held`` the numbers match `sysid.criteria` on the corresponding `HammersteinModel`.
     """
     y_arr, ds_arr = _check_arrays(y, ds, "hammerstein_criteria")
-    structure = _fixed_structure(fit)
-    eps = greybox_residuals(structure, y_arr, ds_arr, criterion="ballistic")
-    e = greybox_residuals(structure, y_arr, ds_arr, criterion="one_step")
-    return Criteria(
-        ballistic_mse_kw2=float(np.mean(eps**2)), one_step_mse_kw2=float(np.mean(e**2))
-    )
-
-
-def _fixed_structure(fit: HammersteinFit) -> GreyBoxStructure:
+    policy = fit.initial_state if fit.initial_state != "none" else "held"
     nk = fit.delay_steps
     na = fit.a.size - 1
     nb = fit.b.size - nk
-    nc = fit.c.size - 1
-    values = fit.values()
-    if fit.linear_block == "armax":
-        structure = hammerstein_armax_structure(
-            degree=fit.input_poly.size, na=na, nb=nb, nc=nc, nk=nk
-        )
-    else:
-        # OE and ARX predictors both fit the ARMAX form: OE has C = A, ARX has C = 1
-        structure = hammerstein_armax_structure(
-            degree=fit.input_poly.size, na=na, nb=nb, nc=na, nk=nk
-        )
-        for i in range(1, na + 1):
-            values[f"a{i}"] = values.pop(f"f{i}", values.get(f"a{i}", 0.0))
-            c_i = fit.c[i] if i < fit.c.size else 0.0
-            values[f"k{i}"] = float(c_i - fit.a[i])
-    return GreyBoxStructure(
-        parameter_names=structure.parameter_names,
-        initial_values=tuple(values[n] for n in structure.parameter_names),
-        matrices=structure.matrices,
-        input_map=structure.input_map,
-        name=structure.name,
-    )
+    degree = fit.input_poly.size
+    oe = HammersteinOrders(block="oe", degree=degree, nb=nb, na=na, nc=0, nk=nk)
+    theta_oe = np.concatenate([fit.b[nk + 1 :], fit.input_poly, fit.a[1:]])
+    v = mean_square_criterion(oe, theta_oe, [(y_arr, ds_arr)], policy)
+    if fit.linear_block == "oe":
+        return Criteria(ballistic_mse_kw2=v, one_step_mse_kw2=v)
+    nc = max(fit.c.size - 1, na)
+    c = np.zeros(nc + 1)
+    c[: fit.c.size] = fit.c
+    a_pad = np.zeros(nc + 1)
+    a_pad[: na + 1] = fit.a
+    armax = HammersteinOrders(block="armax", degree=degree, nb=nb, na=na, nc=nc, nk=nk)
+    theta_armax = np.concatenate([theta_oe, c[1:] - a_pad[1:]])
+    w = mean_square_criterion(armax, theta_armax, [(y_arr, ds_arr)], policy)
+    return Criteria(ballistic_mse_kw2=v, one_step_mse_kw2=w)
 
 
 # =========================================================================== models
@@ -483,6 +485,7 @@ def hammerstein_model(
         "std_errors": [float(v) if math.isfinite(v) else None for v in fit.std_errors],
         "n_iterations": fit.n_iterations,
         "converged": fit.converged,
+        "initial_state": fit.initial_state,
     }
     info.update(extra or {})
     try:

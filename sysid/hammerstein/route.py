@@ -7,7 +7,7 @@ Steps 1-2 here (`initial_input_poly`, `reidentify_linear_block`), steps 3-4 in
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -18,6 +18,7 @@ from sysid._arrays import readonly_array as _readonly
 from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import IdentificationError
+from sysid.hammerstein.filtering import InitialState
 from sysid.hammerstein.fitting import fit_hammerstein_armax, fit_hammerstein_oe
 from sysid.hammerstein.model import (
     HammersteinFit,
@@ -352,6 +353,8 @@ def run_hammerstein_route(
     from_zeros: bool = False,
     row_form: RowForm = "eq21",
     max_iterations: int = 100,
+    initial_state: InitialState = "estimate",
+    progress: Callable[[str, int, float], None] | None = None,
 ) -> HammersteinRoute:
     """Run steps 1-4 of the paper's route on deviation arrays.
 
@@ -375,6 +378,12 @@ def run_hammerstein_route(
         Rows of eq. 21 (see `initial_input_poly`).
     max_iterations :
         Iteration limit of every search.
+    initial_state :
+        Initial-state policy of the joint PEM fits (steps 3-4): ``"estimate"``
+        (default), ``"held"`` or ``"zero"`` (see `sysid.hammerstein.filtering`).
+    progress :
+        ``progress(step, iteration, cost)`` after every iteration of the joint PEM
+        fits, with ``step`` naming the fit.
 
     Returns
     -------
@@ -427,21 +436,29 @@ def run_hammerstein_route(
     oe_re = reidentify_linear_block(
         y_arr, ds_arr, poly, method="oe", nb=nb, nf=nf, nk=nk, max_iterations=max_iterations
     )
+    def report(step: str) -> Callable[[int, float], None] | None:
+        if progress is None:
+            return None
+        return lambda iteration, cost: progress(step, iteration, cost)
+
     final = fit_hammerstein_oe(
         y_arr, ds_arr, initial=oe_re, degree=degree, nb=nb, nf=nf, nk=nk,
-        max_iterations=max_iterations,
+        max_iterations=max_iterations, initial_state=initial_state,
+        progress=report("joint PEM of the OE block (V)"),
     )
     zeros = None
     if from_zeros:
         zeros = fit_hammerstein_oe(
             y_arr, ds_arr, initial=None, degree=degree, nb=nb, nf=nf, nk=nk,
-            max_iterations=max_iterations,
+            max_iterations=max_iterations, initial_state=initial_state,
+            progress=report("joint PEM of the OE block from zeros (V)"),
         )
     noise = None
     if noise_model:
         noise = fit_hammerstein_armax(
             y_arr, ds_arr, initial=final, degree=degree, na=nf, nb=nb, nc=nc_used, nk=nk,
-            max_iterations=max_iterations,
+            max_iterations=max_iterations, initial_state=initial_state,
+            progress=report("joint PEM of the noise model (W)"),
         )
     return HammersteinRoute(
         arx=arx,
@@ -468,6 +485,7 @@ def fit_hammerstein(
     nc: int | None = None,
     steps: Sequence[InputStep] | None = None,
     max_iterations: int = 100,
+    initial_state: InitialState = "estimate",
 ) -> IdentificationResult:
     """Identify a Hammerstein model of a heater log by the paper's route (secs. 7.3-7.6).
 
@@ -491,6 +509,10 @@ def fit_hammerstein(
         Input steps for eq. 21; default `sysid.steps.detect_steps` with delay ``nk``.
     max_iterations :
         Iteration limit of every search.
+    initial_state :
+        Initial-state policy of the joint PEM fits: ``"estimate"`` (default, as
+        MATLAB's ``'estimate'``), ``"held"`` or ``"zero"``; recorded in the model's
+        provenance (``extra["initial_state"]``).
 
     Returns
     -------
@@ -545,6 +567,7 @@ def fit_hammerstein(
     route = run_hammerstein_route(
         y, ds, steps=used_steps, operating_point=operating_point, degree=degree, nb=nb,
         nf=nf, nk=nk, noise_model=noise_model, nc=nc, max_iterations=max_iterations,
+        initial_state=initial_state,
     )
     fit = route.noise_model if route.noise_model is not None else route.final_oe
     model = hammerstein_model(
