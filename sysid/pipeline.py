@@ -35,7 +35,10 @@ from sysid.errors import IdentificationError, IdentificationWarning, SysidError
 from sysid.hammerstein import (
     HammersteinFit,
     HammersteinRoute,
+    fit_hammerstein_armax,
+    fit_hammerstein_oe,
     hammerstein_model,
+    reidentify_linear_block,
     relative_parameter_difference,
     run_hammerstein_route,
 )
@@ -53,6 +56,7 @@ from sysid.preprocess import (
 )
 from sysid.result import IdentificationResult
 from sysid.steps import InputStep, detect_steps
+from sysid.structure import StructureChoice, select_structure
 
 #: ``level_shift`` argument: ``"auto"`` (from the outlier candidates), ``"none"``, or
 #: ``(from_time_s, shift_kw)`` to subtract ``shift_kw`` from the output from that time.
@@ -185,6 +189,9 @@ class PipelineResult:
         Initial-state policy of the Hammerstein PEM fits (``"estimate"``, ``"held"`` or
         ``"zero"``); each Hammerstein model's provenance repeats it as
         ``extra["initial_state"]``.
+    structure :
+        With ``orders="auto"``: the delay estimate, every structure scored on
+        validation data, the choice and why (`sysid.structure.StructureChoice`).
     """
 
     raw_data: Dataset = field(repr=False)
@@ -202,6 +209,7 @@ class PipelineResult:
     skipped: tuple[str, ...]
     warnings: tuple[str, ...] = ()
     initial_state: InitialState = "estimate"
+    structure: StructureChoice | None = field(default=None, repr=False)
 
     @property
     def models(self) -> tuple[NamedModel, ...]:
@@ -355,25 +363,28 @@ def _preprocess(
 
 
 def _linear_models(
-    data: Dataset, op: OperatingPoint, nb: int, nf: int, nk: int, skipped: list[str]
+    data: Dataset, op: OperatingPoint, nb: int, nf: int, nk: int, skipped: list[str],
+    initial_state: InitialState,
 ) -> tuple[NamedModel, ...]:
     na = nf
+    # the PEM fits (OE, ARMAX) estimate the initial state unless told to hold the past
+    ic = {"initial_conditions": "estimated" if initial_state == "estimate" else "held"}
     specs = [
         (f"arx_{na}_{nb}", f"ARX(na={na}, nb={nb})", fit_arx, {"na": na, "nb": nb}),
         (f"arx_{na + 1}_{nb + 1}", f"ARX(na={na + 1}, nb={nb + 1})", fit_arx,
          {"na": na + 1, "nb": nb + 1}),
         (f"armax_{na}_{nb}_{na}", f"ARMAX(na={na}, nb={nb}, nc={na})", fit_armax,
-         {"na": na, "nb": nb, "nc": na}),
+         {"na": na, "nb": nb, "nc": na, **ic}),
         (f"armax_{na + 1}_{nb + 1}_{na + 1}", f"ARMAX(na={na + 1}, nb={nb + 1}, nc={na + 1})",
-         fit_armax, {"na": na + 1, "nb": nb + 1, "nc": na + 1}),
-        (f"oe_{nb}_{nf}", f"OE(nb={nb}, nf={nf})", fit_oe, {"nb": nb, "nf": nf}),
+         fit_armax, {"na": na + 1, "nb": nb + 1, "nc": na + 1, **ic}),
+        (f"oe_{nb}_{nf}", f"OE(nb={nb}, nf={nf})", fit_oe, {"nb": nb, "nf": nf, **ic}),
         (f"oe_{nb + 1}_{nf + 1}", f"OE(nb={nb + 1}, nf={nf + 1})", fit_oe,
-         {"nb": nb + 1, "nf": nf + 1}),
+         {"nb": nb + 1, "nf": nf + 1, **ic}),
     ]
     out = []
     for name, label, fit, orders in specs:
         try:
-            result = fit(data, operating_point=op, nk=nk, **orders)  # type: ignore[operator]
+            result = fit(data, operating_point=op, nk=nk, **orders)  # type: ignore[operator, arg-type]
         except SysidError as exc:
             skipped.append(f"{label} skipped: {exc}")
             continue
@@ -465,6 +476,55 @@ def _route_models(
     return tuple(out)
 
 
+#: ``"auto"``, ``"paper"``, or explicit ``(nb, nf, nk)`` / ``(nb, nf, nk, nc)``.
+OrdersOption = Literal["auto", "paper"]
+
+
+def _check_orders_option(value: object) -> OrdersOption:
+    if value == "auto":
+        return "auto"
+    if value == "paper":
+        return "paper"
+    raise IdentificationError(
+        f"run_paper_pipeline: orders must be 'auto' or 'paper' (explicit orders go in nb, "
+        f"nf, nk); got {value!r}"
+    )
+
+
+def _paper_models(
+    data: Dataset,
+    op: OperatingPoint,
+    paper_orders: tuple[int, int, int, int],
+    initial_state: InitialState,
+    clock: _Clock,
+    skipped: list[str],
+) -> tuple[NamedModel, ...]:
+    """The Hammerstein OE and ARMAX models at the paper's orders, beside an auto choice."""
+    degree, nb, nf, nk = paper_orders
+    y = data.power_kw - op.power_kw
+    ds = data.triac_pct - op.triac_pct
+    out: list[NamedModel] = []
+    try:
+        oe = fit_hammerstein_oe(
+            y, ds, initial=reidentify_linear_block(
+                y, ds, np.eye(degree)[0], method="oe", nb=nb, nf=nf, nk=nk),
+            degree=degree, nb=nb, nf=nf, nk=nk, initial_state=initial_state,
+            progress=lambda i, c: clock.fit_progress("paper's orders, OE block (V)", i, c),
+        )
+        out.append(_named_fit("hammerstein_oe_paper",
+                              "Hammerstein-OE at the paper's orders, PEM on V", oe, data, op))
+        armax = fit_hammerstein_armax(
+            y, ds, initial=oe, degree=degree, na=nf, nb=nb, nc=nf, nk=nk,
+            initial_state=initial_state,
+            progress=lambda i, c: clock.fit_progress("paper's orders, noise model (W)", i, c),
+        )
+        out.append(_named_fit("hammerstein_armax_paper",
+                              "Hammerstein-ARMAX at the paper's orders, PEM on W", armax, data, op))
+    except SysidError as exc:
+        skipped.append(f"Hammerstein models at the paper's orders not fitted: {exc}")
+    return tuple(out)
+
+
 def run_paper_pipeline(
     data: Dataset,
     *,
@@ -479,6 +539,8 @@ def run_paper_pipeline(
     from_zeros: bool = True,
     progress: Progress | None = None,
     initial_state: InitialState = "estimate",
+    orders: OrdersOption = "paper",
+    nc: int | None = None,
 ) -> PipelineResult:
     """Run the paper's identification route on one SISO log (secs. 5-7).
 
@@ -512,6 +574,15 @@ def run_paper_pipeline(
         Initial-state policy of the Hammerstein PEM fits: ``"estimate"`` (default; each
         segment's initial state fitted, as MATLAB's ``'estimate'``), ``"held"`` or
         ``"zero"``. Stated in `PipelineResult.initial_state` and each model's provenance.
+    orders :
+        ``"paper"`` (default): `degree`, `nb`, `nf`, `nk` as given. ``"auto"``: the
+        delay and the orders (degree, nb, nf, nk) chosen on validation data by
+        `sysid.structure.select_structure` (the given ones are the paper's structure it
+        is compared with); when the choice differs, the Hammerstein models at the
+        given orders are fitted too (``hammerstein_oe_paper``,
+        ``hammerstein_armax_paper``) and shown beside it.
+    nc :
+        Order of the noise model's ``C``; default ``nf`` (the paper: ``nc = na``).
 
     Returns
     -------
@@ -559,6 +630,7 @@ def run_paper_pipeline(
         result = _run_stages(
             data, operating_point, shift, repair_spikes, steady_output_atol, degree, nb, nf,
             nk, from_zeros, clock, skipped, check_initial_state(initial_state, "run_paper_pipeline"),
+            _check_orders_option(orders), nc,
         )
     messages: list[str] = []
     for w in caught:
@@ -590,6 +662,8 @@ def _run_stages(
     clock: _Clock,
     skipped: list[str],
     initial_state: InitialState,
+    orders: OrdersOption,
+    nc: int | None,
 ) -> PipelineResult:
 
     clock.start("operating point")
@@ -614,8 +688,21 @@ def _run_stages(
         except SysidError as exc:
             skipped.append(f"outlier search after repairs skipped: {exc}")
 
+    structure: StructureChoice | None = None
+    paper_orders = (degree, nb, nf, nk)
+    if orders == "auto":
+        clock.start("structure selection (delay, orders on validation data)")
+        try:
+            structure = select_structure(
+                [(clean.power_kw - op.power_kw, clean.triac_pct - op.triac_pct)],
+                paper_orders=paper_orders,
+            )
+            degree, nb, nf, nk = structure.chosen.orders
+        except SysidError as exc:
+            skipped.append(f"structure selection skipped ({exc}); the given orders are used")
+
     clock.start("linear models (Table 2)")
-    linear = _linear_models(clean, op, nb, nf, nk, skipped)
+    linear = _linear_models(clean, op, nb, nf, nk, skipped, initial_state)
 
     clock.start("input steps (Table 3)")
     steps = detect_steps(clean, delay_steps=nk)
@@ -638,9 +725,11 @@ def _run_stages(
             nf=nf,
             nk=nk,
             noise_model=True,
+            nc=nc,
             from_zeros=from_zeros,
             initial_state=initial_state,
             progress=clock.fit_progress,
+            extra_start=None if structure is None else structure.chosen_parameters,
         )
         skipped.extend(route.skipped)
     except SysidError as exc:
@@ -648,6 +737,9 @@ def _run_stages(
 
     clock.start("Hammerstein models and criteria")
     hammerstein = () if route is None else _route_models(route, clean, op, skipped)
+    if structure is not None and (degree, nb, nf, nk) != paper_orders:
+        clock.start("Hammerstein models at the paper's orders")
+        hammerstein += _paper_models(clean, op, paper_orders, initial_state, clock, skipped)
     clock.stop()
 
     final = _choose_final(linear, hammerstein)
@@ -671,6 +763,7 @@ def _run_stages(
         timings=clock.times,
         skipped=tuple(skipped),
         initial_state=initial_state,
+        structure=structure,
     )
 
 
@@ -689,6 +782,7 @@ def _choose_final(
 __all__ = [
     "LevelShiftOption",
     "NamedModel",
+    "OrdersOption",
     "PipelineFindings",
     "PipelineResult",
     "Progress",

@@ -7,7 +7,7 @@ Steps 1-2 here (`initial_input_poly`, `reidentify_linear_block`), steps 3-4 in
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -355,6 +355,7 @@ def run_hammerstein_route(
     max_iterations: int = 100,
     initial_state: InitialState = "estimate",
     progress: Callable[[str, int, float], None] | None = None,
+    extra_start: Mapping[str, float] | None = None,
 ) -> HammersteinRoute:
     """Run steps 1-4 of the paper's route on deviation arrays.
 
@@ -384,6 +385,9 @@ def run_hammerstein_route(
     progress :
         ``progress(step, iteration, cost)`` after every iteration of the joint PEM
         fits, with ``step`` naming the fit.
+    extra_start :
+        A second start of step 3 by parameter name (for example the structure
+        search's fit); the better of the two final OE fits on V is kept.
 
     Returns
     -------
@@ -446,6 +450,14 @@ def run_hammerstein_route(
         max_iterations=max_iterations, initial_state=initial_state,
         progress=report("joint PEM of the OE block (V)"),
     )
+    if extra_start is not None:
+        other = fit_hammerstein_oe(
+            y_arr, ds_arr, initial=extra_start, degree=degree, nb=nb, nf=nf, nk=nk,
+            max_iterations=max_iterations, initial_state=initial_state,
+            progress=report("joint PEM of the OE block from the structure search (V)"),
+        )
+        if other.cost < final.cost:
+            final = other
     zeros = None
     if from_zeros:
         zeros = fit_hammerstein_oe(
