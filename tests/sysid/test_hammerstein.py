@@ -397,3 +397,38 @@ def test_bad_arx_polynomials_and_unstable_fits_raise(rng: np.random.Generator) -
     )
     with pytest.raises(IdentificationError, match="not a usable model"):
         hammerstein_model(unstable, _dataset(y, ds), operating_point=OP)
+
+
+def test_long_fits_report_every_iteration_and_its_cost(rng: np.random.Generator) -> None:
+    y, ds, _ = _oe_truth_record(rng, 1500, 0.05)
+    seen: list[tuple[int, float]] = []
+    fit = fit_hammerstein_oe(y, ds, initial=None, progress=lambda i, c: seen.append((i, c)))
+    assert [i for i, _ in seen] == list(range(1, fit.n_iterations + 1))
+    costs = [c for _, c in seen]
+    assert all(b <= a for a, b in zip(costs, costs[1:], strict=False))   # LM never climbs
+    assert costs[-1] == pytest.approx(fit.cost, rel=IDENTITY_RTOL)
+
+
+def test_covariance_is_sigma2_inverse_jtj_and_matches_the_std_errors(
+    rng: np.random.Generator,
+) -> None:
+    y, ds, _ = _oe_truth_record(rng, 2000, 0.05)
+    fit = fit_hammerstein_oe(y, ds, initial_state="held")
+    p = len(fit.parameter_names)
+    assert fit.covariance.shape == (p, p)
+    np.testing.assert_allclose(np.sqrt(np.diag(fit.covariance)), fit.std_errors, rtol=1e-8)
+    # independent: finite-difference Jacobian of V's residuals, covariance by inv(J'J)
+    from sysid.hammerstein.filtering import HammersteinOrders, segment_residuals
+    orders = HammersteinOrders(block="oe", degree=2, nb=2, na=1, nc=0, nk=1)
+    theta = np.asarray(fit.parameters)
+    jac = np.empty((y.size, p))
+    for i in range(p):
+        step = 1e-6 * max(1.0, abs(theta[i]))
+        up, down = theta.copy(), theta.copy()
+        up[i] += step
+        down[i] -= step
+        jac[:, i] = (segment_residuals(orders, up, [(y, ds)], "held", jacobian=False)[0]
+                     - segment_residuals(orders, down, [(y, ds)], "held", jacobian=False)[0]
+                     ) / (2 * step)
+    sigma2 = float(fit.residuals @ fit.residuals) / (y.size - p)
+    np.testing.assert_allclose(fit.covariance, sigma2 * np.linalg.inv(jac.T @ jac), rtol=1e-4)
