@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
-import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -41,6 +40,7 @@ if TYPE_CHECKING:
     from sysid.data import Dataset
 
 from czmpc.cli import _argtypes
+from czmpc.cli._progress import Progress
 
 NAME = "identify"
 HELP = "identify the Hammerstein heater model from logged data and write model, report, figures"
@@ -93,17 +93,6 @@ def register(parser: argparse.ArgumentParser) -> None:
         help="exit 0 even if an iterative fit (OE, ARMAX, PEM) did not converge; the "
              "report then flags it (default: exit 1)",
     )
-
-
-class _StderrProgress:
-    """Prints ``[  1.23 s] stage`` lines to stderr as the pipeline reports stages."""
-
-    def __init__(self) -> None:
-        self._t0 = time.perf_counter()
-
-    def __call__(self, stage: str, *_: object) -> None:
-        elapsed = time.perf_counter() - self._t0
-        print(f"[{elapsed:7.2f} s] {stage}", file=sys.stderr, flush=True)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -261,7 +250,7 @@ def identify_to_directory(
 
 def run(args: argparse.Namespace) -> int:
     """Run the pipeline and write model.json, models/*.json and report.md into --out."""
-    progress = _StderrProgress()
+    progress = Progress()
     words = ["czmpc", NAME, str(args.data), "--out", str(args.out)]
     if args.operating_point is not None:
         words += ["--operating-point", *(f"{v:g}" for v in args.operating_point)]
