@@ -25,6 +25,7 @@ from types import ModuleType
 
 from czmpc.errors import CzmpcError
 from sim.errors import SimError
+from sysid._version import __version__
 from sysid.errors import SysidError
 
 
@@ -54,6 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Run 'czmpc COMMAND --help' for the options of one command.",
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
+                        help="print the version of czmpc and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for module in _command_modules():
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.__doc__)
