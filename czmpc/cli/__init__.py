@@ -23,10 +23,8 @@ import sys
 from collections.abc import Sequence
 from types import ModuleType
 
-from czmpc.errors import CzmpcError
-from sim.errors import SimError
+from czmpc.cli._exit import BAD_INPUT_ERRORS, ExitCode
 from sysid._version import __version__
-from sysid.errors import SysidError
 
 
 class _Parser(argparse.ArgumentParser):
@@ -71,17 +69,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
-        return 2
+        return ExitCode.BAD_INPUT
     try:
         return int(args._run(args))
-    except (SysidError, SimError, CzmpcError, OSError) as exc:
+    except BAD_INPUT_ERRORS as exc:
         if args.debug:
             raise
         print(f"czmpc: error: {exc}", file=sys.stderr)
-        return 2
+        return ExitCode.BAD_INPUT
     except KeyboardInterrupt:
         print("czmpc: interrupted", file=sys.stderr)
-        return 130
+        return ExitCode.INTERRUPTED
 
 
 if __name__ == "__main__":  # pragma: no cover
