@@ -25,8 +25,8 @@ import numpy as np
 
 from czmpc.reports import identification_figures as figs
 from czmpc.reports.tables import format_table
-from sysid.atomic import atomic_write_text
 from sysid._version import SOFTWARE
+from sysid.atomic import atomic_write_text
 
 if TYPE_CHECKING:
     from sysid.model import HammersteinModel

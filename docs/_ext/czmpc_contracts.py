@@ -24,9 +24,9 @@ MODEL_KEYS: dict[str, str] = {
     "kind": '``"hammerstein"`` (polynomial ``f``) or ``"linear"`` (``input_poly`` has one coefficient).',
     "linear_block": '``"armax"``, ``"oe"`` (stored with ``C = A``) or ``"arx"``.',
     "ts_s": "Sampling time [s].",
-    "operating_point": 'Object ``{"triac_pct": s_nom, "power_kw": P_nom}``: the deviations are taken from it.',
+    "operating_point": 'Object ``{"triac_pct": s_nom, "power_kw": P_nom}``: deviations are from it.',
     "A": "``A(q)`` in ascending powers of q^-1, ``A[0] = 1``; roots inside the unit circle.",
-    "B": "``B(q)``; its leading zeros are the delay, its first non-zero coefficient is 1.",
+    "B": "``B(q)``; its leading zeros are the delay; its first non-zero coefficient is 1.",
     "C": "``C(q)``, ``C[0] = 1``; roots inside the unit circle.",
     "input_poly": "``[p_1, ..., p_n]``: ``f(ds) = sum_i p_i ds^i`` [kW per %^i], no constant term.",
     "noise_std_kw": "Standard deviation of the innovation ``e`` [kW].",
@@ -110,7 +110,8 @@ def exit_codes_rst() -> str:
     from czmpc.cli._exit import BAD_INPUT_ERRORS, MEANING, ExitCode
 
     _check_same([c.name for c in MEANING], [c.name for c in ExitCode], "exit codes")
-    lines = _table(("code", "name", "meaning"), [(str(int(c)), f"``{c.name}``", MEANING[c]) for c in ExitCode])
+    rows = [(str(int(c)), f"``{c.name}``", MEANING[c]) for c in ExitCode]
+    lines = _table(("code", "name", "meaning"), rows)
     lines += ["", "Errors reported as ``czmpc: error: <message>`` on stderr with exit code "
               f"{int(ExitCode.BAD_INPUT)}, without a traceback unless ``--debug`` is given "
               "(each with its subclasses):", ""]
