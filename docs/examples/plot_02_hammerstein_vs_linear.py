@@ -27,7 +27,7 @@ for name, model in models.items():
 # %%
 # Static nonlinearity: the instantaneous gain ``df/ds`` of each model over the input
 # range of the experiment. The linear model has one gain everywhere.
-fig, (ax_g, ax_e) = plt.subplots(1, 2, figsize=(9, 3.5))
+fig, ax_g = plt.subplots(figsize=(6, 3.5))
 for name, model in models.items():
     op = model.operating_point.triac_pct
     s_pct = np.linspace(*model.input_range_pct, 200)
@@ -37,10 +37,12 @@ for name, model in models.items():
 ax_g.set_xlabel("TRIAC input s [%]")
 ax_g.set_ylabel("instantaneous gain df/ds [kW/%]")
 ax_g.legend()
+fig.tight_layout()
 
 # %%
 # Ballistic simulation errors over the experiment: the linear model's error grows as the
 # input moves away from the operating point.
+fig, ax_e = plt.subplots(figsize=(8, 3.5))
 for name, model in models.items():
     ax_e.plot(data.time_s, data.power_kw - sysid.simulate(model, data), lw=0.6, label=name)
 ax_e.set_xlabel("time [s]")

@@ -7,7 +7,8 @@ The grid voltage sags by 3 % for ten minutes at a constant 45 kW setpoint (the s
 2.7 kW go at once; the controller's integrating disturbance picks the loss up and the
 MPC raises the TRIAC input to hold the setpoint, then takes it back when the voltage
 recovers. The plant is the virtual heater, not the controller's model: there is model
-mismatch as well.
+mismatch as well. The heater starts in steady state at the setpoint, and the controller is
+told which input it holds (``initial_triac_pct``), as ``czmpc simulate --plant heater`` does.
 """
 
 import matplotlib.pyplot as plt
@@ -15,12 +16,15 @@ import matplotlib.pyplot as plt
 import czmpc
 import sim
 import sysid
+from czmpc.campaigns.simulation import heater_steady_state_triac_pct
 from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
 
 model = sysid.load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
-mpc = czmpc.OffsetFreeMPC(model)
 scenario = sim.load_scenario("voltage_sag")
-run = sim.run_closed_loop(sim.VirtualHeater(rng=1), mpc, scenario, rng=7)
+s0_pct = heater_steady_state_triac_pct(scenario.initial_setpoint_kw)
+heater = sim.VirtualHeater(sim.HeaterParams(initial_triac_pct=s0_pct))
+mpc = czmpc.OffsetFreeMPC(model, czmpc.MPCSettings.default_for(model).with_updates(initial_triac_pct=s0_pct))
+run = sim.run_closed_loop(heater, mpc, scenario, rng=7)
 metrics = sim.compute_metrics(run)
 print(scenario.description)
 print(f"IAE = {metrics.iae_kw_s:.1f} kW s, largest steady-state error = "
