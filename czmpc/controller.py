@@ -93,7 +93,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 
@@ -105,8 +105,8 @@ from czmpc.modes import Mode, ModeTransition, Status, transition
 from czmpc.qp import MPCQP, QPSolution, move_bounds
 from czmpc.realization import AugmentedModel, augment, innovations_form
 from czmpc.settings import MPCSettings
-from czmpc.target import SteadyStateMap, compute_target, steady_state_map
-from czmpc.validation import MeasurementChecker, Verdict
+from czmpc.target import SteadyStateMap, Target, compute_target, steady_state_map
+from czmpc.validation import MeasurementCheck, MeasurementChecker, Verdict
 from sysid._typing import FloatArray
 from sysid.model import HammersteinModel
 
@@ -234,6 +234,27 @@ class StepDiagnostics:
     triac_limits_pct: tuple[float, float] = (math.nan, math.nan)
     mismatch: MismatchStats | None = None
     transition: ModeTransition | None = None
+
+
+class _Update(NamedTuple):
+    """What the measurement update (stage 1b) produced."""
+
+    z: FloatArray            # z_{k|k}: filtered augmented state (the prediction if not used)
+    eps: float               # innovation used [kW] (0 when not used)
+    used: bool               # the measurement update ran
+    check: MeasurementCheck  # the validity verdict
+    std_kw: float            # predicted innovation std the gate used [kW]
+
+
+class _Plan(NamedTuple):
+    """What the QP stage (stage 3) decided."""
+
+    solution: QPSolution
+    w0: float                # first move to apply [kW-equivalent] (plan or fallback)
+    fallback: Fallback
+    w_lo0: float             # bounds of the first move [kW-equivalent]
+    w_hi0: float
+    solver_shed: bool        # max_bad_solves reached
 
 
 class OffsetFreeMPC:
@@ -621,53 +642,111 @@ class OffsetFreeMPC:
             TRIAC input [%]. In ``ON``: finite, inside the effective limits and within
             ``max_move_pct_per_step`` of the previous input (module notes). In
             ``OFF``/``PREDICT``: the caller's input (the last one known).
+
+        Notes
+        -----
+        The stages, in the order of the module notes: `_take_applied_input`,
+        `_take_setpoint`, `_measurement_update`, the target (`compute_target`),
+        `_solve_or_fall_back`, `_guard_input`, `_judge`, `_time_update`, and the
+        record (`StepDiagnostics`).
         """
         power = float(power_kw)
         setpoint_in = float(setpoint_kw)
-        im = self._input_map
-        rel = self._rel
         mode = self._mode
         transition_record = self._pending
         self._pending = None
 
-        # 0. the input actually applied over the last sample
-        applied_differs = False
-        if applied_triac_pct is not None:
-            applied = float(applied_triac_pct)
-            if math.isfinite(applied):
-                ds_a = min(100.0, max(0.0, applied)) - self._s_nom
-                applied_differs = abs(ds_a - self._ds_prev) > APPLIED_TOL_PCT
-                if ds_a != self._ds_prev:
-                    w_a = im.f(ds_a)
-                    if mode is not Mode.OFF:
-                        z_corr = self._z + self._Baug * (w_a - self._w_prev)
-                        if np.isfinite(z_corr).all():
-                            z_corr.flags.writeable = False
-                            self._z = z_corr
-                    self._ds_prev = ds_a
-                    self._w_prev = w_a
+        applied_differs = self._take_applied_input(applied_triac_pct, mode)
         self._ramp_limits()
-
-        if math.isfinite(setpoint_in):
-            setpoint = setpoint_in
-            held = False
-        else:
-            setpoint = self._setpoint_kw
-            held = True
-        self._setpoint_kw = setpoint
-        setpoint_used = self._shape_setpoint(setpoint)
-
+        setpoint_used, held = self._take_setpoint(setpoint_in)
         if mode is Mode.OFF:
             return self._record_off(power, setpoint_in, setpoint_used, held, transition_record)
 
-        # 1. validity checks and measurement update
+        upd = self._measurement_update(power)
+        n = self._n_x
+        d = float(upd.z[n])
+        em = self._eff_map
+        tgt = compute_target(self._ssm, setpoint=setpoint_used - self._p_nom, disturbance=d,
+                             w_min=em.w_min, w_max=em.w_max)
+        ds_prev = self._ds_prev
+        plan = self._solve_or_fall_back(upd.z[:n], upd.eps, tgt)
+        measurement_shed = self._gap > self._rel.max_predicted_samples
+        ds, ds_raw = self._guard_input(plan.w0, ds_prev, measurement_shed)
+
+        if mode is Mode.ON:
+            status = self._judge(upd.used, plan, tgt, ds, ds_raw, applied_differs,
+                                 shed=measurement_shed or plan.solver_shed)
+            w_applied = self._input_map.f(ds)
+            self._ds_prev = ds
+            self._w_prev = w_applied
+        else:  # PREDICT: the caller keeps its input
+            status = Status.HELD
+            w_applied = self._w_prev
+        self._time_update(upd.z, upd.eps, w_applied)
+
+        triac = self._s_nom + self._ds_prev
+        d_power = d * self._d_power_gain
+        stats = self._monitor.update(upd.eps if upd.used else None, disturbance_kw=d_power)
+        sol = plan.solution
+        self._last = StepDiagnostics(
+            k=self._k, power_kw=power, setpoint_kw=setpoint_in, setpoint_used_kw=setpoint_used,
+            setpoint_held=held, triac_pct=triac, measurement_used=upd.used, innovation_kw=upd.eps,
+            state_estimate=upd.z, disturbance_estimate=d, disturbance_power_kw=d_power,
+            target_w=tgt.w_s, target_triac_pct=self._s_nom + em.inverse(tgt.w_s),
+            target_power_kw=self._p_nom + tgt.y_s, setpoint_reachable=tgt.is_reachable,
+            planned_w=sol.w, solver_status=sol.status, solve_time_s=sol.solve_time_s,
+            n_iterations=sol.n_iterations, fallback=plan.fallback,
+            soft_limit_slack_kw=sol.slack_kw, mode=mode, status=status,
+            verdict=upd.check.verdict, level_change_accepted=upd.check.reopened,
+            innovation_std_kw=upd.std_kw, samples_without_measurement=self._gap,
+            bad_solves_in_row=self._bad_in_row, advised_triac_pct=self._s_nom + ds,
+            applied_triac_pct=self._s_nom + ds_prev,
+            triac_limits_pct=(self._lo + self._s_nom, self._hi + self._s_nom),
+            mismatch=stats, transition=transition_record,
+        )
+        self._k += 1
+        return triac
+
+    # --- the stages of a step, in order ---------------------------------------------
+    def _take_applied_input(self, applied_triac_pct: float | None, mode: Mode) -> bool:
+        """Stage 0: take the input actually applied over the last sample, if reported.
+
+        The estimator's prediction is corrected to it (the time update is linear in
+        ``w``) and the rate limit starts from it. Returns whether it differs from the
+        command.
+        """
+        if applied_triac_pct is None:
+            return False
+        applied = float(applied_triac_pct)
+        if not math.isfinite(applied):
+            return False
+        ds_a = min(100.0, max(0.0, applied)) - self._s_nom
+        differs = abs(ds_a - self._ds_prev) > APPLIED_TOL_PCT
+        if ds_a != self._ds_prev:
+            w_a = self._input_map.f(ds_a)
+            if mode is not Mode.OFF:
+                z_corr = self._z + self._Baug * (w_a - self._w_prev)
+                if np.isfinite(z_corr).all():
+                    z_corr.flags.writeable = False
+                    self._z = z_corr
+            self._ds_prev = ds_a
+            self._w_prev = w_a
+        return differs
+
+    def _take_setpoint(self, setpoint_in: float) -> tuple[float, bool]:
+        """Stage 1a: the setpoint to work with (held if not finite), ramped and filtered."""
+        held = not math.isfinite(setpoint_in)
+        setpoint = self._setpoint_kw if held else setpoint_in
+        self._setpoint_kw = setpoint
+        return self._shape_setpoint(setpoint), held
+
+    def _measurement_update(self, power: float) -> _Update:
+        """Stage 1b: validity checks, then the measurement update with a valid sample only."""
         z_pred = self._z
         y_pred = float(self._Caug @ z_pred)
-        predicted_kw = self._p_nom + y_pred
-        gap = self._gap
-        std_kw = self._innovation_std_kw[min(gap, len(self._innovation_std_kw) - 1)]
-        check = self._checker.check(power, predicted_kw=predicted_kw, innovation_std_kw=std_kw,
-                                    gate=self._warm >= rel.warmup_samples)
+        std_kw = self._innovation_std_kw[min(self._gap, len(self._innovation_std_kw) - 1)]
+        check = self._checker.check(power, predicted_kw=self._p_nom + y_pred, innovation_std_kw=std_kw,
+                                    gate=self._warm >= self._rel.warmup_samples)
         used = False
         eps = 0.0
         z = z_pred
@@ -684,16 +763,11 @@ class OffsetFreeMPC:
         else:
             self._gap += 1
             self._n_rejected += 1
-        n = self._n_x
-        x = z[:n]
-        d = float(z[n])
+        return _Update(z=z, eps=eps, used=used, check=check, std_kw=std_kw)
 
-        # 2. target inside the effective limits
+    def _solve_or_fall_back(self, x: FloatArray, eps: float, tgt: Target) -> _Plan:
+        """Stage 3: the QP, checked; on failure the shifted previous plan, then the target."""
         em = self._eff_map
-        tgt = compute_target(self._ssm, setpoint=setpoint_used - self._p_nom, disturbance=d,
-                             w_min=em.w_min, w_max=em.w_max)
-
-        # 3. QP, checked; fallbacks
         ds_prev = self._ds_prev
         ds_base = min(em.ds_max_pct, max(em.ds_min_pct, ds_prev))
         w_base = self._w_prev if ds_base == ds_prev else em.f(ds_base)
@@ -717,7 +791,7 @@ class OffsetFreeMPC:
             self._n_fallbacks += 1
             self._bad_in_row += 1
             age = self._k - self._plan_k
-            if (self._bad_in_row < rel.max_bad_solves and self._plan is not None
+            if (self._bad_in_row < self._rel.max_bad_solves and self._plan is not None
                     and age < self._plan.size):
                 w0 = float(self._plan[age])
                 fallback = "shifted_plan"
@@ -725,11 +799,15 @@ class OffsetFreeMPC:
                 w0 = tgt.w_s
                 fallback = "target"
                 self._plan = None
-        solver_shed = self._bad_in_row >= rel.max_bad_solves
-        measurement_shed = self._gap > rel.max_predicted_samples
+        return _Plan(solution=sol, w0=w0, fallback=fallback, w_lo0=float(w_lo[0]),
+                     w_hi0=float(w_hi[0]), solver_shed=self._bad_in_row >= self._rel.max_bad_solves)
 
-        # 4. the input: plan (or fallback), or the safe input when shed
-        lo, hi = em.ds_min_pct, em.ds_max_pct
+    def _guard_input(self, w0: float, ds_prev: float, measurement_shed: bool) -> tuple[float, float]:
+        """Stage 4: invert ``w0`` (or take the safe input when shed), then the rate and limit guard.
+
+        Returns ``(ds, ds_raw)``: the guarded input and the one asked for [%, deviation].
+        """
+        em = self._eff_map
         if self._max_move is not None:
             r_lo, r_hi = ds_prev - self._max_move, ds_prev + self._max_move
         else:
@@ -741,58 +819,30 @@ class OffsetFreeMPC:
             if not math.isfinite(ds_raw):
                 ds_raw = ds_prev
         ds_rate = min(r_hi, max(r_lo, ds_raw))
-        ds = min(hi, max(lo, ds_rate))
-        advised = self._s_nom + ds
+        return min(em.ds_max_pct, max(em.ds_min_pct, ds_rate)), ds_raw
 
-        # 5. status, time update with the applied w
-        if mode is Mode.ON:
-            shed = measurement_shed or solver_shed
-            if shed:
-                status = Status.SHED
-                self._n_shed += 1
-            elif fallback != "none":
-                status = Status.HELD
-            elif not used:
-                status = Status.PREDICTED
-            elif (applied_differs or not tgt.is_reachable or abs(ds - ds_raw) > CLAMP_TOL
-                  or abs(w0 - float(w_lo[0])) <= CLAMP_TOL
-                  or abs(w0 - float(w_hi[0])) <= CLAMP_TOL):
-                status = Status.CLAMPED
-            else:
-                status = Status.GOOD
-            w_applied = im.f(ds)
-            self._ds_prev = ds
-            self._w_prev = w_applied
-        else:  # PREDICT: the caller keeps its input
-            status = Status.HELD
-            w_applied = self._w_prev
+    def _judge(self, used: bool, plan: _Plan, tgt: Target, ds: float, ds_raw: float,
+               applied_differs: bool, *, shed: bool) -> Status:
+        """Stage 5a: the status of an ``ON`` step (`czmpc.modes.Status`)."""
+        if shed:
+            self._n_shed += 1
+            return Status.SHED
+        if plan.fallback != "none":
+            return Status.HELD
+        if not used:
+            return Status.PREDICTED
+        if (applied_differs or not tgt.is_reachable or abs(ds - ds_raw) > CLAMP_TOL
+                or abs(plan.w0 - plan.w_lo0) <= CLAMP_TOL or abs(plan.w0 - plan.w_hi0) <= CLAMP_TOL):
+            return Status.CLAMPED
+        return Status.GOOD
+
+    def _time_update(self, z: FloatArray, eps: float, w_applied: float) -> None:
+        """Stage 5b: predict the next state with the ``w`` actually applied."""
         z_next = self._Aaug @ z + self._Baug * w_applied + self._G * eps
         if not np.isfinite(z_next).all():
             z_next = z.copy()
         z_next.flags.writeable = False
         self._z = z_next
-        triac = self._s_nom + self._ds_prev
-        d_power = d * self._d_power_gain
-        stats = self._monitor.update(eps if used else None, disturbance_kw=d_power)
-
-        self._last = StepDiagnostics(
-            k=self._k, power_kw=power, setpoint_kw=setpoint_in, setpoint_used_kw=setpoint_used,
-            setpoint_held=held, triac_pct=triac, measurement_used=used, innovation_kw=eps,
-            state_estimate=z, disturbance_estimate=d, disturbance_power_kw=d_power,
-            target_w=tgt.w_s, target_triac_pct=self._s_nom + em.inverse(tgt.w_s),
-            target_power_kw=self._p_nom + tgt.y_s, setpoint_reachable=tgt.is_reachable,
-            planned_w=sol.w, solver_status=sol.status, solve_time_s=sol.solve_time_s,
-            n_iterations=sol.n_iterations, fallback=fallback,
-            soft_limit_slack_kw=sol.slack_kw, mode=mode, status=status,
-            verdict=check.verdict, level_change_accepted=check.reopened,
-            innovation_std_kw=std_kw, samples_without_measurement=self._gap,
-            bad_solves_in_row=self._bad_in_row, advised_triac_pct=advised,
-            applied_triac_pct=self._s_nom + ds_prev,
-            triac_limits_pct=(self._lo + self._s_nom, self._hi + self._s_nom),
-            mismatch=stats, transition=transition_record,
-        )
-        self._k += 1
-        return triac
 
     def _record_off(self, power: float, setpoint_in: float, setpoint_used: float, held: bool,
                     transition_record: ModeTransition | None) -> float:
