@@ -27,7 +27,7 @@ def _docstring(package: str, name: str) -> str:
 
 def _documented(package: str) -> list[str]:
     text = (REPO / "docs" / "api" / f"{package}.rst").read_text(encoding="utf-8")
-    assert f".. currentmodule:: {package}" in text
+    assert f".. module:: {package}" in text
     names: list[str] = []
     for block in re.findall(r"\.\. autosummary::\n(?:   :[^\n]*\n)*\n((?:   \S[^\n]*\n)+)", text):
         names += [line.strip() for line in block.splitlines()]
