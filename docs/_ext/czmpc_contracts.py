@@ -52,6 +52,17 @@ DATA_COLUMNS: dict[str, str] = {
     "power_kw": "The output: measured heater power [kW] (another unit with ``output_unit``).",
 }
 
+# What each key of a run config's [plant.security] table means. Must equal SECURITY_KEYS.
+PLANT_SECURITY_KEYS: dict[str, str] = {
+    "policy": 'OPC UA security policy: one of the secure policies below, or ``"None"`` (loopback only).',
+    "mode": 'Message security mode: ``"SignAndEncrypt"`` (default) or ``"Sign"``.',
+    "certificate": "czmpc's application instance certificate (DER file; ``czmpc pki create`` makes one).",
+    "private_key": "Its private key (PEM file), readable by its owner only (mode 600).",
+    "server_certificate": "The plant server's certificate (DER), pinned: any other server is refused.",
+    "username": "OPC UA user name; absent for an anonymous session.",
+    "password_env": "Name of the environment variable holding the password (never the password itself).",
+}
+
 
 def _check_same(documented: Iterable[str], accepted: Iterable[str], what: str) -> None:
     documented, accepted = set(documented), set(accepted)
@@ -139,6 +150,22 @@ def _public_module(cls: type) -> str:
     return package if cls.__name__ in getattr(module, "__all__", ()) else cls.__module__
 
 
+def plant_security_rst() -> str:
+    """The ``[plant.security]`` table of a run config, from the validator's constants."""
+    from czmpc.runtime.security import MODES, SECURE_POLICIES, SECURITY_KEYS
+
+    _check_same(PLANT_SECURITY_KEYS, SECURITY_KEYS, "[plant.security] keys")
+    lines = _table(("key", "meaning"), [(f"``{k}``", PLANT_SECURITY_KEYS[k]) for k in SECURITY_KEYS])
+    lines += ["",
+              "- Secure policies: " + ", ".join(f"``{p}``" for p in SECURE_POLICIES) + ".",
+              "- Modes: " + ", ".join(f"``{m}``" for m in MODES) + ".",
+              "- Without the table only a loopback endpoint is accepted; a ``password`` key, an "
+              "unknown key, a missing file or a private key that others can read are refused "
+              "before any connection (`czmpc.SettingsError`, exit code 2).",
+              "- Relative file names are taken from the run config's directory."]
+    return "\n".join(lines)
+
+
 def commands_rst() -> str:
     """One row per ``czmpc`` sub-command with its one-line help."""
     from czmpc.cli import build_parser
@@ -162,6 +189,7 @@ _GENERATORS: Mapping[str, Any] = {
     "data-file": data_file_rst,
     "exit-codes": exit_codes_rst,
     "commands": commands_rst,
+    "plant-security": plant_security_rst,
 }
 
 

@@ -98,3 +98,15 @@ def test_documented_exit_codes_are_what_the_cli_returns(
     assert main(["inspect", str(bad)]) == ExitCode.BAD_INPUT
     assert capsys.readouterr().err.startswith("czmpc: error: ")
     assert "`sysid.DataFileError`" in rst and "`czmpc.SettingsError`" in rst
+
+
+def test_documented_plant_security_keys_are_the_validators(contracts: ModuleType, tmp_path: Path) -> None:
+    from czmpc.errors import SettingsError
+    from czmpc.runtime.security import SECURITY_KEYS, parse_security
+
+    assert tuple(contracts.PLANT_SECURITY_KEYS) == SECURITY_KEYS
+    rst = contracts.plant_security_rst()
+    assert all(f"``{key}``" in rst for key in SECURITY_KEYS)
+    with pytest.raises(SettingsError, match="colour"):
+        parse_security({"policy": "None", "colour": "red"}, endpoint="opc.tcp://127.0.0.1:4840",
+                       base_dir=tmp_path)
