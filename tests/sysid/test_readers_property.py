@@ -156,7 +156,8 @@ MODEL_PATHS: tuple[tuple[str, ...], ...] = (
     ("B",), ("B", 0), ("B", 1), ("B", 2), ("C",), ("C", 1), ("input_poly",),
     ("input_poly", 0), ("noise_std_kw",), ("input_range_pct",), ("input_range_pct", 1),
     ("criteria",), ("criteria", "V"), ("provenance",), ("provenance", "preprocessing"),
-    ("provenance", "data_file"), ("unknown_key",),
+    ("provenance", "data_file"), ("unknown_key",), ("units",), ("units", "input"),
+    ("covariance",),
 )
 
 
@@ -218,7 +219,7 @@ def models(draw: st.DrawFn) -> HammersteinModel:
         kind=kind, linear_block=block, ts_s=draw(st.floats(1e-3, 1e3)),  # type: ignore[arg-type]
         operating_point=OperatingPoint(triac_pct=draw(finite), power_kw=draw(finite)),
         a=a, b=b, c=c, input_poly=draw(st.lists(finite, min_size=degree, max_size=degree)),
-        noise_std_kw=draw(st.floats(0, 1e3)), input_range_pct=(lo, lo + draw(st.floats(0.5, 50))),
+        noise_std_kw=draw(st.floats(1e-150, 1e3)), input_range_pct=(lo, lo + draw(st.floats(0.5, 50))),
         criteria=Criteria(ballistic_mse_kw2=draw(st.none() | finite),
                           one_step_mse_kw2=draw(st.none() | finite)),
         provenance=Provenance(data_file=draw(st.none() | st.text(max_size=10)),
