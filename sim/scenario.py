@@ -27,6 +27,16 @@ times are seconds from the start of the run. Scenarios ship as TOML files in
                                              start_s (optional), end_s (optional)
     [[fault]]      kind = "missing_samples", at_s, duration_s
 
+Bounds (what the machine can hold): a closed-loop run keeps every sample in memory
+(the trajectory arrays, a diagnostics record and the controller's per-step result,
+about ``BYTES_PER_STEP`` bytes together), so a run may have at most ``MAX_N_STEPS``
+samples: ``MAX_N_STEPS * BYTES_PER_STEP`` is 4 GB, a share of a small machine, and
+``MAX_N_STEPS`` is 23 days of 2-s samples, longer than a crystal growth. Every time
+(``duration_s``, ``at_s``, ``start_s``, ``end_s``) must be at most ``MAX_TIME_S`` (the
+same span at the longest sensible sampling time), and ``duration_s / ts_s`` at most
+``MAX_N_STEPS``; these are checked before anything is allocated. Other numbers need only
+be finite floats (TOML integers too large for a float are refused).
+
 Every key carries its unit in its name. Unknown keys, wrong types, negative times,
 inverted limits and overlapping setpoint changes are refused with a `ScenarioError`
 that names the file and the key (array entries are numbered from 1, e.g.
@@ -148,6 +158,24 @@ def _first_sample_at(time_s: float, ts_s: float) -> int:
 
 
 # --- the scenario ----------------------------------------------------------------------
+#: Memory a closed-loop run holds per sample [byte], measured (`tests/sim/test_scenario.py`
+#: checks the estimate stays an upper bound on a short run): trajectory arrays, the
+#: controller's diagnostics record and per-step result.
+BYTES_PER_STEP = 4_000
+#: Most samples in one run: ``MAX_N_STEPS * BYTES_PER_STEP`` = 4 GB (see the module docstring).
+MAX_N_STEPS = 1_000_000
+#: Largest time in a scenario [s]: ``MAX_N_STEPS`` samples of 60 s (about 2 years).
+MAX_TIME_S = MAX_N_STEPS * 60.0
+
+
+def _bounded_time(value: float, where: str) -> None:
+    if value > MAX_TIME_S:
+        raise ScenarioError(
+            f"{where}: expected a time <= {MAX_TIME_S:g} s (MAX_TIME_S: a run holds at most "
+            f"MAX_N_STEPS = {MAX_N_STEPS} samples in memory); got {value:g} s"
+        )
+
+
 def _finite(value: Any, where: str, *, positive: bool = False, nonneg: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ScenarioError(f"{where}: expected a finite number; got {value!r}")
@@ -220,7 +248,14 @@ class Scenario:
         duration_s = _finite(self.duration_s, "Scenario.duration_s", positive=True)
         object.__setattr__(self, "ts_s", ts_s)
         object.__setattr__(self, "duration_s", duration_s)
+        _bounded_time(duration_s, "Scenario.duration_s")
         n = duration_s / ts_s
+        if n > MAX_N_STEPS + 0.5:
+            raise ScenarioError(
+                f"Scenario.duration_s: expected at most MAX_N_STEPS = {MAX_N_STEPS} samples "
+                f"(duration_s / ts_s; about {BYTES_PER_STEP} bytes of memory each); got "
+                f"{duration_s:g} s / {ts_s:g} s = {n:.4g} samples"
+            )
         if not math.isfinite(n) or round(n) < 1 or abs(n - round(n)) > 1e-6 * max(1.0, n):
             raise ScenarioError(
                 f"Scenario.duration_s: expected a whole number (>= 1) of samples of {ts_s:g} s; "
@@ -251,6 +286,10 @@ class Scenario:
             )
         self._check_setpoints()
         for event in (*self.disturbances, *self.faults):
+            for key in ("at_s", "start_s", "end_s", "duration_s"):
+                value = getattr(event, key, None)
+                if isinstance(value, float):
+                    _bounded_time(value, f"Scenario: {type(event).__name__}.{key}")
             start = event.start_s if isinstance(event, (VoltageRamp, RandomSpikes)) else event.at_s
             if start >= duration_s:
                 raise ScenarioError(
@@ -504,6 +543,19 @@ def scenario_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>") -> S
     for key in ("duration_s", "ts_s"):
         if key in top and top[key] <= 0:
             raise ScenarioError(f"{src}: key '{key}': expected a number > 0 [s]; got {top[key]:g}")
+    if top["duration_s"] > MAX_TIME_S:
+        raise ScenarioError(
+            f"{src}: key 'duration_s': expected a time <= {MAX_TIME_S:g} s (MAX_TIME_S: a run "
+            f"holds at most MAX_N_STEPS = {MAX_N_STEPS} samples in memory); "
+            f"got {top['duration_s']:g} s"
+        )
+    n_steps = top["duration_s"] / top.get("ts_s", 2.0)
+    if n_steps > MAX_N_STEPS + 0.5:
+        raise ScenarioError(
+            f"{src}: key 'duration_s': expected at most MAX_N_STEPS = {MAX_N_STEPS} samples of "
+            f"ts_s = {top.get('ts_s', 2.0):g} s (about {BYTES_PER_STEP} bytes of memory each); "
+            f"got {n_steps:.4g} samples"
+        )
     setpoints = _events(doc, "setpoint", src)
     for i, change in enumerate(setpoints, start=1):
         for key in ("at_s", "start_s", "end_s"):
@@ -585,6 +637,9 @@ def load_scenario(name_or_path: str | os.PathLike[str]) -> Scenario:
 
 
 __all__ = [
+    "BYTES_PER_STEP",
+    "MAX_N_STEPS",
+    "MAX_TIME_S",
     "Scenario",
     "SetpointChange",
     "SetpointRamp",
