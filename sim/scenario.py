@@ -34,8 +34,11 @@ samples: ``MAX_N_STEPS * BYTES_PER_STEP`` is 4 GB, a share of a small machine, a
 ``MAX_N_STEPS`` is 23 days of 2-s samples, longer than a crystal growth. Every time
 (``duration_s``, ``at_s``, ``start_s``, ``end_s``) must be at most ``MAX_TIME_S`` (the
 same span at the longest sensible sampling time), and ``duration_s / ts_s`` at most
-``MAX_N_STEPS``; these are checked before anything is allocated. Other numbers need only
-be finite floats (TOML integers too large for a float are refused).
+``MAX_N_STEPS``; these are checked before anything is allocated. Every power
+(``initial_setpoint_kw``, ``power_kw``, ``offset_kw``, ``spike_kw``) must be at most
+``MAX_ABS_POWER_KW`` = 1e100 kW in magnitude, so that the squared errors the metrics sum
+over ``MAX_N_STEPS`` samples stay finite floats (1e308 overflowed them). Other numbers need
+only be finite floats (TOML integers too large for a float are refused).
 
 Every key carries its unit in its name. Unknown keys, wrong types, negative times,
 inverted limits and overlapping setpoint changes are refused with a `ScenarioError`
@@ -164,6 +167,9 @@ def _first_sample_at(time_s: float, ts_s: float) -> int:
 BYTES_PER_STEP = 4_000
 #: Most samples in one run: ``MAX_N_STEPS * BYTES_PER_STEP`` = 4 GB (see the module docstring).
 MAX_N_STEPS = 1_000_000
+#: Largest power magnitude in a scenario [kW]: ``(2 * MAX_ABS_POWER_KW)**2 * MAX_N_STEPS *
+#: 60 s`` (the integrated squared error) is far below the float range (1.8e308).
+MAX_ABS_POWER_KW = 1e100
 #: Largest time in a scenario [s]: ``MAX_N_STEPS`` samples of 60 s (about 2 years).
 MAX_TIME_S = MAX_N_STEPS * 60.0
 
@@ -173,6 +179,14 @@ def _bounded_time(value: float, where: str) -> None:
         raise ScenarioError(
             f"{where}: expected a time <= {MAX_TIME_S:g} s (MAX_TIME_S: a run holds at most "
             f"MAX_N_STEPS = {MAX_N_STEPS} samples in memory); got {value:g} s"
+        )
+
+
+def _bounded_power(value: float, where: str) -> None:
+    if abs(value) > MAX_ABS_POWER_KW:
+        raise ScenarioError(
+            f"{where}: expected a power of magnitude <= {MAX_ABS_POWER_KW:g} kW "
+            f"(MAX_ABS_POWER_KW: the metrics' squared errors must stay finite); got {value:g}"
         )
 
 
@@ -265,6 +279,7 @@ class Scenario:
             self, "initial_setpoint_kw",
             _finite(self.initial_setpoint_kw, "Scenario.initial_setpoint_kw"),
         )
+        _bounded_power(self.initial_setpoint_kw, "Scenario.initial_setpoint_kw")
         if self.initial_triac_pct is not None:
             object.__setattr__(
                 self, "initial_triac_pct",
@@ -290,6 +305,10 @@ class Scenario:
                 value = getattr(event, key, None)
                 if isinstance(value, float):
                     _bounded_time(value, f"Scenario: {type(event).__name__}.{key}")
+            for key in ("offset_kw", "spike_kw"):
+                value = getattr(event, key, None)
+                if isinstance(value, float):
+                    _bounded_power(value, f"Scenario: {type(event).__name__}.{key}")
             start = event.start_s if isinstance(event, (VoltageRamp, RandomSpikes)) else event.at_s
             if start >= duration_s:
                 raise ScenarioError(
@@ -309,6 +328,7 @@ class Scenario:
             start = _finite(change.start_s, f"Scenario.setpoints[{i}].{key}", nonneg=True)
             end = _finite(change.end_s, f"Scenario.setpoints[{i}].end_s", nonneg=True)
             _finite(change.power_kw, f"Scenario.setpoints[{i}].power_kw")
+            _bounded_power(change.power_kw, f"Scenario.setpoints[{i}].power_kw")
             if end < start or (isinstance(change, SetpointRamp) and end == start):
                 raise ScenarioError(
                     f"Scenario.setpoints[{i}].end_s: expected a time > start_s = {start:g} s; "
@@ -638,6 +658,7 @@ def load_scenario(name_or_path: str | os.PathLike[str]) -> Scenario:
 
 __all__ = [
     "BYTES_PER_STEP",
+    "MAX_ABS_POWER_KW",
     "MAX_N_STEPS",
     "MAX_TIME_S",
     "Scenario",

@@ -216,3 +216,17 @@ def test_event_times_of_40_digits_are_refused_with_the_entry(tmp_path: Path) -> 
     with pytest.raises(ScenarioError, match=r"bad.toml.*duration_s.*MAX_TIME_S"):
         load_scenario(_write(tmp_path, text))
 
+
+
+def test_powers_beyond_the_float_safe_bound_are_refused() -> None:
+    with pytest.raises(ScenarioError, match=r"initial_setpoint_kw.*MAX_ABS_POWER_KW"):
+        Scenario(name="x", duration_s=600.0, initial_setpoint_kw=1e308)
+    with pytest.raises(ScenarioError, match=r"setpoints\[1\].power_kw.*MAX_ABS_POWER_KW"):
+        Scenario(name="x", duration_s=600.0, initial_setpoint_kw=45.0,
+                 setpoints=(SetpointStep(at_s=10.0, power_kw=-1e101),))
+    with pytest.raises(ScenarioError, match=r"PowerShift.offset_kw.*MAX_ABS_POWER_KW"):
+        Scenario(name="x", duration_s=600.0, initial_setpoint_kw=45.0,
+                 disturbances=(PowerShift(at_s=10.0, offset_kw=1e200),))
+    ok = Scenario(name="x", duration_s=600.0, initial_setpoint_kw=45.0,
+                  setpoints=(SetpointStep(at_s=10.0, power_kw=1e100),))
+    assert ok.setpoint_profile_kw()[-1] == 1e100

@@ -362,3 +362,24 @@ def test_sigterm_while_writing_leaves_no_temporary_file_and_exits_143(tmp_path: 
     assert "terminated" in err.decode()
     out = tmp_path / "out"
     assert [p.name for p in out.rglob("*")] == []      # no temporary file, no scratch dir
+
+
+@pytest.mark.parametrize(("power_kw", "rc"), [(1e100, 0), (1e308, 2)])
+def test_simulate_with_astronomical_setpoints_writes_all_or_nothing(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], power_kw: float, rc: int) -> None:
+    """1e100 kW (the bound) runs, metrics and figure included; 1e308 is refused up front."""
+    (tmp_path / "big.toml").write_text(
+        'name = "big"\nduration_s = 200\ninitial_setpoint_kw = 45.0\n'
+        f'[[setpoint]]\nkind = "step"\nat_s = 50\npower_kw = {power_kw!r}\n', encoding="utf-8")
+    argv = _simulate(tmp_path)
+    argv[argv.index("--scenario") + 1] = str(tmp_path / "big.toml")
+    argv.remove("--short")
+    argv.remove("0.2")
+    got, _, err = _run(argv, capsys)
+    assert got == rc, err
+    if rc == 0:
+        assert sorted(p.name for p in (tmp_path / "out").iterdir()) == \
+            ["figure.png", "metrics.json", "trajectory.csv"]
+    else:
+        assert "setpoints[1].power_kw" in err and "MAX_ABS_POWER_KW" in err and "Traceback" not in err
+        assert not (tmp_path / "out").exists()
