@@ -25,9 +25,8 @@ import threading
 from collections.abc import Sequence
 from types import FrameType, ModuleType
 
-from czmpc.errors import CzmpcError
-from sim.errors import SimError
-from sysid.errors import SysidError
+from czmpc.cli._exit import BAD_INPUT_ERRORS, ExitCode
+from sysid._version import __version__
 
 
 class _Parser(argparse.ArgumentParser):
@@ -56,6 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Run 'czmpc COMMAND --help' for the options of one command.",
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
+                        help="print the version of czmpc and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for module in _command_modules():
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.__doc__)
@@ -64,9 +65,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-#: Exit code after SIGTERM: 128 + signal number, what a shell reports for a process the
-#: signal killed.
-SIGTERM_EXIT_CODE = 128 + int(signal.SIGTERM)
+#: Exit code after SIGTERM (`ExitCode.TERMINATED`).
+SIGTERM_EXIT_CODE = int(ExitCode.TERMINATED)
 
 
 class Terminated(SystemExit):
@@ -81,7 +81,7 @@ class Terminated(SystemExit):
 
 
 def _raise_terminated(signum: int, frame: FrameType | None) -> None:
-    raise Terminated(SIGTERM_EXIT_CODE)
+    raise Terminated(ExitCode.TERMINATED)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -104,20 +104,20 @@ def _main(argv: Sequence[str] | None) -> int:
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
-        return 2
+        return ExitCode.BAD_INPUT
     try:
         return int(args._run(args))
-    except (SysidError, SimError, CzmpcError, OSError) as exc:
+    except BAD_INPUT_ERRORS as exc:
         if args.debug:
             raise
         print(f"czmpc: error: {exc}", file=sys.stderr)
-        return 2
+        return ExitCode.BAD_INPUT
     except KeyboardInterrupt:
         print("czmpc: interrupted", file=sys.stderr)
-        return 130
+        return ExitCode.INTERRUPTED
     except Terminated:
         print("czmpc: terminated (SIGTERM)", file=sys.stderr)
-        return SIGTERM_EXIT_CODE
+        return ExitCode.TERMINATED
 
 
 if __name__ == "__main__":  # pragma: no cover
