@@ -29,6 +29,7 @@ from czmpc.reports.identification_figures import (
     _save,
     _vector,
 )
+from sysid._typing import FloatArray
 
 #: Size of the three-panel figure [inch].
 CLOSED_LOOP_FIGSIZE_IN = (9.0, 7.5)
@@ -40,9 +41,10 @@ DISTURBANCE_LABEL = "disturbance estimate [kW]"
 PLOT_LIMIT = 1e12
 
 
-def _drawable(values: np.ndarray) -> np.ndarray:
+def _drawable(values: FloatArray) -> FloatArray:
     """``values`` clipped to ``+-PLOT_LIMIT`` (NaN kept: a gap in the line)."""
-    return np.clip(values, -PLOT_LIMIT, PLOT_LIMIT)
+    clipped: FloatArray = np.clip(values, -PLOT_LIMIT, PLOT_LIMIT)
+    return clipped
 
 
 def plot_closed_loop(
