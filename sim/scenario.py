@@ -27,6 +27,19 @@ times are seconds from the start of the run. Scenarios ship as TOML files in
                                              start_s (optional), end_s (optional)
     [[fault]]      kind = "missing_samples", at_s, duration_s
 
+Bounds (what the machine can hold): a closed-loop run keeps every sample in memory
+(the trajectory arrays, a diagnostics record and the controller's per-step result,
+about ``BYTES_PER_STEP`` bytes together), so a run may have at most ``MAX_N_STEPS``
+samples: ``MAX_N_STEPS * BYTES_PER_STEP`` is 4 GB, a share of a small machine, and
+``MAX_N_STEPS`` is 23 days of 2-s samples, longer than a crystal growth. Every time
+(``duration_s``, ``at_s``, ``start_s``, ``end_s``) must be at most ``MAX_TIME_S`` (the
+same span at the longest sensible sampling time), and ``duration_s / ts_s`` at most
+``MAX_N_STEPS``; these are checked before anything is allocated. Every power
+(``initial_setpoint_kw``, ``power_kw``, ``offset_kw``, ``spike_kw``) must be at most
+``MAX_ABS_POWER_KW`` = 1e100 kW in magnitude, so that the squared errors the metrics sum
+over ``MAX_N_STEPS`` samples stay finite floats (1e308 overflowed them). Other numbers need
+only be finite floats (TOML integers too large for a float are refused).
+
 Every key carries its unit in its name. Unknown keys, wrong types, negative times,
 inverted limits and overlapping setpoint changes are refused with a `ScenarioError`
 that names the file and the key (array entries are numbered from 1, e.g.
@@ -148,6 +161,35 @@ def _first_sample_at(time_s: float, ts_s: float) -> int:
 
 
 # --- the scenario ----------------------------------------------------------------------
+#: Memory a closed-loop run holds per sample [byte], measured (`tests/sim/test_scenario.py`
+#: checks the estimate stays an upper bound on a short run): trajectory arrays, the
+#: controller's diagnostics record and per-step result.
+BYTES_PER_STEP = 4_000
+#: Most samples in one run: ``MAX_N_STEPS * BYTES_PER_STEP`` = 4 GB (see the module docstring).
+MAX_N_STEPS = 1_000_000
+#: Largest power magnitude in a scenario [kW]: ``(2 * MAX_ABS_POWER_KW)**2 * MAX_N_STEPS *
+#: 60 s`` (the integrated squared error) is far below the float range (1.8e308).
+MAX_ABS_POWER_KW = 1e100
+#: Largest time in a scenario [s]: ``MAX_N_STEPS`` samples of 60 s (about 2 years).
+MAX_TIME_S = MAX_N_STEPS * 60.0
+
+
+def _bounded_time(value: float, where: str) -> None:
+    if value > MAX_TIME_S:
+        raise ScenarioError(
+            f"{where}: expected a time <= {MAX_TIME_S:g} s (MAX_TIME_S: a run holds at most "
+            f"MAX_N_STEPS = {MAX_N_STEPS} samples in memory); got {value:g} s"
+        )
+
+
+def _bounded_power(value: float, where: str) -> None:
+    if abs(value) > MAX_ABS_POWER_KW:
+        raise ScenarioError(
+            f"{where}: expected a power of magnitude <= {MAX_ABS_POWER_KW:g} kW "
+            f"(MAX_ABS_POWER_KW: the metrics' squared errors must stay finite); got {value:g}"
+        )
+
+
 def _finite(value: Any, where: str, *, positive: bool = False, nonneg: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise ScenarioError(f"{where}: expected a finite number; got {value!r}")
@@ -220,7 +262,14 @@ class Scenario:
         duration_s = _finite(self.duration_s, "Scenario.duration_s", positive=True)
         object.__setattr__(self, "ts_s", ts_s)
         object.__setattr__(self, "duration_s", duration_s)
+        _bounded_time(duration_s, "Scenario.duration_s")
         n = duration_s / ts_s
+        if n > MAX_N_STEPS + 0.5:
+            raise ScenarioError(
+                f"Scenario.duration_s: expected at most MAX_N_STEPS = {MAX_N_STEPS} samples "
+                f"(duration_s / ts_s; about {BYTES_PER_STEP} bytes of memory each); got "
+                f"{duration_s:g} s / {ts_s:g} s = {n:.4g} samples"
+            )
         if not math.isfinite(n) or round(n) < 1 or abs(n - round(n)) > 1e-6 * max(1.0, n):
             raise ScenarioError(
                 f"Scenario.duration_s: expected a whole number (>= 1) of samples of {ts_s:g} s; "
@@ -230,6 +279,7 @@ class Scenario:
             self, "initial_setpoint_kw",
             _finite(self.initial_setpoint_kw, "Scenario.initial_setpoint_kw"),
         )
+        _bounded_power(self.initial_setpoint_kw, "Scenario.initial_setpoint_kw")
         if self.initial_triac_pct is not None:
             object.__setattr__(
                 self, "initial_triac_pct",
@@ -251,6 +301,14 @@ class Scenario:
             )
         self._check_setpoints()
         for event in (*self.disturbances, *self.faults):
+            for key in ("at_s", "start_s", "end_s", "duration_s"):
+                value = getattr(event, key, None)
+                if isinstance(value, float):
+                    _bounded_time(value, f"Scenario: {type(event).__name__}.{key}")
+            for key in ("offset_kw", "spike_kw"):
+                value = getattr(event, key, None)
+                if isinstance(value, float):
+                    _bounded_power(value, f"Scenario: {type(event).__name__}.{key}")
             start = event.start_s if isinstance(event, (VoltageRamp, RandomSpikes)) else event.at_s
             if start >= duration_s:
                 raise ScenarioError(
@@ -270,6 +328,7 @@ class Scenario:
             start = _finite(change.start_s, f"Scenario.setpoints[{i}].{key}", nonneg=True)
             end = _finite(change.end_s, f"Scenario.setpoints[{i}].end_s", nonneg=True)
             _finite(change.power_kw, f"Scenario.setpoints[{i}].power_kw")
+            _bounded_power(change.power_kw, f"Scenario.setpoints[{i}].power_kw")
             if end < start or (isinstance(change, SetpointRamp) and end == start):
                 raise ScenarioError(
                     f"Scenario.setpoints[{i}].end_s: expected a time > start_s = {start:g} s; "
@@ -504,6 +563,19 @@ def scenario_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>") -> S
     for key in ("duration_s", "ts_s"):
         if key in top and top[key] <= 0:
             raise ScenarioError(f"{src}: key '{key}': expected a number > 0 [s]; got {top[key]:g}")
+    if top["duration_s"] > MAX_TIME_S:
+        raise ScenarioError(
+            f"{src}: key 'duration_s': expected a time <= {MAX_TIME_S:g} s (MAX_TIME_S: a run "
+            f"holds at most MAX_N_STEPS = {MAX_N_STEPS} samples in memory); "
+            f"got {top['duration_s']:g} s"
+        )
+    n_steps = top["duration_s"] / top.get("ts_s", 2.0)
+    if n_steps > MAX_N_STEPS + 0.5:
+        raise ScenarioError(
+            f"{src}: key 'duration_s': expected at most MAX_N_STEPS = {MAX_N_STEPS} samples of "
+            f"ts_s = {top.get('ts_s', 2.0):g} s (about {BYTES_PER_STEP} bytes of memory each); "
+            f"got {n_steps:.4g} samples"
+        )
     setpoints = _events(doc, "setpoint", src)
     for i, change in enumerate(setpoints, start=1):
         for key in ("at_s", "start_s", "end_s"):
@@ -585,6 +657,10 @@ def load_scenario(name_or_path: str | os.PathLike[str]) -> Scenario:
 
 
 __all__ = [
+    "BYTES_PER_STEP",
+    "MAX_ABS_POWER_KW",
+    "MAX_N_STEPS",
+    "MAX_TIME_S",
     "Scenario",
     "SetpointChange",
     "SetpointRamp",

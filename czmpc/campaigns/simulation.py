@@ -23,6 +23,8 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
+import tempfile
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Literal, get_args
@@ -363,6 +365,10 @@ def write_outputs(outcome: SimulationOutcome, out_dir: str | os.PathLike[str]) -
     out_dir :
         Output directory; existing files of the same names are replaced.
 
+    Nothing in ``out_dir`` changes unless the whole run of writers succeeded: all three
+    files are first written into a hidden scratch directory there, then renamed into
+    place (a failure while rendering the figure leaves no new ``trajectory.csv``).
+
     Returns
     -------
     tuple of Path
@@ -370,12 +376,21 @@ def write_outputs(outcome: SimulationOutcome, out_dir: str | os.PathLike[str]) -
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    trajectory = out / TRAJECTORY_FILE
-    outcome.result.to_csv(trajectory)
-    metrics = out / METRICS_FILE
-    atomic_write_text(metrics, json.dumps(outcome.to_dict(), indent=2, allow_nan=False) + "\n")
-    figure = out / FIGURE_FILE
-    plot_outcome(outcome, figure)
+    names = (TRAJECTORY_FILE, METRICS_FILE, FIGURE_FILE)
+    # Everything is produced in a hidden scratch directory inside ``out`` first (same
+    # file system, so the moves below are renames); a failure anywhere (the figure, a
+    # full disk, SIGINT/SIGTERM) leaves ``out`` as it was, the scratch directory removed.
+    scratch = Path(tempfile.mkdtemp(prefix=".czmpc-simulate.", suffix=".tmp", dir=out))
+    try:
+        outcome.result.to_csv(scratch / TRAJECTORY_FILE)
+        atomic_write_text(scratch / METRICS_FILE,
+                          json.dumps(outcome.to_dict(), indent=2, allow_nan=False) + "\n")
+        plot_outcome(outcome, scratch / FIGURE_FILE)
+        for name in names:
+            os.replace(scratch / name, out / name)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    trajectory, metrics, figure = (out / name for name in names)
     return trajectory, metrics, figure
 
 

@@ -19,9 +19,11 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse
 import importlib
 import pkgutil
+import signal
 import sys
+import threading
 from collections.abc import Sequence
-from types import ModuleType
+from types import FrameType, ModuleType
 
 from czmpc.cli._exit import BAD_INPUT_ERRORS, ExitCode
 from sysid._version import __version__
@@ -63,8 +65,41 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Exit code after SIGTERM (`ExitCode.TERMINATED`).
+SIGTERM_EXIT_CODE = int(ExitCode.TERMINATED)
+
+
+class Terminated(SystemExit):
+    """Raised in the main thread by the console script's SIGTERM handler.
+
+    Python's default SIGTERM action kills the process at once, so no ``finally`` or
+    ``except BaseException`` runs and `sysid.atomic` would leave its hidden temporary
+    file. Raising an exception instead unwinds the stack through the same cleanup
+    paths as Ctrl-C (``KeyboardInterrupt``). It derives from ``SystemExit`` (not from
+    ``Exception``), so no ``except Exception`` in the library swallows it.
+    """
+
+
+def _raise_terminated(signum: int, frame: FrameType | None) -> None:
+    raise Terminated(ExitCode.TERMINATED)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the console script; return the process exit code."""
+    """Run the console script; return the process exit code.
+
+    While it runs, SIGTERM raises `Terminated` (when called from the main thread), so
+    partial outputs are cleaned up as on Ctrl-C; the exit code is then 143.
+    """
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _raise_terminated) if in_main_thread else None
+    try:
+        return _main(argv)
+    finally:
+        if in_main_thread:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
@@ -80,6 +115,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("czmpc: interrupted", file=sys.stderr)
         return ExitCode.INTERRUPTED
+    except Terminated:
+        print("czmpc: terminated (SIGTERM)", file=sys.stderr)
+        return ExitCode.TERMINATED
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -20,6 +20,8 @@ class ExitCode(IntEnum):
     RUN_FAILED = 1
     BAD_INPUT = 2
     INTERRUPTED = 130
+    #: 128 + SIGTERM (15): what a shell reports for a process the signal killed.
+    TERMINATED = 143
 
 
 #: What each exit code means, for ``--help`` texts and the documentation.
@@ -36,6 +38,9 @@ MEANING: dict[ExitCode, str] = {
         "column or the option"
     ),
     ExitCode.INTERRUPTED: "interrupted by the user (Ctrl-C)",
+    ExitCode.TERMINATED: (
+        "terminated by SIGTERM; partial outputs removed as on Ctrl-C"
+    ),
 }
 
 #: Errors that `czmpc.cli.main` reports as ``czmpc: error: <message>`` with

@@ -29,11 +29,22 @@ from czmpc.reports.identification_figures import (
     _save,
     _vector,
 )
+from sysid._typing import FloatArray
 
 #: Size of the three-panel figure [inch].
 CLOSED_LOOP_FIGSIZE_IN = (9.0, 7.5)
 #: Label of the disturbance panel's axis.
 DISTURBANCE_LABEL = "disturbance estimate [kW]"
+#: Largest magnitude drawn [kW or %]; values beyond it (up to +-inf) are drawn at this
+#: bound. Matplotlib's autoscaling overflows on spans near the float range (a setpoint of
+#: 1e308 kW crashed the figure), and no heater power is within orders of magnitude of it.
+PLOT_LIMIT = 1e12
+
+
+def _drawable(values: FloatArray) -> FloatArray:
+    """``values`` clipped to ``+-PLOT_LIMIT`` (NaN kept: a gap in the line)."""
+    clipped: FloatArray = np.clip(values, -PLOT_LIMIT, PLOT_LIMIT)
+    return clipped
 
 
 def plot_closed_loop(
@@ -58,6 +69,7 @@ def plot_closed_loop(
         Sample times [s], shape ``(n,)``.
     setpoint_kw, power_measured_kw, power_true_kw :
         Setpoint, measured power (NaN where missing) and true power [kW], shape ``(n,)``.
+        Values beyond ``+-PLOT_LIMIT`` (also infinite ones) are drawn at that bound.
     triac_pct :
         TRIAC input [%], shape ``(n,)``.
     disturbance_kw :
@@ -81,11 +93,12 @@ def plot_closed_loop(
     """
     t = _vector(time_s, "time_s")
     n = t.size
-    setpoint = _vector(setpoint_kw, "setpoint_kw", n)
-    measured = _vector(power_measured_kw, "power_measured_kw", n)
-    true = _vector(power_true_kw, "power_true_kw", n)
-    triac = _vector(triac_pct, "triac_pct", n)
-    dist = None if disturbance_kw is None else _vector(disturbance_kw, "disturbance_kw", n)
+    setpoint = _drawable(_vector(setpoint_kw, "setpoint_kw", n))
+    measured = _drawable(_vector(power_measured_kw, "power_measured_kw", n))
+    true = _drawable(_vector(power_true_kw, "power_true_kw", n))
+    triac = _drawable(_vector(triac_pct, "triac_pct", n))
+    dist = (None if disturbance_kw is None
+            else _drawable(_vector(disturbance_kw, "disturbance_kw", n)))
     s_lo, s_hi = (float(v) for v in allowed_triac_range_pct)
     if not s_lo < s_hi:
         raise FigureError(f"allowed_triac_range_pct must be (min, max) with min < max; "
@@ -131,4 +144,4 @@ def plot_closed_loop(
     return _save(fig, path)
 
 
-__all__ = ["CLOSED_LOOP_FIGSIZE_IN", "DISTURBANCE_LABEL", "plot_closed_loop"]
+__all__ = ["CLOSED_LOOP_FIGSIZE_IN", "DISTURBANCE_LABEL", "PLOT_LIMIT", "plot_closed_loop"]

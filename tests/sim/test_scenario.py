@@ -10,6 +10,7 @@ import pytest
 from sim.disturbances import MissingSamples, PowerShift, VoltageStep
 from sim.errors import ScenarioError
 from sim.scenario import (
+    MAX_N_STEPS,
     Scenario,
     SetpointRamp,
     SetpointStep,
@@ -179,3 +180,53 @@ def test_in_memory_scenario_is_validated() -> None:
     with pytest.raises(ScenarioError, match=r"Scenario\.setpoints\[1\].*end before the run ends"):
         Scenario(name="t", duration_s=10, initial_setpoint_kw=45,
                  setpoints=(SetpointStep(at_s=10, power_kw=50),))
+
+
+# --- bounds: what the machine can hold (issue 13.5) ------------------------------------
+_HUGE_INT = "1" + "0" * 39          # a 40-digit integer
+
+
+@pytest.mark.parametrize(("duration", "bound"), [
+    ("1e8", "MAX_TIME_S"),                  # 1e8 s: beyond every time bound
+    (_HUGE_INT, "MAX_TIME_S"),              # a 40-digit integer
+    ("2000000\nts_s = 1.0", "MAX_N_STEPS"), # within the time bound, 2e6 samples
+])
+def test_a_scenario_the_machine_cannot_hold_is_refused_naming_key_and_bound(
+        tmp_path: Path, duration: str, bound: str) -> None:
+    text = GOOD.replace("duration_s = 600", f"duration_s = {duration}")
+    with pytest.raises(ScenarioError, match=rf"key 'duration_s'.*{bound}") as info:
+        load_scenario(_write(tmp_path, text))
+    assert "bad.toml" in str(info.value)
+
+
+def test_the_bounds_hold_through_the_api_and_the_largest_run_is_accepted() -> None:
+    with pytest.raises(ScenarioError, match=r"Scenario.duration_s.*MAX_TIME_S"):
+        Scenario(name="x", duration_s=1e8, initial_setpoint_kw=45.0)
+    with pytest.raises(ScenarioError, match=r"Scenario.duration_s.*MAX_N_STEPS"):
+        Scenario(name="x", duration_s=MAX_N_STEPS * 2.0 + 2.0, initial_setpoint_kw=45.0)
+    with pytest.raises(ScenarioError, match=r"MissingSamples.duration_s.*MAX_TIME_S"):
+        Scenario(name="x", duration_s=600.0, initial_setpoint_kw=45.0,
+                 faults=(MissingSamples(at_s=10.0, duration_s=1e39),))
+    largest = Scenario(name="x", duration_s=MAX_N_STEPS * 2.0, initial_setpoint_kw=45.0)
+    assert largest.n_steps == MAX_N_STEPS          # nothing is allocated to check this
+
+
+def test_event_times_of_40_digits_are_refused_with_the_entry(tmp_path: Path) -> None:
+    text = GOOD + f'\n[[fault]]\nkind = "missing_samples"\nat_s = 10\nduration_s = {_HUGE_INT}\n'
+    with pytest.raises(ScenarioError, match=r"bad.toml.*duration_s.*MAX_TIME_S"):
+        load_scenario(_write(tmp_path, text))
+
+
+
+def test_powers_beyond_the_float_safe_bound_are_refused() -> None:
+    with pytest.raises(ScenarioError, match=r"initial_setpoint_kw.*MAX_ABS_POWER_KW"):
+        Scenario(name="x", duration_s=600.0, initial_setpoint_kw=1e308)
+    with pytest.raises(ScenarioError, match=r"setpoints\[1\].power_kw.*MAX_ABS_POWER_KW"):
+        Scenario(name="x", duration_s=600.0, initial_setpoint_kw=45.0,
+                 setpoints=(SetpointStep(at_s=10.0, power_kw=-1e101),))
+    with pytest.raises(ScenarioError, match=r"PowerShift.offset_kw.*MAX_ABS_POWER_KW"):
+        Scenario(name="x", duration_s=600.0, initial_setpoint_kw=45.0,
+                 disturbances=(PowerShift(at_s=10.0, offset_kw=1e200),))
+    ok = Scenario(name="x", duration_s=600.0, initial_setpoint_kw=45.0,
+                  setpoints=(SetpointStep(at_s=10.0, power_kw=1e100),))
+    assert ok.setpoint_profile_kw()[-1] == 1e100

@@ -3,14 +3,21 @@
 from __future__ import annotations
 
 import csv
+import gc
 import json
 import re
+import signal
+import subprocess
+import sys
+import time
+import tracemalloc
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+import czmpc.campaigns.simulation as simulation
 import czmpc.cli.simulate as simulate_cmd
 from czmpc.campaigns.bench_mpc import (
     SECTION_HEADING,
@@ -22,13 +29,20 @@ from czmpc.campaigns.bench_mpc import (
     write_benchmarks_section,
 )
 from czmpc.campaigns.simulation import run_simulation, write_outputs
-from czmpc.cli import build_parser, main
+from czmpc.cli import SIGTERM_EXIT_CODE, build_parser, main
 from czmpc.reports.benchmarks_md import machine_info
-from czmpc.reports.closed_loop_figure import DISTURBANCE_LABEL, plot_closed_loop
+from czmpc.reports.closed_loop_figure import DISTURBANCE_LABEL, PLOT_LIMIT, plot_closed_loop
 from czmpc.reports.identification_figures import FigureError
 from czmpc.settings import MPCSettings
 from sim.loop import CSV_COLUMNS
-from sim.scenario import list_scenarios, load_scenario
+from sim.scenario import (
+    BYTES_PER_STEP,
+    MAX_N_STEPS,
+    Scenario,
+    SetpointStep,
+    list_scenarios,
+    load_scenario,
+)
 from sysid.modelfile import load_model
 
 REPO = Path(__file__).resolve().parents[3]
@@ -227,3 +241,145 @@ def test_day_scenario_is_24_h_of_2_s_samples_with_disturbances() -> None:
     levels = {s.power_kw for s in day.setpoints}
     assert min(levels) == 45.0 and max(levels) == 65.0
     assert len(day.disturbances) == 2
+
+
+# --- scenarios that exhaust the machine, outputs only after a whole run (issue 13.5) ---
+@pytest.mark.parametrize("duration", ["1e8", "1" + "0" * 39])
+def test_a_scenario_beyond_the_memory_bound_exits_2_before_running(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], duration: str) -> None:
+    (tmp_path / "huge.toml").write_text(
+        f'name = "huge"\nduration_s = {duration}\ninitial_setpoint_kw = 45.0\n', encoding="utf-8")
+    argv = _simulate(tmp_path)
+    argv[argv.index("--scenario") + 1] = str(tmp_path / "huge.toml")
+    rc, _, err = _run(argv, capsys)
+    assert rc == 2
+    assert err.startswith("czmpc: error: ")
+    assert "key 'duration_s'" in err and "MAX_TIME_S" in err
+    assert "Traceback" not in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_bytes_per_step_bounds_the_memory_a_closed_loop_run_holds() -> None:
+    """The per-sample memory `sim.scenario.MAX_N_STEPS` is derived from, on two short runs."""
+    model = load_model(SHIPPED_MODEL)
+    held = []
+    for duration_s in (200.0, 600.0):
+        scenario = Scenario(name="m", duration_s=duration_s, initial_setpoint_kw=45.0,
+                            setpoints=(SetpointStep(at_s=20.0, power_kw=50.0),))
+        gc.collect()
+        tracemalloc.start()
+        try:
+            outcome = run_simulation(model, scenario, plant="model", seed=1)
+            gc.collect()
+            held.append(tracemalloc.get_traced_memory()[0])
+        finally:
+            tracemalloc.stop()
+        del outcome
+    per_step = (held[1] - held[0]) / ((600.0 - 200.0) / 2.0)
+    assert 0 < per_step <= BYTES_PER_STEP
+    assert MAX_N_STEPS * BYTES_PER_STEP <= 4e9
+
+
+@pytest.mark.parametrize("setpoint_kw", [1e308, -1e308, np.inf])
+def test_the_figure_draws_setpoints_near_the_float_range(
+        tmp_path: Path, setpoint_kw: float) -> None:
+    t = np.arange(50) * 2.0
+    setpoint = np.full(50, 45.0)
+    setpoint[20:] = setpoint_kw
+    fig = plot_closed_loop(t, setpoint, np.full(50, 45.0), np.full(50, 45.0), np.full(50, 40.0),
+                           None, allowed_triac_range_pct=(5.0, 95.0), title="huge",
+                           path=tmp_path / "f.png")
+    assert (tmp_path / "f.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    lo, hi = fig.axes[0].get_ylim()
+    assert np.isfinite([lo, hi]).all()
+    assert max(abs(lo), abs(hi)) >= PLOT_LIMIT          # the clipped setpoint is in view
+
+
+def test_a_failing_figure_leaves_the_output_directory_as_it_was(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    model = load_model(SHIPPED_MODEL)
+    outcome = run_simulation(model, load_scenario("missing_samples").shortened(0.05),
+                             plant="model", seed=3)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "metrics.json").write_text("old", encoding="utf-8")
+
+    def broken(*args: object, **kwargs: object) -> None:
+        raise FigureError("figure failed")
+
+    monkeypatch.setattr(simulation, "plot_outcome", broken)
+    with pytest.raises(FigureError):
+        write_outputs(outcome, out)
+    assert sorted(p.name for p in out.iterdir()) == ["metrics.json"]   # no trajectory, no scratch
+    assert (out / "metrics.json").read_text(encoding="utf-8") == "old"
+    monkeypatch.undo()
+    written = write_outputs(outcome, out)
+    assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in written)
+    assert json.loads((out / "metrics.json").read_text(encoding="utf-8"))["seed"] == 3
+
+
+# --- SIGTERM while writing (issue 13.6) ------------------------------------------------
+_CHILD = """
+import pathlib, sys, time
+import sysid.atomic
+from czmpc.cli import main
+
+marker = pathlib.Path(sys.argv[1])
+real_fsync = sysid.atomic._fsync_file
+
+def slow_fsync(path):
+    # the temporary file is written, not yet renamed: tell the parent, wait for SIGTERM
+    marker.write_text(str(path))
+    time.sleep(60)
+    real_fsync(path)
+
+sysid.atomic._fsync_file = slow_fsync
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+def test_sigterm_while_writing_leaves_no_temporary_file_and_exits_143(tmp_path: Path) -> None:
+    marker = tmp_path / "writing"
+    argv = _simulate(tmp_path)
+    argv[argv.index("--short") + 1] = "0.05"
+    child = subprocess.Popen([sys.executable, "-c", _CHILD, str(marker), *argv],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO)
+    try:
+        deadline = time.monotonic() + 120.0
+        while not marker.exists() and child.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert marker.exists(), child.communicate(timeout=10)[1].decode()
+        temporary = Path(marker.read_text())
+        assert temporary.exists() and temporary.name.startswith(".")
+        child.send_signal(signal.SIGTERM)
+        _, err = child.communicate(timeout=30)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    assert child.returncode == SIGTERM_EXIT_CODE == 143
+    assert "czmpc: error" not in err.decode() and "Traceback" not in err.decode()
+    assert "terminated" in err.decode()
+    out = tmp_path / "out"
+    assert [p.name for p in out.rglob("*")] == []      # no temporary file, no scratch dir
+
+
+@pytest.mark.parametrize(("power_kw", "rc"), [(1e100, 0), (1e308, 2)])
+def test_simulate_with_astronomical_setpoints_writes_all_or_nothing(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], power_kw: float, rc: int) -> None:
+    """1e100 kW (the bound) runs, metrics and figure included; 1e308 is refused up front."""
+    (tmp_path / "big.toml").write_text(
+        'name = "big"\nduration_s = 200\ninitial_setpoint_kw = 45.0\n'
+        f'[[setpoint]]\nkind = "step"\nat_s = 50\npower_kw = {power_kw!r}\n', encoding="utf-8")
+    argv = _simulate(tmp_path)
+    argv[argv.index("--scenario") + 1] = str(tmp_path / "big.toml")
+    argv.remove("--short")
+    argv.remove("0.2")
+    got, _, err = _run(argv, capsys)
+    assert got == rc, err
+    if rc == 0:
+        assert sorted(p.name for p in (tmp_path / "out").iterdir()) == \
+            ["figure.png", "metrics.json", "trajectory.csv"]
+    else:
+        assert "setpoints[1].power_kw" in err and "MAX_ABS_POWER_KW" in err and "Traceback" not in err
+        assert not (tmp_path / "out").exists()
