@@ -25,6 +25,7 @@ import numpy as np
 
 from czmpc.reports import identification_figures as figs
 from czmpc.reports.tables import format_table
+from sysid._version import SOFTWARE
 from sysid.atomic import atomic_write_text
 
 if TYPE_CHECKING:
@@ -723,8 +724,7 @@ def render_report(
              "Komperød et al., *Empirical Modeling of Heating Element Power for the Czochralski "
              "Crystallization Process*, secs. 5-7, rerun on these data. The paper's values stand "
              "beside ours; they come from the authors' log, so they are a yardstick, not a target."]
-    if command:
-        parts.append(f"Produced by `{command}`.")
+    parts.append(f"Produced by {SOFTWARE}" + (f": `{command}`." if command else "."))
     unconverged = result.unconverged
     if unconverged:
         parts.append("**Warning: not converged: " + ", ".join(unconverged)
