@@ -111,8 +111,8 @@ def _measurement(dv: Any, max_age_s: float) -> tuple[float, str]:
     ts = dv.SourceTimestamp
     if ts is not None:
         if ts.tzinfo is None:
-            ts = ts.replace(tzinfo=dt.timezone.utc)
-        age = (dt.datetime.now(dt.timezone.utc) - ts).total_seconds()
+            ts = ts.replace(tzinfo=dt.UTC)
+        age = (dt.datetime.now(dt.UTC) - ts).total_seconds()
         if age > max_age_s:
             return math.nan, "stale"
     try:
@@ -202,7 +202,7 @@ class ControlLoop:
             return False
         try:
             await self.link.connect()
-        except (OSError, asyncio.TimeoutError, ConnectionError) as exc:
+        except (TimeoutError, OSError, ConnectionError) as exc:
             self._next_try = now + self._backoff_s
             self._backoff_s = min(MAX_BACKOFF_S, 2 * self._backoff_s)
             self._say(f"connect failed ({type(exc).__name__}); retry in {self._backoff_s:g} s")
@@ -272,7 +272,7 @@ class ControlLoop:
                 try:
                     await asyncio.wait_for(self._stop.wait(), wait)
                     break
-                except asyncio.TimeoutError:
+                except TimeoutError:
                     pass
             woke = time.monotonic()
             lateness = woke - deadline
