@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
 
     from czmpc.controller import OffsetFreeMPC
     from czmpc.errors import SettingsError
-    from czmpc.runtime.config import load_run_config
+    from czmpc.runtime.config import load_run_config, runtime_settings
     from czmpc.runtime.loop import ControlLoop, tty_status
     from sysid.modelfile import load_model
 
@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     if abs(model.ts_s - config.ts_s) > 1e-9 * config.ts_s:
         raise SettingsError(f"plant.ts_s: expected the model's sampling time {model.ts_s:g} s; "
                             f"got {config.ts_s:g} s")
-    controller = OffsetFreeMPC(model)
+    controller = OffsetFreeMPC(model, runtime_settings(model))
     loop = ControlLoop(config, controller, status=tty_status())
     try:
         summary = asyncio.run(loop.run())
