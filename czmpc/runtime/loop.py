@@ -94,7 +94,7 @@ class _Link:
                 pass
 
     async def read(self, name: str) -> Any:
-        return await asyncio.wait_for(self.nodes[name].read_data_value(),
+        return await asyncio.wait_for(self.nodes[name].read_data_value(raise_on_bad_status=False),
                                       self.config.connect_timeout_s)
 
     async def write(self, name: str, value: Any, vtype: Any) -> None:

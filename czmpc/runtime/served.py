@@ -102,6 +102,7 @@ class ServedPlant:
         self.k = 0
         self.watchdog_tripped = False
         self.n_watchdog_trips = 0
+        self.silent_samples_at_trip = 0
         self._faults = None
         if scenario is not None:
             self._faults = fault_profile(scenario.faults, n_steps=scenario.n_steps,
@@ -189,6 +190,7 @@ class ServedPlant:
             if armed and wd_samples is not None and silent >= wd_samples and not self.watchdog_tripped:
                 self.watchdog_tripped = True
                 self.n_watchdog_trips += 1
+                self.silent_samples_at_trip = silent
                 self._log(f"watchdog: no heartbeat for {silent * self.ts_s:g} s of plant time; "
                           f"TRIAC -> safe {self.options.safe_triac_pct:g} %")
             elif self.watchdog_tripped and silent == 0 and cmd != last_cmd:

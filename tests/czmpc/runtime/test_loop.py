@@ -148,3 +148,77 @@ def test_served_steps_track_and_start_bumplessly(tmp_path: Path) -> None:
     assert len(tail) > 20
     assert abs(sum(tail) / len(tail) - 30.5) < TRACKING_ATOL_KW
     assert summary.n_writes == summary.n_steps
+
+
+def _served_model(port: int, *, scenario: Any = None, watchdog_s: float | None = None,
+                  duration_s: float | None = None) -> tuple[Any, ModelPlant, ServedPlant]:
+    model, plant = _model_plant()
+    served = ServedPlant(plant, initial_triac_pct=plant.initial_triac_pct, scenario=scenario,
+                         options=ServeOptions(endpoint=f"opc.tcp://127.0.0.1:{port}/czmpc/",
+                                              time_scale=TIME_SCALE, watchdog_s=watchdog_s,
+                                              safe_triac_pct=20.0, duration_s=duration_s))
+    return model, plant, served
+
+
+def test_bad_quality_is_a_missing_sample_then_shed(tmp_path: Path) -> None:
+    scenario = scenario_from_dict({
+        "name": "dropout", "duration_s": 400.0, "ts_s": 2.0, "initial_setpoint_kw": 29.3,
+        "plant_noise": False,
+        "fault": [{"kind": "missing_samples", "at_s": 20.0, "duration_s": 160.0}],
+    })
+    port = free_port()
+    model, _plant, served = _served_model(port, scenario=scenario)
+    cfg = make_config(tmp_path, port, duration_s=240.0)
+    mpc = OffsetFreeMPC(model, runtime_settings(model))
+    asyncio.run(_with_served(served, ControlLoop(cfg, mpc).run()))
+    rows = _rows(cfg.log_path)
+    bad = [r for r in rows if r["quality"] == "bad"]
+    # 80 samples of sensor fault (160 s); the loop's phase may shift the window by one
+    assert 78 <= len(bad) <= 81
+    statuses = {r["status"] for r in bad}
+    assert {"PREDICTED", "SHED"} <= statuses  # soft sensor first, shed after 60 samples
+    assert all(r["verdict"] == "MISSING" for r in bad)
+    assert rows[-1]["quality"] == "good" and rows[-1]["status"] in {"GOOD", "CLAMPED"}
+
+
+def test_watchdog_moves_to_the_safe_input_when_the_controller_dies(tmp_path: Path) -> None:
+    port = free_port()
+    model, _plant, served = _served_model(port, watchdog_s=10.0)
+    cfg = make_config(tmp_path, port, duration_s=40.0, run={"setpoint_kw": 30.0})
+    mpc = OffsetFreeMPC(model, runtime_settings(model))
+
+    async def body() -> None:
+        await ControlLoop(cfg, mpc).run()   # the controller stops (dies) after 40 s
+        applied = [float(r["applied_triac_pct"]) for r in _rows(cfg.log_path)]
+        assert min(applied) > 30.0             # no trip while the heartbeat ran
+        for _ in range(100):
+            if served.watchdog_tripped:
+                break
+            await asyncio.sleep(2.0 / TIME_SCALE)
+        assert served.watchdog_tripped
+        assert served.silent_samples_at_trip == 5    # 10 s of plant time at Ts = 2 s
+        await asyncio.sleep(3 * 2.0 / TIME_SCALE)
+        node = served._nodes["TriacApplied"]
+        assert float(await node.read_value()) == 20.0
+        assert await served._nodes["WatchdogTripped"].read_value() is True
+
+    asyncio.run(_with_served(served, body()))
+
+
+def test_an_overrun_never_writes_twice_in_a_period(tmp_path: Path) -> None:
+    port = free_port()
+    model, _plant, served = _served_model(port)
+    cfg = make_config(tmp_path, port, duration_s=60.0, run={"setpoint_kw": 30.0})
+    mpc = OffsetFreeMPC(model, runtime_settings(model))
+    period = cfg.period_s
+    loop = ControlLoop(cfg, mpc, step_delay_s={5: 2.5 * period})
+    summary = asyncio.run(_with_served(served, loop.run()))
+    rows = _rows(cfg.log_path)
+    assert summary.n_overruns >= 1
+    assert int(rows[5]["skipped"]) >= 2
+    # the schedule resumes on its grid: sample indices jump, none is repeated
+    ks = [int(r["k"]) for r in rows]
+    assert ks == sorted(set(ks))
+    assert ks[6] - ks[5] == int(rows[5]["skipped"]) + 1
+    # at most one write per period: written rows are on distinct periods of the grid
+    assert summary.n_writes == sum(int(r["written"]) for r in rows) == len(rows)
