@@ -39,8 +39,11 @@ from czmpc.modes import Mode
 from czmpc.runtime._opcua import asyncua
 from czmpc.runtime.config import RunConfig
 
-#: Longest wait between reconnect attempts [s wall].
+#: Longest wait between reconnect attempts [s wall] (also at most `MAX_BACKOFF_PERIODS`
+#: loop periods; the first wait is one period).
 MAX_BACKOFF_S = 5.0
+#: Longest wait between reconnect attempts in loop periods.
+MAX_BACKOFF_PERIODS = 25
 #: How long the start waits for the server [s wall] before giving up (exit 1).
 STARTUP_WAIT_S = 15.0
 #: Log columns, in order.
@@ -152,6 +155,8 @@ class RunLog:
 
 
 def _fmt(value: object) -> object:
+    if isinstance(value, float) and abs(value) >= 1e6:
+        return f"{value:.3f}"
     if isinstance(value, float):
         return "nan" if math.isnan(value) else f"{value:.6g}"
     return value
@@ -186,7 +191,8 @@ class ControlLoop:
         self._heartbeat = 0
         self._last_cmd = math.nan
         self._applied = math.nan
-        self._backoff_s = 0.5
+        self._backoff_s = config.period_s
+        self._max_backoff_s = min(MAX_BACKOFF_S, MAX_BACKOFF_PERIODS * config.period_s)
         self._next_try = 0.0
         self._setpoint = config.setpoint_kw if config.setpoint_kw is not None else math.nan
         if config.schedule is not None:
@@ -204,15 +210,15 @@ class ControlLoop:
             await self.link.connect()
         except (TimeoutError, OSError, ConnectionError) as exc:
             self._next_try = now + self._backoff_s
-            self._backoff_s = min(MAX_BACKOFF_S, 2 * self._backoff_s)
+            self._backoff_s = min(self._max_backoff_s, 2 * self._backoff_s)
             self._say(f"connect failed ({type(exc).__name__}); retry in {self._backoff_s:g} s")
             return False
         except Exception as exc:  # noqa: BLE001 - asyncua raises its own types
             self._next_try = now + self._backoff_s
-            self._backoff_s = min(MAX_BACKOFF_S, 2 * self._backoff_s)
+            self._backoff_s = min(self._max_backoff_s, 2 * self._backoff_s)
             self._say(f"connect failed ({type(exc).__name__}: {exc}); retrying")
             return False
-        self._backoff_s = 0.5
+        self._backoff_s = self.config.period_s
         # bumpless: start from the input the plant applies now
         applied = await self._read_applied()
         if math.isfinite(applied):
