@@ -27,7 +27,8 @@ def test_a_valid_config_reads_with_defaults(tmp_path: Path) -> None:
     ('[plant]\nendpoint = "opc.tcp://h:1/"\nts_s = 2.0\n[nodes]\ntriac_pct = "ns=2;i=1"\n',
      "nodes.power_kw"),
     ('[plant]\nendpoint = "opc.tcp://h:1/"\nts_s = 2.0\n[nodes]\npower_kw = "a"\n'
-     'triac_pct = "b"\n[controller]\nmodel = "m.json"\n[run]\nsetpoint_kw = 45.0\n[safety]\naction = "ramp"\n',
+     'triac_pct = "b"\n[controller]\nmodel = "m.json"\n[run]\nsetpoint_kw = 45.0\n'
+     '[safety]\naction = "ramp"\n',
      "safety.safe_triac_pct"),
     ('[plantt]\n', "plantt"),
 ])
@@ -51,3 +52,11 @@ def test_schedule_times_must_increase(tmp_path: Path) -> None:
     path.write_text("time_s,setpoint_kw\n0,45\n0,50\n", encoding="utf-8")
     with pytest.raises(RunConfigError, match="line 3"):
         load_schedule(path)
+
+
+def test_the_shipped_example_config_reads() -> None:
+    repo = Path(__file__).resolve().parents[3]
+    cfg = load_run_config(repo / "examples" / "plant_link" / "run.toml")
+    assert cfg.model_path.resolve() == (repo / "data" / "cz_heater_model.json").resolve()
+    assert cfg.safe_action == "ramp" and cfg.safe_triac_pct == 33.0
+    assert cfg.nodes.power_kw == "ns=2;s=Heater.Power"
