@@ -8,7 +8,7 @@ import pytest
 
 from czmpc.runtime.config import RunConfigError, load_run_config, load_schedule
 
-from .conftest import make_config
+from plant_rig import make_config
 
 
 def test_a_valid_config_reads_with_defaults(tmp_path: Path) -> None:

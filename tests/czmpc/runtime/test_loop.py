@@ -25,7 +25,7 @@ from sim.model_plant import ModelPlant
 from sim.scenario import scenario_from_dict
 from sysid.modelfile import load_model
 
-from .conftest import TIME_SCALE, free_port, make_config, served_nodes
+from plant_rig import TIME_SCALE, free_port, make_config, served_nodes
 
 pytestmark = pytest.mark.slow
 

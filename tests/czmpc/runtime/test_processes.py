@@ -19,7 +19,7 @@ import pytest
 
 from czmpc.shipped import shipped_path
 
-from .conftest import TIME_SCALE, free_port, served_nodes
+from plant_rig import TIME_SCALE, free_port, served_nodes
 
 pytestmark = pytest.mark.slow
 
