@@ -9,11 +9,7 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-<<<<<<< HEAD
-	$(PY) -m pip install --quiet -e ".[dev,opcua]"
-=======
 	$(PY) -m pip install --quiet -e ".[dev,docs,opcua]"
->>>>>>> main
 	touch $(STAMP)
 
 demo: $(STAMP)
