@@ -5,10 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from plant_rig import make_config
 
 from czmpc.runtime.config import RunConfigError, load_run_config, load_schedule
-
-from plant_rig import make_config
 
 
 def test_a_valid_config_reads_with_defaults(tmp_path: Path) -> None:

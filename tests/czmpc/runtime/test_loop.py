@@ -15,6 +15,7 @@ from typing import Any
 import asyncua
 import pytest
 from asyncua import ua
+from plant_rig import TIME_SCALE, free_port, make_config, served_nodes
 
 from czmpc.controller import OffsetFreeMPC
 from czmpc.runtime.config import runtime_settings
@@ -24,8 +25,6 @@ from czmpc.shipped import shipped_path
 from sim.model_plant import ModelPlant
 from sim.scenario import scenario_from_dict
 from sysid.modelfile import load_model
-
-from plant_rig import TIME_SCALE, free_port, make_config, served_nodes
 
 pytestmark = pytest.mark.slow
 

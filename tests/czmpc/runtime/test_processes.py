@@ -16,10 +16,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from plant_rig import TIME_SCALE, free_port, served_nodes
 
 from czmpc.shipped import shipped_path
-
-from plant_rig import TIME_SCALE, free_port, served_nodes
 
 pytestmark = pytest.mark.slow
 
