@@ -1,0 +1,103 @@
+"""Serve a simulated plant over OPC UA: `czmpc plant serve`.
+
+'heater' serves the virtual CZ heater (grey-box physics), 'model' the plant built from
+a model file (the model's own equation). The plant advances on its own clock, one
+sample every Ts / time_scale wall seconds, whether a controller keeps up or not.
+
+Nodes (namespace urn:czmpc:plant, ns=2 on this server): Heater.Power [kW] (read; Bad
+quality during a sensor fault; source timestamp), Heater.TriacCommand [%] (write),
+Heater.TriacApplied [%], Heater.PowerSetpoint [kW] (the scenario's, or writable),
+Heater.Heartbeat (write, counter), Heater.Mode (OFF/PREDICT/ON), Heater.WatchdogTripped,
+Heater.PlantTime_s [s].
+
+Watchdog: when the heartbeat has not changed for --watchdog-s of plant time, the TRIAC
+goes to --safe-triac-pct and the server says so (stderr and Heater.WatchdogTripped).
+
+Listens on 127.0.0.1 unless the endpoint names another host.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+from pathlib import Path
+
+from czmpc.cli import _argtypes
+
+NAME = "plant"
+HELP = "serve the virtual CZ heater or a model plant as an OPC UA server (plant serve)"
+ORDER = 81
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """Add the 'serve' action and its options."""
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    p = sub.add_parser("serve", help="serve a plant on an OPC UA endpoint",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--plant", choices=("heater", "model"), default="heater",
+                   help="'heater': the virtual CZ heater; 'model': the model's own equation "
+                        "(needs --model) (default: heater)")
+    p.add_argument("--model", metavar="MODEL.json", type=Path, default=None,
+                   help="model file for --plant model (default: the shipped CZ heater model)")
+    p.add_argument("--endpoint", default="opc.tcp://127.0.0.1:4840/czmpc/",
+                   help="opc.tcp://HOST:PORT/PATH (default: opc.tcp://127.0.0.1:4840/czmpc/)")
+    p.add_argument("--time-scale", metavar="X", type=_argtypes.number(at_least=1.0),
+                   default=1.0, help="plant samples per Ts of wall time (default: 1)")
+    p.add_argument("--scenario", metavar="NAME|FILE.toml", default=None,
+                   help="publish its setpoints and apply its grid events and sensor faults")
+    p.add_argument("--seed", metavar="N", type=_argtypes.integer(0), default=0,
+                   help="seed of the plant noise and random faults (default: 0)")
+    p.add_argument("--no-noise", action="store_true", help="noise-free plant")
+    p.add_argument("--initial-triac-pct", metavar="PCT",
+                   type=_argtypes.number(at_least=0.0, at_most=100.0, unit="%"), default=None,
+                   help="start in steady state at this TRIAC input [%%] (model plant; default: "
+                        "the model's operating point / the heater's initial input)")
+    p.add_argument("--watchdog-s", metavar="S", type=_argtypes.number(above=0.0, unit="s"),
+                   default=10.0, help="heartbeat silence [plant s] that trips the watchdog "
+                                      "(default: 10)")
+    p.add_argument("--safe-triac-pct", metavar="PCT",
+                   type=_argtypes.number(at_least=0.0, at_most=100.0, unit="%"), default=0.0,
+                   help="TRIAC input [%%] the watchdog applies (default: 0)")
+    p.add_argument("--duration-s", metavar="S", type=_argtypes.number(above=0.0, unit="s"),
+                   default=None, help="stop after this plant time [s] (default: run until Ctrl-C)")
+    p.add_argument("--setpoint-kw", metavar="KW", type=_argtypes.number(unit="kW"),
+                   default=45.0, help="initial value of Heater.PowerSetpoint [kW] (default: 45)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Build the plant and serve it until the duration or Ctrl-C."""
+    from czmpc.runtime.served import ServedPlant, ServeOptions
+    from czmpc.shipped import shipped_path
+    from sim.heater import HeaterParams, VirtualHeater
+    from sim.model_plant import ModelPlant
+    from sim.protocols import Plant
+    from sim.scenario import load_scenario
+    from sysid.modelfile import load_model
+
+    scenario = None if args.scenario is None else load_scenario(args.scenario)
+    plant: Plant
+    if args.plant == "heater":
+        params = HeaterParams(sensor_noise_std_kw=0.0, grid_wander_std=0.0) if args.no_noise \
+            else HeaterParams()
+        heater = VirtualHeater(params, rng=args.seed)
+        plant, initial = heater, heater.params.initial_triac_pct
+    else:
+        model = load_model(args.model or shipped_path("cz_heater_model.json"))
+        mp = ModelPlant(model, noise=not args.no_noise, initial_triac_pct=args.initial_triac_pct)
+        mp.reset(args.seed)
+        plant, initial = mp, mp.initial_triac_pct
+    options = ServeOptions(endpoint=args.endpoint, time_scale=args.time_scale,
+                           watchdog_s=args.watchdog_s, safe_triac_pct=args.safe_triac_pct,
+                           duration_s=args.duration_s, setpoint_kw=args.setpoint_kw)
+    served = ServedPlant(plant, initial_triac_pct=initial, options=options, scenario=scenario,
+                         seed=args.seed, log=lambda m: print(m, file=sys.stderr, flush=True))
+    print(f"serving the {args.plant} plant on {args.endpoint} (Ts {plant.ts_s:g} s, time scale "
+          f"{args.time_scale:g}); Ctrl-C stops", file=sys.stderr, flush=True)
+    try:
+        asyncio.run(served.serve())
+    except KeyboardInterrupt:
+        print("plant: stopped", file=sys.stderr)
+    return 0
+

@@ -1,0 +1,272 @@
+"""The run configuration of `czmpc run` (a TOML file) and the recipe (schedule) file.
+
+Layout (every key checked; an unknown key, a wrong type or a value out of range raises
+`RunConfigError` naming the key)::
+
+    [plant]
+    endpoint = "opc.tcp://127.0.0.1:4840/czmpc/"
+    ts_s = 2.0
+    time_scale = 1.0            # > 1: faster than real time (simulated plants only)
+    max_sample_age_s = 4.0      # optional: older source timestamps are missing samples
+    connect_timeout_s = 2.0     # optional
+    [nodes]
+    power_kw = "ns=2;s=Heater.Power"                 # read
+    triac_pct = "ns=2;s=Heater.TriacCommand"         # write
+    applied_triac_pct = "ns=2;s=Heater.TriacApplied" # read, optional
+    setpoint_kw = "ns=2;s=Heater.PowerSetpoint"      # read, optional
+    heartbeat = "ns=2;s=Heater.Heartbeat"            # write, optional
+    mode = "ns=2;s=Heater.Mode"                      # read, optional
+    [controller]
+    model = "model.json"
+    settings = "settings.toml"  # optional
+    [run]
+    duration_s = 3600           # optional: run until stopped
+    setpoint_kw = 45.0          # or schedule = "recipe.csv"
+    log = "run.csv"
+    [safety]                    # optional
+    action = "hold"             # or "ramp" (to safe_triac_pct at the rate limit)
+    safe_triac_pct = 20.0
+
+Relative paths are taken relative to the config file's directory.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from czmpc.errors import CzmpcError
+from czmpc.settings import MPCSettings
+from sysid.model import HammersteinModel
+
+
+class RunConfigError(CzmpcError, ValueError):
+    """A run configuration or recipe file that cannot be used."""
+
+
+_TABLES: dict[str, tuple[str, ...]] = {
+    "plant": ("endpoint", "ts_s", "time_scale", "max_sample_age_s", "connect_timeout_s"),
+    "nodes": ("power_kw", "triac_pct", "applied_triac_pct", "setpoint_kw", "heartbeat", "mode"),
+    "controller": ("model", "settings"),
+    "run": ("duration_s", "setpoint_kw", "schedule", "log"),
+    "safety": ("action", "safe_triac_pct"),
+}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NodeIds:
+    """OPC UA node ids (strings such as ``"ns=2;s=Heater.Power"``); None: not used."""
+
+    power_kw: str
+    triac_pct: str
+    applied_triac_pct: str | None = None
+    setpoint_kw: str | None = None
+    heartbeat: str | None = None
+    mode: str | None = None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Schedule:
+    """A recipe: setpoint ``setpoints_kw[i]`` [kW] from ``times_s[i]`` [s] of the run on."""
+
+    times_s: tuple[float, ...]
+    setpoints_kw: tuple[float, ...]
+
+    def setpoint_at(self, time_s: float) -> float:
+        """The setpoint [kW] in force at run time ``time_s`` [s] (the first before it starts)."""
+        value = self.setpoints_kw[0]
+        for t, sp in zip(self.times_s, self.setpoints_kw, strict=True):
+            if t <= time_s:
+                value = sp
+            else:
+                break
+        return value
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RunConfig:
+    """A checked run configuration (module docstring for the keys and their units)."""
+
+    endpoint: str
+    ts_s: float
+    time_scale: float
+    max_sample_age_s: float
+    connect_timeout_s: float
+    nodes: NodeIds
+    model_path: Path
+    settings_path: Path | None
+    duration_s: float | None
+    setpoint_kw: float | None
+    schedule: Schedule | None
+    log_path: Path
+    safe_action: str
+    safe_triac_pct: float | None
+
+    @property
+    def period_s(self) -> float:
+        """Wall-clock period of the loop [s]: ``ts_s / time_scale``."""
+        return self.ts_s / self.time_scale
+
+
+def _num(table: dict[str, Any], key: str, where: str, *, default: float | None = None,
+         positive: bool = False, minimum: float | None = None,
+         maximum: float | None = None) -> float | None:
+    if key not in table:
+        return default
+    value = table[key]
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise RunConfigError(f"{where}.{key}: expected a finite number; got {value!r}")
+    value = float(value)
+    if positive and value <= 0.0:
+        raise RunConfigError(f"{where}.{key}: expected a number > 0; got {value:g}")
+    if minimum is not None and value < minimum:
+        raise RunConfigError(f"{where}.{key}: expected a number >= {minimum:g}; got {value:g}")
+    if maximum is not None and value > maximum:
+        raise RunConfigError(f"{where}.{key}: expected a number <= {maximum:g}; got {value:g}")
+    return value
+
+
+def _str(table: dict[str, Any], key: str, where: str, *, required: bool = False) -> str | None:
+    if key not in table:
+        if required:
+            raise RunConfigError(f"{where}.{key}: missing (required)")
+        return None
+    value = table[key]
+    if not isinstance(value, str) or not value.strip():
+        raise RunConfigError(f"{where}.{key}: expected a non-empty string; got {value!r}")
+    return value
+
+
+def load_schedule(path: Path) -> Schedule:
+    """Read a recipe CSV with a header ``time_s,setpoint_kw`` and increasing times.
+
+    Raises
+    ------
+    RunConfigError
+        A missing column, a non-number, or times that do not increase.
+    """
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            rows = list(csv.DictReader(fh))
+    except OSError as exc:
+        raise RunConfigError(f"run.schedule: cannot read {path}: {exc.strerror}") from exc
+    times: list[float] = []
+    values: list[float] = []
+    for i, row in enumerate(rows, start=2):
+        try:
+            t, sp = float(row["time_s"]), float(row["setpoint_kw"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise RunConfigError(
+                f"run.schedule: {path} line {i}: expected columns time_s [s], setpoint_kw [kW] "
+                f"with numbers; got {row!r}") from exc
+        if not (math.isfinite(t) and math.isfinite(sp)) or (times and t <= times[-1]):
+            raise RunConfigError(
+                f"run.schedule: {path} line {i}: expected finite values and increasing time_s; "
+                f"got time_s={t:g}, setpoint_kw={sp:g}")
+        times.append(t)
+        values.append(sp)
+    if not times:
+        raise RunConfigError(f"run.schedule: {path} has no rows (header time_s,setpoint_kw)")
+    return Schedule(times_s=tuple(times), setpoints_kw=tuple(values))
+
+
+def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
+    """Check a parsed configuration; relative paths are resolved against ``base_dir``."""
+    for name in doc:
+        if name not in _TABLES:
+            raise RunConfigError(f"{name}: unknown table; expected one of {', '.join(_TABLES)}")
+    tables: dict[str, dict[str, Any]] = {}
+    for name, keys in _TABLES.items():
+        table = doc.get(name, {})
+        if not isinstance(table, dict):
+            raise RunConfigError(f"{name}: expected a table; got {table!r}")
+        for key in table:
+            if key not in keys:
+                raise RunConfigError(
+                    f"{name}.{key}: unknown key; expected one of {', '.join(keys)}")
+        tables[name] = table
+    plant, nodes, ctrl, run, safety = (tables[n] for n in _TABLES)
+    endpoint = _str(plant, "endpoint", "plant", required=True)
+    assert_endpoint = endpoint or ""
+    if not assert_endpoint.startswith("opc.tcp://"):
+        raise RunConfigError(f"plant.endpoint: expected opc.tcp://HOST:PORT/...; got {endpoint!r}")
+    ts_s = _num(plant, "ts_s", "plant", positive=True)
+    if ts_s is None:
+        raise RunConfigError("plant.ts_s: missing (required)")
+    time_scale = _num(plant, "time_scale", "plant", default=1.0, minimum=1.0, maximum=1000.0)
+    max_age = _num(plant, "max_sample_age_s", "plant", default=2.0 * ts_s, positive=True)
+    conn_to = _num(plant, "connect_timeout_s", "plant", default=2.0, positive=True)
+    node_ids = NodeIds(
+        power_kw=_str(nodes, "power_kw", "nodes", required=True) or "",
+        triac_pct=_str(nodes, "triac_pct", "nodes", required=True) or "",
+        applied_triac_pct=_str(nodes, "applied_triac_pct", "nodes"),
+        setpoint_kw=_str(nodes, "setpoint_kw", "nodes"),
+        heartbeat=_str(nodes, "heartbeat", "nodes"),
+        mode=_str(nodes, "mode", "nodes"),
+    )
+    model = _str(ctrl, "model", "controller", required=True) or ""
+    settings = _str(ctrl, "settings", "controller")
+    duration = _num(run, "duration_s", "run", positive=True)
+    setpoint = _num(run, "setpoint_kw", "run")
+    schedule_name = _str(run, "schedule", "run")
+    if setpoint is not None and schedule_name is not None:
+        raise RunConfigError("run.schedule: give either run.setpoint_kw or run.schedule, not both")
+    if setpoint is None and schedule_name is None and node_ids.setpoint_kw is None:
+        raise RunConfigError(
+            "run.setpoint_kw: missing; give nodes.setpoint_kw, run.setpoint_kw or run.schedule")
+    log = _str(run, "log", "run") or "run.csv"
+    action = _str(safety, "action", "safety") or "hold"
+    if action not in ("hold", "ramp"):
+        raise RunConfigError(f"safety.action: expected 'hold' or 'ramp'; got {action!r}")
+    safe = _num(safety, "safe_triac_pct", "safety", minimum=0.0, maximum=100.0)
+    if action == "ramp" and safe is None:
+        raise RunConfigError("safety.safe_triac_pct: required when safety.action = 'ramp'")
+    return RunConfig(
+        endpoint=assert_endpoint, ts_s=ts_s, time_scale=float(time_scale or 1.0),
+        max_sample_age_s=float(max_age or 2.0 * ts_s), connect_timeout_s=float(conn_to or 2.0),
+        nodes=node_ids, model_path=base_dir / model,
+        settings_path=None if settings is None else base_dir / settings,
+        duration_s=duration, setpoint_kw=setpoint,
+        schedule=None if schedule_name is None else load_schedule(base_dir / schedule_name),
+        log_path=base_dir / log, safe_action=action, safe_triac_pct=safe,
+    )
+
+
+def load_run_config(path: Path) -> RunConfig:
+    """Read and check a run configuration TOML file (module docstring)."""
+    try:
+        with open(path, "rb") as fh:
+            doc = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise RunConfigError(f"{path}: not valid TOML: {exc}") from exc
+    except OSError as exc:
+        raise RunConfigError(f"{path}: cannot read: {exc.strerror}") from exc
+    return run_config_from_dict(doc, base_dir=path.resolve().parent)
+
+
+#: The runtime's rate limit when the settings have none: this fraction of the model's
+#: identified input range per sample (5 %: the whole range in 20 samples = 40 s at
+#: Ts = 2 s), because a real TRIAC and heating element must not be slammed.
+RUNTIME_RATE_FRACTION_OF_RANGE = 0.05
+
+
+def runtime_settings(model: HammersteinModel) -> MPCSettings:
+    """`MPCSettings.default_for` ``(model)`` with a rate limit when it has none.
+
+    The limit is `RUNTIME_RATE_FRACTION_OF_RANGE` of the model's input range per sample
+    [%/step] (1.6 %/step for the shipped CZ heater model, range 33..65 %).
+    """
+    settings = MPCSettings.default_for(model)
+    if settings.max_move_pct_per_step is None:
+        lo, hi = model.input_range_pct
+        settings = settings.with_updates(
+            max_move_pct_per_step=RUNTIME_RATE_FRACTION_OF_RANGE * (hi - lo))
+    return settings
+
+
+__all__ = ["NodeIds", "RunConfig", "RunConfigError", "Schedule", "load_run_config",
+           "load_schedule", "run_config_from_dict", "runtime_settings"]

@@ -1,0 +1,419 @@
+"""The soft real-time MPC loop over OPC UA (`czmpc run`).
+
+Each period (``ts_s / time_scale`` wall seconds, on a monotonic-clock schedule
+``t0 + k * period``, so no drift accumulates):
+
+1. read the measured power (with its status code and source timestamp), and the
+   optional setpoint, mode and applied-input nodes;
+2. step the controller; a Bad or Uncertain status, a source timestamp older than
+   ``max_sample_age_s``, or no connection is a missing sample (NaN): the controller
+   predicts (soft sensor), then sheds, as in simulation;
+3. write the command (mode ON only: in OFF/PREDICT the operator drives the TRIAC) and
+   the heartbeat; record the row in the log (flushed per row).
+
+A step that ends past its deadline is an overrun: the periods it covered are skipped
+(recorded in ``skipped``), never caught up, so there is at most one write per period.
+Lost connection: the controller keeps predicting; reconnects are tried with a doubling
+backoff (up to `MAX_BACKOFF_S`); on return the applied input is read and handed to the
+controller, so the next move starts from it within the rate limit (bumpless). A stop
+(SIGINT/SIGTERM, or the duration) writes the safe action: ``hold`` leaves the last
+command, ``ramp`` moves to ``safe_triac_pct`` at the rate limit, one move per period.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import csv
+import datetime as dt
+import math
+import signal
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+from czmpc.controller import OffsetFreeMPC
+from czmpc.modes import Mode
+from czmpc.runtime._opcua import asyncua
+from czmpc.runtime.config import RunConfig
+
+#: Longest wait between reconnect attempts [s wall] (also at most `MAX_BACKOFF_PERIODS`
+#: loop periods; the first wait is one period).
+MAX_BACKOFF_S = 5.0
+#: Longest wait between reconnect attempts in loop periods.
+MAX_BACKOFF_PERIODS = 25
+#: How long the start waits for the server [s wall] before giving up (exit 1).
+STARTUP_WAIT_S = 15.0
+#: Log columns, in order.
+LOG_COLUMNS = ("k", "time_s", "wall_time_s", "power_kw", "quality", "setpoint_kw",
+               "triac_pct", "applied_triac_pct", "status", "verdict", "mode", "connected",
+               "written", "lateness_s", "step_latency_s", "skipped")
+
+
+@dataclass(slots=True)
+class RunSummary:
+    """What a run did (numbers for the report and the tests)."""
+
+    n_steps: int = 0
+    n_writes: int = 0
+    n_overruns: int = 0
+    n_skipped: int = 0
+    n_reconnects: int = 0
+    n_missing: int = 0
+    lateness_s: list[float] = field(default_factory=list)
+    latency_s: list[float] = field(default_factory=list)
+    stopped_by: str = "duration"
+
+
+class _Link:
+    """One client connection with the node handles of the config."""
+
+    def __init__(self, config: RunConfig) -> None:
+        self.config = config
+        self.client: Any = None
+        self.nodes: dict[str, Any] = {}
+        self.connected = False
+
+    async def connect(self) -> None:
+        aua = asyncua()
+        client = aua.Client(self.config.endpoint, timeout=self.config.connect_timeout_s)
+        await asyncio.wait_for(client.connect(), self.config.connect_timeout_s)
+        self.client = client
+        ids = self.config.nodes
+        self.nodes = {name: client.get_node(getattr(ids, name))
+                      for name in ("power_kw", "triac_pct", "applied_triac_pct", "setpoint_kw",
+                                   "heartbeat", "mode")
+                      if getattr(ids, name) is not None}
+        self.connected = True
+
+    async def close(self) -> None:
+        client, self.client, self.connected = self.client, None, False
+        if client is not None:
+            try:
+                await asyncio.wait_for(client.disconnect(), 1.0)
+            except Exception:  # noqa: BLE001 - the link is gone either way
+                pass
+
+    async def read(self, name: str) -> Any:
+        return await asyncio.wait_for(self.nodes[name].read_data_value(raise_on_bad_status=False),
+                                      self.config.connect_timeout_s)
+
+    async def write(self, name: str, value: Any, vtype: Any) -> None:
+        ua = asyncua().ua
+        dv = ua.DataValue(ua.Variant(value, vtype))
+        await asyncio.wait_for(self.nodes[name].write_value(dv), self.config.connect_timeout_s)
+
+
+def _measurement(dv: Any, max_age_s: float) -> tuple[float, str]:
+    """Power [kW] and a quality word from a DataValue; NaN for Bad/Uncertain/stale."""
+    status = dv.StatusCode
+    if status is not None and not status.is_good():
+        return math.nan, "uncertain" if status.is_uncertain() else "bad"
+    ts = dv.SourceTimestamp
+    if ts is not None:
+        if ts.tzinfo is None:
+            ts = ts.replace(tzinfo=dt.UTC)
+        age = (dt.datetime.now(dt.UTC) - ts).total_seconds()
+        if age > max_age_s:
+            return math.nan, "stale"
+    try:
+        value = float(dv.Value.Value)
+    except (TypeError, ValueError, AttributeError):
+        return math.nan, "bad"
+    return value, "good"
+
+
+def _mode_of(value: Any) -> Mode | None:
+    if isinstance(value, str) and value.strip().upper() in Mode.__members__:
+        return Mode[value.strip().upper()]
+    if isinstance(value, int) and not isinstance(value, bool):
+        modes = list(Mode)
+        if 0 <= value < len(modes):
+            return modes[value]
+    return None
+
+
+class RunLog:
+    """CSV log of every step, flushed per row (readable after a crash)."""
+
+    def __init__(self, path: Path) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.path = path
+        self._fh: IO[str] = open(path, "w", newline="", encoding="utf-8")  # noqa: SIM115
+        self._w = csv.writer(self._fh)
+        self._w.writerow(LOG_COLUMNS)
+        self._fh.flush()
+
+    def row(self, values: dict[str, object]) -> None:
+        self._w.writerow([_fmt(values[c]) for c in LOG_COLUMNS])
+        self._fh.flush()
+
+    def close(self) -> None:
+        self._fh.close()
+
+
+def _fmt(value: object) -> object:
+    if isinstance(value, float) and abs(value) >= 1e6:
+        return f"{value:.3f}"
+    if isinstance(value, float):
+        return "nan" if math.isnan(value) else f"{value:.6g}"
+    return value
+
+
+class ControlLoop:
+    """The runtime (module docstring).
+
+    Parameters
+    ----------
+    config :
+        The run configuration.
+    controller :
+        The MPC (its ``ts_s`` must equal ``config.ts_s``).
+    status :
+        Called with a one-line status after each step (None: silent).
+    step_delay_s :
+        Testing hook: extra wall time [s] spent in the step at the given sample indices
+        (injects overruns).
+    """
+
+    def __init__(self, config: RunConfig, controller: OffsetFreeMPC, *,
+                 status: Callable[[str], None] | None = None,
+                 step_delay_s: dict[int, float] | None = None) -> None:
+        self.config = config
+        self.mpc = controller
+        self.link = _Link(config)
+        self.summary = RunSummary()
+        self._status = status
+        self._delay = dict(step_delay_s or {})
+        self._stop = asyncio.Event()
+        self._heartbeat = 0
+        self._last_cmd = math.nan
+        self._applied = math.nan
+        self._backoff_s = config.period_s
+        self._max_backoff_s = min(MAX_BACKOFF_S, MAX_BACKOFF_PERIODS * config.period_s)
+        self._next_try = 0.0
+        self._setpoint = config.setpoint_kw if config.setpoint_kw is not None else math.nan
+        if config.schedule is not None:
+            self._setpoint = config.schedule.setpoints_kw[0]
+
+    def request_stop(self, reason: str) -> None:
+        """Ask the loop to stop at the next period and apply the safe action."""
+        self.summary.stopped_by = reason
+        self._stop.set()
+
+    async def _try_connect(self, now: float) -> bool:
+        if now < self._next_try:
+            return False
+        try:
+            await self.link.connect()
+        except (TimeoutError, OSError, ConnectionError) as exc:
+            self._next_try = now + self._backoff_s
+            self._backoff_s = min(self._max_backoff_s, 2 * self._backoff_s)
+            self._say(f"connect failed ({type(exc).__name__}); retry in {self._backoff_s:g} s")
+            return False
+        except Exception as exc:  # noqa: BLE001 - asyncua raises its own types
+            self._next_try = now + self._backoff_s
+            self._backoff_s = min(self._max_backoff_s, 2 * self._backoff_s)
+            self._say(f"connect failed ({type(exc).__name__}: {exc}); retrying")
+            return False
+        self._backoff_s = self.config.period_s
+        # bumpless: start from the input the plant applies now
+        applied = await self._read_applied()
+        if math.isfinite(applied):
+            self._applied = applied
+        return True
+
+    async def _read_applied(self) -> float:
+        name = "applied_triac_pct" if "applied_triac_pct" in self.link.nodes else "triac_pct"
+        dv = await self.link.read(name)
+        value, quality = _measurement(dv, math.inf)
+        return value if quality == "good" else math.nan
+
+    def _say(self, text: str) -> None:
+        if self._status is not None:
+            self._status(text)
+
+    async def run(self) -> RunSummary:
+        """Run until the duration (plant time) or a stop request; return the summary."""
+        cfg = self.config
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            try:
+                loop.add_signal_handler(sig, self.request_stop, sig.name)
+            except (NotImplementedError, RuntimeError, ValueError):
+                pass
+        log = RunLog(cfg.log_path)
+        try:
+            give_up = time.monotonic() + STARTUP_WAIT_S
+            while not await self._try_connect(time.monotonic()):
+                if time.monotonic() > give_up or self._stop.is_set():
+                    raise ConnectionError(
+                        f"cannot connect to {cfg.endpoint} within {STARTUP_WAIT_S:g} s; is the "
+                        "server running and plant.endpoint right?")
+                await asyncio.sleep(max(0.05, self._next_try - time.monotonic()))
+            await self._loop(log)
+            await self._safe_action(log)
+        finally:
+            log.close()
+            await self.link.close()
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                try:
+                    loop.remove_signal_handler(sig)
+                except (NotImplementedError, RuntimeError, ValueError):
+                    pass
+        return self.summary
+
+    async def _loop(self, log: RunLog) -> None:
+        cfg = self.config
+        period = cfg.period_s
+        n_end = None if cfg.duration_s is None else round(cfg.duration_s / cfg.ts_s)
+        t0 = time.monotonic()
+        k = 0
+        while not self._stop.is_set() and (n_end is None or k < n_end):
+            deadline = t0 + k * period
+            wait = deadline - time.monotonic()
+            if wait > 0:
+                try:
+                    await asyncio.wait_for(self._stop.wait(), wait)
+                    break
+                except TimeoutError:
+                    pass
+            woke = time.monotonic()
+            lateness = woke - deadline
+            row = await self._one_step(k, lateness)
+            end = time.monotonic()
+            self.summary.lateness_s.append(lateness)
+            self.summary.latency_s.append(end - woke)
+            # overrun: skip every period whose start has passed (never catch up)
+            next_k = k + 1
+            if end > t0 + next_k * period:
+                next_k = math.floor((end - t0) / period) + 1
+                self.summary.n_overruns += 1
+                self.summary.n_skipped += next_k - k - 1
+            row["skipped"] = next_k - k - 1
+            row["step_latency_s"] = end - woke
+            log.row(row)
+            k = next_k
+        self.summary.n_steps = k
+
+    async def _one_step(self, k: int, lateness: float) -> dict[str, object]:
+        cfg = self.config
+        ua = asyncua().ua
+        power, quality = math.nan, "disconnected"
+        if not self.link.connected:
+            await self._try_connect(time.monotonic())
+        reported_applied: float | None = None
+        if self.link.connected:
+            try:
+                power, quality = _measurement(await self.link.read("power_kw"),
+                                              cfg.max_sample_age_s)
+                if "setpoint_kw" in self.link.nodes:
+                    sp, q = _measurement(await self.link.read("setpoint_kw"), math.inf)
+                    if q == "good":
+                        self._setpoint = sp
+                if "mode" in self.link.nodes:
+                    dv = await self.link.read("mode")
+                    mode = _mode_of(dv.Value.Value if dv.Value is not None else None)
+                    if mode is not None and mode is not self.mpc.mode:
+                        self.mpc.request_mode(mode)
+                if "applied_triac_pct" in self.link.nodes:
+                    applied = await self._read_applied()
+                    if math.isfinite(applied):
+                        reported_applied = applied
+                if math.isfinite(self._applied):  # fresh from a (re)connect
+                    reported_applied = self._applied
+                    self._applied = math.nan
+            except Exception as exc:  # noqa: BLE001 - any link failure: predict on
+                await self._lost(exc)
+                power, quality = math.nan, "disconnected"
+        if cfg.schedule is not None:
+            self._setpoint = cfg.schedule.setpoint_at(k * cfg.ts_s)
+        if not math.isfinite(power):
+            self.summary.n_missing += 1
+        if k in self._delay:
+            await asyncio.sleep(self._delay[k])
+        if self.mpc.mode is not Mode.ON and reported_applied is None:
+            reported_applied = self._last_cmd if math.isfinite(self._last_cmd) else None
+        command = self.mpc.step(power, self._setpoint, applied_triac_pct=reported_applied)
+        diag = self.mpc.last_step
+        written = False
+        if self.link.connected:
+            try:
+                if self.mpc.mode is Mode.ON and math.isfinite(command):
+                    await self.link.write("triac_pct", float(command), ua.VariantType.Double)
+                    written = True
+                    self.summary.n_writes += 1
+                    self._last_cmd = float(command)
+                if "heartbeat" in self.link.nodes:
+                    self._heartbeat += 1
+                    await self.link.write("heartbeat", self._heartbeat, ua.VariantType.Int64)
+            except Exception as exc:  # noqa: BLE001 - any link failure: predict on
+                await self._lost(exc)
+        if self.mpc.mode is not Mode.ON:
+            self._last_cmd = float(command)
+        row: dict[str, object] = {
+            "k": k, "time_s": k * cfg.ts_s, "wall_time_s": time.time(), "power_kw": power,
+            "quality": quality, "setpoint_kw": self._setpoint, "triac_pct": float(command),
+            "applied_triac_pct": math.nan if reported_applied is None else reported_applied,
+            "status": diag.status.name if diag is not None else "",
+            "verdict": diag.verdict.name if diag is not None else "",
+            "mode": self.mpc.mode.name, "connected": int(self.link.connected),
+            "written": int(written), "lateness_s": lateness, "step_latency_s": 0.0,
+            "skipped": 0,
+        }
+        self._say(f"k={k} t={k * cfg.ts_s:.0f}s P={power:.2f}kW ({quality}) "
+                  f"SP={self._setpoint:.2f}kW u={command:.2f}% {row['status']} "
+                  f"{self.mpc.mode.name} late={lateness * 1e3:.1f}ms")
+        return row
+
+    async def _lost(self, exc: BaseException) -> None:
+        self._say(f"link lost ({type(exc).__name__}); predicting, reconnecting")
+        await self.link.close()
+        self.summary.n_reconnects += 1
+        self._next_try = time.monotonic() + self._backoff_s
+
+    async def _safe_action(self, log: RunLog) -> None:
+        cfg = self.config
+        if cfg.safe_action != "ramp" or cfg.safe_triac_pct is None:
+            self._say(f"stopped ({self.summary.stopped_by}): holding the last command")
+            return
+        ua = asyncua().ua
+        rate = self.mpc.settings.max_move_pct_per_step
+        step = math.inf if rate is None else float(rate)
+        u = self._last_cmd
+        target = cfg.safe_triac_pct
+        if not self.link.connected:
+            await self._try_connect(0.0)
+        if not math.isfinite(u):
+            u = target
+        while self.link.connected:
+            u = u + max(-step, min(step, target - u))
+            try:
+                await self.link.write("triac_pct", u, ua.VariantType.Double)
+            except Exception:  # noqa: BLE001 - nothing more can be done without a link
+                break
+            self.summary.n_writes += 1
+            self._last_cmd = u
+            log.row({c: "" for c in LOG_COLUMNS} | {"triac_pct": u, "status": "SAFE_RAMP",
+                                                   "written": 1, "wall_time_s": time.time()})
+            if u == target:
+                break
+            await asyncio.sleep(cfg.period_s)
+        self._say(f"stopped ({self.summary.stopped_by}): TRIAC ramped to {u:g} %")
+
+
+def tty_status() -> Callable[[str], None] | None:
+    """A one-line live status on stderr when it is a terminal, else None."""
+    if not sys.stderr.isatty():
+        return None
+
+    def show(text: str) -> None:
+        sys.stderr.write("\r\033[K" + text)
+        sys.stderr.flush()
+
+    return show
+
+
+__all__ = ["LOG_COLUMNS", "ControlLoop", "RunLog", "RunSummary", "tty_status"]

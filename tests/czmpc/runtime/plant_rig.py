@@ -1,0 +1,51 @@
+"""Helpers of the plant-link loop tests: loopback ports, configs (imported as plant_rig)."""
+
+from __future__ import annotations
+
+import socket
+from pathlib import Path
+
+import pytest
+
+from czmpc.runtime.config import RunConfig, run_config_from_dict
+from czmpc.shipped import shipped_path
+
+pytest.importorskip("asyncua")
+
+#: Every loopback test runs the plant at this many samples per Ts (period 2 s / 50 = 40 ms).
+TIME_SCALE = 50.0
+
+
+def free_port() -> int:
+    """A free TCP port on 127.0.0.1."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def served_nodes() -> dict[str, str]:
+    """Node ids of czmpc's served plant."""
+    return {
+        "power_kw": "ns=2;s=Heater.Power",
+        "triac_pct": "ns=2;s=Heater.TriacCommand",
+        "applied_triac_pct": "ns=2;s=Heater.TriacApplied",
+        "setpoint_kw": "ns=2;s=Heater.PowerSetpoint",
+        "heartbeat": "ns=2;s=Heater.Heartbeat",
+        "mode": "ns=2;s=Heater.Mode",
+    }
+
+
+def make_config(tmp_path: Path, port: int, *, nodes: dict[str, str] | None = None,
+                duration_s: float = 200.0, run: dict[str, object] | None = None,
+                safety: dict[str, object] | None = None) -> RunConfig:
+    """A run configuration for a loopback server on ``port``."""
+    doc: dict[str, object] = {
+        "plant": {"endpoint": f"opc.tcp://127.0.0.1:{port}/czmpc/", "ts_s": 2.0,
+                  "time_scale": TIME_SCALE, "max_sample_age_s": 1.0},
+        "nodes": served_nodes() if nodes is None else nodes,
+        "controller": {"model": str(shipped_path("cz_heater_model.json"))},
+        "run": {"duration_s": duration_s, "log": "run.csv", **(run or {})},
+    }
+    if safety is not None:
+        doc["safety"] = safety
+    return run_config_from_dict(doc, base_dir=tmp_path)

@@ -1,0 +1,61 @@
+"""The run configuration: every key checked, errors name the key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from plant_rig import make_config
+
+from czmpc.runtime.config import RunConfigError, load_run_config, load_schedule
+
+
+def test_a_valid_config_reads_with_defaults(tmp_path: Path) -> None:
+    cfg = make_config(tmp_path, 4840, run={"setpoint_kw": 47.0})
+    assert cfg.period_s == pytest.approx(2.0 / 50.0)
+    assert cfg.safe_action == "hold"
+    assert cfg.log_path == tmp_path / "run.csv"
+    assert cfg.nodes.mode == "ns=2;s=Heater.Mode"
+
+
+@pytest.mark.parametrize(("text", "key"), [
+    ('[plant]\nendpoint = "opc.tcp://h:1/"\nts_s = 2.0\nspeed = 3\n', "plant.speed"),
+    ('[plant]\nendpoint = "opc.tcp://h:1/"\nts_s = "2"\n', "plant.ts_s"),
+    ('[plant]\nendpoint = "opc.tcp://h:1/"\nts_s = 2.0\ntime_scale = 0.5\n', "plant.time_scale"),
+    ('[plant]\nendpoint = "http://h:1/"\nts_s = 2.0\n', "plant.endpoint"),
+    ('[plant]\nendpoint = "opc.tcp://h:1/"\nts_s = 2.0\n[nodes]\ntriac_pct = "ns=2;i=1"\n',
+     "nodes.power_kw"),
+    ('[plant]\nendpoint = "opc.tcp://h:1/"\nts_s = 2.0\n[nodes]\npower_kw = "a"\n'
+     'triac_pct = "b"\n[controller]\nmodel = "m.json"\n[run]\nsetpoint_kw = 45.0\n'
+     '[safety]\naction = "ramp"\n',
+     "safety.safe_triac_pct"),
+    ('[plantt]\n', "plantt"),
+])
+def test_bad_keys_are_named(tmp_path: Path, text: str, key: str) -> None:
+    path = tmp_path / "run.toml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(RunConfigError, match=key.replace(".", r"\.")):
+        load_run_config(path)
+
+
+def test_schedule_gives_the_setpoint_in_force(tmp_path: Path) -> None:
+    path = tmp_path / "recipe.csv"
+    path.write_text("time_s,setpoint_kw\n0,45\n100,50\n300,48.5\n", encoding="utf-8")
+    sched = load_schedule(path)
+    assert [sched.setpoint_at(t) for t in (0.0, 99.9, 100.0, 299.0, 1e6)] == \
+        [45.0, 45.0, 50.0, 50.0, 48.5]
+
+
+def test_schedule_times_must_increase(tmp_path: Path) -> None:
+    path = tmp_path / "recipe.csv"
+    path.write_text("time_s,setpoint_kw\n0,45\n0,50\n", encoding="utf-8")
+    with pytest.raises(RunConfigError, match="line 3"):
+        load_schedule(path)
+
+
+def test_the_shipped_example_config_reads() -> None:
+    repo = Path(__file__).resolve().parents[3]
+    cfg = load_run_config(repo / "examples" / "plant_link" / "run.toml")
+    assert cfg.model_path.resolve() == (repo / "data" / "cz_heater_model.json").resolve()
+    assert cfg.safe_action == "ramp" and cfg.safe_triac_pct == 33.0
+    assert cfg.nodes.power_kw == "ns=2;s=Heater.Power"

@@ -1,0 +1,223 @@
+"""The runtime loop against OPC UA servers on loopback (127.0.0.1, free ports, bounded).
+
+Every test runs its server and the loop in one event loop at a time scale of 50 (a
+period of 40 ms) and finishes by itself: servers stop when the test's coroutine ends.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import csv
+import math
+from pathlib import Path
+from typing import Any
+
+import asyncua
+import pytest
+from asyncua import ua
+from plant_rig import TIME_SCALE, free_port, make_config, served_nodes
+
+from czmpc.controller import OffsetFreeMPC
+from czmpc.runtime.config import runtime_settings
+from czmpc.runtime.loop import ControlLoop
+from czmpc.runtime.served import ServedPlant, ServeOptions
+from czmpc.shipped import shipped_path
+from sim.model_plant import ModelPlant
+from sim.scenario import scenario_from_dict
+from sysid.modelfile import load_model
+
+pytestmark = pytest.mark.slow
+
+#: Steady-state tracking band [kW] on the noise-free model plant: the controller is
+#: offset-free, so what is left is the residue of the last setpoint step's transient
+#: after 60 samples (about 0.6 of the slow mode's time constants beyond settling) and
+#: sample-phase jitter between the two clocks; 0.05 kW is 0.1 % of the setpoint.
+TRACKING_ATOL_KW = 0.05
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _model_plant() -> tuple[Any, ModelPlant]:
+    model = load_model(shipped_path("cz_heater_model.json"))
+    plant = ModelPlant(model, noise=False)
+    plant.reset(0)
+    return model, plant
+
+
+async def _with_served(served: ServedPlant, body: Any) -> Any:
+    task = asyncio.create_task(served.serve())
+    try:
+        await asyncio.wait_for(served.ready.wait(), 20.0)
+        return await body
+    finally:
+        task.cancel()
+        try:
+            await task
+        except asyncio.CancelledError:
+            pass
+
+
+class _IndependentServer:
+    """A small asyncua server, not czmpc's, with numeric node ids in its own namespace.
+
+    Its plant is a first-order lag with a static gain and offset that the controller's
+    model does not know: P_{k+1} = a P_k + (1 - a) (20 + 0.6 u_k) [kW], sampled every
+    40 ms of wall time.
+    """
+
+    def __init__(self, port: int) -> None:
+        self.endpoint = f"opc.tcp://127.0.0.1:{port}/other/"
+        self.power_kw = 20.0 + 0.6 * 45.0
+        self.ready = asyncio.Event()
+
+    async def serve(self) -> None:
+        server = asyncua.Server()
+        await server.init()
+        server.set_endpoint(self.endpoint)
+        idx = await server.register_namespace("urn:example:other-plc")
+        obj = await server.nodes.objects.add_object(ua.NodeId(1000, idx), "Furnace")
+        self.p = await obj.add_variable(ua.NodeId(1001, idx), "PV", self.power_kw)
+        self.u = await obj.add_variable(ua.NodeId(1002, idx), "CV", 45.0)
+        await self.u.set_writable()
+        self.idx = idx
+        async with server:
+            self.ready.set()
+            a = 0.8
+            while True:
+                await asyncio.sleep(2.0 / TIME_SCALE)
+                u = float(await self.u.read_value())
+                self.power_kw = a * self.power_kw + (1 - a) * (20.0 + 0.6 * u)
+                await self.p.write_value(self.power_kw)
+
+
+def test_run_tracks_an_independent_server_offset_free(tmp_path: Path) -> None:
+    port = free_port()
+    other = _IndependentServer(port)
+    cfg = make_config(tmp_path, port, duration_s=240.0, run={"setpoint_kw": 48.0}, nodes={
+        "power_kw": "ns=2;i=1001", "triac_pct": "ns=2;i=1002"})
+    cfg = type(cfg)(**{**{f: getattr(cfg, f) for f in cfg.__dataclass_fields__},
+                       "endpoint": other.endpoint})
+    mpc = OffsetFreeMPC(load_model(cfg.model_path))
+
+    async def main() -> Any:
+        task = asyncio.create_task(other.serve())
+        try:
+            await asyncio.wait_for(other.ready.wait(), 20.0)
+            return await ControlLoop(cfg, mpc).run()
+        finally:
+            task.cancel()
+            try:
+                await task
+            except asyncio.CancelledError:
+                pass
+
+    summary = asyncio.run(main())
+    rows = _rows(cfg.log_path)
+    assert summary.n_steps == 120
+    tail = [float(r["power_kw"]) for r in rows[-20:]]
+    assert all(math.isfinite(p) for p in tail)
+    assert abs(sum(tail) / len(tail) - 48.0) < TRACKING_ATOL_KW
+    assert summary.n_writes == summary.n_steps
+
+
+def test_served_steps_track_and_start_bumplessly(tmp_path: Path) -> None:
+    model, plant = _model_plant()
+    port = free_port()
+    served = ServedPlant(plant, initial_triac_pct=plant.initial_triac_pct, options=ServeOptions(
+        endpoint=f"opc.tcp://127.0.0.1:{port}/czmpc/", time_scale=TIME_SCALE, watchdog_s=None))
+    (tmp_path / "recipe.csv").write_text("time_s,setpoint_kw\n0,31\n100,30.5\n",
+                                         encoding="utf-8")
+    nodes = {k: v for k, v in served_nodes().items() if k != "setpoint_kw"}
+    cfg = make_config(tmp_path, port, duration_s=300.0, run={"schedule": "recipe.csv"},
+                      nodes=nodes)
+    settings = runtime_settings(model)
+    rate = settings.max_move_pct_per_step
+    assert rate is not None
+    mpc = OffsetFreeMPC(model, settings)
+    summary = asyncio.run(_with_served(served, ControlLoop(cfg, mpc).run()))
+    rows = _rows(cfg.log_path)
+    u = [float(r["triac_pct"]) for r in rows]
+    # bumpless: the first command is within the rate limit of the plant's input
+    assert abs(u[0] - plant.initial_triac_pct) <= rate + 1e-9
+    assert max(abs(b - a) for a, b in zip(u, u[1:], strict=False)) <= rate + 1e-9
+    tail = [float(r["power_kw"]) for r in rows[-30:] if r["quality"] == "good"]
+    assert len(tail) > 20
+    assert abs(sum(tail) / len(tail) - 30.5) < TRACKING_ATOL_KW
+    assert summary.n_writes == summary.n_steps
+
+
+def _served_model(port: int, *, scenario: Any = None, watchdog_s: float | None = None,
+                  duration_s: float | None = None) -> tuple[Any, ModelPlant, ServedPlant]:
+    model, plant = _model_plant()
+    served = ServedPlant(plant, initial_triac_pct=plant.initial_triac_pct, scenario=scenario,
+                         options=ServeOptions(endpoint=f"opc.tcp://127.0.0.1:{port}/czmpc/",
+                                              time_scale=TIME_SCALE, watchdog_s=watchdog_s,
+                                              safe_triac_pct=20.0, duration_s=duration_s))
+    return model, plant, served
+
+
+def test_bad_quality_is_a_missing_sample_then_shed(tmp_path: Path) -> None:
+    scenario = scenario_from_dict({
+        "name": "dropout", "duration_s": 400.0, "ts_s": 2.0, "initial_setpoint_kw": 29.3,
+        "plant_noise": False,
+        "fault": [{"kind": "missing_samples", "at_s": 20.0, "duration_s": 160.0}],
+    })
+    port = free_port()
+    model, _plant, served = _served_model(port, scenario=scenario)
+    cfg = make_config(tmp_path, port, duration_s=240.0)
+    mpc = OffsetFreeMPC(model, runtime_settings(model))
+    asyncio.run(_with_served(served, ControlLoop(cfg, mpc).run()))
+    rows = _rows(cfg.log_path)
+    bad = [r for r in rows if r["quality"] == "bad"]
+    # 80 samples of sensor fault (160 s); the loop's phase may shift the window by one
+    assert 78 <= len(bad) <= 81
+    statuses = {r["status"] for r in bad}
+    assert {"PREDICTED", "SHED"} <= statuses  # soft sensor first, shed after 60 samples
+    assert all(r["verdict"] == "MISSING" for r in bad)
+    assert rows[-1]["quality"] == "good" and rows[-1]["status"] in {"GOOD", "CLAMPED"}
+
+
+def test_watchdog_moves_to_the_safe_input_when_the_controller_dies(tmp_path: Path) -> None:
+    port = free_port()
+    model, _plant, served = _served_model(port, watchdog_s=10.0)
+    cfg = make_config(tmp_path, port, duration_s=40.0, run={"setpoint_kw": 30.0})
+    mpc = OffsetFreeMPC(model, runtime_settings(model))
+
+    async def body() -> None:
+        await ControlLoop(cfg, mpc).run()   # the controller stops (dies) after 40 s
+        applied = [float(r["applied_triac_pct"]) for r in _rows(cfg.log_path)]
+        assert min(applied) > 30.0             # no trip while the heartbeat ran
+        for _ in range(100):
+            if served.watchdog_tripped:
+                break
+            await asyncio.sleep(2.0 / TIME_SCALE)
+        assert served.watchdog_tripped
+        assert served.silent_samples_at_trip == 5    # 10 s of plant time at Ts = 2 s
+        await asyncio.sleep(3 * 2.0 / TIME_SCALE)
+        node = served._nodes["TriacApplied"]
+        assert float(await node.read_value()) == 20.0
+        assert await served._nodes["WatchdogTripped"].read_value() is True
+
+    asyncio.run(_with_served(served, body()))
+
+
+def test_an_overrun_never_writes_twice_in_a_period(tmp_path: Path) -> None:
+    port = free_port()
+    model, _plant, served = _served_model(port)
+    cfg = make_config(tmp_path, port, duration_s=60.0, run={"setpoint_kw": 30.0})
+    mpc = OffsetFreeMPC(model, runtime_settings(model))
+    period = cfg.period_s
+    loop = ControlLoop(cfg, mpc, step_delay_s={5: 2.5 * period})
+    summary = asyncio.run(_with_served(served, loop.run()))
+    rows = _rows(cfg.log_path)
+    assert summary.n_overruns >= 1
+    assert int(rows[5]["skipped"]) >= 2
+    # the schedule resumes on its grid: sample indices jump, none is repeated
+    ks = [int(r["k"]) for r in rows]
+    assert ks == sorted(set(ks))
+    assert ks[6] - ks[5] == int(rows[5]["skipped"]) + 1
+    # at most one write per period: written rows are on distinct periods of the grid
+    assert summary.n_writes == sum(int(r["written"]) for r in rows) == len(rows)
