@@ -444,6 +444,15 @@ def hammerstein_criteria(fit: HammersteinFit, y: FloatArray, ds: FloatArray) -> 
 
 
 # =========================================================================== models
+def _covariance_field(covariance: FloatArray, n_par: int) -> tuple[tuple[float, ...], ...] | None:
+    """The fit's covariance as the model-file field (symmetrized), or None if not usable."""
+    cov = np.asarray(covariance, dtype=float)
+    if cov.shape != (n_par, n_par) or not np.isfinite(cov).all():
+        return None
+    cov = 0.5 * (cov + cov.T)
+    return tuple(tuple(float(v) for v in row) for row in cov)
+
+
 def hammerstein_model(
     fit: HammersteinFit,
     data: Dataset,
@@ -500,6 +509,7 @@ def hammerstein_model(
             input_poly=fit.input_poly,
             noise_std_kw=noise_std,
             input_range_pct=(float(np.min(data.triac_pct)), float(np.max(data.triac_pct))),
+            covariance=_covariance_field(fit.covariance, len(fit.parameter_names)),
             provenance=Provenance(
                 data_file=None if data.source is None else Path(data.source).name,
                 data_sha256=data.sha256,
