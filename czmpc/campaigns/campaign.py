@@ -368,9 +368,13 @@ def _plant(run: RunSpec, model: Any, scenario: Any) -> tuple[Any, float]:
             params = replace(params, sensor_noise_std_kw=0.0, grid_wander_std=0.0)
         s0 = heater_steady_state_triac_pct(scenario.initial_setpoint_kw, params)
         return VirtualHeater(replace(params, initial_triac_pct=s0)), s0
-    plant_model = model
-    if run.plant.kind == "perturbed":
-        plant_model = perturb_model(model, gain_factor=run.plant.gain_factor,
+    if run.plant.kind == "model":  # as `czmpc simulate` builds it
+        built = ModelPlant.for_scenario(model, scenario)
+        if built.noise != (run.noise and scenario.plant_noise):
+            built = ModelPlant(model, noise=run.noise and scenario.plant_noise,
+                               initial_triac_pct=built.initial_triac_pct)
+        return built, built.initial_triac_pct
+    plant_model = perturb_model(model, gain_factor=run.plant.gain_factor,
                                     time_constant_factor=run.plant.time_constant_factor,
                                     extra_delay_steps=run.plant.extra_delay_steps)
     s0 = steady_state_triac_pct(plant_model, scenario.initial_setpoint_kw,

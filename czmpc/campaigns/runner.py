@@ -21,6 +21,7 @@ every worker through the environment it inherits (`pin_blas_threads`).
 from __future__ import annotations
 
 import hashlib
+import importlib
 import json
 import math
 import os
@@ -146,22 +147,21 @@ def _iter_processes(runs: Sequence[RunSpec], workers: int) -> Iterator[dict[str,
 
 
 def _iter_dask(runs: Sequence[RunSpec], workers: int, address: str) -> Iterator[dict[str, Any]]:
-    try:
-        from dask.distributed import Client, LocalCluster
-        from dask.distributed import as_completed as dask_as_completed
+    try:  # untyped library: used through Any
+        distributed: Any = importlib.import_module("dask.distributed")
     except ImportError:
         raise CampaignError("the dask executor needs dask.distributed: pip install 'czmpc[dask]'") from None
     pin_blas_threads()
     cluster = None
     if address == "local":
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+        cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                host="127.0.0.1", dashboard_address=None)
-        client = Client(cluster)
+        client = distributed.Client(cluster)
     else:
-        client = Client(address)
+        client = distributed.Client(address)
     try:
         futures = client.map(execute_run, list(runs), pure=False)
-        for future in dask_as_completed(futures):
+        for future in distributed.as_completed(futures):
             yield future.result()
     finally:
         client.close()
@@ -204,11 +204,11 @@ def save_trajectories(runs: Sequence[RunSpec], out_dir: Path) -> list[Path]:
         result = simulate_run(run)
         name = hashlib.sha256(run.run_id.encode("utf-8")).hexdigest()[:16] + ".npz"
         path = folder / name
-        np.savez_compressed(
-            path, run_id=np.array(run.run_id),
-            **{k: np.asarray(getattr(result, k), dtype=np.float32)
-               for k in ("time_s", "setpoint_kw", "power_true_kw", "power_measured_kw",
-                         "triac_pct")})
+        arrays: dict[str, Any] = {
+            k: np.asarray(getattr(result, k), dtype=np.float32)
+            for k in ("time_s", "setpoint_kw", "power_true_kw", "power_measured_kw", "triac_pct")}
+        arrays["run_id"] = np.array(run.run_id)
+        np.savez_compressed(path, **arrays)
         paths.append(path)
     return paths
 
