@@ -3,6 +3,7 @@
   czmpc campaign run SPEC.toml --out DIR [--executor serial|processes|dask] [--workers N]
                      [--dask local|ADDRESS] [--worst N]
   czmpc campaign report DIR
+  czmpc campaign bench SPEC.toml [--workers N] [--record-benchmarks]
 
 `run` writes DIR/results.parquet (one row of metrics per run: IAE [kW s], ISE
 [kW^2 s], overshoot [kW], steady error [kW], input total variation [%], limit and
@@ -40,7 +41,7 @@ def _workers(text: str) -> int:
 def register(parser: argparse.ArgumentParser) -> None:
     """Add the ``run`` and ``report`` sub-commands."""
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
-    sub = parser.add_subparsers(dest="campaign_command", metavar="{run,report}", required=True)
+    sub = parser.add_subparsers(dest="campaign_command", metavar="{run,report,bench}", required=True)
     run_p = sub.add_parser("run", help="run (or resume) a campaign into DIR",
                            description="Run the runs of SPEC not yet in DIR; write DIR/results.parquet.")
     run_p.add_argument("spec", metavar="SPEC.toml",
@@ -57,6 +58,15 @@ def register(parser: argparse.ArgumentParser) -> None:
     run_p.add_argument("--worst", metavar="N", type=int, default=0,
                        help="save the trajectories of the N highest-IAE runs of each controller "
                             "(re-run at the end; default: 0, none)")
+    bench_p = sub.add_parser(
+        "bench", help="runs/s of one spec on serial, processes xN and Dask LocalCluster xN",
+        description="Run SPEC on the three executors in one session; print runs/s, scaling "
+                    "efficiency, overhead per run [ms] and worker memory [MiB].")
+    bench_p.add_argument("spec", metavar="SPEC.toml", help="campaign spec file or shipped spec name")
+    bench_p.add_argument("--workers", metavar="N", type=_workers, default=2,
+                         help="workers of the parallel executors (default: 2)")
+    bench_p.add_argument("--record-benchmarks", action="store_true",
+                         help="write the table into BENCHMARKS.md (current directory)")
     rep_p = sub.add_parser("report", help="summary Markdown and figures of a finished campaign",
                            description="Write DIR/report.md and figures from DIR/results.parquet.")
     rep_p.add_argument("dir", metavar="DIR", type=Path, help="a finished campaign directory")
@@ -135,8 +145,29 @@ def _report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench(args: argparse.Namespace) -> int:
+    import sys
+
+    from czmpc.campaigns.bench_campaign import benchmark_executors, format_benchmark_markdown
+    from czmpc.campaigns.campaign import load_spec
+    from czmpc.cli._progress import Progress
+    from czmpc.reports.benchmarks_md import machine_info, write_benchmarks_section
+
+    spec = load_spec(_spec_path(args.spec))
+    machine = machine_info().describe()
+    timings = benchmark_executors(spec, workers=args.workers, progress=Progress())
+    body = format_benchmark_markdown(timings, spec=spec, command=["czmpc", *sys.argv[1:]],
+                                     machine=machine)
+    print(body)
+    if args.record_benchmarks:
+        write_benchmarks_section("BENCHMARKS.md", body, heading="## Campaign executors")
+    return 1 if any(t.n_errors for t in timings) else 0
+
+
 def run(args: argparse.Namespace) -> int:
-    """Dispatch to ``run`` or ``report``."""
+    """Dispatch to ``run``, ``report`` or ``bench``."""
     if args.campaign_command == "run":
         return _run(args)
+    if args.campaign_command == "bench":
+        return _bench(args)
     return _report(args)
