@@ -23,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import json
+import logging
 import math
 import os
 from collections.abc import Callable, Iterator, Sequence
@@ -155,7 +156,8 @@ def _iter_dask(runs: Sequence[RunSpec], workers: int, address: str) -> Iterator[
     cluster = None
     if address == "local":
         cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               host="127.0.0.1", dashboard_address=None)
+                               host="127.0.0.1", dashboard_address=None,
+                                       silence_logs=logging.CRITICAL)
         client = distributed.Client(cluster)
     else:
         client = distributed.Client(address)
