@@ -137,4 +137,4 @@ def test_benchmark_reports_every_executor_and_consistent_rates() -> None:
         assert t.runs_per_s == pytest.approx(t.n_runs / t.wall_s)
     assert timings[0].efficiency == pytest.approx(1.0)
     text = format_benchmark_markdown(timings, spec=spec, command=["czmpc"], machine="m")
-    assert text.count("\n| ") == 4
+    assert text.count("\n| ") == 5  # header, separator, three executors
