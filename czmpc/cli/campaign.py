@@ -10,7 +10,7 @@
 rate violations, solver fallbacks, controller step times [ms], status). An interrupted
 campaign resumes where it stopped when run again with the same SPEC and DIR. Shipped
 specs (package data) can be named without a path: campaign_smoke.toml,
-campaign_robustness.toml.
+campaign_robustness.toml, campaign_throughput.toml.
 
 `report` writes DIR/report.md, DIR/iae_distribution.png, DIR/iae_heatmap.png (perturbed
 plants) and, with trajectories saved by `run --worst N`, DIR/worst_runs.png.
