@@ -1,0 +1,91 @@
+"""Throughput of one campaign spec on the serial, process and Dask executors, one session.
+
+Per executor: runs per second (wall clock of the whole campaign, start-up of the pool
+or cluster included), scaling efficiency (runs/s over ``workers`` x the serial runs/s),
+scheduler overhead per run (``workers x wall - sum of the runs' own wall times``, over
+the number of runs: what the executor adds to every run) and the peak resident memory of
+the worker processes (`resource.getrusage` of the reaped children: the largest worker
+seen so far in this process, in MiB).
+"""
+
+from __future__ import annotations
+
+import resource
+import shlex
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from czmpc.campaigns.campaign import CampaignSpec
+from czmpc.campaigns.runner import ExecutorName, run_campaign
+
+
+@dataclass(frozen=True, kw_only=True)
+class ExecutorTiming:
+    """One executor's measurement (definitions: module docstring)."""
+
+    executor: str
+    workers: int
+    n_runs: int
+    n_errors: int
+    wall_s: float
+    runs_per_s: float
+    efficiency: float
+    overhead_per_run_ms: float
+    worker_peak_rss_mib: float | None
+
+
+def benchmark_executors(spec: CampaignSpec, *, workers: int = 2,
+                        progress: Callable[[str], None] | None = None) -> list[ExecutorTiming]:
+    """Run ``spec`` on serial, processes x ``workers`` and Dask LocalCluster x ``workers``."""
+    out: list[ExecutorTiming] = []
+    serial_rate = float("nan")
+    plan: list[tuple[ExecutorName, int]] = [("serial", 1), ("processes", workers), ("dask", workers)]
+    for executor, n in plan:
+        if progress is not None:
+            progress(f"{executor} x{n}: {len(spec.expand())} runs")
+        with tempfile.TemporaryDirectory(prefix="czmpc-bench-campaign-") as tmp:
+            t0 = time.perf_counter()
+            outcome = run_campaign(spec, Path(tmp), executor=executor, workers=n)
+            wall = time.perf_counter() - t0
+        rows = outcome.rows
+        rate = len(rows) / wall
+        if executor == "serial":
+            serial_rate = rate
+        busy = sum(float(r["wall_time_s"]) for r in rows)
+        rss = None
+        if executor != "serial":
+            scale = 1024.0 if sys.platform != "darwin" else 1024.0 * 1024.0
+            rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / scale
+        out.append(ExecutorTiming(
+            executor=executor, workers=n, n_runs=len(rows), n_errors=outcome.n_errors, wall_s=wall,
+            runs_per_s=rate, efficiency=rate / (n * serial_rate),
+            overhead_per_run_ms=1e3 * (n * wall - busy) / len(rows), worker_peak_rss_mib=rss))
+    return out
+
+
+def format_benchmark_markdown(timings: list[ExecutorTiming], *, spec: CampaignSpec,
+                              command: Sequence[str], machine: str) -> str:
+    """The BENCHMARKS.md section body: command, machine, one table row per executor."""
+    from czmpc.reports.tables import format_table
+
+    table = format_table(
+        ["executor", "workers", "runs", "wall [s]", "runs/s", "efficiency [-]",
+         "overhead per run [ms]", "worker peak RSS [MiB]"],
+        [[t.executor, str(t.workers), str(t.n_runs), f"{t.wall_s:.1f}", f"{t.runs_per_s:.2f}",
+          f"{t.efficiency:.2f}", f"{t.overhead_per_run_ms:.1f}",
+          "-" if t.worker_peak_rss_mib is None else f"{t.worker_peak_rss_mib:.0f}"] for t in timings],
+        markdown=True)
+    return "\n".join([
+        f"Command: `{shlex.join(command)}`", "",
+        f"Machine: {machine}", "",
+        f"Spec `{spec.name}` ({spec.source}): {len(spec.expand())} runs, time scale "
+        f"{spec.time_scale:g}. Efficiency: runs/s over workers x serial runs/s (goal >= 0.8). "
+        "Overhead per run: (workers x wall - sum of run times) / runs, pool or cluster start-up "
+        "included. Worker RSS: largest worker process of the session.", "", table])
+
+
+__all__ = ["ExecutorTiming", "benchmark_executors", "format_benchmark_markdown"]

@@ -1,0 +1,478 @@
+"""Campaigns: a TOML spec of controllers x plants x scenarios x seeds, expanded to runs.
+
+A *run* (`RunSpec`) is a pure function of its spec: `execute_run` builds the plant and
+the controller inside the calling process (so OSQP/CasADi objects never cross a process
+boundary), runs the closed loop and returns one row of metrics (`ROW_COLUMNS`). Its seed
+comes from `numpy.random.SeedSequence` keyed by the run's identity (`run_seed`), never by
+its position or by the worker that ran it, so every executor gives the same rows.
+
+Spec (TOML)::
+
+    name = "smoke"
+    model = "cz_heater_model.json"   # shipped name or path (relative to the spec file)
+    seeds = 2                        # seed indices 0..seeds-1 per (controller, plant, scenario)
+    base_seed = 2026                 # entropy of every run's SeedSequence
+    noise = true                     # plant noise on
+    time_scale = 0.1                 # optional: Scenario.shortened(time_scale)
+    scenarios = ["staircase", "voltage_sag"]   # shipped names or TOML paths
+
+    [[controllers]]
+    name = "mpc"
+    preset = "mpc"                   # "mpc", "pi" or "pi-scheduled"
+    # settings = "file.toml"         # refused until a settings-file loader exists
+
+    [[plants]]
+    kind = "model"                   # "model", "heater" or "perturbed"
+    [[plants]]
+    kind = "perturbed"               # the Cartesian product of the three lists
+    gain_factors = [0.8, 1.0, 1.2]
+    time_constant_factors = [1.0]
+    extra_delays_steps = [0, 1]
+
+Row columns whose values depend on the machine (``wall_time_s`` and the controller step
+times, `TIMING_COLUMNS`) differ between executions; every other column is identical bit
+for bit whatever the executor (`DETERMINISTIC_COLUMNS`).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+import time
+import tomllib
+import traceback
+import zlib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from czmpc.errors import CzmpcError
+
+PresetName = Literal["mpc", "pi", "pi-scheduled"]
+PRESETS: tuple[str, ...] = ("mpc", "pi", "pi-scheduled")
+PlantKindName = Literal["model", "heater", "perturbed"]
+PLANT_KINDS: tuple[str, ...] = ("model", "heater", "perturbed")
+
+#: Columns of machine-dependent timings (excluded from the bit-for-bit comparison).
+TIMING_COLUMNS: tuple[str, ...] = (
+    "wall_time_s", "step_time_median_ms", "step_time_p95_ms", "step_time_max_ms")
+#: Columns that identify a run.
+KEY_COLUMNS: tuple[str, ...] = (
+    "run_id", "controller", "preset", "plant", "gain_factor", "time_constant_factor",
+    "extra_delay_steps", "scenario", "seed_index", "seed")
+#: Columns of metrics that are a pure function of the run.
+METRIC_COLUMNS: tuple[str, ...] = (
+    "status", "error", "n_steps", "iae_kw_s", "ise_kw2_s", "max_overshoot_kw",
+    "max_abs_steady_state_error_kw", "input_total_variation_pct", "n_limit_violations",
+    "n_rate_violations", "n_fallbacks")
+ROW_COLUMNS: tuple[str, ...] = KEY_COLUMNS + METRIC_COLUMNS + TIMING_COLUMNS
+DETERMINISTIC_COLUMNS: tuple[str, ...] = KEY_COLUMNS + METRIC_COLUMNS
+
+
+class CampaignError(CzmpcError, ValueError):
+    """A campaign spec that cannot be run as written."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ControllerSpec:
+    """One controller of a campaign: a preset, named in the rows by ``name``."""
+
+    name: str
+    preset: PresetName
+
+
+@dataclass(frozen=True, kw_only=True)
+class PlantSpec:
+    """One plant: the model itself, the virtual heater, or the model perturbed.
+
+    Parameters
+    ----------
+    kind :
+        ``"model"``, ``"heater"`` or ``"perturbed"``.
+    gain_factor, time_constant_factor, extra_delay_steps :
+        Perturbation of a ``"perturbed"`` plant (`sim.perturbed.perturb_model`);
+        1, 1, 0 otherwise.
+    """
+
+    kind: PlantKindName
+    gain_factor: float = 1.0
+    time_constant_factor: float = 1.0
+    extra_delay_steps: int = 0
+
+    @property
+    def label(self) -> str:
+        """Name of the plant in the rows, e.g. ``"perturbed g0.8 m1 d+1"``."""
+        if self.kind != "perturbed":
+            return self.kind
+        return (f"perturbed g{self.gain_factor:g} m{self.time_constant_factor:g} "
+                f"d+{self.extra_delay_steps}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunSpec:
+    """Everything one run depends on (picklable; the run is a pure function of it)."""
+
+    run_id: str
+    controller: ControllerSpec
+    plant: PlantSpec
+    scenario: str
+    seed_index: int
+    base_seed: int
+    model_path: str
+    noise: bool
+    time_scale: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class CampaignSpec:
+    """A parsed campaign spec (see the module docstring for the TOML keys).
+
+    Parameters
+    ----------
+    name :
+        Campaign name.
+    source :
+        The spec file, or ``"<memory>"``.
+    model_path :
+        Resolved path of the model every controller (and the model plants) use.
+    controllers, plants, scenarios :
+        The axes of the campaign; scenarios are shipped names or resolved paths.
+    seeds :
+        Seeds per (controller, plant, scenario), >= 1.
+    base_seed :
+        Entropy of every run's `numpy.random.SeedSequence`, >= 0.
+    noise :
+        Plant noise on or off.
+    time_scale :
+        ``Scenario.shortened`` factor in (0, 1]; 1 runs the scenarios as written.
+    """
+
+    name: str
+    source: str
+    model_path: str
+    controllers: tuple[ControllerSpec, ...]
+    plants: tuple[PlantSpec, ...]
+    scenarios: tuple[str, ...]
+    seeds: int
+    base_seed: int
+    noise: bool
+    time_scale: float
+
+    def expand(self) -> tuple[RunSpec, ...]:
+        """All runs: controllers x plants x scenarios x seed indices, in that nesting."""
+        runs = []
+        for c in self.controllers:
+            for p in self.plants:
+                for s in self.scenarios:
+                    for k in range(self.seeds):
+                        runs.append(RunSpec(
+                            run_id=f"{c.name}|{p.label}|{Path(s).stem}|{k}", controller=c,
+                            plant=p, scenario=s, seed_index=k, base_seed=self.base_seed,
+                            model_path=self.model_path, noise=self.noise,
+                            time_scale=self.time_scale))
+        return tuple(runs)
+
+
+# --- spec parsing ---------------------------------------------------------------------------
+def _check_keys(table: Mapping[str, Any], allowed: Sequence[str], where: str) -> None:
+    unknown = sorted(set(table) - set(allowed))
+    if unknown:
+        raise CampaignError(f"{where}: unknown key(s) {unknown}; expected some of {sorted(allowed)}")
+
+
+def _number_list(table: Mapping[str, Any], key: str, default: list[float], where: str) -> list[float]:
+    values = table.get(key, default)
+    if (not isinstance(values, list) or not values
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)):
+        raise CampaignError(f"{where}: expected '{key}' a non-empty list of numbers; got {values!r}")
+    return [float(v) for v in values]
+
+
+def _plants(doc: Any, where: str) -> list[PlantSpec]:
+    if not isinstance(doc, list) or not doc:
+        raise CampaignError(f"{where}: expected at least one [[plants]] table")
+    out: list[PlantSpec] = []
+    for i, table in enumerate(doc):
+        here = f"{where} [[plants]] #{i + 1}"
+        kind = table.get("kind")
+        if kind not in PLANT_KINDS:
+            raise CampaignError(f"{here}: expected kind one of {list(PLANT_KINDS)}; got {kind!r}")
+        if kind != "perturbed":
+            _check_keys(table, ["kind"], here)
+            out.append(PlantSpec(kind=kind))
+            continue
+        _check_keys(table, ["kind", "gain_factors", "time_constant_factors", "extra_delays_steps"],
+                    here)
+        gains = _number_list(table, "gain_factors", [1.0], here)
+        taus = _number_list(table, "time_constant_factors", [1.0], here)
+        delays = _number_list(table, "extra_delays_steps", [0], here)
+        if not all(v > 0 for v in gains + taus) or not all(d >= 0 and d == int(d) for d in delays):
+            raise CampaignError(f"{here}: expected factors > 0 and whole delays >= 0; got gains "
+                                f"{gains}, time constants {taus}, delays {delays}")
+        out += [PlantSpec(kind="perturbed", gain_factor=g, time_constant_factor=m,
+                          extra_delay_steps=int(d))
+                for d in delays for m in taus for g in gains]
+    return out
+
+
+def _controllers(doc: Any, where: str) -> list[ControllerSpec]:
+    if not isinstance(doc, list) or not doc:
+        raise CampaignError(f"{where}: expected at least one [[controllers]] table")
+    out = []
+    for i, table in enumerate(doc):
+        here = f"{where} [[controllers]] #{i + 1}"
+        _check_keys(table, ["name", "preset", "settings"], here)
+        if "settings" in table:
+            raise CampaignError(
+                f"{here}: 'settings = {table['settings']!r}': settings files are not supported "
+                f"yet (no settings-file loader in this version); use a preset")
+        preset = table.get("preset")
+        if preset not in PRESETS:
+            raise CampaignError(f"{here}: expected preset one of {list(PRESETS)}; got {preset!r}")
+        name = table.get("name", preset)
+        if not isinstance(name, str) or not name or "|" in name:
+            raise CampaignError(f"{here}: expected a non-empty name without '|'; got {name!r}")
+        out.append(ControllerSpec(name=name, preset=preset))
+    names = [c.name for c in out]
+    if len(set(names)) != len(names):
+        raise CampaignError(f"{where}: controller names must differ; got {names}")
+    return out
+
+
+def _resolve(name: str, base: Path, suffix: str) -> str:
+    """A shipped name stays a name; anything with the suffix is a path relative to ``base``."""
+    if name.endswith(suffix):
+        path = Path(name) if Path(name).is_absolute() else base / name
+        return str(path)
+    return name
+
+
+def spec_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>",
+                   base_dir: Path | None = None) -> CampaignSpec:
+    """Parse and check a campaign spec given as a mapping (see the module docstring).
+
+    Raises
+    ------
+    CampaignError
+        A missing, unknown or invalid key (the message names it and the bad value).
+    """
+    from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
+
+    where = f"campaign spec {source}"
+    _check_keys(doc, ["name", "model", "seeds", "base_seed", "noise", "time_scale", "scenarios",
+                      "controllers", "plants"], where)
+    base = base_dir if base_dir is not None else Path.cwd()
+    model = doc.get("model", HAMMERSTEIN_MODEL_JSON)
+    if not isinstance(model, str):
+        raise CampaignError(f"{where}: expected 'model' a file name; got {model!r}")
+    candidate = Path(model) if Path(model).is_absolute() else base / model
+    try:
+        model_path = candidate if candidate.is_file() else shipped_path(model)
+    except FileNotFoundError:
+        raise CampaignError(f"{where}: model {model!r} is neither a file next to the spec nor "
+                            f"a shipped model") from None
+    seeds, base_seed = doc.get("seeds", 1), doc.get("base_seed", 0)
+    for key, value, low in (("seeds", seeds, 1), ("base_seed", base_seed, 0)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise CampaignError(f"{where}: expected '{key}' an integer >= {low}; got {value!r}")
+    time_scale = doc.get("time_scale", 1.0)
+    if (isinstance(time_scale, bool) or not isinstance(time_scale, (int, float))
+            or not 0.0 < time_scale <= 1.0):
+        raise CampaignError(f"{where}: expected 'time_scale' in (0, 1]; got {time_scale!r}")
+    noise = doc.get("noise", True)
+    if not isinstance(noise, bool):
+        raise CampaignError(f"{where}: expected 'noise' true or false; got {noise!r}")
+    scenarios = doc.get("scenarios")
+    if (not isinstance(scenarios, list) or not scenarios
+            or not all(isinstance(s, str) for s in scenarios)):
+        raise CampaignError(f"{where}: expected 'scenarios' a non-empty list of names; got {scenarios!r}")
+    resolved = tuple(_resolve(s, base, ".toml") for s in scenarios)
+    from sim.errors import SimError
+    from sim.scenario import load_scenario
+    for s in resolved:
+        try:
+            load_scenario(s)
+        except (SimError, OSError) as exc:
+            raise CampaignError(f"{where}: scenario {s!r}: {exc}") from None
+    name = doc.get("name", Path(source).stem)
+    if not isinstance(name, str) or not name:
+        raise CampaignError(f"{where}: expected 'name' a non-empty string; got {name!r}")
+    return CampaignSpec(
+        name=name, source=source, model_path=str(model_path),
+        controllers=tuple(_controllers(doc.get("controllers"), where)),
+        plants=tuple(_plants(doc.get("plants"), where)), scenarios=resolved, seeds=seeds,
+        base_seed=base_seed, noise=noise, time_scale=float(time_scale))
+
+
+def load_spec(path: str | os.PathLike[str]) -> CampaignSpec:
+    """Read a campaign spec TOML file (relative paths in it are taken from its folder).
+
+    Raises
+    ------
+    CampaignError
+        Unreadable file, bad TOML, or an invalid spec.
+    """
+    p = Path(path)
+    try:
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise CampaignError(f"campaign spec {p}: cannot read it: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise CampaignError(f"campaign spec {p}: not valid TOML: {exc}") from None
+    return spec_from_dict(doc, source=str(p), base_dir=p.parent)
+
+
+# --- one run --------------------------------------------------------------------------------
+def run_seed(run: RunSpec) -> int:
+    """The run's seed: `SeedSequence` of ``base_seed`` spawned by a digest of its identity.
+
+    The key is the CRC-32 of the run id (controller, plant, scenario, seed index), so a
+    run gets the same seed whatever its position in the campaign or the worker.
+    Controllers compared on the same plant, scenario and seed index share a seed (the
+    same noise), since the controller name is left out of the key.
+    """
+    key = f"{run.plant.label}|{Path(run.scenario).stem}|{run.seed_index}"
+    seq = np.random.SeedSequence(run.base_seed, spawn_key=(zlib.crc32(key.encode("utf-8")),))
+    return int(seq.generate_state(1, dtype=np.uint32)[0])
+
+
+@functools.lru_cache(maxsize=8)
+def _model(path: str) -> Any:
+    from sysid.modelfile import load_model
+    return load_model(path)
+
+
+@functools.lru_cache(maxsize=32)
+def _scenario(name: str, time_scale: float) -> Any:
+    from sim.scenario import load_scenario
+    scenario = load_scenario(name)
+    return scenario if time_scale == 1.0 else scenario.shortened(time_scale)
+
+
+def _plant(run: RunSpec, model: Any, scenario: Any) -> tuple[Any, float]:
+    """The plant of a run and the input [%] it starts in steady state at."""
+    from dataclasses import replace
+
+    from czmpc.campaigns.simulation import heater_steady_state_triac_pct
+    from sim.heater import HeaterParams, VirtualHeater
+    from sim.model_plant import ModelPlant, steady_state_triac_pct
+    from sim.perturbed import perturb_model
+
+    if run.plant.kind == "heater":
+        params = HeaterParams(ts_s=scenario.ts_s)
+        if not run.noise:
+            params = replace(params, sensor_noise_std_kw=0.0, grid_wander_std=0.0)
+        s0 = heater_steady_state_triac_pct(scenario.initial_setpoint_kw, params)
+        return VirtualHeater(replace(params, initial_triac_pct=s0)), s0
+    if run.plant.kind == "model":  # as `czmpc simulate` builds it
+        built = ModelPlant.for_scenario(model, scenario)
+        if built.noise != (run.noise and scenario.plant_noise):
+            built = ModelPlant(model, noise=run.noise and scenario.plant_noise,
+                               initial_triac_pct=built.initial_triac_pct)
+        return built, built.initial_triac_pct
+    plant_model = perturb_model(model, gain_factor=run.plant.gain_factor,
+                                    time_constant_factor=run.plant.time_constant_factor,
+                                    extra_delay_steps=run.plant.extra_delay_steps)
+    s0 = steady_state_triac_pct(plant_model, scenario.initial_setpoint_kw,
+                                triac_limits_pct=scenario.triac_limits_pct)
+    return ModelPlant(plant_model, noise=run.noise and scenario.plant_noise, initial_triac_pct=s0), s0
+
+
+def _controller(run: RunSpec, model: Any, scenario: Any, s0: float) -> Any:
+    from czmpc.campaigns.simulation import controller_settings
+    from czmpc.controller import OffsetFreeMPC
+    from czmpc.peers.pi import PIController
+
+    settings = controller_settings(model, scenario, initial_triac_pct=s0)
+    if run.controller.preset == "mpc":
+        return OffsetFreeMPC(model, settings)
+    return PIController.tuned_for(
+        model, gain_scheduled=run.controller.preset == "pi-scheduled",
+        initial_triac_pct=settings.initial_triac_pct,
+        triac_limits_pct=(settings.triac_min_pct, settings.triac_max_pct),
+        max_move_pct_per_step=settings.max_move_pct_per_step,
+        validity_margin_pct=settings.validity_margin_pct)
+
+
+def simulate_run(run: RunSpec) -> Any:
+    """Run the closed loop of one run; returns its `sim.loop.ClosedLoopResult`."""
+    from sim.loop import run_closed_loop
+
+    model = _model(run.model_path)
+    scenario = _scenario(run.scenario, run.time_scale)
+    plant, s0 = _plant(run, model, scenario)
+    controller = _controller(run, model, scenario, s0)
+    return run_closed_loop(plant, controller, scenario, rng=run_seed(run))
+
+
+def _nan_if_none(value: float | None) -> float:
+    return math.nan if value is None else float(value)
+
+
+def execute_run(run: RunSpec) -> dict[str, Any]:
+    """Run one campaign run and return its row (`ROW_COLUMNS`).
+
+    A run that raises is recorded, not propagated: ``status = "error"`` and ``error``
+    holds the exception's type and message; the metric columns are NaN / -1.
+    """
+    from sim.metrics import compute_metrics
+
+    row: dict[str, Any] = {
+        "run_id": run.run_id, "controller": run.controller.name, "preset": run.controller.preset,
+        "plant": run.plant.label, "gain_factor": run.plant.gain_factor,
+        "time_constant_factor": run.plant.time_constant_factor,
+        "extra_delay_steps": run.plant.extra_delay_steps, "scenario": Path(run.scenario).stem,
+        "seed_index": run.seed_index, "seed": run_seed(run),
+    }
+    t0 = time.perf_counter()
+    try:
+        result = simulate_run(run)
+        m = compute_metrics(result)
+    except Exception as exc:  # noqa: BLE001 - a crashed run is a result of the campaign
+        last = traceback.extract_tb(exc.__traceback__)[-1:]
+        where = f" at {Path(last[0].filename).name}:{last[0].lineno}" if last else ""
+        row.update(status="error", error=f"{type(exc).__name__}: {exc}{where}", n_steps=-1,
+                   **dict.fromkeys(("iae_kw_s", "ise_kw2_s", "max_overshoot_kw",
+                                    "max_abs_steady_state_error_kw", "input_total_variation_pct"),
+                                   math.nan),
+                   **dict.fromkeys(("n_limit_violations", "n_rate_violations", "n_fallbacks"), -1),
+                   **dict.fromkeys(TIMING_COLUMNS, math.nan))
+        row["wall_time_s"] = time.perf_counter() - t0
+        return row
+    row.update(
+        status="ok", error="", n_steps=int(result.n_steps), iae_kw_s=m.iae_kw_s,
+        ise_kw2_s=m.ise_kw2_s,
+        max_overshoot_kw=max((c.overshoot_kw for c in m.changes), default=0.0),
+        max_abs_steady_state_error_kw=_nan_if_none(m.max_abs_steady_state_error_kw),
+        input_total_variation_pct=m.input_total_variation_pct,
+        n_limit_violations=int(m.n_limit_violations), n_rate_violations=int(m.n_rate_violations),
+        n_fallbacks=-1 if m.n_solver_failures is None else int(m.n_solver_failures),
+        wall_time_s=time.perf_counter() - t0, step_time_median_ms=m.step_time_median_ms,
+        step_time_p95_ms=m.step_time_p95_ms, step_time_max_ms=m.step_time_max_ms,
+    )
+    return row
+
+
+__all__ = [
+    "DETERMINISTIC_COLUMNS",
+    "KEY_COLUMNS",
+    "METRIC_COLUMNS",
+    "PLANT_KINDS",
+    "PRESETS",
+    "ROW_COLUMNS",
+    "TIMING_COLUMNS",
+    "CampaignError",
+    "CampaignSpec",
+    "ControllerSpec",
+    "PlantSpec",
+    "RunSpec",
+    "execute_run",
+    "load_spec",
+    "run_seed",
+    "simulate_run",
+    "spec_from_dict",
+]

@@ -1,0 +1,173 @@
+"""Run a campaign spec (controllers x plants x scenarios x seeds) and summarise it.
+
+  czmpc campaign run SPEC.toml --out DIR [--executor serial|processes|dask] [--workers N]
+                     [--dask local|ADDRESS] [--worst N]
+  czmpc campaign report DIR
+  czmpc campaign bench SPEC.toml [--workers N] [--record-benchmarks]
+
+`run` writes DIR/results.parquet (one row of metrics per run: IAE [kW s], ISE
+[kW^2 s], overshoot [kW], steady error [kW], input total variation [%], limit and
+rate violations, solver fallbacks, controller step times [ms], status). An interrupted
+campaign resumes where it stopped when run again with the same SPEC and DIR. Shipped
+specs (package data) can be named without a path: campaign_smoke.toml,
+campaign_robustness.toml, campaign_throughput.toml.
+
+`report` writes DIR/report.md, DIR/iae_distribution.png, DIR/iae_heatmap.png (perturbed
+plants) and, with trajectories saved by `run --worst N`, DIR/worst_runs.png.
+
+Exit codes: 0 done; 1 some run crashed or violated an input limit; 2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+NAME = "campaign"
+HELP = "run a campaign spec on serial, process or Dask executors; summarise its results"
+ORDER = 32
+
+
+def _workers(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1; got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1; got {text!r}")
+    return value
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """Add the ``run`` and ``report`` sub-commands."""
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    sub = parser.add_subparsers(dest="campaign_command", metavar="{run,report,bench}", required=True)
+    run_p = sub.add_parser("run", help="run (or resume) a campaign into DIR",
+                           description="Run the runs of SPEC not yet in DIR; write DIR/results.parquet.")
+    run_p.add_argument("spec", metavar="SPEC.toml",
+                       help="campaign spec file, or the name of a shipped spec (campaign_smoke.toml)")
+    run_p.add_argument("--out", metavar="DIR", type=Path, required=True,
+                       help="campaign directory (created; resumed if it holds the same spec)")
+    run_p.add_argument("--executor", choices=("serial", "processes", "dask"), default="serial",
+                       help="where runs execute (default: serial, this process)")
+    run_p.add_argument("--workers", metavar="N", type=_workers, default=2,
+                       help="worker processes of 'processes' and of '--dask local' (default: 2)")
+    run_p.add_argument("--dask", metavar="local|ADDRESS", default="local",
+                       help="'local': a LocalCluster on 127.0.0.1; or a scheduler address, "
+                            "e.g. tcp://10.0.0.5:8786 (default: local)")
+    run_p.add_argument("--worst", metavar="N", type=int, default=0,
+                       help="save the trajectories of the N highest-IAE runs of each controller "
+                            "(re-run at the end; default: 0, none)")
+    bench_p = sub.add_parser(
+        "bench", help="runs/s of one spec on serial, processes xN and Dask LocalCluster xN",
+        description="Run SPEC on the three executors in one session; print runs/s, scaling "
+                    "efficiency, overhead per run [ms] and worker memory [MiB].")
+    bench_p.add_argument("spec", metavar="SPEC.toml", help="campaign spec file or shipped spec name")
+    bench_p.add_argument("--workers", metavar="N", type=_workers, default=2,
+                         help="workers of the parallel executors (default: 2)")
+    bench_p.add_argument("--record-benchmarks", action="store_true",
+                         help="write the table into BENCHMARKS.md (current directory)")
+    rep_p = sub.add_parser("report", help="summary Markdown and figures of a finished campaign",
+                           description="Write DIR/report.md and figures from DIR/results.parquet.")
+    rep_p.add_argument("dir", metavar="DIR", type=Path, help="a finished campaign directory")
+
+
+def _spec_path(text: str) -> Path:
+    from czmpc.shipped import shipped_path
+
+    path = Path(text)
+    if path.is_file():
+        return path
+    try:
+        return shipped_path(text)
+    except FileNotFoundError:
+        raise OSError(f"campaign spec {text!r}: no such file, and no shipped spec of that name") from None
+
+
+def _run(args: argparse.Namespace) -> int:
+    from czmpc.campaigns.campaign import load_spec
+    from czmpc.campaigns.runner import run_campaign, save_trajectories, worst_runs
+    from czmpc.cli._progress import Progress
+
+    spec = load_spec(_spec_path(args.spec))
+    progress = Progress()
+    n_runs = len(spec.expand())
+    where = args.executor if args.executor == "serial" else f"{args.executor} x{args.workers}"
+    progress(f"campaign '{spec.name}': {n_runs} runs on {where} into {args.out}")
+    outcome = run_campaign(
+        spec, args.out, executor=args.executor, workers=args.workers, dask_address=args.dask,
+        progress=lambda done, total: progress.fraction(done, total, what="runs"))
+    if outcome.n_skipped:
+        progress(f"resumed: {outcome.n_skipped} runs were already done")
+    if args.worst > 0:
+        chosen = worst_runs(spec, outcome.rows, args.worst)
+        progress(f"saving the trajectories of {len(chosen)} worst runs")
+        save_trajectories(chosen, Path(args.out))
+    violations = sum(1 for r in outcome.rows if r["status"] == "ok"
+                     and (r["n_limit_violations"] > 0 or r["n_rate_violations"] > 0))
+    print(f"{len(outcome.rows)} runs ({outcome.n_run} run now, {outcome.n_skipped} resumed), "
+          f"{outcome.n_errors} crashed, {violations} with input-limit violations; "
+          f"results: {outcome.results_path}")
+    return 1 if outcome.n_errors or violations else 0
+
+
+def _report(args: argparse.Namespace) -> int:
+    import json
+
+    import numpy as np
+
+    from czmpc.campaigns.runner import CAMPAIGN_FILE, TRAJECTORY_DIR, read_results
+    from czmpc.reports.campaign_report import (
+        format_summary_markdown,
+        plot_iae_distribution,
+        plot_perturbation_heatmaps,
+        plot_trajectories,
+    )
+
+    rows = read_results(args.dir)
+    name = json.loads((args.dir / CAMPAIGN_FILE).read_text(encoding="utf-8"))["name"]
+    figures = ["iae_distribution.png"]
+    plot_iae_distribution(rows, args.dir / figures[0])
+    if plot_perturbation_heatmaps(rows, args.dir / "iae_heatmap.png") is not None:
+        figures.append("iae_heatmap.png")
+    saved = sorted((args.dir / TRAJECTORY_DIR).glob("*.npz"))
+    if saved:
+        trajectories = []
+        for path in saved:
+            with np.load(path) as data:
+                trajectories.append({k: data[k] for k in data.files})
+        trajectories = [{**t, "run_id": str(t["run_id"])} for t in trajectories]
+        plot_trajectories(trajectories, args.dir / "worst_runs.png")
+        figures.append("worst_runs.png")
+    report = args.dir / "report.md"
+    report.write_text(format_summary_markdown(rows, title=name, figures=figures), encoding="utf-8")
+    print(f"wrote {report} and {', '.join(figures)}")
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    import sys
+
+    from czmpc.campaigns.bench_campaign import benchmark_executors, format_benchmark_markdown
+    from czmpc.campaigns.campaign import load_spec
+    from czmpc.cli._progress import Progress
+    from czmpc.reports.benchmarks_md import machine_info, write_benchmarks_section
+
+    spec = load_spec(_spec_path(args.spec))
+    machine = machine_info().describe()
+    timings = benchmark_executors(spec, workers=args.workers, progress=Progress())
+    body = format_benchmark_markdown(timings, spec=spec, command=["czmpc", *sys.argv[1:]],
+                                     machine=machine)
+    print(body)
+    if args.record_benchmarks:
+        write_benchmarks_section("BENCHMARKS.md", body, heading="## Campaign executors")
+    return 1 if any(t.n_errors for t in timings) else 0
+
+
+def run(args: argparse.Namespace) -> int:
+    """Dispatch to ``run``, ``report`` or ``bench``."""
+    if args.campaign_command == "run":
+        return _run(args)
+    if args.campaign_command == "bench":
+        return _bench(args)
+    return _report(args)
