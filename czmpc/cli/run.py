@@ -63,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     if args.log is not None:
         changes["log_path"] = args.log
     config = dataclasses.replace(config, **changes)  # type: ignore[arg-type]
+    print(f"czmpc run: plant link {config.endpoint}: {config.security.describe()}", file=sys.stderr)
     model = load_model(config.model_path)
     if abs(model.ts_s - config.ts_s) > 1e-9 * config.ts_s:
         raise SettingsError(f"plant.ts_s: expected the model's sampling time {model.ts_s:g} s; "

@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from czmpc.errors import CzmpcError
+from czmpc.runtime.security import INSECURE_LOOPBACK, SecuritySettings, parse_security
 from czmpc.settings import MPCSettings
 from sysid.model import HammersteinModel
 
@@ -49,7 +50,7 @@ class RunConfigError(CzmpcError, ValueError):
 
 
 _TABLES: dict[str, tuple[str, ...]] = {
-    "plant": ("endpoint", "ts_s", "time_scale", "max_sample_age_s", "connect_timeout_s"),
+    "plant": ("endpoint", "ts_s", "time_scale", "max_sample_age_s", "connect_timeout_s", "security"),
     "nodes": ("power_kw", "triac_pct", "applied_triac_pct", "setpoint_kw", "heartbeat", "mode"),
     "controller": ("model", "settings"),
     "run": ("duration_s", "setpoint_kw", "schedule", "log"),
@@ -105,6 +106,7 @@ class RunConfig:
     log_path: Path
     safe_action: str
     safe_triac_pct: float | None
+    security: SecuritySettings = INSECURE_LOOPBACK
 
     @property
     def period_s(self) -> float:
@@ -200,6 +202,10 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
     time_scale = _num(plant, "time_scale", "plant", default=1.0, minimum=1.0, maximum=1000.0)
     max_age = _num(plant, "max_sample_age_s", "plant", default=2.0 * ts_s, positive=True)
     conn_to = _num(plant, "connect_timeout_s", "plant", default=2.0, positive=True)
+    security_table = plant.get("security")
+    if security_table is not None and not isinstance(security_table, dict):
+        raise RunConfigError(f"plant.security: expected a table; got {security_table!r}")
+    security = parse_security(security_table, endpoint=assert_endpoint, base_dir=base_dir)
     node_ids = NodeIds(
         power_kw=_str(nodes, "power_kw", "nodes", required=True) or "",
         triac_pct=_str(nodes, "triac_pct", "nodes", required=True) or "",
@@ -232,7 +238,7 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
         settings_path=None if settings is None else base_dir / settings,
         duration_s=duration, setpoint_kw=setpoint,
         schedule=None if schedule_name is None else load_schedule(base_dir / schedule_name),
-        log_path=base_dir / log, safe_action=action, safe_triac_pct=safe,
+        log_path=base_dir / log, safe_action=action, safe_triac_pct=safe, security=security,
     )
 
 

@@ -38,6 +38,8 @@ from czmpc.controller import OffsetFreeMPC
 from czmpc.modes import Mode
 from czmpc.runtime._opcua import asyncua
 from czmpc.runtime.config import RunConfig
+from czmpc.runtime.secure_client import SecurityRejectedError
+from czmpc.runtime.secure_client import connect as secure_connect
 
 #: Longest wait between reconnect attempts [s wall] (also at most `MAX_BACKOFF_PERIODS`
 #: loop periods; the first wait is one period).
@@ -77,9 +79,8 @@ class _Link:
         self.connected = False
 
     async def connect(self) -> None:
-        aua = asyncua()
-        client = aua.Client(self.config.endpoint, timeout=self.config.connect_timeout_s)
-        await asyncio.wait_for(client.connect(), self.config.connect_timeout_s)
+        client = await secure_connect(self.config.endpoint, self.config.security,
+                                      timeout_s=self.config.connect_timeout_s)
         self.client = client
         ids = self.config.nodes
         self.nodes = {name: client.get_node(getattr(ids, name))
@@ -208,6 +209,8 @@ class ControlLoop:
             return False
         try:
             await self.link.connect()
+        except SecurityRejectedError:
+            raise   # a configuration error: never retried, never downgraded (exit 2)
         except (TimeoutError, OSError, ConnectionError) as exc:
             self._next_try = now + self._backoff_s
             self._backoff_s = min(self._max_backoff_s, 2 * self._backoff_s)
