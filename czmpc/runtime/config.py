@@ -202,10 +202,6 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
     time_scale = _num(plant, "time_scale", "plant", default=1.0, minimum=1.0, maximum=1000.0)
     max_age = _num(plant, "max_sample_age_s", "plant", default=2.0 * ts_s, positive=True)
     conn_to = _num(plant, "connect_timeout_s", "plant", default=2.0, positive=True)
-    security_table = plant.get("security")
-    if security_table is not None and not isinstance(security_table, dict):
-        raise RunConfigError(f"plant.security: expected a table; got {security_table!r}")
-    security = parse_security(security_table, endpoint=assert_endpoint, base_dir=base_dir)
     node_ids = NodeIds(
         power_kw=_str(nodes, "power_kw", "nodes", required=True) or "",
         triac_pct=_str(nodes, "triac_pct", "nodes", required=True) or "",
@@ -231,6 +227,11 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
     safe = _num(safety, "safe_triac_pct", "safety", minimum=0.0, maximum=100.0)
     if action == "ramp" and safe is None:
         raise RunConfigError("safety.safe_triac_pct: required when safety.action = 'ramp'")
+    # Last, so that a plain key error is reported first.
+    security_table = plant.get("security")
+    if security_table is not None and not isinstance(security_table, dict):
+        raise RunConfigError(f"plant.security: expected a table; got {security_table!r}")
+    security = parse_security(security_table, endpoint=assert_endpoint, base_dir=base_dir)
     return RunConfig(
         endpoint=assert_endpoint, ts_s=ts_s, time_scale=float(time_scale or 1.0),
         max_sample_age_s=float(max_age or 2.0 * ts_s), connect_timeout_s=float(conn_to or 2.0),

@@ -32,6 +32,10 @@ MODEL_KEYS: dict[str, str] = {
     "noise_std_kw": "Standard deviation of the innovation ``e`` [kW].",
     "input_range_pct": "``[s_min, s_max]``: the input range seen in the identification data [%].",
     "criteria": 'Object ``{"V": ..., "W": ...}``: ballistic and one-step mean squared errors [kW^2].',
+    "units": 'Object ``{"input": "%", "output": "kW"}``: what the input and output measure '
+             "(absent: % and kW); the key names keep their roles on other rigs.",
+    "covariance": "Full parameter covariance (square, symmetric), in the order of "
+                  "``provenance.parameter_names``; used to sample plants for Monte Carlo studies.",
     "provenance": "Object: where the model came from (keys below); unknown keys are kept.",
 }
 
@@ -88,7 +92,9 @@ def model_file_rst() -> str:
     prov = [(f"``{key}``", text) for key, text in PROVENANCE_KEYS.items()]
     example["provenance"]["preprocessing"] = example["provenance"]["preprocessing"][:1] + (
         ["..."] if len(example["provenance"]["preprocessing"]) > 1 else [])
-    lines = [f"Format tag: ``{modelfile.FORMAT}``. Keys other than these are refused.", ""]
+    lines = [f"Format tag: ``{modelfile.FORMAT}``. Keys other than these are ignored: optional "
+             "fields may be added to this format; a field that changes the meaning of an "
+             "existing one needs a new format.", ""]
     lines += _table(("key", "required", "meaning"), rows)
     lines += ["", "Provenance entries:", ""]
     lines += _table(("entry", "meaning"), prov)
