@@ -36,7 +36,10 @@ import numpy as np
 from sysid._typing import FloatArray
 from sysid.errors import SysidError
 
-__all__ = ["HOLD_TAUS", "MIN_GBN_TAUS", "SignalDesignError", "ExcitationSignal", "ExcitationSpec", "design_test_signal"]
+__all__ = [
+    "HOLD_TAUS", "MIN_GBN_TAUS", "ExcitationSignal", "ExcitationSpec", "SignalDesignError",
+    "design_test_signal",
+]
 
 HOLD_TAUS = 4.0
 """Hold time of every staircase level, in time constants (first-order settling to 2 %)."""
@@ -150,8 +153,8 @@ class ExcitationSignal:
         """One-sided periodogram of the mean-removed signal: frequency [rad/s], power [%^2 s]."""
         u = self.triac_pct - self.triac_pct.mean()
         ts = self.spec.ts_s
-        power = (np.abs(np.fft.rfft(u)) ** 2) * ts / u.size
-        omega = 2.0 * math.pi * np.fft.rfftfreq(u.size, ts)
+        power = np.asarray(np.abs(np.fft.rfft(u)) ** 2 * ts / u.size, dtype=np.float64)
+        omega = np.asarray(2.0 * math.pi * np.fft.rfftfreq(u.size, ts), dtype=np.float64)
         return omega, power
 
     def power_fraction_below(self, omega_rad_s: float) -> float:
@@ -169,7 +172,8 @@ class ExcitationSignal:
         band = 1.0 / spec.tau_s
         lines = [
             f"kind {spec.kind}: {self.triac_pct.size} samples at Ts = {spec.ts_s:g} s, "
-            f"duration {self.time_s[-1]:g} s = {self.time_s[-1] / spec.tau_s:.1f} tau (tau = {spec.tau_s:g} s)",
+            f"duration {self.time_s[-1]:g} s = {self.time_s[-1] / spec.tau_s:.1f} tau "
+            f"(tau = {spec.tau_s:g} s)",
             f"range visited: {self.triac_pct.min():g} .. {self.triac_pct.max():g} %, "
             f"largest jump {np.abs(np.diff(self.triac_pct)).max():g} % (limit {spec.max_step_pct:g} %)",
             f"distinct levels visited: {np.unique(self.triac_pct).size}",

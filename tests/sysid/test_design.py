@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sysid.design import HOLD_TAUS, SignalDesignError, ExcitationSpec, design_test_signal
+from sysid.design import HOLD_TAUS, ExcitationSpec, SignalDesignError, design_test_signal
 
 
 def _spec(**kw: object) -> ExcitationSpec:

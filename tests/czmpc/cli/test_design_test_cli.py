@@ -14,7 +14,9 @@ from sysid.modelfile import load_model
 from sysid.polynomials import roots_z
 
 
-def test_design_test_writes_time_and_triac_columns(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_design_test_writes_time_and_triac_columns(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str],
+) -> None:
     out = tmp_path / "test.csv"
     code = main(["design-test", "--ts-s", "2", "--range-pct", "10", "50", "--tau-s", "100",
                  "--duration-s", "20000", "--max-step-pct", "5", "--seed", "3", "--out", str(out)])
