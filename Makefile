@@ -4,21 +4,32 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test docs dist lint bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[dev]"
+	$(PY) -m pip install --quiet -e ".[dev,docs,opcua]"
 	touch $(STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/czmpc demo --out out/demo
 
+# CI runs `make test` only (.ci/run), so the documentation site is built here too.
 test: $(STAMP)
-	$(VENV)/bin/ruff check sysid sim czmpc tests
+	$(VENV)/bin/ruff check sysid sim czmpc tests docs
 	$(VENV)/bin/mypy sysid sim czmpc
 	$(PY) -m pytest -q -p no:cacheprovider
+	$(MAKE) docs
+
+# The documentation site: warnings are errors, every gallery example is executed.
+# Output: docs/_build/html/index.html
+docs: $(STAMP)
+	$(VENV)/bin/sphinx-build -b html -W --keep-going -q docs docs/_build/html
+
+# The sdist and the wheel, in dist/.
+dist: $(STAMP)
+	$(PY) -m build --outdir dist .
 
 # Every benchmark; each rewrites its own section of BENCHMARKS.md with the command and
 # the machine. SIPPY (a benchmark-only peer) is installed from the 'bench' extra.
@@ -30,4 +41,4 @@ bench: $(STAMP)
 	$(VENV)/bin/czmpc robustness --grid full --out out/bench/robustness
 
 clean:
-	rm -rf $(VENV) out
+	rm -rf $(VENV) out dist docs/_build docs/api/generated docs/auto_examples

@@ -15,6 +15,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from sysid._lazy import lazy_exports
+from sysid._version import __version__
 
 _EXPORTS = {
     **dict.fromkeys(["CzmpcError", "DesignError", "SettingsError"], "czmpc.errors"),

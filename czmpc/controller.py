@@ -35,14 +35,24 @@ Missing sample (NaN/inf), short (<= ``max_predicted_samples`` [60 = 120 s])
     ``status PREDICTED``, ``verdict MISSING``, ``samples_without_measurement``,
     ``n_rejected_measurements``.
 Missing samples, long (> ``max_predicted_samples``)
-    Sheds: holds the last input (or moves to ``shed_triac_pct`` at the rate limit)
-    until a valid sample returns; then tracking resumes from the held input within the
+    Sheds: moves at the rate limit to a safe input and holds it until a valid sample
+    returns: ``shed_triac_pct`` when set, else the steady input that holds the setpoint
+    by the last trusted estimate (the target); then tracking resumes from it within the
     rate limit -> ``status SHED``, ``n_shed_steps``; ``GOOD`` again at the first valid
     sample.
 Stuck sensor (the same value for ``stuck_samples`` [10] while the prediction moves by
 >= ``stuck_min_predicted_change_kw`` [0.1 kW])
-    Frozen readings are rejected (soft sensor, then shed as above); a quiet signal at a
-    constant input never trips -> ``verdict STUCK``, ``PREDICTED``/``SHED``.
+    Frozen readings are rejected (soft sensor, then shed as above); the frozen readings
+    accepted before detection are undone: the estimator is rolled back to the last live
+    reading and predicts from there with the inputs applied since, so nothing learned
+    from them drives the input; a quiet signal at a constant input never trips ->
+    ``verdict STUCK``, ``PREDICTED``/``SHED``, ``rolled_back_samples`` at detection.
+Bad setpoint (None, not finite, below ``power_min_kw``, above ``power_max_kw`` or
+`MAX_SETPOINT_KW`)
+    Rejected per call: the last valid setpoint is held and nothing of the bad one
+    reaches the ramp or filter -> ``setpoint_held``, ``setpoint_verdict``.
+Missing power (None)
+    As NaN: a missing sample.
 Spike (``|eps| > max(k sigma, floor)`` [off; e.g. 8 sigma, 0.5 kW], sigma the predicted
 innovation std)
     The sample is rejected (soft sensor for it); after ``reopen_after_samples`` [3]
@@ -93,20 +103,20 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 
 from czmpc.errors import DesignError, SettingsError
-from czmpc.inversion import InputMap, build_input_map
+from czmpc.inversion import InputMap, build_input_map, slope
 from czmpc.kalman import SteadyStateKalman, design_estimator, innovation_variance_after_gap
 from czmpc.mismatch import InnovationMonitor, MismatchStats
 from czmpc.modes import Mode, ModeTransition, Status, transition
 from czmpc.qp import MPCQP, QPSolution, move_bounds
 from czmpc.realization import AugmentedModel, augment, innovations_form
 from czmpc.settings import MPCSettings
-from czmpc.target import SteadyStateMap, compute_target, steady_state_map
-from czmpc.validation import MeasurementChecker, Verdict
+from czmpc.target import SteadyStateMap, Target, compute_target, steady_state_map
+from czmpc.validation import MeasurementCheck, MeasurementChecker, Verdict
 from sysid._typing import FloatArray
 from sysid.model import HammersteinModel
 
@@ -116,6 +126,10 @@ Fallback = Literal["none", "shifted_plan", "target"]
 #: tens to a few hundred kW); it is treated as missing, so absurd values such as 1e300
 #: cannot overflow the estimator. Recorded as ``measurement_used = False``.
 MAX_INNOVATION_KW = 1e6
+#: Largest setpoint magnitude taken [kW]: beyond it a setpoint is no heater power and is
+#: rejected like a non-finite one (the previous setpoint is held), so that values such as
+#: 1e308 cannot overflow the setpoint ramp and filter into inf or NaN.
+MAX_SETPOINT_KW = 1e6
 #: Tolerance [% or kW-equivalent] for "the input sits on a bound" (status CLAMPED).
 CLAMP_TOL = 1e-6
 #: Tolerance [%] for "the applied input differs from the command".
@@ -138,7 +152,11 @@ class StepDiagnostics:
         Setpoint the step worked with [kW]: the received one (or the previous one
         held when the received one was not finite) after the optional ramp and filter.
     setpoint_held :
-        True if the received setpoint was not finite and the previous one was held.
+        True if the received setpoint was rejected and the previous one was held.
+    setpoint_verdict :
+        Why a setpoint was rejected, or ``"valid"``: ``"missing"`` (None),
+        ``"not finite"``, ``"below power_min_kw"``, ``"beyond MAX_SETPOINT_KW"`` or
+        ``"above power_max_kw"``.
     triac_pct :
         What `OffsetFreeMPC.step` returned [%].
     measurement_used :
@@ -199,6 +217,10 @@ class StepDiagnostics:
         Model-mismatch statistics (`czmpc.mismatch.MismatchStats`).
     transition :
         The mode request handled since the previous step, or None.
+    rolled_back_samples :
+        Past samples whose measurement updates this step undid: a frozen sensor was
+        detected, so the readings it gave before detection are judged invalid too and
+        the estimator was rolled back to the last live sample (0 otherwise).
     """
 
     k: int
@@ -234,6 +256,38 @@ class StepDiagnostics:
     triac_limits_pct: tuple[float, float] = (math.nan, math.nan)
     mismatch: MismatchStats | None = None
     transition: ModeTransition | None = None
+    setpoint_verdict: str = "valid"
+    rolled_back_samples: int = 0
+
+
+class _Update(NamedTuple):
+    """What the measurement update (stage 1b) produced."""
+
+    z: FloatArray            # z_{k|k}: filtered augmented state (the prediction if not used)
+    eps: float               # innovation used [kW] (0 when not used)
+    used: bool               # the measurement update ran
+    check: MeasurementCheck  # the validity verdict
+    std_kw: float            # predicted innovation std the gate used [kW]
+    rolled_back: int         # frozen samples undone at this step (`_roll_back`)
+
+
+class _Trace(NamedTuple):
+    """One past step as the estimator saw it, kept to roll back a frozen sensor."""
+
+    z_post: FloatArray       # z_{j|j}
+    eps: float               # innovation used at j [kW]
+    w_applied: float         # w applied over sample j [kW-equivalent]
+
+
+class _Plan(NamedTuple):
+    """What the QP stage (stage 3) decided."""
+
+    solution: QPSolution
+    w0: float                # first move to apply [kW-equivalent] (plan or fallback)
+    fallback: Fallback
+    w_lo0: float             # bounds of the first move [kW-equivalent]
+    w_hi0: float
+    solver_shed: bool        # max_bad_solves reached
 
 
 class OffsetFreeMPC:
@@ -305,6 +359,11 @@ class OffsetFreeMPC:
         self._aug: AugmentedModel = augment(base, settings.disturbance_model)
         self._kf: SteadyStateKalman = design_estimator(self._aug, settings.disturbance_noise)
         self._ssm: SteadyStateMap = steady_state_map(base, settings.disturbance_model)
+        _check_static_gain(model, self._ssm.static_gain, self._input_map)
+        # Long enough to reach back over a frozen run of several times stuck_samples.
+        self._history: deque[_Trace] = deque(maxlen=4 * max(settings.reliability.stuck_samples, 1) + 1)
+        self._stuck_rolled = False
+        self._n_rolled_back = 0
         self._qp = MPCQP(
             A=base.A, B=base.B, C=base.C, horizon_steps=settings.horizon_steps,
             output_weight=settings.output_weight,
@@ -459,6 +518,7 @@ class OffsetFreeMPC:
         self._n_inaccurate = 0
         self._n_rejected = 0
         self._n_shed = 0
+        self._n_rolled_back = 0
         self._bad_in_row = 0
         self._mode = Mode(self._rel.initial_mode)
         self._warm = self._rel.warmup_samples if self._mode is Mode.ON else 0
@@ -480,6 +540,8 @@ class OffsetFreeMPC:
         self._z = z
         self._warm = 0
         self._gap = 0
+        self._history.clear()
+        self._stuck_rolled = False
         self._checker.reset()
         self._monitor.reset()
 
@@ -596,19 +658,21 @@ class OffsetFreeMPC:
         return filtered
 
     # --- the step -------------------------------------------------------------------
-    def step(self, power_kw: float, setpoint_kw: float, *,
+    def step(self, power_kw: float | None, setpoint_kw: float | None, *,
              applied_triac_pct: float | None = None) -> float:
         """Return the TRIAC input [%] to apply now.
 
         Parameters
         ----------
         power_kw :
-            Measured heater power [kW] at this sample. NaN (or inf) marks a missing
+            Measured heater power [kW] at this sample. None, NaN (or inf) mark a missing
             sample; it and any sample failing a validity check (`czmpc.validation`) is
             not fed to the estimator (also an absurd value, see `MAX_INNOVATION_KW`).
         setpoint_kw :
-            Power setpoint [kW]. A non-finite value holds the previous setpoint
-            (recorded in `last_step`).
+            Power setpoint [kW]. None, a non-finite value or one outside the plausible
+            range (``power_min_kw`` .. ``power_max_kw`` or `MAX_SETPOINT_KW`) is rejected:
+            the previous valid setpoint is held and `StepDiagnostics.setpoint_verdict`
+            says why. Nothing of a rejected setpoint reaches the ramp or filter.
         applied_triac_pct :
             The TRIAC input actually applied over the previous sample [%], when the
             caller knows it differs from what was returned (saturation downstream,
@@ -621,53 +685,138 @@ class OffsetFreeMPC:
             TRIAC input [%]. In ``ON``: finite, inside the effective limits and within
             ``max_move_pct_per_step`` of the previous input (module notes). In
             ``OFF``/``PREDICT``: the caller's input (the last one known).
+
+        Notes
+        -----
+        The stages, in the order of the module notes: `_take_applied_input`,
+        `_take_setpoint`, `_measurement_update`, the target (`compute_target`),
+        `_solve_or_fall_back`, `_guard_input`, `_judge`, `_time_update`, and the
+        record (`StepDiagnostics`).
         """
-        power = float(power_kw)
-        setpoint_in = float(setpoint_kw)
-        im = self._input_map
-        rel = self._rel
+        power = math.nan if power_kw is None else float(power_kw)
+        setpoint_in = math.nan if setpoint_kw is None else float(setpoint_kw)
+        setpoint_verdict = "missing" if setpoint_kw is None else self._setpoint_verdict(setpoint_in)
         mode = self._mode
         transition_record = self._pending
         self._pending = None
 
-        # 0. the input actually applied over the last sample
-        applied_differs = False
-        if applied_triac_pct is not None:
-            applied = float(applied_triac_pct)
-            if math.isfinite(applied):
-                ds_a = min(100.0, max(0.0, applied)) - self._s_nom
-                applied_differs = abs(ds_a - self._ds_prev) > APPLIED_TOL_PCT
-                if ds_a != self._ds_prev:
-                    w_a = im.f(ds_a)
-                    if mode is not Mode.OFF:
-                        z_corr = self._z + self._Baug * (w_a - self._w_prev)
-                        if np.isfinite(z_corr).all():
-                            z_corr.flags.writeable = False
-                            self._z = z_corr
-                    self._ds_prev = ds_a
-                    self._w_prev = w_a
+        applied_differs = self._take_applied_input(applied_triac_pct, mode)
         self._ramp_limits()
-
-        if math.isfinite(setpoint_in):
-            setpoint = setpoint_in
-            held = False
-        else:
-            setpoint = self._setpoint_kw
-            held = True
-        self._setpoint_kw = setpoint
-        setpoint_used = self._shape_setpoint(setpoint)
-
+        setpoint_used, held = self._take_setpoint(setpoint_in, setpoint_verdict)
         if mode is Mode.OFF:
-            return self._record_off(power, setpoint_in, setpoint_used, held, transition_record)
+            return self._record_off(power, setpoint_in, setpoint_used, held, transition_record,
+                                    setpoint_verdict)
 
-        # 1. validity checks and measurement update
+        upd = self._measurement_update(power)
+        n = self._n_x
+        d = float(upd.z[n])
+        em = self._eff_map
+        tgt = compute_target(self._ssm, setpoint=setpoint_used - self._p_nom, disturbance=d,
+                             w_min=em.w_min, w_max=em.w_max)
+        ds_prev = self._ds_prev
+        plan = self._solve_or_fall_back(upd.z[:n], upd.eps, tgt)
+        measurement_shed = self._gap > self._rel.max_predicted_samples
+        ds, ds_raw = self._guard_input(plan.w0, ds_prev, measurement_shed, tgt)
+
+        if mode is Mode.ON:
+            status = self._judge(upd.used, plan, tgt, ds, ds_raw, applied_differs,
+                                 shed=measurement_shed or plan.solver_shed)
+            w_applied = self._input_map.f(ds)
+            self._ds_prev = ds
+            self._w_prev = w_applied
+        else:  # PREDICT: the caller keeps its input
+            status = Status.HELD
+            w_applied = self._w_prev
+        self._time_update(upd.z, upd.eps, w_applied)
+
+        triac = self._s_nom + self._ds_prev
+        d_power = d * self._d_power_gain
+        stats = self._monitor.update(upd.eps if upd.used else None, disturbance_kw=d_power)
+        sol = plan.solution
+        self._last = StepDiagnostics(
+            k=self._k, power_kw=power, setpoint_kw=setpoint_in, setpoint_used_kw=setpoint_used,
+            setpoint_held=held, triac_pct=triac, measurement_used=upd.used, innovation_kw=upd.eps,
+            state_estimate=upd.z, disturbance_estimate=d, disturbance_power_kw=d_power,
+            target_w=tgt.w_s, target_triac_pct=self._s_nom + em.inverse(tgt.w_s),
+            target_power_kw=self._p_nom + tgt.y_s, setpoint_reachable=tgt.is_reachable,
+            planned_w=sol.w, solver_status=sol.status, solve_time_s=sol.solve_time_s,
+            n_iterations=sol.n_iterations, fallback=plan.fallback,
+            soft_limit_slack_kw=sol.slack_kw, mode=mode, status=status,
+            verdict=upd.check.verdict, level_change_accepted=upd.check.reopened,
+            innovation_std_kw=upd.std_kw, samples_without_measurement=self._gap,
+            bad_solves_in_row=self._bad_in_row, advised_triac_pct=self._s_nom + ds,
+            applied_triac_pct=self._s_nom + ds_prev,
+            triac_limits_pct=(self._lo + self._s_nom, self._hi + self._s_nom),
+            mismatch=stats, transition=transition_record, setpoint_verdict=setpoint_verdict,
+            rolled_back_samples=upd.rolled_back,
+        )
+        self._k += 1
+        return triac
+
+    # --- the stages of a step, in order ---------------------------------------------
+    def _take_applied_input(self, applied_triac_pct: float | None, mode: Mode) -> bool:
+        """Stage 0: take the input actually applied over the last sample, if reported.
+
+        The estimator's prediction is corrected to it (the time update is linear in
+        ``w``) and the rate limit starts from it. Returns whether it differs from the
+        command.
+        """
+        if applied_triac_pct is None:
+            return False
+        applied = float(applied_triac_pct)
+        if not math.isfinite(applied):
+            return False
+        ds_a = min(100.0, max(0.0, applied)) - self._s_nom
+        differs = abs(ds_a - self._ds_prev) > APPLIED_TOL_PCT
+        if ds_a != self._ds_prev:
+            w_a = self._input_map.f(ds_a)
+            if mode is not Mode.OFF:
+                z_corr = self._z + self._Baug * (w_a - self._w_prev)
+                if np.isfinite(z_corr).all():
+                    z_corr.flags.writeable = False
+                    self._z = z_corr
+                    if self._history:
+                        self._history[-1] = self._history[-1]._replace(w_applied=w_a)
+            self._ds_prev = ds_a
+            self._w_prev = w_a
+        return differs
+
+    def _setpoint_verdict(self, setpoint: float) -> str:
+        """``"valid"`` or why the setpoint is rejected (see `step`)."""
+        if not math.isfinite(setpoint):
+            return "not finite"
+        rel = self._rel
+        if rel.power_min_kw is not None and setpoint < rel.power_min_kw:
+            return "below power_min_kw"
+        if abs(setpoint) > MAX_SETPOINT_KW:
+            return "beyond MAX_SETPOINT_KW"
+        if rel.power_max_kw is not None and setpoint > rel.power_max_kw:
+            return "above power_max_kw"
+        return "valid"
+
+    def _take_setpoint(self, setpoint_in: float, verdict: str) -> tuple[float, bool]:
+        """Stage 1a: the setpoint to work with (held if rejected), ramped and filtered."""
+        held = verdict != "valid"
+        setpoint = self._setpoint_kw if held else setpoint_in
+        self._setpoint_kw = setpoint
+        return self._shape_setpoint(setpoint), held
+
+    def _measurement_update(self, power: float) -> _Update:
+        """Stage 1b: validity checks, then the measurement update with a valid sample only."""
+        y_pred = float(self._Caug @ self._z)
+        std_kw = self._innovation_std_kw[min(self._gap, len(self._innovation_std_kw) - 1)]
+        check = self._checker.check(power, predicted_kw=self._p_nom + y_pred, innovation_std_kw=std_kw,
+                                    gate=self._warm >= self._rel.warmup_samples)
+        rolled_back = 0
+        if check.verdict is Verdict.STUCK:
+            if not self._stuck_rolled:   # first detection of this frozen run
+                self._stuck_rolled = True
+                rolled_back = self._roll_back(check.stuck_run_samples)
+                y_pred = float(self._Caug @ self._z)
+                std_kw = self._innovation_std_kw[min(self._gap, len(self._innovation_std_kw) - 1)]
+        else:
+            self._stuck_rolled = False
         z_pred = self._z
-        y_pred = float(self._Caug @ z_pred)
-        predicted_kw = self._p_nom + y_pred
-        gap = self._gap
-        std_kw = self._innovation_std_kw[min(gap, len(self._innovation_std_kw) - 1)]
-        check = self._checker.check(power, predicted_kw=predicted_kw, innovation_std_kw=std_kw,
-                                    gate=self._warm >= rel.warmup_samples)
         used = False
         eps = 0.0
         z = z_pred
@@ -684,16 +833,40 @@ class OffsetFreeMPC:
         else:
             self._gap += 1
             self._n_rejected += 1
-        n = self._n_x
-        x = z[:n]
-        d = float(z[n])
+        return _Update(z=z, eps=eps, used=used, check=check, std_kw=std_kw, rolled_back=rolled_back)
 
-        # 2. target inside the effective limits
+    def _roll_back(self, run_samples: int) -> int:
+        """Undo the updates with frozen readings: predict from the last live sample.
+
+        ``run_samples`` identical readings end with this one; the first of them was the
+        sensor's last live reading, the others were frozen, and those accepted before
+        the run was long enough to judge taught the estimator a false disturbance
+        (issue: a frozen sensor during a setpoint change leaves a lasting error). The
+        estimator restarts from ``z`` after the live sample's update and predicts with
+        the inputs actually applied since, as the soft sensor would have. Returns the
+        number of frozen samples undone.
+        """
+        steps_back = min(run_samples - 1, len(self._history))
+        if steps_back < 1:
+            return 0
+        traces = list(self._history)[-steps_back:]
+        live = traces[0]
+        z = self._Aaug @ live.z_post + self._Baug * live.w_applied + self._G * live.eps
+        for trace in traces[1:]:
+            z = self._Aaug @ z + self._Baug * trace.w_applied
+        if not np.isfinite(z).all():
+            return 0
+        z.flags.writeable = False
+        self._z = z
+        frozen = steps_back - 1           # readings after the live one, before this one
+        self._gap = max(self._gap, frozen)
+        self._n_rejected += frozen
+        self._n_rolled_back += frozen
+        return frozen
+
+    def _solve_or_fall_back(self, x: FloatArray, eps: float, tgt: Target) -> _Plan:
+        """Stage 3: the QP, checked; on failure the shifted previous plan, then the target."""
         em = self._eff_map
-        tgt = compute_target(self._ssm, setpoint=setpoint_used - self._p_nom, disturbance=d,
-                             w_min=em.w_min, w_max=em.w_max)
-
-        # 3. QP, checked; fallbacks
         ds_prev = self._ds_prev
         ds_base = min(em.ds_max_pct, max(em.ds_min_pct, ds_prev))
         w_base = self._w_prev if ds_base == ds_prev else em.f(ds_base)
@@ -717,7 +890,7 @@ class OffsetFreeMPC:
             self._n_fallbacks += 1
             self._bad_in_row += 1
             age = self._k - self._plan_k
-            if (self._bad_in_row < rel.max_bad_solves and self._plan is not None
+            if (self._bad_in_row < self._rel.max_bad_solves and self._plan is not None
                     and age < self._plan.size):
                 w0 = float(self._plan[age])
                 fallback = "shifted_plan"
@@ -725,77 +898,61 @@ class OffsetFreeMPC:
                 w0 = tgt.w_s
                 fallback = "target"
                 self._plan = None
-        solver_shed = self._bad_in_row >= rel.max_bad_solves
-        measurement_shed = self._gap > rel.max_predicted_samples
+        return _Plan(solution=sol, w0=w0, fallback=fallback, w_lo0=float(w_lo[0]),
+                     w_hi0=float(w_hi[0]), solver_shed=self._bad_in_row >= self._rel.max_bad_solves)
 
-        # 4. the input: plan (or fallback), or the safe input when shed
-        lo, hi = em.ds_min_pct, em.ds_max_pct
+    def _guard_input(self, w0: float, ds_prev: float, measurement_shed: bool,
+                     tgt: Target) -> tuple[float, float]:
+        """Stage 4: invert ``w0`` (or take the safe input when shed), then the rate and limit guard.
+
+        Shed for want of measurements, the safe input is ``shed_triac_pct`` when set, else
+        the steady input that holds the setpoint by the last trusted estimate (the
+        target: the model's steady state with the disturbance last estimated from valid
+        data). Holding whatever input the last steps produced would keep the
+        transients of the soft-sensor period, or what bad readings taught the estimator.
+
+        Returns ``(ds, ds_raw)``: the guarded input and the one asked for [%, deviation].
+        """
+        em = self._eff_map
         if self._max_move is not None:
             r_lo, r_hi = ds_prev - self._max_move, ds_prev + self._max_move
         else:
             r_lo, r_hi = -math.inf, math.inf
         if measurement_shed:
-            ds_raw = ds_prev if self._shed_ds is None else self._shed_ds
+            ds_raw = em.inverse(tgt.w_s) if self._shed_ds is None else self._shed_ds
         else:
             ds_raw = em.inverse(w0)
             if not math.isfinite(ds_raw):
                 ds_raw = ds_prev
         ds_rate = min(r_hi, max(r_lo, ds_raw))
-        ds = min(hi, max(lo, ds_rate))
-        advised = self._s_nom + ds
+        return min(em.ds_max_pct, max(em.ds_min_pct, ds_rate)), ds_raw
 
-        # 5. status, time update with the applied w
-        if mode is Mode.ON:
-            shed = measurement_shed or solver_shed
-            if shed:
-                status = Status.SHED
-                self._n_shed += 1
-            elif fallback != "none":
-                status = Status.HELD
-            elif not used:
-                status = Status.PREDICTED
-            elif (applied_differs or not tgt.is_reachable or abs(ds - ds_raw) > CLAMP_TOL
-                  or abs(w0 - float(w_lo[0])) <= CLAMP_TOL
-                  or abs(w0 - float(w_hi[0])) <= CLAMP_TOL):
-                status = Status.CLAMPED
-            else:
-                status = Status.GOOD
-            w_applied = im.f(ds)
-            self._ds_prev = ds
-            self._w_prev = w_applied
-        else:  # PREDICT: the caller keeps its input
-            status = Status.HELD
-            w_applied = self._w_prev
+    def _judge(self, used: bool, plan: _Plan, tgt: Target, ds: float, ds_raw: float,
+               applied_differs: bool, *, shed: bool) -> Status:
+        """Stage 5a: the status of an ``ON`` step (`czmpc.modes.Status`)."""
+        if shed:
+            self._n_shed += 1
+            return Status.SHED
+        if plan.fallback != "none":
+            return Status.HELD
+        if not used:
+            return Status.PREDICTED
+        if (applied_differs or not tgt.is_reachable or abs(ds - ds_raw) > CLAMP_TOL
+                or abs(plan.w0 - plan.w_lo0) <= CLAMP_TOL or abs(plan.w0 - plan.w_hi0) <= CLAMP_TOL):
+            return Status.CLAMPED
+        return Status.GOOD
+
+    def _time_update(self, z: FloatArray, eps: float, w_applied: float) -> None:
+        """Stage 5b: predict the next state with the ``w`` actually applied (and keep the trace)."""
+        self._history.append(_Trace(z_post=z, eps=eps, w_applied=w_applied))
         z_next = self._Aaug @ z + self._Baug * w_applied + self._G * eps
         if not np.isfinite(z_next).all():
             z_next = z.copy()
         z_next.flags.writeable = False
         self._z = z_next
-        triac = self._s_nom + self._ds_prev
-        d_power = d * self._d_power_gain
-        stats = self._monitor.update(eps if used else None, disturbance_kw=d_power)
-
-        self._last = StepDiagnostics(
-            k=self._k, power_kw=power, setpoint_kw=setpoint_in, setpoint_used_kw=setpoint_used,
-            setpoint_held=held, triac_pct=triac, measurement_used=used, innovation_kw=eps,
-            state_estimate=z, disturbance_estimate=d, disturbance_power_kw=d_power,
-            target_w=tgt.w_s, target_triac_pct=self._s_nom + em.inverse(tgt.w_s),
-            target_power_kw=self._p_nom + tgt.y_s, setpoint_reachable=tgt.is_reachable,
-            planned_w=sol.w, solver_status=sol.status, solve_time_s=sol.solve_time_s,
-            n_iterations=sol.n_iterations, fallback=fallback,
-            soft_limit_slack_kw=sol.slack_kw, mode=mode, status=status,
-            verdict=check.verdict, level_change_accepted=check.reopened,
-            innovation_std_kw=std_kw, samples_without_measurement=self._gap,
-            bad_solves_in_row=self._bad_in_row, advised_triac_pct=advised,
-            applied_triac_pct=self._s_nom + ds_prev,
-            triac_limits_pct=(self._lo + self._s_nom, self._hi + self._s_nom),
-            mismatch=stats, transition=transition_record,
-        )
-        self._k += 1
-        return triac
 
     def _record_off(self, power: float, setpoint_in: float, setpoint_used: float, held: bool,
-                    transition_record: ModeTransition | None) -> float:
+                    transition_record: ModeTransition | None, setpoint_verdict: str) -> float:
         """``OFF``: nothing runs; record the held input and return it."""
         triac = self._s_nom + self._ds_prev
         z = self._z
@@ -814,10 +971,31 @@ class OffsetFreeMPC:
             samples_without_measurement=self._gap, bad_solves_in_row=self._bad_in_row,
             advised_triac_pct=triac, applied_triac_pct=triac,
             triac_limits_pct=(self._lo + self._s_nom, self._hi + self._s_nom),
-            mismatch=None, transition=transition_record,
+            mismatch=None, transition=transition_record, setpoint_verdict=setpoint_verdict,
         )
         self._k += 1
         return triac
+
+
+def _check_static_gain(model: HammersteinModel, gain: float, input_map: InputMap) -> None:
+    """Refuse a model whose static gain over the allowed input range is not positive and finite.
+
+    The steady gain from the TRIAC input to the power is ``B(1)/A(1) f'(ds)``; ``f'`` is
+    positive on the allowed range (`build_input_map`), so the sign and finiteness of
+    ``B(1)/A(1)`` decide. A model fitted to uninformative or sign-wrong data can have
+    either wrong; an MPC on it would drive the heater the wrong way (DESIGN.md, "Facts
+    that bite": identification may model a negative gain, the controller refuses it).
+    """
+    lo, hi = input_map.ds_min_pct, input_map.ds_max_pct
+    g_lo = gain * slope(input_map.coefficients, lo)
+    g_hi = gain * slope(input_map.coefficients, hi)
+    if not (math.isfinite(gain) and gain > 0.0 and math.isfinite(g_lo) and math.isfinite(g_hi)):
+        s_nom = model.operating_point.triac_pct
+        raise DesignError(
+            f"OffsetFreeMPC: the model's static gain over the allowed input range "
+            f"[{lo + s_nom:g}, {hi + s_nom:g}] % must be positive and finite (power rising with "
+            f"the TRIAC input); got B(1)/A(1) = {gain:.4g}, i.e. {g_lo:.4g} .. {g_hi:.4g} kW/%"
+        )
 
 
 def _verdict_off(power_kw: float) -> Verdict:
@@ -825,5 +1003,5 @@ def _verdict_off(power_kw: float) -> Verdict:
     return Verdict.VALID if math.isfinite(power_kw) else Verdict.MISSING
 
 
-__all__ = ["APPLIED_TOL_PCT", "CLAMP_TOL", "MAX_INNOVATION_KW", "Fallback", "OffsetFreeMPC",
-           "StepDiagnostics"]
+__all__ = ["APPLIED_TOL_PCT", "CLAMP_TOL", "MAX_INNOVATION_KW", "MAX_SETPOINT_KW", "Fallback",
+           "OffsetFreeMPC", "StepDiagnostics"]

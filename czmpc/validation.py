@@ -52,10 +52,15 @@ class MeasurementCheck:
     reopened :
         True if the sample was accepted only because the rate or spike check re-opened
         after repeated rejections (a level change).
+    stuck_run_samples :
+        For `Verdict.STUCK`: how many identical readings in a row, this one included.
+        The first of them is the last one the sensor gave while alive; the others were
+        frozen, including those accepted before the run was long enough to judge.
     """
 
     verdict: Verdict
     reopened: bool = False
+    stuck_run_samples: int = 0
 
     @property
     def is_valid(self) -> bool:
@@ -200,7 +205,7 @@ class MeasurementChecker:
                 self._run_value = math.nan
             return MeasurementCheck(verdict=verdict)
         if self._stuck(power_kw, predicted_kw):
-            return MeasurementCheck(verdict=Verdict.STUCK)
+            return MeasurementCheck(verdict=Verdict.STUCK, stuck_run_samples=self._run_length)
         suspect: Verdict | None = None
         if not within_rate(power_kw, self._last_accepted, max_change_kw=self.max_change_kw):
             suspect = Verdict.TOO_FAST

@@ -10,7 +10,25 @@ from __future__ import annotations
 import importlib
 import sys
 from collections.abc import Callable, Mapping
+from types import ModuleType
 from typing import Any
+
+_EXPORTS: dict[str, Mapping[str, str]] = {}
+
+
+class _LazyPackage(ModuleType):
+    """A package whose public names win over its submodules of the same name.
+
+    Importing ``sysid.simulate`` (the module) binds it to the attribute ``simulate`` of
+    ``sysid``, which would hide the public function ``sysid.simulate`` whenever another
+    module imported the submodule first. The binding is refused for such names.
+    """
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if (isinstance(value, ModuleType) and value.__name__ == f"{self.__name__}.{name}"
+                and name in _EXPORTS.get(self.__name__, {})):
+            return
+        super().__setattr__(name, value)
 
 
 def lazy_exports(
@@ -25,6 +43,9 @@ def lazy_exports(
     exports :
         Public name -> fully qualified module that defines it.
     """
+
+    _EXPORTS[package] = exports
+    sys.modules[package].__class__ = _LazyPackage
 
     def get_attribute(name: str) -> Any:
         module = exports.get(name)

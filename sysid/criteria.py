@@ -4,13 +4,18 @@ Notation
 --------
 ``eps_k = P_k - Psim_k`` is the ballistic simulation error and ``e_k = P_k - Ppred_k`` the
 one-step-ahead prediction error [kW] (Table 1). Both criteria average over every sample
-of the record, ``k = 0 .. N-1``, with the held-past initial conditions of
-`sysid.simulate`.
+of the record, ``k = 0 .. N-1``, by default with the held-past initial conditions of
+`sysid.simulate`; ``initial_state="estimate"`` scores the model with its initial state
+fitted by least squares (the errors are affine in it), as MATLAB's ``compare`` with
+``'InitialCondition', 'estimate'``, which is fair to records that do not start at rest.
 """
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
+from scipy.signal import lfilter
 
 from sysid._typing import FloatArray
 from sysid.data import Dataset
@@ -18,6 +23,57 @@ from sysid.errors import IdentificationError
 from sysid.model import HammersteinModel
 from sysid.optimize import sum_of_squares
 from sysid.simulate import predict_one_step, simulate
+
+#: Initial-state policies of the criteria.
+CriterionInitialState = Literal["held", "estimate"]
+
+
+def _check_policy(value: object, where: str) -> CriterionInitialState:
+    if value == "held":
+        return "held"
+    if value == "estimate":
+        return "estimate"
+    raise IdentificationError(
+        f"{where}: initial_state must be 'held' or 'estimate'; got {value!r}"
+    )
+
+
+def estimated_state_errors(
+    num: FloatArray, den: FloatArray, x: FloatArray, target: FloatArray, n_state: int
+) -> FloatArray:
+    """``target - (num/den) x`` with the ``n_state`` initial transients fitted by least squares.
+
+    Kernel: the output of ``num/den`` driven by ``x`` from a zero past, plus the free
+    response ``(1/den)`` of a transient in the first ``n_state`` samples (what any
+    initial state of the observer form adds), the transient chosen to minimize the sum
+    of squared errors.
+    """
+    base = target - lfilter(num, den, x)
+    if n_state == 0:
+        out: FloatArray = base
+        return out
+    pulses = np.zeros((x.size, n_state))
+    m = min(n_state, x.size)
+    pulses[np.arange(m), np.arange(m)] = 1.0
+    free = lfilter([1.0], den, pulses, axis=0)
+    coef = np.linalg.lstsq(free, base, rcond=None)[0]
+    out = base - free @ coef
+    return out
+
+
+def _estimated_errors(model: HammersteinModel, data: Dataset, one_step: bool) -> FloatArray:
+    model.check_ts(data.ts_s)
+    op = model.operating_point
+    y = data.power_kw - op.power_kw
+    w = np.asarray(model.input_nonlinearity(data.triac_pct - op.triac_pct), dtype=float)
+    a, b = model.a, model.b
+    if not one_step or model.linear_block == "oe":
+        return estimated_state_errors(b, a, w, y, max(a.size, b.size) - 1)
+    c = np.array([1.0]) if model.linear_block == "arx" else model.c
+    v = lfilter(a, [1.0], y) - lfilter(b, [1.0], w)
+    # C e = v + g: the same fit with num = 1, den = C, input v, target 0, sign flipped
+    n_state = max(a.size, b.size, c.size) - 1
+    return -estimated_state_errors(np.array([1.0]), c, v, np.zeros_like(v), n_state)
 
 
 def _pair(measured: FloatArray, modelled: FloatArray, where: str) -> tuple[FloatArray, FloatArray]:
@@ -44,7 +100,9 @@ def mean_squared_error(measured: FloatArray, modelled: FloatArray) -> float:
     return sum_of_squares(err) / err.size
 
 
-def ballistic_mse(model: HammersteinModel, data: Dataset) -> float:
+def ballistic_mse(
+    model: HammersteinModel, data: Dataset, *, initial_state: CriterionInitialState = "held"
+) -> float:
     """``V``: mean squared ballistic simulation error of a model on a record (eq. 9).
 
     Parameters
@@ -53,6 +111,9 @@ def ballistic_mse(model: HammersteinModel, data: Dataset) -> float:
         The model to simulate.
     data :
         The record (absolute units).
+    initial_state :
+        ``"held"`` (the past held at the first sample) or ``"estimate"`` (fitted by
+        least squares).
 
     Returns
     -------
@@ -64,10 +125,15 @@ def ballistic_mse(model: HammersteinModel, data: Dataset) -> float:
     SamplingTimeError
         ``data.ts_s`` differs from ``model.ts_s``.
     """
+    if _check_policy(initial_state, "ballistic_mse") == "estimate":
+        err = _estimated_errors(model, data, one_step=False)
+        return sum_of_squares(err) / err.size
     return mean_squared_error(data.power_kw, simulate(model, data))
 
 
-def one_step_mse(model: HammersteinModel, data: Dataset) -> float:
+def one_step_mse(
+    model: HammersteinModel, data: Dataset, *, initial_state: CriterionInitialState = "held"
+) -> float:
     """``W``: mean squared one-step-ahead prediction error on a record (eq. 10).
 
     Parameters
@@ -76,6 +142,9 @@ def one_step_mse(model: HammersteinModel, data: Dataset) -> float:
         The model; its noise model ``C`` forms the predictor (OE: ``W = V``).
     data :
         The record (absolute units).
+    initial_state :
+        ``"held"`` (past held at the first sample, past errors zero) or ``"estimate"``
+        (the predictor's initial state fitted by least squares).
 
     Returns
     -------
@@ -87,6 +156,9 @@ def one_step_mse(model: HammersteinModel, data: Dataset) -> float:
     SamplingTimeError
         ``data.ts_s`` differs from ``model.ts_s``.
     """
+    if _check_policy(initial_state, "one_step_mse") == "estimate":
+        err = _estimated_errors(model, data, one_step=True)
+        return sum_of_squares(err) / err.size
     return mean_squared_error(data.power_kw, predict_one_step(model, data))
 
 

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from sysid._typing import FloatArray
+from sysid._version import SOFTWARE
 from sysid.atomic import atomic_write_text
 from sysid.errors import ModelFileError, UnstableModelError
 from sysid.model import Criteria, HammersteinModel, OperatingPoint, Provenance
@@ -32,7 +33,8 @@ _PROVENANCE_KEYS = ("data_file", "data_sha256", "preprocessing", "method", "crea
 def model_to_dict(model: HammersteinModel) -> dict[str, Any]:
     """The JSON object of the model file for ``model``."""
     prov = model.provenance
-    provenance: dict[str, Any] = dict(prov.extra)
+    # Which czmpc wrote the model; a model read from a file keeps the version that made it.
+    provenance: dict[str, Any] = {"software": SOFTWARE, **prov.extra}
     provenance.update(
         data_file=prov.data_file,
         data_sha256=prov.data_sha256,

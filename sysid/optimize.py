@@ -109,6 +109,7 @@ def levenberg_marquardt(
     xtol: float = 1e-10,
     ftol: float = 1e-12,
     gtol: float = 1e-10,
+    callback: Callable[[int, float], None] | None = None,
 ) -> LMResult:
     """Minimize ``sum r(theta)^2`` by Levenberg-Marquardt with exact Jacobians.
 
@@ -138,6 +139,9 @@ def levenberg_marquardt(
         Converged when ``max_i |J_i' r| / (||J_i|| ||r||) <= gtol`` over the free
         parameters (MINPACK's scale-free gradient test: the largest cosine between
         the residual and a Jacobian column).
+    callback :
+        Called after every iteration as ``callback(iteration, cost)`` with the cost
+        (mean squared residual) of the best iterate so far: progress on long fits.
 
     Returns
     -------
@@ -270,6 +274,8 @@ def levenberg_marquardt(
                 break
             mu *= nu
             nu *= 2.0
+        if callback is not None:
+            callback(iteration, ssr / n)
         if converged:
             break
         if not accepted:

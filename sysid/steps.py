@@ -24,6 +24,7 @@ the jump of the output across the one sample in which the step arrives.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -184,7 +185,12 @@ def format_step_table(
     input_unit: str = "%",
     output_unit: str = "kW",
 ) -> str:
-    """Render steps as a fixed-width text table, one line per step.
+    """Render steps as a fixed-width text table, one line per step (deprecated).
+
+    .. deprecated:: 0.2.0
+        Tables for people are laid out by `czmpc.reports.tables.format_table` (one
+        formatter for text and Markdown); ``czmpc inspect`` uses it. This function
+        keeps working, with a `DeprecationWarning`, until 0.3.0.
 
     Parameters
     ----------
@@ -199,6 +205,8 @@ def format_step_table(
         The table, ending with a newline; a single line saying so when there are no
         steps.
     """
+    warnings.warn("sysid.steps.format_step_table is deprecated since 0.2.0 and goes in 0.3.0; "
+                  "use czmpc.reports.tables.format_table", DeprecationWarning, stacklevel=2)
     if not steps:
         return "no input steps found\n"
     gain_unit = f"{output_unit}/{input_unit}"

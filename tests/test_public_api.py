@@ -18,6 +18,14 @@ def test_every_public_name_resolves(package: str) -> None:
     assert set(mod.__all__) <= set(dir(mod))
 
 
+def test_a_public_name_wins_over_the_submodule_of_the_same_name() -> None:
+    # sysid.simulate is a function; sysid.criteria imports the module sysid.simulate first
+    code = ("import sys, sysid; sysid.ballistic_mse; import sysid.simulate; "
+            "print(sysid.simulate is sys.modules['sysid.simulate'].simulate)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "True"
+
+
 def test_unknown_name_raises_attribute_error() -> None:
     import sysid
 

@@ -37,6 +37,11 @@ if TYPE_CHECKING:
 
 #: Goal of issue 3: the whole pipeline on the shipped 12,000 samples, this machine [s].
 PIPELINE_GOAL_S = 2.0
+#: Goal of issue 9: the pipeline within this multiple of one bare scipy fit of the final
+#: Hammerstein, both measured in the same run.
+BARE_FIT_RATIO_GOAL = 15.0
+#: Goal of issue 9: the auto-order search on the shipped 12,000 samples [s].
+AUTO_SEARCH_GOAL_S = 10.0
 #: Heading of this benchmark's section in BENCHMARKS.md (other sections are kept).
 SECTION_HEADING = "## Identification pipeline"
 
@@ -150,6 +155,13 @@ class BenchmarkResult:
         The command line that produced the numbers.
     sippy :
         The SIPPY comparison, or None if not requested.
+    bare_fit :
+        One bare `scipy.optimize.least_squares` fit of the final Hammerstein-OE (paper
+        orders, lfilter residuals, finite-difference Jacobian, from the route's start).
+    auto_search :
+        `sysid.structure.select_structure` on the preprocessed data (``--orders auto``).
+    auto_choice :
+        What the auto search chose, in words.
     """
 
     data_file: str
@@ -161,6 +173,16 @@ class BenchmarkResult:
     machine: MachineInfo
     command: str
     sippy: SippyComparison | None = field(default=None)
+    bare_fit: StageTiming | None = field(default=None)
+    auto_search: StageTiming | None = field(default=None)
+    auto_choice: str = ""
+
+    @property
+    def bare_fit_ratio(self) -> float | None:
+        """Median pipeline time over the median bare scipy fit time."""
+        if self.bare_fit is None or self.bare_fit.median_s <= 0:
+            return None
+        return self.total.median_s / self.bare_fit.median_s
 
     @property
     def goal_met(self) -> bool:
@@ -331,6 +353,36 @@ def format_report(result: BenchmarkResult) -> str:
         + ("**met**" if result.goal_met else "**not met**")
         + f" (median {t.median_s:.3f} s).",
     ]
+    if result.bare_fit is not None and result.bare_fit_ratio is not None:
+        b = result.bare_fit
+        bare_ratio = result.bare_fit_ratio
+        lines += [
+            "",
+            "### Against one bare scipy fit (issue 9)",
+            "",
+            "Bare fit: `scipy.optimize.least_squares` (trust-region reflective, finite-"
+            "difference Jacobian, lfilter residuals, held past) of the final Hammerstein-OE at "
+            "the paper's orders on the same preprocessed data, from the route's start values; "
+            f"median {b.median_s:.3f} s [{b.min_s:.3f} .. {b.max_s:.3f}].",
+            "",
+            f"Goal: pipeline at most {BARE_FIT_RATIO_GOAL:g}x the bare fit: "
+            + ("**met**" if bare_ratio <= BARE_FIT_RATIO_GOAL else "**not met**")
+            + f" ({t.median_s:.3f} s / {b.median_s:.3f} s = {bare_ratio:.1f}x; the pipeline fits 12 "
+            "models, two of them the joint PEM twice, and checks each).",
+        ]
+    if result.auto_search is not None:
+        a = result.auto_search
+        lines += [
+            "",
+            "### Auto-order search (`czmpc identify --orders auto`)",
+            "",
+            f"`sysid.structure.select_structure` on the preprocessed data: median {a.median_s:.3f} s "
+            f"[{a.min_s:.3f} .. {a.max_s:.3f}] over {result.repeats} repeats. Choice: "
+            f"{result.auto_choice}.",
+            "",
+            f"Goal: under {AUTO_SEARCH_GOAL_S:g} s: "
+            + ("**met**" if a.median_s < AUTO_SEARCH_GOAL_S else "**not met**") + ".",
+        ]
     sippy = result.sippy
     if sippy is not None:
         lines += ["", f"### SIPPY comparison (sippy-unipi {sippy.version or 'not installed'})", ""]
@@ -466,6 +518,19 @@ def run_benchmark(
         op = result.operating_point.operating_point
         ours = _time_our_linear_fits(result.data, op)
         sippy = run_sippy_comparison(result.data, operating_point=op, ours=ours)
+    op = result.operating_point.operating_point
+    bare_s = _time_bare_fit(result, op, repeats)
+    auto_s: list[float] = []
+    choice = ""
+    from sysid.structure import select_structure
+    for i in range(repeats):
+        if progress is not None:
+            progress(f"auto-order search {i + 1} of {repeats}")
+        t0 = time.perf_counter()
+        structure = select_structure(
+            [(result.data.power_kw - op.power_kw, result.data.triac_pct - op.triac_pct)])
+        auto_s.append(time.perf_counter() - t0)
+        choice = f"{structure.chosen.label()} ({structure.reason})"
     return BenchmarkResult(
         data_file=str(data_path),
         n_samples=data.n_samples,
@@ -476,7 +541,40 @@ def run_benchmark(
         machine=machine,
         command=command,
         sippy=sippy,
+        bare_fit=None if not bare_s else summarize_timings("bare scipy fit", bare_s),
+        auto_search=summarize_timings("auto-order search", auto_s),
+        auto_choice=choice,
     )
+
+
+def _time_bare_fit(result: Any, op: OperatingPoint, repeats: int) -> list[float]:
+    """Wall times of a bare scipy least_squares fit of the final Hammerstein-OE."""
+    from scipy.optimize import least_squares
+    from scipy.signal import lfilter, lfiltic
+
+    route = result.route
+    if route is None:
+        return []
+    y = result.data.power_kw - op.power_kw
+    ds = result.data.triac_pct - op.triac_pct
+    start = route.oe_reidentified.values()
+    names = ("b2", "d1", "d2", "f1")
+    x0 = np.array([start.get(n, 0.0) for n in names])
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        b = np.array([0.0, 1.0, x[0]])
+        f = np.array([1.0, x[3]])
+        w = x[1] * ds + x[2] * ds**2
+        zi = lfiltic(b, f, [y[0]], [w[0], w[0]])
+        out: np.ndarray = y - lfilter(b, f, w, zi=zi)[0]
+        return out
+
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        least_squares(residuals, x0)
+        times.append(time.perf_counter() - t0)
+    return times
 
 
 def result_to_dict(result: BenchmarkResult) -> dict[str, Any]:
@@ -487,6 +585,8 @@ def result_to_dict(result: BenchmarkResult) -> dict[str, Any]:
     return out
 
 __all__ = [
+    "AUTO_SEARCH_GOAL_S",
+    "BARE_FIT_RATIO_GOAL",
     "PIPELINE_GOAL_S",
     "SECTION_HEADING",
     "BenchmarkResult",

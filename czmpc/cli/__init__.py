@@ -23,9 +23,8 @@ import sys
 from collections.abc import Sequence
 from types import ModuleType
 
-from czmpc.errors import CzmpcError
-from sim.errors import SimError
-from sysid.errors import SysidError
+from czmpc.cli._exit import BAD_INPUT_ERRORS, ExitCode
+from sysid._version import __version__
 
 
 class _Parser(argparse.ArgumentParser):
@@ -54,6 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Run 'czmpc COMMAND --help' for the options of one command.",
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
+                        help="print the version of czmpc and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for module in _command_modules():
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.__doc__)
@@ -68,17 +69,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
-        return 2
+        return ExitCode.BAD_INPUT
     try:
         return int(args._run(args))
-    except (SysidError, SimError, CzmpcError, OSError) as exc:
+    except BAD_INPUT_ERRORS as exc:
         if args.debug:
             raise
         print(f"czmpc: error: {exc}", file=sys.stderr)
-        return 2
+        return ExitCode.BAD_INPUT
     except KeyboardInterrupt:
         print("czmpc: interrupted", file=sys.stderr)
-        return 130
+        return ExitCode.INTERRUPTED
 
 
 if __name__ == "__main__":  # pragma: no cover

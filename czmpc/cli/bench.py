@@ -28,10 +28,10 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
-import time
 from pathlib import Path
 
 from czmpc.cli import _argtypes
+from czmpc.cli._progress import Progress
 
 NAME = "bench"
 HELP = "benchmark MPC, NMPC, linear MPC, PI and open loop on every scenario and plant"
@@ -96,10 +96,7 @@ def run(args: argparse.Namespace) -> int:
     from sim.scenario import list_scenarios, load_scenario
     from sysid.modelfile import load_model
 
-    t0 = time.perf_counter()
-
-    def progress(message: str) -> None:
-        print(f"[{time.perf_counter() - t0:7.1f} s] {message}", file=sys.stderr, flush=True)
+    progress = Progress()
 
     shipped = BenchModels.shipped() if args.model is None or args.linear_model is None else None
     models = BenchModels(
@@ -128,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
     if args.plants is not None:
         kwargs["plants"] = args.plants
     runs = run_bench(scenarios, models=models, progress=progress, **kwargs)
-    wall_s = time.perf_counter() - t0
+    wall_s = progress.elapsed_s
     goals = check_goals(runs)
     text = section_text(runs, goals, command=_command_line(args), machine=machine.describe(),
                         wall_time_s=wall_s, short_factor=args.short)

@@ -24,10 +24,10 @@ import contextlib
 import json
 import shlex
 import sys
-import time
 from pathlib import Path
 
 from czmpc.cli import _argtypes
+from czmpc.cli._progress import Progress
 from czmpc.shipped import EXPERIMENT_CSV, shipped_path
 
 NAME = "bench-identify"
@@ -99,10 +99,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"czmpc: error: the shipped experiment {_SHIPPED} is not there; pass --data FILE",
               file=sys.stderr)
         return 2
-    t0 = time.perf_counter()
-
-    def progress(message: str) -> None:
-        print(f"[{time.perf_counter() - t0:7.2f} s] {message}", file=sys.stderr, flush=True)
+    progress = Progress()
 
     result = run_benchmark(data, repeats=args.repeats, with_sippy=args.with_sippy,
                            command=_command_line(args), progress=progress)

@@ -25,10 +25,10 @@ import argparse
 import contextlib
 import shlex
 import sys
-import time
 from pathlib import Path
 
 from czmpc.cli import _argtypes
+from czmpc.cli._progress import Progress
 from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
 
 NAME = "bench-mpc"
@@ -85,10 +85,7 @@ def run(args: argparse.Namespace) -> int:
     if args.model is None:
         with contextlib.suppress(ValueError):  # show the shipped file relative to here if below
             label = str(_SHIPPED_MODEL.relative_to(Path.cwd()))
-    t0 = time.perf_counter()
-
-    def progress(message: str) -> None:
-        print(f"[{time.perf_counter() - t0:7.2f} s] {message}", file=sys.stderr, flush=True)
+    progress = Progress()
 
     bench = run_benchmark(model, model_label=f"`{label}`", repeats=args.repeats,
                           command=_command_line(args), progress=progress)

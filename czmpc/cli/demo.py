@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
+from czmpc.cli._progress import Progress
 from czmpc.shipped import EXPERIMENT_CSV, shipped_path
 
 NAME = "demo"
@@ -33,20 +33,6 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="closed-loop scenario name or TOML file (default: staircase)")
 
 
-class _Stage:
-    """Prints numbered stage headers and elapsed seconds to stderr."""
-
-    def __init__(self, n_stages: int) -> None:
-        self._n = n_stages
-        self._i = 0
-        self._t0 = time.perf_counter()
-
-    def __call__(self, title: str) -> None:
-        self._i += 1
-        elapsed = time.perf_counter() - self._t0
-        print(f"\n[{self._i}/{self._n}] {title}   (t = {elapsed:.1f} s)", file=sys.stderr, flush=True)
-
-
 def run(args: argparse.Namespace) -> int:
     """Run the three stages and print a summary."""
     from czmpc.campaigns.simulation import run_simulation, write_outputs
@@ -59,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
 
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
-    stage = _Stage(4)
+    stage = Progress(n_stages=4).stage
 
     stage("identification experiment on the virtual CZ heater (paper Fig. 2)")
     data = identification_experiment(rng=DEFAULT_SEED)

@@ -19,6 +19,7 @@ if TYPE_CHECKING:
     from sim.experiment import Table3Row
 
 from czmpc.cli import _argtypes
+from czmpc.reports.tables import format_table
 
 NAME = "experiment"
 HELP = "simulate the paper's identification experiment on the virtual heater; write CSV"
@@ -45,17 +46,14 @@ def format_table3_comparison(rows: Sequence[Table3Row]) -> str:
         "Instantaneous gains of the steps after t = 1e4 s (paper Table 3), deviations from "
         "(45 %, 45 kW),",
         "levels after subtracting the 0.15 kW level shift from t = 20714 s as the paper did:",
-        f"{'time [s]':>9}  {'ds [%]':>13}  {'dP paper [kW]':>16}  {'dP here [kW]':>16}  "
-        f"{'r paper':>7}  {'r here':>7}",
+        format_table(
+            ["time [s]", "ds [%]", "dP paper [kW]", "dP here [kW]", "r paper [kW/%]", "r here [kW/%]"],
+            [[f"{row.time_s:.0f}", f"{row.ds_before_pct:5.2f} -> {row.ds_after_pct:5.2f}",
+              f"{row.paper_dp_before_kw:6.2f} -> {row.paper_dp_after_kw:6.2f}",
+              f"{row.dp_before_kw:6.2f} -> {row.dp_after_kw:6.2f}",
+              f"{row.paper_gain_kw_per_pct:.2f}", f"{row.gain_kw_per_pct:.3f}"] for row in rows],
+            align="rrrrrr"),
     ]
-    for row in rows:
-        lines.append(
-            f"{row.time_s:>9.0f}  {row.ds_before_pct:>5.2f} -> {row.ds_after_pct:>5.2f}  "
-            f"{row.paper_dp_before_kw:>6.2f} -> {row.paper_dp_after_kw:>6.2f}  "
-            f"{row.dp_before_kw:>6.2f} -> {row.dp_after_kw:>6.2f}  "
-            f"{row.paper_gain_kw_per_pct:>7.2f}  {row.gain_kw_per_pct:>7.3f}"
-        )
-    lines.append("r [kW/%]")
     return "\n".join(lines) + "\n"
 
 

@@ -27,12 +27,11 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
-import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from sysid.errors import IdentificationError
 
@@ -41,6 +40,7 @@ if TYPE_CHECKING:
     from sysid.data import Dataset
 
 from czmpc.cli import _argtypes
+from czmpc.cli._progress import Progress
 
 NAME = "identify"
 HELP = "identify the Hammerstein heater model from logged data and write model, report, figures"
@@ -74,21 +74,25 @@ def register(parser: argparse.ArgumentParser) -> None:
     )
     _argtypes.add_log_options(parser)
     parser.add_argument(
+        "--orders", metavar="auto|paper|NB,NF,NK[,NC]", type=_orders, default="auto",
+        help="structure of the Hammerstein model: 'auto' (default) estimates the delay and "
+             "chooses the input-polynomial degree (1..3) and orders nb (B coefficients), nf "
+             "(poles), nk (delay, samples) on validation data held out from the log, keeping "
+             "the paper's structure unless another beats it by more than 5 %%; 'paper' uses "
+             "degree 2, nb 2, nf 1, nk 1; NB,NF,NK[,NC] fixes them (NC: order of the noise "
+             "model C, default NF). The paper's orders are always fitted beside an auto choice",
+    )
+    parser.add_argument(
+        "--initial-state", choices=("estimate", "held", "zero"), default="estimate",
+        help="initial state of each PEM fit: 'estimate' (default) fits it per segment, as "
+             "MATLAB's 'estimate'; 'held' holds the past at the first sample; 'zero' assumes "
+             "the log starts at rest at the operating point",
+    )
+    parser.add_argument(
         "--allow-unconverged", action="store_true",
         help="exit 0 even if an iterative fit (OE, ARMAX, PEM) did not converge; the "
              "report then flags it (default: exit 1)",
     )
-
-
-class _StderrProgress:
-    """Prints ``[  1.23 s] stage`` lines to stderr as the pipeline reports stages."""
-
-    def __init__(self) -> None:
-        self._t0 = time.perf_counter()
-
-    def __call__(self, stage: str, *_: object) -> None:
-        elapsed = time.perf_counter() - self._t0
-        print(f"[{elapsed:7.2f} s] {stage}", file=sys.stderr, flush=True)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -124,6 +128,24 @@ class IdentifyOutcome:
     findings: tuple[Finding, ...] = ()
 
 
+def _orders(text: str) -> str | tuple[int, ...]:
+    """``auto``, ``paper`` or ``NB,NF,NK[,NC]`` (argparse type)."""
+    if text in ("auto", "paper"):
+        return text
+    parts = text.split(",")
+    try:
+        values = tuple(int(p) for p in parts)
+    except ValueError:
+        values = ()
+    minimum = (1, 0, 0, 0)
+    if len(values) not in (3, 4) or any(v < m for v, m in zip(values, minimum, strict=False)):
+        raise argparse.ArgumentTypeError(
+            f"expected 'auto', 'paper' or NB,NF,NK[,NC] with NB >= 1 and NF, NK, NC >= 0 "
+            f"(for example 2,1,1); got {text!r}"
+        )
+    return values
+
+
 def identify_to_directory(
     data_path: str | Path | Dataset,
     out_dir: str | Path,
@@ -132,6 +154,8 @@ def identify_to_directory(
     level_shift: tuple[float, float] | None = None,
     progress: Callable[[str], None] | None = None,
     command: str | None = None,
+    orders: str | tuple[int, ...] = "paper",
+    initial_state: str = "estimate",
 ) -> IdentifyOutcome:
     """Read a log, run the paper's pipeline and write model.json, models/, report.md.
 
@@ -151,6 +175,10 @@ def identify_to_directory(
         Called with a stage name as each stage starts.
     command :
         The command line, recorded in the report.
+    orders :
+        ``"auto"``, ``"paper"`` or ``(nb, nf, nk[, nc])`` (see ``czmpc identify --help``).
+    initial_state :
+        ``"estimate"``, ``"held"`` or ``"zero"``: initial state of the PEM fits.
 
     Returns
     -------
@@ -183,9 +211,17 @@ def identify_to_directory(
         triac_pct=operating_point[0], power_kw=operating_point[1])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
+        if isinstance(orders, tuple):
+            order_kw: dict[str, Any] = {"nb": orders[0], "nf": orders[1], "nk": orders[2],
+                                        "orders": "paper"}
+            if len(orders) == 4:
+                order_kw["nc"] = orders[3]
+        else:
+            order_kw = {"orders": orders}
         result = run_paper_pipeline(
             data, operating_point=op, level_shift="auto" if level_shift is None else level_shift,
-            progress=progress)
+            progress=progress, initial_state=initial_state,  # type: ignore[arg-type]
+            **order_kw)
     messages = tuple(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught))
     out = Path(out_dir)
     models_dir = out / "models"
@@ -214,12 +250,15 @@ def identify_to_directory(
 
 def run(args: argparse.Namespace) -> int:
     """Run the pipeline and write model.json, models/*.json and report.md into --out."""
-    progress = _StderrProgress()
+    progress = Progress()
     words = ["czmpc", NAME, str(args.data), "--out", str(args.out)]
     if args.operating_point is not None:
         words += ["--operating-point", *(f"{v:g}" for v in args.operating_point)]
     if args.level_shift is not None:
         words += ["--level-shift", *(f"{v:g}" for v in args.level_shift)]
+    orders_text = args.orders if isinstance(args.orders, str) else ",".join(
+        str(v) for v in args.orders)
+    words += ["--orders", orders_text, "--initial-state", args.initial_state]
     if args.allow_unconverged:
         words.append("--allow-unconverged")
     command = " ".join(shlex.quote(w) for w in words)
@@ -232,6 +271,8 @@ def run(args: argparse.Namespace) -> int:
         level_shift=None if args.level_shift is None else tuple(args.level_shift),
         progress=progress,
         command=command,
+        orders=args.orders,
+        initial_state=args.initial_state,
     )
     progress(f"wrote {outcome.model_path}, {len(outcome.model_files)} model files in "
              f"{outcome.model_path.parent / 'models'}, {outcome.report_path} and "

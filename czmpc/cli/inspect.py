@@ -35,7 +35,8 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Read, check and summarize the file; print the summary to stdout."""
-    from sysid.steps import default_step_threshold, detect_steps, format_step_table
+    from czmpc.reports.tables import format_table
+    from sysid.steps import default_step_threshold, detect_steps
 
     data = _argtypes.read_log(args.file, args)
     threshold = (
@@ -58,5 +59,12 @@ def run(args: argparse.Namespace) -> int:
         f"(output read {args.delay_steps} sample(s) after the step)",
     ]
     print("\n".join(lines))
-    print(format_step_table(steps, input_unit=u_unit, output_unit=y_unit), end="")
+    if steps:
+        print(format_table(
+            ["k", "time [s]", f"input [{u_unit}]", f"output [{y_unit}]", f"r [{y_unit}/{u_unit}]"],
+            [[str(s.k), f"{s.time_s:.1f}", f"{s.triac_before_pct:7.2f} -> {s.triac_after_pct:7.2f}",
+              f"{s.power_before_kw:8.3f} -> {s.power_after_kw:8.3f}", f"{s.gain_kw_per_pct:.4f}"]
+             for s in steps]))
+    else:
+        print("no input steps found")
     return 0

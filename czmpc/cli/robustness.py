@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import argparse
 import shlex
-import sys
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -28,6 +26,7 @@ if TYPE_CHECKING:
     from czmpc.campaigns.robustness import PlantVariant
 
 from czmpc.cli import _argtypes
+from czmpc.cli._progress import Progress
 
 NAME = "robustness"
 HELP = "MPC against plants with other gain, time constant and delay (table, heat map)"
@@ -105,11 +104,10 @@ def run(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
+    printer = Progress()
 
     def progress(i: int, n: int, variant: PlantVariant) -> None:
-        print(f"[{i}/{n}] {variant.label}   (t = {time.perf_counter() - t0:.1f} s)",
-              file=sys.stderr, flush=True)
+        printer(f"[{i}/{n}] {variant.label}")
 
     report = run_robustness(
         model, scenario, grid=args.grid, settings=MPCSettings.preset(args.preset, model),

@@ -34,11 +34,11 @@ scenario with different sampling times, unusable settings).
 from __future__ import annotations
 
 import argparse
-import sys
-import time
+from functools import partial
 from pathlib import Path
 
 from czmpc.cli import _argtypes
+from czmpc.cli._progress import Progress
 
 NAME = "simulate"
 HELP = "run the offset-free MPC through a scenario on a plant; write trajectory, metrics, figure"
@@ -94,32 +94,6 @@ def register(parser: argparse.ArgumentParser) -> None:
     )
 
 
-class _Progress:
-    """Prints ``simulating: 40 % (1560/3900 samples)`` to stderr every 10 %.
-
-    Quiet until the run has taken `PROGRESS_AFTER_S`, so short runs print nothing.
-    """
-
-    def __init__(self) -> None:
-        self._next_pct = 10
-        self._tty = sys.stderr.isatty()
-        self._t0 = time.perf_counter()
-        self._started = False
-
-    def __call__(self, done: int, total: int) -> None:
-        if not self._started:
-            if time.perf_counter() - self._t0 < PROGRESS_AFTER_S:
-                return
-            self._started = True
-        pct = 100 * done // total
-        if pct < self._next_pct and done < total:
-            return
-        self._next_pct = pct - pct % 10 + 10
-        end = "\r" if self._tty and done < total else "\n"
-        print(f"simulating: {pct:3d} % ({done}/{total} samples)", end=end, file=sys.stderr,
-              flush=True)
-
-
 def run(args: argparse.Namespace) -> int:
     """Load model and scenario, run the closed loop, write the files, print the metrics."""
     from czmpc.campaigns.simulation import run_simulation, write_outputs
@@ -134,7 +108,9 @@ def run(args: argparse.Namespace) -> int:
     noise = scenario.plant_noise if args.noise is None else bool(args.noise)
     settings = MPCSettings.preset(args.preset, model)
     outcome = run_simulation(model, scenario, plant=args.plant, seed=args.seed,
-                             settings=settings, noise=noise, progress=_Progress())
+                             settings=settings, noise=noise,
+                             progress=partial(Progress(quiet_for_s=PROGRESS_AFTER_S).fraction,
+                                              what="simulating"))
     files = write_outputs(outcome, args.out)
     print(outcome.metrics_table())
     print(f"wrote {', '.join(str(f) for f in files)}")

@@ -24,6 +24,8 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from czmpc.reports import identification_figures as figs
+from czmpc.reports.tables import format_table
+from sysid._version import SOFTWARE
 from sysid.atomic import atomic_write_text
 
 if TYPE_CHECKING:
@@ -126,12 +128,8 @@ def _num(value: float | None, spec: str = ".4g") -> str:
     return format(value, spec)
 
 
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]], align: str | None = None) -> str:
-    align = align or "l" + "r" * (len(header) - 1)
-    marks = ["---:" if a == "r" else "---" for a in align]
-    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join(marks) + " |"]
-    lines += ["| " + " | ".join(row) + " |" for row in rows]
-    return "\n".join(lines)
+def _md_table(header: Sequence[str], rows: Sequence[Sequence[str]], align: str | None = None) -> str:
+    return format_table(header, rows, align=align, markdown=True)
 
 
 def _deviation(result: PipelineResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -468,7 +466,7 @@ def _data_section(result: PipelineResult) -> str:
         ["heater power P", f"{np.min(raw.power_kw):.4g} .. {np.max(raw.power_kw):.4g} {raw.output_unit}"],
         ["sha256", f"`{raw.sha256 or '-'}`"],
     ]
-    return "## Data\n\n" + _table(["", "value"], rows, "ll")
+    return "## Data\n\n" + _md_table(["", "value"], rows, "ll")
 
 
 def _describe_repair(step: Mapping[str, Any]) -> tuple[str, str, str]:
@@ -518,7 +516,7 @@ def _preprocessing_section(result: PipelineResult) -> str:
             rows = [[str(i), f"{c.time_s:g}", str(c.sample), c.kind, f"{c.peak_residual_kw:+.3g}",
                      f"{c.output_jump_kw:+.3g}", f"{c.persisting_change_kw:+.3g}"]
                     for i, c in enumerate(out.candidates, start=1)]
-            lines.append(_table(["#", "t [s]", "sample", "kind", "peak residual [kW]",
+            lines.append(_md_table(["#", "t [s]", "sample", "kind", "peak residual [kW]",
                                  "output jump [kW]", "persisting change [kW]"], rows, "rrrlrrr"))
         if out.clipped_samples:
             lines.append(f"\n{len(out.clipped_samples)} sample(s) sit in a constant run at the output's "
@@ -526,7 +524,7 @@ def _preprocessing_section(result: PipelineResult) -> str:
     lines += ["", "Repairs applied (each is recorded in every model file's provenance):", ""]
     repairs = [s for s in result.data.preprocessing]
     if repairs:
-        lines.append(_table(["what", "where", "how much"], [list(_describe_repair(s)) for s in repairs],
+        lines.append(_md_table(["what", "where", "how much"], [list(_describe_repair(s)) for s in repairs],
                             "lll"))
         lines.append("\nThe paper replaced the spike by the mean of its neighbours and subtracted "
                      "0.15 kW from dP for t >= 20714 s.")
@@ -557,7 +555,7 @@ def _table2_section(result: PipelineResult) -> str:
     return ("## Linear models (paper Table 2)\n\nAll with a delay of one sample. V: mean squared "
             "ballistic simulation error (eq. 9); W: mean squared one-step-ahead prediction error "
             "(eq. 10); ARX by least squares, ARMAX on W, OE on V.\n\n"
-            + _table(["model", "na", "nb", "nc", "nf", "V [kW^2]", "W [kW^2]", "iterations",
+            + _md_table(["model", "na", "nb", "nc", "nf", "V [kW^2]", "W [kW^2]", "iterations",
                       "paper V [kW^2]"], rows, "lrrrrrrrr"))
 
 
@@ -590,7 +588,7 @@ def _table3_section(result: PipelineResult) -> str:
             "one before it. The paper lists the four steps of +5 % after t = 10^4 s; its rows "
             "stand beside ours for the same absolute input step (its s_nom = 45 %, P_nom = 45 kW; "
             f"ours: {op.triac_pct:.4g} %, {op.power_kw:.4g} kW).\n\n"
-            + (_table(["t [s]", "step s [%]", "step ds [%]", "step dP [kW]", "r [kW/%]",
+            + (_md_table(["t [s]", "step s [%]", "step ds [%]", "step dP [kW]", "r [kW/%]",
                        "paper step dP [kW]", "paper r [kW/%]"], rows, "rlllrlr")
                if rows else "No input steps found.")
             + "\n\nThe paper's Table 3 (ds [%]: dP [kW], r [kW/%]): "
@@ -620,7 +618,7 @@ def _route_section(result: PipelineResult) -> str:
                      str(nm.n_parameters), str(nm.n_iterations), f"{PAPER_ROUTE_V[name]:.3f}",
                      _num(paper_w, ".2g"), "-" if paper_it is None else str(paper_it)])
     text = ("## The Hammerstein route (paper secs. 7.4-7.6)\n\n"
-            + _table(["step", "V [kW^2]", "W [kW^2]", "parameters", "iterations", "paper V [kW^2]",
+            + _md_table(["step", "V [kW^2]", "W [kW^2]", "parameters", "iterations", "paper V [kW^2]",
                       "paper W [kW^2]", "paper iterations"], rows, "lrrrrrrr"))
     if "armax_1_2_1" in m and "hammerstein_armax" in m:
         w_lin = m["armax_1_2_1"].one_step_mse_kw2
@@ -659,7 +657,7 @@ def _final_section(result: PipelineResult, model_file: str) -> str:
             rows.append([f"`{n}`", f"{v:.6g}", _num(se, ".3g"), rel])
         lines += ["", "Estimated parameters (b1 = 1 by the normalization of eqs. 22-25; for the "
                   "noise model c1 = a1 + k1, eq. 32):", "",
-                  _table(["parameter", "estimate", "standard error", "relative"], rows)]
+                  _md_table(["parameter", "estimate", "standard error", "relative"], rows)]
     lines += ["", f"Linear-block static gain B(1)/A(1) = {model.linear_static_gain:.4g}; "
               f"instantaneous gain f'(0) = {float(model.input_nonlinearity_slope(0.0)):.4g} kW/%."]
     return "\n".join(lines)
@@ -676,7 +674,7 @@ def _findings_section(findings: Sequence[Finding]) -> str:
 def _timing_section(result: PipelineResult) -> str:
     rows = [[t.name, f"{t.wall_time_s:.3f}"] for t in result.timings]
     rows.append(["**total**", f"**{result.total_time_s:.3f}**"])
-    return "## Wall time per stage\n\n" + _table(["stage", "time [s]"], rows)
+    return "## Wall time per stage\n\n" + _md_table(["stage", "time [s]"], rows)
 
 
 #: Report section each figure belongs to, by the start of its file name.
@@ -726,8 +724,7 @@ def render_report(
              "Komperød et al., *Empirical Modeling of Heating Element Power for the Czochralski "
              "Crystallization Process*, secs. 5-7, rerun on these data. The paper's values stand "
              "beside ours; they come from the authors' log, so they are a yardstick, not a target."]
-    if command:
-        parts.append(f"Produced by `{command}`.")
+    parts.append(f"Produced by {SOFTWARE}" + (f": `{command}`." if command else "."))
     unconverged = result.unconverged
     if unconverged:
         parts.append("**Warning: not converged: " + ", ".join(unconverged)

@@ -225,15 +225,19 @@ def test_short_outage_runs_on_the_soft_sensor_and_resumes(
 
 
 @pytest.mark.parametrize("kind", PLANTS)
-def test_long_outage_sheds_holding_the_input_then_resumes_bumplessly(
+def test_long_outage_sheds_to_the_trusted_steady_input_then_resumes_bumplessly(
         kind: str, model: HammersteinModel) -> None:
     result, mpc, rig = _run(kind, model, (MissingSamples(at_s=400.0, duration_s=300.0),))
     n_soft = mpc.settings.reliability.max_predicted_samples
     assert _statuses(result, 200, 200 + n_soft) == Counter({Status.PREDICTED: n_soft})
     assert _statuses(result, 200 + n_soft, 350) == Counter({Status.SHED: 150 - n_soft})
     s = result.triac_pct
-    assert np.all(s[200 + n_soft:350] == s[200 + n_soft - 1])  # the last input is held
-    assert _diags(result)[350].status is Status.GOOD
+    diags = _diags(result)
+    # shed: the steady input of the last trusted estimate (the target), held constant
+    target = diags[200 + n_soft].target_triac_pct
+    assert abs(s[200 + n_soft] - s[200 + n_soft - 1]) <= RATE_PCT + RATE_ATOL_PCT
+    assert np.all(s[200 + n_soft:350] == pytest.approx(target, abs=1e-9))
+    assert diags[350].status is Status.GOOD
     assert mpc.n_shed_steps == 150 - n_soft
     _assert_input_safe(result, mpc, rig)  # includes the first move after the outage
     _assert_resumed(result, 350)
@@ -427,4 +431,27 @@ def test_tightened_limit_ramps_in_and_is_held(kind: str, model: HammersteinModel
     assert np.all(s[settled:] <= 46.0 + 1e-12)
     assert all(d.status is Status.CLAMPED for d in diags[settled + 5:])
     assert not diags[-1].setpoint_reachable
+    _assert_input_safe(result, mpc, rig)
+
+
+#: Issue 13 class 1: the true power must end this close to the setpoint after a frozen
+#: sensor is detected [kW] (before the roll-back it ended about 2.2 kW above).
+FROZEN_END_TOL_KW = 0.3
+
+
+@pytest.mark.parametrize("kind", PLANTS)
+def test_frozen_sensor_during_a_setpoint_change_is_undone_and_ends_at_the_setpoint(
+        kind: str, model: HammersteinModel) -> None:
+    # The sensor freezes 4 samples before a +5 kW setpoint step and never recovers: the
+    # frozen readings accepted before detection must be undone (roll-back to the last
+    # live sample) and the shed must hold the steady input of that trusted estimate.
+    result, mpc, rig = _run(kind, model, step_at_s=420.0, stuck_sensor=(206, 10**9),
+                            duration_s=1600.0)
+    diags = _diags(result)
+    k_detect = next(d.k for d in diags if d.verdict is Verdict.STUCK)
+    assert diags[k_detect].rolled_back_samples == k_detect - 206 - 1   # frozen, accepted ones
+    assert all(d.rolled_back_samples == 0 for d in diags if d.k != k_detect)
+    assert diags[-1].status is Status.SHED
+    error = result.power_true_kw[-50:] - result.setpoint_kw[-50:]
+    assert np.max(np.abs(error)) < FROZEN_END_TOL_KW
     _assert_input_safe(result, mpc, rig)

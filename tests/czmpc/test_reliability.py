@@ -19,6 +19,7 @@ from czmpc.errors import SettingsError
 from czmpc.kalman import innovation_variance_after_gap, noise_covariances
 from czmpc.modes import Mode, Status
 from czmpc.settings import MPCSettings, ReliabilitySettings
+from sim.model_plant import ModelPlant
 from sysid.model import HammersteinModel
 
 #: The controller clips to [s_prev - delta, s_prev + delta] in floating point.
@@ -251,10 +252,16 @@ def test_solver_shed_clears_at_the_first_good_solve(paper_oe_model: HammersteinM
 
 # --- stateful property test of step() ---------------------------------------------------------
 _ANY_POWER = st.one_of(
+    st.none(),
     st.floats(allow_nan=True, allow_infinity=True),
     st.floats(min_value=30.0, max_value=60.0),
-    st.sampled_from([math.nan, math.inf, -math.inf, -5.0, 0.0, 1e308, 45.0]),
+    st.sampled_from([math.nan, math.inf, -math.inf, -5.0, 0.0, 1e308, -1e308, 45.0]),
 )
+#: Setpoint the machine's teardown must track after any sequence [kW], and how closely
+#: its mean over the last 100 samples must sit (noisy model plant, sigma_e 0.0134 kW:
+#: the mean's noise is ~0.01 kW; a poisoned estimator would be off by kW) [kW].
+_FINAL_SETPOINT_KW = 46.0
+_FINAL_TRACK_TOL_KW = 0.1
 
 
 @functools.cache
@@ -281,11 +288,12 @@ class StepMachine(RuleBasedStateMachine):
         self.applied = 45.0  # the input really applied over the last sample
 
     @rule(power=_ANY_POWER, setpoint=_ANY_POWER,
-          override=st.one_of(st.none(), st.floats(0.0, 100.0), st.just(math.nan)))
-    def step(self, power: float, setpoint: float, override: float | None) -> None:
+          override=st.one_of(st.none(), st.floats(0.0, 100.0),
+                             st.sampled_from([math.nan, math.inf, -math.inf, 1e308, -1e308])))
+    def step(self, power: float | None, setpoint: float | None, override: float | None) -> None:
         mpc = self.mpc
         if override is not None and math.isfinite(override):
-            self.applied = override
+            self.applied = min(100.0, max(0.0, override))
         s = mpc.step(power, setpoint, applied_triac_pct=override)
         last = mpc.last_step
         assert last is not None and math.isfinite(s)
@@ -298,6 +306,29 @@ class StepMachine(RuleBasedStateMachine):
         else:
             assert s == pytest.approx(self.applied, abs=1e-12)  # reason: handed back
         assert np.isfinite(last.state_estimate).all()
+        assert math.isfinite(last.setpoint_used_kw)
+        valid = setpoint is not None and math.isfinite(setpoint) and 0.0 <= setpoint <= 150.0
+        assert last.setpoint_held is not valid
+        if not valid:
+            assert last.setpoint_verdict != "valid"
+
+    def teardown(self) -> None:
+        # After any sequence, a valid setpoint is tracked: full limits, PREDICT, then ON.
+        mpc = self.mpc
+        mpc.set_triac_limits(*mpc.allowed_triac_range_pct)
+        plant = ModelPlant(self.model, noise=True, initial_triac_pct=self.applied)
+        power = plant.reset(np.random.default_rng(0))
+        mpc.request_mode(Mode.PREDICT)
+        s = self.applied
+        true_kw = []
+        for _ in range(500):
+            if mpc.mode is not Mode.ON:
+                mpc.request_mode(Mode.ON)   # accepted once the estimator is warm
+            s = mpc.step(power, _FINAL_SETPOINT_KW, applied_triac_pct=s)
+            power = plant.step(s)
+            true_kw.append(plant.true_power_kw)
+        assert mpc.mode is Mode.ON
+        assert abs(np.mean(true_kw[-100:]) - _FINAL_SETPOINT_KW) < _FINAL_TRACK_TOL_KW
 
     @rule(mode=st.sampled_from(list(Mode)))
     def request(self, mode: Mode) -> None:

@@ -37,6 +37,12 @@ EXACT_LSQ_RTOL = 1e-10
 CRITERIA_RTOL = 1e-9
 #: Noise-free record: PEM converges to the truth up to the optimizer's tolerances.
 NOISE_FREE_RTOL = 1e-6
+#: Noise-free fits: V at rounding level (1e-28 kW^2); the initial-state solve of the
+#: criterion and the search's own differ in rounding only.
+ROUNDOFF_COST_ATOL = 1e-20
+#: Fit with the initial state as a search variable vs. the criterion re-solving it by
+#: least squares: equal at the optimum up to the optimizer's ftol.
+ESTIMATED_STATE_RTOL = 1e-6
 #: The paper's finding (sec. 7.5): from zeros the same parameters; the issue: < 1e-4.
 FROM_ZEROS_RTOL = 1e-4
 
@@ -241,13 +247,26 @@ def test_fit_costs_equal_sysid_criteria_on_the_returned_models(rng: np.random.Ge
     y, ds, _ = _armax_truth_record(rng, n=2000)
     data = Dataset(time_s=2.0 * np.arange(y.size), triac_pct=OP.triac_pct + ds,
                    power_kw=OP.power_kw + y, ts_s=2.0)
-    oe = fit_hammerstein_oe(y, ds)
-    armax = fit_hammerstein_armax(y, ds, initial=oe)
+    oe = fit_hammerstein_oe(y, ds, initial_state="held")
+    armax = fit_hammerstein_armax(y, ds, initial=oe, initial_state="held")
     oe_model = hammerstein_model(oe, data, operating_point=OP)
     armax_model = hammerstein_model(armax, data, operating_point=OP)
     np.testing.assert_allclose(oe.cost, ballistic_mse(oe_model, data), rtol=CRITERIA_RTOL, atol=0)
     np.testing.assert_allclose(armax.cost, one_step_mse(armax_model, data), rtol=CRITERIA_RTOL,
                                atol=0)
+    # estimated initial states: the fit's cost is the criterion with the state re-fitted
+    oe_est = fit_hammerstein_oe(y, ds)
+    armax_est = fit_hammerstein_armax(y, ds, initial=oe_est)
+    assert (oe_est.initial_state, armax_est.initial_state) == ("estimate", "estimate")
+    oe_est_model = hammerstein_model(oe_est, data, operating_point=OP)
+    armax_est_model = hammerstein_model(armax_est, data, operating_point=OP)
+    np.testing.assert_allclose(
+        oe_est.cost, ballistic_mse(oe_est_model, data, initial_state="estimate"),
+        rtol=ESTIMATED_STATE_RTOL, atol=0)
+    np.testing.assert_allclose(
+        armax_est.cost, one_step_mse(armax_est_model, data, initial_state="estimate"),
+        rtol=ESTIMATED_STATE_RTOL, atol=0)
+    assert oe_est.cost <= oe.cost
     assert oe_model.criteria.ballistic_mse_kw2 == ballistic_mse(oe_model, data)
     assert armax_model.linear_block == "armax" and oe_model.linear_block == "oe"
     np.testing.assert_array_equal(oe_model.c, oe_model.a)
@@ -357,7 +376,8 @@ def test_oe_pem_recovers_general_orders_and_degrees_from_noise_free_data(
         np.testing.assert_allclose(values[name], value, rtol=NOISE_FREE_RTOL, atol=0)
     assert fit.delay_steps == nk
     crit = hammerstein_criteria(fit, y, ds)
-    np.testing.assert_allclose(crit.ballistic_mse_kw2, fit.cost, rtol=IDENTITY_RTOL, atol=1e-30)
+    np.testing.assert_allclose(crit.ballistic_mse_kw2, fit.cost, rtol=IDENTITY_RTOL,
+                               atol=ROUNDOFF_COST_ATOL)
 
 
 def test_bad_arx_polynomials_and_unstable_fits_raise(rng: np.random.Generator) -> None:
@@ -377,3 +397,38 @@ def test_bad_arx_polynomials_and_unstable_fits_raise(rng: np.random.Generator) -
     )
     with pytest.raises(IdentificationError, match="not a usable model"):
         hammerstein_model(unstable, _dataset(y, ds), operating_point=OP)
+
+
+def test_long_fits_report_every_iteration_and_its_cost(rng: np.random.Generator) -> None:
+    y, ds, _ = _oe_truth_record(rng, 1500, 0.05)
+    seen: list[tuple[int, float]] = []
+    fit = fit_hammerstein_oe(y, ds, initial=None, progress=lambda i, c: seen.append((i, c)))
+    assert [i for i, _ in seen] == list(range(1, fit.n_iterations + 1))
+    costs = [c for _, c in seen]
+    assert all(b <= a for a, b in zip(costs, costs[1:], strict=False))   # LM never climbs
+    assert costs[-1] == pytest.approx(fit.cost, rel=IDENTITY_RTOL)
+
+
+def test_covariance_is_sigma2_inverse_jtj_and_matches_the_std_errors(
+    rng: np.random.Generator,
+) -> None:
+    y, ds, _ = _oe_truth_record(rng, 2000, 0.05)
+    fit = fit_hammerstein_oe(y, ds, initial_state="held")
+    p = len(fit.parameter_names)
+    assert fit.covariance.shape == (p, p)
+    np.testing.assert_allclose(np.sqrt(np.diag(fit.covariance)), fit.std_errors, rtol=1e-8)
+    # independent: finite-difference Jacobian of V's residuals, covariance by inv(J'J)
+    from sysid.hammerstein.filtering import HammersteinOrders, segment_residuals
+    orders = HammersteinOrders(block="oe", degree=2, nb=2, na=1, nc=0, nk=1)
+    theta = np.asarray(fit.parameters)
+    jac = np.empty((y.size, p))
+    for i in range(p):
+        step = 1e-6 * max(1.0, abs(theta[i]))
+        up, down = theta.copy(), theta.copy()
+        up[i] += step
+        down[i] -= step
+        jac[:, i] = (segment_residuals(orders, up, [(y, ds)], "held", jacobian=False)[0]
+                     - segment_residuals(orders, down, [(y, ds)], "held", jacobian=False)[0]
+                     ) / (2 * step)
+    sigma2 = float(fit.residuals @ fit.residuals) / (y.size - p)
+    np.testing.assert_allclose(fit.covariance, sigma2 * np.linalg.inv(jac.T @ jac), rtol=1e-4)

@@ -30,7 +30,9 @@ LEVEL_SHIFT_ATOL_KW = 0.03
 def shipped() -> PipelineResult:
     stages: list[str] = []
     result = run_paper_pipeline(read_csv(SHIPPED_EXPERIMENT), progress=stages.append)
-    assert stages == [t.name for t in result.timings]
+    # stage names, and (indented, at most once a second) iterations inside long fits
+    assert [s for s in stages if not s.startswith("  ")] == [t.name for t in result.timings]
+    assert all("iteration" in s for s in stages if s.startswith("  "))
     return result
 
 

@@ -19,7 +19,7 @@ from sysid.residuals import autocorrelation
 from sysid.simulate import simulate
 
 REPO = Path(__file__).resolve().parents[2]
-REAL = REPO.parent / "shared" / "data" / "real"
+REAL = REPO / "data" / "real"
 DAISY = REAL / "daisy_heating_system.dat"
 TCLAB = REAL / "tclab_mimo_steps_data.txt"
 TANKS = REAL / "cascaded_tanks_dataBenchmark.csv"

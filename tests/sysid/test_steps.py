@@ -106,13 +106,15 @@ def test_table_shows_the_data_sets_units_for_other_rigs() -> None:
     triac_pct = _staircase([2.0, 4.0], hold=5)
     power_kw = np.r_[np.full(6, 300.0), np.full(4, 340.0)]
     data = _dataset(triac_pct, power_kw, input_unit="V", output_unit="degC")
-    text = format_step_table(detect_steps(data), input_unit=data.input_unit,
-                             output_unit=data.output_unit)
+    with pytest.warns(DeprecationWarning, match="format_table"):
+        text = format_step_table(detect_steps(data), input_unit=data.input_unit,
+                                 output_unit=data.output_unit)
     header, row = text.splitlines()
     assert "input [V]" in header and "output [degC]" in header and "r [degC/V]" in header
     assert row.split() == ["5", "10.0", "2.00", "->", "4.00", "300.000", "->", "340.000",
                            "20.0000"]
-    assert format_step_table(()) == "no input steps found\n"
+    with pytest.warns(DeprecationWarning):
+        assert format_step_table(()) == "no input steps found\n"
 
 
 @pytest.mark.parametrize(

@@ -112,7 +112,7 @@ def test_report_holds_the_tables_and_links_only_files_that_exist(
 def test_progress_goes_to_stderr_with_stage_names_and_seconds(identified: tuple[int, Path, str]) -> None:
     _, _, err = identified
     for stage in ("operating point", "linear models", "Hammerstein route"):
-        assert re.search(rf"\[\s*\d+\.\d\d s\] {stage}", err), stage
+        assert re.search(rf"\[\s*\d+\.\d s\] {stage}", err), stage
 
 
 def test_operating_point_and_level_shift_options_are_used_and_recorded(

@@ -19,7 +19,7 @@ from sysid.modelfile import load_model
 from sysid.pipeline import run_paper_pipeline
 from sysid.reallogs import read_cascaded_tanks, read_daisy_heating, read_tclab
 
-REAL = Path(__file__).resolve().parents[4] / "shared" / "data" / "real"
+REAL = Path(__file__).resolve().parents[3] / "data" / "real"
 #: Both fits stop at LM tolerances of about 1e-10 relative in cost; 1e-6 is far above.
 NESTED_V_RTOL = 1e-6
 

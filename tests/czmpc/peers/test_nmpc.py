@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from czmpc.peers import nmpc as nmpc_module
 from czmpc.controller import OffsetFreeMPC
 from czmpc.errors import DesignError, SettingsError
+from czmpc.peers import nmpc as nmpc_module
 from czmpc.peers.nmpc import NonlinearMPC
 from czmpc.settings import MPCSettings
 from sim.model_plant import ModelPlant

@@ -1,0 +1,275 @@
+"""OPC UA channel security of the plant link: the ``[plant.security]`` table, checked.
+
+A plant's OPC UA server normally accepts only signed and encrypted channels, trusted
+application certificates and authenticated users (IEC 62541-2, IEC 62443). This module
+turns the run config's ``[plant.security]`` table into a validated, frozen
+`SecuritySettings` and refuses, before any connection is tried, what an OT security
+officer would refuse:
+
+- no table: only a loopback endpoint (127.0.0.0/8, ``localhost``, ``[::1]``);
+- ``policy = "None"`` on a non-loopback endpoint;
+- a ``password`` key in the file (the password is read from the environment variable
+  named by ``password_env``, so it never sits in a file under version control);
+- a private key file that other users can read (as ssh refuses one);
+- a missing certificate, key or pinned server certificate file;
+- any key not listed in `SECURITY_KEYS`.
+
+The password is held in a `Secret`, whose ``repr`` and ``str`` never show it, so that it
+cannot reach a log line, an exception message or a report by accident.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+import stat
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+from urllib.parse import urlsplit
+
+from czmpc.errors import SettingsError
+
+#: Security policies accepted for a channel to a plant (OPC UA names without the URI
+#: prefix). Basic256Sha256 is the floor: Basic128Rsa15 and Basic256 use SHA-1 and are
+#: deprecated by the OPC Foundation.
+SECURE_POLICIES = ("Basic256Sha256", "Aes128_Sha256_RsaOaep", "Aes256_Sha256_RsaPss")
+#: Message security modes: signed, or signed and encrypted.
+MODES = ("SignAndEncrypt", "Sign")
+#: The keys of ``[plant.security]``, exactly (issue 18).
+SECURITY_KEYS = ("policy", "mode", "certificate", "private_key", "server_certificate",
+                 "username", "password_env")
+
+Policy = Literal["None", "Basic256Sha256", "Aes128_Sha256_RsaOaep", "Aes256_Sha256_RsaPss"]
+Mode = Literal["SignAndEncrypt", "Sign"]
+
+
+class Secret:
+    """A string that never shows itself in ``repr``, ``str`` or f-strings.
+
+    Parameters
+    ----------
+    value :
+        The secret (a password).
+    """
+
+    __slots__ = ("_value",)
+
+    def __init__(self, value: str) -> None:
+        self._value = value
+
+    def reveal(self) -> str:
+        """The secret itself: call only where it is handed to the OPC UA client."""
+        return self._value
+
+    def __repr__(self) -> str:
+        return "Secret('********')"
+
+    __str__ = __repr__
+
+    def __format__(self, spec: str) -> str:
+        return repr(self)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Secret) and other._value == self._value
+
+    def __hash__(self) -> int:
+        return hash(("Secret", self._value))
+
+
+def is_loopback_endpoint(endpoint: str) -> bool:
+    """Whether an ``opc.tcp://host:port/...`` endpoint names this machine's loopback.
+
+    Parameters
+    ----------
+    endpoint :
+        OPC UA endpoint URL.
+    """
+    host = urlsplit(endpoint).hostname or ""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+@dataclass(frozen=True, kw_only=True)
+class SecuritySettings:
+    """Validated security of one OPC UA client connection.
+
+    Parameters
+    ----------
+    policy :
+        Security policy name (`SECURE_POLICIES`, or ``"None"`` on loopback only).
+    mode :
+        ``"SignAndEncrypt"`` or ``"Sign"``; ignored for policy ``"None"``.
+    certificate, private_key :
+        czmpc's application instance certificate (DER) and its private key (PEM).
+    server_certificate :
+        The server certificate pinned for this plant (DER): a server that presents
+        another one is refused.
+    username :
+        OPC UA user name, or None for an anonymous session.
+    password :
+        The user's password, read from the environment (never from the file).
+    password_env :
+        Name of the environment variable the password came from (for messages).
+    """
+
+    policy: Policy
+    mode: Mode = "SignAndEncrypt"
+    certificate: Path | None = None
+    private_key: Path | None = None
+    server_certificate: Path | None = None
+    username: str | None = None
+    password: Secret | None = field(default=None, repr=False)
+    password_env: str | None = None
+
+    @property
+    def secure(self) -> bool:
+        """True unless the policy is ``"None"``."""
+        return self.policy != "None"
+
+    def describe(self) -> str:
+        """One line for logs and status: policy, mode, user; never the password."""
+        if not self.secure:
+            return "no security (policy None; loopback only)"
+        user = f"user {self.username!r}" if self.username else "anonymous"
+        return f"{self.policy} {self.mode}, pinned server certificate, {user}"
+
+
+#: What a run without a ``[plant.security]`` table gets (loopback only).
+INSECURE_LOOPBACK = SecuritySettings(policy="None")
+
+
+def _file(table: Mapping[str, object], key: str, base_dir: Path, where: str) -> Path:
+    value = table.get(key)
+    if not isinstance(value, str) or not value:
+        raise SettingsError(f"{where}.{key} must name a file; got {value!r}")
+    path = Path(value)
+    path = path if path.is_absolute() else base_dir / path
+    if not path.is_file():
+        raise SettingsError(f"{where}.{key}: no such file {path}")
+    return path
+
+
+def check_private_key_permissions(path: Path, *, where: str = "plant.security.private_key") -> None:
+    """Refuse a private key file that users other than its owner may read or write.
+
+    Parameters
+    ----------
+    path :
+        The key file.
+    where :
+        Config location named in the message.
+
+    Raises
+    ------
+    SettingsError
+        The file's mode grants any permission to group or others.
+    """
+    if os.name != "posix":  # pragma: no cover - POSIX modes only
+        return
+    mode = stat.S_IMODE(path.stat().st_mode)
+    if mode & 0o077:
+        raise SettingsError(
+            f"{where}: {path} is accessible by other users (mode {mode:o}); a private key must "
+            f"be readable by its owner only: run 'chmod 600 {path}'")
+
+
+def parse_security(table: Mapping[str, object] | None, *, endpoint: str, base_dir: Path,
+                   environ: Mapping[str, str] | None = None) -> SecuritySettings:
+    """Validate a run config's ``[plant.security]`` table against its endpoint.
+
+    Parameters
+    ----------
+    table :
+        The table as read from TOML, or None when the config has none.
+    endpoint :
+        The ``[plant].endpoint`` URL it secures.
+    base_dir :
+        Directory that relative file names are taken from (the config file's).
+    environ :
+        Environment to read the password from (default ``os.environ``).
+
+    Returns
+    -------
+    SecuritySettings
+        `INSECURE_LOOPBACK` for no table on a loopback endpoint.
+
+    Raises
+    ------
+    SettingsError
+        Every refusal listed in the module docstring, naming the key and what to do.
+    """
+    where = "plant.security"
+    if table is None:
+        if not is_loopback_endpoint(endpoint):
+            raise SettingsError(
+                f"plant.endpoint {endpoint!r} is not a loopback address and the config has no "
+                f"[plant.security] table: czmpc connects without security only to 127.0.0.1; "
+                f"add [plant.security] with policy, mode, certificate, private_key and "
+                f"server_certificate (make them with 'czmpc pki create')")
+        return INSECURE_LOOPBACK
+    if "password" in table:
+        raise SettingsError(
+            f"{where}.password: a password must not be written into the config file; remove it, "
+            f"set password_env = \"NAME\" and put the password into the environment variable NAME")
+    unknown = sorted(set(table) - set(SECURITY_KEYS))
+    if unknown:
+        raise SettingsError(f"{where}: unknown key(s) {unknown}; allowed: {list(SECURITY_KEYS)}")
+    policy = table.get("policy")
+    if policy == "None":
+        if not is_loopback_endpoint(endpoint):
+            raise SettingsError(
+                f"{where}.policy = \"None\" is allowed only for a loopback endpoint; "
+                f"{endpoint!r} needs one of {list(SECURE_POLICIES)}")
+        return INSECURE_LOOPBACK
+    if policy not in SECURE_POLICIES:
+        raise SettingsError(f"{where}.policy must be one of {[*SECURE_POLICIES, 'None']}; got {policy!r}")
+    mode = table.get("mode", "SignAndEncrypt")
+    if mode not in MODES:
+        raise SettingsError(f"{where}.mode must be one of {list(MODES)}; got {mode!r}")
+    certificate = _file(table, "certificate", base_dir, where)
+    private_key = _file(table, "private_key", base_dir, where)
+    check_private_key_permissions(private_key)
+    server_certificate = _file(table, "server_certificate", base_dir, where)
+    username = table.get("username")
+    if username is not None and (not isinstance(username, str) or not username):
+        raise SettingsError(f"{where}.username must be a non-empty string; got {username!r}")
+    password_env = table.get("password_env")
+    password: Secret | None = None
+    if username is not None:
+        if not isinstance(password_env, str) or not password_env:
+            raise SettingsError(
+                f"{where}: username {username!r} needs password_env = \"NAME\", the environment "
+                f"variable that holds the password")
+        env = os.environ if environ is None else environ
+        if password_env not in env:
+            raise SettingsError(
+                f"{where}.password_env: the environment variable {password_env} is not set; "
+                f"export it with the password of user {username!r}")
+        password = Secret(env[password_env])
+    elif password_env is not None:
+        raise SettingsError(f"{where}.password_env is set but username is not; add username")
+    return SecuritySettings(
+        policy=policy,  # type: ignore[arg-type]
+        mode=mode,  # type: ignore[arg-type]
+        certificate=certificate, private_key=private_key, server_certificate=server_certificate,
+        username=username, password=password,
+        password_env=password_env if isinstance(password_env, str) else None)
+
+
+__all__ = [
+    "INSECURE_LOOPBACK",
+    "MODES",
+    "SECURE_POLICIES",
+    "SECURITY_KEYS",
+    "Secret",
+    "SecuritySettings",
+    "check_private_key_permissions",
+    "is_loopback_endpoint",
+    "parse_security",
+]

@@ -1,0 +1,384 @@
+"""Residuals and exact Jacobians of Hammerstein OE and ARMAX models by sensitivity filters.
+
+Kernels on plain arrays (STYLE B.14.2): a record is a sequence of segments, each a pair
+``(y, ds)`` of deviation arrays, and each segment has its own initial state. They
+replace the per-sample CasADi evaluation of `sysid.greybox` for the Hammerstein
+structures of `sysid.hammerstein.model` (same parameter names and order), with
+`scipy.signal.lfilter` doing every recursion.
+
+Initial state
+-------------
+Every policy is written as a transient ``h`` of ``n = max(nf, nk + nb - 1)`` samples
+(OE; ``max(na, nc, nk + nb - 1)`` for ARMAX) added to the filter input, which is what
+any initial state of the observer form does to the output::
+
+    OE:     F(q) yhat = B(q) f(ds) + h,        eps = y - yhat                   (eq. 26)
+    ARMAX:  C(q) e    = A(q) y - B(q) f(ds) + g                                 (eq. 30)
+
+with every signal zero before the segment. ``"estimate"`` makes ``h`` (``g``) free
+parameters of each segment, as MATLAB's ``'estimate'`` does for the full state;
+``"held"`` computes it from a past held at the first sample (``y_0``, ``ds_0``; past
+prediction errors zero), the rule of `sysid.simulate`; ``"zero"`` sets it to zero (the
+record starts at rest at the operating point).
+
+Jacobians
+---------
+With ``w = f(ds) = sum_i d_i ds^i`` and ``beta`` the full ``B`` (``beta_nk = 1``),
+``d yhat/d theta = (dS/d theta) / F`` where ``S = B w + h`` minus the ``F`` terms
+on the past of ``yhat``: ``q^-j w`` for ``b_j``, ``B ds^i`` for ``d_i``, ``-q^-i yhat``
+for ``f_i`` (all with a zero past), plus ``d h/d theta`` (held: ``w_0``, ``ds_0^i
+sum_{j>k} beta_j``, ``-y_0``; estimate: unit pulses). ARMAX likewise through ``1/C``
+with ``c_i = a_i + k_i`` (eq. 32), so ``d/d a_i`` adds the ``c_i`` column.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from scipy.signal import lfilter
+
+from sysid._typing import FloatArray
+from sysid.errors import IdentificationError
+
+InitialState = Literal["estimate", "zero", "held"]
+INITIAL_STATES: tuple[InitialState, ...] = ("estimate", "zero", "held")
+
+Segment = tuple[FloatArray, FloatArray]
+
+
+def check_initial_state(value: object, where: str) -> InitialState:
+    """``value`` as an `InitialState`, or an `IdentificationError` naming the choices."""
+    for choice in INITIAL_STATES:
+        if value == choice:
+            return choice
+    raise IdentificationError(
+        f"{where}: initial_state must be one of {list(INITIAL_STATES)}; got {value!r}"
+    )
+
+
+@dataclass(frozen=True, kw_only=True, slots=True)
+class HammersteinOrders:
+    """Orders of a Hammerstein model with an OE or ARMAX linear block.
+
+    Parameters
+    ----------
+    block :
+        ``"oe"`` (parameters ``b.., d.., f1..f_na``) or ``"armax"`` (``b.., d..,
+        a1..a_na, k1..k_nc``), as `sysid.hammerstein.model`'s structures.
+    degree :
+        Degree of ``f`` (no constant term).
+    nb :
+        Number of ``B`` coefficients including the normalized ``b_nk = 1``.
+    na :
+        Order of ``F`` (OE) or ``A`` (ARMAX).
+    nc :
+        Order of ``C`` (ARMAX; ignored for OE).
+    nk :
+        Delay [samples].
+    """
+
+    block: Literal["oe", "armax"]
+    degree: int
+    nb: int
+    na: int
+    nc: int
+    nk: int
+
+    def __post_init__(self) -> None:
+        if self.block not in ("oe", "armax"):
+            raise IdentificationError(
+                f"HammersteinOrders: block must be 'oe' or 'armax'; got {self.block!r}"
+            )
+        for name, minimum in (("degree", 1), ("nb", 1), ("na", 0), ("nc", 0), ("nk", 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+                raise IdentificationError(
+                    f"HammersteinOrders: {name} must be an int >= {minimum}; got {value!r}"
+                )
+
+    @property
+    def n_model(self) -> int:
+        """Number of model parameters (without initial states)."""
+        extra = self.nc if self.block == "armax" else 0
+        return self.nb - 1 + self.degree + self.na + extra
+
+    @property
+    def n_state(self) -> int:
+        """Length of each segment's transient (the state dimension of the observer form)."""
+        nc = self.nc if self.block == "armax" else 0
+        return max(self.na, nc, self.nk + self.nb - 1)
+
+    def parameter_names(self) -> tuple[str, ...]:
+        """Model parameter names, in the order of the parameter vector."""
+        names_b = tuple(f"b{j}" for j in range(self.nk + 1, self.nk + self.nb))
+        names_d = tuple(f"d{i}" for i in range(1, self.degree + 1))
+        if self.block == "oe":
+            return names_b + names_d + tuple(f"f{i}" for i in range(1, self.na + 1))
+        return (
+            names_b + names_d + tuple(f"a{i}" for i in range(1, self.na + 1))
+            + tuple(f"k{i}" for i in range(1, self.nc + 1))
+        )
+
+    def polynomials(self, theta: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """``(A or F, beta, C, input_poly)`` from the model parameters (first `n_model`)."""
+        nb1 = self.nb - 1
+        beta = np.concatenate([np.zeros(self.nk), [1.0], theta[:nb1]])
+        poly = np.asarray(theta[nb1 : nb1 + self.degree], dtype=float)
+        i0 = nb1 + self.degree
+        a = np.concatenate([[1.0], theta[i0 : i0 + self.na]])
+        if self.block == "oe":
+            return a, beta, a, poly
+        k = theta[i0 + self.na : i0 + self.na + self.nc]
+        c = np.zeros(self.nc + 1)
+        c[0] = 1.0
+        for i in range(1, self.nc + 1):
+            c[i] = (a[i] if i <= self.na else 0.0) + k[i - 1]
+        return a, beta, c, poly
+
+
+def _lag(x: FloatArray, lag: int) -> FloatArray:
+    """``x[k - lag]`` with zeros before the start; works on 1-D and column arrays."""
+    out = np.zeros_like(x)
+    if lag < x.shape[0]:
+        out[lag:] = x[: x.shape[0] - lag]
+    return out
+
+
+def _tail_sums(coef: FloatArray, n: int) -> FloatArray:
+    """``s_k = sum_{j > k} coef_j`` for ``k = 0..n-1`` (``coef_j = 0`` beyond its end)."""
+    padded = np.zeros(max(n + 1, coef.size))
+    padded[: coef.size] = coef
+    return np.array([float(np.sum(padded[k + 1 :])) for k in range(n)])
+
+
+def _pulses(n: int, n_samples: int) -> FloatArray:
+    """``(n_samples, n)``: column ``j`` is a unit pulse at sample ``j``."""
+    out = np.zeros((n_samples, n))
+    m = min(n, n_samples)
+    out[np.arange(m), np.arange(m)] = 1.0
+    return out
+
+
+def _oe_segment(
+    orders: HammersteinOrders, theta: FloatArray, h_free: FloatArray | None, y: FloatArray,
+    ds: FloatArray, initial_state: InitialState, jacobian: bool,
+) -> tuple[FloatArray, FloatArray | None, FloatArray]:
+    """Simulation errors of one segment, their Jacobian (model params) and pulse block."""
+    f, beta, _, poly = orders.polynomials(theta)
+    n, deg, nk, nb = orders.n_state, orders.degree, orders.nk, orders.nb
+    feats = np.column_stack([ds**i for i in range(1, deg + 1)])
+    w = feats @ poly
+    src = lfilter(beta, [1.0], w)
+    w0, ds0, y0 = float(w[0]), float(ds[0]), float(y[0])
+    if initial_state == "estimate" and h_free is not None:
+        h = h_free
+    elif initial_state == "held":
+        h = w0 * _tail_sums(beta, n) - y0 * _tail_sums(f, n)
+    else:
+        h = np.zeros(n)
+    src[: min(n, src.size)] += h[: src.size]
+    yhat = lfilter([1.0], f, src)
+    eps = y - yhat
+    if not jacobian:
+        return eps, None, np.zeros((y.size, 0))
+    cols = []
+    dh = []
+    for j in range(nk + 1, nk + nb):
+        cols.append(_lag(w, j))
+        dh.append(np.where(np.arange(n) < j, w0, 0.0))
+    bw = lfilter(beta, [1.0], feats, axis=0)
+    tail_beta = _tail_sums(beta, n)
+    for i in range(1, deg + 1):
+        cols.append(bw[:, i - 1])
+        dh.append(ds0**i * tail_beta)
+    for i in range(1, orders.na + 1):
+        cols.append(-_lag(yhat, i))
+        dh.append(np.where(np.arange(n) < i, -y0, 0.0))
+    g = np.column_stack(cols) if cols else np.zeros((y.size, 0))
+    if initial_state == "held" and n > 0 and cols:
+        g[: min(n, y.size)] += np.column_stack(dh)[: y.size]
+    sens = lfilter([1.0], f, g, axis=0)
+    pulses = (
+        lfilter([1.0], f, _pulses(n, y.size), axis=0)
+        if initial_state == "estimate" else np.zeros((y.size, 0))
+    )
+    return eps, -sens, -pulses
+
+
+def _armax_segment(
+    orders: HammersteinOrders, theta: FloatArray, g_free: FloatArray | None, y: FloatArray,
+    ds: FloatArray, initial_state: InitialState, jacobian: bool,
+) -> tuple[FloatArray, FloatArray | None, FloatArray]:
+    """One-step prediction errors of one segment, their Jacobian and pulse block."""
+    a, beta, c, poly = orders.polynomials(theta)
+    n, deg, nk, nb, na, nc = (
+        orders.n_state, orders.degree, orders.nk, orders.nb, orders.na, orders.nc
+    )
+    feats = np.column_stack([ds**i for i in range(1, deg + 1)])
+    w = feats @ poly
+    v = lfilter(a, [1.0], y) - lfilter(beta, [1.0], w)
+    w0, ds0, y0 = float(w[0]), float(ds[0]), float(y[0])
+    tail_beta = _tail_sums(beta, n)
+    if initial_state == "estimate" and g_free is not None:
+        g = g_free
+    elif initial_state == "held":
+        g = y0 * _tail_sums(a, n) - w0 * tail_beta
+    else:
+        g = np.zeros(n)
+    v[: min(n, v.size)] += g[: v.size]
+    e = lfilter([1.0], c, v)
+    if not jacobian:
+        return e, None, np.zeros((y.size, 0))
+    held = initial_state == "held"
+    k_idx = np.arange(n)
+    cols: list[FloatArray] = []
+    dg: list[FloatArray] = []
+    for j in range(nk + 1, nk + nb):
+        cols.append(-_lag(w, j))
+        dg.append(np.where(k_idx < j, -w0, 0.0))
+    bw = lfilter(beta, [1.0], feats, axis=0)
+    for i in range(1, deg + 1):
+        cols.append(-bw[:, i - 1])
+        dg.append(-(ds0**i) * tail_beta)
+    c_cols = [-_lag(e, i) for i in range(1, nc + 1)]
+    for i in range(1, na + 1):
+        col = _lag(y, i)
+        if i <= nc:
+            col = col + c_cols[i - 1]
+        cols.append(col)
+        dg.append(np.where(k_idx < i, y0, 0.0))
+    for i in range(1, nc + 1):
+        cols.append(c_cols[i - 1])
+        dg.append(np.zeros(n))
+    x = np.column_stack(cols)
+    if held and n > 0:
+        x[: min(n, y.size)] += np.column_stack(dg)[: y.size]
+    sens = lfilter([1.0], c, x, axis=0)
+    pulses = (
+        lfilter([1.0], c, _pulses(n, y.size), axis=0)
+        if initial_state == "estimate" else np.zeros((y.size, 0))
+    )
+    return e, sens, pulses
+
+
+def segment_residuals(
+    orders: HammersteinOrders,
+    theta: FloatArray,
+    segments: Sequence[Segment],
+    initial_state: InitialState,
+    *,
+    jacobian: bool = True,
+) -> tuple[FloatArray, FloatArray | None]:
+    """Residuals over all segments (concatenated) and their Jacobian.
+
+    Parameters
+    ----------
+    orders :
+        The structure.
+    theta :
+        Model parameters (`HammersteinOrders.n_model`), followed, for ``"estimate"``,
+        by ``n_state`` transient values per segment.
+    segments :
+        ``(y, ds)`` deviation arrays, each segment at least one sample long.
+    initial_state :
+        See the module docstring.
+    jacobian :
+        Also return the Jacobian ``d r/d theta``, shape ``(N_total, len(theta))``.
+
+    Returns
+    -------
+    tuple
+        ``(r, J)`` with ``r`` the simulation errors (OE, V) or one-step prediction
+        errors (ARMAX, W); ``J`` None when not asked for.
+    """
+    kernel = _oe_segment if orders.block == "oe" else _armax_segment
+    p_model = orders.n_model
+    n = orders.n_state
+    estimate = initial_state == "estimate"
+    n_total = sum(seg[0].size for seg in segments)
+    r = np.empty(n_total)
+    jac = np.zeros((n_total, theta.size)) if jacobian else None
+    row = 0
+    for s, (y, ds) in enumerate(segments):
+        free = theta[p_model + s * n : p_model + (s + 1) * n] if estimate else None
+        res, sens, pulses = kernel(orders, theta[:p_model], free, y, ds, initial_state, jacobian)
+        r[row : row + y.size] = res
+        if jac is not None and sens is not None:
+            jac[row : row + y.size, :p_model] = sens
+            if estimate:
+                jac[row : row + y.size, p_model + s * n : p_model + (s + 1) * n] = pulses
+        row += y.size
+    return r, jac
+
+
+def estimate_transients(
+    orders: HammersteinOrders, theta_model: FloatArray, segments: Sequence[Segment]
+) -> FloatArray:
+    """Least-squares initial transients of every segment for fixed model parameters.
+
+    The residuals are affine in the transients, so one least-squares solve per
+    segment gives the exact minimum of V (OE) or W (ARMAX) over the initial state.
+
+    Returns
+    -------
+    FloatArray
+        ``n_state`` values per segment, concatenated, shape ``(n_segments * n_state,)``.
+    """
+    n = orders.n_state
+    if n == 0:
+        return np.zeros(0)
+    kernel = _oe_segment if orders.block == "oe" else _armax_segment
+    out = []
+    for y, ds in segments:
+        # r = r0 + P h is affine in h: h = argmin |r0 + P h|
+        r0, _, pulses = kernel(orders, theta_model, np.zeros(n), y, ds, "estimate", True)
+        out.append(np.linalg.lstsq(pulses, -r0, rcond=None)[0])
+    return np.concatenate(out)
+
+
+def mean_square_criterion(
+    orders: HammersteinOrders,
+    theta_model: FloatArray,
+    segments: Sequence[Segment],
+    initial_state: InitialState,
+) -> float:
+    """V (OE) or W (ARMAX) over all segments under an initial-state policy.
+
+    ``"estimate"`` scores the model with each segment's initial state fitted by least
+    squares (`estimate_transients`).
+    """
+    theta = np.asarray(theta_model, dtype=float)
+    if initial_state == "estimate":
+        theta = np.concatenate([theta, estimate_transients(orders, theta, segments)])
+    r, _ = segment_residuals(orders, theta, segments, initial_state, jacobian=False)
+    return float(np.mean(r**2))
+
+
+def residual_function(
+    orders: HammersteinOrders, segments: Sequence[Segment], initial_state: InitialState
+) -> Callable[[FloatArray], tuple[FloatArray, FloatArray]]:
+    """``fun(theta) -> (r, J)`` for `sysid.optimize.levenberg_marquardt`."""
+
+    def fun(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+        r, jac = segment_residuals(orders, theta, segments, initial_state)
+        if jac is None:  # pragma: no cover - jacobian=True always returns one
+            raise IdentificationError("residual_function: no Jacobian")
+        return r, jac
+
+    return fun
+
+
+__all__ = [
+    "INITIAL_STATES",
+    "HammersteinOrders",
+    "InitialState",
+    "Segment",
+    "check_initial_state",
+    "estimate_transients",
+    "mean_square_criterion",
+    "residual_function",
+    "segment_residuals",
+]

@@ -1,0 +1,325 @@
+"""Fitting routines of the Hammerstein model: joint PEM on V (OE block) and on W (ARMAX block).
+
+Steps 3 and 4 of the paper's route (secs. 7.5-7.6), each a pure function of deviation
+arrays returning a `HammersteinFit`. Residuals and exact Jacobians come from the
+sensitivity filters of `sysid.hammerstein.filtering` (scipy ``lfilter``), the search is
+`sysid.optimize.levenberg_marquardt` with the unstable roots of ``F`` (``A``, ``C``)
+mirrored into the unit circle, and every fit returns its full parameter covariance.
+A record may hold several segments (experiments), each with its own initial state.
+Notation as in `sysid.hammerstein`.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from typing import Literal
+
+import numpy as np
+
+from sysid._typing import FloatArray
+from sysid.errors import IdentificationError, IdentificationWarning
+from sysid.greybox import GreyBoxStructure
+from sysid.hammerstein.filtering import (
+    HammersteinOrders,
+    InitialState,
+    Segment,
+    check_initial_state,
+    estimate_transients,
+    residual_function,
+)
+from sysid.hammerstein.model import (
+    HammersteinFit,
+    _check_arrays,
+    _check_excitation,
+    hammerstein_armax_structure,
+    hammerstein_oe_structure,
+)
+from sysid.optimize import LMResult, levenberg_marquardt, parameter_std_errors
+
+#: ``progress(iteration, cost)`` after every Levenberg-Marquardt iteration.
+ProgressCallback = Callable[[int, float], None]
+
+
+# =========================================================================== steps 3 and 4
+def split_segments(
+    y: FloatArray, ds: FloatArray, segment_starts: Sequence[int] | None, where: str
+) -> list[Segment]:
+    """Cut deviation arrays into segments at `segment_starts` (first index of each)."""
+    if segment_starts is None:
+        return [(y, ds)]
+    starts = [int(s) for s in segment_starts]
+    if not starts or starts[0] != 0 or any(b <= a for a, b in zip(starts, starts[1:], strict=False)) \
+            or starts[-1] >= y.size:
+        raise IdentificationError(
+            f"{where}: segment_starts must start at 0 and increase strictly below {y.size}; "
+            f"got {starts}"
+        )
+    bounds = [*starts, y.size]
+    return [(y[lo:hi], ds[lo:hi]) for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]
+
+
+def covariance_from_jacobian(jacobian: FloatArray, residuals: FloatArray) -> FloatArray:
+    """``sigma^2 (J'J)^-1`` with ``sigma^2 = sum r^2 / (N - p)``, by the SVD of ``J``.
+
+    Directions the data do not determine (singular values below ``N eps s_max``) are
+    left out (pseudo-inverse); their standard errors come out as `inf` from
+    `sysid.optimize.parameter_std_errors` instead.
+    """
+    n, p = jacobian.shape
+    sigma2 = float(residuals @ residuals) / max(n - p, 1)
+    _, sv, vt = np.linalg.svd(jacobian, full_matrices=False)
+    keep = sv > max(n, p) * np.finfo(float).eps * (sv[0] if sv.size else 0.0)
+    inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0) ** 2, 0.0)
+    out: FloatArray = sigma2 * (vt.T * inv) @ vt
+    return out
+
+
+def _pem(
+    orders: HammersteinOrders,
+    structure: GreyBoxStructure,
+    segments: list[Segment],
+    initial_state: InitialState,
+    max_iterations: int,
+    progress: ProgressCallback | None,
+) -> tuple[LMResult, FloatArray, FloatArray, FloatArray]:
+    """The search; returns the LM result, model covariance, std errors and transients."""
+    p = orders.n_model
+    theta0 = np.array(structure.initial_values, dtype=float)
+    project = structure.project
+    if initial_state == "estimate":
+        theta0 = np.concatenate([theta0, estimate_transients(orders, theta0, segments)])
+
+    def project_full(theta: FloatArray) -> FloatArray:
+        out = np.array(theta, dtype=float, copy=True)
+        if project is not None:
+            out[:p] = project(out[:p])
+        return out
+
+    lm = levenberg_marquardt(
+        residual_function(orders, segments, initial_state), theta0, project=project_full,
+        max_iterations=max_iterations, callback=progress,
+    )
+    cov = covariance_from_jacobian(lm.jacobian, lm.residuals)[:p, :p]
+    std = parameter_std_errors(lm.jacobian, lm.residuals)[:p]
+    return lm, cov, std, lm.theta[p:]
+
+
+def _fit_from_lm(
+    orders: HammersteinOrders,
+    lm: LMResult,
+    cov: FloatArray,
+    std: FloatArray,
+    transients: FloatArray,
+    initial_state: InitialState,
+    start: str,
+) -> HammersteinFit:
+    p = orders.n_model
+    a, beta, c, poly = orders.polynomials(lm.theta[:p])
+    criterion: Literal["ballistic", "one_step"] = (
+        "ballistic" if orders.block == "oe" else "one_step"
+    )
+    return HammersteinFit(
+        linear_block=orders.block,
+        a=a,
+        b=beta,
+        c=c,
+        input_poly=poly,
+        parameter_names=orders.parameter_names(),
+        parameters=lm.theta[:p],
+        std_errors=std,
+        residuals=lm.residuals,
+        criterion=criterion,
+        cost=lm.cost,
+        n_iterations=lm.n_iterations,
+        converged=lm.converged,
+        message=lm.message,
+        method=f"hammerstein-{orders.block}-pem-{criterion}-from-{start}",
+        covariance=cov,
+        initial_state=initial_state,
+        initial_transients=transients,
+    )
+
+
+def _start_values(
+    initial: HammersteinFit | Mapping[str, float] | None, names: tuple[str, ...]
+) -> tuple[dict[str, float], str]:
+    """Start values by name; a previous fit gives what it shares with ``names``.
+
+    A user's mapping is passed on whole, so an unknown name is an error, not dropped.
+    """
+    if initial is None:
+        return {}, "zeros"
+    if isinstance(initial, HammersteinFit):
+        values = {k: v for k, v in initial.values().items() if k in names}
+    else:
+        values = dict(initial)
+    return {k: float(v) for k, v in values.items()}, "initial-values"
+
+
+def fit_hammerstein_oe(
+    y: FloatArray,
+    ds: FloatArray,
+    *,
+    initial: HammersteinFit | Mapping[str, float] | None = None,
+    degree: int = 2,
+    nb: int = 2,
+    nf: int = 1,
+    nk: int = 1,
+    max_iterations: int = 100,
+    initial_state: InitialState = "estimate",
+    segment_starts: Sequence[int] | None = None,
+    progress: ProgressCallback | None = None,
+) -> HammersteinFit:
+    """Estimate all parameters of the normalized Hammerstein-OE model by PEM on V (sec. 7.5).
+
+    Parameters
+    ----------
+    y :
+        Output deviation ``dP`` [kW], shape ``(N,)``.
+    ds :
+        Input deviation [%], shape ``(N,)``.
+    initial :
+        Start: a previous fit (for example the OE re-identification of step 2, whose
+        ``F``, ``B`` and ``f`` give ``f1, b2, d1, d2``), a mapping by name, or None for
+        all zeros (the paper's test: 3 iterations from good values, 17 from zeros).
+    degree, nb, nf, nk :
+        Degree of ``f``, number of ``B`` coefficients, order of ``F``, delay.
+    max_iterations :
+        Levenberg-Marquardt iteration limit.
+    initial_state :
+        ``"estimate"`` (default: each segment's initial state is fitted with the model,
+        as MATLAB's ``'estimate'``), ``"held"`` (past held at the first sample, the rule
+        of `sysid.simulate`) or ``"zero"`` (the record starts at rest).
+    segment_starts :
+        First sample of each segment (experiment) of the record, starting with 0;
+        default one segment. Each segment has its own initial state.
+    progress :
+        ``progress(iteration, cost)`` after every iteration (sign of life on long logs).
+
+    Returns
+    -------
+    HammersteinFit
+        ``linear_block = "oe"``, ``C = A = F``, ``B = q^-nk (1 + b2 q^-1 ..)``,
+        criterion ``"ballistic"`` with ``cost`` = V under `initial_state` (with
+        ``"held"`` equal to `sysid.criteria.ballistic_mse`), and the full `covariance`.
+
+    Raises
+    ------
+    IdentificationError
+        Bad options or arrays; fewer than ``degree + 1`` distinct input levels; fewer
+        than 10 samples per parameter.
+
+    Warns
+    -----
+    IdentificationWarning
+        The search did not converge (the best iterate is returned, ``converged=False``).
+    """
+    where = "fit_hammerstein_oe"
+    y_arr, ds_arr = _check_arrays(y, ds, where)
+    structure = hammerstein_oe_structure(degree=degree, nb=nb, nf=nf, nk=nk)
+    _check_excitation(ds_arr, degree, structure.n_parameters, where)
+    start, label = _start_values(initial, structure.parameter_names)
+    structure = hammerstein_oe_structure(
+        degree=degree, nb=nb, nf=nf, nk=nk, initial_values=start
+    )
+    policy = check_initial_state(initial_state, where)
+    orders = HammersteinOrders(block="oe", degree=degree, nb=nb, na=nf, nc=0, nk=nk)
+    segments = split_segments(y_arr, ds_arr, segment_starts, where)
+    lm, cov, std, transients = _pem(orders, structure, segments, policy, max_iterations, progress)
+    _warn_unconverged(lm, where)
+    return _fit_from_lm(orders, lm, cov, std, transients, policy, label)
+
+
+def fit_hammerstein_armax(
+    y: FloatArray,
+    ds: FloatArray,
+    *,
+    initial: HammersteinFit | Mapping[str, float] | None = None,
+    degree: int = 2,
+    na: int = 1,
+    nb: int = 2,
+    nc: int = 1,
+    nk: int = 1,
+    max_iterations: int = 100,
+    initial_state: InitialState = "estimate",
+    segment_starts: Sequence[int] | None = None,
+    progress: ProgressCallback | None = None,
+) -> HammersteinFit:
+    """Estimate the Hammerstein model with an ARMAX noise model by PEM on W (sec. 7.6).
+
+    Parameters
+    ----------
+    y :
+        Output deviation ``dP`` [kW], shape ``(N,)``.
+    ds :
+        Input deviation [%], shape ``(N,)``.
+    initial :
+        Start: a previous fit (an OE fit gives ``a = f`` and ``k = 0``, i.e. ``C = A``;
+        an ARMAX fit gives all), a mapping by name, or None for zeros.
+    degree, na, nb, nc, nk :
+        Degree of ``f`` and the orders of ``A``, ``B``, ``C`` and the delay.
+    max_iterations :
+        Levenberg-Marquardt iteration limit.
+    initial_state :
+        ``"estimate"`` (default: each segment's initial state is fitted with the model,
+        as MATLAB's ``'estimate'``), ``"held"`` (past held at the first sample, the rule
+        of `sysid.simulate`) or ``"zero"`` (the record starts at rest).
+    segment_starts :
+        First sample of each segment (experiment) of the record, starting with 0;
+        default one segment. Each segment has its own initial state.
+    progress :
+        ``progress(iteration, cost)`` after every iteration (sign of life on long logs).
+
+    Returns
+    -------
+    HammersteinFit
+        ``linear_block = "armax"`` with ``c_i = a_i + k_i`` (eq. 32), criterion
+        ``"one_step"``, ``cost`` = W under `initial_state` (with ``"held"``: zero past
+        innovations, equal to `sysid.criteria.one_step_mse`), and the full `covariance`.
+
+    Raises
+    ------
+    IdentificationError
+        Bad options or arrays; fewer than ``degree + 1`` distinct input levels; fewer
+        than 10 samples per parameter.
+
+    Warns
+    -----
+    IdentificationWarning
+        The search did not converge (the best iterate is returned, ``converged=False``).
+    """
+    where = "fit_hammerstein_armax"
+    y_arr, ds_arr = _check_arrays(y, ds, where)
+    structure = hammerstein_armax_structure(degree=degree, na=na, nb=nb, nc=nc, nk=nk)
+    _check_excitation(ds_arr, degree, structure.n_parameters, where)
+    if isinstance(initial, HammersteinFit) and initial.linear_block != "armax":
+        values = initial.values()
+        for i in range(1, initial.a.size):
+            if f"f{i}" in values:
+                values[f"a{i}"] = values.pop(f"f{i}")
+        names = structure.parameter_names
+        start = {k: v for k, v in values.items() if k in names}
+        label = "initial-values"
+    else:
+        start, label = _start_values(initial, structure.parameter_names)
+    structure = hammerstein_armax_structure(
+        degree=degree, na=na, nb=nb, nc=nc, nk=nk, initial_values=start
+    )
+    policy = check_initial_state(initial_state, where)
+    orders = HammersteinOrders(block="armax", degree=degree, nb=nb, na=na, nc=nc, nk=nk)
+    segments = split_segments(y_arr, ds_arr, segment_starts, where)
+    lm, cov, std, transients = _pem(orders, structure, segments, policy, max_iterations, progress)
+    _warn_unconverged(lm, where)
+    return _fit_from_lm(orders, lm, cov, std, transients, policy, label)
+
+
+def _warn_unconverged(result: LMResult, where: str) -> None:
+    if not result.converged:
+        warnings.warn(
+            f"{where}: the prediction-error search did not converge after "
+            f"{result.n_iterations} iterations ({result.message}); the best iterate is kept",
+            IdentificationWarning,
+            stacklevel=3,
+        )
+

@@ -1,0 +1,600 @@
+"""The paper's route to a Hammerstein model: eq. 21 start, re-identification, joint PEM, noise model.
+
+Steps 1-2 here (`initial_input_poly`, `reidentify_linear_block`), steps 3-4 in
+`sysid.hammerstein.fitting`; `run_hammerstein_route` runs them all on deviation arrays and
+`fit_hammerstein` on a `Dataset`. Notation as in `sysid.hammerstein`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from sysid._arrays import readonly_array as _readonly
+from sysid._typing import FloatArray
+from sysid.data import Dataset
+from sysid.errors import IdentificationError
+from sysid.hammerstein.filtering import InitialState
+from sysid.hammerstein.fitting import fit_hammerstein_armax, fit_hammerstein_oe
+from sysid.hammerstein.model import (
+    HammersteinFit,
+    RowForm,
+    _check_arrays,
+    _check_int,
+    _check_orders,
+    _poly_eval,
+    hammerstein_model,
+)
+from sysid.linear import arx_least_squares, oe_pem
+from sysid.model import OperatingPoint
+from sysid.optimize import parameter_std_errors
+from sysid.result import IdentificationResult
+from sysid.steps import InputStep, detect_steps
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class InputPolyInit:
+    """Least-squares initial input polynomial from step responses (paper eq. 21).
+
+    Parameters
+    ----------
+    input_poly :
+        ``[d_1, ..., d_n]`` of ``f(ds) = sum d_i ds^i`` in the units of the ARX
+        model's input, i.e. before normalization: the ARX ``b`` multiply ``f``.
+    std_errors :
+        Standard errors of `input_poly` from the least squares.
+    regressor :
+        The rows of eq. 21, one per step, shape ``(n_steps, n)``.
+    target :
+        Their left-hand sides, shape ``(n_steps,)`` [kW].
+    residuals :
+        ``target - regressor @ input_poly`` [kW].
+    row_form :
+        ``"eq21"`` or ``"jump"`` (see `initial_input_poly`).
+    fit :
+        The Hammerstein model of the paper's Fig. 12: the ARX polynomials with ``ds``
+        replaced by ``f(ds)``, normalized (``B / b_first``, ``f * b_first``).
+    """
+
+    input_poly: FloatArray
+    std_errors: FloatArray
+    regressor: FloatArray = field(repr=False)
+    target: FloatArray = field(repr=False)
+    residuals: FloatArray
+    row_form: RowForm
+    fit: HammersteinFit
+
+
+def initial_input_poly(
+    steps: Sequence[InputStep],
+    arx_a: npt.ArrayLike,
+    arx_b: npt.ArrayLike,
+    *,
+    operating_point: OperatingPoint,
+    degree: int = 2,
+    row_form: RowForm = "eq21",
+) -> InputPolyInit:
+    """Estimate the input polynomial ``f`` from the input steps and an ARX model (eq. 21).
+
+    Parameters
+    ----------
+    steps :
+        Input steps with their instantaneous responses (`sysid.steps.detect_steps`,
+        the rows of Table 3), in absolute units.
+    arx_a :
+        ARX ``A(q) = [1, a_1, ..]`` identified with ``ds`` as input (sec. 6).
+    arx_b :
+        ARX ``B(q) = [0]*nk + [b_nk, ..]`` (not normalized).
+    operating_point :
+        ``(s_nom, P_nom)`` the deviations are taken about.
+    degree :
+        Degree ``n`` of ``f`` (the paper: 2).
+    row_form :
+        ``"eq21"`` (default, the paper's literal rows) or ``"jump"`` (see Notes).
+
+    Returns
+    -------
+    InputPolyInit
+        The coefficients, their standard errors, the least-squares system and the
+        Hammerstein model of Fig. 12.
+
+    Raises
+    ------
+    IdentificationError
+        Fewer steps than ``degree`` (or a rank-deficient system: the steps do not
+        span enough input levels), bad polynomials or options.
+
+    Notes
+    -----
+    Reading of eqs. 15-21. Eq. 20 at the sample ``k`` where a step of the input from
+    ``ds_before`` to ``ds_after`` first shows in the output (``k = k_step + nk``) reads,
+    with every earlier output at ``dP_before`` (the output just before the jump) and
+    the input at ``ds_after`` for lag ``nk`` and ``ds_before`` for longer lags::
+
+        dP_after + (a_1 + .. + a_na) dP_before
+            = sum_i d_i (b_nk ds_after^i + (b_{nk+1} + .. ) ds_before^i)       (eq. 21)
+
+    one row per step of Table 3 (for the paper's ``na = 1, nb = 2, nk = 1`` exactly the
+    row ``dP_k + f_1 dP_{k-1} = [b_1 ds_{k-1}^2 + b_2 ds_{k-2}^2, b_1 ds_{k-1} + b_2
+    ds_{k-2}] [d_2, d_1]'``). This is ``row_form = "eq21"``. If the output was at rest
+    before the step under the ARX model, ``A(1) dP_before = (B(1) - ..)``, subtracting
+    the rest equation leaves the instantaneous jump of eq. 18:
+    ``dP_after - dP_before = b_nk (f(ds_after) - f(ds_before))``, which is
+    ``row_form = "jump"`` (it ignores how far from rest the output was). The two agree
+    when the steps start from rest. Solved by ordinary least squares (``n``
+    unknowns, one row per step; the paper: four rows, two unknowns).
+    """
+    where = "initial_input_poly"
+    degree = _check_int("degree", degree, 1, where)
+    if row_form not in ("eq21", "jump"):
+        raise IdentificationError(f"{where}: row_form must be 'eq21' or 'jump'; got {row_form!r}")
+    a = np.asarray(arx_a, dtype=float)
+    b = np.asarray(arx_b, dtype=float)
+    if a.ndim != 1 or a.size < 1 or a[0] != 1.0 or not np.all(np.isfinite(a)):
+        raise IdentificationError(f"{where}: arx_a must be [1, a1, ...] and finite; got {a.tolist()}")
+    nonzero = np.flatnonzero(b)
+    if b.ndim != 1 or nonzero.size == 0 or not np.all(np.isfinite(b)):
+        raise IdentificationError(
+            f"{where}: arx_b must be finite with a non-zero coefficient; got {b.tolist()}"
+        )
+    steps = tuple(steps)
+    if len(steps) < degree:
+        raise IdentificationError(
+            f"{where}: a degree-{degree} polynomial needs at least {degree} steps; got "
+            f"{len(steps)}"
+        )
+    nk = int(nonzero[0])
+    b_first = float(b[nk])
+    b_rest = float(np.sum(b[nk + 1 :]))
+    a_rest = float(np.sum(a[1:]))
+    powers = np.arange(1, degree + 1)
+    rows = []
+    target = []
+    for step in steps:
+        ds_before = step.triac_before_pct - operating_point.triac_pct
+        ds_after = step.triac_after_pct - operating_point.triac_pct
+        dp_before = step.power_before_kw - operating_point.power_kw
+        dp_after = step.power_after_kw - operating_point.power_kw
+        if row_form == "eq21":
+            rows.append(b_first * ds_after**powers + b_rest * ds_before**powers)
+            target.append(dp_after + a_rest * dp_before)
+        else:
+            rows.append(b_first * (ds_after**powers - ds_before**powers))
+            target.append(dp_after - dp_before)
+    phi = np.asarray(rows, dtype=float)
+    rhs = np.asarray(target, dtype=float)
+    scale = np.linalg.norm(phi, axis=0)
+    if np.any(scale == 0.0):
+        raise IdentificationError(f"{where}: the steps give an all-zero column; no information")
+    sol, _, rank, _ = np.linalg.lstsq(phi / scale, rhs, rcond=None)
+    if rank < degree:
+        raise IdentificationError(
+            f"{where}: the {len(steps)} steps determine only {rank} of {degree} coefficients "
+            "(they do not span enough distinct input levels); lower the degree"
+        )
+    d = sol / scale
+    residuals = rhs - phi @ d
+    std = (
+        parameter_std_errors(phi, residuals)
+        if len(steps) > degree
+        else np.full(degree, np.inf)
+    )
+    fit = HammersteinFit(
+        linear_block="arx",
+        a=a,
+        b=b / b_first,
+        c=np.array([1.0]),
+        input_poly=d * b_first,
+        parameter_names=tuple(f"d{i}" for i in powers),
+        parameters=d * b_first,
+        std_errors=np.asarray(std) * abs(b_first),
+        residuals=residuals,
+        criterion="least_squares",
+        cost=float(np.mean(residuals**2)),
+        n_iterations=0,
+        converged=True,
+        message="least squares on the step rows of eq. 21",
+        method=f"hammerstein-eq21-{row_form}",
+    )
+    return InputPolyInit(
+        input_poly=_readonly(d),
+        std_errors=_readonly(std),
+        regressor=_readonly(phi),
+        target=_readonly(rhs),
+        residuals=_readonly(residuals),
+        row_form=row_form,
+        fit=fit,
+    )
+
+
+# =========================================================================== step 2
+def reidentify_linear_block(
+    y: FloatArray,
+    ds: FloatArray,
+    input_poly: npt.ArrayLike,
+    *,
+    method: Literal["arx", "oe"] = "oe",
+    nb: int = 2,
+    nf: int = 1,
+    nk: int = 1,
+    max_iterations: int = 100,
+) -> HammersteinFit:
+    """Re-identify the linear block with ``f`` fixed: input ``w = f(ds)`` (sec. 7.4).
+
+    Parameters
+    ----------
+    y :
+        Output deviation ``dP`` [kW], shape ``(N,)``.
+    ds :
+        Input deviation [%], shape ``(N,)``.
+    input_poly :
+        ``[d_1, ..., d_n]`` of the fixed ``f`` (for example `InputPolyInit.input_poly`).
+    method :
+        ``"arx"`` (least squares, ``A`` of order ``nf``) or ``"oe"`` (PEM on V).
+    nb, nf, nk :
+        Orders of ``B`` and ``F`` (or ``A``) and the delay.
+    max_iterations :
+        Iteration limit of the OE search.
+
+    Returns
+    -------
+    HammersteinFit
+        Normalized: ``B / b_nk`` and ``f * b_nk`` (eqs. 22-24). The OE residuals are
+        the simulation errors (V); the ARX ones are equation errors.
+
+    Raises
+    ------
+    IdentificationError
+        Bad options or arrays, a constant input, or an estimated ``b_nk`` of zero.
+
+    Warns
+    -----
+    IdentificationWarning
+        The OE search did not converge (from `sysid.linear.oe_pem`).
+    """
+    where = "reidentify_linear_block"
+    y_arr, ds_arr = _check_arrays(y, ds, where)
+    poly = np.asarray(input_poly, dtype=float)
+    if poly.ndim != 1 or poly.size == 0 or not np.all(np.isfinite(poly)):
+        raise IdentificationError(f"{where}: input_poly must be a non-empty finite 1-D list")
+    if method not in ("arx", "oe"):
+        raise IdentificationError(f"{where}: method must be 'arx' or 'oe'; got {method!r}")
+    w = _poly_eval(poly, ds_arr)
+    if method == "arx":
+        arx = arx_least_squares(y_arr, w, na=nf, nb=nb, nk=nk)
+        a, b, c = arx.a, arx.b, np.array([1.0])
+        names = arx.parameter_names
+        theta, std, residuals = arx.theta, arx.std_errors, arx.residuals
+        n_it, converged, message = 0, True, "least squares: exact solution"
+        criterion: Literal["ballistic", "least_squares"] = "least_squares"
+    else:
+        pem = oe_pem(y_arr, w, nb=nb, nf=nf, nk=nk, max_iterations=max_iterations)
+        a, b, c = pem.a, pem.b, pem.c
+        names = pem.parameter_names
+        theta, std, residuals = pem.theta, pem.std_errors, pem.residuals
+        n_it, converged, message = pem.n_iterations, pem.converged, pem.message
+        criterion = "ballistic"
+    b_first = float(b[np.flatnonzero(b)[0]]) if np.any(b) else 0.0
+    if b_first == 0.0:
+        raise IdentificationError(f"{where}: the estimated B(q) is zero; f(ds) has no effect")
+    return HammersteinFit(
+        linear_block=method,
+        a=a,
+        b=b / b_first,
+        c=c,
+        input_poly=poly * b_first,
+        parameter_names=names,
+        parameters=theta,
+        std_errors=std,
+        residuals=residuals,
+        criterion=criterion,
+        cost=float(np.mean(np.asarray(residuals) ** 2)),
+        n_iterations=n_it,
+        converged=converged,
+        message=message,
+        method=f"hammerstein-reidentified-{method}",
+    )
+
+
+
+# =========================================================================== public entry
+@dataclass(frozen=True, kw_only=True, eq=False)
+class HammersteinRoute:
+    """Every step of the paper's Hammerstein route on one record (secs. 7.3-7.6).
+
+    Parameters
+    ----------
+    arx :
+        The linear ARX fit on ``ds`` that eq. 21 uses (as a `HammersteinFit` with
+        ``f(ds) = b_nk ds``).
+    steps :
+        The input steps used in eq. 21.
+    initial_poly :
+        Step 1 (eq. 21, Fig. 12), or None when skipped (fewer steps than the degree).
+    arx_reidentified, oe_reidentified :
+        Step 2 (Fig. 13).
+    final_oe :
+        Step 3 from the good initial values (eq. 27).
+    final_oe_from_zeros :
+        Step 3 from zeros, or None if not run.
+    noise_model :
+        Step 4 (eq. 30), or None if not run.
+    skipped :
+        What was skipped and why, in words.
+    """
+
+    arx: HammersteinFit
+    steps: tuple[InputStep, ...]
+    initial_poly: InputPolyInit | None
+    arx_reidentified: HammersteinFit
+    oe_reidentified: HammersteinFit
+    final_oe: HammersteinFit
+    final_oe_from_zeros: HammersteinFit | None
+    noise_model: HammersteinFit | None
+    skipped: tuple[str, ...] = ()
+
+
+def run_hammerstein_route(
+    y: FloatArray,
+    ds: FloatArray,
+    *,
+    steps: Sequence[InputStep],
+    operating_point: OperatingPoint,
+    degree: int = 2,
+    nb: int = 2,
+    nf: int = 1,
+    nk: int = 1,
+    noise_model: bool = True,
+    nc: int | None = None,
+    from_zeros: bool = False,
+    row_form: RowForm = "eq21",
+    max_iterations: int = 100,
+    initial_state: InitialState = "estimate",
+    progress: Callable[[str, int, float], None] | None = None,
+    extra_start: Mapping[str, float] | None = None,
+) -> HammersteinRoute:
+    """Run steps 1-4 of the paper's route on deviation arrays.
+
+    Parameters
+    ----------
+    y, ds :
+        Output and input deviations, shape ``(N,)`` [kW], [%].
+    steps :
+        Input steps (absolute units) for eq. 21.
+    operating_point :
+        The operating point the deviations are about (converts the steps).
+    degree, nb, nf, nk :
+        Degree of ``f`` and the orders of the linear block (the ARX uses ``na = nf``).
+    noise_model :
+        Also fit the ARMAX-block model on W (step 4), with ``na = nf`` and ``nc``.
+    nc :
+        Order of ``C``; default ``nf`` (the paper takes ``nc = na``).
+    from_zeros :
+        Also run step 3 from all-zero initial values.
+    row_form :
+        Rows of eq. 21 (see `initial_input_poly`).
+    max_iterations :
+        Iteration limit of every search.
+    initial_state :
+        Initial-state policy of the joint PEM fits (steps 3-4): ``"estimate"``
+        (default), ``"held"`` or ``"zero"`` (see `sysid.hammerstein.filtering`).
+    progress :
+        ``progress(step, iteration, cost)`` after every iteration of the joint PEM
+        fits, with ``step`` naming the fit.
+    extra_start :
+        A second start of step 3 by parameter name (for example the structure
+        search's fit); the better of the two final OE fits on V is kept.
+
+    Returns
+    -------
+    HammersteinRoute
+        With fewer steps than ``degree`` (or steps that do not determine ``f``), step 1
+        is skipped and ``f(ds) = ds`` starts step 2 (said in `skipped`).
+
+    Raises
+    ------
+    IdentificationError
+        As the individual steps.
+    """
+    where = "run_hammerstein_route"
+    y_arr, ds_arr = _check_arrays(y, ds, where)
+    degree, nb, nf, nk = _check_orders(degree, nb, nf, nk, where)
+    nc_used = nf if nc is None else _check_int("nc", nc, 0, where)
+    skipped: list[str] = []
+    arx_fit = arx_least_squares(y_arr, ds_arr, na=nf, nb=nb, nk=nk)
+    b_first = float(arx_fit.b[nk])
+    arx = HammersteinFit(
+        linear_block="arx",
+        a=arx_fit.a,
+        b=arx_fit.b / b_first,
+        c=np.array([1.0]),
+        input_poly=np.array([b_first]),
+        parameter_names=arx_fit.parameter_names,
+        parameters=arx_fit.theta,
+        std_errors=arx_fit.std_errors,
+        residuals=arx_fit.residuals,
+        criterion="least_squares",
+        cost=float(np.mean(arx_fit.residuals**2)),
+        n_iterations=0,
+        converged=True,
+        message="least squares: exact solution",
+        method="arx-least-squares",
+    )
+    steps = tuple(steps)
+    init: InputPolyInit | None = None
+    try:
+        init = initial_input_poly(
+            steps, arx_fit.a, arx_fit.b, operating_point=operating_point, degree=degree,
+            row_form=row_form,
+        )
+        poly = np.asarray(init.input_poly)
+    except IdentificationError as exc:
+        skipped.append(f"eq. 21 initial polynomial skipped ({exc}); f(ds) = ds used instead")
+        poly = np.zeros(degree)
+        poly[0] = 1.0
+    arx_re = reidentify_linear_block(y_arr, ds_arr, poly, method="arx", nb=nb, nf=nf, nk=nk)
+    oe_re = reidentify_linear_block(
+        y_arr, ds_arr, poly, method="oe", nb=nb, nf=nf, nk=nk, max_iterations=max_iterations
+    )
+    def report(step: str) -> Callable[[int, float], None] | None:
+        if progress is None:
+            return None
+        return lambda iteration, cost: progress(step, iteration, cost)
+
+    final = fit_hammerstein_oe(
+        y_arr, ds_arr, initial=oe_re, degree=degree, nb=nb, nf=nf, nk=nk,
+        max_iterations=max_iterations, initial_state=initial_state,
+        progress=report("joint PEM of the OE block (V)"),
+    )
+    if extra_start is not None:
+        other = fit_hammerstein_oe(
+            y_arr, ds_arr, initial=extra_start, degree=degree, nb=nb, nf=nf, nk=nk,
+            max_iterations=max_iterations, initial_state=initial_state,
+            progress=report("joint PEM of the OE block from the structure search (V)"),
+        )
+        if other.cost < final.cost:
+            final = other
+    zeros = None
+    if from_zeros:
+        zeros = fit_hammerstein_oe(
+            y_arr, ds_arr, initial=None, degree=degree, nb=nb, nf=nf, nk=nk,
+            max_iterations=max_iterations, initial_state=initial_state,
+            progress=report("joint PEM of the OE block from zeros (V)"),
+        )
+    noise = None
+    if noise_model:
+        noise = fit_hammerstein_armax(
+            y_arr, ds_arr, initial=final, degree=degree, na=nf, nb=nb, nc=nc_used, nk=nk,
+            max_iterations=max_iterations, initial_state=initial_state,
+            progress=report("joint PEM of the noise model (W)"),
+        )
+    return HammersteinRoute(
+        arx=arx,
+        steps=steps,
+        initial_poly=init,
+        arx_reidentified=arx_re,
+        oe_reidentified=oe_re,
+        final_oe=final,
+        final_oe_from_zeros=zeros,
+        noise_model=noise,
+        skipped=tuple(skipped),
+    )
+
+
+def fit_hammerstein(
+    data: Dataset,
+    *,
+    operating_point: OperatingPoint,
+    degree: int = 2,
+    nb: int = 2,
+    nf: int = 1,
+    nk: int = 1,
+    noise_model: bool = True,
+    nc: int | None = None,
+    steps: Sequence[InputStep] | None = None,
+    max_iterations: int = 100,
+    initial_state: InitialState = "estimate",
+) -> IdentificationResult:
+    """Identify a Hammerstein model of a heater log by the paper's route (secs. 7.3-7.6).
+
+    Parameters
+    ----------
+    data :
+        The (preprocessed) identification record, absolute units.
+    operating_point :
+        ``(s_nom, P_nom)`` for the deviation variables (sec. 5.1).
+    degree :
+        Degree ``n`` of ``f(ds) = sum_{i=1..n} p_i ds^i`` (no constant term).
+    nb, nf, nk :
+        Number of ``B`` coefficients (the first normalized to 1), order of ``F``
+        (``A``), delay [samples]. The paper: 2, 1, 1.
+    noise_model :
+        True: the ARMAX-block model of eq. 30, optimized for W (the model for
+        control). False: the OE-block model of eq. 27, optimized for V.
+    nc :
+        Order of ``C`` for the noise model; default ``nf``.
+    steps :
+        Input steps for eq. 21; default `sysid.steps.detect_steps` with delay ``nk``.
+    max_iterations :
+        Iteration limit of every search.
+    initial_state :
+        Initial-state policy of the joint PEM fits: ``"estimate"`` (default, as
+        MATLAB's ``'estimate'``), ``"held"`` or ``"zero"``; recorded in the model's
+        provenance (``extra["initial_state"]``).
+
+    Returns
+    -------
+    IdentificationResult
+        ``model.kind = "hammerstein"``, ``linear_block = "armax"`` (``C = [1, c1]``) or
+        ``"oe"`` (``C = A``), ``B = [0, 1, b2]``, ``input_poly = [d1, d2]``, criteria V
+        and W on `data`, ``noise_std_kw``, ``input_range_pct`` and provenance; the
+        parameters and standard errors of the last search; ``raw`` is the
+        `HammersteinRoute` with every intermediate step.
+
+    Raises
+    ------
+    IdentificationError
+        Bad options, a record too short or not exciting enough, or an unusable
+        estimate.
+
+    Warns
+    -----
+    IdentificationWarning
+        A search did not converge (its best iterate is kept).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sysid.data import Dataset
+    >>> from sysid.model import OperatingPoint
+    >>> rng = np.random.default_rng(0)
+    >>> s = 45.0 + np.repeat(rng.uniform(-10, 15, 20), 100)
+    >>> ds = s - 45.0
+    >>> w = 1.3 * ds - 0.007 * ds**2
+    >>> p = np.zeros_like(ds)
+    >>> for k in range(2, ds.size):
+    ...     p[k] = 0.99 * p[k - 1] + w[k - 1] - 0.98 * w[k - 2]
+    >>> data = Dataset(time_s=2.0 * np.arange(ds.size), triac_pct=s,
+    ...                power_kw=45.0 + p + 0.01 * rng.standard_normal(ds.size), ts_s=2.0)
+    >>> result = fit_hammerstein(data, operating_point=OperatingPoint(triac_pct=45.0,
+    ...                          power_kw=45.0), noise_model=False)
+    >>> np.round(result.model.input_poly, 2).tolist()
+    [1.3, -0.01]
+    """
+    where = "fit_hammerstein"
+    if not isinstance(data, Dataset):
+        raise IdentificationError(f"{where}: data must be a sysid Dataset; got {type(data)}")
+    if not isinstance(operating_point, OperatingPoint):
+        raise IdentificationError(
+            f"{where}: operating_point must be an OperatingPoint; got {operating_point!r}"
+        )
+    nk = _check_int("nk", nk, 0, where)
+    used_steps = tuple(detect_steps(data, delay_steps=nk) if steps is None else steps)
+    y = data.power_kw - operating_point.power_kw
+    ds = data.triac_pct - operating_point.triac_pct
+    route = run_hammerstein_route(
+        y, ds, steps=used_steps, operating_point=operating_point, degree=degree, nb=nb,
+        nf=nf, nk=nk, noise_model=noise_model, nc=nc, max_iterations=max_iterations,
+        initial_state=initial_state,
+    )
+    fit = route.noise_model if route.noise_model is not None else route.final_oe
+    model = hammerstein_model(
+        fit, data, operating_point=operating_point,
+        extra={"route_skipped": list(route.skipped), "n_steps_eq21": len(used_steps)},
+    )
+    return IdentificationResult(
+        model=model,
+        converged=fit.converged,
+        message=fit.message,
+        n_iterations=fit.n_iterations,
+        criterion="one_step" if fit.criterion == "one_step" else "ballistic",
+        parameter_names=fit.parameter_names,
+        parameters=fit.parameters,
+        std_errors=fit.std_errors,
+        residuals_kw=fit.residuals,
+        raw=route,
+    )

@@ -1,0 +1,485 @@
+"""Structure selection: delay estimation with its evidence, then an order grid chosen on validation data.
+
+Kernels on plain arrays: a record is a sequence of segments ``(y, ds)`` of deviation
+arrays (`sysid.hammerstein.filtering`).
+
+1. `estimate_delay`: a high-order ARX with ``nk = 0`` (``na`` small, ``nb`` long), whose
+   ``B`` coefficients estimate the first samples of the impulse response; the delay is
+   the first lag whose coefficient exceeds `threshold_sigma` standard errors. The
+   coefficients, their standard errors and the ARX impulse response are returned so a
+   figure can draw the evidence.
+2. `select_structure`: every segment is cut into an estimation block (the first
+   ``1 - validation_fraction``) and a validation block (the rest); a log shorter than
+   `SHORT_LOG_SAMPLES` is scored by two-fold contiguous cross-validation instead (each
+   half estimates, the other validates). The grid: linear OE (degree 1) over ``nb``,
+   ``nf``, ``nk`` (around the estimated delay, and the paper's ``nk``), then the input
+   polynomial degree 2..3 on the best linear structures and the paper's structure.
+   Every fit is the Hammerstein-OE PEM with the initial state estimated per segment,
+   run from two starts, keeping the better: an ARX least-squares start, and the best of
+   its nested lower-order fits padded with zeros (so a higher order never ends worse
+   than the order it contains, on the estimation data).
+   The choice is the lowest validation V; the paper's structure is kept unless the
+   choice beats it on validation by more than `PAPER_MARGIN`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import lfilter
+
+from sysid._arrays import readonly_array as _readonly
+from sysid._typing import FloatArray
+from sysid.errors import IdentificationError
+from sysid.greybox import GreyBoxStructure
+from sysid.hammerstein.filtering import HammersteinOrders, Segment, mean_square_criterion
+from sysid.hammerstein.fitting import _pem
+from sysid.hammerstein.model import hammerstein_oe_structure
+from sysid.residuals import CorrelationResult, autocorrelation, cross_correlation
+
+#: Logs shorter than this many samples are scored by two-fold cross-validation.
+SHORT_LOG_SAMPLES = 1500
+#: The paper's structure is kept unless the best beats its validation V by this share.
+PAPER_MARGIN = 0.05
+#: The paper's structure: (degree, nb, nf, nk).
+PAPER_ORDERS: tuple[int, int, int, int] = (2, 2, 1, 1)
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class DelayEstimate:
+    """Delay of the input's effect, with the evidence a figure can draw.
+
+    Parameters
+    ----------
+    delay_steps :
+        Estimated delay ``nk`` [samples].
+    lags :
+        Lags of `coefficients` [samples], ``0..n_coefficients-1``.
+    coefficients, std_errors :
+        The ARX ``B`` coefficients (early impulse response, output per input unit) and
+        their standard errors.
+    impulse_response :
+        Impulse response of the ARX model ``B/A`` at `lags`.
+    threshold_sigma :
+        The significance threshold used, in standard errors.
+    """
+
+    delay_steps: int
+    lags: FloatArray = field(repr=False)
+    coefficients: FloatArray = field(repr=False)
+    std_errors: FloatArray = field(repr=False)
+    impulse_response: FloatArray = field(repr=False)
+    threshold_sigma: float
+
+    def __post_init__(self) -> None:
+        for name in ("lags", "coefficients", "std_errors", "impulse_response"):
+            object.__setattr__(self, name, _readonly(getattr(self, name)))
+
+
+def _lag_matrix(x: FloatArray, lags: Sequence[int]) -> FloatArray:
+    out = np.zeros((x.size, len(lags)))
+    for col, lag in enumerate(lags):
+        if lag < x.size:
+            out[lag:, col] = x[: x.size - lag]
+    return out
+
+
+def estimate_delay(
+    segments: Sequence[Segment],
+    *,
+    n_coefficients: int = 12,
+    na: int = 2,
+    threshold_sigma: float = 3.0,
+) -> DelayEstimate:
+    """Estimate the input delay from an ARX(na, n_coefficients, nk=0) fit.
+
+    Parameters
+    ----------
+    segments :
+        ``(y, ds)`` deviation arrays per segment (rows of the first
+        ``max(na, n_coefficients)`` samples of each segment are left out).
+    n_coefficients :
+        Number of ``B`` coefficients (the longest delay that can be found + 1).
+    na :
+        Order of ``A`` (absorbs the slow dynamics so that ``B`` stays short).
+    threshold_sigma :
+        A coefficient is significant if ``|b_j| > threshold_sigma * std(b_j)``.
+
+    Returns
+    -------
+    DelayEstimate
+        ``delay_steps`` is the first significant lag (0 if none is: the data carry
+        no evidence of a delay, and the caller's grid still tries others).
+
+    Raises
+    ------
+    IdentificationError
+        Too few samples for the regression.
+    """
+    start = max(na, n_coefficients)
+    rows, targets = [], []
+    for y, ds in segments:
+        if y.size <= start:
+            continue
+        phi = np.hstack([-_lag_matrix(y, range(1, na + 1)), _lag_matrix(ds, range(n_coefficients))])
+        rows.append(phi[start:])
+        targets.append(y[start:])
+    if not rows or sum(r.shape[0] for r in rows) < 4 * (na + n_coefficients):
+        raise IdentificationError(
+            f"estimate_delay: need at least {4 * (na + n_coefficients)} usable samples for "
+            f"an ARX({na}, {n_coefficients}) delay search; got "
+            f"{sum(r.shape[0] for r in rows)}"
+        )
+    phi = np.vstack(rows)
+    target = np.concatenate(targets)
+    theta, *_ = np.linalg.lstsq(phi, target, rcond=None)
+    resid = target - phi @ theta
+    dof = max(target.size - theta.size, 1)
+    sigma2 = float(resid @ resid) / dof
+    cov = sigma2 * np.linalg.pinv(phi.T @ phi)
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    b = theta[na:]
+    b_std = std[na:]
+    significant = np.flatnonzero(np.abs(b) > threshold_sigma * b_std)
+    delay = int(significant[0]) if significant.size else 0
+    a = np.concatenate([[1.0], theta[:na]])
+    pulse = np.zeros(n_coefficients)
+    pulse[0] = 1.0
+    impulse = lfilter(b, a, pulse)
+    return DelayEstimate(
+        delay_steps=delay,
+        lags=np.arange(n_coefficients, dtype=float),
+        coefficients=np.asarray(b, dtype=float),
+        std_errors=np.asarray(b_std, dtype=float),
+        impulse_response=impulse,
+        threshold_sigma=threshold_sigma,
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class CandidateScore:
+    """One structure of the grid and its scores.
+
+    Parameters
+    ----------
+    degree, nb, nf, nk :
+        Degree of ``f`` and the OE orders (``nb`` counts the normalized ``b_nk = 1``).
+    n_parameters :
+        Model parameters (without initial states).
+    estimation_v_kw2 :
+        V on the estimation blocks (initial state estimated) [output unit^2].
+    validation_v_kw2 :
+        V on the validation blocks, initial state estimated by least squares.
+    aic, bic :
+        ``N log V + 2 p`` and ``N log V + p log N`` on the estimation blocks.
+    converged :
+        Every search of this structure converged.
+    """
+
+    degree: int
+    nb: int
+    nf: int
+    nk: int
+    n_parameters: int
+    estimation_v_kw2: float
+    validation_v_kw2: float
+    aic: float
+    bic: float
+    converged: bool
+
+    @property
+    def orders(self) -> tuple[int, int, int, int]:
+        """``(degree, nb, nf, nk)``."""
+        return (self.degree, self.nb, self.nf, self.nk)
+
+    def label(self) -> str:
+        """``degree 2, nb 2, nf 1, nk 1``."""
+        return f"degree {self.degree}, nb {self.nb}, nf {self.nf}, nk {self.nk}"
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class StructureChoice:
+    """Outcome of `select_structure`.
+
+    Parameters
+    ----------
+    delay :
+        The delay estimate and its evidence.
+    candidates :
+        Every structure fitted, in the order fitted.
+    chosen :
+        The structure chosen (lowest validation V, or the paper's; see `reason`).
+    paper :
+        The paper's structure's scores (always fitted), or None if it could not be.
+    reason :
+        Why `chosen` was chosen, in words.
+    validation :
+        ``"holdout"`` (last `validation_fraction` of each segment) or ``"two-fold"``.
+    residual_autocorrelation, residual_input_correlation :
+        Residual tests of the chosen model on the validation data.
+    validation_fit_percent :
+        ``compare``-style fit [%] of the chosen model on the validation data.
+    chosen_parameters :
+        The chosen structure's parameters fitted on the (first) estimation block, by
+        name: a start for the fit on the whole record.
+    """
+
+    delay: DelayEstimate
+    candidates: tuple[CandidateScore, ...]
+    chosen: CandidateScore
+    paper: CandidateScore | None
+    reason: str
+    validation: str
+    residual_autocorrelation: CorrelationResult | None = field(repr=False)
+    residual_input_correlation: CorrelationResult | None = field(repr=False)
+    validation_fit_percent: float
+    chosen_parameters: dict[str, float] = field(default_factory=dict)
+
+
+def _split(
+    segments: Sequence[Segment], validation_fraction: float
+) -> list[tuple[list[Segment], list[Segment]]]:
+    """Estimation/validation folds of contiguous blocks."""
+    total = sum(y.size for y, _ in segments)
+    if total >= SHORT_LOG_SAMPLES:
+        est, val = [], []
+        for y, ds in segments:
+            cut = int(round(y.size * (1.0 - validation_fraction)))
+            est.append((y[:cut], ds[:cut]))
+            val.append((y[cut:], ds[cut:]))
+        return [(est, val)]
+    first, second = [], []
+    for y, ds in segments:
+        half = y.size // 2
+        first.append((y[:half], ds[:half]))
+        second.append((y[half:], ds[half:]))
+    return [(first, second), (second, first)]
+
+
+class _Grid:
+    """Fits on the estimation folds, warm-started from nested lower orders."""
+
+    def __init__(self, folds: list[tuple[list[Segment], list[Segment]]], max_iterations: int):
+        self.folds = folds
+        self.max_iterations = max_iterations
+        self.fits: dict[tuple[int, int, int, int], list[np.ndarray]] = {}
+        self.costs: dict[tuple[int, int, int, int], list[float]] = {}
+        self.scores: dict[tuple[int, int, int, int], CandidateScore] = {}
+
+    def _start(self, key: tuple[int, int, int, int], fold: int) -> dict[str, float] | None:
+        degree, nb, nf, nk = key
+        best: tuple[float, dict[str, float]] | None = None
+        for lower in ((degree - 1, nb, nf, nk), (degree, nb - 1, nf, nk), (degree, nb, nf - 1, nk)):
+            if lower in self.fits:
+                orders = _oe_orders(*lower)
+                values = dict(zip(orders.parameter_names(), self.fits[lower][fold], strict=True))
+                cost = self.costs[lower][fold]
+                if best is None or cost < best[0]:
+                    best = (cost, values)
+        return None if best is None else best[1]
+
+    def fit(self, key: tuple[int, int, int, int]) -> CandidateScore | None:
+        if key in self.scores:
+            return self.scores[key]
+        degree, nb, nf, nk = key
+        orders = _oe_orders(degree, nb, nf, nk)
+        thetas, costs, vals, n_est = [], [], [], 0
+        converged = True
+        for i, (est, val) in enumerate(self.folds):
+            starts = [_linear_start(est, nb, nf, nk)]
+            nested = self._start(key, i)
+            if nested is not None:
+                starts.append(nested)
+            lm = None
+            for start in starts:
+                structure: GreyBoxStructure = hammerstein_oe_structure(
+                    degree=degree, nb=nb, nf=nf, nk=nk, initial_values=start
+                )
+                try:
+                    trial, _, _, _ = _pem(
+                        orders, structure, est, "estimate", self.max_iterations, None
+                    )
+                except IdentificationError:
+                    continue
+                if lm is None or trial.cost < lm.cost:
+                    lm = trial
+            if lm is None:
+                return None
+            theta = lm.theta[: orders.n_model]
+            thetas.append(theta)
+            costs.append(lm.cost)
+            converged = converged and lm.converged
+            vals.append(mean_square_criterion(orders, theta, val, "estimate"))
+            n_est += sum(y.size for y, _ in est)
+        self.fits[key] = thetas
+        self.costs[key] = costs
+        v_est = float(np.mean(costs))
+        p = orders.n_model
+        log_v = math.log(max(v_est, np.finfo(float).tiny))
+        score = CandidateScore(
+            degree=degree, nb=nb, nf=nf, nk=nk, n_parameters=p,
+            estimation_v_kw2=v_est, validation_v_kw2=float(np.mean(vals)),
+            aic=n_est * log_v + 2 * p, bic=n_est * log_v + p * math.log(n_est),
+            converged=converged,
+        )
+        self.scores[key] = score
+        return score
+
+
+def _oe_orders(degree: int, nb: int, nf: int, nk: int) -> HammersteinOrders:
+    return HammersteinOrders(block="oe", degree=degree, nb=nb, na=nf, nc=0, nk=nk)
+
+
+def _linear_start(segments: Sequence[Segment], nb: int, nf: int, nk: int) -> dict[str, float]:
+    """Normalized start from an ARX(nf, nb, nk) on the segments: ``d1 = b_nk``, ``b_j / b_nk``."""
+    start = max(nf, nk + nb - 1)
+    rows, targets = [], []
+    for y, ds in segments:
+        phi = np.hstack([-_lag_matrix(y, range(1, nf + 1)), _lag_matrix(ds, range(nk, nk + nb))])
+        rows.append(phi[start:])
+        targets.append(y[start:])
+    theta, *_ = np.linalg.lstsq(np.vstack(rows), np.concatenate(targets), rcond=None)
+    a = theta[:nf]
+    b = theta[nf:]
+    if b[0] == 0.0 or not np.all(np.isfinite(theta)):
+        return {"d1": 1.0}
+    out = {"d1": float(b[0])}
+    out.update({f"b{nk + j}": float(b[j] / b[0]) for j in range(1, nb)})
+    out.update({f"f{i}": float(a[i - 1]) for i in range(1, nf + 1)})
+    return out
+
+
+def select_structure(
+    segments: Sequence[Segment],
+    *,
+    nb_max: int = 4,
+    nf_max: int = 3,
+    degree_max: int = 3,
+    paper_orders: tuple[int, int, int, int] = PAPER_ORDERS,
+    validation_fraction: float = 1.0 / 3.0,
+    n_refine: int = 3,
+    max_iterations: int = 50,
+) -> StructureChoice:
+    """Choose the Hammerstein-OE structure (degree, nb, nf, nk) on validation data.
+
+    Parameters
+    ----------
+    segments :
+        ``(y, ds)`` deviation arrays per segment.
+    nb_max, nf_max, degree_max :
+        Largest ``nb`` (including the normalized coefficient), ``nf`` and degree tried.
+    paper_orders :
+        ``(degree, nb, nf, nk)`` always fitted and shown beside the choice.
+    validation_fraction :
+        Share of each segment (its end) held out for validation.
+    n_refine :
+        Number of best linear structures tried with degrees 2..`degree_max`.
+    max_iterations :
+        Iteration limit of each fit.
+
+    Returns
+    -------
+    StructureChoice
+        Every candidate's scores, the choice and why.
+
+    Raises
+    ------
+    IdentificationError
+        Bad options, or no structure could be fitted.
+    """
+    for name, value in (("nb_max", nb_max), ("nf_max", nf_max), ("degree_max", degree_max)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise IdentificationError(f"select_structure: {name} must be an int >= 1; got {value!r}")
+    if not 0.05 <= validation_fraction <= 0.5:
+        raise IdentificationError(
+            f"select_structure: validation_fraction must lie in [0.05, 0.5]; got "
+            f"{validation_fraction!r}"
+        )
+    delay = estimate_delay(segments)
+    nks = sorted({max(delay.delay_steps - 1, 0), delay.delay_steps, delay.delay_steps + 1,
+                  paper_orders[3]})
+    folds = _split(segments, validation_fraction)
+    grid = _Grid(folds, max_iterations)
+    for nk in nks:
+        for nf in range(1, nf_max + 1):
+            for nb in range(1, nb_max + 1):
+                grid.fit((1, nb, nf, nk))
+    linear = sorted((s for s in grid.scores.values() if s.degree == 1),
+                    key=lambda s: s.validation_v_kw2)
+    bases = [s.orders for s in linear[:n_refine]]
+    bases.append((1, *paper_orders[1:]))
+    for _, nb, nf, nk in bases:
+        for degree in range(2, degree_max + 1):
+            grid.fit((degree, nb, nf, nk))
+    if not grid.scores:
+        raise IdentificationError("select_structure: no structure of the grid could be fitted")
+    best = min(grid.scores.values(), key=lambda s: s.validation_v_kw2)
+    paper = grid.scores.get(paper_orders)
+    if paper is None:
+        chosen, reason = best, "the paper's structure could not be fitted; lowest validation V"
+    elif best.validation_v_kw2 < (1.0 - PAPER_MARGIN) * paper.validation_v_kw2:
+        gain = 100.0 * (1.0 - best.validation_v_kw2 / paper.validation_v_kw2)
+        chosen = best
+        reason = (
+            f"{best.label()} beats the paper's structure on validation data by {gain:.1f} % "
+            f"(V {best.validation_v_kw2:.4g} vs {paper.validation_v_kw2:.4g}; more than "
+            f"{100 * PAPER_MARGIN:.0f} %)"
+        )
+    else:
+        chosen = paper
+        reason = (
+            f"the paper's structure: no candidate beats its validation V "
+            f"({paper.validation_v_kw2:.4g}) by more than {100 * PAPER_MARGIN:.0f} % (best: "
+            f"{best.label()}, V {best.validation_v_kw2:.4g})"
+        )
+    auto, cross, fit_pct = _residual_tests(grid, chosen, folds)
+    return StructureChoice(
+        delay=delay,
+        candidates=tuple(grid.scores.values()),
+        chosen=chosen,
+        paper=paper,
+        reason=reason,
+        validation="holdout" if len(folds) == 1 else "two-fold",
+        residual_autocorrelation=auto,
+        residual_input_correlation=cross,
+        validation_fit_percent=fit_pct,
+        chosen_parameters=dict(zip(_oe_orders(*chosen.orders).parameter_names(),
+                                   (float(v) for v in grid.fits[chosen.orders][0]), strict=True)),
+    )
+
+
+def _residual_tests(
+    grid: _Grid, chosen: CandidateScore, folds: list[tuple[list[Segment], list[Segment]]]
+) -> tuple[CorrelationResult | None, CorrelationResult | None, float]:
+    """Whiteness and input-independence of the chosen model's validation residuals."""
+    from sysid.hammerstein.filtering import estimate_transients, segment_residuals
+
+    orders = _oe_orders(*chosen.orders)
+    theta = grid.fits[chosen.orders][0]
+    val = folds[0][1]
+    full = np.concatenate([theta, estimate_transients(orders, theta, val)])
+    r, _ = segment_residuals(orders, full, val, "estimate", jacobian=False)
+    y = np.concatenate([s[0] for s in val])
+    ds = np.concatenate([s[1] for s in val])
+    spread = float(np.linalg.norm(y - np.mean(y)))
+    fit_pct = 100.0 * (1.0 - float(np.linalg.norm(r)) / spread) if spread > 0 else float("nan")
+    max_lag = min(25, r.size // 4)
+    if max_lag < 1:
+        return None, None, fit_pct
+    return (autocorrelation(r, max_lag=max_lag), cross_correlation(r, ds, max_lag=max_lag),
+            fit_pct)
+
+
+__all__ = [
+    "PAPER_MARGIN",
+    "PAPER_ORDERS",
+    "SHORT_LOG_SAMPLES",
+    "CandidateScore",
+    "DelayEstimate",
+    "StructureChoice",
+    "estimate_delay",
+    "select_structure",
+]

@@ -1,0 +1,149 @@
+"""The wheel works on its own: built by ``python -m build``, installed into a fresh virtual
+environment outside the source tree, and run from there without reading the source tree.
+
+The fresh environment gets the already installed dependencies (numpy, scipy, osqp, ...)
+through a ``.pth`` line naming this interpreter's site-packages, so no network is needed;
+a plain path line does not run that folder's own ``.pth`` hooks, so the editable install of
+the source tree stays out. czmpc itself comes only from the wheel (``pip install --no-deps``:
+its dependencies are already there).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import sysconfig
+import tomllib
+import zipfile
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+VERSION = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))["project"]["version"]
+
+# Runs a command of the installed czmpc with an audit hook that records every file opened
+# inside the source tree (its .venv, which holds the dependencies, excepted), then prints
+# them on stderr after a marker so that the test can fail on any.
+_GUARD = """
+import os, sys
+repo, venv = os.path.realpath(sys.argv[1]), os.path.realpath(os.path.join(sys.argv[1], ".venv"))
+seen = []
+def hook(event, args):
+    if event == "open" and isinstance(args[0], (str, bytes, os.PathLike)):
+        path = os.path.realpath(os.fsdecode(args[0]))
+        if path.startswith(repo + os.sep) and not path.startswith(venv + os.sep):
+            seen.append(path)
+sys.addaudithook(hook)
+from czmpc.cli import main
+try:
+    code = main(sys.argv[2:])
+finally:
+    print("SOURCE-TREE-READS:" + repr(sorted(set(seen))), file=sys.stderr)
+sys.exit(code)
+"""
+
+
+def _run(args: list[str], cwd: Path, timeout_s: float = 300,
+         warnings: str = "") -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME", "VIRTUAL_ENV")}
+    env["PYTHONWARNINGS"] = warnings
+    return subprocess.run(args, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout_s,
+                          check=False)
+
+
+@pytest.fixture(scope="module")
+def dist(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``python -m build`` of the repository: the sdist, then the wheel built from it."""
+    out = tmp_path_factory.mktemp("dist")
+    proc = _run([sys.executable, "-m", "build", "--outdir", str(out), str(REPO)], cwd=out, timeout_s=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    log = proc.stdout + proc.stderr
+    # setuptools announces removals (licence tables, classifiers) as deprecation warnings
+    assert "Deprecat" not in log and "deprecat" not in log, log[-3000:]
+    return out
+
+
+@pytest.fixture(scope="module")
+def venv(dist: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A fresh virtual environment outside the source tree with the wheel installed."""
+    root = tmp_path_factory.mktemp("wheel-venv")
+    env_dir = root / "venv"
+    assert _run([sys.executable, "-m", "venv", str(env_dir)], cwd=root).returncode == 0
+    python = env_dir / "bin" / "python"
+    purelib = _run([str(python), "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"],
+                   cwd=root).stdout.strip()
+    deps = {sysconfig.get_path("purelib"), sysconfig.get_path("platlib")}
+    (Path(purelib) / "_czmpc_test_deps.pth").write_text("\n".join(sorted(deps)) + "\n", encoding="utf-8")
+    (wheel,) = dist.glob("czmpc-*.whl")
+    proc = _run([str(python), "-m", "pip", "install", "--quiet", "--no-deps", "--no-index", str(wheel)],
+                cwd=root)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return env_dir
+
+
+@pytest.mark.slow
+def test_sdist_and_wheel_carry_the_version_licence_and_package_data(dist: Path) -> None:
+    (sdist,) = dist.glob("czmpc-*.tar.gz")
+    (wheel,) = dist.glob("czmpc-*.whl")
+    assert sdist.name == f"czmpc-{VERSION}.tar.gz"
+    assert wheel.name == f"czmpc-{VERSION}-py3-none-any.whl"
+    with zipfile.ZipFile(wheel) as zf:
+        names = set(zf.namelist())
+        metadata = zf.read(f"czmpc-{VERSION}.dist-info/METADATA").decode()
+    assert f"czmpc-{VERSION}.dist-info/licenses/LICENSE" in names
+    assert "License-Expression: BSD-3-Clause" in metadata
+    for name in ("czmpc/data/cz_heater_experiment.csv", "czmpc/data/cz_heater_model.json",
+                 "czmpc/py.typed", "sysid/py.typed", "sim/py.typed", "sim/scenarios/staircase.toml"):
+        assert name in names, name
+    assert not any(n.startswith(("tests/", "docs/")) for n in names)
+
+
+def _czmpc(venv: Path, cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    return _run([str(venv / "bin" / "python"), "-c", _GUARD, str(REPO), *args], cwd=cwd,
+                warnings="error::DeprecationWarning")
+
+
+def _source_tree_reads(proc: subprocess.CompletedProcess[str]) -> str:
+    return proc.stderr.rsplit("SOURCE-TREE-READS:", 1)[1].strip()
+
+
+@pytest.mark.slow
+def test_installed_packages_come_from_the_venv_not_the_source_tree(venv: Path, tmp_path: Path) -> None:
+    code = ("import czmpc, sysid, sim, czmpc.shipped as s; "
+            "print(czmpc.__file__); print(sysid.__file__); print(sim.__file__); "
+            "print(s.shipped_path(s.EXPERIMENT_CSV)); print(czmpc.__version__)")
+    proc = _run([str(venv / "bin" / "python"), "-c", code], cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    *paths, version = proc.stdout.split()
+    for path in paths:
+        assert Path(path).resolve().is_relative_to(venv.resolve()), path
+    assert version == VERSION
+    console = _run([str(venv / "bin" / "czmpc"), "--version"], cwd=tmp_path)
+    assert console.stdout.strip() == f"czmpc {VERSION}"
+
+
+@pytest.mark.slow
+def test_demo_runs_from_the_wheel(venv: Path, tmp_path: Path) -> None:
+    proc = _czmpc(venv, tmp_path, "demo", "--out", "demo")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert _source_tree_reads(proc) == "[]"
+    assert "identical to the shipped cz_heater_experiment.csv" in proc.stdout
+    assert (tmp_path / "demo" / "identify" / "model.json").is_file()
+    assert (tmp_path / "demo" / "simulate-heater" / "metrics.json").is_file()
+
+
+@pytest.mark.slow
+def test_identify_on_the_shipped_log_runs_from_the_wheel(venv: Path, tmp_path: Path) -> None:
+    where = _run([str(venv / "bin" / "python"), "-c",
+                  "import czmpc.shipped as s; print(s.shipped_path(s.EXPERIMENT_CSV))"], cwd=tmp_path)
+    log = Path(where.stdout.strip())
+    assert log.resolve().is_relative_to(venv.resolve())
+    proc = _czmpc(venv, tmp_path, "identify", str(log), "--out", "id")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert _source_tree_reads(proc) == "[]"
+    model = (tmp_path / "id" / "model.json").read_text(encoding="utf-8")
+    assert f'"software": "czmpc {VERSION}"' in model
+    report = (tmp_path / "id" / "report.md").read_text(encoding="utf-8")
+    assert f"Produced by czmpc {VERSION}" in report

@@ -1,0 +1,169 @@
+"""Structure selection: delay evidence, nested orders, and the done-when on three real logs."""
+
+from __future__ import annotations
+
+import itertools
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+from scipy.signal import lfilter
+
+from sysid.criteria import ballistic_mse
+from sysid.data import read_csv
+from sysid.model import OperatingPoint
+from sysid.pipeline import PipelineResult, run_paper_pipeline
+from sysid.reallogs import read_cascaded_tanks, read_daisy_heating, read_tclab
+from sysid.structure import PAPER_ORDERS, estimate_delay, select_structure
+from tests.sysid.test_pipeline import (
+    MAX_FROM_ZEROS_RELATIVE_DIFFERENCE,
+    MAX_HIGHER_ORDER_V_IMPROVEMENT,
+    MIN_HAMMERSTEIN_V_RATIO,
+    MIN_NOISE_MODEL_W_REDUCTION,
+)
+
+REPO = Path(__file__).resolve().parents[2]
+REAL = REPO / "data" / "real"
+
+#: The issue's bar: the best model czmpc writes within 10 % of the best linear OE's V.
+DONE_WHEN_V_RATIO = 1.10
+#: Nested fits: the higher order starts exactly at the lower optimum and LM never
+#: increases the cost; what is left is the LM tolerances (1e-10 relative) and rounding.
+NESTED_COST_RTOL = 1e-8
+
+
+def _oe_record(rng: np.random.Generator, n: int, nk: int) -> tuple[np.ndarray, np.ndarray]:
+    ds = np.repeat(rng.uniform(-10.0, 10.0, n // 40 + 1), 40)[:n]
+    w = 1.2 * ds - 0.02 * ds**2
+    b = np.concatenate([np.zeros(nk), [1.0, -0.5]])
+    y = lfilter(b, [1.0, -0.9], w) + 0.05 * rng.standard_normal(n)
+    return y, ds
+
+
+def test_delay_estimate_finds_the_delay_and_returns_its_evidence(
+    rng: np.random.Generator,
+) -> None:
+    y, ds = _oe_record(rng, 3000, nk=4)
+    est = estimate_delay([(y, ds)])
+    assert est.delay_steps == 4
+    assert est.lags.size == est.coefficients.size == est.std_errors.size == est.impulse_response.size
+    # the impulse response of y = (q^-4 - 0.5 q^-5)/(1 - 0.9 q^-1) * 1.2 ds near ds = 0
+    assert np.all(np.abs(est.impulse_response[:4]) < 0.1)
+    np.testing.assert_allclose(est.impulse_response[4], 1.2, rtol=0.1)
+
+
+def test_higher_orders_never_end_worse_than_the_nested_lower_order(
+    rng: np.random.Generator,
+) -> None:
+    y, ds = _oe_record(rng, 2400, nk=1)
+    choice = select_structure([(y, ds)], nb_max=3, nf_max=2, degree_max=2, n_refine=2)
+    scores = {c.orders: c for c in choice.candidates}
+    checked = 0
+    for (degree, nb, nf, nk), score in scores.items():
+        for lower in ((degree - 1, nb, nf, nk), (degree, nb - 1, nf, nk), (degree, nb, nf - 1, nk)):
+            if lower in scores:
+                checked += 1
+                assert score.estimation_v_kw2 <= scores[lower].estimation_v_kw2 * (
+                    1 + NESTED_COST_RTOL), (score.orders, lower)
+    assert checked > 10
+    assert choice.chosen.orders == PAPER_ORDERS        # the truth is the paper's structure
+    assert choice.residual_autocorrelation is not None
+    assert choice.validation_fit_percent > 90.0
+
+
+# ---------------------------------------------------------------- the done-when
+def _best_linear_oe_v(y: np.ndarray, u: np.ndarray) -> float:
+    """Best V of OE(nb 1..4, nf 1..3, nk 1..3) by multistart scipy least_squares.
+
+    Independent of sysid: the initial transient ``h`` (n = max(nf, nk + nb - 1)
+    samples into ``F yhat = B u + h``) is a decision variable, derivatives by finite
+    differences; starts from ARX least squares and from two fixed pole positions.
+    """
+    best = np.inf
+    for nb, nf, nk in itertools.product(range(1, 5), range(1, 4), range(1, 4)):
+        n = max(nf, nk + nb - 1)
+
+        def resid(theta: np.ndarray, nb: int = nb, nf: int = nf, nk: int = nk,
+                  n: int = n) -> np.ndarray:
+            b = np.concatenate([np.zeros(nk), theta[:nb]])
+            f = np.concatenate([[1.0], theta[nb:nb + nf]])
+            if np.max(np.abs(np.roots(f)), initial=0.0) >= 1.0:
+                return np.full(y.size, 1e3)
+            src = lfilter(b, [1.0], u)
+            src[:n] += theta[nb + nf:]
+            return y - lfilter([1.0], f, src)
+
+        m = max(nf, nk + nb - 1)
+        phi = np.column_stack([-np.roll(y, i) for i in range(1, nf + 1)]
+                              + [np.roll(u, j) for j in range(nk, nk + nb)])[m:]
+        arx = np.linalg.lstsq(phi, y[m:], rcond=None)[0]
+        starts = [np.concatenate([arx[nf:], arx[:nf]])]
+        for pole in (0.9, 0.99):
+            f0 = np.poly(np.full(nf, pole))[1:]
+            gain = float(np.sum(arx[nf:]) or 1.0)
+            starts.append(np.concatenate([np.full(nb, gain * (1 - pole) / nb), f0]))
+        for start in starts:
+            if np.max(np.abs(np.roots(np.concatenate([[1.0], start[nb:]]))), initial=0.0) >= 1:
+                continue
+            x0 = np.concatenate([start, np.zeros(n)])
+            sol = least_squares(resid, x0, method="lm", max_nfev=4000)
+            best = min(best, float(np.mean(sol.fun**2)))
+    return best
+
+
+def _auto(name: str) -> PipelineResult:
+    if name == "daisy":
+        data = read_daisy_heating(REAL / "daisy_heating_system.dat")
+        op: OperatingPoint | None = OperatingPoint(triac_pct=6.0, power_kw=129.32)
+    elif name == "tclab":
+        data, op = read_tclab(REAL / "tclab_mimo_steps_data.txt"), None
+    else:
+        data, op = read_cascaded_tanks(REAL / "cascaded_tanks_dataBenchmark.csv"), None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")          # non-convergence is reported in the result
+        return run_paper_pipeline(data, operating_point=op, orders="auto")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [
+    "daisy",
+    "tclab",
+    pytest.param("tanks", marks=pytest.mark.xfail(
+        strict=True, reason="not met yet: the cascaded tanks' written models reach V = 0.535 "
+        "against 0.462 for the best linear OE (ratio 1.16 > 1.10)")),
+])
+def test_auto_orders_model_is_within_ten_percent_of_the_best_linear_oe(name: str) -> None:
+    result = _auto(name)
+    op = result.operating_point.operating_point
+    y = result.data.power_kw - op.power_kw
+    u = result.data.triac_pct - op.triac_pct
+    reference = _best_linear_oe_v(y, u)
+    written = min(ballistic_mse(m.model, result.data, initial_state="estimate")
+                  for m in result.models)
+    assert result.structure is not None
+    assert written <= DONE_WHEN_V_RATIO * reference, (written, reference)
+
+
+@pytest.mark.slow
+def test_shipped_experiment_keeps_the_papers_structure_and_findings() -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = run_paper_pipeline(read_csv(REPO / "data" / "cz_heater_experiment.csv"),
+                                    orders="auto")
+    assert result.structure is not None
+    chosen, paper = result.structure.chosen, result.structure.paper
+    assert paper is not None
+    assert chosen.orders == PAPER_ORDERS or (
+        chosen.validation_v_kw2 < 0.95 * paper.validation_v_kw2)
+    assert result.structure.reason
+    f = result.findings
+    assert f.oe_beats_arx_armax is True
+    assert f.hammerstein_v_ratio is not None and f.hammerstein_v_ratio >= MIN_HAMMERSTEIN_V_RATIO
+    assert f.noise_model_w_reduction is not None
+    assert f.noise_model_w_reduction >= MIN_NOISE_MODEL_W_REDUCTION
+    assert f.from_zeros_relative_difference is not None
+    assert f.from_zeros_relative_difference < MAX_FROM_ZEROS_RELATIVE_DIFFERENCE
+    assert f.higher_order_v_improvement is not None
+    assert f.higher_order_v_improvement <= MAX_HIGHER_ORDER_V_IMPROVEMENT
