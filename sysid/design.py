@@ -11,13 +11,13 @@ Three kinds:
     ``HOLD_TAUS`` time constants (the step response of a first-order plant is within
     ``exp(-4) < 2 %`` of its final value after 4 time constants).
 ``gbn``
-    Generalized binary noise (Tulleken 1993, "Generalized binary noise test-signal
-    concept for improved identification-experiment design", Automatica 29(1)): at each
+    Generalized binary noise (Tulleken 1990, "Generalized binary noise test-signal
+    concept for improved identification-experiment design", Automatica 26(1), 37-49): at each
     sample the signal switches between two levels with probability ``p_sw``.  Its
     autocorrelation is ``(1 - 2 p_sw)^|k|``, so its spectrum is flat up to about
     ``omega_c = 2 p_sw / ts_s = 2 / T_sw`` rad/s, where ``T_sw = ts_s / p_sw`` is the mean
     switching time.  Rule used here: ``T_sw = tau_s``, which places the corner at twice
-    the plant bandwidth ``1 / tau_s`` (Ljung, System Identification, 2nd ed., sec. 13.3:
+    the plant bandwidth ``1 / tau_s`` (Ljung, System Identification, 2nd ed., ch. 13:
     put the input power where the model must be accurate, i.e. up to and somewhat beyond
     the bandwidth of the process).
 ``mixed`` (default)
