@@ -1,0 +1,49 @@
+"""``czmpc design-test``: the CSV it writes, its summary, the prior-model path and errors."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from czmpc.cli import main
+from czmpc.shipped import shipped_path
+from sysid.modelfile import load_model
+from sysid.polynomials import roots_z
+
+
+def test_design_test_writes_time_and_triac_columns(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str],
+) -> None:
+    out = tmp_path / "test.csv"
+    code = main(["design-test", "--ts-s", "2", "--range-pct", "10", "50", "--tau-s", "100",
+                 "--duration-s", "20000", "--max-step-pct", "5", "--seed", "3", "--out", str(out)])
+    assert code == 0
+    assert out.read_text().splitlines()[0] == "time_s,triac_pct"
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    np.testing.assert_allclose(table[:, 0], np.arange(10001) * 2.0)
+    assert np.abs(np.diff(table[:, 1])).max() <= 5.0 + 1e-9
+    assert table[:, 1].min() == 10.0 and table[:, 1].max() == 50.0
+    text = capsys.readouterr().out
+    assert "staircase levels [%]: 10, 15, 20, 25, 30, 35, 40, 45, 50" in text
+    assert "GBN mean switching time T_sw = 100 s" in text
+
+
+def test_design_test_takes_tau_from_a_prior_model(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    model_path = shipped_path("cz_heater_model.json")
+    model = load_model(model_path)
+    tau = max(-model.ts_s / math.log(abs(z)) for z in roots_z(model.a) if 0 < abs(z) < 1)
+    out = tmp_path / "test.csv"
+    code = main(["design-test", "--ts-s", "2", "--range-pct", "20", "60", "--prior", str(model_path),
+                 "--duration-s", str(60 * tau), "--out", str(out)])
+    assert code == 0
+    assert f"(tau = {tau:g} s)" in capsys.readouterr().out
+
+
+def test_design_test_too_short_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["design-test", "--ts-s", "2", "--range-pct", "10", "50", "--tau-s", "100",
+                 "--duration-s", "1000", "--out", str(tmp_path / "t.csv")])
+    assert code == 2
+    assert "czmpc: error: duration_s = 1000 s is too short" in capsys.readouterr().err
