@@ -160,3 +160,12 @@ def test_a_campaign_spec_drift_stops_the_docs_build(contracts: ModuleType,
     monkeypatch.setitem(contracts.CAMPAIGN_PLANT_KEYS, "colour", ("string", "-", "not a key"))
     with pytest.raises(ExtensionError, match="colour"):
         contracts.campaign_spec_rst()
+
+
+def test_the_documented_refusal_of_controller_settings_is_the_validators(contracts: ModuleType) -> None:
+    # The reference says this version refuses [[controllers]] settings; when a settings
+    # loader lands, this fails and the reference must say what the key now does.
+    assert "refuses" in contracts.CAMPAIGN_CONTROLLER_KEYS["settings"][2]
+    doc = {**_minimal_spec(), "controllers": [{"preset": "mpc", "settings": "mine.toml"}]}
+    with pytest.raises(CampaignError, match="not supported"):
+        spec_from_dict(doc)
