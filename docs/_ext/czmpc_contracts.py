@@ -1,9 +1,12 @@
 """Sphinx directives that write the file-format and exit-code references from the code.
 
 Each reference is built at documentation time from the constants the validators use
-(`sysid.modelfile`, `sysid.data`, `czmpc.cli._exit`), so the documented keys cannot drift
+(`sysid.modelfile`, `sysid.data`, `czmpc.cli._exit`, `czmpc.runtime.config`,
+`czmpc.runtime.security`, `czmpc.campaigns.campaign`), so the documented keys cannot drift
 from the accepted ones: a key the validator knows and this module does not describe (or
-the other way round) stops the build, and ``tests/test_docs_contracts.py`` checks the same.
+the other way round) stops the build, and ``tests/docs/test_contract_references.py`` and
+``tests/docs/test_config_references.py`` check the same. Pages with a generated reference
+are re-read on every build, so an incremental ``make docs`` never shows an outdated one.
 """
 
 from __future__ import annotations
@@ -353,8 +356,9 @@ def commands_rst() -> str:
 def _table(header: tuple[str, ...], rows: Iterable[tuple[str, ...]]) -> list[str]:
     lines = [".. list-table::", "   :header-rows: 1", ""]
     for row in (header, *rows):
-        lines.append("   * - " + row[0])
-        lines += [f"     - {cell}" for cell in row[1:]]
+        cells = [r"\-" if cell == "-" else cell for cell in row]   # a lone "-" is a list
+        lines.append("   * - " + cells[0])
+        lines += [f"     - {cell}" for cell in cells[1:]]
     return lines
 
 
@@ -378,6 +382,9 @@ class ContractDirective(SphinxDirective):
         name = self.arguments[0]
         if name not in _GENERATORS:
             raise self.error(f"unknown reference {name!r}; one of {sorted(_GENERATORS)}")
+        docs: set[str] = getattr(self.env, "czmpc_contract_docs", set())
+        docs.add(self.env.docname)
+        self.env.czmpc_contract_docs = docs  # type: ignore[attr-defined]
         container = nodes.container()
         text = _GENERATORS[name]()
         self.state.nested_parse(StringList(text.splitlines(), source=f"<czmpc-contract {name}>"),
@@ -385,6 +392,21 @@ class ContractDirective(SphinxDirective):
         return list(container.children)
 
 
+def _always_reread(app: Sphinx, env: Any, added: set[str], changed: set[str],
+                   removed: set[str]) -> list[str]:
+    """Re-read the pages with a generated reference on every build: their text comes
+    from the code, which Sphinx does not watch, so an incremental build would keep an
+    outdated reference."""
+    return sorted(getattr(env, "czmpc_contract_docs", set()) - removed)
+
+
+def _merge(app: Sphinx, env: Any, docnames: set[str], other: Any) -> None:
+    env.czmpc_contract_docs = (getattr(env, "czmpc_contract_docs", set())
+                               | getattr(other, "czmpc_contract_docs", set()))
+
+
 def setup(app: Sphinx) -> dict[str, Any]:
     app.add_directive("czmpc-contract", ContractDirective)
+    app.connect("env-get-outdated", _always_reread)
+    app.connect("env-merge-info", _merge)
     return {"version": "1", "parallel_read_safe": True}
