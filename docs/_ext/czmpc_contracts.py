@@ -103,7 +103,7 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
     "controller.model": ("string (file)", "required", "-",
                          "Model file (:doc:`model_file`) the controller is built from."),
     "controller.settings": ("string (file)", "none (defaults from the model)", "-",
-                            "MPC settings TOML file."),
+                            "MPC settings file (:doc:`settings_file`)."),
     "run.duration_s": ("number > 0", "none (until stopped)", "s",
                        "Plant time to run (``--duration-s`` overrides it)."),
     "run.setpoint_kw": ("number", "none", "kW",
@@ -342,6 +342,103 @@ def campaign_spec_rst() -> str:
               "- Relative file names are taken from the spec's directory."]
     return "\n".join(lines)
 
+def accepted_settings_keys() -> dict[str, list[str]]:
+    """The keys the settings-file reader accepts, top level and per table, from its errors.
+
+    `czmpc.settings_file.settings_from_dict` lists the valid keys when it refuses an
+    unknown one; this asks it with one unknown key at each level.
+    """
+    from czmpc.errors import SettingsError
+    from czmpc.settings_file import PRESET_KEY, TABLES, settings_from_dict
+    from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
+    from sysid.modelfile import load_model
+
+    model = load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
+    probe = "zz_undocumented"
+    out: dict[str, list[str]] = {}
+    for level in ("", *TABLES):
+        doc: dict[str, Any] = {probe: 1} if not level else {level: {probe: 1}}
+        try:
+            settings_from_dict(doc, model)
+        except SettingsError as exc:
+            text = str(exc)
+            if probe not in text or "valid keys: " not in text:
+                raise ExtensionError(f"settings file: cannot read the accepted keys of "
+                                     f"[{level}] from {text!r}; update docs/_ext/czmpc_contracts.py"
+                                     ) from exc
+            keys = text.rsplit("valid keys: ", 1)[1].split(", ")
+            out[level] = [PRESET_KEY, *keys, *TABLES] if not level else keys
+        else:
+            raise ExtensionError(f"settings file: an unknown key in [{level}] was accepted")
+    return out
+
+
+def settings_keys() -> dict[str, list[tuple[str, str, str, str, str]]]:
+    """Per table ("" = top level): (key, type, default, unit, meaning) of every setting.
+
+    Types and meanings come from the settings dataclasses and their numpy docstrings
+    (`czmpc.settings_file.field_docs`); defaults are those of the ``default`` preset for
+    the shipped model. Raises ExtensionError when a key has no documented meaning or the
+    keys differ from those the reader accepts.
+    """
+    import dataclasses
+    import re
+    from typing import get_args
+
+    from czmpc import settings_file as sf
+    from czmpc.settings import MPCSettings, PresetName
+    from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
+    from sysid.modelfile import load_model
+
+    model = load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
+    defaults, plain = MPCSettings.default_for(model), MPCSettings()
+    out: dict[str, list[tuple[str, str, str, str, str]]] = {"": [(
+        f"``{sf.PRESET_KEY}``", "one of " + ", ".join(f"``{p}``" for p in get_args(PresetName)),
+        "default", "-", "The preset the file starts from: every key left out takes its value.")]}
+    for level, cls in (("", MPCSettings), *sf.TABLES.items()):
+        obj, ref = ((defaults, plain) if not level
+                    else (getattr(defaults, level), getattr(plain, level)))
+        docs = sf.field_docs(cls)
+        rows = out.setdefault(level, [])
+        for field in dataclasses.fields(cls):
+            if field.name in sf.TABLES:
+                continue
+            meaning = docs.get(field.name, "").replace("None", f'``"{sf.OFF}"``')
+            if not meaning:
+                raise ExtensionError(f"settings file: {cls.__name__}.{field.name} has no "
+                                     "description in its numpy docstring")
+            base, optional, choices = sf._field_kind(cls, field.name)
+            kind = ("one of " + ", ".join(f"``{c}``" for c in choices) if choices
+                    else {bool: "boolean", int: "integer", float: "number"}.get(base, base.__name__))
+            if optional:
+                kind += f' or ``"{sf.OFF}"``'
+            value = sf._toml_value(getattr(obj, field.name))
+            if getattr(obj, field.name) != getattr(ref, field.name):
+                value += " (from the model)"
+            unit = re.search(r"\[([^\]]+)\]", meaning)
+            rows.append((f"``{field.name}``", kind, value.replace('"', ""),
+                         unit.group(1) if unit else "-", meaning + "."))
+    accepted = accepted_settings_keys()
+    for level, rows in out.items():
+        documented = [r[0].strip("`") for r in rows]
+        if not level:
+            documented += list(sf.TABLES)
+        _check_same(documented, accepted[level], f"settings-file keys of [{level or 'top'}]")
+    return out
+
+
+def settings_file_rst() -> str:
+    """The settings-file reference: every key of every table, from the settings classes."""
+    from czmpc.settings_file import TABLES
+
+    keys = settings_keys()
+    lines = ["Top-level keys (`czmpc.MPCSettings`):", ""]
+    lines += _table(("key", "type", "default", "unit", "meaning"), keys[""])
+    for name, cls in TABLES.items():
+        lines += ["", f"``[{name}]`` (`czmpc.settings.{cls.__name__}`):", ""]
+        lines += _table(("key", "type", "default", "unit", "meaning"), keys[name])
+    return "\n".join(lines)
+
 def commands_rst() -> str:
     """One row per ``czmpc`` sub-command with its one-line help."""
     from czmpc.cli import build_parser
@@ -370,6 +467,7 @@ _GENERATORS: Mapping[str, Any] = {
     "plant-security": plant_security_rst,
     "run-config": run_config_rst,
     "campaign-spec": campaign_spec_rst,
+    "settings-file": settings_file_rst,
 }
 
 

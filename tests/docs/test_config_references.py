@@ -21,10 +21,10 @@ REPO = Path(__file__).resolve().parents[2]
 def contracts() -> ModuleType:
     sys.path.insert(0, str(REPO / "docs" / "_ext"))
     try:
-        import czmpc_contracts
+        import czmpc_contracts  # noqa: F401
     finally:
         sys.path.remove(str(REPO / "docs" / "_ext"))
-    return czmpc_contracts
+    return sys.modules["czmpc_contracts"]
 
 
 def _minimal_run_config() -> dict[str, Any]:
@@ -169,3 +169,65 @@ def test_the_documented_refusal_of_controller_settings_is_the_validators(contrac
     doc = {**_minimal_spec(), "controllers": [{"preset": "mpc", "settings": "mine.toml"}]}
     with pytest.raises(CampaignError, match="not supported"):
         spec_from_dict(doc)
+
+
+def _shipped_model() -> Any:
+    from sysid.modelfile import load_model
+
+    return load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
+
+
+def test_documented_settings_keys_are_the_readers(contracts: ModuleType) -> None:
+    from czmpc.errors import SettingsError
+    from czmpc.settings_file import TABLES, settings_from_dict
+
+    keys = contracts.settings_keys()
+    accepted = contracts.accepted_settings_keys()
+    assert [r[0].strip("`") for r in keys[""]] + list(TABLES) == accepted[""]
+    for table in TABLES:
+        assert [r[0].strip("`") for r in keys[table]] == accepted[table]
+    rst = contracts.settings_file_rst()
+    assert all(f"``[{t}]``" in rst for t in TABLES)
+    assert all(row[4].strip(".") for rows in keys.values() for row in rows)   # every key means something
+    with pytest.raises(SettingsError, match="colour"):
+        settings_from_dict({"reliability": {"colour": 1}}, _shipped_model())
+
+
+def _toml_scalar(text: str) -> Any:
+    """A documented default back as the TOML value it stands for."""
+    value = text.removesuffix(" (from the model)")
+    return literal_eval(value) if value not in ("true", "false", "off") and not value.isalpha() else (
+        {"true": True, "false": False}.get(value, value))
+
+
+def test_documented_settings_defaults_are_what_the_reader_builds(contracts: ModuleType) -> None:
+    # A file that writes every documented default explicitly gives the default settings.
+    from czmpc.settings import MPCSettings
+    from czmpc.settings_file import settings_from_dict
+
+    keys = contracts.settings_keys()
+    doc: dict[str, Any] = {}
+    for table, rows in keys.items():
+        target = doc if not table else doc.setdefault(table, {})
+        for key, _, default, _, _ in rows:
+            target[key.strip("`")] = _toml_scalar(default)
+    model = _shipped_model()
+    assert settings_from_dict(doc, model) == MPCSettings.default_for(model)
+    # and "(from the model)" marks exactly the values default_for derives from the model
+    derived = {r[0].strip("`") for rows in keys.values() for r in rows if "from the model" in r[2]}
+    assert derived == {"horizon_steps", "max_move_pct_per_step"}
+    changed = dict(doc, horizon_steps=doc["horizon_steps"] + 1)
+    assert settings_from_dict(changed, model) != MPCSettings.default_for(model)
+
+
+def test_a_settings_key_without_a_meaning_stops_the_docs_build(
+        contracts: ModuleType, monkeypatch: pytest.MonkeyPatch) -> None:
+    from sphinx.errors import ExtensionError
+
+    from czmpc import settings_file
+
+    real = settings_file.field_docs
+    monkeypatch.setattr(settings_file, "field_docs",
+                        lambda cls: {k: v for k, v in real(cls).items() if k != "move_weight"})
+    with pytest.raises(ExtensionError, match="move_weight"):
+        contracts.settings_file_rst()

@@ -33,7 +33,12 @@ def _czmpc_commands(text: str) -> list[list[str]]:
         for line in joined.splitlines():
             line = line.split("#", 1)[0].strip()
             if line.startswith("czmpc "):
-                commands.append(shlex.split(line)[1:])
+                args = shlex.split(line)[1:]
+                for i, arg in enumerate(args):          # the shell's redirections and pipes
+                    if arg in (">", ">>", "|", "2>"):
+                        args = args[:i]
+                        break
+                commands.append(args)
     return commands
 
 
@@ -106,3 +111,16 @@ def test_the_commissioning_playback_script_runs(tmp_path: Path, monkeypatch: pyt
     exec(compile(script, "commission.rst", "exec"), {})
     printed = capsys.readouterr().out
     assert "wrote test-log.csv: 8001 samples, power 31.2 .. 62.7 kW" in printed   # as in the guide
+
+
+def test_the_tune_guides_settings_file_passes_the_reader() -> None:
+    from czmpc.settings import MPCSettings
+    from czmpc.settings_file import settings_from_dict
+    from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
+    from sysid.modelfile import load_model
+
+    (doc,) = [doc for stem, doc in _toml_blocks() if stem == "tune"]
+    model = load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
+    settings = settings_from_dict(doc, model, source="tune.rst")
+    assert settings.max_move_pct_per_step == 1.0 and settings.soft_power_max_kw == 60.0
+    assert settings.move_weight == MPCSettings.preset("smooth", model).move_weight

@@ -185,8 +185,9 @@ RUN_PLANT_S, TIME_SCALE = 60.0, 20.0
 @pytest.mark.slow
 def test_the_shipped_run_config_runs_against_a_served_plant_from_the_wheel(
         venv: Path, tmp_path: Path) -> None:
-    """examples/plant_link/run.toml, pointed at a plant served on 127.0.0.1 and at the
-    wheel's shipped model, runs the MPC in real time (scaled) with nothing from the tree."""
+    """examples/plant_link/run.toml (with its settings.toml), pointed at a plant served on
+    127.0.0.1 and at the wheel's shipped model, runs the MPC in real time (scaled) with
+    nothing read from the tree."""
     where = _run([str(venv / "bin" / "python"), "-c",
                   "import czmpc.shipped as s; print(s.shipped_path(s.HAMMERSTEIN_MODEL_JSON))"],
                  cwd=tmp_path)
@@ -201,6 +202,9 @@ def test_the_shipped_run_config_runs_against_a_served_plant_from_the_wheel(
         text, n = re.subn(pattern, value, text)
         assert n == 1, pattern                      # the example still has each key once
     (tmp_path / "run.toml").write_text(text, encoding="utf-8")
+    assert 'settings = "settings.toml"' in text          # the example's settings file, beside it
+    (tmp_path / "settings.toml").write_bytes(
+        (REPO / "examples" / "plant_link" / "settings.toml").read_bytes())
     server_log = (tmp_path / "serve.out").open("w", encoding="utf-8")
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME", "VIRTUAL_ENV")}
     # The server stops by itself after 30 s of wall time (600 s of plant time) at the latest.
