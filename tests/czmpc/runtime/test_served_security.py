@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 from asyncua import ua
-from asyncua.client import Client
+from asyncua.client.client import Client
 from opcua_rig import (
     OPERATOR,
     OPERATOR_ENV,
