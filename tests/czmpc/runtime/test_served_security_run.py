@@ -30,13 +30,14 @@ pytestmark = pytest.mark.slow
 CLI = [sys.executable, "-m", "czmpc.cli"]
 #: Plant samples per Ts of wall time (the issue asks for >= 20): a 100 ms period.
 TIME_SCALE = 20.0
-#: The recipe: 31 kW, then a step to 34 kW at 100 s of plant time; 400 s in all.
-STEP_AT_S, BEFORE_KW, AFTER_KW, DURATION_S = 100.0, 31.0, 34.0, 400.0
-#: Steady-state band [kW] over the last 30 samples on the noise-free model plant: the
-#: controller is offset-free, so what is left is the residue of the 3 kW step's slow mode
-#: 240 s after the step and sample-phase jitter between the two processes' clocks;
-#: 0.1 kW is 0.3 % of the setpoint and 3 % of the step.
-SECURE_TRACKING_ATOL_KW = 0.1
+#: The recipe: 31 kW, then a step to 34 kW at 80 s of plant time; 300 s in all.
+STEP_AT_S, BEFORE_KW, AFTER_KW, DURATION_S = 80.0, 31.0, 34.0, 300.0
+#: Steady-state band [kW] (mean of the 30 s before the step, and of the last 30 samples)
+#: on the noise-free model plant: the controller is offset-free, so what is left is the
+#: residue of the slow mode's transient and sample-phase jitter between the two
+#: processes' clocks (measured: 0.002 kW); 0.05 kW is 0.15 % of the setpoint and under 2 %
+#: of the 3 kW step, the band of the unsecured loopback tracking test.
+SECURE_TRACKING_ATOL_KW = 0.05
 #: Bound on waiting for the served plant to listen [s] (interpreter and imports included).
 LISTEN_BOUND_S = 30.0
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples" / "plant_link"
