@@ -32,6 +32,8 @@ is admitted only when
    for the controller's user, ``PowerSetpoint`` and ``Mode`` for operators; any other
    write is refused with ``BadUserAccessDenied`` (the whole request).
 
+Each refusal is logged (``log``): user name or client URI and the reason, never a password.
+
 Without security the server offers policy None with anonymous access; the command
 line allows that only on loopback or with ``--insecure``.
 """
@@ -108,7 +110,8 @@ class ServedPlant:
     seed :
         Seed of the scenario's random sensor faults.
     log :
-        Called with one line of text on notable events (watchdog, stop).
+        Called with one line of text on notable events (watchdog, stop, and with security
+        every refused login, session or write: who and why, never a password).
     """
 
     def __init__(self, plant: Plant, *, initial_triac_pct: float, options: ServeOptions,
@@ -162,7 +165,8 @@ class ServedPlant:
         aua = asyncua()
         ua = aua.ua
         security = self.options.security
-        server = aua.Server() if security is None else aua.Server(user_manager=_UserManager(security))
+        server = aua.Server() if security is None else aua.Server(
+            user_manager=_UserManager(security, self._log))
         await server.init()
         server.set_endpoint(self.options.endpoint)
         server.set_server_name("czmpc served plant")
@@ -170,7 +174,7 @@ class ServedPlant:
             server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
         idx = await server.register_namespace(NAMESPACE_URI)
         if security is not None:
-            await _secure(server, security, idx)
+            await _secure(server, security, idx, self._log)
         folder = await server.nodes.objects.add_object(ua.NodeId("Heater", idx), "Heater")
         power0 = float(self.plant.true_power_kw)
         sp0 = float(self._setpoints[0]) if self.scenario is not None else self.options.setpoint_kw
@@ -263,29 +267,40 @@ def _load_der(path: Any) -> bytes:
 
 
 class _UserManager:
-    """asyncua user manager: configured users over a channel with a trusted certificate."""
+    """asyncua user manager: configured users over a channel with a trusted certificate.
 
-    def __init__(self, security: ServerSecurity) -> None:
+    Every refused login is logged (user name and reason; never the password), as an
+    audit trail of who tried to reach the heater.
+    """
+
+    def __init__(self, security: ServerSecurity, log: Callable[[str], None]) -> None:
         self._users = {u.name: u for u in security.users}
         self._trusted = frozenset(_load_der(p) for p in security.trusted_clients)
+        self._log = log
 
     def get_user(self, iserver: Any, username: str | None = None, password: str | None = None,
                  certificate: Any = None) -> Any:
         from asyncua.crypto.permission_rules import User, UserRole
 
-        # `certificate` is the secure channel's peer certificate: None on an unsecured
-        # channel (a client may open one for discovery), which must not carry a session.
-        if certificate is None or bytes(certificate) not in self._trusted:
+        who = f"user {username!r}" if username else "an anonymous client"
+        # `certificate` is the secure channel's peer certificate: empty (or None) on an
+        # unsecured channel (a client may open one for discovery), which must not carry a
+        # session.
+        if not certificate:
+            self._log(f"security: refused login of {who}: no secure channel")
+            return None
+        if bytes(certificate) not in self._trusted:
+            self._log(f"security: refused login of {who}: untrusted client certificate")
             return None
         user = self._users.get(username or "")
-        if user is None or password is None:
-            return None
-        if not hmac.compare_digest(password.encode(), user.password.reveal().encode()):
+        if user is None or password is None or not hmac.compare_digest(
+                password.encode(), user.password.reveal().encode()):
+            self._log(f"security: refused login of {who}: unknown user or wrong password")
             return None
         return User(role=UserRole.User, name=user.name)
 
 
-def _permission_rules(security: ServerSecurity, idx: int) -> Any:
+def _permission_rules(security: ServerSecurity, idx: int, log: Callable[[str], None]) -> Any:
     """asyncua permission ruleset: users' service set, writes only to each user's nodes."""
     from asyncua.common.utils import Buffer
     from asyncua.crypto.permission_rules import SimpleRoleRuleset
@@ -307,14 +322,19 @@ def _permission_rules(security: ServerSecurity, idx: int) -> Any:
             allowed = writable.get(getattr(user, "name", None) or "", frozenset())
             copy = body.copy() if isinstance(body, Buffer) else Buffer(bytes(body))
             params = struct_from_binary(ua.WriteParameters, copy)
-            return all(w.NodeId in allowed and w.AttributeId == ua.AttributeIds.Value
-                       for w in params.NodesToWrite)
+            denied = [w.NodeId.Identifier for w in params.NodesToWrite
+                      if w.NodeId not in allowed or w.AttributeId != ua.AttributeIds.Value]
+            if denied:
+                log(f"security: refused write by user {getattr(user, 'name', None)!r} to "
+                    f"{', '.join(map(str, denied))} (BadUserAccessDenied)")
+            return not denied
 
     rules: Any = Rules
     return rules()
 
 
-async def _secure(server: Any, security: ServerSecurity, idx: int) -> None:
+async def _secure(server: Any, security: ServerSecurity, idx: int,
+                  log: Callable[[str], None]) -> None:
     """Offer only the configured policy, trusted client certificates and configured users."""
     aua = asyncua()
     ua = aua.ua
@@ -323,7 +343,7 @@ async def _secure(server: Any, security: ServerSecurity, idx: int) -> None:
 
     policy_type = getattr(ua.SecurityPolicyType,
                           f"{security.policy.replace('_', '')}_{security.mode}")
-    server.set_security_policy([policy_type], permission_ruleset=_permission_rules(security, idx))
+    server.set_security_policy([policy_type], permission_ruleset=_permission_rules(security, idx, log))
     server.set_identity_tokens([ua.UserNameIdentityToken])
     cert_der = _load_der(security.certificate)
     uri = _application_uri(cert_der)
@@ -340,6 +360,8 @@ async def _secure(server: Any, security: ServerSecurity, idx: int) -> None:
         from cryptography.hazmat.primitives.serialization import Encoding
 
         if cert.public_bytes(Encoding.DER) not in trusted:
+            log(f"security: refused session of client {app_description.ApplicationUri!r}: "
+                f"untrusted certificate (BadCertificateUntrusted)")
             raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)
         await checks.validate(cert, app_description)
 
