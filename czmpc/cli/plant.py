@@ -1,4 +1,4 @@
-"""Serve a simulated plant over OPC UA: `czmpc plant serve`.
+r"""Serve a simulated plant over OPC UA: `czmpc plant serve`.
 
 'heater' serves the virtual CZ heater (grey-box physics), 'model' the plant built from
 a model file (the model's own equation). The plant advances on its own clock, one

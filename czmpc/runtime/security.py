@@ -16,6 +16,11 @@ officer would refuse:
 
 The password is held in a `Secret`, whose ``repr`` and ``str`` never show it, so that it
 cannot reach a log line, an exception message or a report by accident.
+
+The served plant's side (``czmpc plant serve``) is checked here too:
+`parse_server_security` validates its policy, certificate, key (owner-only), trusted
+client certificates and users (passwords from environment variables), and
+`check_serve_address` refuses an unsecured non-loopback endpoint before anything binds.
 """
 
 from __future__ import annotations

@@ -47,6 +47,7 @@ EXAMPLES = Path(__file__).resolve().parents[3] / "examples" / "plant_link"
 class SecuredRun:
     out_dir: Path
     password: str
+    operator_password: str
     code: int
     run_out: str
     run_err: str
@@ -104,9 +105,10 @@ log = "run.csv"
 @pytest.fixture(scope="module")
 def secured_run(pki: Pki, tmp_path_factory: pytest.TempPathFactory) -> SecuredRun:
     out_dir = tmp_path_factory.mktemp("secured_run")
-    password = f"pw-{secrets.token_urlsafe(18)}"
+    password, operator_password = (f"pw-{secrets.token_urlsafe(18)}",
+                                   f"op-{secrets.token_urlsafe(18)}")
     env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), PASSWORD_ENV: password,
-           OPERATOR_ENV: f"op-{secrets.token_urlsafe(18)}"}
+           OPERATOR_ENV: operator_password}
     port = free_port()
     server = subprocess.Popen(
         [*CLI, "plant", "serve", "--plant", "model", "--no-noise",
@@ -120,7 +122,8 @@ def secured_run(pki: Pki, tmp_path_factory: pytest.TempPathFactory) -> SecuredRu
     finally:
         server.kill()
         serve_out, serve_err = server.communicate(timeout=20)
-    return SecuredRun(out_dir, password, run.returncode, run.stdout, run.stderr, serve_out, serve_err)
+    return SecuredRun(out_dir, password, operator_password, run.returncode, run.stdout, run.stderr,
+                      serve_out, serve_err)
 
 
 def _rows(path: Path) -> list[dict[str, str]]:
@@ -145,16 +148,14 @@ def test_secured_run_tracks_a_setpoint_step_and_exits_0(secured_run: SecuredRun)
 
 
 def test_the_password_is_in_no_file_and_no_output(secured_run: SecuredRun) -> None:
-    secret = secured_run.password.encode()
     files = [p for p in secured_run.out_dir.rglob("*") if p.is_file()]
     assert {p.name for p in files} >= {"run.csv", "secure.toml", "recipe.csv"}
-    leaks = [str(p) for p in files if secret in p.read_bytes()]
-    leaks += [name for name, text in (("run stdout", secured_run.run_out),
-                                      ("run stderr", secured_run.run_err),
-                                      ("serve stdout", secured_run.serve_out),
-                                      ("serve stderr", secured_run.serve_err))
-              if secured_run.password in text]
-    assert not leaks
+    outputs = {"run stdout": secured_run.run_out, "run stderr": secured_run.run_err,
+               "serve stdout": secured_run.serve_out, "serve stderr": secured_run.serve_err}
+    for secret in (secured_run.password, secured_run.operator_password):
+        leaks = [str(p) for p in files if secret.encode() in p.read_bytes()]
+        leaks += [name for name, text in outputs.items() if secret in text]
+        assert not leaks
     assert secured_run.run_err and secured_run.serve_err   # both processes did speak
 
 
