@@ -21,6 +21,8 @@ from typing import Any
 import pytest
 from asyncua import ua
 from asyncua.client.client import Client
+from cryptography import x509
+from cryptography.hazmat.primitives.serialization import Encoding
 from opcua_rig import (
     OPERATOR,
     OPERATOR_ENV,
@@ -156,9 +158,15 @@ def test_server_security_options_are_checked(pki: Pki, tmp_path: Path) -> None:
 # --- A secured served plant, in process --------------------------------------------------
 
 def _security(pki: Pki) -> ServerSecurity:
+    # the controller's certificate is trusted as a PEM file in a directory (the README's
+    # walkthrough uses a DER file with --trusted-client: both ways are admitted)
+    trusted = pki.dir / "served_trusted"
+    trusted.mkdir(exist_ok=True)
+    cert = x509.load_der_x509_certificate(pki.client_cert.read_bytes())
+    (trusted / "czmpc-cert.pem").write_bytes(cert.public_bytes(Encoding.PEM))
     security = parse_server_security(
         policy="Basic256Sha256", certificate=pki.server_cert, private_key=pki.server_key,
-        trusted_clients=(pki.client_cert,), user=USER, password_env=PASSWORD_ENV,
+        trusted_client_dir=trusted, user=USER, password_env=PASSWORD_ENV,
         operators=(f"{OPERATOR}={OPERATOR_ENV}",), environ=ENV)
     assert security is not None
     return security
