@@ -359,11 +359,17 @@ async def _secure(server: Any, security: ServerSecurity, idx: int,
     async def validate(cert: Any, app_description: Any) -> None:
         from cryptography.hazmat.primitives.serialization import Encoding
 
+        client = app_description.ApplicationUri
         if cert.public_bytes(Encoding.DER) not in trusted:
-            log(f"security: refused session of client {app_description.ApplicationUri!r}: "
-                f"untrusted certificate (BadCertificateUntrusted)")
+            log(f"security: refused session of client {client!r}: untrusted certificate "
+                f"(BadCertificateUntrusted)")
             raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)
-        await checks.validate(cert, app_description)
+        try:
+            await checks.validate(cert, app_description)
+        except ServiceError as exc:   # expired, another URI, or not a client's key usage
+            log(f"security: refused session of client {client!r}: "
+                f"{ua.StatusCode(exc.code).name}")
+            raise
 
     server.set_certificate_validator(validate)
 

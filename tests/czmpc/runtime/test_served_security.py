@@ -298,13 +298,14 @@ def test_operator_cannot_write_the_command_or_heartbeat(pki: Pki, secured_plant:
 
 
 async def _hostile_write(endpoint: str, pki: Pki, probe: float, *, secure_channel: bool,
-                         user: str | None = None, password: str | None = None) -> BaseException:
+                         user: str | None = None, password: str | None = None,
+                         app_uri: str = "urn:test:czmpc") -> BaseException:
     """Try to connect and write the command with asyncua alone; return what stopped it."""
     client = Client(endpoint, timeout=3.0)
     if secure_channel:
         await client.set_security_string(
             f"Basic256Sha256,SignAndEncrypt,{pki.client_cert},{pki.client_key},{pki.server_cert}")
-        client.application_uri = "urn:test:czmpc"
+        client.application_uri = app_uri
     if user is not None:
         client.set_user(user)
         client.set_password(password or "")
@@ -344,6 +345,17 @@ def test_anonymous_or_unencrypted_writes_are_refused(pki: Pki, secured_plant: Se
         assert secured_plant.log_after(mark) == [
             f"security: refused login of user {user!r}: no secure channel"]
     assert not any(PASSWORD in line for line in secured_plant.log)
+
+
+def test_a_trusted_certificate_under_another_application_uri_is_refused(
+        pki: Pki, secured_plant: SecuredPlant) -> None:
+    mark = len(secured_plant.log)
+    exc = run_async(_hostile_write(secured_plant.endpoint, pki, 16.5, secure_channel=True,
+                                   user=USER, password=PASSWORD, app_uri="urn:someone-else"))
+    assert _status_name(exc) == "BadCertificateUriInvalid", repr(exc)
+    assert secured_plant.value("TriacCommand") != 16.5
+    assert secured_plant.log_after(mark) == [
+        "security: refused session of client 'urn:someone-else': BadCertificateUriInvalid"]
 
 
 @pytest.mark.parametrize(("change", "says", "logged"), [
