@@ -662,6 +662,56 @@ def assess_model(model: HammersteinModel, data: Dataset) -> IdentifiabilityAsses
     return IdentifiabilityAssessment(checks=tuple(checks))
 
 
+
+
+class UnidentifiableDataError(IdentificationError):
+    """The data cannot support a model: at least one refusal of an identifiability check.
+
+    Attributes
+    ----------
+    assessment :
+        Every check run, passed or not; ``assessment.refusals`` are the reasons.
+    """
+
+    def __init__(self, assessment: IdentifiabilityAssessment, *, where: str = "identify") -> None:
+        self.assessment = assessment
+        reasons = "; ".join(c.message for c in assessment.refusals)
+        super().__init__(f"{where}: the data cannot support a model: {reasons}")
+
+
+def structure_before_fit(
+    orders: str | tuple[int, ...], *, degree: int = 2
+) -> tuple[int, int, int, str]:
+    """``(degree, nb, n_parameters, name)`` of the smallest structure an identification fits.
+
+    Parameters
+    ----------
+    orders :
+        ``"auto"`` (the smallest structure of the search: degree 1, ``nb = 1``, one pole
+        and its noise model), ``"paper"`` (degree 2, ``nb = 2``, ``nf = nc = 1``) or
+        ``(nb, nf, nk[, nc])`` with ``nc = nf`` by default (`czmpc identify --orders`).
+    degree :
+        Input-polynomial degree used with ``"paper"`` and explicit orders.
+
+    Raises
+    ------
+    IdentificationError
+        Orders of another form.
+    """
+    if orders == "auto":
+        return 1, 1, 3, "the smallest structure of the order search (degree 1, nb 1, nf 1)"
+    if orders == "paper":
+        return degree, 2, degree + 3, "the paper's structure (degree 2, nb 2, nf 1, nc 1)"
+    if isinstance(orders, tuple) and len(orders) in (3, 4) and all(
+            isinstance(v, int) and v >= 0 for v in orders):
+        nb, nf = orders[0], orders[1]
+        nc = orders[3] if len(orders) == 4 else nf
+        return (degree, max(nb, 1), (max(nb, 1) - 1) + degree + nf + nc,
+                f"the given orders (degree {degree}, nb {nb}, nf {nf}, nc {nc})")
+    raise IdentificationError(
+        f"structure_before_fit: orders must be 'auto', 'paper' or (nb, nf, nk[, nc]); got {orders!r}")
+
+
 __all__ = [
     "DELAY_DOMINANCE_MAX",
     "DELAY_RECORD_MAX",
@@ -677,6 +727,7 @@ __all__ = [
     "Check",
     "IdentifiabilityAssessment",
     "Severity",
+    "UnidentifiableDataError",
     "assess_data",
     "assess_model",
     "distinct_levels",
@@ -686,4 +737,5 @@ __all__ = [
     "pole_nearest_one",
     "slowest_time_constant_s",
     "static_gain",
+    "structure_before_fit",
 ]
