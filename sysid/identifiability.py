@@ -477,14 +477,16 @@ def _data_checks(data: Dataset, *, degree: int, nb: int, n_parameters: int,
               measured=float(levels), threshold=float(degree + 1),
               message=(f"input levels: {levels} distinct input value(s), at least "
                        f"{degree + 1} needed for the degree-{degree} input polynomial of "
-                       f"{what} (its {degree} coefficients and the operating point's output)"
-                       + ("" if levels >= degree + 1 else
-                          f"; {_ADVICE_TEST}, or a lower degree (--orders)"))),
+                       f"{what} ({degree} coefficient(s) of f and the output at the operating "
+                       "point)"
+                       + ("" if levels >= degree + 1 else f"; {_ADVICE_TEST}"
+                          + (", or a lower degree (--orders)" if degree > 1 else "")))),
         Check(name="persistent_excitation", passed=pe >= nb, severity="refusal",
               measured=float(pe), threshold=float(nb),
               message=(f"persistent excitation: the input is persistently exciting of order "
                        f"{pe}, at least {nb} needed for the {nb} B coefficient(s) of {what}"
-                       + ("" if pe >= nb else f"; {_ADVICE_TEST}, or fewer B coefficients"))),
+                       + ("" if pe >= nb else f"; {_ADVICE_TEST}"
+                          + (", or fewer B coefficients (--orders)" if nb > 1 else "")))),
         Check(name="samples_per_parameter", passed=n >= need, severity="refusal",
               measured=float(n), threshold=float(need),
               message=(f"samples: {n} usable samples for the {n_parameters} parameters of "
