@@ -6,3 +6,9 @@ IDENTITY_RTOL = 1e-12
 TABLE3_GAIN_ATOL_KW_PER_PCT = 0.06
 #: Table 3 power levels before/after each step: the issue allows +-0.4 kW.
 TABLE3_LEVEL_ATOL_KW = 0.4
+#: Served-plant variations on the virtual heater: its gain and sag time constant move by the
+#: asked factor only up to the temperature feedback of a 2 % step (measured 2.9 % and 3.3 %).
+HEATER_VARIATION_RTOL = 0.05
+#: The 63 % time of a sampled step response is known to within one sample [s] plus the
+#: discrete pole's deviation from exp(-t/tau) (below 1 s at Ts = 2 s, tau >= 200 s).
+RISE_TIME_ATOL_S = 2.0

@@ -14,6 +14,13 @@ Watchdog: when the heartbeat has not changed for --watchdog-s of plant time, the
 goes to --safe-triac-pct and the server says so (stderr and Heater.WatchdogTripped).
 
 Listens on 127.0.0.1 unless the endpoint names another host.
+
+A plant that differs from its model (for stale-model and commissioning tests):
+--gain-factor 0.8 (every gain x0.8), --tau-s 600 (slow time constant 600 s),
+--extra-delay-samples 2 (input acts two samples later), --drift gain=0.75@3600 (the
+gain moves to x0.75 of nominal at 3600 s of plant time; tau=1200@7200 likewise sets the
+time constant to 1200 s), repeatable. On the heater the gain is that of the element's
+rated power and the time constant that of its heat capacity (see sim.drift).
 """
 
 from __future__ import annotations
@@ -22,8 +29,12 @@ import argparse
 import asyncio
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from czmpc.cli import _argtypes
+
+if TYPE_CHECKING:
+    from sim.drift import PlantVariation
 
 NAME = "plant"
 HELP = "serve the virtual CZ heater or a model plant as an OPC UA server (plant serve)"
@@ -64,12 +75,39 @@ def register(parser: argparse.ArgumentParser) -> None:
                    default=None, help="stop after this plant time [s] (default: run until Ctrl-C)")
     p.add_argument("--setpoint-kw", metavar="KW", type=_argtypes.number(unit="kW"),
                    default=45.0, help="initial value of Heater.PowerSetpoint [kW] (default: 45)")
+    _add_variation_options(p)
+
+
+def _add_variation_options(p: argparse.ArgumentParser) -> None:
+    """The plant's deviation from its model and its drift in time (sim.drift)."""
+    g = p.add_argument_group("plant variation (a plant that differs from its model)")
+    g.add_argument("--gain-factor", metavar="F", type=_argtypes.number(above=0.0), default=1.0,
+                   help="multiply every gain of the plant by F from the start (default: 1)")
+    g.add_argument("--tau-s", metavar="T", type=_argtypes.number(above=0.0, unit="s"),
+                   default=None, help="time constant of the plant's slow mode [s] (the "
+                                      "heater's power sag; default: the plant's own)")
+    g.add_argument("--extra-delay-samples", metavar="N", type=_argtypes.integer(0), default=0,
+                   help="samples of input delay added to the plant's own (default: 0)")
+    g.add_argument("--drift", metavar="Q=V@T", action="append", default=[],
+                   help="at plant time T [s] the gain factor (Q=gain, V a factor) or the "
+                        "time constant (Q=tau, V in s) moves to V, e.g. gain=0.75@3600; "
+                        "repeatable")
+
+
+def _variation(args: argparse.Namespace) -> PlantVariation:
+    """The `PlantVariation` the options ask for (PlantError for a bad --drift)."""
+    from sim.drift import PlantVariation, parse_drift
+
+    return PlantVariation(gain_factor=args.gain_factor, tau_s=args.tau_s,
+                          extra_delay_samples=args.extra_delay_samples,
+                          drifts=tuple(parse_drift(text) for text in args.drift))
 
 
 def run(args: argparse.Namespace) -> int:
     """Build the plant and serve it until the duration or Ctrl-C."""
     from czmpc.runtime.served import ServedPlant, ServeOptions
     from czmpc.shipped import shipped_path
+    from sim.drift import vary_heater, vary_model_plant
     from sim.heater import HeaterParams, VirtualHeater
     from sim.model_plant import ModelPlant
     from sim.protocols import Plant
@@ -77,24 +115,36 @@ def run(args: argparse.Namespace) -> int:
     from sysid.modelfile import load_model
 
     scenario = None if args.scenario is None else load_scenario(args.scenario)
+    variation = _variation(args)
     plant: Plant
     if args.plant == "heater":
         params = HeaterParams(sensor_noise_std_kw=0.0, grid_wander_std=0.0) if args.no_noise \
             else HeaterParams()
-        heater = VirtualHeater(params, rng=args.seed)
-        plant, initial = heater, heater.params.initial_triac_pct
+        if variation.is_nominal:
+            heater = VirtualHeater(params, rng=args.seed)
+            plant, initial = heater, heater.params.initial_triac_pct
+        else:
+            varied = vary_heater(variation, params, rng=args.seed)
+            plant, initial = varied, varied.initial_triac_pct
     else:
         model = load_model(args.model or shipped_path("cz_heater_model.json"))
-        mp = ModelPlant(model, noise=not args.no_noise, initial_triac_pct=args.initial_triac_pct)
-        mp.reset(args.seed)
-        plant, initial = mp, mp.initial_triac_pct
+        if variation.is_nominal:
+            mp = ModelPlant(model, noise=not args.no_noise,
+                            initial_triac_pct=args.initial_triac_pct)
+            mp.reset(args.seed)
+            plant, initial = mp, mp.initial_triac_pct
+        else:
+            vp = vary_model_plant(model, variation, noise=not args.no_noise,
+                                  initial_triac_pct=args.initial_triac_pct)
+            vp.reset(args.seed)
+            plant, initial = vp, vp.initial_triac_pct
     options = ServeOptions(endpoint=args.endpoint, time_scale=args.time_scale,
                            watchdog_s=args.watchdog_s, safe_triac_pct=args.safe_triac_pct,
                            duration_s=args.duration_s, setpoint_kw=args.setpoint_kw)
     served = ServedPlant(plant, initial_triac_pct=initial, options=options, scenario=scenario,
                          seed=args.seed, log=lambda m: print(m, file=sys.stderr, flush=True))
     print(f"serving the {args.plant} plant on {args.endpoint} (Ts {plant.ts_s:g} s, time scale "
-          f"{args.time_scale:g}); Ctrl-C stops", file=sys.stderr, flush=True)
+          f"{args.time_scale:g}; {variation.describe()}); Ctrl-C stops", file=sys.stderr, flush=True)
     try:
         asyncio.run(served.serve())
     except KeyboardInterrupt:
