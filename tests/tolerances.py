@@ -12,3 +12,6 @@ HEATER_VARIATION_RTOL = 0.05
 #: The 63 % time of a sampled step response is known to within one sample [s] plus the
 #: discrete pole's deviation from exp(-t/tau) (below 1 s at Ts = 2 s, tau >= 200 s).
 RISE_TIME_ATOL_S = 2.0
+#: The monitor's residuals against the model plant's injected innovations: the same
+#: difference equation in another order of float operations (deviation of ~45 kW levels).
+RESIDUAL_ATOL_KW = 1e-9
