@@ -15,7 +15,10 @@ reconnects with backoff. SIGINT/SIGTERM stop it with the configured safe action
 The log (CSV, one row per step, flushed per row) has: k, time_s [s], wall_time_s
 [s since epoch], power_kw [kW], quality, setpoint_kw [kW], triac_pct [%],
 applied_triac_pct [%], status, verdict, mode, connected, written, lateness_s [s],
-step_latency_s [s], skipped (periods skipped after an overrun).
+step_latency_s [s], skipped (periods skipped after an overrun), health (the
+model-health figure: F over its limit of the stale-model test, czmpc.health; >= 1 is
+the alarm) and stale_alarm (0/1, latched). The alarm is printed when it comes and in
+the summary; the optional node [nodes].model_health receives the health figure.
 
 Exit codes: 0 done or stopped by a signal; 2 bad config, model or settings; 1 the
 plant could not be reached at the start.
@@ -80,4 +83,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"run: {summary.n_steps} steps, {summary.n_writes} writes, {summary.n_missing} missing "
           f"samples, {summary.n_overruns} overruns, {summary.n_reconnects} reconnects; "
           f"stopped by {summary.stopped_by}; log {config.log_path}")
+    if summary.stale_alarm_at_s is not None:
+        print(f"run: STALE-MODEL ALARM at {summary.stale_alarm_at_s:g} s of plant time: "
+              f"{summary.stale_alarm_reason}")
     return 0
