@@ -207,6 +207,8 @@ class ControlLoop:
         self._max_backoff_s = min(MAX_BACKOFF_S, MAX_BACKOFF_PERIODS * config.period_s)
         self._next_try = 0.0
         self.health = ModelHealthMonitor(controller.model, health_settings)
+        #: False: the model was judged not ready (check-model); requests for ON are refused.
+        self.allow_on = True
         self._setpoint = config.setpoint_kw if config.setpoint_kw is not None else math.nan
         if config.schedule is not None:
             self._setpoint = config.schedule.setpoints_kw[0]
@@ -331,6 +333,8 @@ class ControlLoop:
                 if "mode" in self.link.nodes:
                     dv = await self.link.read("mode")
                     mode = _mode_of(dv.Value.Value if dv.Value is not None else None)
+                    if mode is Mode.ON and not self.allow_on:
+                        mode = None   # a 'not ready' model stays in PREDICT (czmpc run --force)
                     if mode is not None and mode is not self.mpc.mode:
                         self.mpc.request_mode(mode)
                 if "applied_triac_pct" in self.link.nodes:

@@ -259,3 +259,24 @@ def test_a_stale_model_is_logged_published_and_alarmed(tmp_path: Path) -> None:
     last_health = float([r for r in rows if r["health"] != ""][-1]["health"])
     assert last_health >= 1.0
     assert published == pytest.approx(last_health, rel=1e-5)
+
+
+def test_a_model_not_allowed_on_stays_in_predict(tmp_path: Path) -> None:
+    """czmpc run's gate for a 'not ready' model: the Mode node's ON is refused, nothing written."""
+    import dataclasses
+
+    model, plant = _model_plant()
+    port = free_port()
+    served = ServedPlant(plant, initial_triac_pct=plant.initial_triac_pct, options=ServeOptions(
+        endpoint=f"opc.tcp://127.0.0.1:{port}/czmpc/", time_scale=TIME_SCALE, watchdog_s=None))
+    cfg = make_config(tmp_path, port, duration_s=40.0, run={"setpoint_kw": 31.0})
+    settings = runtime_settings(model)
+    settings = dataclasses.replace(settings, reliability=dataclasses.replace(
+        settings.reliability, initial_mode="predict"))
+    loop = ControlLoop(cfg, OffsetFreeMPC(model, settings))
+    loop.allow_on = False
+    summary = asyncio.run(_with_served(served, loop.run()))
+    rows = _rows(cfg.log_path)
+    assert summary.n_writes == 0
+    assert {r["mode"] for r in rows} == {"PREDICT"}
+    assert all(r["written"] == "0" for r in rows)
