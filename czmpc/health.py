@@ -149,6 +149,9 @@ class ModelHealth:
         Samples seen (0-based index of this one).
     residual_kw :
         One-step prediction residual ``e_k`` [kW]; NaN if none (missing sample, start).
+    predicted_kw :
+        The model's one-step prediction of the power at this sample [kW] (NaN at the
+        start).
     n_samples :
         Residuals in the window.
     mean_z :
@@ -178,6 +181,7 @@ class ModelHealth:
 
     k: int
     residual_kw: float
+    predicted_kw: float
     n_samples: int
     mean_z: float
     variance_ratio: float
@@ -311,7 +315,7 @@ class ModelHealthMonitor:
         measured = math.isfinite(power_kw)
         if not self._started:
             if not measured:
-                return self._view(math.nan, disturbance_kw)
+                return self._view(math.nan, math.nan)
             y0 = power_kw - self._p_nom
             # start in the steady state of the first sample (a transient decays in `_settle`)
             for hist, value in ((self._y, y0), (self._w, w_prev), (self._e, 0.0),
@@ -321,7 +325,7 @@ class ModelHealthMonitor:
                     hist[i] = value
             self._started = True
             self._since_gap = 0
-            return self._view(math.nan, disturbance_kw)
+            return self._view(math.nan, math.nan)
         self._w.appendleft(w_prev)
         # C e = A y - B w:  y_hat = -sum a_i y_{k-i} + sum b_j w_{k-j} + sum c_i e_{k-i}
         a, b, c = self._a_t, self._b_t, self._c_t
@@ -361,7 +365,7 @@ class ModelHealthMonitor:
                 and len(self._rows) >= self.settings.window_samples // 2):
             self._new_rows = 0
             self._test()
-        return self._view(residual, disturbance_kw)
+        return self._view(residual, self._p_nom + y_hat)
 
     def _limit(self, q: int, dof_den: int) -> float:
         key = (q, dof_den)
@@ -403,14 +407,15 @@ class ModelHealthMonitor:
                 f"{f_stat:.3g} > {self._f_limit:.3g}, p = {self._p:.2g} < "
                 f"{self.settings.false_alarm_per_test:g}, {q} directions, {n} samples)")
 
-    def _view(self, residual: float, disturbance_kw: float) -> ModelHealth:
+    def _view(self, residual: float, predicted_kw: float) -> ModelHealth:
         st = self._last_stats
         drift = (self._d[-1] - self._d[0]) if len(self._d) >= 2 else math.nan
         health = 0.0
         if math.isfinite(self._f) and math.isfinite(self._f_limit) and self._f_limit > 0.0:
             health = self._f / self._f_limit
         return ModelHealth(
-            k=max(self._k, 0), residual_kw=residual, n_samples=st.n_samples, mean_z=st.mean_z,
+            k=max(self._k, 0), residual_kw=residual, predicted_kw=predicted_kw,
+            n_samples=st.n_samples, mean_z=st.mean_z,
             variance_ratio=st.variance_ratio, lag1_correlation=st.lag1_correlation,
             f_statistic=self._f, f_limit=self._f_limit, p_value=self._p, dof=self._dof,
             health=health, disturbance_drift_kw=drift, stale_alarm=self.stale_alarm,

@@ -15,7 +15,8 @@ reconnects with backoff. SIGINT/SIGTERM stop it with the configured safe action
 The log (CSV, one row per step, flushed per row) has: k, time_s [s], wall_time_s
 [s since epoch], power_kw [kW], quality, setpoint_kw [kW], triac_pct [%],
 applied_triac_pct [%], status, verdict, mode, connected, written, lateness_s [s],
-step_latency_s [s], skipped (periods skipped after an overrun), health (the
+step_latency_s [s], skipped (periods skipped after an overrun), predicted_kw [kW]
+(the model's one-step prediction of power_kw), health (the
 model-health figure: F over its limit of the stale-model test, czmpc.health; >= 1 is
 the alarm) and stale_alarm (0/1, latched). The alarm is printed when it comes and in
 the summary; the optional node [nodes].model_health receives the health figure.

@@ -57,7 +57,7 @@ STARTUP_WAIT_S = 15.0
 #: Log columns, in order.
 LOG_COLUMNS = ("k", "time_s", "wall_time_s", "power_kw", "quality", "setpoint_kw",
                "triac_pct", "applied_triac_pct", "status", "verdict", "mode", "connected",
-               "written", "lateness_s", "step_latency_s", "skipped", "health", "stale_alarm")
+               "written", "lateness_s", "step_latency_s", "skipped", "predicted_kw", "health", "stale_alarm")
 
 
 @dataclass(slots=True)
@@ -384,7 +384,8 @@ class ControlLoop:
             "verdict": diag.verdict.name if diag is not None else "",
             "mode": self.mpc.mode.name, "connected": int(self.link.connected),
             "written": int(written), "lateness_s": lateness, "step_latency_s": 0.0,
-            "skipped": 0, "health": health.health, "stale_alarm": int(health.stale_alarm),
+            "skipped": 0, "predicted_kw": health.predicted_kw, "health": health.health,
+            "stale_alarm": int(health.stale_alarm),
         }
         self._say(f"k={k} t={k * cfg.ts_s:.0f}s P={power:.2f}kW ({quality}) "
                   f"SP={self._setpoint:.2f}kW u={command:.2f}% {row['status']} "

@@ -259,6 +259,12 @@ def test_a_stale_model_is_logged_published_and_alarmed(tmp_path: Path) -> None:
     last_health = float([r for r in rows if r["health"] != ""][-1]["health"])
     assert last_health >= 1.0
     assert published == pytest.approx(last_health, rel=1e-5)
+    # the operator's view of the same log (czmpc run-report)
+    from czmpc.reports.run_report import write_run_report
+
+    _, report = write_run_report(cfg.log_path, tmp_path / "report")
+    text = report.read_text(encoding="utf-8")
+    assert f"**stale-model alarm at {summary.stale_alarm_at_s:g} s**" in text
 
 
 def test_a_model_not_allowed_on_stays_in_predict(tmp_path: Path) -> None:
