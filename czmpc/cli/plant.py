@@ -29,12 +29,8 @@ import argparse
 import asyncio
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-from czmpc.cli import _argtypes
-
-if TYPE_CHECKING:
-    from sim.drift import PlantVariation
+from czmpc.cli import _argtypes, _variation
 
 NAME = "plant"
 HELP = "serve the virtual CZ heater or a model plant as an OPC UA server (plant serve)"
@@ -75,32 +71,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                    default=None, help="stop after this plant time [s] (default: run until Ctrl-C)")
     p.add_argument("--setpoint-kw", metavar="KW", type=_argtypes.number(unit="kW"),
                    default=45.0, help="initial value of Heater.PowerSetpoint [kW] (default: 45)")
-    _add_variation_options(p)
-
-
-def _add_variation_options(p: argparse.ArgumentParser) -> None:
-    """The plant's deviation from its model and its drift in time (sim.drift)."""
-    g = p.add_argument_group("plant variation (a plant that differs from its model)")
-    g.add_argument("--gain-factor", metavar="F", type=_argtypes.number(above=0.0), default=1.0,
-                   help="multiply every gain of the plant by F from the start (default: 1)")
-    g.add_argument("--tau-s", metavar="T", type=_argtypes.number(above=0.0, unit="s"),
-                   default=None, help="time constant of the plant's slow mode [s] (the "
-                                      "heater's power sag; default: the plant's own)")
-    g.add_argument("--extra-delay-samples", metavar="N", type=_argtypes.integer(0), default=0,
-                   help="samples of input delay added to the plant's own (default: 0)")
-    g.add_argument("--drift", metavar="Q=V@T", action="append", default=[],
-                   help="at plant time T [s] the gain factor (Q=gain, V a factor) or the "
-                        "time constant (Q=tau, V in s) moves to V, e.g. gain=0.75@3600; "
-                        "repeatable")
-
-
-def _variation(args: argparse.Namespace) -> PlantVariation:
-    """The `PlantVariation` the options ask for (PlantError for a bad --drift)."""
-    from sim.drift import PlantVariation, parse_drift
-
-    return PlantVariation(gain_factor=args.gain_factor, tau_s=args.tau_s,
-                          extra_delay_samples=args.extra_delay_samples,
-                          drifts=tuple(parse_drift(text) for text in args.drift))
+    _variation.add_variation_options(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -115,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     from sysid.modelfile import load_model
 
     scenario = None if args.scenario is None else load_scenario(args.scenario)
-    variation = _variation(args)
+    variation = _variation.variation(args)
     plant: Plant
     if args.plant == "heater":
         params = HeaterParams(sensor_noise_std_kw=0.0, grid_wander_std=0.0) if args.no_noise \
