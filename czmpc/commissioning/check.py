@@ -330,8 +330,8 @@ def _data_checks(model: HammersteinModel, data: Dataset | None) -> list[CheckIte
                        detail=f"simulation fit {fit:.1f} % on {data.source} ({data.n_samples} "
                               f"samples; pass >= {GOOD_FIT_PCT:g} %, fail < {FAIL_FIT_PCT:g} %)")]
     e = measured - np.asarray(predict_one_step(model, data), dtype=float)
-    # the longest run of usable samples carries the correlations
-    e = np.where(good, e, 0.0)
+    # missing samples (and what a gap leaves in the predictor) count as zero residuals
+    e = np.where(good & np.isfinite(e), e, 0.0)
     du = np.diff(np.asarray(data.triac_pct, dtype=float), prepend=float(data.triac_pct[0]))
     ac = autocorrelation(e, max_lag=MAX_LAG)
     white: ItemStatus = "condition" if ac.fraction_outside > MAX_WHITE_OUTSIDE else "pass"

@@ -125,3 +125,4 @@ def test_validation_data_of_another_sampling_time_are_refused() -> None:
                     power_kw=np.full(100, 45.0), ts_s=1.0, source="fast.csv")
     with pytest.raises(SamplingTimeError, match="fast.csv"):
         check_model(SHIPPED, other, mc_runs=0)
+
