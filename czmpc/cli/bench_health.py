@@ -7,6 +7,9 @@
 2. Detection: closed loop with the MPC on the model plant whose gain drops by 25 % or
    whose slow time constant doubles at 1800 s of plant time, --seeds runs each;
    prints how many alarms came within 30 min, the median and largest delay [s].
+3. Which reference: 2 x 4 h closed loop on the unchanged virtual heater (which the
+   model describes only approximately) with the test against the model and against a
+   baseline (what czmpc run uses), and the drifts of 2. with the baseline test.
 
 Prints the numbers with the rule, the false-alarm bound and the machine, and writes
 them under '## Model-health monitor (stale-model alarm)' in BENCHMARKS.md (other

@@ -17,7 +17,8 @@ The log (CSV, one row per step, flushed per row) has: k, time_s [s], wall_time_s
 applied_triac_pct [%], status, verdict, mode, connected, written, lateness_s [s],
 step_latency_s [s], skipped (periods skipped after an overrun), predicted_kw [kW]
 (the model's one-step prediction of power_kw), health (the
-model-health figure: F over its limit of the stale-model test, czmpc.health; >= 1 is
+model-health figure, czmpc.health: F over its limit of the test whether the model's
+residuals relate to past data differently than in the first 30 min of the run; >= 1 is
 the alarm) and stale_alarm (0/1, latched). The alarm is printed when it comes and in
 the summary; the optional node [nodes].model_health receives the health figure.
 

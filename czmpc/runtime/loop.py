@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from czmpc.controller import OffsetFreeMPC
-from czmpc.health import HealthSettings, ModelHealth, ModelHealthMonitor
+from czmpc.health import RUNTIME_HEALTH, HealthSettings, ModelHealth, ModelHealthMonitor
 from czmpc.modes import Mode
 from czmpc.runtime._opcua import asyncua
 from czmpc.runtime.config import RunConfig
@@ -186,7 +186,8 @@ class ControlLoop:
         Testing hook: extra wall time [s] spent in the step at the given sample indices
         (injects overruns).
     health_settings :
-        Window and false-alarm rate of the model-health monitor (None: the defaults).
+        Window, reference and false-alarm rate of the model-health monitor (None:
+        `czmpc.health.RUNTIME_HEALTH`, the change test against the run's first 30 min).
     """
 
     def __init__(self, config: RunConfig, controller: OffsetFreeMPC, *,
@@ -206,7 +207,7 @@ class ControlLoop:
         self._backoff_s = config.period_s
         self._max_backoff_s = min(MAX_BACKOFF_S, MAX_BACKOFF_PERIODS * config.period_s)
         self._next_try = 0.0
-        self.health = ModelHealthMonitor(controller.model, health_settings)
+        self.health = ModelHealthMonitor(controller.model, health_settings or RUNTIME_HEALTH)
         #: False: the model was judged not ready (check-model); requests for ON are refused.
         self.allow_on = True
         self._setpoint = config.setpoint_kw if config.setpoint_kw is not None else math.nan

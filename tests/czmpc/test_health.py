@@ -138,3 +138,41 @@ def test_false_alarm_bound_is_the_union_bound() -> None:
 def test_health_settings_reject_bad_values(field: str, value: float) -> None:
     with pytest.raises(SettingsError, match=f"HealthSettings.{field}"):
         HealthSettings(**{field: value})  # type: ignore[arg-type]
+
+
+@pytest.mark.slow
+def test_the_baseline_test_accepts_the_mismatch_the_model_started_with() -> None:
+    """Virtual heater vs the model identified from it: only the test against the model alarms."""
+    from czmpc.campaigns.stale_model import heater_trials
+    from czmpc.health import RUNTIME_HEALTH
+
+    against_model, against_baseline = heater_trials(
+        SHIPPED, duration_s=7200.0, seed=2, settings=[HealthSettings(), RUNTIME_HEALTH])
+    assert against_model.alarm_at_s is not None          # structural mismatch is seen ...
+    assert against_baseline.alarm_at_s is None            # ... and is no change
+    assert against_baseline.max_health_before_drift < 1.0
+
+
+def test_the_baseline_test_alarms_on_a_gain_drift() -> None:
+    from czmpc.health import RUNTIME_HEALTH
+
+    at_s = RUNTIME_HEALTH.baseline_samples * 2.0 + 600.0
+    trial = closed_loop_trial(SHIPPED, PlantVariation(drifts=(
+        DriftEvent(quantity="gain", value=0.75, at_s=at_s),)), duration_s=at_s + 1800.0,
+        seed=1, settings=RUNTIME_HEALTH)
+    assert not trial.false_alarm
+    assert trial.detection_delay_s is not None and trial.detection_delay_s <= DETECTION_BOUND_S
+
+
+@pytest.mark.parametrize("lags", [0, 2])
+def test_residual_lags_keep_a_correct_model_quiet(lags: int) -> None:
+    settings = HealthSettings(window_samples=300, test_every_samples=30, residual_lags=lags,
+                              false_alarm_per_test=1e-3)
+    power, triac, _, s0 = _open_loop(SHIPPED, 6000, 11)
+    monitor = ModelHealthMonitor(SHIPPED, settings)
+    previous = float(s0[0])
+    for k in range(len(power)):
+        h = monitor.update(float(power[k]), previous)
+        previous = float(triac[k])
+    assert not h.stale_alarm and 0 < h.health < 1.0
+    assert h.dof == 5   # y_{k-1} and w_{k-1..k-4} directions, whatever the nuisance lags
