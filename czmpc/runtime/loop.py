@@ -57,7 +57,8 @@ STARTUP_WAIT_S = 15.0
 #: Log columns, in order.
 LOG_COLUMNS = ("k", "time_s", "wall_time_s", "power_kw", "quality", "setpoint_kw",
                "triac_pct", "applied_triac_pct", "status", "verdict", "mode", "connected",
-               "written", "lateness_s", "step_latency_s", "skipped", "predicted_kw", "health", "stale_alarm")
+               "written", "lateness_s", "step_latency_s", "skipped", "predicted_kw", "health",
+               "stale_alarm")
 
 
 @dataclass(slots=True)
@@ -207,7 +208,9 @@ class ControlLoop:
         self._backoff_s = config.period_s
         self._max_backoff_s = min(MAX_BACKOFF_S, MAX_BACKOFF_PERIODS * config.period_s)
         self._next_try = 0.0
-        self.health = ModelHealthMonitor(controller.model, health_settings or RUNTIME_HEALTH)
+        model = getattr(controller, "model", None)   # a controller without a model: no monitor
+        self.health = (None if model is None
+                       else ModelHealthMonitor(model, health_settings or RUNTIME_HEALTH))
         #: False: the model was judged not ready (check-model); requests for ON are refused.
         self.allow_on = True
         self._setpoint = config.setpoint_kw if config.setpoint_kw is not None else math.nan
@@ -371,7 +374,7 @@ class ControlLoop:
                 if "heartbeat" in self.link.nodes:
                     self._heartbeat += 1
                     await self.link.write("heartbeat", self._heartbeat, ua.VariantType.Int64)
-                if "model_health" in self.link.nodes:
+                if "model_health" in self.link.nodes and health is not None:
                     await self.link.write("model_health", health.health, ua.VariantType.Double)
             except Exception as exc:  # noqa: BLE001 - any link failure: predict on
                 await self._lost(exc)
@@ -385,16 +388,21 @@ class ControlLoop:
             "verdict": diag.verdict.name if diag is not None else "",
             "mode": self.mpc.mode.name, "connected": int(self.link.connected),
             "written": int(written), "lateness_s": lateness, "step_latency_s": 0.0,
-            "skipped": 0, "predicted_kw": health.predicted_kw, "health": health.health,
-            "stale_alarm": int(health.stale_alarm),
+            "skipped": 0, "predicted_kw": math.nan if health is None else health.predicted_kw,
+            "health": math.nan if health is None else health.health,
+            "stale_alarm": "" if health is None else int(health.stale_alarm),
         }
         self._say(f"k={k} t={k * cfg.ts_s:.0f}s P={power:.2f}kW ({quality}) "
                   f"SP={self._setpoint:.2f}kW u={command:.2f}% {row['status']} "
-                  f"{self.mpc.mode.name} late={lateness * 1e3:.1f}ms {health.status()}")
+                  f"{self.mpc.mode.name} late={lateness * 1e3:.1f}ms "
+                  f"{'' if health is None else health.status()}")
         return row
 
-    def _health(self, k: int, power: float, applied_before: float, diag: Any) -> ModelHealth:
+    def _health(self, k: int, power: float, applied_before: float,
+                diag: Any) -> ModelHealth | None:
         """Feed the model-health monitor; say the stale alarm once when it comes."""
+        if self.health is None:
+            return None
         d = float(getattr(diag, "disturbance_power_kw", math.nan)) if diag is not None else math.nan
         health = self.health.update(power, applied_before, d)
         if health.stale_alarm and self.summary.stale_alarm_at_s is None:
