@@ -7,7 +7,8 @@ record: the simulation fit [%] (MATLAB compare), the whiteness of the one-step
 residuals and their cross-correlation with the input moves at lags 0..25 against the
 99 % bound (MATLAB resid); the static gain's uncertainty from the parameter covariance;
 and a closed-loop Monte Carlo of the MPC against --mc-runs plants drawn from that
-covariance (offset-free within 0.1 kW, IAE at most twice the nominal; seed fixed).
+covariance (offset-free within 0.1 kW, IAE at most twice the nominal; seed fixed), with
+the controller settings --settings FILE or --preset NAME (as 'czmpc simulate').
 
 The verdict is 'not ready' if any check fails, 'ready with conditions' if any gives a
 condition or was skipped (no --data, no covariance), else 'ready'. Every reason is
@@ -39,10 +40,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="held-out record (time_s,triac_pct,power_kw; the model's Ts) for "
                              "the fit and residual checks (default: none, a condition)")
     _argtypes.add_log_options(parser)
-    parser.add_argument("--settings", metavar="PRESET", choices=("default", "aggressive", "smooth"),
-                        default="default",
-                        help="controller tuning the Monte Carlo runs: default, aggressive or "
-                             "smooth (as 'czmpc simulate --preset') (default: default)")
+    _argtypes.add_settings_options(parser)
     parser.add_argument("--mc-runs", metavar="N", type=_argtypes.integer(0), default=10,
                         help="plants of the closed-loop Monte Carlo, 0 skips it (about 1-3 s "
                              "each) (default: 10)")
@@ -55,12 +53,11 @@ def register(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Check, print every reason, write the verdict beside the model."""
     from czmpc.commissioning.check import check_model, file_sha256, write_check
-    from czmpc.settings import MPCSettings
     from sysid.modelfile import load_model
 
     model = load_model(args.model)
     data = None if args.data is None else _argtypes.read_log(args.data, args)
-    settings = MPCSettings.preset(args.settings, model)
+    settings = _argtypes.settings_for(args, model)
     check = check_model(model, data, settings, mc_runs=args.mc_runs, seed=args.seed,
                         model_sha256=file_sha256(args.model))
     print(check.format_text(), end="")

@@ -84,8 +84,10 @@ def run(args: argparse.Namespace) -> int:
 
     from czmpc.controller import OffsetFreeMPC
     from czmpc.errors import SettingsError
-    from czmpc.runtime.config import load_run_config, runtime_settings
+    from czmpc.runtime.config import load_run_config
     from czmpc.runtime.loop import ControlLoop, tty_status
+    from czmpc.settings import MPCSettings
+    from czmpc.settings_file import load_settings
     from sysid.modelfile import load_model
 
     config = load_run_config(args.config)
@@ -101,7 +103,10 @@ def run(args: argparse.Namespace) -> int:
         raise SettingsError(f"plant.ts_s: expected the model's sampling time {model.ts_s:g} s; "
                             f"got {config.ts_s:g} s")
     allow_on, forced = _model_gate(config.model_path, args.force)
-    settings = runtime_settings(model)
+    if config.settings_path is None:
+        settings = MPCSettings.default_for(model)
+    else:
+        settings = load_settings(config.settings_path, model)
     if not allow_on:
         settings = dataclasses.replace(settings, reliability=dataclasses.replace(
             settings.reliability, initial_mode="predict"))
