@@ -34,6 +34,13 @@ Example (see the README, "Secure plant link"):
       --policy Basic256Sha256 --mode SignAndEncrypt \
       --certificate pki-plant/own/plant.der --private-key pki-plant/own/plant.pem \
       --trusted-client pki/own/czmpc.der --user mpc-operator --password-env PLANT_MPC_PASSWORD
+
+A plant that differs from its model (for stale-model and commissioning tests):
+--gain-factor 0.8 (every gain x0.8), --tau-s 600 (slow time constant 600 s),
+--extra-delay-samples 2 (input acts two samples later), --drift gain=0.75@3600 (the
+gain moves to x0.75 of nominal at 3600 s of plant time; tau=1200@7200 likewise sets the
+time constant to 1200 s), repeatable. On the heater the gain is that of the element's
+rated power and the time constant that of its heat capacity (see sim.drift).
 """
 
 from __future__ import annotations
@@ -43,7 +50,7 @@ import asyncio
 import sys
 from pathlib import Path
 
-from czmpc.cli import _argtypes
+from czmpc.cli import _argtypes, _variation
 from czmpc.runtime.security import MODES, SECURE_POLICIES
 
 NAME = "plant"
@@ -110,6 +117,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     sec.add_argument("--insecure", action="store_true",
                      help="serve without security on a non-loopback address (isolated test "
                           "networks only; warns on every start)")
+    _variation.add_variation_options(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -117,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
     from czmpc.runtime.security import check_serve_address, parse_server_security
     from czmpc.runtime.served import ServedPlant, ServeOptions
     from czmpc.shipped import shipped_path
+    from sim.drift import vary_heater, vary_model_plant
     from sim.heater import HeaterParams, VirtualHeater
     from sim.model_plant import ModelPlant
     from sim.protocols import Plant
@@ -133,17 +142,29 @@ def run(args: argparse.Namespace) -> int:
     if warning is not None:
         print(warning, file=sys.stderr, flush=True)
     scenario = None if args.scenario is None else load_scenario(args.scenario)
+    variation = _variation.variation(args)
     plant: Plant
     if args.plant == "heater":
         params = HeaterParams(sensor_noise_std_kw=0.0, grid_wander_std=0.0) if args.no_noise \
             else HeaterParams()
-        heater = VirtualHeater(params, rng=args.seed)
-        plant, initial = heater, heater.params.initial_triac_pct
+        if variation.is_nominal:
+            heater = VirtualHeater(params, rng=args.seed)
+            plant, initial = heater, heater.params.initial_triac_pct
+        else:
+            varied = vary_heater(variation, params, rng=args.seed)
+            plant, initial = varied, varied.initial_triac_pct
     else:
         model = load_model(args.model or shipped_path("cz_heater_model.json"))
-        mp = ModelPlant(model, noise=not args.no_noise, initial_triac_pct=args.initial_triac_pct)
-        mp.reset(args.seed)
-        plant, initial = mp, mp.initial_triac_pct
+        if variation.is_nominal:
+            mp = ModelPlant(model, noise=not args.no_noise,
+                            initial_triac_pct=args.initial_triac_pct)
+            mp.reset(args.seed)
+            plant, initial = mp, mp.initial_triac_pct
+        else:
+            vp = vary_model_plant(model, variation, noise=not args.no_noise,
+                                  initial_triac_pct=args.initial_triac_pct)
+            vp.reset(args.seed)
+            plant, initial = vp, vp.initial_triac_pct
     options = ServeOptions(endpoint=args.endpoint, time_scale=args.time_scale,
                            watchdog_s=args.watchdog_s, safe_triac_pct=args.safe_triac_pct,
                            duration_s=args.duration_s, setpoint_kw=args.setpoint_kw,
@@ -151,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
     served = ServedPlant(plant, initial_triac_pct=initial, options=options, scenario=scenario,
                          seed=args.seed, log=lambda m: print(m, file=sys.stderr, flush=True))
     print(f"serving the {args.plant} plant on {args.endpoint} (Ts {plant.ts_s:g} s, time scale "
-          f"{args.time_scale:g}); security: "
+          f"{args.time_scale:g}; {variation.describe()}); security: "
           f"{'none (policy None, anonymous)' if security is None else security.describe()}; "
           f"Ctrl-C stops", file=sys.stderr, flush=True)
     try:

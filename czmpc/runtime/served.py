@@ -14,6 +14,8 @@ server)::
     Heater.Mode             String  r/w     OFF / PREDICT / ON (operator's choice)
     Heater.WatchdogTripped  Boolean read    True while the watchdog holds the safe input
     Heater.PlantTime_s      Double  read    plant time [s]
+    Heater.ModelHealth      Double  write   the controller's model-health figure [-]
+                                            (`czmpc.health`; >= 1: stale-model alarm)
 
 Watchdog (as a PLC has one): when the heartbeat has not changed for ``watchdog_s``
 [plant s], the applied input moves to ``safe_triac_pct`` and ``WatchdogTripped`` turns
@@ -187,6 +189,7 @@ class ServedPlant:
         await self._add(folder, idx, "Mode", "ON", ua.VariantType.String, True)
         await self._add(folder, idx, "WatchdogTripped", False, B, False)
         await self._add(folder, idx, "PlantTime_s", 0.0, D, False)
+        await self._add(folder, idx, "ModelHealth", 0.0, D, True)
         self._server = server
         async with server:
             self.ready.set()
