@@ -100,6 +100,9 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
                         "Node id of a counter written every step (the plant's watchdog)."),
     "nodes.mode": ("string", "none", "-",
                    "Node id of the plant's mode ``OFF``/``PREDICT``/``ON`` (read)."),
+    "nodes.model_health": ("string", "none", "-",
+                           "Node id to which the model-health score (`czmpc.health`) is "
+                           "written every step."),
     "controller.model": ("string (file)", "required", "-",
                          "Model file (:doc:`model_file`) the controller is built from."),
     "controller.settings": ("string (file)", "none (defaults from the model)", "-",

@@ -40,7 +40,7 @@ def _full_run_config(tmp_path: Path) -> dict[str, Any]:
     doc["plant"].update(time_scale=20.0, max_sample_age_s=4.0, connect_timeout_s=1.0,
                         security={"policy": "None"})
     doc["nodes"].update(applied_triac_pct="ns=2;s=A", setpoint_kw="ns=2;s=S",
-                        heartbeat="ns=2;s=H", mode="ns=2;s=M")
+                        heartbeat="ns=2;s=H", mode="ns=2;s=M", model_health="ns=2;s=MH")
     doc["controller"]["settings"] = "settings.toml"
     doc["run"].update(duration_s=10.0, log="log.csv")
     doc["safety"] = {"action": "ramp", "safe_triac_pct": 20.0}
