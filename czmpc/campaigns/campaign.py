@@ -78,8 +78,9 @@ from czmpc.errors import CzmpcError
 
 PresetName = Literal["mpc", "pi", "pi-scheduled", "linear-mpc", "nmpc", "open-loop"]
 PRESETS: tuple[str, ...] = ("mpc", "pi", "pi-scheduled", "linear-mpc", "nmpc", "open-loop")
-#: Presets built by `czmpc.campaigns.bench.build_controller` (its names).
-_BENCH_PRESETS = {"linear-mpc": "linear_mpc", "nmpc": "nmpc", "open-loop": "open_loop"}
+#: Preset -> the name `czmpc.campaigns.bench.build_controller` builds it by.
+_BENCH_NAMES = {"mpc": "mpc", "pi": "pi", "pi-scheduled": "pi_gs", "linear-mpc": "linear_mpc",
+                "nmpc": "nmpc", "open-loop": "open_loop"}
 PlantKindName = Literal["model", "heater", "perturbed", "sampled"]
 PLANT_KINDS: tuple[str, ...] = ("model", "heater", "perturbed", "sampled")
 #: Offset-free threshold on |steady-state error| [kW]: the robustness campaign's.
@@ -518,24 +519,15 @@ def _plant(run: RunSpec, model: Any, scenario: Any) -> tuple[Any, float]:
 
 
 def _controller(run: RunSpec, model: Any, scenario: Any, s0: float) -> Any:
-    from czmpc.campaigns.simulation import controller_settings
-    from czmpc.controller import OffsetFreeMPC
-    from czmpc.peers.pi import PIController
+    """The run's controller, built as `czmpc.campaigns.bench.build_controller` builds it
+    (every controller gets the Hammerstein MPC's allowed input range, the scenario's rate
+    limit and the plant's start input)."""
+    from czmpc.campaigns.bench import BenchModels, build_controller
 
-    settings = controller_settings(model, scenario, initial_triac_pct=s0)
-    if run.controller.preset in _BENCH_PRESETS:
-        from czmpc.campaigns.bench import BenchModels, build_controller
-        models = BenchModels(hammerstein=model, linear=_model(run.linear_model_path))
-        return build_controller(_BENCH_PRESETS[run.controller.preset], models, scenario,
-                                initial_triac_pct=s0)
-    if run.controller.preset == "mpc":
-        return OffsetFreeMPC(model, settings)
-    return PIController.tuned_for(
-        model, gain_scheduled=run.controller.preset == "pi-scheduled",
-        initial_triac_pct=settings.initial_triac_pct,
-        triac_limits_pct=(settings.triac_min_pct, settings.triac_max_pct),
-        max_move_pct_per_step=settings.max_move_pct_per_step,
-        validity_margin_pct=settings.validity_margin_pct)
+    linear = _model(run.linear_model_path) if run.linear_model_path else model
+    models = BenchModels(hammerstein=model, linear=linear)
+    return build_controller(_BENCH_NAMES[run.controller.preset], models, scenario,
+                            initial_triac_pct=s0)
 
 
 def simulate_run(run: RunSpec) -> Any:

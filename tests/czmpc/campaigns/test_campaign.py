@@ -55,7 +55,8 @@ def test_bad_specs_are_refused_naming_the_value(change: dict[str, object], match
 
 
 def test_shipped_specs_load() -> None:
-    for name in ("campaign_smoke.toml", "campaign_robustness.toml"):
+    for name in ("campaign_smoke.toml", "campaign_robustness.toml", "campaign_bench.toml",
+                 "campaign_montecarlo.toml", "campaign_throughput.toml"):
         assert len(load_spec(shipped_path(name)).expand()) > 0
 
 
