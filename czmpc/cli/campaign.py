@@ -217,8 +217,23 @@ def _bench(args: argparse.Namespace) -> int:
     return 1 if any(t.n_errors for t in timings) else 0
 
 
+#: BLAS/OpenMP thread variables set to 1 for this process (unless the user set them).
+_BLAS_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 def run(args: argparse.Namespace) -> int:
-    """Dispatch to ``run``, ``report`` or ``bench``."""
+    """Dispatch to ``run``, ``report`` or ``bench``.
+
+    The serial executor runs in this process: its BLAS gets one thread, like every
+    worker's, before numpy is first imported (small matrices; more threads only
+    contend, which on a shared machine halved the serial rate).
+    """
+    import os
+    import sys
+
+    if "numpy" not in sys.modules:
+        for var in _BLAS_VARS:
+            os.environ.setdefault(var, "1")
     if args.campaign_command == "run":
         return _run(args)
     if args.campaign_command == "bench":

@@ -139,3 +139,5 @@ def test_benchmark_reports_every_executor_and_consistent_rates() -> None:
     assert timings[0].efficiency == pytest.approx(1.0)
     text = format_benchmark_markdown(timings, spec=spec, command=["czmpc"], machine="m")
     assert text.count("\n| ") == 5  # header, separator, three executors
+    assert all(t.load_average_start >= 0 and t.load_average_end >= 0 for t in timings)
+    assert f"{timings[0].load_average_start:.1f} / {timings[0].load_average_end:.1f}" in text
