@@ -541,21 +541,33 @@ def simulate_run(run: RunSpec) -> Any:
     return run_closed_loop(plant, controller, scenario, rng=run_seed(run))
 
 
+@functools.lru_cache(maxsize=32)
+def _allowed_range(model_path: str, scenario_name: str, time_scale: float
+                   ) -> tuple[tuple[float, float], float | None]:
+    """The Hammerstein MPC's allowed input range [%] and rate limit [%/sample] of a scenario
+    (every controller gets them, `czmpc.campaigns.bench.build_controller`)."""
+    from czmpc.campaigns.simulation import controller_settings
+    from czmpc.inversion import allowed_triac_range
+
+    model = _model(model_path)
+    scenario = _scenario(scenario_name, time_scale)
+    settings = controller_settings(model, scenario, initial_triac_pct=model.operating_point.triac_pct)
+    allowed = allowed_triac_range(model, triac_min_pct=settings.triac_min_pct,
+                                  triac_max_pct=settings.triac_max_pct,
+                                  validity_margin_pct=settings.validity_margin_pct)
+    return (float(allowed[0]), float(allowed[1])), settings.max_move_pct_per_step
+
+
 def _reachable_row(run: RunSpec, result: Any) -> dict[str, Any]:
     """The robustness measures and the sampled-plant columns of a finished run."""
     from czmpc.campaigns.robustness import reachable_measures
     from czmpc.campaigns.sampling import static_gain_kw_per_pct
-    from czmpc.campaigns.simulation import controller_settings
-    from czmpc.inversion import allowed_triac_range
     from sim.heater import HeaterParams
     from sim.heater import steady_state as heater_steady_state
 
     model = _model(run.model_path)
     scenario = _scenario(run.scenario, run.time_scale)
-    settings = controller_settings(model, scenario, initial_triac_pct=model.operating_point.triac_pct)
-    allowed = allowed_triac_range(model, triac_min_pct=settings.triac_min_pct,
-                                  triac_max_pct=settings.triac_max_pct,
-                                  validity_margin_pct=settings.validity_margin_pct)
+    allowed, max_move = _allowed_range(run.model_path, run.scenario, run.time_scale)
     if run.plant.kind == "heater":
         params = HeaterParams(ts_s=scenario.ts_s)
         if not run.noise:
@@ -570,7 +582,7 @@ def _reachable_row(run: RunSpec, result: Any) -> dict[str, Any]:
         def power_at(s: float) -> float:
             return max(0.0, float(plant_model.steady_state_power_kw(s)))
         gain = float(static_gain_kw_per_pct(plant_model, np.array(model.operating_point.triac_pct)))
-    m = reachable_measures(result, scenario, power_at, allowed, settings.max_move_pct_per_step)
+    m = reachable_measures(result, scenario, power_at, allowed, max_move)
     return {
         "n_rejected_draws": n_rejected, "plant_parameter_source": source,
         "plant_static_gain_kw_per_pct": gain,

@@ -120,7 +120,9 @@ def format_montecarlo_markdown(rows: Sequence[Row], *, figure: str | None = None
         "setpoint (the setpoint clipped to what that plant holds in the allowed input "
         "range); a scenario without setpoint changes is judged over the last quarter of the "
         "run. Within limits: no sample outside the TRIAC limits or the allowed input range "
-        "and no move beyond the rate limit. IAE: true power against the setpoint, whole run.",
+        "and no move beyond the rate limit. IAE: true power against the setpoint, whole run. "
+        "(The campaign table above judges offset-free against the raw setpoint instead, so "
+        "a plant that cannot reach a setpoint inside the allowed range fails there.)",
         "", table, ""]
     if figure:
         lines += [f"![IAE distribution per controller over the sampled plants]({figure})", ""]
