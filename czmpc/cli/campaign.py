@@ -14,7 +14,7 @@ campaign resumes where it stopped when run again with the same SPEC and DIR. Shi
 specs (package data) can be named without a path: campaign_smoke.toml,
 campaign_montecarlo.toml (MPC, gain-scheduled PI and linear MPC on plants sampled from
 the model's parameter covariance), campaign_robustness.toml (`czmpc robustness`'s quick
-grid), campaign_bench.toml (`czmpc bench`'s MPC, linear MPC, PIs and open loop),
+grid), campaign_bench.toml (`czmpc bench`'s six controllers, the NMPC included),
 campaign_throughput.toml. --samples, --time-scale and --controllers change a spec for
 one run (e.g. a quick look at the Monte Carlo: --samples 5 --time-scale 0.05).
 
