@@ -41,8 +41,11 @@ Spec (TOML)::
 Presets: ``mpc`` is `OffsetFreeMPC` on the campaign's model; ``pi`` / ``pi-scheduled``
 the `PIController` tuned on it; ``linear-mpc`` the `OffsetFreeMPC` on the linear ARMAX
 model ``linear_model`` (no static nonlinearity: the linear MPC of `czmpc bench`),
-``nmpc`` the CasADi/IPOPT NMPC and ``open-loop`` the steady-state inversion, the last
-three built exactly as `czmpc.campaigns.bench.build_controller` builds them.
+``nmpc`` the CasADi/IPOPT NMPC and ``open-loop`` the steady-state inversion. Every
+preset is built as `czmpc.campaigns.bench.build_controller` builds it: every controller
+gets the Hammerstein MPC's allowed input range (the identified range widened by the
+validity margin, inside the scenario's limits), the scenario's rate limit and the
+plant's start input, so a comparison is fair.
 
 Besides the metrics of `sim.metrics.compute_metrics` (errors against the setpoint over
 the whole run), every row has the robustness campaign's measures
