@@ -24,7 +24,8 @@ Spec (TOML)::
     name = "mpc"
     preset = "mpc"                   # "mpc", "pi", "pi-scheduled", "linear-mpc", "nmpc",
                                      # "open-loop" (as `czmpc bench` builds them)
-    # settings = "file.toml"         # refused until a settings-file loader exists
+    # settings = "file.toml"         # optional MPC settings file (`czmpc.settings_file`,
+                                     # as `czmpc bench --settings`); preset default "mpc"
 
     [[plants]]
     kind = "model"                   # "model", "heater" or "perturbed"
@@ -114,10 +115,26 @@ class CampaignError(CzmpcError, ValueError):
 
 @dataclass(frozen=True, kw_only=True)
 class ControllerSpec:
-    """One controller of a campaign: a preset, named in the rows by ``name``."""
+    """One controller of a campaign: a preset, named in the rows by ``name``.
+
+    Parameters
+    ----------
+    name :
+        Its name in the rows.
+    preset :
+        One of `PRESETS`.
+    settings_path :
+        A settings file (`czmpc.settings_file`) applied to each model's defaults, as
+        ``czmpc bench --settings`` does; "" for the defaults.
+    settings_sha256 :
+        SHA-256 of that file when the spec was read (so a resumed campaign whose settings
+        file changed is refused as another spec); "" without one.
+    """
 
     name: str
     preset: PresetName
+    settings_path: str = ""
+    settings_sha256: str = ""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -281,24 +298,46 @@ def _plants(doc: Any, where: str) -> list[PlantSpec]:
     return out
 
 
-def _controllers(doc: Any, where: str) -> list[ControllerSpec]:
+def _settings(table: Mapping[str, Any], base: Path, model_path: Path,
+              here: str) -> tuple[str, str]:
+    """A controller's settings file: resolved path and SHA-256, checked against the model."""
+    import hashlib
+
+    from czmpc.errors import SettingsError
+    from czmpc.settings_file import load_settings
+
+    text = table.get("settings")
+    if text is None:
+        return "", ""
+    if not isinstance(text, str) or not text:
+        raise CampaignError(f"{here}: expected 'settings' a file name; got {text!r}")
+    path = Path(text) if Path(text).is_absolute() else base / text
+    try:
+        load_settings(path, _model(str(model_path)))
+        digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    except (SettingsError, OSError) as exc:
+        raise CampaignError(f"{here}: settings: {exc}") from None
+    return str(path), digest
+
+
+def _controllers(doc: Any, where: str, base: Path | None = None,
+                 model_path: Path | None = None) -> list[ControllerSpec]:
     if not isinstance(doc, list) or not doc:
         raise CampaignError(f"{where}: expected at least one [[controllers]] table")
     out = []
     for i, table in enumerate(doc):
         here = f"{where} [[controllers]] #{i + 1}"
         _check_keys(table, ["name", "preset", "settings"], here)
-        if "settings" in table:
-            raise CampaignError(
-                f"{here}: 'settings = {table['settings']!r}': settings files are not supported "
-                f"yet (no settings-file loader in this version); use a preset")
-        preset = table.get("preset")
+        preset = table.get("preset", "mpc" if "settings" in table else None)
         if preset not in PRESETS:
             raise CampaignError(f"{here}: expected preset one of {list(PRESETS)}; got {preset!r}")
         name = table.get("name", preset)
         if not isinstance(name, str) or not name or "|" in name:
             raise CampaignError(f"{here}: expected a non-empty name without '|'; got {name!r}")
-        out.append(ControllerSpec(name=name, preset=preset))
+        settings_path, settings_sha256 = ("", "") if model_path is None else _settings(
+            table, base or Path.cwd(), model_path, here)
+        out.append(ControllerSpec(name=name, preset=preset, settings_path=settings_path,
+                                  settings_sha256=settings_sha256))
     names = [c.name for c in out]
     if len(set(names)) != len(names):
         raise CampaignError(f"{where}: controller names must differ; got {names}")
@@ -389,7 +428,7 @@ def spec_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>",
             warnings.append(f"sampled plants of {Path(model_path).name}: {dist.warning}")
     return CampaignSpec(
         name=name, source=source, model_path=str(model_path),
-        controllers=tuple(_controllers(doc.get("controllers"), where)),
+        controllers=tuple(_controllers(doc.get("controllers"), where, base, model_path)),
         plants=plants, scenarios=resolved, seeds=seeds,
         base_seed=base_seed, noise=noise, time_scale=float(time_scale),
         fixed_seed=fixed_seed, linear_model_path=str(linear_path), warnings=tuple(warnings))
@@ -530,7 +569,17 @@ def _controller(run: RunSpec, model: Any, scenario: Any, s0: float) -> Any:
     linear = _model(run.linear_model_path) if run.linear_model_path else model
     models = BenchModels(hammerstein=model, linear=linear)
     return build_controller(_BENCH_NAMES[run.controller.preset], models, scenario,
-                            initial_triac_pct=s0)
+                            initial_triac_pct=s0,
+                            settings_doc=_settings_doc(run.controller.settings_path))
+
+
+@functools.lru_cache(maxsize=8)
+def _settings_doc(path: str) -> dict[str, Any] | None:
+    """The parsed settings file of a controller (None: the defaults)."""
+    if not path:
+        return None
+    from czmpc.settings_file import load_settings_doc
+    return load_settings_doc(path)
 
 
 def simulate_run(run: RunSpec) -> Any:
@@ -545,16 +594,20 @@ def simulate_run(run: RunSpec) -> Any:
 
 
 @functools.lru_cache(maxsize=32)
-def _allowed_range(model_path: str, scenario_name: str, time_scale: float
+def _allowed_range(model_path: str, scenario_name: str, time_scale: float, settings_path: str
                    ) -> tuple[tuple[float, float], float | None]:
     """The Hammerstein MPC's allowed input range [%] and rate limit [%/sample] of a scenario
     (every controller gets them, `czmpc.campaigns.bench.build_controller`)."""
     from czmpc.campaigns.simulation import controller_settings
     from czmpc.inversion import allowed_triac_range
+    from czmpc.settings_file import settings_from_dict
 
     model = _model(model_path)
     scenario = _scenario(scenario_name, time_scale)
-    settings = controller_settings(model, scenario, initial_triac_pct=model.operating_point.triac_pct)
+    doc = _settings_doc(settings_path)
+    base = None if doc is None else settings_from_dict(doc, model, source=settings_path)
+    settings = controller_settings(model, scenario, initial_triac_pct=model.operating_point.triac_pct,
+                                   settings=base)
     allowed = allowed_triac_range(model, triac_min_pct=settings.triac_min_pct,
                                   triac_max_pct=settings.triac_max_pct,
                                   validity_margin_pct=settings.validity_margin_pct)
@@ -570,7 +623,8 @@ def _reachable_row(run: RunSpec, result: Any) -> dict[str, Any]:
 
     model = _model(run.model_path)
     scenario = _scenario(run.scenario, run.time_scale)
-    allowed, max_move = _allowed_range(run.model_path, run.scenario, run.time_scale)
+    allowed, max_move = _allowed_range(run.model_path, run.scenario, run.time_scale,
+                                       run.controller.settings_path)
     if run.plant.kind == "heater":
         params = HeaterParams(ts_s=scenario.ts_s)
         if not run.noise:

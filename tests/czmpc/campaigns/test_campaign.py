@@ -45,7 +45,7 @@ def test_expand_counts_every_axis_and_grid_product() -> None:
     ({"time_scale": 1.5}, "time_scale"),
     ({"scenarios": ["no_such_scenario"]}, "no_such_scenario"),
     ({"controllers": [{"preset": "lqr"}]}, "'lqr'"),
-    ({"controllers": [{"preset": "mpc", "settings": "x.toml"}]}, "settings files are not supported"),
+    ({"controllers": [{"preset": "mpc", "settings": "x.toml"}]}, "x.toml: cannot read"),
     ({"plants": [{"kind": "perturbed", "gain_factors": [-1.0]}]}, "factors > 0"),
     ({"model": "missing.json"}, "missing.json"),
 ])

@@ -88,3 +88,32 @@ def test_robustness_spec_rows_equal_czmpc_robustness() -> None:
         assert row["n_fallbacks"] == result.n_solver_fallbacks
         n_unreachable += result.n_unreachable_changes
     assert n_unreachable > 0  # gain x0.7 cannot reach the top of the staircase: clipping tested
+
+
+def test_a_settings_file_tunes_the_controller_as_czmpc_bench_settings(tmp_path: Path) -> None:
+    settings = tmp_path / "slow.toml"
+    settings.write_text("horizon_steps = 20\nmove_weight = 2.0\n", encoding="utf-8")
+    (tmp_path / "s.toml").write_text(
+        'scenarios = ["staircase"]\ntime_scale = 0.02\nseed = 7\n'
+        '[[controllers]]\nname = "slow"\nsettings = "slow.toml"\n'
+        '[[controllers]]\nname = "default"\npreset = "mpc"\n'
+        '[[plants]]\nkind = "model"\n', encoding="utf-8")
+    spec = load_spec(tmp_path / "s.toml")
+    assert spec.controllers[0].preset == "mpc"
+    assert spec.controllers[0].settings_path == str(settings)
+    rows = {r["controller"]: r for r in (execute_run(run) for run in spec.expand())}
+    scenario = load_scenario("staircase").shortened(0.02)
+    ref = run_row(run_case(scenario, "model", "mpc", BenchModels.shipped(),
+                           settings_doc={"horizon_steps": 20, "move_weight": 2.0}))
+    assert rows["slow"]["iae_kw_s"] == pytest.approx(ref["iae_kw_s"], rel=IDENTITY_RTOL)
+    assert rows["slow"]["iae_kw_s"] != pytest.approx(rows["default"]["iae_kw_s"], rel=1e-6)
+
+
+def test_a_bad_settings_file_is_refused_naming_the_key(tmp_path: Path) -> None:
+    from czmpc.campaigns.campaign import CampaignError
+
+    (tmp_path / "bad.toml").write_text("horizon_stepz = 20\n", encoding="utf-8")
+    doc = {"scenarios": ["staircase"], "plants": [{"kind": "model"}],
+           "controllers": [{"settings": "bad.toml"}]}
+    with pytest.raises(CampaignError, match="horizon_stepz"):
+        spec_from_dict(doc, base_dir=tmp_path)
