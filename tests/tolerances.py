@@ -6,6 +6,9 @@ IDENTITY_RTOL = 1e-12
 TABLE3_GAIN_ATOL_KW_PER_PCT = 0.06
 #: Table 3 power levels before/after each step: the issue allows +-0.4 kW.
 TABLE3_LEVEL_ATOL_KW = 0.4
+#: Monte-Carlo estimates (sample moments, rejected fractions) against their exact values:
+#: 5 standard errors of the estimator (a false alarm has probability ~6e-7 per check).
+SAMPLING_SIGMAS = 5.0
 #: Delta-method std of a static gain or pole distance against the std over 100 Monte Carlo
 #: noise realizations: the sample std has a relative standard error of 1/sqrt(2*99) = 7 %,
 #: and the delta method is first order; 25 % is 3.5 of those standard errors.
