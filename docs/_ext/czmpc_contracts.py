@@ -138,6 +138,12 @@ CAMPAIGN_KEYS: dict[str, tuple[str, str, str]] = {
     "noise": ("boolean", "true", "Plant noise on or off."),
     "time_scale": ("number in (0, 1]", "1", "Shortens every scenario to this fraction of its "
                    "length (``Scenario.shortened``)."),
+    "seed": ("integer >= 0", "none (seeds keyed by the run)",
+             "One seed for every run, as ``czmpc bench`` and ``czmpc robustness`` use; "
+             "replaces ``seeds`` and ``base_seed``."),
+    "linear_model": ("string (file)", "cz_heater_armax_model.json",
+                     "Model of the ``linear-mpc`` preset (a linear ARMAX model: the linear "
+                     "MPC of ``czmpc bench``)."),
     "scenarios": ("list of strings", "required",
                   "Scenarios: shipped names (``staircase``, ``voltage_sag``, ...) or TOML files."),
     "controllers": ("array of tables", "required", "``[[controllers]]``: keys below."),
@@ -145,19 +151,34 @@ CAMPAIGN_KEYS: dict[str, tuple[str, str, str]] = {
 }
 CAMPAIGN_CONTROLLER_KEYS: dict[str, tuple[str, str, str]] = {
     "name": ("string without ``|``", "the preset", "Name of the controller in the rows; unique."),
-    "preset": ("string", "required", "``mpc``, ``pi`` or ``pi-scheduled``."),
-    "settings": ("string (file)", "-",
-                 "Reserved for an MPC settings file; this version refuses it (use a preset)."),
+    "preset": ("string", "required (``mpc`` with ``settings``)",
+               "``mpc``, ``pi``, ``pi-scheduled``, ``linear-mpc``, ``nmpc`` or ``open-loop``, "
+               "each built as the tracking benchmark builds it."),
+    "settings": ("string (file)", "none (defaults from the model)",
+                 "MPC settings file (:doc:`settings_file`) for ``mpc``, ``linear-mpc`` and "
+                 "``nmpc``; its SHA-256 is part of the spec's identity."),
 }
 CAMPAIGN_PLANT_KEYS: dict[str, tuple[str, str, str]] = {
     "kind": ("string", "required",
-             "``model`` (the model's own equation), ``heater`` (the virtual heater) or "
-             "``perturbed`` (the model perturbed; the keys below, only for this kind)."),
+             "``model`` (the model's own equation), ``heater`` (the virtual heater), "
+             "``sampled`` (plants drawn from the model's parameter covariance, keys "
+             "``n`` and ``first`` below) or ``perturbed`` (the model perturbed; the three "
+             "factor keys below, only for this kind)."),
     "gain_factors": ("list of numbers > 0", "[1.0]", "Static gain factors."),
     "time_constant_factors": ("list of numbers > 0", "[1.0]", "Slow time-constant factors."),
     "extra_delays_steps": ("list of whole numbers >= 0", "[0]",
                            "Extra input delays [samples]. One plant per element of the "
                            "product of the three lists."),
+}
+#: Keys of a ``kind = "sampled"`` plant table (`czmpc.campaigns.sampling`).
+CAMPAIGN_SAMPLED_KEYS: dict[str, tuple[str, str, str]] = {
+    "kind": ("string", "required", "``sampled``."),
+    "n": ("integer >= 1", "required",
+          "Number of plants drawn from N(theta, covariance) of the model file (its standard "
+          "errors, with a warning, when it has no covariance); unstable or sign-changed "
+          "draws are rejected and counted."),
+    "first": ("integer >= 0", "0", "Number of the first plant: plants ``first .. first+n-1`` "
+              "(to extend a study later with the same draws)."),
 }
 
 
@@ -301,6 +322,7 @@ def accepted_campaign_keys() -> dict[str, list[str]]:
         "controllers": {**base, "controllers": [{"preset": "mpc", probe: 1}]},
         "plants": {**base, "plants": [{"kind": "perturbed", probe: 1}]},
         "plants-other": {**base, "plants": [{"kind": "heater", probe: 1}]},
+        "plants-sampled": {**base, "plants": [{"kind": "sampled", "n": 1, probe: 1}]},
     }
     out: dict[str, list[str]] = {}
     for level, doc in docs.items():
@@ -326,6 +348,7 @@ def campaign_spec_rst() -> str:
     _check_same(CAMPAIGN_CONTROLLER_KEYS, accepted["controllers"], "[[controllers]] keys")
     _check_same(CAMPAIGN_PLANT_KEYS, accepted["plants"], "[[plants]] keys")
     _check_same(["kind"], accepted["plants-other"], "[[plants]] keys of model/heater plants")
+    _check_same(CAMPAIGN_SAMPLED_KEYS, accepted["plants-sampled"], "[[plants]] keys of sampled plants")
     _check_same([p for p in CAMPAIGN_CONTROLLER_KEYS["preset"][2].split("``")[1::2]], PRESETS,
                 "controller presets")
     _check_same([k for k in CAMPAIGN_PLANT_KEYS["kind"][2].split("``")[1::2]
@@ -337,6 +360,8 @@ def campaign_spec_rst() -> str:
     lines += _table(header, [(f"``{k}``", *v) for k, v in CAMPAIGN_CONTROLLER_KEYS.items()])
     lines += ["", "``[[plants]]`` (one table per plant or grid of plants):", ""]
     lines += _table(header, [(f"``{k}``", *v) for k, v in CAMPAIGN_PLANT_KEYS.items()])
+    lines += ["", '``[[plants]]`` with ``kind = "sampled"``:', ""]
+    lines += _table(header, [(f"``{k}``", *v) for k, v in CAMPAIGN_SAMPLED_KEYS.items()])
     lines += ["",
               "- The runs are controllers x plants x scenarios x seed indices.",
               "- Unknown or invalid keys are refused with "

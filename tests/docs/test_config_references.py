@@ -162,13 +162,17 @@ def test_a_campaign_spec_drift_stops_the_docs_build(contracts: ModuleType,
         contracts.campaign_spec_rst()
 
 
-def test_the_documented_refusal_of_controller_settings_is_the_validators(contracts: ModuleType) -> None:
-    # The reference says this version refuses [[controllers]] settings; when a settings
-    # loader lands, this fails and the reference must say what the key now does.
-    assert "refuses" in contracts.CAMPAIGN_CONTROLLER_KEYS["settings"][2]
+def test_a_controller_settings_file_is_read_into_the_spec(contracts: ModuleType,
+                                                         tmp_path: Path) -> None:
+    # The reference says [[controllers]] settings names an MPC settings file: the
+    # validator reads it (a missing file is refused naming it) and keeps its path.
+    assert ":doc:`settings_file`" in contracts.CAMPAIGN_CONTROLLER_KEYS["settings"][2]
     doc = {**_minimal_spec(), "controllers": [{"preset": "mpc", "settings": "mine.toml"}]}
-    with pytest.raises(CampaignError, match="not supported"):
-        spec_from_dict(doc)
+    with pytest.raises(CampaignError, match="mine.toml: cannot read the settings file"):
+        spec_from_dict(doc, base_dir=tmp_path)
+    (tmp_path / "mine.toml").write_text("move_weight = 0.5\n", encoding="utf-8")
+    spec = spec_from_dict(doc, base_dir=tmp_path)
+    assert spec.controllers[0].settings_path.endswith("mine.toml")
 
 
 def _shipped_model() -> Any:
