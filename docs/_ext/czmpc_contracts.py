@@ -161,9 +161,9 @@ CAMPAIGN_CONTROLLER_KEYS: dict[str, tuple[str, str, str]] = {
 CAMPAIGN_PLANT_KEYS: dict[str, tuple[str, str, str]] = {
     "kind": ("string", "required",
              "``model`` (the model's own equation), ``heater`` (the virtual heater), "
-             "``sampled`` (plants drawn from the model's parameter covariance, keys "
-             "``n`` and ``first`` below) or ``perturbed`` (the model perturbed; the three "
-             "factor keys below, only for this kind)."),
+             "``sampled`` (plants drawn from the model's parameter covariance; its keys "
+             "in the next table) or ``perturbed`` (the model perturbed; the three factor "
+             "keys below, only for this kind)."),
     "gain_factors": ("list of numbers > 0", "[1.0]", "Static gain factors."),
     "time_constant_factors": ("list of numbers > 0", "[1.0]", "Slow time-constant factors."),
     "extra_delays_steps": ("list of whole numbers >= 0", "[0]",
