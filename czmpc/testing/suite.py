@@ -198,7 +198,9 @@ class SuiteSpec:
         """Every file (not shipped name) the cases read: models, settings, scenarios."""
         paths: list[str] = []
         for c in self.controllers:
-            paths += [c.model_path, c.linear_model_path]
+            paths.append(c.model_path)
+            if c.kind == "linear_mpc":
+                paths.append(c.linear_model_path)
             if c.settings_path is not None:
                 paths.append(c.settings_path)
         paths += [s for s in self.scenarios if s.endswith(".toml")]
