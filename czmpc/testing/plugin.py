@@ -15,6 +15,7 @@ writes the Markdown report and figures of every check into DIR/<golden dir name>
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -50,7 +51,8 @@ class RegressChecker:
     report_root: Path | None
 
     def check(self, golden_dir: str | Path, *, executor: str = "serial", workers: int = 2,
-              suite_dir: str | Path | None = None) -> CheckReport:
+              suite_dir: str | Path | None = None, cases: Sequence[str] | None = None
+              ) -> CheckReport:
         """Re-run a golden directory; fail the test unless every case holds.
 
         Parameters
@@ -61,6 +63,8 @@ class RegressChecker:
             ``"serial"``, ``"processes"`` or ``"dask"`` and its worker count.
         suite_dir :
             See `czmpc.testing.regress.load_golden_dir`.
+        cases :
+            Case ids to check; None: all.
 
         Returns
         -------
@@ -73,7 +77,8 @@ class RegressChecker:
         path = Path(golden_dir)
         if not path.is_absolute():
             path = self.test_dir / path
-        report = check_golden(path, executor=executor, workers=workers, suite_dir=suite_dir)
+        report = check_golden(path, executor=executor, workers=workers, suite_dir=suite_dir,
+                              cases=cases)
         if self.report_root is not None:
             write_report(report, self.report_root / path.resolve().name)
         if not report.passed:
