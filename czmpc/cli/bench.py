@@ -15,7 +15,7 @@ everywhere) are printed with the measured ratios; unless --no-record, the report
 under '## Setpoint-tracking benchmark' in BENCHMARKS.md with this command line and the
 machine. --short FACTOR shortens every scenario (times x FACTOR) for a quick look.
 
---update-golden is deprecated (removed in the next release): the project's golden set
+--update-golden is deprecated (since 0.2.0, removed in 0.3.0): the project's golden set
 is the shipped regression suite regress_project_golden.toml, recorded with
 `czmpc regress record regress_project_golden.toml --out tests/golden --force`, which
 --update-golden now runs (with a warning) instead of the benchmark.
@@ -94,8 +94,8 @@ def _update_golden(args: argparse.Namespace, progress: Progress) -> int:
     from czmpc.testing.regress import RegressRunError, record_suite
 
     out = args.golden_dir or GOLDEN_DIR
-    print(f"czmpc: warning: 'czmpc bench --update-golden' is deprecated and will be removed in "
-          f"the next release; use: czmpc regress record {_SHIPPED_SUITE} --out {out} --force",
+    print(f"czmpc: warning: 'czmpc bench --update-golden' is deprecated (since 0.2.0) and will be "
+          f"removed in 0.3.0; use: czmpc regress record {_SHIPPED_SUITE} --out {out} --force",
           file=sys.stderr)
     unused = [o for o, v in (("--scenarios", args.scenarios), ("--model", args.model),
                              ("--linear-model", args.linear_model)) if v is not None]
