@@ -131,3 +131,25 @@ def test_audit_reports_caught_mutations_and_flags_a_suite_that_catches_none(
     assert main(["regress", "audit", str(tmp_path / "g2"), "--mutation", "move_weight x2",
                  "--mutation", "horizon -20%"]) == 1
     assert "FLAGGED: the suite catches none of the mutations" in capsys.readouterr().out
+
+
+def test_bench_update_golden_is_deprecated_and_records_the_shipped_suite(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    import czmpc.testing.regress as regress
+
+    calls: list[tuple[Path, Path, bool]] = []
+
+    def fake_record(suite: Path, out: Path, *, force: bool, **_: object) -> Path:
+        calls.append((Path(suite), Path(out), force))
+        return Path(out) / "regress.json"
+
+    monkeypatch.setattr(regress, "record_suite", fake_record)
+    golden = tmp_path / "golden"
+    assert main(["bench", "--update-golden", "--golden-dir", str(golden)]) == 0
+    err = capsys.readouterr().err
+    assert "'czmpc bench --update-golden' is deprecated (since 0.2.0)" in err
+    assert "use: czmpc regress record regress_project_golden.toml" in err
+    assert [(s.name, o, f) for s, o, f in calls] == [("regress_project_golden.toml", golden, True)]
+    assert main(["bench", "--update-golden", "--golden-dir", str(golden),
+                 "--scenarios", "staircase"]) == 2
+    assert "--scenarios cannot be combined with --update-golden" in capsys.readouterr().err
