@@ -56,6 +56,7 @@ from czmpc.testing.cases import (
     TRAJECTORY_SIGNALS,
     CaseResult,
     CaseTask,
+    base_settings,
 )
 from czmpc.testing.executors import TaskProgress, map_tasks
 from czmpc.testing.suite import (
@@ -194,6 +195,7 @@ def record_suite(
     suite = load_suite(suite_file)
     out = Path(out_dir)
     _prepare_out(out, force)
+    validate_inputs(suite)
     cases = suite.expand()
     tasks = [CaseTask(case=c, tight=t) for c in cases for t in (False, True)]
     results = map_tasks(tasks, executor=executor, workers=workers, dask_address=dask_address,
@@ -537,6 +539,20 @@ def input_changes(golden: Golden) -> tuple[InputChange, ...]:
     return tuple(out)
 
 
+def validate_inputs(suite: SuiteSpec) -> None:
+    """Read every controller's model and settings file once, before any case runs.
+
+    Raises
+    ------
+    SysidError, SettingsError
+        A model or settings file that cannot be used (bad input, not a failed case).
+    """
+    from sysid.modelfile import load_model
+
+    for entry in suite.controllers:
+        base_settings(entry, load_model(entry.model_path))
+
+
 def _judge(golden: Golden, case_id: str, result: CaseResult, changed: set[str]) -> CaseCheck:
     entry = golden.doc["cases"][case_id]
     causes = tuple(sorted(n for n in entry["inputs"].values() if n in changed))
@@ -591,6 +607,7 @@ def check_golden(
             raise RegressError(f"{golden.path}: no case(s) {unknown} in the golden directory")
         chosen = [c for c in chosen if c.case_id in set(cases)]
     changes = input_changes(golden)
+    validate_inputs(golden.suite)
     results = map_tasks([CaseTask(case=c, mutation=mutation) for c in chosen], executor=executor,
                         workers=workers, dask_address=dask_address, progress=progress)
     changed = {c.name for c in changes}
@@ -714,4 +731,5 @@ __all__ = [
     "record_suite",
     "sha256_file",
     "trajectory_band",
+    "validate_inputs",
 ]

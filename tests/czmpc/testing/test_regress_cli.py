@@ -153,3 +153,14 @@ def test_bench_update_golden_is_deprecated_and_records_the_shipped_suite(
     assert main(["bench", "--update-golden", "--golden-dir", str(golden),
                  "--scenarios", "staircase"]) == 2
     assert "--scenarios cannot be combined with --update-golden" in capsys.readouterr().err
+
+
+def test_a_settings_file_that_became_invalid_is_bad_input_not_a_failed_case(
+        user_suite: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    golden = tmp_path / "golden"
+    assert main(["regress", "record", str(user_suite), "--out", str(golden)]) == 0
+    settings = user_suite.parent / "puller7_settings.toml"
+    settings.write_text("move_wieght = 0.2\n", encoding="utf-8")
+    assert main(["regress", "check", str(golden)]) == 2
+    err = capsys.readouterr().err
+    assert "czmpc: error:" in err and "move_wieght" in err and "puller7_settings.toml" in err
