@@ -331,7 +331,7 @@ def load_golden_dir(path: str | Path, *, suite_dir: str | Path | None = None) ->
     except OSError as exc:
         raise RegressError(f"{root}: cannot read the suite copy {info['copy']}: {exc.strerror}") from None
     suite = parse_suite_text(text, source=f"{root / info['copy']} (files from {base})",
-                             base_dir=base)
+                             base_dir=base, default_name=str(info["name"]))
     recorded = list(doc["cases"])
     now = [c.case_id for c in suite.expand()]
     if recorded != now:

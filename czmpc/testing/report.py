@@ -104,10 +104,10 @@ def plot_case(report: CheckReport, case: CaseCheck, path: str | Path) -> None:
     golden = report.golden.trajectory(case.case_id)
     band = report.golden.doc["cases"][case.case_id]["band"]
     new = case.new_trajectory
-    fig = Figure(figsize=(8.0, 6.0), dpi=100, layout="constrained")
+    fig = Figure(figsize=(8.0, 8.0), dpi=100, layout="constrained")
     FigureCanvasAgg(fig)
-    axes = fig.subplots(2, 1, sharex=True)
-    for ax, signal in zip(axes, ("power_true_kw", "triac_pct"), strict=True):
+    axes = fig.subplots(3, 1, sharex=True, height_ratios=(3, 3, 2))
+    for ax, signal in zip(axes[:2], ("power_true_kw", "triac_pct"), strict=True):
         t, g = golden["time_s"], golden[signal]
         if signal == "power_true_kw":
             ax.plot(t, golden["setpoint_kw"], color="black", linestyle="--", linewidth=0.8,
@@ -117,12 +117,23 @@ def plot_case(report: CheckReport, case: CaseCheck, path: str | Path) -> None:
         ax.plot(t, g, color="tab:blue", linewidth=1.0, label="golden")
         if new:
             ax.plot(new["time_s"], new[signal], color="tab:red", linewidth=1.0, label="new")
+        ax.set_ylabel(_SIGNAL_NAMES[signal])
+    ax_d = axes[2]
+    if new:
+        k = min(len(golden["time_s"]), len(new["time_s"]))
+        t = golden["time_s"][:k]
+        diff = new["power_true_kw"][:k] - golden["power_true_kw"][:k]
+        ax_d.fill_between(t, -band["power_true_kw"], band["power_true_kw"], color="tab:blue",
+                          alpha=0.25, linewidth=0, label="golden band")
+        ax_d.plot(t, diff, color="tab:red", linewidth=1.0, label="new - golden")
+        ax_d.legend(loc="best", fontsize="small")
+    ax_d.set_ylabel("new - golden power [kW]")
+    for ax in axes:
         if case.divergence is not None:
             ax.axvline(case.divergence.time_s, color="tab:red", linestyle=":", linewidth=1.0,
                        label=f"first divergence t = {case.divergence.time_s:g} s")
-        ax.set_ylabel(_SIGNAL_NAMES[signal])
         ax.grid(True, linewidth=0.5, alpha=0.6)
-    axes[1].set_xlabel("time [s]")
+    axes[2].set_xlabel("time [s]")
     axes[0].set_title(case.case_id, fontsize="medium")
     axes[0].legend(loc="best", fontsize="small")
     Path(path).parent.mkdir(parents=True, exist_ok=True)

@@ -355,7 +355,7 @@ def _tolerances(doc: object, metrics: Sequence[str], where: str) -> dict[str, To
 
 
 def suite_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>",
-                    base_dir: Path | None = None) -> SuiteSpec:
+                    base_dir: Path | None = None, default_name: str | None = None) -> SuiteSpec:
     """Parse and check a suite given as a mapping (see the module docstring).
 
     Parameters
@@ -366,6 +366,8 @@ def suite_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>",
         Name of the suite in messages.
     base_dir :
         Folder relative paths are taken from (default: the current directory).
+    default_name :
+        Name of a suite without ``name`` (default: the stem of ``source``).
 
     Raises
     ------
@@ -376,7 +378,7 @@ def suite_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>",
     where = f"suite {source}"
     _check_keys(doc, _TOP_KEYS, where)
     base = base_dir if base_dir is not None else Path.cwd()
-    name = doc.get("name", Path(source).stem)
+    name = doc.get("name", default_name if default_name is not None else Path(source).stem)
     description = doc.get("description", "")
     for key, value in (("name", name), ("description", description)):
         if not isinstance(value, str) or (key == "name" and not value):
@@ -404,8 +406,9 @@ def suite_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>",
         tolerances=_tolerances(doc.get("tolerances", {}), metrics, where))
 
 
-def parse_suite_text(text: str, *, source: str, base_dir: Path) -> SuiteSpec:
-    """Parse suite TOML text (relative paths from ``base_dir``).
+def parse_suite_text(text: str, *, source: str, base_dir: Path,
+                     default_name: str | None = None) -> SuiteSpec:
+    """Parse suite TOML text (relative paths from ``base_dir``; see `suite_from_dict`).
 
     Raises
     ------
@@ -416,7 +419,7 @@ def parse_suite_text(text: str, *, source: str, base_dir: Path) -> SuiteSpec:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise RegressError(f"suite {source}: not valid TOML: {exc}") from None
-    return suite_from_dict(doc, source=source, base_dir=base_dir)
+    return suite_from_dict(doc, source=source, base_dir=base_dir, default_name=default_name)
 
 
 def load_suite(path: str | Path) -> SuiteSpec:
