@@ -206,6 +206,12 @@ def junit_xml(report: CheckReport) -> str:
         "failures": str(sum(1 for c in report.cases if c.failures and not c.error)),
         "errors": str(sum(1 for c in report.cases if c.error)), "skipped": "0",
         "time": f"{report.wall_time_s:.3f}"})
+    props = ET.SubElement(suite, "properties")
+    for name, value in (("golden_dir", str(report.golden.path)),
+                        ("czmpc_version_recorded", report.recorded_version),
+                        ("czmpc_version_checked", report.current_version),
+                        *((f"changed_input:{ch.name}", ch.current_sha256) for ch in report.input_changes)):
+        ET.SubElement(props, "property", {"name": name, "value": value})
     causes = cause_lines(report)
     for c in report.cases:
         case = ET.SubElement(suite, "testcase", {"classname": f"czmpc.regress.{report.golden.suite.name}",

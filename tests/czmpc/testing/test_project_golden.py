@@ -12,7 +12,8 @@ import pytest
 
 from czmpc.campaigns.bench import CONTROLLERS, PLANTS
 from czmpc.testing.plugin import RegressChecker
-from czmpc.testing.regress import check_golden, load_golden_dir
+from czmpc.testing.cases import MUTATIONS
+from czmpc.testing.regress import audit_golden, check_golden, load_golden_dir
 from czmpc.testing.suite import DEFAULT_METRICS
 from sim.scenario import list_scenarios
 
@@ -47,3 +48,11 @@ def test_a_doubled_move_weight_is_caught_as_a_regression() -> None:
     # measured: 76.48 kW s against 73.72 +- 0.51, 5.3 tolerances out: not marginal
     assert iae.new > iae.golden + 3 * iae.tolerance
     assert check.divergence is not None and check.divergence.time_s >= 60.0  # first step at 60 s
+
+
+@pytest.mark.slow
+def test_the_audit_catches_all_four_mutations_on_the_shipped_suite() -> None:
+    report = audit_golden(GOLDEN)
+    assert report.baseline_failures == ()
+    assert {m.mutation: m.n_cases for m in report.mutations} == dict.fromkeys(MUTATIONS, 14)
+    assert [m.mutation for m in report.mutations if not m.is_caught] == []

@@ -49,6 +49,10 @@ def test_record_check_pass_then_a_doubled_weight_fails_naming_metric_and_diverge
     assert 60.0 <= float(divergence) < 600.0
     root = ET.parse(junit).getroot()
     assert root.get("failures") == "2"
+    props = {p.get("name"): p.get("value") for p in root.iter("property")}
+    assert props["changed_input:puller7_settings.toml"] != props.get("czmpc_version_checked")
+    assert [c.get("name") for c in root.iter("testcase")] == [
+        "tuned/model/recipe_a/s3", "tuned/perturbed g1.1 m1 d+0/recipe_a/s3"]
     failure = root.find("testcase/failure")
     assert failure is not None and "first divergence t = " in failure.get("message", "")
     assert "iae_kw_s" in (failure.text or "") and "likely cause" in (failure.text or "")
