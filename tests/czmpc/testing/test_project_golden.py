@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from czmpc.campaigns.bench import CONTROLLERS, PLANTS
-from czmpc.testing.plugin import RegressChecker
 from czmpc.testing.cases import MUTATIONS
+from czmpc.testing.plugin import RegressChecker
 from czmpc.testing.regress import audit_golden, check_golden, load_golden_dir
 from czmpc.testing.suite import DEFAULT_METRICS
 from sim.scenario import list_scenarios
