@@ -6,8 +6,22 @@
 
 A suite (TOML) names your model files, MPC settings files, scenarios (shipped names or
 your own scenario files, e.g. a recipe's setpoint schedule), plants (model, heater,
-perturbed), seeds and the metrics to hold (see czmpc.testing.suite for every key; the
-project's own golden set is the shipped suite regress_project_golden.toml).
+perturbed), seeds and the metrics to hold. A minimal suite (paths relative to it):
+
+    scenarios = ["recipe_a.toml", "staircase"]   # your scenario files or shipped names
+    seeds = [3]
+    [[controllers]]
+    kind = "mpc"              # or nmpc, linear_mpc, pi_gs, pi, open_loop
+    model = "my_model.json"
+    settings = "my_settings.toml"
+    [[plants]]
+    kind = "model"            # or "heater", or "perturbed" with gain_factors = [...]
+
+Optional keys: name, time_scale (shortens scenarios), metrics = [...] (default: IAE,
+ISE, overshoot, steady-state error, input total variation, violation counts, solver
+failures) and a [tolerances] table (metric = absolute value or "2%"); every key is
+described in the module czmpc.testing.suite. The project's own golden set is the
+shipped suite regress_project_golden.toml.
 
 `record` runs every case twice (default and tight solver tolerances) and writes
 GOLDEN_DIR: the metrics with derived tolerances, a compact trajectory per case, the
