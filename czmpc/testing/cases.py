@@ -18,7 +18,7 @@ import functools
 import math
 import traceback
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -125,13 +125,6 @@ def base_settings(entry: ControllerEntry, model: Any) -> MPCSettings:
     return load_settings(Path(entry.settings_path), model)
 
 
-def _settings_updates(settings: MPCSettings, model: Any) -> dict[str, Any]:
-    """The fields of ``settings`` that differ from `MPCSettings.default_for` ``(model)``."""
-    default = MPCSettings.default_for(model)
-    return {f.name: getattr(settings, f.name) for f in fields(settings)
-            if getattr(settings, f.name) != getattr(default, f.name)}
-
-
 def _plant(case: CaseSpec, model: Any, scenario: Any) -> tuple[Any, float]:
     from czmpc.campaigns.bench import build_plant
 
@@ -155,9 +148,9 @@ def _controller(task: CaseTask, model: Any, scenario: Any, s0: float) -> Any:
     from czmpc.controller import OffsetFreeMPC
 
     entry = task.case.controller
-    base = base_settings(entry, model)
     tight: dict[str, Any] = {"osqp": TIGHT_OSQP} if task.tight else {}
     if entry.kind in ("mpc", "nmpc"):
+        base = base_settings(entry, model)
         final = controller_settings(model, scenario, initial_triac_pct=s0, settings=base)
         if task.mutation is not None:
             mutated = MUTATIONS[task.mutation](final)
@@ -172,9 +165,12 @@ def _controller(task: CaseTask, model: Any, scenario: Any, s0: float) -> Any:
             return NonlinearMPC(model, final, ipopt_tol=TIGHT_IPOPT_TOL)
         return NonlinearMPC(model, final)
     models = BenchModels(hammerstein=model, linear=_model(entry.linear_model_path))
-    updates = _settings_updates(base, model) | tight
+    doc = None
+    if entry.settings_path is not None:  # applied to each model's own defaults (linear_mpc)
+        from czmpc.settings_file import load_settings_doc
+        doc = load_settings_doc(entry.settings_path)
     return build_controller(entry.kind, models, scenario, initial_triac_pct=s0,
-                            settings_updates=updates)
+                            settings_updates=tight, settings_doc=doc)
 
 
 @functools.lru_cache(maxsize=32)
