@@ -39,15 +39,15 @@ def test_fresh_runs_match_the_golden_set(scenario: str, czmpc_regress: RegressCh
 
 
 def test_a_doubled_move_weight_is_caught_as_a_regression() -> None:
-    case = "mpc/model/staircase/s7"
+    case = "mpc/model/voltage_sag/s7"
     assert check_golden(GOLDEN, cases=[case]).passed
     worse = check_golden(GOLDEN, cases=[case], mutation="move_weight x2")
     (check,) = worse.cases
     assert {f.metric for f in check.failures} >= {"iae_kw_s", "ise_kw2_s"}
     iae = next(f for f in check.failures if f.metric == "iae_kw_s")
-    # measured: 76.48 kW s against 73.72 +- 0.51, 5.3 tolerances out: not marginal
-    assert iae.new > iae.golden + 3 * iae.tolerance
-    assert check.divergence is not None and check.divergence.time_s >= 60.0  # first step at 60 s
+    # measured: 179 tolerances out; far outside, not marginal
+    assert iae.new > iae.golden + 10 * iae.tolerance
+    assert check.divergence is not None and check.divergence.signal in ("power_true_kw", "triac_pct")
 
 
 @pytest.mark.slow
