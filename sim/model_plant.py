@@ -212,6 +212,39 @@ class ModelPlant:
             s0 = steady_state_triac_pct(model, scenario.initial_setpoint_kw)
         return cls(model, noise=scenario.plant_noise, initial_triac_pct=s0)
 
+    def set_model(self, model: HammersteinModel) -> None:
+        """Run on with another model's coefficients, keeping the plant's state (a drift).
+
+        Parameters
+        ----------
+        model :
+            The new equation: same sampling time, operating point, delay and polynomial
+            lengths as the current one (so the histories carry over), e.g. from
+            `sim.perturbed.perturb_model` with a gain or time-constant factor.
+
+        Raises
+        ------
+        PlantError
+            A model of another shape.
+        """
+        old = self.model
+        same = (model.ts_s == old.ts_s and model.operating_point == old.operating_point
+                and model.delay_steps == old.delay_steps and len(model.a) == len(old.a)
+                and len(model.b) == len(old.b) and len(model.c) == len(old.c)
+                and len(model.input_poly) == len(old.input_poly))
+        if not same:
+            raise PlantError(
+                "ModelPlant.set_model: expected a model with the same Ts, operating point, delay "
+                f"and polynomial lengths; got A {len(model.a)}, B {len(model.b)}, C "
+                f"{len(model.c)} coefficients, delay {model.delay_steps} for A {len(old.a)}, "
+                f"B {len(old.b)}, C {len(old.c)}, delay {old.delay_steps}"
+            )
+        self.model = model
+        self._neg_a = tuple(-float(v) for v in model.a[1:])
+        self._b = tuple(float(v) for v in model.b[1:])
+        self._c = tuple(float(v) for v in model.c[1:])
+        self._poly_desc = tuple(float(v) for v in model.input_poly[::-1])
+
     # --- internals ----------------------------------------------------------------------
     def _f(self, ds_pct: float) -> float:
         out = 0.0

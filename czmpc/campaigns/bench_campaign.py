@@ -5,11 +5,14 @@ or cluster included), scaling efficiency (runs/s over ``workers`` x the serial r
 scheduler overhead per run (``workers x wall - sum of the runs' own wall times``, over
 the number of runs: what the executor adds to every run) and the peak resident memory of
 the worker processes (`resource.getrusage` of the reaped children: the largest worker
-seen so far in this process, in MiB).
+seen so far in this process, in MiB). The machine's 1-minute load average is read before
+and after each executor (`os.getloadavg`): on a shared machine it says how much of the
+cores the campaign had.
 """
 
 from __future__ import annotations
 
+import os
 import resource
 import shlex
 import sys
@@ -36,6 +39,8 @@ class ExecutorTiming:
     efficiency: float
     overhead_per_run_ms: float
     worker_peak_rss_mib: float | None
+    load_average_start: float = float("nan")
+    load_average_end: float = float("nan")
 
 
 def benchmark_executors(spec: CampaignSpec, *, workers: int = 2,
@@ -47,10 +52,12 @@ def benchmark_executors(spec: CampaignSpec, *, workers: int = 2,
     for executor, n in plan:
         if progress is not None:
             progress(f"{executor} x{n}: {len(spec.expand())} runs")
+        load_start = os.getloadavg()[0]
         with tempfile.TemporaryDirectory(prefix="czmpc-bench-campaign-") as tmp:
             t0 = time.perf_counter()
             outcome = run_campaign(spec, Path(tmp), executor=executor, workers=n)
             wall = time.perf_counter() - t0
+        load_end = os.getloadavg()[0]
         rows = outcome.rows
         rate = len(rows) / wall
         if executor == "serial":
@@ -63,7 +70,11 @@ def benchmark_executors(spec: CampaignSpec, *, workers: int = 2,
         out.append(ExecutorTiming(
             executor=executor, workers=n, n_runs=len(rows), n_errors=outcome.n_errors, wall_s=wall,
             runs_per_s=rate, efficiency=rate / (n * serial_rate),
-            overhead_per_run_ms=1e3 * (n * wall - busy) / len(rows), worker_peak_rss_mib=rss))
+            overhead_per_run_ms=1e3 * (n * wall - busy) / len(rows), worker_peak_rss_mib=rss,
+            load_average_start=load_start, load_average_end=load_end))
+        if progress is not None:
+            progress(f"{executor} x{n}: {rate:.2f} runs/s, load average {load_start:.1f} -> "
+                     f"{load_end:.1f}")
     return out
 
 
@@ -74,10 +85,11 @@ def format_benchmark_markdown(timings: list[ExecutorTiming], *, spec: CampaignSp
 
     table = format_table(
         ["executor", "workers", "runs", "wall [s]", "runs/s", "efficiency [-]",
-         "overhead per run [ms]", "worker peak RSS [MiB]"],
+         "overhead per run [ms]", "worker peak RSS [MiB]", "load average (1 min) start / end"],
         [[t.executor, str(t.workers), str(t.n_runs), f"{t.wall_s:.1f}", f"{t.runs_per_s:.2f}",
           f"{t.efficiency:.2f}", f"{t.overhead_per_run_ms:.1f}",
-          "-" if t.worker_peak_rss_mib is None else f"{t.worker_peak_rss_mib:.0f}"] for t in timings],
+          "-" if t.worker_peak_rss_mib is None else f"{t.worker_peak_rss_mib:.0f}",
+          f"{t.load_average_start:.1f} / {t.load_average_end:.1f}"] for t in timings],
         markdown=True)
     return "\n".join([
         f"Command: `{shlex.join(command)}`", "",
@@ -85,7 +97,10 @@ def format_benchmark_markdown(timings: list[ExecutorTiming], *, spec: CampaignSp
         f"Spec `{spec.name}` ({spec.source}): {len(spec.expand())} runs, time scale "
         f"{spec.time_scale:g}. Efficiency: runs/s over workers x serial runs/s (goal >= 0.8). "
         "Overhead per run: (workers x wall - sum of run times) / runs, pool or cluster start-up "
-        "included. Worker RSS: largest worker process of the session.", "", table])
+        "included. Worker RSS: largest worker process of the session. Load average: the "
+        f"machine's ({os.cpu_count()} cores) 1-minute load before and after the executor ran "
+        "(the machine is shared; a load above the core count means the campaign had less "
+        "than the whole machine).", "", table])
 
 
 __all__ = ["ExecutorTiming", "benchmark_executors", "format_benchmark_markdown"]

@@ -56,7 +56,7 @@ from czmpc.settings import MPCSettings
 from sim.errors import SimError
 from sim.heater import HeaterParams, VirtualHeater
 from sim.heater import steady_state as heater_steady_state
-from sim.loop import run_closed_loop
+from sim.loop import ClosedLoopResult, run_closed_loop
 from sim.metrics import (
     count_limit_violations,
     count_rate_violations,
@@ -352,7 +352,78 @@ def _run_one(model: HammersteinModel, variant: PlantVariant, scenario: Scenario,
     t0 = time.perf_counter()
     result = run_closed_loop(plant, controller, scenario, rng=seed)
     run_time_s = time.perf_counter() - t0
-    lo, hi = controller.allowed_triac_range_pct
+    m = reachable_measures(result, scenario, power_at, controller.allowed_triac_range_pct,
+                           settings.max_move_pct_per_step)
+    return _Run(
+        variant=variant, sse_kw=m.steady_state_errors_kw, reachable=m.reachable,
+        iae_kw_s=m.iae_kw_s, overshoot_kw=m.max_overshoot_kw, overshoot_pct=m.max_overshoot_pct,
+        n_violations=m.n_input_violations, n_fallbacks=controller.n_fallbacks,
+        run_time_s=run_time_s,
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReachableMeasures:
+    """One run measured against its reachable setpoint (definitions: module docstring).
+
+    Parameters
+    ----------
+    steady_state_errors_kw :
+        Steady-state error of the measured power after every change [kW].
+    reachable :
+        Per change: its setpoint lies strictly inside the plant's power range.
+    iae_kw_s :
+        IAE of the true power over the change segments [kW s].
+    max_overshoot_kw, max_overshoot_pct :
+        Largest overshoot over the changes [kW], and in % of that change.
+    n_input_violations :
+        Samples outside the allowed range plus moves beyond the rate limit.
+    """
+
+    steady_state_errors_kw: tuple[float, ...]
+    reachable: tuple[bool, ...]
+    iae_kw_s: float
+    max_overshoot_kw: float
+    max_overshoot_pct: float
+    n_input_violations: int
+
+    def offset_free(self, threshold_kw: float) -> bool:
+        """Every change ends with ``|steady-state error| < threshold_kw`` (NaN fails)."""
+        return all(abs(e) < threshold_kw for e in self.steady_state_errors_kw)
+
+    @property
+    def max_abs_steady_state_error_kw(self) -> float:
+        """Largest ``|steady-state error|`` [kW] (NaN if any is NaN or none exists)."""
+        errors = [abs(e) for e in self.steady_state_errors_kw]
+        if not errors or any(math.isnan(e) for e in errors):
+            return math.nan
+        return max(errors)
+
+
+def reachable_measures(
+    result: ClosedLoopResult, scenario: Scenario, power_at: Callable[[float], float],
+    allowed_triac_range_pct: tuple[float, float], max_move_pct_per_step: float | None,
+) -> ReachableMeasures:
+    """Measure a run against the setpoint clipped to what its plant can hold.
+
+    Parameters
+    ----------
+    result :
+        The run.
+    scenario :
+        Its scenario (the setpoint-change segments).
+    power_at :
+        The plant's steady-state power [kW] at an input [%].
+    allowed_triac_range_pct :
+        The controller's allowed input range [%]: its ends give the plant's power range.
+    max_move_pct_per_step :
+        Rate limit [%/sample] whose excess moves count as violations, or None.
+
+    The segments measured are the setpoint changes; a scenario without any (a
+    disturbance scenario such as the voltage sag) is measured over its one segment,
+    the whole run (its steady-state error is then that of the run's last quarter).
+    """
+    lo, hi = allowed_triac_range_pct
     p_lo, p_hi = sorted((power_at(lo), power_at(hi)))
     ts_s = scenario.ts_s
     # errors against the closest power the plant can hold (the setpoint if reachable)
@@ -360,9 +431,10 @@ def _run_one(model: HammersteinModel, variant: PlantVariant, scenario: Scenario,
     true_error = result.power_true_kw - target
     measured_error = result.power_measured_kw - target
     sse, reachable, iae, worst_kw, worst_pct = [], [], 0.0, 0.0, 0.0
-    for seg in scenario.segments():
-        if seg.kind == "initial":
-            continue
+    segments = [seg for seg in scenario.segments() if seg.kind != "initial"]
+    if not segments:  # no setpoint change (e.g. a disturbance scenario): the whole run
+        segments = list(scenario.segments())
+    for seg in segments:
         part = slice(seg.start_k, seg.stop_k)
         reachable.append(bool(p_lo < seg.to_kw < p_hi))
         sse.append(steady_state_error_kw(measured_error[part]))
@@ -370,15 +442,14 @@ def _run_one(model: HammersteinModel, variant: PlantVariant, scenario: Scenario,
         from_kw, to_kw = (min(max(v, p_lo), p_hi) for v in (seg.from_kw, seg.to_kw))
         over = overshoot_kw(result.power_true_kw[part], from_kw=from_kw, to_kw=to_kw)
         if over > worst_kw:
-            worst_kw, worst_pct = over, 100.0 * over / abs(to_kw - from_kw)
+            worst_kw = over
+            worst_pct = 100.0 * over / abs(to_kw - from_kw) if to_kw != from_kw else math.nan
     n_violations = count_limit_violations(result.triac_pct, (lo, hi))
-    if settings.max_move_pct_per_step is not None:
-        n_violations += count_rate_violations(result.triac_pct, settings.max_move_pct_per_step)
-    return _Run(
-        variant=variant, sse_kw=tuple(sse), reachable=tuple(reachable), iae_kw_s=iae,
-        overshoot_kw=worst_kw, overshoot_pct=worst_pct, n_violations=n_violations,
-        n_fallbacks=controller.n_fallbacks, run_time_s=run_time_s,
-    )
+    if max_move_pct_per_step is not None:
+        n_violations += count_rate_violations(result.triac_pct, max_move_pct_per_step)
+    return ReachableMeasures(
+        steady_state_errors_kw=tuple(sse), reachable=tuple(reachable), iae_kw_s=iae,
+        max_overshoot_kw=worst_kw, max_overshoot_pct=worst_pct, n_input_violations=n_violations)
 
 
 def run_robustness(
@@ -704,6 +775,7 @@ __all__ = [
     "DEFAULT_SSE_THRESHOLD_KW",
     "GRIDS",
     "PlantVariant",
+    "ReachableMeasures",
     "RobustnessError",
     "RobustnessGrid",
     "RobustnessReport",
@@ -712,6 +784,7 @@ __all__ = [
     "format_csv",
     "format_markdown",
     "format_table",
+    "reachable_measures",
     "run_robustness",
     "summary_lines",
 ]

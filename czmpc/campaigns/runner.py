@@ -118,7 +118,8 @@ def _rewrite_clean(path: Path, rows: dict[str, dict[str, Any]]) -> None:
 def _prepare_dir(spec: CampaignSpec, out_dir: Path) -> None:
     out_dir.mkdir(parents=True, exist_ok=True)
     record = {"format": "czmpc-campaign/1", "name": spec.name, "source": spec.source,
-              "digest": spec_digest(spec), "n_runs": len(spec.expand())}
+              "digest": spec_digest(spec), "n_runs": len(spec.expand()),
+              "warnings": list(spec.warnings)}
     path = out_dir / CAMPAIGN_FILE
     if path.is_file():
         old = json.loads(path.read_text(encoding="utf-8"))

@@ -37,6 +37,7 @@ from czmpc.controller import OffsetFreeMPC
 from czmpc.inversion import allowed_triac_range
 from czmpc.reports.closed_loop_figure import plot_closed_loop
 from czmpc.settings import MPCSettings
+from sim.drift import PlantVariation, vary_heater, vary_model_plant
 from sim.errors import PlantError, SimError
 from sim.heater import HeaterParams, VirtualHeater, steady_state
 from sim.loop import ClosedLoopResult, ProgressCallback, run_closed_loop
@@ -231,8 +232,10 @@ def heater_steady_state_triac_pct(power_kw: float, params: HeaterParams | None =
 
 
 def _build_plant(model: HammersteinModel, scenario: Scenario, plant: PlantKind,
-                 noise: bool) -> tuple[Plant, float]:
+                 noise: bool, variation: PlantVariation | None = None) -> tuple[Plant, float]:
     """The plant and the TRIAC input [%] it starts in steady state at."""
+    if variation is not None and not variation.is_nominal:
+        return _varied_plant(model, scenario, plant, noise, variation)
     if plant == "model":
         built = ModelPlant.for_scenario(model, scenario)
         if built.noise != noise:
@@ -244,6 +247,20 @@ def _build_plant(model: HammersteinModel, scenario: Scenario, plant: PlantKind,
     s0 = heater_steady_state_triac_pct(scenario.initial_setpoint_kw, params)
     params = replace(params, initial_triac_pct=s0)
     return VirtualHeater(params), s0
+
+
+def _varied_plant(model: HammersteinModel, scenario: Scenario, plant: PlantKind, noise: bool,
+                  variation: PlantVariation) -> tuple[Plant, float]:
+    """`_build_plant` for a plant that differs from its nominal self (`sim.drift`).
+
+    It starts in steady state at the *nominal* plant's input for the initial setpoint
+    (so a plant with another gain starts off the setpoint, as a drifted one would).
+    """
+    nominal, s0 = _build_plant(model, scenario, plant, noise)
+    if plant == "model":
+        return vary_model_plant(model, variation, noise=noise, initial_triac_pct=s0), s0
+    params = nominal.params if isinstance(nominal, VirtualHeater) else HeaterParams()
+    return vary_heater(variation, params), s0
 
 
 def controller_settings(
@@ -296,6 +313,7 @@ def run_simulation(
     settings: MPCSettings | None = None,
     noise: bool = True,
     progress: ProgressCallback | None = None,
+    variation: PlantVariation | None = None,
 ) -> SimulationOutcome:
     """Run the offset-free MPC of ``model`` through ``scenario`` on one plant.
 
@@ -319,6 +337,9 @@ def run_simulation(
         noise and grid wander) or off.
     progress :
         Called as ``progress(samples_done, n_steps)`` about every 1 % of the run.
+    variation :
+        A plant that differs from its nominal self and drifts (`sim.drift`); None: the
+        nominal plant.
 
     Returns
     -------
@@ -339,7 +360,7 @@ def run_simulation(
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SimError(f"run_simulation: expected an int seed >= 0; got {seed!r}")
     model.check_ts(scenario.ts_s, what=f"scenario '{scenario.name}'")
-    the_plant, s0 = _build_plant(model, scenario, plant, bool(noise))
+    the_plant, s0 = _build_plant(model, scenario, plant, bool(noise), variation)
     used = controller_settings(model, scenario, initial_triac_pct=s0, settings=settings)
     controller = OffsetFreeMPC(model, used)
     result = run_closed_loop(the_plant, controller, scenario, rng=int(seed), progress=progress)

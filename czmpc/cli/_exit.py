@@ -29,7 +29,9 @@ MEANING: dict[ExitCode, str] = {
     ExitCode.OK: "success: every output was written",
     ExitCode.RUN_FAILED: (
         "a run that failed: an identification that did not converge (the files are still "
-        "written; ``--allow-unconverged`` accepts it), a benchmark goal missed when asked "
+        "written; ``--allow-unconverged`` accepts it), a log that cannot support a model "
+        "(``czmpc identify`` writes nothing; ``--accept-unidentifiable`` overrides), a "
+        "benchmark goal missed when asked "
         "to be strict, a constraint violated in a campaign"
     ),
     ExitCode.BAD_INPUT: (

@@ -1,19 +1,27 @@
 """Run a campaign spec (controllers x plants x scenarios x seeds) and summarise it.
 
   czmpc campaign run SPEC.toml --out DIR [--executor serial|processes|dask] [--workers N]
-                     [--dask local|ADDRESS] [--worst N]
+                     [--dask local|ADDRESS] [--worst N] [--samples N] [--time-scale X]
+                     [--controllers A,B]
   czmpc campaign report DIR
-  czmpc campaign bench SPEC.toml [--workers N] [--record-benchmarks]
+  czmpc campaign bench SPEC.toml [--workers N] [--samples N] [--time-scale X]
+                       [--controllers A,B] [--record-benchmarks]
 
 `run` writes DIR/results.parquet (one row of metrics per run: IAE [kW s], ISE
 [kW^2 s], overshoot [kW], steady error [kW], input total variation [%], limit and
 rate violations, solver fallbacks, controller step times [ms], status). An interrupted
 campaign resumes where it stopped when run again with the same SPEC and DIR. Shipped
 specs (package data) can be named without a path: campaign_smoke.toml,
-campaign_robustness.toml, campaign_throughput.toml.
+campaign_montecarlo.toml (MPC, gain-scheduled PI and linear MPC on plants sampled from
+the model's parameter covariance), campaign_robustness.toml (`czmpc robustness`'s quick
+grid), campaign_bench.toml (`czmpc bench`'s six controllers, the NMPC included),
+campaign_throughput.toml. --samples, --time-scale and --controllers change a spec for
+one run (e.g. a quick look at the Monte Carlo: --samples 5 --time-scale 0.05).
 
 `report` writes DIR/report.md, DIR/iae_distribution.png, DIR/iae_heatmap.png (perturbed
-plants) and, with trajectories saved by `run --worst N`, DIR/worst_runs.png.
+plants), DIR/montecarlo_iae.png (sampled plants: offset-free and within-limits shares
+per controller in the report) and, with trajectories saved by `run --worst N`,
+DIR/worst_runs.png.
 
 Exit codes: 0 done; 1 some run crashed or violated an input limit; 2 bad input.
 """
@@ -38,6 +46,33 @@ def _workers(text: str) -> int:
     return value
 
 
+def _names(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f"expected comma-separated controller names; got {text!r}")
+    return names
+
+
+def _time_scale(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1]; got {text!r}") from None
+    if not 0.0 < value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1]; got {text!r}")
+    return value
+
+
+def _add_overrides(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--samples", metavar="N", type=_workers, default=None,
+                        help="override n of the spec's sampled plants (plants drawn from the "
+                             "model's parameter covariance)")
+    parser.add_argument("--time-scale", metavar="X", type=_time_scale, default=None,
+                        help="override the spec's time_scale: scenario times x X, 0 < X <= 1")
+    parser.add_argument("--controllers", metavar="A,B", type=_names, default=None,
+                        help="run only these controllers of the spec (their names)")
+
+
 def register(parser: argparse.ArgumentParser) -> None:
     """Add the ``run`` and ``report`` sub-commands."""
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -55,9 +90,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     run_p.add_argument("--dask", metavar="local|ADDRESS", default="local",
                        help="'local': a LocalCluster on 127.0.0.1; or a scheduler address, "
                             "e.g. tcp://10.0.0.5:8786 (default: local)")
-    run_p.add_argument("--worst", metavar="N", type=int, default=0,
-                       help="save the trajectories of the N highest-IAE runs of each controller "
-                            "(re-run at the end; default: 0, none)")
+    run_p.add_argument("--worst", metavar="N", type=_workers, default=None,
+                       help="save the trajectories of the N highest-IAE runs of each controller, "
+                            "N >= 1 (re-run at the end; default: none)")
+    _add_overrides(run_p)
     bench_p = sub.add_parser(
         "bench", help="runs/s of one spec on serial, processes xN and Dask LocalCluster xN",
         description="Run SPEC on the three executors in one session; print runs/s, scaling "
@@ -65,8 +101,11 @@ def register(parser: argparse.ArgumentParser) -> None:
     bench_p.add_argument("spec", metavar="SPEC.toml", help="campaign spec file or shipped spec name")
     bench_p.add_argument("--workers", metavar="N", type=_workers, default=2,
                          help="workers of the parallel executors (default: 2)")
+    _add_overrides(bench_p)
     bench_p.add_argument("--record-benchmarks", action="store_true",
-                         help="write the table into BENCHMARKS.md (current directory)")
+                         help="write the table into BENCHMARKS.md (current directory), section "
+                              "'Campaign executors' (the throughput spec) or 'Campaign "
+                              "executors: spec NAME'")
     rep_p = sub.add_parser("report", help="summary Markdown and figures of a finished campaign",
                            description="Write DIR/report.md and figures from DIR/results.parquet.")
     rep_p.add_argument("dir", metavar="DIR", type=Path, help="a finished campaign directory")
@@ -85,11 +124,16 @@ def _spec_path(text: str) -> Path:
 
 
 def _run(args: argparse.Namespace) -> int:
+    import sys
+
     from czmpc.campaigns.campaign import load_spec
     from czmpc.campaigns.runner import run_campaign, save_trajectories, worst_runs
     from czmpc.cli._progress import Progress
 
-    spec = load_spec(_spec_path(args.spec))
+    spec = load_spec(_spec_path(args.spec), samples=args.samples, time_scale=args.time_scale,
+                     controllers=args.controllers)
+    for message in spec.warnings:
+        print(f"czmpc: warning: {message}", file=sys.stderr)
     progress = Progress()
     n_runs = len(spec.expand())
     where = args.executor if args.executor == "serial" else f"{args.executor} x{args.workers}"
@@ -99,7 +143,7 @@ def _run(args: argparse.Namespace) -> int:
         progress=lambda done, total: progress.fraction(done, total, what="runs"))
     if outcome.n_skipped:
         progress(f"resumed: {outcome.n_skipped} runs were already done")
-    if args.worst > 0:
+    if args.worst is not None:
         chosen = worst_runs(spec, outcome.rows, args.worst)
         progress(f"saving the trajectories of {len(chosen)} worst runs")
         save_trajectories(chosen, Path(args.out))
@@ -116,6 +160,7 @@ def _report(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from czmpc.campaigns.montecarlo import format_montecarlo_markdown, is_sampled, plot_iae_ecdf
     from czmpc.campaigns.runner import CAMPAIGN_FILE, TRAJECTORY_DIR, read_results
     from czmpc.reports.campaign_report import (
         format_summary_markdown,
@@ -125,7 +170,8 @@ def _report(args: argparse.Namespace) -> int:
     )
 
     rows = read_results(args.dir)
-    name = json.loads((args.dir / CAMPAIGN_FILE).read_text(encoding="utf-8"))["name"]
+    record = json.loads((args.dir / CAMPAIGN_FILE).read_text(encoding="utf-8"))
+    name = record["name"]
     figures = ["iae_distribution.png"]
     plot_iae_distribution(rows, args.dir / figures[0])
     if plot_perturbation_heatmaps(rows, args.dir / "iae_heatmap.png") is not None:
@@ -139,8 +185,14 @@ def _report(args: argparse.Namespace) -> int:
         trajectories = [{**t, "run_id": str(t["run_id"])} for t in trajectories]
         plot_trajectories(trajectories, args.dir / "worst_runs.png")
         figures.append("worst_runs.png")
+    text = format_summary_markdown(rows, title=name, figures=figures)
+    if any(is_sampled(r) for r in rows):
+        plot_iae_ecdf(rows, args.dir / "montecarlo_iae.png")
+        figures.append("montecarlo_iae.png")
+        text += "\n" + format_montecarlo_markdown(rows, figure="montecarlo_iae.png",
+                                                  warnings=record.get("warnings", []))
     report = args.dir / "report.md"
-    report.write_text(format_summary_markdown(rows, title=name, figures=figures), encoding="utf-8")
+    report.write_text(text, encoding="utf-8")
     print(f"wrote {report} and {', '.join(figures)}")
     return 0
 
@@ -153,19 +205,39 @@ def _bench(args: argparse.Namespace) -> int:
     from czmpc.cli._progress import Progress
     from czmpc.reports.benchmarks_md import machine_info, write_benchmarks_section
 
-    spec = load_spec(_spec_path(args.spec))
+    spec = load_spec(_spec_path(args.spec), samples=args.samples, time_scale=args.time_scale,
+                     controllers=args.controllers)
+    for message in spec.warnings:
+        print(f"czmpc: warning: {message}", file=sys.stderr)
     machine = machine_info().describe()
     timings = benchmark_executors(spec, workers=args.workers, progress=Progress())
     body = format_benchmark_markdown(timings, spec=spec, command=["czmpc", *sys.argv[1:]],
                                      machine=machine)
     print(body)
     if args.record_benchmarks:
-        write_benchmarks_section("BENCHMARKS.md", body, heading="## Campaign executors")
+        # the throughput spec keeps the section it always had; others get their own
+        suffix = "" if spec.name == "throughput" else f": spec '{spec.name}'"
+        write_benchmarks_section("BENCHMARKS.md", body, heading=f"## Campaign executors{suffix}")
     return 1 if any(t.n_errors for t in timings) else 0
 
 
+#: BLAS/OpenMP thread variables set to 1 for this process (unless the user set them).
+_BLAS_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 def run(args: argparse.Namespace) -> int:
-    """Dispatch to ``run``, ``report`` or ``bench``."""
+    """Dispatch to ``run``, ``report`` or ``bench``.
+
+    The serial executor runs in this process: its BLAS gets one thread, like every
+    worker's, before numpy is first imported (small matrices; more threads only
+    contend, which on a shared machine halved the serial rate).
+    """
+    import os
+    import sys
+
+    if "numpy" not in sys.modules:
+        for var in _BLAS_VARS:
+            os.environ.setdefault(var, "1")
     if args.campaign_command == "run":
         return _run(args)
     if args.campaign_command == "bench":

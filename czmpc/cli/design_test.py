@@ -3,12 +3,17 @@
 The signal (see `sysid.design`) is a staircase across the band plus generalized binary
 noise whose mean switching time equals the plant time constant.  The time constant comes
 from ``--tau-s`` or from the dominant pole of a prior model (``--prior MODEL.json``).
+
+With --plot FILE.png it also draws what the signal shows the identification: the
+signal [%] against time [s], every level's hold time in time constants, and the
+spectrum [%^2 s] against frequency [rad/s] with the expected bandwidth 1/tau.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 from czmpc.cli import _argtypes as t
 
@@ -38,6 +43,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="seed of the GBN random switching (default 0)")
     parser.add_argument("--out", metavar="TEST.csv", required=True,
                         help="output CSV with header time_s,triac_pct")
+    parser.add_argument("--plot", metavar="FILE.png", type=Path, default=None,
+                        help="also draw the signal, hold times vs tau and the spectrum vs the "
+                             "expected bandwidth (PNG)")
 
 
 def _tau_from_model(path: str) -> tuple[float, int]:
@@ -71,4 +79,9 @@ def run(args: argparse.Namespace) -> int:
     np.savetxt(args.out, table, delimiter=",", header="time_s,triac_pct", comments="", fmt="%.6g")
     print(signal.summary())
     print(f"wrote {args.out}")
+    if args.plot is not None:
+        from czmpc.reports.design_figure import plot_test_signal
+
+        plot_test_signal(signal, args.plot)
+        print(f"wrote {args.plot}")
     return 0

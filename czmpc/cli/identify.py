@@ -17,9 +17,18 @@ It writes into DIR:
                   parameters with standard errors, and a checklist of the paper's
                   findings, with the figures (figures/*.png) linked
 
+Before and after the fit, the data and the model are judged for identifiability
+(sysid.identifiability): a log that cannot support a model (an input that does not
+move, too few input levels or samples for the orders, an output that does not depend
+on the input) is refused with exit 1, every reason on stderr, and nothing written
+(--accept-unidentifiable writes the files anyway); an unusual model (a gain that is not
+significant or not positive, a pole at z = 1, a long delay) is a warning on stderr, in
+report.md and in model.json's provenance ("identifiability"), with exit 0.
+
 Progress (stage names with elapsed seconds) goes to stderr. Exit codes: 0 success;
 1 an optimizer did not converge (the files are still written; pass
---allow-unconverged to accept that); 2 bad input (file, options).
+--allow-unconverged to accept that), or the data cannot support a model; 2 bad input
+(file, options).
 """
 
 from __future__ import annotations
@@ -29,7 +38,7 @@ import shlex
 import sys
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -38,6 +47,7 @@ from sysid.errors import IdentificationError
 if TYPE_CHECKING:
     from czmpc.reports.identification import Finding
     from sysid.data import Dataset
+    from sysid.identifiability import IdentifiabilityAssessment
 
 from czmpc.cli import _argtypes
 from czmpc.cli._progress import Progress
@@ -89,6 +99,14 @@ def register(parser: argparse.ArgumentParser) -> None:
              "the log starts at rest at the operating point",
     )
     parser.add_argument(
+        "--accept-unidentifiable", action="store_true",
+        help="write the model even if the data cannot support one (an input that does not "
+             "move, too few levels or samples, an output that does not depend on the "
+             "input); the refusals are then printed as warnings and recorded in the report "
+             "and the model's provenance, and the exit code is 0 (default: exit 1 and "
+             "write nothing)",
+    )
+    parser.add_argument(
         "--allow-unconverged", action="store_true",
         help="exit 0 even if an iterative fit (OE, ARMAX, PEM) did not converge; the "
              "report then flags it (default: exit 1)",
@@ -117,6 +135,9 @@ class IdentifyOutcome:
     findings :
         The paper's findings checked on these data (`czmpc.reports.identification.findings_checklist`),
         as in the report.
+    identifiability :
+        Every identifiability check on the data and the final model
+        (`sysid.identifiability`), or None.
     """
 
     model_path: Path
@@ -126,6 +147,7 @@ class IdentifyOutcome:
     unconverged: tuple[str, ...]
     warnings: tuple[str, ...] = ()
     findings: tuple[Finding, ...] = ()
+    identifiability: IdentifiabilityAssessment | None = None
 
 
 def _orders(text: str) -> str | tuple[int, ...]:
@@ -156,6 +178,7 @@ def identify_to_directory(
     command: str | None = None,
     orders: str | tuple[int, ...] = "paper",
     initial_state: str = "estimate",
+    accept_unidentifiable: bool = False,
 ) -> IdentifyOutcome:
     """Read a log, run the paper's pipeline and write model.json, models/, report.md.
 
@@ -179,6 +202,8 @@ def identify_to_directory(
         ``"auto"``, ``"paper"`` or ``(nb, nf, nk[, nc])`` (see ``czmpc identify --help``).
     initial_state :
         ``"estimate"``, ``"held"`` or ``"zero"``: initial state of the PEM fits.
+    accept_unidentifiable :
+        Write the files even when the identifiability checks refuse the data.
 
     Returns
     -------
@@ -190,12 +215,16 @@ def identify_to_directory(
         The file breaks the data contract.
     IdentificationError
         Options the pipeline refuses, or data that support no model.
+    UnidentifiableDataError
+        An identifiability check refuses the data (before the fit, or with the fitted
+        model's orders) and `accept_unidentifiable` is False; nothing is written.
     OSError
         A file cannot be read or written.
     """
     if progress is not None:
         progress("loading the numerical libraries")
     from czmpc.reports.identification import findings_checklist, write_report
+    from sysid.atomic import atomic_write_text
     from sysid.data import Dataset, read_csv
     from sysid.model import OperatingPoint, Units
     from sysid.modelfile import save_model
@@ -207,6 +236,16 @@ def identify_to_directory(
         if progress is not None:
             progress(f"reading {data_path}")
         data = read_csv(data_path)
+    from sysid.identifiability import (
+        UnidentifiableDataError,
+        assess_data,
+        assess_model,
+        structure_before_fit,
+    )
+    degree, nb, n_par, what = structure_before_fit(orders)
+    before = assess_data(data, degree=degree, nb=nb, n_parameters=n_par, what=what)
+    if before.refusals and not accept_unidentifiable:
+        raise UnidentifiableDataError(before)
     op = None if operating_point is None else OperatingPoint(
         triac_pct=operating_point[0], power_kw=operating_point[1])
     with warnings.catch_warnings(record=True) as caught:
@@ -223,6 +262,11 @@ def identify_to_directory(
             progress=progress, initial_state=initial_state,  # type: ignore[arg-type]
             **order_kw)
     messages = tuple(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught))
+    if result.final is None:  # pragma: no cover - the pipeline raises instead
+        raise IdentificationError("identify: the pipeline returned no model")
+    judged = before + assess_model(result.final.model, result.data)
+    if judged.refusals and not accept_unidentifiable:
+        raise UnidentifiableDataError(judged)
     out = Path(out_dir)
     models_dir = out / "models"
     models_dir.mkdir(parents=True, exist_ok=True)
@@ -235,18 +279,22 @@ def identify_to_directory(
         save_model(named.model.with_updates(units=units), path)
         model_files.append(path)
     model_path = out / "model.json"
-    if result.final is None:  # pragma: no cover - the pipeline raises instead
-        raise IdentificationError("identify: the pipeline returned no model")
-    save_model(result.final.model.with_updates(units=units), model_path)
+    final = result.final.model
+    provenance = replace(final.provenance, extra={
+        **final.provenance.extra, "identifiability": judged.as_dicts(),
+        **({"accepted_unidentifiable": True} if judged.refusals else {})})
+    save_model(final.with_updates(units=units, provenance=provenance), model_path)
     files = write_report(
         result, out, model_file="model.json",
         model_files=[p.relative_to(out).as_posix() for p in model_files], command=command)
+    atomic_write_text(files.report_path, files.report_path.read_text(encoding="utf-8")
+                      + "\n" + judged.markdown())
     unconverged = tuple(
         f"{m.name} ({m.n_iterations} iterations)" for m in result.models if not m.converged)
     return IdentifyOutcome(model_path=model_path, model_files=tuple(model_files),
                            report_path=files.report_path, figure_files=files.figure_files,
                            unconverged=unconverged, warnings=messages,
-                           findings=findings_checklist(result))
+                           findings=findings_checklist(result), identifiability=judged)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -262,24 +310,46 @@ def run(args: argparse.Namespace) -> int:
     words += ["--orders", orders_text, "--initial-state", args.initial_state]
     if args.allow_unconverged:
         words.append("--allow-unconverged")
+    if args.accept_unidentifiable:
+        words.append("--accept-unidentifiable")
     command = " ".join(shlex.quote(w) for w in words)
     if progress is not None:
         progress(f"reading {args.data}")
-    outcome = identify_to_directory(
-        _argtypes.read_log(args.data, args),
-        args.out,
-        operating_point=None if args.operating_point is None else tuple(args.operating_point),
-        level_shift=None if args.level_shift is None else tuple(args.level_shift),
-        progress=progress,
-        command=command,
-        orders=args.orders,
-        initial_state=args.initial_state,
-    )
+    from sysid.identifiability import UnidentifiableDataError
+
+    try:
+        outcome = identify_to_directory(
+            _argtypes.read_log(args.data, args),
+            args.out,
+            operating_point=None if args.operating_point is None else tuple(args.operating_point),
+            level_shift=None if args.level_shift is None else tuple(args.level_shift),
+            progress=progress,
+            command=command,
+            orders=args.orders,
+            initial_state=args.initial_state,
+            accept_unidentifiable=args.accept_unidentifiable,
+        )
+    except UnidentifiableDataError as exc:
+        refusals = exc.assessment.refusals
+        print(f"czmpc: error: {args.data}: the data cannot support a model "
+              f"({len(refusals)} check(s) refused); nothing was written:", file=sys.stderr)
+        for check in refusals:
+            print(f"czmpc: error:   {check.message}", file=sys.stderr)
+        print("czmpc: error: pass --accept-unidentifiable to write the model anyway",
+              file=sys.stderr)
+        return 1
     progress(f"wrote {outcome.model_path}, {len(outcome.model_files)} model files in "
              f"{outcome.model_path.parent / 'models'}, {outcome.report_path} and "
              f"{len(outcome.figure_files)} figures")
     for message in outcome.warnings:
         print(f"czmpc: warning: {message}", file=sys.stderr)
+    judged = outcome.identifiability
+    if judged is not None:
+        for check in judged.refusals:
+            print(f"czmpc: WARNING: refusal overridden (--accept-unidentifiable): "
+                  f"{check.message}", file=sys.stderr)
+        for check in judged.warnings:
+            print(f"czmpc: WARNING: {check.message}", file=sys.stderr)
     if outcome.unconverged:
         detail = ", ".join(outcome.unconverged)
         if args.allow_unconverged:

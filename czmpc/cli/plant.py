@@ -1,4 +1,4 @@
-"""Serve a simulated plant over OPC UA: `czmpc plant serve`.
+r"""Serve a simulated plant over OPC UA: `czmpc plant serve`.
 
 'heater' serves the virtual CZ heater (grey-box physics), 'model' the plant built from
 a model file (the model's own equation). The plant advances on its own clock, one
@@ -13,7 +13,34 @@ Heater.PlantTime_s [s].
 Watchdog: when the heartbeat has not changed for --watchdog-s of plant time, the TRIAC
 goes to --safe-triac-pct and the server says so (stderr and Heater.WatchdogTripped).
 
-Listens on 127.0.0.1 unless the endpoint names another host.
+Security. By default the plant listens on 127.0.0.1 with no security (policy None,
+anonymous). On any other address (0.0.0.0, a host name, a LAN address) it refuses to
+start, before it binds, unless a security policy is given; --insecure overrides that
+refusal for an isolated test network and prints a warning on every start. With
+--policy, the server offers that one endpoint and admits only:
+  - client applications whose certificate (DER or PEM) is given with --trusted-client
+    (repeatable) or lies in --trusted-client-dir, matched exactly;
+  - the users configured here; anonymous logins are refused. --user NAME is the
+    controller's user, the only one that may write Heater.TriacCommand and
+    Heater.Heartbeat; its password is read from the environment variable named by
+    --password-env (never from the command line). --operator NAME=VAR (repeatable)
+    adds a user who may write Heater.PowerSetpoint and Heater.Mode only.
+The server's own certificate and key come from 'czmpc pki create --role server'; the
+key file must be readable by its owner only (chmod 600).
+
+Example (see the README, "Secure plant link"):
+  export PLANT_MPC_PASSWORD=...
+  czmpc plant serve --endpoint opc.tcp://0.0.0.0:4840/czmpc/ \
+      --policy Basic256Sha256 --mode SignAndEncrypt \
+      --certificate pki-plant/own/plant.der --private-key pki-plant/own/plant.pem \
+      --trusted-client pki/own/czmpc.der --user mpc-operator --password-env PLANT_MPC_PASSWORD
+
+A plant that differs from its model (for stale-model and commissioning tests):
+--gain-factor 0.8 (every gain x0.8), --tau-s 600 (slow time constant 600 s),
+--extra-delay-samples 2 (input acts two samples later), --drift gain=0.75@3600 (the
+gain moves to x0.75 of nominal at 3600 s of plant time; tau=1200@7200 likewise sets the
+time constant to 1200 s), repeatable. On the heater the gain is that of the element's
+rated power and the time constant that of its heat capacity (see sim.drift).
 """
 
 from __future__ import annotations
@@ -23,7 +50,8 @@ import asyncio
 import sys
 from pathlib import Path
 
-from czmpc.cli import _argtypes
+from czmpc.cli import _argtypes, _variation
+from czmpc.runtime.security import MODES, SECURE_POLICIES
 
 NAME = "plant"
 HELP = "serve the virtual CZ heater or a model plant as an OPC UA server (plant serve)"
@@ -64,37 +92,89 @@ def register(parser: argparse.ArgumentParser) -> None:
                    default=None, help="stop after this plant time [s] (default: run until Ctrl-C)")
     p.add_argument("--setpoint-kw", metavar="KW", type=_argtypes.number(unit="kW"),
                    default=45.0, help="initial value of Heater.PowerSetpoint [kW] (default: 45)")
+    sec = p.add_argument_group("security (see above)")
+    sec.add_argument("--policy", choices=("None", *SECURE_POLICIES), default="None",
+                     help="security policy of the only endpoint offered (default: None, allowed "
+                          "on loopback only)")
+    sec.add_argument("--mode", choices=MODES, default="SignAndEncrypt",
+                     help="message security mode (default: SignAndEncrypt)")
+    sec.add_argument("--certificate", metavar="CERT.der", type=Path, default=None,
+                     help="the server's application instance certificate")
+    sec.add_argument("--private-key", metavar="KEY.pem", type=Path, default=None,
+                     help="its private key (mode 600)")
+    sec.add_argument("--trusted-client", metavar="CERT.der", type=Path, action="append",
+                     default=[], help="a client certificate to admit (repeatable)")
+    sec.add_argument("--trusted-client-dir", metavar="DIR", type=Path, default=None,
+                     help="admit every *.der / *.pem certificate in DIR")
+    sec.add_argument("--user", metavar="NAME", default=None,
+                     help="the controller's user: the only one that may write the command and "
+                          "the heartbeat")
+    sec.add_argument("--password-env", metavar="VAR", default=None,
+                     help="environment variable that holds --user's password")
+    sec.add_argument("--operator", metavar="NAME=VAR", action="append", default=[],
+                     help="another user, password in environment variable VAR; may write the "
+                          "setpoint and the mode only (repeatable)")
+    sec.add_argument("--insecure", action="store_true",
+                     help="serve without security on a non-loopback address (isolated test "
+                          "networks only; warns on every start)")
+    _variation.add_variation_options(p)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Build the plant and serve it until the duration or Ctrl-C."""
+    """Check the security, build the plant and serve it until the duration or Ctrl-C."""
+    from czmpc.runtime.security import check_serve_address, parse_server_security
     from czmpc.runtime.served import ServedPlant, ServeOptions
     from czmpc.shipped import shipped_path
+    from sim.drift import vary_heater, vary_model_plant
     from sim.heater import HeaterParams, VirtualHeater
     from sim.model_plant import ModelPlant
     from sim.protocols import Plant
     from sim.scenario import load_scenario
     from sysid.modelfile import load_model
 
+    # Security first: a refused endpoint is never bound, and no plant is built for it.
+    security = parse_server_security(
+        policy=args.policy, mode=args.mode, certificate=args.certificate,
+        private_key=args.private_key, trusted_clients=tuple(args.trusted_client),
+        trusted_client_dir=args.trusted_client_dir, user=args.user,
+        password_env=args.password_env, operators=tuple(args.operator))
+    warning = check_serve_address(args.endpoint, security, insecure=args.insecure)
+    if warning is not None:
+        print(warning, file=sys.stderr, flush=True)
     scenario = None if args.scenario is None else load_scenario(args.scenario)
+    variation = _variation.variation(args)
     plant: Plant
     if args.plant == "heater":
         params = HeaterParams(sensor_noise_std_kw=0.0, grid_wander_std=0.0) if args.no_noise \
             else HeaterParams()
-        heater = VirtualHeater(params, rng=args.seed)
-        plant, initial = heater, heater.params.initial_triac_pct
+        if variation.is_nominal:
+            heater = VirtualHeater(params, rng=args.seed)
+            plant, initial = heater, heater.params.initial_triac_pct
+        else:
+            varied = vary_heater(variation, params, rng=args.seed)
+            plant, initial = varied, varied.initial_triac_pct
     else:
         model = load_model(args.model or shipped_path("cz_heater_model.json"))
-        mp = ModelPlant(model, noise=not args.no_noise, initial_triac_pct=args.initial_triac_pct)
-        mp.reset(args.seed)
-        plant, initial = mp, mp.initial_triac_pct
+        if variation.is_nominal:
+            mp = ModelPlant(model, noise=not args.no_noise,
+                            initial_triac_pct=args.initial_triac_pct)
+            mp.reset(args.seed)
+            plant, initial = mp, mp.initial_triac_pct
+        else:
+            vp = vary_model_plant(model, variation, noise=not args.no_noise,
+                                  initial_triac_pct=args.initial_triac_pct)
+            vp.reset(args.seed)
+            plant, initial = vp, vp.initial_triac_pct
     options = ServeOptions(endpoint=args.endpoint, time_scale=args.time_scale,
                            watchdog_s=args.watchdog_s, safe_triac_pct=args.safe_triac_pct,
-                           duration_s=args.duration_s, setpoint_kw=args.setpoint_kw)
+                           duration_s=args.duration_s, setpoint_kw=args.setpoint_kw,
+                           security=security)
     served = ServedPlant(plant, initial_triac_pct=initial, options=options, scenario=scenario,
                          seed=args.seed, log=lambda m: print(m, file=sys.stderr, flush=True))
     print(f"serving the {args.plant} plant on {args.endpoint} (Ts {plant.ts_s:g} s, time scale "
-          f"{args.time_scale:g}); Ctrl-C stops", file=sys.stderr, flush=True)
+          f"{args.time_scale:g}; {variation.describe()}); security: "
+          f"{'none (policy None, anonymous)' if security is None else security.describe()}; "
+          f"Ctrl-C stops", file=sys.stderr, flush=True)
     try:
         asyncio.run(served.serve())
     except KeyboardInterrupt:

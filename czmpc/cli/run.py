@@ -15,7 +15,16 @@ reconnects with backoff. SIGINT/SIGTERM stop it with the configured safe action
 The log (CSV, one row per step, flushed per row) has: k, time_s [s], wall_time_s
 [s since epoch], power_kw [kW], quality, setpoint_kw [kW], triac_pct [%],
 applied_triac_pct [%], status, verdict, mode, connected, written, lateness_s [s],
-step_latency_s [s], skipped (periods skipped after an overrun).
+step_latency_s [s], skipped (periods skipped after an overrun), predicted_kw [kW]
+(the model's one-step prediction of power_kw), health (the
+model-health figure, czmpc.health: F over its limit of the test whether the model's
+residuals relate to past data differently than in the first 30 min of the run; >= 1 is
+the alarm) and stale_alarm (0/1, latched). The alarm is printed when it comes and in
+the summary; the optional node [nodes].model_health receives the health figure.
+
+Model check (czmpc check-model, MODEL.check.json beside the model): a model judged
+'not ready' runs in PREDICT only (shadow: nothing written, ON requests refused) unless
+--force, which is logged; a model never checked, or changed since, runs with a warning.
 
 Exit codes: 0 done or stopped by a signal; 2 bad config, model or settings; 1 the
 plant could not be reached at the start.
@@ -44,6 +53,29 @@ def register(parser: argparse.ArgumentParser) -> None:
                         default=None, help="plant time to run [s] (overrides [run].duration_s)")
     parser.add_argument("--log", metavar="RUN.csv", type=Path, default=None,
                         help="step log (overrides [run].log)")
+    parser.add_argument("--force", action="store_true",
+                        help="switch ON even with a model 'czmpc check-model' judged not ready "
+                             "(said on stderr at the start and in the run summary)")
+
+
+def _model_gate(model_path: Path, force: bool) -> tuple[bool, bool]:
+    """Say the model's check-model verdict; (may switch ON, forced past 'not ready')."""
+    from czmpc.commissioning.check import read_check
+
+    verdict, note = read_check(model_path)
+    if verdict is None:
+        print(f"czmpc run: warning: {note}; run 'czmpc check-model' before switching on",
+              file=sys.stderr)
+        return True, False
+    print(f"czmpc run: {note}", file=sys.stderr)
+    if verdict != "not ready":
+        return True, False
+    if force:
+        print("czmpc run: --force: switching ON with a model judged not ready", file=sys.stderr)
+        return True, True
+    print("czmpc run: the model is not ready: running in PREDICT only (nothing is written); "
+          "--force overrides", file=sys.stderr)
+    return False, False
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,12 +102,17 @@ def run(args: argparse.Namespace) -> int:
     if abs(model.ts_s - config.ts_s) > 1e-9 * config.ts_s:
         raise SettingsError(f"plant.ts_s: expected the model's sampling time {model.ts_s:g} s; "
                             f"got {config.ts_s:g} s")
+    allow_on, forced = _model_gate(config.model_path, args.force)
     if config.settings_path is None:
         settings = MPCSettings.default_for(model)
     else:
         settings = load_settings(config.settings_path, model)
+    if not allow_on:
+        settings = dataclasses.replace(settings, reliability=dataclasses.replace(
+            settings.reliability, initial_mode="predict"))
     controller = OffsetFreeMPC(model, settings)
     loop = ControlLoop(config, controller, status=tty_status())
+    loop.allow_on = allow_on
     try:
         summary = asyncio.run(loop.run())
     except ConnectionError as exc:
@@ -86,4 +123,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"run: {summary.n_steps} steps, {summary.n_writes} writes, {summary.n_missing} missing "
           f"samples, {summary.n_overruns} overruns, {summary.n_reconnects} reconnects; "
           f"stopped by {summary.stopped_by}; log {config.log_path}")
+    if forced:
+        print("run: forced (--force): the model was judged not ready by check-model")
+    if summary.stale_alarm_at_s is not None:
+        print(f"run: STALE-MODEL ALARM at {summary.stale_alarm_at_s:g} s of plant time: "
+              f"{summary.stale_alarm_reason}")
     return 0

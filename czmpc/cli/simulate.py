@@ -27,6 +27,10 @@ mismatch) from the input whose steady power is the initial setpoint.
 Shipped scenarios: staircase, level_shift, voltage_sag, large_step, meltdown_ramp,
 missing_samples, combined.
 
+A plant that differs from the model: --gain-factor, --tau-s, --extra-delay-samples and
+--drift as for 'czmpc plant serve' (see sim.drift); the plant then starts at the nominal
+plant's input for the initial setpoint.
+
 Exit codes: 0 done; 2 bad input (unknown scenario, bad TOML, bad model file, model and
 scenario with different sampling times, unusable settings).
 """
@@ -37,7 +41,7 @@ import argparse
 from functools import partial
 from pathlib import Path
 
-from czmpc.cli import _argtypes
+from czmpc.cli import _argtypes, _variation
 from czmpc.cli._progress import Progress
 
 NAME = "simulate"
@@ -87,6 +91,7 @@ def register(parser: argparse.ArgumentParser) -> None:
         help="output directory for trajectory.csv, metrics.json, figure.png (created; "
              "files of those names are replaced)",
     )
+    _variation.add_variation_options(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -103,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
     settings = _argtypes.settings_for(args, model)
     outcome = run_simulation(model, scenario, plant=args.plant, seed=args.seed,
                              settings=settings, noise=noise,
+                             variation=_variation.variation(args),
                              progress=partial(Progress(quiet_for_s=PROGRESS_AFTER_S).fraction,
                                               what="simulating"))
     files = write_outputs(outcome, args.out)

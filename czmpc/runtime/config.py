@@ -16,6 +16,7 @@ Layout (every key checked; an unknown key, a wrong type or a value out of range 
     setpoint_kw = "ns=2;s=Heater.PowerSetpoint"      # read, optional
     heartbeat = "ns=2;s=Heater.Heartbeat"            # write, optional
     mode = "ns=2;s=Heater.Mode"                      # read, optional
+    model_health = "ns=2;s=Heater.ModelHealth"       # write, optional (czmpc.health)
     [controller]
     model = "model.json"
     settings = "settings.toml"  # optional
@@ -49,7 +50,8 @@ class RunConfigError(CzmpcError, ValueError):
 
 _TABLES: dict[str, tuple[str, ...]] = {
     "plant": ("endpoint", "ts_s", "time_scale", "max_sample_age_s", "connect_timeout_s", "security"),
-    "nodes": ("power_kw", "triac_pct", "applied_triac_pct", "setpoint_kw", "heartbeat", "mode"),
+    "nodes": ("power_kw", "triac_pct", "applied_triac_pct", "setpoint_kw", "heartbeat", "mode",
+              "model_health"),
     "controller": ("model", "settings"),
     "run": ("duration_s", "setpoint_kw", "schedule", "log"),
     "safety": ("action", "safe_triac_pct"),
@@ -66,6 +68,7 @@ class NodeIds:
     setpoint_kw: str | None = None
     heartbeat: str | None = None
     mode: str | None = None
+    model_health: str | None = None
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -207,6 +210,7 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
         setpoint_kw=_str(nodes, "setpoint_kw", "nodes"),
         heartbeat=_str(nodes, "heartbeat", "nodes"),
         mode=_str(nodes, "mode", "nodes"),
+        model_health=_str(nodes, "model_health", "nodes"),
     )
     model = _str(ctrl, "model", "controller", required=True) or ""
     settings = _str(ctrl, "settings", "controller")

@@ -11,6 +11,11 @@ Each period (``ts_s / time_scale`` wall seconds, on a monotonic-clock schedule
 3. write the command (mode ON only: in OFF/PREDICT the operator drives the TRIAC) and
    the heartbeat; record the row in the log (flushed per row).
 
+Model health (`czmpc.health`): every sample also goes to the model-health monitor (the
+model's own one-step residual and the stale-model test); its figure is logged
+(``health``, ``stale_alarm``), written to the optional ``model_health`` node and shown in
+the live status, and the alarm is said once when it is raised (`RunSummary`).
+
 A step that ends past its deadline is an overrun: the periods it covered are skipped
 (recorded in ``skipped``), never caught up, so there is at most one write per period.
 Lost connection: the controller keeps predicting; reconnects are tried with a doubling
@@ -35,6 +40,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from czmpc.controller import OffsetFreeMPC
+from czmpc.health import RUNTIME_HEALTH, HealthSettings, ModelHealth, ModelHealthMonitor
 from czmpc.modes import Mode
 from czmpc.runtime._opcua import asyncua
 from czmpc.runtime.config import RunConfig
@@ -51,7 +57,8 @@ STARTUP_WAIT_S = 15.0
 #: Log columns, in order.
 LOG_COLUMNS = ("k", "time_s", "wall_time_s", "power_kw", "quality", "setpoint_kw",
                "triac_pct", "applied_triac_pct", "status", "verdict", "mode", "connected",
-               "written", "lateness_s", "step_latency_s", "skipped")
+               "written", "lateness_s", "step_latency_s", "skipped", "predicted_kw", "health",
+               "stale_alarm")
 
 
 @dataclass(slots=True)
@@ -67,6 +74,8 @@ class RunSummary:
     lateness_s: list[float] = field(default_factory=list)
     latency_s: list[float] = field(default_factory=list)
     stopped_by: str = "duration"
+    stale_alarm_at_s: float | None = None
+    stale_alarm_reason: str = ""
 
 
 class _Link:
@@ -85,7 +94,7 @@ class _Link:
         ids = self.config.nodes
         self.nodes = {name: client.get_node(getattr(ids, name))
                       for name in ("power_kw", "triac_pct", "applied_triac_pct", "setpoint_kw",
-                                   "heartbeat", "mode")
+                                   "heartbeat", "mode", "model_health")
                       if getattr(ids, name) is not None}
         self.connected = True
 
@@ -177,11 +186,15 @@ class ControlLoop:
     step_delay_s :
         Testing hook: extra wall time [s] spent in the step at the given sample indices
         (injects overruns).
+    health_settings :
+        Window, reference and false-alarm rate of the model-health monitor (None:
+        `czmpc.health.RUNTIME_HEALTH`, the change test against the run's first 30 min).
     """
 
     def __init__(self, config: RunConfig, controller: OffsetFreeMPC, *,
                  status: Callable[[str], None] | None = None,
-                 step_delay_s: dict[int, float] | None = None) -> None:
+                 step_delay_s: dict[int, float] | None = None,
+                 health_settings: HealthSettings | None = None) -> None:
         self.config = config
         self.mpc = controller
         self.link = _Link(config)
@@ -195,6 +208,11 @@ class ControlLoop:
         self._backoff_s = config.period_s
         self._max_backoff_s = min(MAX_BACKOFF_S, MAX_BACKOFF_PERIODS * config.period_s)
         self._next_try = 0.0
+        model = getattr(controller, "model", None)   # a controller without a model: no monitor
+        self.health = (None if model is None
+                       else ModelHealthMonitor(model, health_settings or RUNTIME_HEALTH))
+        #: False: the model was judged not ready (check-model); requests for ON are refused.
+        self.allow_on = True
         self._setpoint = config.setpoint_kw if config.setpoint_kw is not None else math.nan
         if config.schedule is not None:
             self._setpoint = config.schedule.setpoints_kw[0]
@@ -319,6 +337,8 @@ class ControlLoop:
                 if "mode" in self.link.nodes:
                     dv = await self.link.read("mode")
                     mode = _mode_of(dv.Value.Value if dv.Value is not None else None)
+                    if mode is Mode.ON and not self.allow_on:
+                        mode = None   # a 'not ready' model stays in PREDICT (czmpc run --force)
                     if mode is not None and mode is not self.mpc.mode:
                         self.mpc.request_mode(mode)
                 if "applied_triac_pct" in self.link.nodes:
@@ -339,8 +359,10 @@ class ControlLoop:
             await asyncio.sleep(self._delay[k])
         if self.mpc.mode is not Mode.ON and reported_applied is None:
             reported_applied = self._last_cmd if math.isfinite(self._last_cmd) else None
+        applied_before = reported_applied if reported_applied is not None else self._last_cmd
         command = self.mpc.step(power, self._setpoint, applied_triac_pct=reported_applied)
         diag = self.mpc.last_step
+        health = self._health(k, power, applied_before, diag)
         written = False
         if self.link.connected:
             try:
@@ -352,6 +374,8 @@ class ControlLoop:
                 if "heartbeat" in self.link.nodes:
                     self._heartbeat += 1
                     await self.link.write("heartbeat", self._heartbeat, ua.VariantType.Int64)
+                if "model_health" in self.link.nodes and health is not None:
+                    await self.link.write("model_health", health.health, ua.VariantType.Double)
             except Exception as exc:  # noqa: BLE001 - any link failure: predict on
                 await self._lost(exc)
         if self.mpc.mode is not Mode.ON:
@@ -364,12 +388,28 @@ class ControlLoop:
             "verdict": diag.verdict.name if diag is not None else "",
             "mode": self.mpc.mode.name, "connected": int(self.link.connected),
             "written": int(written), "lateness_s": lateness, "step_latency_s": 0.0,
-            "skipped": 0,
+            "skipped": 0, "predicted_kw": math.nan if health is None else health.predicted_kw,
+            "health": math.nan if health is None else health.health,
+            "stale_alarm": "" if health is None else int(health.stale_alarm),
         }
         self._say(f"k={k} t={k * cfg.ts_s:.0f}s P={power:.2f}kW ({quality}) "
                   f"SP={self._setpoint:.2f}kW u={command:.2f}% {row['status']} "
-                  f"{self.mpc.mode.name} late={lateness * 1e3:.1f}ms")
+                  f"{self.mpc.mode.name} late={lateness * 1e3:.1f}ms "
+                  f"{'' if health is None else health.status()}")
         return row
+
+    def _health(self, k: int, power: float, applied_before: float,
+                diag: Any) -> ModelHealth | None:
+        """Feed the model-health monitor; say the stale alarm once when it comes."""
+        if self.health is None:
+            return None
+        d = float(getattr(diag, "disturbance_power_kw", math.nan)) if diag is not None else math.nan
+        health = self.health.update(power, applied_before, d)
+        if health.stale_alarm and self.summary.stale_alarm_at_s is None:
+            self.summary.stale_alarm_at_s = k * self.config.ts_s
+            self.summary.stale_alarm_reason = health.alarm_reason
+            self._say(f"STALE-MODEL ALARM at t={k * self.config.ts_s:.0f}s: {health.alarm_reason}")
+        return health
 
     async def _lost(self, exc: BaseException) -> None:
         self._say(f"link lost ({type(exc).__name__}); predicting, reconnecting")

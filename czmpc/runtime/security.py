@@ -16,6 +16,11 @@ officer would refuse:
 
 The password is held in a `Secret`, whose ``repr`` and ``str`` never show it, so that it
 cannot reach a log line, an exception message or a report by accident.
+
+The served plant's side (``czmpc plant serve``) is checked here too:
+`parse_server_security` validates its policy, certificate, key (owner-only), trusted
+client certificates and users (passwords from environment variables), and
+`check_serve_address` refuses an unsecured non-loopback endpoint before anything binds.
 """
 
 from __future__ import annotations
@@ -262,14 +267,243 @@ def parse_security(table: Mapping[str, object] | None, *, endpoint: str, base_di
         password_env=password_env if isinstance(password_env, str) else None)
 
 
+# --- The served plant's side (``czmpc plant serve``) ------------------------------------
+
+#: Nodes of the served plant that only the controller's user may write.
+CONTROLLER_NODES = ("TriacCommand", "Heartbeat")
+#: Nodes of the served plant that an operator user may write (setpoint, manual mode).
+OPERATOR_NODES = ("PowerSetpoint", "Mode")
+
+
+@dataclass(frozen=True, kw_only=True)
+class PlantUser:
+    """A user who may log in to the served plant.
+
+    Parameters
+    ----------
+    name :
+        OPC UA user name.
+    password :
+        The password, read from the environment.
+    password_env :
+        The environment variable it came from (for messages).
+    controller :
+        True for the controller's user (writes `CONTROLLER_NODES`); False for an
+        operator (writes `OPERATOR_NODES`).
+    """
+
+    name: str
+    password: Secret = field(repr=False)
+    password_env: str
+    controller: bool
+
+    @property
+    def writable_nodes(self) -> tuple[str, ...]:
+        """Names of the ``Heater.*`` nodes this user may write."""
+        return CONTROLLER_NODES if self.controller else OPERATOR_NODES
+
+
+@dataclass(frozen=True, kw_only=True)
+class ServerSecurity:
+    """Validated security of the served plant's OPC UA server.
+
+    Parameters
+    ----------
+    policy :
+        One of `SECURE_POLICIES` (the only endpoint the server offers).
+    mode :
+        ``"SignAndEncrypt"`` or ``"Sign"``.
+    certificate, private_key :
+        The server's application instance certificate (DER) and key (PEM, mode 0600).
+    trusted_clients :
+        DER certificates of the client applications admitted (matched exactly).
+    users :
+        Who may log in; exactly one of them is the controller's user.
+    """
+
+    policy: Policy
+    mode: Mode
+    certificate: Path
+    private_key: Path
+    trusted_clients: tuple[Path, ...]
+    users: tuple[PlantUser, ...]
+
+    @property
+    def controller_user(self) -> PlantUser:
+        """The user who may write the command and the heartbeat."""
+        return next(u for u in self.users if u.controller)
+
+    def describe(self) -> str:
+        """One line for the start-up message; never a password."""
+        operators = [u.name for u in self.users if not u.controller]
+        extra = f", operator(s) {operators} (setpoint, mode)" if operators else ""
+        return (f"{self.policy} {self.mode}, {len(self.trusted_clients)} trusted client "
+                f"certificate(s), controller user {self.controller_user.name!r} (command, "
+                f"heartbeat){extra}, anonymous refused")
+
+
+def _password(name: str, env_name: str, env: Mapping[str, str], option: str) -> Secret:
+    if not env_name or not env_name.replace("_", "").isalnum():
+        raise SettingsError(f"{option}: expected the name of an environment variable; got {env_name!r}")
+    value = env.get(env_name)
+    if not value:
+        raise SettingsError(f"{option}: the environment variable {env_name} is not set (or empty); "
+                            f"export it with the password of user {name!r}")
+    return Secret(value)
+
+
+def _trusted_clients(files: tuple[Path, ...], directory: Path | None) -> tuple[Path, ...]:
+    found: list[Path] = []
+    for path in files:
+        if not path.is_file():
+            raise SettingsError(f"--trusted-client: no such file {path}")
+        found.append(path)
+    if directory is not None:
+        if not directory.is_dir():
+            raise SettingsError(f"--trusted-client-dir: no such directory {directory}")
+        found += sorted(p for p in directory.iterdir()
+                        if p.is_file() and p.suffix.lower() in {".der", ".pem"})
+    if not found:
+        raise SettingsError("a secured plant admits only trusted client certificates: give "
+                            "--trusted-client CERT.der (the controller's, from 'czmpc pki create') "
+                            "or --trusted-client-dir DIR")
+    return tuple(found)
+
+
+def parse_server_security(
+    *, policy: str, mode: str = "SignAndEncrypt", certificate: Path | None = None,
+    private_key: Path | None = None, trusted_clients: tuple[Path, ...] = (),
+    trusted_client_dir: Path | None = None, user: str | None = None,
+    password_env: str | None = None, operators: tuple[str, ...] = (),
+    environ: Mapping[str, str] | None = None,
+) -> ServerSecurity | None:
+    """Validate the served plant's security options (``czmpc plant serve``).
+
+    Parameters
+    ----------
+    policy :
+        ``"None"`` or one of `SECURE_POLICIES`.
+    mode :
+        One of `MODES`.
+    certificate, private_key :
+        The server's certificate (DER) and private key (PEM, owner-only).
+    trusted_clients :
+        Client certificates admitted.
+    trusted_client_dir :
+        A directory whose ``*.der`` / ``*.pem`` files are admitted too.
+    user, password_env :
+        The controller's user and the environment variable holding its password.
+    operators :
+        Further users as ``NAME=ENV_VAR``; they may write the setpoint and the mode only.
+    environ :
+        Environment to read passwords from (default ``os.environ``).
+
+    Returns
+    -------
+    ServerSecurity or None
+        None for policy ``"None"`` (no other option given).
+
+    Raises
+    ------
+    SettingsError
+        A missing or unreadable file, a key readable by others, no trusted client, no
+        user, a password variable that is not set, a duplicate user, or security
+        options with policy ``"None"``.
+    """
+    given = [opt for opt, v in (("--certificate", certificate), ("--private-key", private_key),
+                                ("--trusted-client", trusted_clients),
+                                ("--trusted-client-dir", trusted_client_dir), ("--user", user),
+                                ("--password-env", password_env), ("--operator", operators)) if v]
+    if policy == "None":
+        if given:
+            raise SettingsError(f"{', '.join(given)} need a security policy: add --policy "
+                                f"{SECURE_POLICIES[0]} (a password never travels unencrypted)")
+        return None
+    if policy not in SECURE_POLICIES:
+        raise SettingsError(f"--policy must be one of {[*SECURE_POLICIES, 'None']}; got {policy!r}")
+    if mode not in MODES:
+        raise SettingsError(f"--mode must be one of {list(MODES)}; got {mode!r}")
+    if certificate is None or private_key is None:
+        raise SettingsError(f"--policy {policy} needs the server's --certificate and --private-key "
+                            f"(make them with 'czmpc pki create --role server')")
+    for option, path in (("--certificate", certificate), ("--private-key", private_key)):
+        if not path.is_file():
+            raise SettingsError(f"{option}: no such file {path}")
+    check_private_key_permissions(private_key, where="--private-key")
+    clients = _trusted_clients(trusted_clients, trusted_client_dir)
+    if not user or not password_env:
+        raise SettingsError(f"--policy {policy} admits only configured users: give --user NAME (the "
+                            f"controller's) and --password-env VAR (the variable holding its password)")
+    env = os.environ if environ is None else environ
+    users = [PlantUser(name=user, password=_password(user, password_env, env, "--password-env"),
+                       password_env=password_env, controller=True)]
+    for spec in operators:
+        name, sep, var = spec.partition("=")
+        if not sep or not name or not var:
+            raise SettingsError(f"--operator: expected NAME=ENV_VAR; got {spec!r}")
+        if any(u.name == name for u in users):
+            raise SettingsError(f"--operator: user {name!r} is given twice")
+        users.append(PlantUser(name=name, password=_password(name, var, env, "--operator"),
+                               password_env=var, controller=False))
+    return ServerSecurity(policy=policy,  # type: ignore[arg-type]
+                          mode=mode,  # type: ignore[arg-type]
+                          certificate=certificate, private_key=private_key,
+                          trusted_clients=clients, users=tuple(users))
+
+
+def check_serve_address(endpoint: str, security: ServerSecurity | None, *, insecure: bool) -> str | None:
+    """Refuse to serve an unsecured plant beyond loopback; the warning for ``--insecure``.
+
+    Called before the server is created, so a refused endpoint is never bound.
+
+    Parameters
+    ----------
+    endpoint :
+        ``opc.tcp://HOST:PORT/PATH`` the server would listen on.
+    security :
+        From `parse_server_security` (None: no security).
+    insecure :
+        The operator's explicit ``--insecure``.
+
+    Returns
+    -------
+    str or None
+        The warning to print (on every start with ``--insecure``), else None.
+
+    Raises
+    ------
+    SettingsError
+        A non-loopback endpoint without security and without ``--insecure``, or
+        ``--insecure`` together with a security policy.
+    """
+    if insecure and security is not None:
+        raise SettingsError("--insecure contradicts --policy: drop one of them")
+    if insecure:
+        return (f"WARNING: --insecure: serving {endpoint} with no security (policy None, anonymous "
+                f"users): anyone who can reach this address can write the heater's TRIAC command")
+    if security is None and not is_loopback_endpoint(endpoint):
+        raise SettingsError(
+            f"--endpoint {endpoint!r} is not a loopback address: a plant served on another "
+            f"interface needs --policy {SECURE_POLICIES[0]} with --certificate, --private-key, "
+            f"--trusted-client and --user/--password-env (or, on an isolated test network only, "
+            f"--insecure)")
+    return None
+
+
 __all__ = [
+    "CONTROLLER_NODES",
     "INSECURE_LOOPBACK",
     "MODES",
+    "OPERATOR_NODES",
+    "PlantUser",
     "SECURE_POLICIES",
     "SECURITY_KEYS",
     "Secret",
     "SecuritySettings",
+    "ServerSecurity",
     "check_private_key_permissions",
+    "check_serve_address",
     "is_loopback_endpoint",
     "parse_security",
+    "parse_server_security",
 ]

@@ -14,16 +14,37 @@ server)::
     Heater.Mode             String  r/w     OFF / PREDICT / ON (operator's choice)
     Heater.WatchdogTripped  Boolean read    True while the watchdog holds the safe input
     Heater.PlantTime_s      Double  read    plant time [s]
+    Heater.ModelHealth      Double  write   the controller's model-health figure [-]
+                                            (`czmpc.health`; >= 1: stale-model alarm)
 
 Watchdog (as a PLC has one): when the heartbeat has not changed for ``watchdog_s``
 [plant s], the applied input moves to ``safe_triac_pct`` and ``WatchdogTripped`` turns
 True (and a line is printed). It arms at the first heartbeat; a new heartbeat and a new command re-arm it.
+
+Security (``ServeOptions.security``, a `czmpc.runtime.security.ServerSecurity`): the
+server offers one endpoint, the configured policy and mode, and nothing else. A client
+is admitted only when
+
+1. its application certificate is one of the trusted ones, byte for byte (checked when
+   the session is created, and again when it is activated, against the certificate of
+   the secure channel itself, so a session over an unsecured channel is refused too);
+2. it logs in as a configured user with the right password (anonymous and certificate
+   tokens are not offered);
+3. and it writes only the nodes its user may write: ``TriacCommand`` and ``Heartbeat``
+   for the controller's user, ``PowerSetpoint`` and ``Mode`` for operators; any other
+   write is refused with ``BadUserAccessDenied`` (the whole request).
+
+Each refusal is logged (``log``): user name or client URI and the reason, never a password.
+
+Without security the server offers policy None with anonymous access; the command
+line allows that only on loopback or with ``--insecure``.
 """
 
 from __future__ import annotations
 
 import asyncio
 import datetime as dt
+import hmac
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -32,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from czmpc.runtime._opcua import asyncua
+from czmpc.runtime.security import ServerSecurity
 from sim.disturbances import exogenous_at, fault_profile
 from sim.protocols import NOMINAL, Exogenous, Plant
 from sim.scenario import Scenario
@@ -57,6 +79,8 @@ class ServeOptions:
         Stop after this plant time [s]; None: until cancelled.
     setpoint_kw :
         Initial value of the setpoint node [kW].
+    security :
+        Policy, certificates and users (module docstring); None: no security.
     """
 
     endpoint: str
@@ -65,6 +89,7 @@ class ServeOptions:
     safe_triac_pct: float = 0.0
     duration_s: float | None = None
     setpoint_kw: float = 45.0
+    security: ServerSecurity | None = None
 
 
 def _utcnow() -> dt.datetime:
@@ -87,7 +112,8 @@ class ServedPlant:
     seed :
         Seed of the scenario's random sensor faults.
     log :
-        Called with one line of text on notable events (watchdog, stop).
+        Called with one line of text on notable events (watchdog, stop, and with security
+        every refused login, session or write: who and why, never a password).
     """
 
     def __init__(self, plant: Plant, *, initial_triac_pct: float, options: ServeOptions,
@@ -140,12 +166,17 @@ class ServedPlant:
         """Run the server until ``options.duration_s`` of plant time or cancellation."""
         aua = asyncua()
         ua = aua.ua
-        server = aua.Server()
+        security = self.options.security
+        server = aua.Server() if security is None else aua.Server(
+            user_manager=_UserManager(security, self._log))
         await server.init()
         server.set_endpoint(self.options.endpoint)
         server.set_server_name("czmpc served plant")
-        server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+        if security is None:
+            server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
         idx = await server.register_namespace(NAMESPACE_URI)
+        if security is not None:
+            await _secure(server, security, idx, self._log)
         folder = await server.nodes.objects.add_object(ua.NodeId("Heater", idx), "Heater")
         power0 = float(self.plant.true_power_kw)
         sp0 = float(self._setpoints[0]) if self.scenario is not None else self.options.setpoint_kw
@@ -158,6 +189,7 @@ class ServedPlant:
         await self._add(folder, idx, "Mode", "ON", ua.VariantType.String, True)
         await self._add(folder, idx, "WatchdogTripped", False, B, False)
         await self._add(folder, idx, "PlantTime_s", 0.0, D, False)
+        await self._add(folder, idx, "ModelHealth", 0.0, D, True)
         self._server = server
         async with server:
             self.ready.set()
@@ -213,6 +245,136 @@ class ServedPlant:
             await self._publish("WatchdogTripped", self.watchdog_tripped, ua.VariantType.Boolean)
             await self._publish("PlantTime_s", self.k * self.ts_s, D)
         self._log(f"plant: stopped after {self.k * self.ts_s:g} s of plant time")
+
+
+def _application_uri(certificate_der: bytes) -> str | None:
+    from cryptography import x509
+
+    cert = x509.load_der_x509_certificate(certificate_der)
+    try:
+        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    except x509.ExtensionNotFound:
+        return None
+    uris = san.get_values_for_type(x509.UniformResourceIdentifier)
+    return str(uris[0]) if uris else None
+
+
+def _load_der(path: Any) -> bytes:
+    from cryptography import x509
+    from cryptography.hazmat.primitives.serialization import Encoding
+
+    data = path.read_bytes()
+    if data.lstrip().startswith(b"-----BEGIN"):
+        return x509.load_pem_x509_certificate(data).public_bytes(Encoding.DER)
+    return bytes(data)
+
+
+class _UserManager:
+    """asyncua user manager: configured users over a channel with a trusted certificate.
+
+    Every refused login is logged (user name and reason; never the password), as an
+    audit trail of who tried to reach the heater.
+    """
+
+    def __init__(self, security: ServerSecurity, log: Callable[[str], None]) -> None:
+        self._users = {u.name: u for u in security.users}
+        self._trusted = frozenset(_load_der(p) for p in security.trusted_clients)
+        self._log = log
+
+    def get_user(self, iserver: Any, username: str | None = None, password: str | None = None,
+                 certificate: Any = None) -> Any:
+        from asyncua.crypto.permission_rules import User, UserRole
+
+        who = f"user {username!r}" if username else "an anonymous client"
+        # `certificate` is the secure channel's peer certificate: empty (or None) on an
+        # unsecured channel (a client may open one for discovery), which must not carry a
+        # session.
+        if not certificate:
+            self._log(f"security: refused login of {who}: no secure channel")
+            return None
+        if bytes(certificate) not in self._trusted:
+            self._log(f"security: refused login of {who}: untrusted client certificate")
+            return None
+        user = self._users.get(username or "")
+        if user is None or password is None or not hmac.compare_digest(
+                password.encode(), user.password.reveal().encode()):
+            self._log(f"security: refused login of {who}: unknown user or wrong password")
+            return None
+        return User(role=UserRole.User, name=user.name)
+
+
+def _permission_rules(security: ServerSecurity, idx: int, log: Callable[[str], None]) -> Any:
+    """asyncua permission ruleset: users' service set, writes only to each user's nodes."""
+    from asyncua.common.utils import Buffer
+    from asyncua.crypto.permission_rules import SimpleRoleRuleset
+    from asyncua.ua.ua_binary import struct_from_binary
+
+    ua = asyncua().ua
+    write_id = ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary)
+    writable = {u.name: frozenset(ua.NodeId(f"Heater.{n}", idx) for n in u.writable_nodes)
+                for u in security.users}
+
+    base: Any = SimpleRoleRuleset   # asyncua's rulesets are untyped
+
+    class Rules(base):  # type: ignore[misc]
+        def check_validity(self, user: Any, action_type_id: Any, body: Any) -> bool:
+            if not super().check_validity(user, action_type_id, body):
+                return False
+            if action_type_id != write_id:
+                return True
+            allowed = writable.get(getattr(user, "name", None) or "", frozenset())
+            copy = body.copy() if isinstance(body, Buffer) else Buffer(bytes(body))
+            params = struct_from_binary(ua.WriteParameters, copy)
+            denied = [w.NodeId.Identifier for w in params.NodesToWrite
+                      if w.NodeId not in allowed or w.AttributeId != ua.AttributeIds.Value]
+            if denied:
+                log(f"security: refused write by user {getattr(user, 'name', None)!r} to "
+                    f"{', '.join(map(str, denied))} (BadUserAccessDenied)")
+            return not denied
+
+    rules: Any = Rules
+    return rules()
+
+
+async def _secure(server: Any, security: ServerSecurity, idx: int,
+                  log: Callable[[str], None]) -> None:
+    """Offer only the configured policy, trusted client certificates and configured users."""
+    aua = asyncua()
+    ua = aua.ua
+    from asyncua.common.utils import ServiceError
+    from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
+
+    policy_type = getattr(ua.SecurityPolicyType,
+                          f"{security.policy.replace('_', '')}_{security.mode}")
+    server.set_security_policy([policy_type], permission_ruleset=_permission_rules(security, idx, log))
+    server.set_identity_tokens([ua.UserNameIdentityToken])
+    cert_der = _load_der(security.certificate)
+    uri = _application_uri(cert_der)
+    if uri is not None:
+        await server.set_application_uri(uri)
+    await server.load_certificate(str(security.certificate))
+    await server.load_private_key(str(security.private_key))
+    trusted = frozenset(_load_der(p) for p in security.trusted_clients)
+    # time range, application URI, key usage and client role, without a trust store:
+    checks = CertificateValidator(CertificateValidatorOptions.EXT_VALIDATION
+                                  | CertificateValidatorOptions.PEER_CLIENT)
+
+    async def validate(cert: Any, app_description: Any) -> None:
+        from cryptography.hazmat.primitives.serialization import Encoding
+
+        client = app_description.ApplicationUri
+        if cert.public_bytes(Encoding.DER) not in trusted:
+            log(f"security: refused session of client {client!r}: untrusted certificate "
+                f"(BadCertificateUntrusted)")
+            raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)
+        try:
+            await checks.validate(cert, app_description)
+        except ServiceError as exc:   # expired, another URI, or not a client's key usage
+            log(f"security: refused session of client {client!r}: "
+                f"{ua.StatusCode(exc.code).name}")
+            raise
+
+    server.set_certificate_validator(validate)
 
 
 __all__ = ["NAMESPACE_URI", "ServeOptions", "ServedPlant"]

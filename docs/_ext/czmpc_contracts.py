@@ -1,9 +1,12 @@
 """Sphinx directives that write the file-format and exit-code references from the code.
 
 Each reference is built at documentation time from the constants the validators use
-(`sysid.modelfile`, `sysid.data`, `czmpc.cli._exit`), so the documented keys cannot drift
+(`sysid.modelfile`, `sysid.data`, `czmpc.cli._exit`, `czmpc.runtime.config`,
+`czmpc.runtime.security`, `czmpc.campaigns.campaign`), so the documented keys cannot drift
 from the accepted ones: a key the validator knows and this module does not describe (or
-the other way round) stops the build, and ``tests/test_docs_contracts.py`` checks the same.
+the other way round) stops the build, and ``tests/docs/test_contract_references.py`` and
+``tests/docs/test_config_references.py`` check the same. Pages with a generated reference
+are re-read on every build, so an incremental ``make docs`` never shows an outdated one.
 """
 
 from __future__ import annotations
@@ -65,6 +68,96 @@ PLANT_SECURITY_KEYS: dict[str, str] = {
     "server_certificate": "The plant server's certificate (DER), pinned: any other server is refused.",
     "username": "OPC UA user name; absent for an anonymous session.",
     "password_env": "Name of the environment variable holding the password (never the password itself).",
+}
+
+# Every key of a run config (`czmpc run CONFIG.toml`), as ``table.key``: (type, default,
+# unit, meaning). A default of "required" means the validator refuses a file without it.
+# The set of keys must equal the validator's (`czmpc.runtime.config._TABLES`).
+RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
+    "plant.endpoint": ("string", "required", "-",
+                       "OPC UA endpoint of the plant's server, ``opc.tcp://HOST:PORT/PATH``."),
+    "plant.ts_s": ("number > 0", "required", "s",
+                   "Sampling time of the loop; must equal the model's ``ts_s``."),
+    "plant.time_scale": ("number in [1, 1000]", "1", "-",
+                         "Plant samples per ``ts_s`` of wall time; > 1 only for simulated plants "
+                         "(``czmpc plant serve --time-scale``). The loop period is "
+                         "``ts_s / time_scale``."),
+    "plant.max_sample_age_s": ("number > 0", "2 ts_s", "s",
+                               "A power sample whose source timestamp is older than this is "
+                               "a missing sample."),
+    "plant.connect_timeout_s": ("number > 0", "2", "s",
+                                "Time allowed for each connection attempt."),
+    "plant.security": ("table", "none (loopback only)", "-",
+                       "Channel security: see :doc:`plant_security`."),
+    "nodes.power_kw": ("string", "required", "kW", "Node id of the measured heater power (read)."),
+    "nodes.triac_pct": ("string", "required", "%", "Node id of the TRIAC command (written)."),
+    "nodes.applied_triac_pct": ("string", "none", "%",
+                                "Node id of the input the plant applies (read; the bumpless start "
+                                "begins from it)."),
+    "nodes.setpoint_kw": ("string", "none", "kW",
+                          "Node id of a setpoint set at the plant (read every step)."),
+    "nodes.heartbeat": ("string", "none", "-",
+                        "Node id of a counter written every step (the plant's watchdog)."),
+    "nodes.mode": ("string", "none", "-",
+                   "Node id of the plant's mode ``OFF``/``PREDICT``/``ON`` (read)."),
+    "nodes.model_health": ("string", "none", "-",
+                           "Node id to which the model-health score (`czmpc.health`) is "
+                           "written every step."),
+    "controller.model": ("string (file)", "required", "-",
+                         "Model file (:doc:`model_file`) the controller is built from."),
+    "controller.settings": ("string (file)", "none (defaults from the model)", "-",
+                            "MPC settings file (:doc:`settings_file`)."),
+    "run.duration_s": ("number > 0", "none (until stopped)", "s",
+                       "Plant time to run (``--duration-s`` overrides it)."),
+    "run.setpoint_kw": ("number", "none", "kW",
+                        "A fixed setpoint. One of ``run.setpoint_kw``, ``run.schedule`` or "
+                        "``nodes.setpoint_kw`` is required; not both run keys."),
+    "run.schedule": ("string (file)", "none", "-",
+                     "Recipe CSV with header ``time_s,setpoint_kw`` [s, kW], increasing times: "
+                     "the setpoint from each time of the run on."),
+    "run.log": ("string (file)", "run.csv", "-",
+                "Step log, one CSV row per step, flushed per row (``--log`` overrides it)."),
+    "safety.action": ('``"hold"`` or ``"ramp"``', "hold", "-",
+                      "On SIGINT/SIGTERM: hold the last command, or ramp to "
+                      "``safety.safe_triac_pct`` at the rate limit."),
+    "safety.safe_triac_pct": ("number in [0, 100]", "none (required for ramp)", "%",
+                              "TRIAC input of the ramp."),
+}
+
+# The keys of a campaign spec (`czmpc campaign run SPEC.toml`): (type, default, meaning).
+# Each set must equal the one the validator accepts (`czmpc.campaigns.campaign`).
+CAMPAIGN_KEYS: dict[str, tuple[str, str, str]] = {
+    "name": ("string", "the file's stem", "Name of the campaign."),
+    "model": ("string (file)", "cz_heater_model.json",
+              "Model of every controller and of the model plants: a file next to the spec "
+              "or the name of a shipped model."),
+    "seeds": ("integer >= 1", "1", "Seed indices ``0..seeds-1`` per (controller, plant, scenario)."),
+    "base_seed": ("integer >= 0", "0",
+                  "Entropy of every run's `numpy.random.SeedSequence`; a run's seed depends "
+                  "on it and on the run's identity only."),
+    "noise": ("boolean", "true", "Plant noise on or off."),
+    "time_scale": ("number in (0, 1]", "1", "Shortens every scenario to this fraction of its "
+                   "length (``Scenario.shortened``)."),
+    "scenarios": ("list of strings", "required",
+                  "Scenarios: shipped names (``staircase``, ``voltage_sag``, ...) or TOML files."),
+    "controllers": ("array of tables", "required", "``[[controllers]]``: keys below."),
+    "plants": ("array of tables", "required", "``[[plants]]``: keys below."),
+}
+CAMPAIGN_CONTROLLER_KEYS: dict[str, tuple[str, str, str]] = {
+    "name": ("string without ``|``", "the preset", "Name of the controller in the rows; unique."),
+    "preset": ("string", "required", "``mpc``, ``pi`` or ``pi-scheduled``."),
+    "settings": ("string (file)", "-",
+                 "Reserved for an MPC settings file; this version refuses it (use a preset)."),
+}
+CAMPAIGN_PLANT_KEYS: dict[str, tuple[str, str, str]] = {
+    "kind": ("string", "required",
+             "``model`` (the model's own equation), ``heater`` (the virtual heater) or "
+             "``perturbed`` (the model perturbed; the keys below, only for this kind)."),
+    "gain_factors": ("list of numbers > 0", "[1.0]", "Static gain factors."),
+    "time_constant_factors": ("list of numbers > 0", "[1.0]", "Slow time-constant factors."),
+    "extra_delays_steps": ("list of whole numbers >= 0", "[0]",
+                           "Extra input delays [samples]. One plant per element of the "
+                           "product of the three lists."),
 }
 
 
@@ -144,7 +237,8 @@ def _class_tree(cls: type, depth: int) -> list[str]:
     out = ["", "  " * depth + f"- `{name}`: {doc}"]
     if cls.__module__ == "builtins":
         return out
-    for sub in sorted(cls.__subclasses__(), key=lambda c: c.__name__):
+    subclasses: list[type] = sorted(cls.__subclasses__(), key=lambda c: c.__name__)
+    for sub in subclasses:
         if sub.__module__.split(".")[0] in ("sysid", "sim", "czmpc"):
             out += _class_tree(sub, depth + 1)
     return out
@@ -172,21 +266,199 @@ def plant_security_rst() -> str:
     return "\n".join(lines)
 
 
+def run_config_rst() -> str:
+    """The run-config reference: every table and key, from the validator's key table."""
+    from czmpc.runtime import config
+
+    accepted = [f"{table}.{key}" for table, keys in config._TABLES.items() for key in keys]
+    _check_same(RUN_CONFIG_KEYS, accepted, "run-config keys")
+    lines = [f"Tables: {', '.join(f'``[{t}]``' for t in config._TABLES)}. Each key below; an "
+             "unknown table or key, a wrong type or a value out of range is refused with "
+             "`czmpc.runtime.config.RunConfigError` naming it (``czmpc run``: exit code 2).", ""]
+    for table in config._TABLES:
+        lines += ["", f"``[{table}]``", "", *_table(
+            ("key", "type", "default", "unit", "meaning"),
+            [(f"``{key}``", *RUN_CONFIG_KEYS[f"{table}.{key}"]) for key in config._TABLES[table]]),
+            ""]
+    return "\n".join(lines)
+
+
+def accepted_campaign_keys() -> dict[str, list[str]]:
+    """The keys the campaign validator accepts, top level and per table, read from its errors.
+
+    `czmpc.campaigns.campaign.spec_from_dict` names every accepted key when it refuses an
+    unknown one; this asks it with one unknown key at each level.
+    """
+    import ast
+
+    from czmpc.campaigns.campaign import CampaignError, spec_from_dict
+
+    probe = "zz_undocumented"
+    base: dict[str, Any] = {"scenarios": ["staircase"], "controllers": [{"preset": "mpc"}],
+                            "plants": [{"kind": "model"}]}
+    docs = {
+        "top": {**base, probe: 1},
+        "controllers": {**base, "controllers": [{"preset": "mpc", probe: 1}]},
+        "plants": {**base, "plants": [{"kind": "perturbed", probe: 1}]},
+        "plants-other": {**base, "plants": [{"kind": "heater", probe: 1}]},
+    }
+    out: dict[str, list[str]] = {}
+    for level, doc in docs.items():
+        try:
+            spec_from_dict(doc)
+        except CampaignError as exc:
+            text = str(exc)
+            if probe not in text or "expected some of " not in text:
+                raise ExtensionError(f"campaign spec: cannot read the accepted keys of {level} "
+                                     f"from {text!r}; update docs/_ext/czmpc_contracts.py") from exc
+            out[level] = ast.literal_eval(text.rsplit("expected some of ", 1)[1].strip())
+        else:
+            raise ExtensionError(f"campaign spec: an unknown key in {level} was accepted")
+    return out
+
+
+def campaign_spec_rst() -> str:
+    """The campaign-spec reference: top-level keys, controllers and plants."""
+    from czmpc.campaigns.campaign import PLANT_KINDS, PRESETS
+
+    accepted = accepted_campaign_keys()
+    _check_same(CAMPAIGN_KEYS, accepted["top"], "campaign-spec keys")
+    _check_same(CAMPAIGN_CONTROLLER_KEYS, accepted["controllers"], "[[controllers]] keys")
+    _check_same(CAMPAIGN_PLANT_KEYS, accepted["plants"], "[[plants]] keys")
+    _check_same(["kind"], accepted["plants-other"], "[[plants]] keys of model/heater plants")
+    _check_same([p for p in CAMPAIGN_CONTROLLER_KEYS["preset"][2].split("``")[1::2]], PRESETS,
+                "controller presets")
+    _check_same([k for k in CAMPAIGN_PLANT_KEYS["kind"][2].split("``")[1::2]
+                 if k in PLANT_KINDS or k.isalpha()], PLANT_KINDS, "plant kinds")
+    header = ("key", "type", "default", "meaning")
+    lines = ["Top-level keys:", ""]
+    lines += _table(header, [(f"``{k}``", *v) for k, v in CAMPAIGN_KEYS.items()])
+    lines += ["", "``[[controllers]]`` (one table per controller):", ""]
+    lines += _table(header, [(f"``{k}``", *v) for k, v in CAMPAIGN_CONTROLLER_KEYS.items()])
+    lines += ["", "``[[plants]]`` (one table per plant or grid of plants):", ""]
+    lines += _table(header, [(f"``{k}``", *v) for k, v in CAMPAIGN_PLANT_KEYS.items()])
+    lines += ["",
+              "- The runs are controllers x plants x scenarios x seed indices.",
+              "- Unknown or invalid keys are refused with "
+              "`czmpc.campaigns.campaign.CampaignError` naming the key and the value "
+              "(``czmpc campaign``: exit code 2).",
+              "- Relative file names are taken from the spec's directory."]
+    return "\n".join(lines)
+
+def accepted_settings_keys() -> dict[str, list[str]]:
+    """The keys the settings-file reader accepts, top level and per table, from its errors.
+
+    `czmpc.settings_file.settings_from_dict` lists the valid keys when it refuses an
+    unknown one; this asks it with one unknown key at each level.
+    """
+    from czmpc.errors import SettingsError
+    from czmpc.settings_file import PRESET_KEY, TABLES, settings_from_dict
+    from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
+    from sysid.modelfile import load_model
+
+    model = load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
+    probe = "zz_undocumented"
+    out: dict[str, list[str]] = {}
+    for level in ("", *TABLES):
+        doc: dict[str, Any] = {probe: 1} if not level else {level: {probe: 1}}
+        try:
+            settings_from_dict(doc, model)
+        except SettingsError as exc:
+            text = str(exc)
+            if probe not in text or "valid keys: " not in text:
+                raise ExtensionError(f"settings file: cannot read the accepted keys of "
+                                     f"[{level}] from {text!r}; update docs/_ext/czmpc_contracts.py"
+                                     ) from exc
+            keys = text.rsplit("valid keys: ", 1)[1].split(", ")
+            out[level] = [PRESET_KEY, *keys, *TABLES] if not level else keys
+        else:
+            raise ExtensionError(f"settings file: an unknown key in [{level}] was accepted")
+    return out
+
+
+def settings_keys() -> dict[str, list[tuple[str, str, str, str, str]]]:
+    """Per table ("" = top level): (key, type, default, unit, meaning) of every setting.
+
+    Types and meanings come from the settings dataclasses and their numpy docstrings
+    (`czmpc.settings_file.field_docs`); defaults are those of the ``default`` preset for
+    the shipped model. Raises ExtensionError when a key has no documented meaning or the
+    keys differ from those the reader accepts.
+    """
+    import dataclasses
+    import re
+    from typing import get_args
+
+    from czmpc import settings_file as sf
+    from czmpc.settings import MPCSettings, PresetName
+    from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
+    from sysid.modelfile import load_model
+
+    model = load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
+    defaults, plain = MPCSettings.default_for(model), MPCSettings()
+    out: dict[str, list[tuple[str, str, str, str, str]]] = {"": [(
+        f"``{sf.PRESET_KEY}``", "one of " + ", ".join(f"``{p}``" for p in get_args(PresetName)),
+        "default", "-", "The preset the file starts from: every key left out takes its value.")]}
+    for level, cls in (("", MPCSettings), *sf.TABLES.items()):
+        obj, ref = ((defaults, plain) if not level
+                    else (getattr(defaults, level), getattr(plain, level)))
+        docs = sf.field_docs(cls)
+        rows = out.setdefault(level, [])
+        for field in dataclasses.fields(cls):
+            if field.name in sf.TABLES:
+                continue
+            meaning = docs.get(field.name, "").replace("None", f'``"{sf.OFF}"``')
+            if not meaning:
+                raise ExtensionError(f"settings file: {cls.__name__}.{field.name} has no "
+                                     "description in its numpy docstring")
+            base, optional, choices = sf._field_kind(cls, field.name)
+            kind = ("one of " + ", ".join(f"``{c}``" for c in choices) if choices
+                    else {bool: "boolean", int: "integer", float: "number"}.get(base, base.__name__))
+            if optional:
+                kind += f' or ``"{sf.OFF}"``'
+            value = sf._toml_value(getattr(obj, field.name))
+            if getattr(obj, field.name) != getattr(ref, field.name):
+                value += " (from the model)"
+            unit = re.search(r"\[([^\]]+)\]", meaning)
+            rows.append((f"``{field.name}``", kind, value.replace('"', ""),
+                         unit.group(1) if unit else "-", meaning + "."))
+    accepted = accepted_settings_keys()
+    for level, rows in out.items():
+        documented = [r[0].strip("`") for r in rows]
+        if not level:
+            documented += list(sf.TABLES)
+        _check_same(documented, accepted[level], f"settings-file keys of [{level or 'top'}]")
+    return out
+
+
+def settings_file_rst() -> str:
+    """The settings-file reference: every key of every table, from the settings classes."""
+    from czmpc.settings_file import TABLES
+
+    keys = settings_keys()
+    lines = ["Top-level keys (`czmpc.MPCSettings`):", ""]
+    lines += _table(("key", "type", "default", "unit", "meaning"), keys[""])
+    for name, cls in TABLES.items():
+        lines += ["", f"``[{name}]`` (`czmpc.settings.{cls.__name__}`):", ""]
+        lines += _table(("key", "type", "default", "unit", "meaning"), keys[name])
+    return "\n".join(lines)
+
 def commands_rst() -> str:
     """One row per ``czmpc`` sub-command with its one-line help."""
     from czmpc.cli import build_parser
 
     parser = build_parser()
     (sub,) = [a for a in parser._actions if a.dest == "command"]
-    rows = [(f"``czmpc {choice.dest}``", choice.help or "") for choice in sub._choices_actions]
+    choices: list[Any] = getattr(sub, "_choices_actions")  # noqa: B009 - argparse keeps no public list
+    rows = [(f"``czmpc {choice.dest}``", choice.help or "") for choice in choices]
     return "\n".join(_table(("command", "what it does"), rows))
 
 
 def _table(header: tuple[str, ...], rows: Iterable[tuple[str, ...]]) -> list[str]:
     lines = [".. list-table::", "   :header-rows: 1", ""]
     for row in (header, *rows):
-        lines.append("   * - " + row[0])
-        lines += [f"     - {cell}" for cell in row[1:]]
+        cells = [r"\-" if cell == "-" else cell for cell in row]   # a lone "-" is a list
+        lines.append("   * - " + cells[0])
+        lines += [f"     - {cell}" for cell in cells[1:]]
     return lines
 
 
@@ -196,6 +468,9 @@ _GENERATORS: Mapping[str, Any] = {
     "exit-codes": exit_codes_rst,
     "commands": commands_rst,
     "plant-security": plant_security_rst,
+    "run-config": run_config_rst,
+    "campaign-spec": campaign_spec_rst,
+    "settings-file": settings_file_rst,
 }
 
 
@@ -208,6 +483,9 @@ class ContractDirective(SphinxDirective):
         name = self.arguments[0]
         if name not in _GENERATORS:
             raise self.error(f"unknown reference {name!r}; one of {sorted(_GENERATORS)}")
+        docs: set[str] = getattr(self.env, "czmpc_contract_docs", set())
+        docs.add(self.env.docname)
+        self.env.czmpc_contract_docs = docs  # type: ignore[attr-defined]
         container = nodes.container()
         text = _GENERATORS[name]()
         self.state.nested_parse(StringList(text.splitlines(), source=f"<czmpc-contract {name}>"),
@@ -215,6 +493,21 @@ class ContractDirective(SphinxDirective):
         return list(container.children)
 
 
+def _always_reread(app: Sphinx, env: Any, added: set[str], changed: set[str],
+                   removed: set[str]) -> list[str]:
+    """Re-read the pages with a generated reference on every build: their text comes
+    from the code, which Sphinx does not watch, so an incremental build would keep an
+    outdated reference."""
+    return sorted(getattr(env, "czmpc_contract_docs", set()) - removed)
+
+
+def _merge(app: Sphinx, env: Any, docnames: set[str], other: Any) -> None:
+    env.czmpc_contract_docs = (getattr(env, "czmpc_contract_docs", set())
+                               | getattr(other, "czmpc_contract_docs", set()))
+
+
 def setup(app: Sphinx) -> dict[str, Any]:
     app.add_directive("czmpc-contract", ContractDirective)
+    app.connect("env-get-outdated", _always_reread)
+    app.connect("env-merge-info", _merge)
     return {"version": "1", "parallel_read_safe": True}

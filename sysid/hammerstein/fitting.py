@@ -215,20 +215,11 @@ def fit_hammerstein_oe(
     IdentificationWarning
         The search did not converge (the best iterate is returned, ``converged=False``).
     """
-    where = "fit_hammerstein_oe"
-    y_arr, ds_arr = _check_arrays(y, ds, where)
-    structure = hammerstein_oe_structure(degree=degree, nb=nb, nf=nf, nk=nk)
-    _check_excitation(ds_arr, degree, structure.n_parameters, where)
-    start, label = _start_values(initial, structure.parameter_names)
-    structure = hammerstein_oe_structure(
-        degree=degree, nb=nb, nf=nf, nk=nk, initial_values=start
+    return _fit(
+        "oe", y, ds, initial=initial, degree=degree, na=nf, nb=nb, nc=0, nk=nk,
+        max_iterations=max_iterations, initial_state=initial_state,
+        segment_starts=segment_starts, progress=progress, where="fit_hammerstein_oe",
     )
-    policy = check_initial_state(initial_state, where)
-    orders = HammersteinOrders(block="oe", degree=degree, nb=nb, na=nf, nc=0, nk=nk)
-    segments = split_segments(y_arr, ds_arr, segment_starts, where)
-    lm, cov, std, transients = _pem(orders, structure, segments, policy, max_iterations, progress)
-    _warn_unconverged(lm, where)
-    return _fit_from_lm(orders, lm, cov, std, transients, policy, label)
 
 
 def fit_hammerstein_armax(
@@ -289,25 +280,66 @@ def fit_hammerstein_armax(
     IdentificationWarning
         The search did not converge (the best iterate is returned, ``converged=False``).
     """
-    where = "fit_hammerstein_armax"
-    y_arr, ds_arr = _check_arrays(y, ds, where)
-    structure = hammerstein_armax_structure(degree=degree, na=na, nb=nb, nc=nc, nk=nk)
-    _check_excitation(ds_arr, degree, structure.n_parameters, where)
+    return _fit(
+        "armax", y, ds, initial=initial, degree=degree, na=na, nb=nb, nc=nc, nk=nk,
+        max_iterations=max_iterations, initial_state=initial_state,
+        segment_starts=segment_starts, progress=progress, where="fit_hammerstein_armax",
+    )
+
+
+def _armax_start(
+    initial: HammersteinFit | Mapping[str, float] | None, names: tuple[str, ...]
+) -> tuple[dict[str, float], str]:
+    """Start values of an ARMAX fit: an OE fit's ``f_i`` become ``a_i`` (so ``C = A``)."""
     if isinstance(initial, HammersteinFit) and initial.linear_block != "armax":
         values = initial.values()
         for i in range(1, initial.a.size):
             if f"f{i}" in values:
                 values[f"a{i}"] = values.pop(f"f{i}")
-        names = structure.parameter_names
-        start = {k: v for k, v in values.items() if k in names}
-        label = "initial-values"
-    else:
+        return {k: v for k, v in values.items() if k in names}, "initial-values"
+    return _start_values(initial, names)
+
+
+def _fit(
+    block: Literal["oe", "armax"],
+    y: FloatArray,
+    ds: FloatArray,
+    *,
+    initial: HammersteinFit | Mapping[str, float] | None,
+    degree: int,
+    na: int,
+    nb: int,
+    nc: int,
+    nk: int,
+    max_iterations: int,
+    initial_state: InitialState,
+    segment_starts: Sequence[int] | None,
+    progress: ProgressCallback | None,
+    where: str,
+) -> HammersteinFit:
+    """The one PEM loop behind `fit_hammerstein_oe` (``na`` is ``nf``) and `fit_hammerstein_armax`.
+
+    Checks the arrays and the excitation, builds the grey-box structure from the start
+    values, runs the Levenberg-Marquardt search on the segments and packs the fit.
+    """
+    y_arr, ds_arr = _check_arrays(y, ds, where)
+
+    def structure_for(start: Mapping[str, float] | None) -> GreyBoxStructure:
+        if block == "oe":
+            return hammerstein_oe_structure(
+                degree=degree, nb=nb, nf=na, nk=nk, initial_values=start)
+        return hammerstein_armax_structure(
+            degree=degree, na=na, nb=nb, nc=nc, nk=nk, initial_values=start)
+
+    structure = structure_for(None)
+    _check_excitation(ds_arr, degree, structure.n_parameters, where)
+    if block == "oe":
         start, label = _start_values(initial, structure.parameter_names)
-    structure = hammerstein_armax_structure(
-        degree=degree, na=na, nb=nb, nc=nc, nk=nk, initial_values=start
-    )
+    else:
+        start, label = _armax_start(initial, structure.parameter_names)
+    structure = structure_for(start)
     policy = check_initial_state(initial_state, where)
-    orders = HammersteinOrders(block="armax", degree=degree, nb=nb, na=na, nc=nc, nk=nk)
+    orders = HammersteinOrders(block=block, degree=degree, nb=nb, na=na, nc=nc, nk=nk)
     segments = split_segments(y_arr, ds_arr, segment_starts, where)
     lm, cov, std, transients = _pem(orders, structure, segments, policy, max_iterations, progress)
     _warn_unconverged(lm, where)
@@ -320,6 +352,6 @@ def _warn_unconverged(result: LMResult, where: str) -> None:
             f"{where}: the prediction-error search did not converge after "
             f"{result.n_iterations} iterations ({result.message}); the best iterate is kept",
             IdentificationWarning,
-            stacklevel=3,
+            stacklevel=4,
         )
 

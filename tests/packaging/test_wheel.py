@@ -10,10 +10,15 @@ its dependencies are already there).
 
 from __future__ import annotations
 
+import csv
+import json
 import os
+import re
+import socket
 import subprocess
 import sys
 import sysconfig
+import time
 import tomllib
 import zipfile
 from pathlib import Path
@@ -147,3 +152,88 @@ def test_identify_on_the_shipped_log_runs_from_the_wheel(venv: Path, tmp_path: P
     assert f'"software": "czmpc {VERSION}"' in model
     report = (tmp_path / "id" / "report.md").read_text(encoding="utf-8")
     assert f"Produced by czmpc {VERSION}" in report
+
+
+@pytest.mark.slow
+def test_a_shipped_campaign_spec_runs_from_the_wheel(venv: Path, tmp_path: Path) -> None:
+    # campaign_smoke.toml is package data: named without a path, found in the venv.
+    proc = _czmpc(venv, tmp_path, "campaign", "run", "campaign_smoke.toml", "--out", "smoke")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert _source_tree_reads(proc) == "[]"
+    assert "24 runs (24 run now, 0 resumed), 0 crashed" in proc.stdout
+    assert (tmp_path / "smoke" / "results.parquet").is_file()
+    spec = json.loads((tmp_path / "smoke" / "campaign.json").read_text(encoding="utf-8"))
+    assert Path(spec["source"]).resolve().is_relative_to(venv.resolve()), spec["source"]
+    report = _czmpc(venv, tmp_path, "campaign", "report", "smoke")
+    assert report.returncode == 0, report.stderr[-3000:]
+    assert _source_tree_reads(report) == "[]"
+    assert (tmp_path / "smoke" / "iae_distribution.png").stat().st_size > 10_000
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+#: Plant time [s] the MPC runs against the served plant, and the time scale of both:
+#: 60 s of plant time = 30 samples in 3 s of wall time.
+RUN_PLANT_S, TIME_SCALE = 60.0, 20.0
+
+
+@pytest.mark.slow
+def test_the_shipped_run_config_runs_against_a_served_plant_from_the_wheel(
+        venv: Path, tmp_path: Path) -> None:
+    """examples/plant_link/run.toml (with its settings.toml), pointed at a plant served on
+    127.0.0.1 and at the wheel's shipped model, runs the MPC in real time (scaled) with
+    nothing read from the tree."""
+    where = _run([str(venv / "bin" / "python"), "-c",
+                  "import czmpc.shipped as s; print(s.shipped_path(s.HAMMERSTEIN_MODEL_JSON))"],
+                 cwd=tmp_path)
+    model = Path(where.stdout.strip())
+    assert model.resolve().is_relative_to(venv.resolve()), where.stderr
+    endpoint = f"opc.tcp://127.0.0.1:{_free_port()}/czmpc/"
+    text = (REPO / "examples" / "plant_link" / "run.toml").read_text(encoding="utf-8")
+    for pattern, value in ((r'endpoint = "[^"]*"', f'endpoint = "{endpoint}"'),
+                           (r"time_scale = [0-9.]+", f"time_scale = {TIME_SCALE}"),
+                           (r'model = "[^"]*"', f'model = "{model.as_posix()}"'),
+                           (r"duration_s = [0-9.]+", f"duration_s = {RUN_PLANT_S}")):
+        text, n = re.subn(pattern, value, text)
+        assert n == 1, pattern                      # the example still has each key once
+    (tmp_path / "run.toml").write_text(text, encoding="utf-8")
+    assert 'settings = "settings.toml"' in text          # the example's settings file, beside it
+    (tmp_path / "settings.toml").write_bytes(
+        (REPO / "examples" / "plant_link" / "settings.toml").read_bytes())
+    server_log = (tmp_path / "serve.out").open("w", encoding="utf-8")
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME", "VIRTUAL_ENV")}
+    # The server stops by itself after 30 s of wall time (600 s of plant time) at the latest.
+    server = subprocess.Popen(
+        [str(venv / "bin" / "python"), "-c", _GUARD, str(REPO), "plant", "serve",
+         "--endpoint", endpoint, "--time-scale", str(TIME_SCALE), "--duration-s", "600",
+         "--scenario", "staircase", "--no-noise"],
+        cwd=tmp_path, env=env, stdout=server_log, stderr=subprocess.STDOUT, text=True)
+    try:
+        # start the loop once the server listens (a cold start of the fresh venv is slow)
+        deadline = time.monotonic() + 60.0
+        while "serving the heater plant" not in (tmp_path / "serve.out").read_text(encoding="utf-8"):
+            assert server.poll() is None and time.monotonic() < deadline, "the plant did not start"
+            time.sleep(0.2)
+        proc = _czmpc(venv, tmp_path, "run", "run.toml")
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+        server_log.close()
+    served = (tmp_path / "serve.out").read_text(encoding="utf-8")
+    assert proc.returncode == 0, proc.stderr[-3000:] + served[-2000:]
+    assert _source_tree_reads(proc) == "[]"
+    assert "SOURCE-TREE-READS:[]" in served, served[-2000:]
+    assert f"serving the heater plant on {endpoint}" in served
+    assert "stopped by duration" in proc.stdout
+    with open(tmp_path / "run.csv", newline="", encoding="utf-8") as fh:
+        rows = [r for r in csv.DictReader(fh) if r["k"] != ""]     # the safe ramp has no k
+    assert len(rows) == int(RUN_PLANT_S / 2.0)                      # Ts = 2 s
+    good = [r for r in rows if r["quality"] == "good"]
+    assert len(good) >= len(rows) - 2, rows                         # a noise-free, healthy plant
+    # the staircase starts at 45 kW in steady state: the MPC holds it
+    assert all(abs(float(r["power_kw"]) - float(r["setpoint_kw"])) < 1.0 for r in good)

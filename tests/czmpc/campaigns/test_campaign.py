@@ -45,7 +45,7 @@ def test_expand_counts_every_axis_and_grid_product() -> None:
     ({"time_scale": 1.5}, "time_scale"),
     ({"scenarios": ["no_such_scenario"]}, "no_such_scenario"),
     ({"controllers": [{"preset": "lqr"}]}, "'lqr'"),
-    ({"controllers": [{"preset": "mpc", "settings": "x.toml"}]}, "settings files are not supported"),
+    ({"controllers": [{"preset": "mpc", "settings": "x.toml"}]}, "x.toml: cannot read"),
     ({"plants": [{"kind": "perturbed", "gain_factors": [-1.0]}]}, "factors > 0"),
     ({"model": "missing.json"}, "missing.json"),
 ])
@@ -55,7 +55,8 @@ def test_bad_specs_are_refused_naming_the_value(change: dict[str, object], match
 
 
 def test_shipped_specs_load() -> None:
-    for name in ("campaign_smoke.toml", "campaign_robustness.toml"):
+    for name in ("campaign_smoke.toml", "campaign_robustness.toml", "campaign_bench.toml",
+                 "campaign_montecarlo.toml", "campaign_throughput.toml"):
         assert len(load_spec(shipped_path(name)).expand()) > 0
 
 

@@ -20,8 +20,9 @@ from czmpc.campaigns.runner import RESULTS_FILE, ROWS_FILE, read_results, run_ca
 SPEC = {
     "name": "tiny", "seeds": 2, "base_seed": 11, "time_scale": 0.02, "scenarios": ["staircase"],
     "controllers": [{"name": "mpc", "preset": "mpc"}, {"name": "pi", "preset": "pi"}],
-    "plants": [{"kind": "model"}, {"kind": "perturbed", "gain_factors": [0.8],
-                                   "time_constant_factors": [2.0], "extra_delays_steps": [1]}],
+    "plants": [{"kind": "model"}, {"kind": "sampled", "n": 1},
+               {"kind": "perturbed", "gain_factors": [0.8],
+                "time_constant_factors": [2.0], "extra_delays_steps": [1]}],
 }
 
 
@@ -39,9 +40,9 @@ def serial_rows(tmp_path_factory: pytest.TempPathFactory) -> list[dict[str, Any]
 
 
 def test_serial_table_has_one_ok_row_per_run(serial_rows: list[dict[str, Any]]) -> None:
-    assert len(serial_rows) == 8
+    assert len(serial_rows) == 12
     assert all(r["status"] == "ok" for r in serial_rows)
-    assert len({r["iae_kw_s"] for r in serial_rows}) == 8
+    assert len({r["iae_kw_s"] for r in serial_rows}) == 12
 
 
 @pytest.mark.slow
@@ -68,10 +69,10 @@ def test_interrupted_then_resumed_equals_uninterrupted(serial_rows: list[dict[st
     with (tmp_path / ROWS_FILE).open("a", encoding="utf-8") as fh:
         fh.write('{"run_id": "mpc|model|stair')
     second = run_campaign(spec, tmp_path)
-    assert (second.n_skipped, second.n_run) == (3, 5)
+    assert (second.n_skipped, second.n_run) == (3, 9)
     assert _det(read_results(tmp_path)) == _det(serial_rows)
     lines = (tmp_path / ROWS_FILE).read_text(encoding="utf-8").splitlines()
-    assert len(lines) == 8 and len({json.loads(x)["run_id"] for x in lines}) == 8
+    assert len(lines) == 12 and len({json.loads(x)["run_id"] for x in lines}) == 12
 
 
 @pytest.mark.slow
@@ -97,10 +98,10 @@ def test_killed_process_resumes_to_the_same_table(serial_rows: list[dict[str, An
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=30)
     n_before = len(rows.read_text(encoding="utf-8").splitlines())
-    assert 2 <= n_before < 8, "the kill came too late to test a resume"
+    assert 2 <= n_before < 12, "the kill came too late to test a resume"
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=300, check=False)
     assert done.returncode == 0, done.stderr
-    assert f"{8 - n_before} run now" in done.stdout or "resumed" in done.stdout
+    assert f"{12 - n_before} run now" in done.stdout or "resumed" in done.stdout
     assert _det(read_results(out)) == _det(serial_rows)
 
 
@@ -132,9 +133,11 @@ def test_benchmark_reports_every_executor_and_consistent_rates() -> None:
     spec = spec_from_dict({**SPEC, "seeds": 1})
     timings = benchmark_executors(spec, workers=2)
     assert [(t.executor, t.workers, t.n_runs, t.n_errors) for t in timings] == [
-        ("serial", 1, 4, 0), ("processes", 2, 4, 0), ("dask", 2, 4, 0)]
+        ("serial", 1, 6, 0), ("processes", 2, 6, 0), ("dask", 2, 6, 0)]
     for t in timings:
         assert t.runs_per_s == pytest.approx(t.n_runs / t.wall_s)
     assert timings[0].efficiency == pytest.approx(1.0)
     text = format_benchmark_markdown(timings, spec=spec, command=["czmpc"], machine="m")
     assert text.count("\n| ") == 5  # header, separator, three executors
+    assert all(t.load_average_start >= 0 and t.load_average_end >= 0 for t in timings)
+    assert f"{timings[0].load_average_start:.1f} / {timings[0].load_average_end:.1f}" in text

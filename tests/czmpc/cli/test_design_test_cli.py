@@ -47,3 +47,33 @@ def test_design_test_too_short_exits_2(tmp_path: Path, capsys: pytest.CaptureFix
                  "--duration-s", "1000", "--out", str(tmp_path / "t.csv")])
     assert code == 2
     assert "czmpc: error: duration_s = 1000 s is too short" in capsys.readouterr().err
+
+
+def test_design_test_plot_draws_signal_holds_and_spectrum(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str],
+) -> None:
+    import re
+
+    from czmpc.reports.design_figure import plot_test_signal
+    from sysid.design import ExcitationSpec, design_test_signal
+
+    png = tmp_path / "test.png"
+    code = main(["design-test", "--ts-s", "2", "--range-pct", "10", "50", "--tau-s", "100",
+                 "--duration-s", "20000", "--max-step-pct", "5", "--out",
+                 str(tmp_path / "test.csv"), "--plot", str(png)])
+    assert code == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert f"wrote {png}" in capsys.readouterr().out
+    spec = ExcitationSpec(ts_s=2.0, lo_pct=10.0, hi_pct=50.0, tau_s=100.0, duration_s=20000.0,
+                          max_step_pct=5.0)
+    signal = design_test_signal(spec, np.random.default_rng(3))
+    fig = plot_test_signal(signal, tmp_path / "again.png")
+    axes = fig.get_axes()
+    assert len(axes) == 3
+    for ax in axes:
+        assert re.search(r"\[.+\]", ax.get_xlabel()) and re.search(r"\[.+\]", ax.get_ylabel())
+    bandwidth = [ln for ln in axes[2].get_lines() if ln.get_label().startswith("plant bandwidth")]
+    assert bandwidth and bandwidth[0].get_xdata()[0] == pytest.approx(0.01, rel=1e-12)
+    # the staircase levels hold 4 tau = 400 s each
+    holds = axes[1].collections[0].get_offsets()[:, 1]
+    assert np.count_nonzero(np.isclose(holds, 4.0, rtol=1e-12)) >= 9

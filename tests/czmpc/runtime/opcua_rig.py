@@ -95,3 +95,17 @@ async def secured_server(pki: Pki) -> AsyncIterator[tuple[str, Any]]:
 def run_async(coro: Any, timeout_s: float = 30.0) -> Any:
     """Run a coroutine to completion, bounded in time (a hung test fails, never hangs)."""
     return asyncio.run(asyncio.wait_for(coro, timeout_s))
+
+
+#: A second user of the served plant: an operator, who may not write the command.
+OPERATOR = "shift-lead"
+OPERATOR_PASSWORD = "0perator-Pa55-never-logged"
+OPERATOR_ENV = "CZMPC_TEST_OPERATOR_PASSWORD"
+
+
+def served_security_args(pki: Pki) -> list[str]:
+    """`czmpc plant serve` options of a secured plant: the rig's PKI, USER and OPERATOR."""
+    return ["--policy", "Basic256Sha256", "--mode", "SignAndEncrypt",
+            "--certificate", str(pki.server_cert), "--private-key", str(pki.server_key),
+            "--trusted-client", str(pki.client_cert), "--user", USER, "--password-env", PASSWORD_ENV,
+            "--operator", f"{OPERATOR}={OPERATOR_ENV}"]

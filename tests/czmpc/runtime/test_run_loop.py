@@ -223,3 +223,66 @@ def test_an_overrun_never_writes_twice_in_a_period(tmp_path: Path) -> None:
     assert ks[6] - ks[5] == int(rows[5]["skipped"]) + 1
     # at most one write per period: written rows are on distinct periods of the grid
     assert summary.n_writes == sum(int(r["written"]) for r in rows) == len(rows)
+
+
+def test_a_stale_model_is_logged_published_and_alarmed(tmp_path: Path) -> None:
+    """The served plant's gain is 0.6 of the model's: the health columns and node say so."""
+    from czmpc.health import HealthSettings
+    from sim.drift import PlantVariation, vary_model_plant
+
+    model = load_model(shipped_path("cz_heater_model.json"))
+    plant = vary_model_plant(model, PlantVariation(gain_factor=0.6), noise=True)
+    plant.reset(0)
+    port = free_port()
+    served = ServedPlant(plant, initial_triac_pct=plant.initial_triac_pct, options=ServeOptions(
+        endpoint=f"opc.tcp://127.0.0.1:{port}/czmpc/", time_scale=TIME_SCALE, watchdog_s=None))
+    (tmp_path / "recipe.csv").write_text("time_s,setpoint_kw\n0,31\n60,35\n160,32\n",
+                                         encoding="utf-8")
+    nodes = {k: v for k, v in served_nodes().items() if k != "setpoint_kw"}
+    nodes["model_health"] = "ns=2;s=Heater.ModelHealth"
+    cfg = make_config(tmp_path, port, duration_s=300.0, run={"schedule": "recipe.csv"},
+                      nodes=nodes)
+    mpc = OffsetFreeMPC(model, MPCSettings.default_for(model))
+    loop = ControlLoop(cfg, mpc, health_settings=HealthSettings(window_samples=60,
+                                                                 test_every_samples=10))
+
+    async def body() -> tuple[Any, float]:
+        summary = await loop.run()
+        return summary, float(await served._nodes["ModelHealth"].read_value())
+
+    summary, published = asyncio.run(_with_served(served, body()))
+    rows = _rows(cfg.log_path)
+    alarms = [int(r["stale_alarm"]) for r in rows if r["stale_alarm"] != ""]
+    assert alarms[0] == 0 and alarms[-1] == 1
+    assert summary.stale_alarm_at_s is not None
+    assert "stale model" in summary.stale_alarm_reason
+    last_health = float([r for r in rows if r["health"] != ""][-1]["health"])
+    assert last_health >= 1.0
+    assert published == pytest.approx(last_health, rel=1e-5)
+    # the operator's view of the same log (czmpc run-report)
+    from czmpc.reports.run_report import write_run_report
+
+    _, report = write_run_report(cfg.log_path, tmp_path / "report")
+    text = report.read_text(encoding="utf-8")
+    assert f"**stale-model alarm at {summary.stale_alarm_at_s:g} s**" in text
+
+
+def test_a_model_not_allowed_on_stays_in_predict(tmp_path: Path) -> None:
+    """czmpc run's gate for a 'not ready' model: the Mode node's ON is refused, nothing written."""
+    import dataclasses
+
+    model, plant = _model_plant()
+    port = free_port()
+    served = ServedPlant(plant, initial_triac_pct=plant.initial_triac_pct, options=ServeOptions(
+        endpoint=f"opc.tcp://127.0.0.1:{port}/czmpc/", time_scale=TIME_SCALE, watchdog_s=None))
+    cfg = make_config(tmp_path, port, duration_s=40.0, run={"setpoint_kw": 31.0})
+    settings = MPCSettings.default_for(model)
+    settings = dataclasses.replace(settings, reliability=dataclasses.replace(
+        settings.reliability, initial_mode="predict"))
+    loop = ControlLoop(cfg, OffsetFreeMPC(model, settings))
+    loop.allow_on = False
+    summary = asyncio.run(_with_served(served, loop.run()))
+    rows = _rows(cfg.log_path)
+    assert summary.n_writes == 0
+    assert {r["mode"] for r in rows} == {"PREDICT"}
+    assert all(r["written"] == "0" for r in rows)

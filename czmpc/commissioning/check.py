@@ -1,0 +1,588 @@
+"""Go/no-go before switch-on: `check_model` judges a model `ready`, `ready with conditions` or `not ready`.
+
+Each check gives ``pass``, ``condition`` (the MPC may run, with the stated caveat),
+``fail`` (it must not) or ``skipped``; the verdict is ``not ready`` if any check fails,
+``ready with conditions`` if any gives a condition or was skipped, else ``ready``. Every
+non-pass check is a reason. The checks and their limits (constants below):
+
+* **stability**: the roots of ``A`` and ``C`` inside the unit circle (the slow time
+  constant is reported).
+* **static gain**: the steady-state gain ``B(1)/A(1) f'(ds)`` over the model's input
+  range: positive everywhere (pass), on part of it only (condition: the MPC keeps to
+  the monotone part), nowhere (fail: the controller refuses such a model).
+* **input range**: the range of ``s`` the identification data visited, which the MPC
+  keeps to: narrower than `MIN_RANGE_PCT` fails, than `GOOD_RANGE_PCT` is a condition.
+* **validation fit** (with data): MATLAB ``compare``-style NRMSE fit of the ballistic
+  simulation on the held-out record (`sysid.criteria.fit_percent`): below
+  `FAIL_FIT_PCT` fails, below `GOOD_FIT_PCT` is a condition.
+* **residual whiteness** (with data): autocorrelation of the one-step residuals at lags
+  1..25 against the 99 % bound ``2.58/sqrt(N)`` (`sysid.residuals`): more than
+  `MAX_WHITE_OUTSIDE` of the lags outside is a condition (the noise model is off; the
+  offset-free estimator copes, the tuning may not be the best).
+* **input-residual correlation** (with data): cross-correlation of the one-step
+  residuals with the input *moves* ``s_k - s_{k-1}`` (a pre-whitened input: the raw
+  staircase input would colour the test) at lags 0..25, against the same 99 % bound:
+  above the bound is a condition, above `FAIL_CROSS_BOUNDS` times it fails (the gain,
+  the delay or the dynamics are wrong: the residuals are explained by past inputs).
+* **parameter uncertainty**: the relative standard deviation of the static gain at the
+  operating point from the parameter covariance (the file's ``covariance``, or
+  independent ``provenance.std_errors``), by the delta method: above
+  `FAIL_GAIN_RSD` fails, above `GOOD_GAIN_RSD` is a condition, none recorded is a
+  condition (and the Monte Carlo is skipped).
+* **closed-loop Monte Carlo**: the MPC of the model against ``n`` noise-free plants whose
+  parameters are drawn from that covariance (unstable draws are drawn again), through
+  a staircase of three steps across the input range (600 s each). A run is *good* if
+  every segment ends offset-free (``|mean error| < OFFSET_LIMIT_KW`` over its last 20
+  samples) and its IAE is at most `MAX_IAE_RATIO` times that of the model's own
+  plant. All good passes; at least `GOOD_MC_FRACTION` good is a condition; fewer fails.
+
+The verdict is stored beside the model as ``MODEL.check.json`` (`write_check`), with the
+SHA-256 of the model file, so `czmpc run` can tell a checked model from an unchecked or
+since-changed one (`read_check`). The model file itself is not touched.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from czmpc.settings import MPCSettings
+from sysid.data import Dataset
+from sysid.model import HammersteinModel
+from sysid.polynomials import roots_z
+
+Verdict = Literal["ready", "ready with conditions", "not ready"]
+ItemStatus = Literal["pass", "condition", "fail", "skipped"]
+
+#: Format tag of the check file written beside a model.
+CHECK_FORMAT = "czmpc-model-check/1"
+#: Input range [%] narrower than this: the MPC could hardly move (fail).
+MIN_RANGE_PCT = 5.0
+#: Input range [%] narrower than this: a condition (the MPC is confined to it).
+GOOD_RANGE_PCT = 15.0
+#: Validation fit [%] below this fails.
+FAIL_FIT_PCT = 70.0
+#: Validation fit [%] below this is a condition.
+GOOD_FIT_PCT = 90.0
+#: Share of autocorrelation lags outside the 99 % bound above which whiteness is a condition.
+MAX_WHITE_OUTSIDE = 0.25
+#: Largest lag of the residual correlations [samples] (as MATLAB ``resid``).
+MAX_LAG = 25
+#: Input-move cross-correlation beyond this many 99 % bounds fails.
+FAIL_CROSS_BOUNDS = 3.0
+#: Relative std of the static gain above this is a condition.
+GOOD_GAIN_RSD = 0.2
+#: Relative std of the static gain above this fails.
+FAIL_GAIN_RSD = 0.5
+#: |mean error| [kW] over the last 20 samples of a segment for offset-free (the issue's).
+OFFSET_LIMIT_KW = 0.1
+#: Samples at the end of a segment the offset is measured over.
+OFFSET_SAMPLES = 20
+#: A Monte Carlo run's IAE may be at most this times the nominal plant's.
+MAX_IAE_RATIO = 2.0
+#: Share of good Monte Carlo runs needed for a condition rather than a failure.
+GOOD_MC_FRACTION = 0.8
+#: Length of one staircase segment of the Monte Carlo [s].
+MC_SEGMENT_S = 600.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CheckItem:
+    """The outcome of one check.
+
+    Parameters
+    ----------
+    name :
+        Short name of the check.
+    status :
+        ``pass``, ``condition``, ``fail`` or ``skipped``.
+    detail :
+        What was found, with numbers and units.
+    value :
+        The check's main number (unit in ``detail``), or None.
+    """
+
+    name: str
+    status: ItemStatus
+    detail: str
+    value: float | None = None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MonteCarloSummary:
+    """What the closed-loop Monte Carlo found.
+
+    Parameters
+    ----------
+    n_runs :
+        Plants run.
+    n_good :
+        Runs offset-free with IAE at most `MAX_IAE_RATIO` times the nominal.
+    n_offset_free :
+        Runs offset-free.
+    n_redrawn :
+        Draws refused as unstable (or without delay) and drawn again.
+    iae_ratios :
+        IAE over the nominal plant's, per run [-].
+    nominal_iae_kw_s :
+        IAE on the model's own plant [kW s].
+    seed :
+        Seed of the draws.
+    """
+
+    n_runs: int
+    n_good: int
+    n_offset_free: int
+    n_redrawn: int
+    iae_ratios: tuple[float, ...]
+    nominal_iae_kw_s: float
+    seed: int
+
+
+@dataclass(frozen=True, kw_only=True)
+class ModelCheck:
+    """The verdict on a model and every reason for it (module docstring).
+
+    Parameters
+    ----------
+    verdict :
+        ``ready``, ``ready with conditions`` or ``not ready``.
+    reasons :
+        The detail of every check that did not pass, failures first.
+    items :
+        Every check, in order.
+    monte_carlo :
+        The closed-loop Monte Carlo, or None if skipped.
+    data_source :
+        The validation record's source, or None.
+    model_sha256 :
+        SHA-256 of the model file checked, or None (model in memory).
+    created_utc :
+        When the check ran (ISO 8601).
+    """
+
+    verdict: Verdict
+    reasons: tuple[str, ...]
+    items: tuple[CheckItem, ...]
+    monte_carlo: MonteCarloSummary | None = None
+    data_source: str | None = None
+    model_sha256: str | None = None
+    created_utc: str = ""
+
+    @property
+    def exit_code(self) -> int:
+        """0 for ``ready``, 1 otherwise (the CLI's exit code)."""
+        return 0 if self.verdict == "ready" else 1
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able form (the check file's content)."""
+        mc = self.monte_carlo
+        return {
+            "format": CHECK_FORMAT, "verdict": self.verdict, "reasons": list(self.reasons),
+            "items": [{"name": i.name, "status": i.status, "detail": i.detail,
+                       "value": i.value} for i in self.items],
+            "monte_carlo": None if mc is None else {
+                "n_runs": mc.n_runs, "n_good": mc.n_good, "n_offset_free": mc.n_offset_free,
+                "n_redrawn": mc.n_redrawn, "iae_ratios": list(mc.iae_ratios),
+                "nominal_iae_kw_s": mc.nominal_iae_kw_s, "seed": mc.seed},
+            "data_source": self.data_source, "model_sha256": self.model_sha256,
+            "created_utc": self.created_utc,
+        }
+
+    def format_text(self) -> str:
+        """The verdict and every check, one line each, for a terminal."""
+        lines = [f"verdict: {self.verdict}"]
+        for item in self.items:
+            lines.append(f"  [{item.status:>9}] {item.name}: {item.detail}")
+        return "\n".join(lines) + "\n"
+
+
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 of a file's bytes (hex)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def check_path(model_path: str | Path) -> Path:
+    """``MODEL.check.json`` beside ``MODEL.json``."""
+    p = Path(model_path)
+    stem = p.name[:-5] if p.name.endswith(".json") else p.name
+    return p.with_name(stem + ".check.json")
+
+
+def write_check(check: ModelCheck, model_path: str | Path) -> Path:
+    """Write ``check`` beside the model (`check_path`); return the path."""
+    from sysid.atomic import atomic_write_text
+
+    target = check_path(model_path)
+    atomic_write_text(target, json.dumps(check.to_dict(), indent=2) + "\n")
+    return target
+
+
+def read_check(model_path: str | Path) -> tuple[Verdict | None, str]:
+    """The stored verdict of a model file, and a sentence about it.
+
+    Returns
+    -------
+    verdict, note
+        ``(None, why)`` when the model was never checked, or changed since (the SHA-256
+        differs), or the check file is unreadable; else the verdict and its reasons.
+    """
+    target = check_path(model_path)
+    if not target.is_file():
+        return None, f"{Path(model_path).name} was never checked (no {target.name})"
+    try:
+        doc = json.loads(target.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        return None, f"{target.name} cannot be read ({exc}); treating the model as unchecked"
+    if not isinstance(doc, dict) or doc.get("format") != CHECK_FORMAT:
+        return None, f"{target.name}: expected format {CHECK_FORMAT!r}; treating as unchecked"
+    if doc.get("model_sha256") != file_sha256(model_path):
+        return None, (f"{Path(model_path).name} changed since {target.name} was written; "
+                      "check it again")
+    verdict = doc.get("verdict")
+    if verdict not in ("ready", "ready with conditions", "not ready"):
+        return None, f"{target.name}: unknown verdict {verdict!r}; treating as unchecked"
+    reasons = doc.get("reasons") or []
+    note = f"check-model verdict: {verdict}" + (
+        "" if not reasons else " (" + "; ".join(str(r) for r in reasons) + ")")
+    return verdict, note
+
+
+# --- the checks ------------------------------------------------------------------------
+
+def _stability(model: HammersteinModel) -> CheckItem:
+    ra = np.abs(roots_z(model.a))
+    rc = np.abs(roots_z(model.c))
+    top_a = float(ra.max()) if ra.size else 0.0
+    top_c = float(rc.max()) if rc.size else 0.0
+    if top_a >= 1.0 or top_c >= 1.0:
+        return CheckItem(name="stability", status="fail", value=max(top_a, top_c),
+                         detail=f"largest root |z| of A {top_a:.6f}, of C {top_c:.6f}: not "
+                                "inside the unit circle")
+    tau = -model.ts_s / math.log(top_a) if 0.0 < top_a < 1.0 else 0.0
+    return CheckItem(name="stability", status="pass", value=top_a,
+                     detail=f"A's largest root |z| = {top_a:.6f} (slow time constant "
+                            f"{tau:.0f} s), C's {top_c:.4f}")
+
+
+def _static_gain(model: HammersteinModel) -> CheckItem:
+    lo, hi = model.input_range_pct
+    s = np.linspace(lo, hi, 201)
+    gain = model.linear_static_gain * model.input_nonlinearity_slope(
+        s - model.operating_point.triac_pct)
+    positive = gain > 0.0
+    if not np.any(positive):
+        return CheckItem(name="static gain", status="fail", value=float(np.max(gain)),
+                         detail=f"steady-state gain not positive anywhere in {lo:g}..{hi:g} % "
+                                f"(largest {np.max(gain):.3g} kW/%); the MPC needs a positive "
+                                "gain")
+    if not np.all(positive):
+        ok = s[positive]
+        return CheckItem(name="static gain", status="condition", value=float(np.min(gain)),
+                         detail=f"steady-state gain positive only on {ok.min():.1f}..{ok.max():.1f} "
+                                f"% of {lo:g}..{hi:g} %: the MPC keeps to that part")
+    return CheckItem(name="static gain", status="pass", value=float(np.min(gain)),
+                     detail=f"steady-state gain {gain.max():.3g}..{gain.min():.3g} kW/% over "
+                            f"{lo:g}..{hi:g} %, positive and f monotone")
+
+
+def _input_range(model: HammersteinModel) -> CheckItem:
+    lo, hi = model.input_range_pct
+    width = hi - lo
+    status: ItemStatus = ("fail" if width < MIN_RANGE_PCT
+                          else "condition" if width < GOOD_RANGE_PCT else "pass")
+    words = {"fail": "too narrow for the MPC to move (the model is valid only there)",
+             "condition": "narrow: the MPC is confined to it",
+             "pass": "the MPC keeps to it"}[status]
+    return CheckItem(name="input range", status=status, value=width,
+                     detail=f"identification data visited s = {lo:g}..{hi:g} % ({width:g} % "
+                            f"wide): {words}")
+
+
+def _data_checks(model: HammersteinModel, data: Dataset | None) -> list[CheckItem]:
+    from sysid.criteria import fit_percent
+    from sysid.residuals import autocorrelation, cross_correlation
+    from sysid.simulate import predict_one_step, simulate
+
+    if data is None:
+        return [CheckItem(name="validation fit", status="skipped",
+                          detail="no held-out data given (--data): fit, whiteness and input "
+                                 "correlation not checked")]
+    model.check_ts(data.ts_s, what=f"validation data {data.source}")
+    measured = np.asarray(data.power_kw, dtype=float)
+    good = np.isfinite(measured)
+    if good.sum() < 2 * MAX_LAG + 2:
+        return [CheckItem(name="validation fit", status="skipped",
+                          detail=f"validation data {data.source} has only {int(good.sum())} "
+                                 "usable samples")]
+    sim = np.asarray(simulate(model, data), dtype=float)
+    fit = fit_percent(measured[good], sim[good])
+    status: ItemStatus = ("fail" if fit < FAIL_FIT_PCT
+                          else "condition" if fit < GOOD_FIT_PCT else "pass")
+    items = [CheckItem(name="validation fit", status=status, value=fit,
+                       detail=f"simulation fit {fit:.1f} % on {data.source} ({data.n_samples} "
+                              f"samples; pass >= {GOOD_FIT_PCT:g} %, fail < {FAIL_FIT_PCT:g} %)")]
+    e = measured - np.asarray(predict_one_step(model, data), dtype=float)
+    # missing samples (and what a gap leaves in the predictor) count as zero residuals
+    e = np.where(good & np.isfinite(e), e, 0.0)
+    du = np.diff(np.asarray(data.triac_pct, dtype=float), prepend=float(data.triac_pct[0]))
+    ac = autocorrelation(e, max_lag=MAX_LAG)
+    white: ItemStatus = "condition" if ac.fraction_outside > MAX_WHITE_OUTSIDE else "pass"
+    items.append(CheckItem(
+        name="residual whiteness", status=white, value=ac.fraction_outside,
+        detail=f"{ac.n_outside} of {ac.n_tested} autocorrelation lags outside the 99 % bound "
+               f"{ac.bound:.3g} (condition above {MAX_WHITE_OUTSIDE:.0%}: the noise model is off)"))
+    if float(du @ du) == 0.0:
+        items.append(CheckItem(name="input-residual correlation", status="skipped",
+                               detail="the validation input never moves"))
+        return items
+    cc = cross_correlation(e, du, max_lag=MAX_LAG)
+    past = cc.lags >= 0
+    worst = float(np.max(np.abs(cc.values[past])))
+    ratio = worst / cc.bound
+    lag = int(cc.lags[past][int(np.argmax(np.abs(cc.values[past])))])
+    cross: ItemStatus = ("fail" if ratio > FAIL_CROSS_BOUNDS
+                         else "condition" if ratio > 1.0 else "pass")
+    items.append(CheckItem(
+        name="input-residual correlation", status=cross, value=ratio,
+        detail=f"largest |r(e, ds moves)| at lags 0..{MAX_LAG} is {ratio:.2f} x the 99 % bound "
+               f"(at lag {lag}; fail above {FAIL_CROSS_BOUNDS:g} x: gain, delay or dynamics "
+               "wrong)"))
+    return items
+
+
+def _covariance(model: HammersteinModel) -> tuple[tuple[str, ...], np.ndarray, np.ndarray] | None:
+    """Parameter names, values and covariance, from the file's covariance or std errors."""
+    names = model.provenance.parameter_names
+    values = model.provenance.extra.get("parameters")
+    if names is None or not isinstance(values, (list, tuple)) or len(values) != len(names):
+        return None
+    theta = np.asarray(values, dtype=float)
+    cov = model.covariance_matrix
+    if cov is None:
+        std = model.provenance.extra.get("std_errors")
+        if not isinstance(std, (list, tuple)) or len(std) != len(names):
+            return None
+        cov = np.diag(np.asarray(std, dtype=float) ** 2)
+    if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(cov))):
+        return None
+    return names, theta, np.asarray(cov, dtype=float)
+
+
+def model_with_parameters(model: HammersteinModel, names: tuple[str, ...],
+                          theta: np.ndarray) -> HammersteinModel | None:
+    """``model`` with the named parameters set (``a``/``f``, ``b``, ``c``, ``k``, ``d``).
+
+    ``a_i`` (``f_i`` for OE, with ``C = A``) set ``A[i]``; ``b_j`` set ``B[j]``; ``c_i``
+    set ``C[i]``; ``k_i`` set ``C[i] = A[i] + k_i`` (the innovations-form gain of the
+    ARMAX fits); ``d_i`` the input polynomial's ``i``-th coefficient. Returns None for a
+    name of another kind, or a result the model type refuses (unstable).
+    """
+    a = np.array(model.a, dtype=float)
+    b = np.array(model.b, dtype=float)
+    c = np.array(model.c, dtype=float)
+    poly = np.array(model.input_poly, dtype=float)
+    ks: dict[int, float] = {}
+    for name, value in zip(names, theta, strict=True):
+        kind, index_text = name[:1], name[1:]
+        if not index_text.isdigit():
+            return None
+        i = int(index_text)
+        if kind in "af" and 1 <= i < len(a):
+            a[i] = value
+        elif kind == "b" and 0 <= i < len(b):
+            b[i] = value
+        elif kind == "c" and 1 <= i < len(c):
+            c[i] = value
+        elif kind == "k" and 1 <= i < len(c):
+            ks[i] = float(value)
+        elif kind == "d" and 1 <= i <= len(poly):
+            poly[i - 1] = value
+        else:
+            return None
+    if model.linear_block == "oe":
+        c = a.copy()
+    for i, k in ks.items():
+        c[i] = (a[i] if i < len(a) else 0.0) + k
+    try:
+        return model.with_updates(a=a, b=b, c=c, input_poly=poly, covariance=None)
+    except ValueError:
+        return None
+
+
+def _gain_uncertainty(model: HammersteinModel,
+                      cov: tuple[tuple[str, ...], np.ndarray, np.ndarray] | None) -> CheckItem:
+    if cov is None:
+        return CheckItem(name="parameter uncertainty", status="condition",
+                         detail="no parameter covariance or standard errors recorded: the "
+                                "uncertainty is unknown and the Monte Carlo is skipped")
+    names, theta, sigma = cov
+    slope0 = float(model.input_nonlinearity_slope(0.0))
+    base = model.linear_static_gain * slope0
+    grad = np.zeros(len(theta))
+    for i in range(len(theta)):
+        h = 1e-6 * max(1.0, abs(theta[i]))
+        up = theta.copy()
+        up[i] += h
+        m = model_with_parameters(model, names, up)
+        if m is None:
+            return CheckItem(name="parameter uncertainty", status="condition",
+                             detail="the parameters cannot be mapped to the model's "
+                                    "polynomials; uncertainty unknown")
+        grad[i] = (m.linear_static_gain * float(m.input_nonlinearity_slope(0.0)) - base) / h
+    var = float(grad @ sigma @ grad)
+    rsd = math.sqrt(max(var, 0.0)) / abs(base) if base != 0.0 else math.inf
+    status: ItemStatus = ("fail" if rsd > FAIL_GAIN_RSD
+                          else "condition" if rsd > GOOD_GAIN_RSD else "pass")
+    return CheckItem(name="parameter uncertainty", status=status, value=rsd,
+                     detail=f"static gain at the operating point {base:.3g} kW/% +- {rsd:.1%} "
+                            f"(1 std; condition above {GOOD_GAIN_RSD:.0%}, fail above "
+                            f"{FAIL_GAIN_RSD:.0%})")
+
+
+def _mc_scenario(model: HammersteinModel) -> Any:
+    from sim.scenario import Scenario, SetpointStep
+
+    lo, hi = model.input_range_pct
+    width = hi - lo
+
+    def power(frac: float) -> float:
+        return float(model.steady_state_power_kw(lo + frac * width))
+
+    levels = [power(0.5), power(0.3), power(0.7), power(0.5)]
+    return Scenario(name="check-model staircase", duration_s=MC_SEGMENT_S * len(levels),
+                    ts_s=model.ts_s, initial_setpoint_kw=levels[0], plant_noise=False,
+                    setpoints=tuple(SetpointStep(at_s=MC_SEGMENT_S * i, power_kw=p)
+                                    for i, p in enumerate(levels) if i > 0))
+
+
+def _closed_loop(model: HammersteinModel, plant_model: HammersteinModel, scenario: Any,
+                 settings: MPCSettings | None, seed: int) -> tuple[bool, float]:
+    """(offset-free, IAE [kW s]) of the MPC of ``model`` on the noise-free ``plant_model``."""
+    from czmpc.campaigns.simulation import controller_settings
+    from czmpc.controller import OffsetFreeMPC
+    from sim.loop import run_closed_loop
+    from sim.model_plant import ModelPlant, steady_state_triac_pct
+
+    s0 = steady_state_triac_pct(plant_model, scenario.initial_setpoint_kw)
+    plant = ModelPlant(plant_model, noise=False, initial_triac_pct=s0)
+    mpc = OffsetFreeMPC(model, controller_settings(model, scenario, initial_triac_pct=s0,
+                                                   settings=settings))
+    run = run_closed_loop(plant, mpc, scenario, rng=seed)
+    err = np.asarray(run.power_true_kw, dtype=float) - np.asarray(run.setpoint_kw, dtype=float)
+    n_seg = int(round(MC_SEGMENT_S / model.ts_s))
+    offset_free = all(abs(float(np.mean(err[end - OFFSET_SAMPLES:end]))) < OFFSET_LIMIT_KW
+                      for end in range(n_seg, len(err) + 1, n_seg))
+    return offset_free, float(np.sum(np.abs(err)) * model.ts_s)
+
+
+def _monte_carlo(model: HammersteinModel,
+                 cov: tuple[tuple[str, ...], np.ndarray, np.ndarray] | None,
+                 settings: MPCSettings | None, n_runs: int,
+                 seed: int) -> tuple[CheckItem, MonteCarloSummary | None]:
+    from sim.errors import SimError
+
+    if cov is None or n_runs < 1:
+        why = "no parameter covariance" if cov is None else "no runs asked for"
+        return CheckItem(name="closed-loop Monte Carlo", status="skipped",
+                         detail=f"skipped ({why})"), None
+    names, theta, sigma = cov
+    scenario = _mc_scenario(model)
+    _, nominal_iae = _closed_loop(model, model, scenario, settings, seed)
+    rng = np.random.default_rng(seed)
+    ratios: list[float] = []
+    n_good = n_free = n_redrawn = 0
+    while len(ratios) < n_runs and n_redrawn <= 3 * n_runs:
+        draw = rng.multivariate_normal(theta, sigma, method="eigh")
+        plant_model = model_with_parameters(model, names, draw)
+        if plant_model is None or plant_model.delay_steps < 1:
+            n_redrawn += 1
+            continue
+        try:
+            free, iae = _closed_loop(model, plant_model, scenario, settings, seed)
+        except SimError:
+            n_redrawn += 1   # a plant that cannot hold the start setpoint
+            continue
+        ratio = iae / nominal_iae if nominal_iae > 0 else math.inf
+        ratios.append(ratio)
+        n_free += int(free)
+        n_good += int(free and ratio <= MAX_IAE_RATIO)
+    summary = MonteCarloSummary(n_runs=len(ratios), n_good=n_good, n_offset_free=n_free,
+                                n_redrawn=n_redrawn, iae_ratios=tuple(ratios),
+                                nominal_iae_kw_s=nominal_iae, seed=seed)
+    if not ratios:
+        return CheckItem(name="closed-loop Monte Carlo", status="fail",
+                         detail=f"no usable plant in {n_redrawn} draws from the covariance"), summary
+    share = n_good / len(ratios)
+    status: ItemStatus = ("pass" if n_good == len(ratios)
+                          else "condition" if share >= GOOD_MC_FRACTION else "fail")
+    detail = (f"{n_good} of {len(ratios)} plants drawn from the covariance tracked offset-free "
+              f"with IAE <= {MAX_IAE_RATIO:g} x nominal ({n_free} offset-free; IAE ratio median "
+              f"{np.median(ratios):.2f}, max {max(ratios):.2f}; {n_redrawn} draws redrawn; "
+              f"seed {seed})")
+    return CheckItem(name="closed-loop Monte Carlo", status=status, value=share,
+                     detail=detail), summary
+
+
+def check_model(model: HammersteinModel, data: Dataset | None = None,
+                settings: MPCSettings | None = None, *, mc_runs: int = 20, seed: int = 0,
+                model_sha256: str | None = None) -> ModelCheck:
+    """Judge whether the MPC may be switched on with ``model`` (module docstring).
+
+    Parameters
+    ----------
+    model :
+        The model to check.
+    data :
+        Held-out validation record (same sampling time), or None.
+    settings :
+        The controller settings the MPC will run with; None: `MPCSettings.default_for`.
+    mc_runs :
+        Plants of the closed-loop Monte Carlo (0: skip it).
+    seed :
+        Seed of the Monte Carlo draws (fixed: the same check gives the same verdict).
+    model_sha256 :
+        SHA-256 of the model file, recorded with the verdict.
+
+    Returns
+    -------
+    ModelCheck
+
+    Raises
+    ------
+    SamplingTimeError
+        The validation data's sampling time differs from the model's.
+    """
+    cov = _covariance(model)
+    items = [_stability(model), _static_gain(model), _input_range(model),
+             *_data_checks(model, data), _gain_uncertainty(model, cov)]
+    hopeless = any(i.status == "fail" and i.name in ("stability", "static gain", "input range")
+                   for i in items)
+    if hopeless:
+        mc_item = CheckItem(name="closed-loop Monte Carlo", status="skipped",
+                            detail="skipped (the model already fails a structural check)")
+        mc = None
+    else:
+        mc_item, mc = _monte_carlo(model, cov, settings, mc_runs, seed)
+    items.append(mc_item)
+    order = {"fail": 0, "condition": 1, "skipped": 2, "pass": 3}
+    reasons = tuple(f"{i.name}: {i.detail}" for i in sorted(items, key=lambda i: order[i.status])
+                    if i.status != "pass")
+    verdict: Verdict = ("not ready" if any(i.status == "fail" for i in items)
+                        else "ready with conditions" if reasons else "ready")
+    return ModelCheck(verdict=verdict, reasons=reasons, items=tuple(items), monte_carlo=mc,
+                      data_source=None if data is None else data.source,
+                      model_sha256=model_sha256,
+                      created_utc=dt.datetime.now(dt.UTC).replace(microsecond=0).isoformat())
+
+
+__all__ = ["CHECK_FORMAT", "CheckItem", "ItemStatus", "ModelCheck",
+           "MonteCarloSummary", "Verdict", "check_model", "check_path", "file_sha256",
+           "model_with_parameters", "read_check", "write_check"]

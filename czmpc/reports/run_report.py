@@ -1,0 +1,309 @@
+"""A run log of `czmpc run` drawn for an operator: power, input, quality, timing, model health.
+
+`read_run_log` reads the CSV the runtime writes (`czmpc.runtime.loop.LOG_COLUMNS`; the
+columns ``predicted_kw``, ``health`` and ``stale_alarm`` of newer logs are optional, so
+older logs draw too), `plot_run` draws one figure of five panels on the plant-time
+axis, and `write_run_report` writes it with a short Markdown summary:
+
+1. power [kW]: measured (good samples), the model's one-step prediction, setpoint;
+2. TRIAC input [%]: the command and the input the plant reports applied, with the
+   samples written to the plant marked;
+3. quality and mode: samples that were not good (bad, uncertain, stale, disconnected)
+   and the controller mode (OFF / PREDICT / ON) over time;
+4. timing [ms]: lateness of each step's start against its deadline and the step's
+   latency, with overruns (skipped periods) marked;
+5. model health [-]: the stale-model test's figure (``czmpc.health``; the alarm limit is
+   1) and the moment the alarm was raised.
+
+Rows written by the safe action after a stop (no time, status ``SAFE_RAMP``) are
+counted in the summary and left out of the time panels.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from czmpc.errors import CzmpcError
+from czmpc.reports.identification_figures import (
+    FigureError,
+    _legend_above,
+    _save,
+)
+from sysid._typing import FloatArray
+
+#: Columns a run log must have to be drawn.
+REQUIRED_COLUMNS = ("k", "time_s", "power_kw", "quality", "setpoint_kw", "triac_pct",
+                    "applied_triac_pct", "mode", "written", "lateness_s", "step_latency_s",
+                    "skipped")
+#: Size of the five-panel figure [inch].
+RUN_FIGSIZE_IN = (10.0, 11.0)
+#: Modes in the order they are drawn on the mode axis.
+MODES = ("OFF", "PREDICT", "ON")
+
+
+class RunLogError(CzmpcError, ValueError):
+    """A run log that cannot be read (the message names the file, line and column)."""
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class RunRecord:
+    """A run log as arrays (one entry per loop step; safe-action rows counted apart).
+
+    Parameters
+    ----------
+    source :
+        The file read.
+    time_s :
+        Plant time of each step [s].
+    power_kw, setpoint_kw, triac_pct, applied_triac_pct, predicted_kw :
+        Measured power, setpoint, command, applied input [%], one-step prediction
+        (NaN where the log has none) [kW or %].
+    good :
+        True where the sample's quality was good.
+    mode :
+        Controller mode per step ("OFF", "PREDICT", "ON").
+    written :
+        True where the command was written to the plant.
+    lateness_s, latency_s :
+        Step start after its deadline, and the step's duration [s wall].
+    skipped :
+        Periods skipped after each step (overruns).
+    health :
+        The model-health figure [-] (NaN where the log has none).
+    stale_alarm :
+        True from the stale alarm on.
+    n_safe_rows :
+        Rows of the safe action after the stop.
+    """
+
+    source: str
+    time_s: FloatArray = field(repr=False)
+    power_kw: FloatArray = field(repr=False)
+    setpoint_kw: FloatArray = field(repr=False)
+    triac_pct: FloatArray = field(repr=False)
+    applied_triac_pct: FloatArray = field(repr=False)
+    predicted_kw: FloatArray = field(repr=False)
+    good: np.ndarray = field(repr=False)
+    mode: tuple[str, ...] = field(repr=False)
+    written: np.ndarray = field(repr=False)
+    lateness_s: FloatArray = field(repr=False)
+    latency_s: FloatArray = field(repr=False)
+    skipped: np.ndarray = field(repr=False)
+    health: FloatArray = field(repr=False)
+    stale_alarm: np.ndarray = field(repr=False)
+    n_safe_rows: int = 0
+
+    @property
+    def n_steps(self) -> int:
+        """Loop steps in the log."""
+        return int(self.time_s.size)
+
+    @property
+    def alarm_time_s(self) -> float | None:
+        """Plant time the stale alarm was first raised [s], or None."""
+        hits = np.flatnonzero(self.stale_alarm)
+        return float(self.time_s[hits[0]]) if hits.size else None
+
+
+def _number(text: str, *, path: str, line: int, column: str) -> float:
+    if text == "" or text.lower() == "nan":
+        return math.nan
+    try:
+        return float(text)
+    except ValueError:
+        raise RunLogError(f"{path}, line {line}, column '{column}': expected a number; "
+                          f"got {text!r}") from None
+
+
+def read_run_log(path: str | os.PathLike[str]) -> RunRecord:
+    """Read a `czmpc run` log.
+
+    Parameters
+    ----------
+    path :
+        The CSV file.
+
+    Returns
+    -------
+    RunRecord
+
+    Raises
+    ------
+    RunLogError
+        A missing column, a field that is not a number, or no step at all.
+    OSError
+        The file cannot be read.
+    """
+    name = os.fspath(path)
+    with open(path, newline="", encoding="utf-8") as fh:
+        reader = csv.DictReader(fh)
+        header = reader.fieldnames or []
+        missing = [c for c in REQUIRED_COLUMNS if c not in header]
+        if missing:
+            raise RunLogError(f"{name}, line 1: expected the run-log columns of czmpc run; "
+                              f"missing {missing}")
+        cols: dict[str, list[float]] = {c: [] for c in (
+            "time_s", "power_kw", "setpoint_kw", "triac_pct", "applied_triac_pct",
+            "predicted_kw", "lateness_s", "step_latency_s", "skipped", "health", "written",
+            "stale_alarm")}
+        quality: list[bool] = []
+        modes: list[str] = []
+        n_safe = 0
+        for line, row in enumerate(reader, start=2):
+            if row.get("status") == "SAFE_RAMP" or row["time_s"] == "":
+                n_safe += 1
+                continue
+            for c in cols:
+                cols[c].append(_number(row.get(c) or "", path=name, line=line, column=c))
+            quality.append(row["quality"] == "good")
+            modes.append(row["mode"])
+    if not quality:
+        raise RunLogError(f"{name}: expected at least one step row; got none")
+
+    def arr(c: str) -> FloatArray:
+        return np.asarray(cols[c], dtype=float)
+
+    return RunRecord(
+        source=name, time_s=arr("time_s"), power_kw=arr("power_kw"),
+        setpoint_kw=arr("setpoint_kw"), triac_pct=arr("triac_pct"),
+        applied_triac_pct=arr("applied_triac_pct"), predicted_kw=arr("predicted_kw"),
+        good=np.asarray(quality, dtype=bool), mode=tuple(modes),
+        written=np.nan_to_num(arr("written")) > 0, lateness_s=arr("lateness_s"),
+        latency_s=arr("step_latency_s"), skipped=np.nan_to_num(arr("skipped")).astype(int),
+        health=arr("health"), stale_alarm=np.nan_to_num(arr("stale_alarm")) > 0,
+        n_safe_rows=n_safe)
+
+
+def plot_run(record: RunRecord, path: str | os.PathLike[str]) -> Figure:
+    """Draw the five panels (module docstring) and write them to ``path`` (PNG).
+
+    Raises
+    ------
+    FigureError
+        A record without steps.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    if record.n_steps == 0:
+        raise FigureError("plot_run: expected a run with at least one step; got none")
+    t = record.time_s
+    fig = Figure(figsize=RUN_FIGSIZE_IN, dpi=100, layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(5, 1, sharex=True)
+    for ax in axes:
+        ax.grid(True, linewidth=0.5, alpha=0.6)
+    ax_p, ax_u, ax_q, ax_t, ax_h = axes
+    measured = np.where(record.good, record.power_kw, np.nan)
+    ax_p.plot(t, measured, color="black", linewidth=0.9, label="measured (good samples)")
+    if np.any(np.isfinite(record.predicted_kw)):
+        ax_p.plot(t, record.predicted_kw, color="tab:blue", linewidth=0.8, alpha=0.8,
+                  label="model one-step prediction")
+    ax_p.plot(t, record.setpoint_kw, color="tab:red", linestyle="--", linewidth=1.0,
+              drawstyle="steps-post", label="setpoint")
+    ax_p.set_ylabel("power [kW]")
+    ax_p.ticklabel_format(axis="y", useOffset=False)
+    _legend_above(ax_p)
+    ax_u.plot(t, record.triac_pct, color="tab:green", linewidth=0.9, drawstyle="steps-post",
+              label="command")
+    if np.any(np.isfinite(record.applied_triac_pct)):
+        ax_u.plot(t, record.applied_triac_pct, color="tab:gray", linewidth=0.8,
+                  drawstyle="steps-post", label="applied (plant)")
+    if np.any(record.written):
+        ax_u.plot(t[record.written], record.triac_pct[record.written], linestyle="none",
+                  marker="|", markersize=3, color="tab:green", alpha=0.4, label="written")
+    ax_u.set_ylabel("TRIAC input [%]")
+    _legend_above(ax_u)
+    mode_level = np.array([MODES.index(m) if m in MODES else np.nan for m in record.mode])
+    ax_q.plot(t, mode_level, color="tab:purple", drawstyle="steps-post", label="mode")
+    bad = ~record.good
+    if np.any(bad):
+        ax_q.plot(t[bad], np.full(int(bad.sum()), -0.5), linestyle="none", marker="|",
+                  color="tab:red", label="sample not good")
+    ax_q.set_yticks([-0.5, 0, 1, 2], ["not good", *MODES])
+    ax_q.set_ylim(-1.0, 2.5)
+    ax_q.set_ylabel("quality, mode [-]")
+    _legend_above(ax_q)
+    ax_t.plot(t, 1e3 * record.lateness_s, color="tab:orange", linewidth=0.8, label="lateness")
+    ax_t.plot(t, 1e3 * record.latency_s, color="tab:brown", linewidth=0.8,
+              label="step latency")
+    over = record.skipped > 0
+    if np.any(over):
+        ax_t.plot(t[over], 1e3 * record.latency_s[over], linestyle="none", marker="x",
+                  color="tab:red", label="overrun (periods skipped)")
+    ax_t.set_ylabel("time [ms wall]")
+    _legend_above(ax_t)
+    if np.any(np.isfinite(record.health)):
+        ax_h.plot(t, record.health, color="tab:blue", linewidth=0.9, label="model health F/F_limit")
+        ax_h.axhline(1.0, color="tab:red", linestyle=":", linewidth=1.0, label="alarm limit")
+    else:
+        ax_h.text(0.5, 0.5, "no model-health columns in this log", transform=ax_h.transAxes,
+                  ha="center", va="center")
+    alarm = record.alarm_time_s
+    if alarm is not None:
+        for ax in axes:
+            ax.axvline(alarm, color="tab:red", linewidth=1.0, alpha=0.7)
+        ax_h.plot([alarm], [1.0], marker="v", color="tab:red", linestyle="none",
+                  label=f"stale-model alarm at {alarm:g} s")
+    ax_h.set_ylabel("model health [-]")
+    ax_h.set_xlabel("plant time [s]")
+    _legend_above(ax_h)
+    return _save(fig, path)
+
+
+def summary_markdown(record: RunRecord, figure_name: str) -> str:
+    """A short Markdown summary of the run, with the figure."""
+    good = record.good
+    err = (record.power_kw - record.setpoint_kw)[good]
+    lat = record.latency_s[np.isfinite(record.latency_s)]
+    late = record.lateness_s[np.isfinite(record.lateness_s)]
+    alarm = record.alarm_time_s
+    modes = {m: record.mode.count(m) for m in MODES if m in record.mode}
+    lines = [
+        f"# Run report: {Path(record.source).name}",
+        "",
+        f"- steps: {record.n_steps} over {record.time_s[-1] - record.time_s[0]:g} s of plant "
+        f"time; modes: " + ", ".join(f"{m} {n}" for m, n in modes.items()),
+        f"- samples not good: {int((~good).sum())}; commands written: {int(record.written.sum())}",
+        f"- overruns: {int((record.skipped > 0).sum())} ({int(record.skipped.sum())} periods "
+        "skipped)",
+    ]
+    if late.size:
+        lines.append(f"- lateness median {1e3 * np.median(late):.1f} ms, max "
+                     f"{1e3 * late.max():.1f} ms; step latency median "
+                     f"{1e3 * np.median(lat):.1f} ms, max {1e3 * lat.max():.1f} ms")
+    if err.size:
+        lines.append(f"- measured minus setpoint (good samples): mean {np.nanmean(err):+.3f} kW, "
+                     f"mean absolute {np.nanmean(np.abs(err)):.3f} kW")
+    if np.any(np.isfinite(record.health)):
+        lines.append(f"- model health: largest {np.nanmax(record.health):.2f} (alarm at 1); "
+                     + ("no stale-model alarm" if alarm is None
+                        else f"**stale-model alarm at {alarm:g} s**"))
+    if record.n_safe_rows:
+        lines.append(f"- safe action after the stop: {record.n_safe_rows} rows")
+    lines += ["", f"![run]({figure_name})", ""]
+    return "\n".join(lines)
+
+
+def write_run_report(log_path: str | os.PathLike[str], out_dir: str | os.PathLike[str]) -> list[Path]:
+    """Read a run log; write ``run.png`` and ``report.md`` into ``out_dir``; return the paths."""
+    from sysid.atomic import atomic_write_text
+
+    record = read_run_log(log_path)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    figure = out / "run.png"
+    plot_run(record, figure)
+    report = out / "report.md"
+    atomic_write_text(report, summary_markdown(record, figure.name))
+    return [figure, report]
+
+
+__all__ = ["REQUIRED_COLUMNS", "RunLogError", "RunRecord", "plot_run", "read_run_log",
+           "summary_markdown", "write_run_report"]

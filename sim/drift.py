@@ -1,0 +1,398 @@
+"""Plants that differ from the shipped model, and drift while they run: gain, time constant, delay.
+
+A `PlantVariation` says how the plant differs from its nominal self from the start
+(``gain_factor``, ``tau_s``, ``extra_delay_samples``) and how it drifts later
+(`DriftEvent`: at a plant time the gain factor or the time constant moves to a new
+value, a step change such as a new crucible or an aged element). `vary_model_plant` and
+`vary_heater` build a `DriftingPlant` (the `sim.protocols.Plant` protocol) from a model
+plant or the virtual heater; `czmpc plant serve` and the stale-model tests use them.
+
+What each quantity means on each plant:
+
+* **gain factor** ``g``.
+  Model plant: ``f(ds) -> g f(ds)`` (`sim.perturbed.perturb_model`): every gain, the
+  instantaneous and the static one, is multiplied by ``g`` exactly.
+  Virtual heater: the rated power ``P_rated = V^2 / R_ref`` is multiplied by ``g`` (an
+  element whose cold resistance ``R_ref`` has changed by ``1/g``, as an aged element's
+  does). The power the TRIAC passes at the element's present temperature scales by
+  ``g``; because a different power moves the element's temperature, the static gain of
+  a small step scales by ``g`` only to within a few per cent (stated in the tests).
+* **time constant** ``tau_s`` [s] (None: the plant's own).
+  Model plant: the slow pole of ``A(q)`` is moved to ``exp(-Ts / tau_s)``, holding the
+  instantaneous jump and the static gain (`sim.perturbed.scale_slow_time_constant`).
+  Virtual heater: the heat capacity ``C`` is scaled so that the linearized sag time
+  constant ``C / (4 eps A sigma T^3 + P alpha / rho)`` at the heater's initial input
+  (`heater_time_constant_s`) equals ``tau_s``.
+* **extra delay** ``n`` samples: the input is held in a first-in first-out line of
+  ``n`` samples before it reaches the plant (the line starts full of the initial
+  input), on either plant; the response is that of the undelayed plant shifted by
+  exactly ``n`` samples.
+
+A drift changes the plant's parameters between samples, keeping its state (the model
+plant's histories, the heater's temperature): the first sample whose start time
+``k * ts_s`` is at or after ``at_s`` runs with the new value.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Literal
+
+import numpy as np
+
+from sim.errors import PlantError
+from sim.heater import (
+    STEFAN_BOLTZMANN_KW_PER_M2_K4,
+    HeaterParams,
+    VirtualHeater,
+    steady_state,
+)
+from sim.model_plant import ModelPlant
+from sim.perturbed import perturb_model, slow_pole
+from sim.protocols import NOMINAL, Exogenous, Plant
+from sysid.model import HammersteinModel
+
+DriftQuantity = Literal["gain", "tau"]
+
+_DRIFT_RE = re.compile(r"^\s*(gain|tau)\s*=\s*([^@\s]+)\s*@\s*([^@\s]+)\s*$")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DriftEvent:
+    """A step change of the plant at a plant time.
+
+    Parameters
+    ----------
+    quantity :
+        ``"gain"`` (``value`` is the new gain factor relative to the nominal plant
+        [-]) or ``"tau"`` (``value`` is the new time constant [s]).
+    value :
+        The new value (> 0, finite).
+    at_s :
+        Plant time [s] from which the new value holds (>= 0).
+
+    Raises
+    ------
+    PlantError
+        An unknown quantity, a value that is not finite and > 0, a negative time.
+    """
+
+    quantity: DriftQuantity
+    value: float
+    at_s: float
+
+    def __post_init__(self) -> None:
+        if self.quantity not in ("gain", "tau"):
+            raise PlantError(f"DriftEvent.quantity: expected 'gain' or 'tau'; got {self.quantity!r}")
+        if not (math.isfinite(self.value) and self.value > 0.0):
+            raise PlantError(f"DriftEvent.value: expected a finite number > 0; got {self.value!r}")
+        if not (math.isfinite(self.at_s) and self.at_s >= 0.0):
+            raise PlantError(f"DriftEvent.at_s: expected a plant time >= 0 [s]; got {self.at_s!r}")
+
+
+def parse_drift(text: str) -> DriftEvent:
+    """Read a drift written as ``QUANTITY=VALUE@TIME_S``.
+
+    Parameters
+    ----------
+    text :
+        ``gain=0.75@3600`` (the gain moves to x0.75 of nominal at 3600 s of plant
+        time) or ``tau=1200@3600`` (the time constant moves to 1200 s at 3600 s).
+
+    Returns
+    -------
+    DriftEvent
+
+    Raises
+    ------
+    PlantError
+        Text of another shape, or numbers out of range.
+
+    Examples
+    --------
+    >>> parse_drift("gain=0.75@3600")
+    DriftEvent(quantity='gain', value=0.75, at_s=3600.0)
+    """
+    match = _DRIFT_RE.match(text)
+    if match is None:
+        raise PlantError(
+            "drift: expected QUANTITY=VALUE@TIME_S with QUANTITY gain (factor) or tau (seconds), "
+            f"e.g. gain=0.75@3600; got {text!r}"
+        )
+    quantity, value_text, at_text = match.groups()
+    try:
+        value, at_s = float(value_text), float(at_text)
+    except ValueError:
+        raise PlantError(
+            f"drift: expected numbers in QUANTITY=VALUE@TIME_S; got {text!r}"
+        ) from None
+    return DriftEvent(quantity="gain" if quantity == "gain" else "tau", value=value, at_s=at_s)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PlantVariation:
+    """How a plant differs from its nominal self, and how it drifts (module docstring).
+
+    Parameters
+    ----------
+    gain_factor :
+        Gain relative to the nominal plant at the start [-] (> 0).
+    tau_s :
+        Time constant of the slow mode at the start [s]; None keeps the plant's own.
+    extra_delay_samples :
+        Samples of input delay added to the plant's own (>= 0).
+    drifts :
+        Step changes at later plant times, applied in time order.
+
+    Raises
+    ------
+    PlantError
+        A value out of range.
+    """
+
+    gain_factor: float = 1.0
+    tau_s: float | None = None
+    extra_delay_samples: int = 0
+    drifts: tuple[DriftEvent, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.gain_factor) and self.gain_factor > 0.0):
+            raise PlantError(
+                f"PlantVariation.gain_factor: expected a finite number > 0; got {self.gain_factor!r}"
+            )
+        if self.tau_s is not None and not (math.isfinite(self.tau_s) and self.tau_s > 0.0):
+            raise PlantError(
+                f"PlantVariation.tau_s: expected a finite time constant > 0 [s]; got {self.tau_s!r}"
+            )
+        if (isinstance(self.extra_delay_samples, bool)
+                or not isinstance(self.extra_delay_samples, int) or self.extra_delay_samples < 0):
+            raise PlantError(
+                "PlantVariation.extra_delay_samples: expected an integer >= 0; got "
+                f"{self.extra_delay_samples!r}"
+            )
+        object.__setattr__(self, "drifts",
+                           tuple(sorted(self.drifts, key=lambda event: event.at_s)))
+
+    @property
+    def is_nominal(self) -> bool:
+        """True if the plant is left exactly as it is."""
+        return (self.gain_factor == 1.0 and self.tau_s is None and self.extra_delay_samples == 0
+                and not self.drifts)
+
+    def describe(self) -> str:
+        """One line for logs: ``gain x0.8, tau 600 s, +2 samples delay, gain->x0.75 @ 3600 s``."""
+        parts = []
+        if self.gain_factor != 1.0:
+            parts.append(f"gain x{self.gain_factor:g}")
+        if self.tau_s is not None:
+            parts.append(f"tau {self.tau_s:g} s")
+        if self.extra_delay_samples:
+            parts.append(f"+{self.extra_delay_samples} samples delay")
+        for event in self.drifts:
+            new = f"x{event.value:g}" if event.quantity == "gain" else f"{event.value:g} s"
+            parts.append(f"{event.quantity}->{new} @ {event.at_s:g} s")
+        return ", ".join(parts) if parts else "nominal"
+
+
+#: Sets the plant's gain factor [-] and time constant [s] (None: its own), keeping its state.
+DynamicsSetter = Callable[[float, float | None], None]
+
+
+class DriftingPlant:
+    """A plant with a `PlantVariation` applied (build it with `vary_model_plant` / `vary_heater`).
+
+    Parameters
+    ----------
+    plant :
+        The plant to vary.
+    set_dynamics :
+        Sets the inner plant's gain factor and time constant without touching its state.
+    variation :
+        The variation.
+    initial_triac_pct :
+        The input the plant starts in steady state at [%]; it fills the delay line.
+    """
+
+    def __init__(self, plant: Plant, *, set_dynamics: DynamicsSetter, variation: PlantVariation,
+                 initial_triac_pct: float) -> None:
+        self.plant = plant
+        self.variation = variation
+        self.ts_s = float(plant.ts_s)
+        self.initial_triac_pct = float(initial_triac_pct)
+        self._set = set_dynamics
+        self._line: deque[float] = deque()
+        self._k = 0
+        self._next_event = 0
+        self.gain_factor = variation.gain_factor
+        self.tau_s = variation.tau_s
+
+    def _start(self) -> None:
+        self._k = 0
+        self._next_event = 0
+        self.gain_factor = self.variation.gain_factor
+        self.tau_s = self.variation.tau_s
+        self._set(self.gain_factor, self.tau_s)
+        self._line = deque([self.initial_triac_pct] * self.variation.extra_delay_samples)
+
+    def reset(self, rng: np.random.Generator | int | None = None) -> float:
+        """Start a new run with the starting variation (drifts not yet applied).
+
+        Parameters
+        ----------
+        rng :
+            Seed or generator of the inner plant's noise.
+
+        Returns
+        -------
+        float
+            The first measured power [kW].
+        """
+        self._start()
+        return float(self.plant.reset(rng))
+
+    def step(self, triac_pct: float, exogenous: Exogenous = NOMINAL) -> float:
+        """Apply any drift due now, delay the input, step the inner plant.
+
+        Parameters
+        ----------
+        triac_pct :
+            TRIAC input [%] decided at this sample.
+        exogenous :
+            Disturbances acting over this sample.
+
+        Returns
+        -------
+        float
+            Measured power at the next sample [kW].
+        """
+        events = self.variation.drifts
+        changed = False
+        while (self._next_event < len(events)
+               and events[self._next_event].at_s <= self._k * self.ts_s + 1e-9 * self.ts_s):
+            event = events[self._next_event]
+            if event.quantity == "gain":
+                self.gain_factor = event.value
+            else:
+                self.tau_s = event.value
+            self._next_event += 1
+            changed = True
+        if changed:
+            self._set(self.gain_factor, self.tau_s)
+        applied = float(triac_pct)
+        if self.variation.extra_delay_samples:
+            self._line.append(applied)
+            applied = self._line.popleft()
+        self._k += 1
+        return float(self.plant.step(applied, exogenous))
+
+    @property
+    def true_power_kw(self) -> float:
+        """Noise-free power of the inner plant at the latest sample [kW]."""
+        return float(self.plant.true_power_kw)
+
+
+def model_time_constant_s(model: HammersteinModel) -> float:
+    """Time constant of the slow pole of the model's ``A(q)`` [s] (`sim.perturbed.slow_pole`)."""
+    return slow_pole(model.a, ts_s=model.ts_s)[1]
+
+
+def vary_model_plant(model: HammersteinModel, variation: PlantVariation, *, noise: bool = True,
+                     initial_triac_pct: float | None = None) -> DriftingPlant:
+    """A `ModelPlant` of ``model`` with ``variation`` applied.
+
+    Parameters
+    ----------
+    model :
+        The nominal model (the plant's equation with no variation).
+    variation :
+        Gain, time constant, delay and drifts.
+    noise :
+        Inject the model's noise (`ModelPlant`).
+    initial_triac_pct :
+        Steady input at the start [%]; None: the model's operating point.
+
+    Returns
+    -------
+    DriftingPlant
+
+    Raises
+    ------
+    PlantError
+        A time constant on a model without a real slow pole (`sim.perturbed.slow_pole`).
+    """
+    tau0_s = None
+    if variation.tau_s is not None or any(e.quantity == "tau" for e in variation.drifts):
+        tau0_s = model_time_constant_s(model)
+    inner = ModelPlant(model, noise=noise, initial_triac_pct=initial_triac_pct)
+
+    def set_dynamics(gain_factor: float, tau_s: float | None) -> None:
+        factor = 1.0 if tau_s is None or tau0_s is None else tau_s / tau0_s
+        inner.set_model(perturb_model(model, gain_factor=gain_factor,
+                                      time_constant_factor=factor))
+
+    return DriftingPlant(inner, set_dynamics=set_dynamics, variation=variation,
+                         initial_triac_pct=inner.initial_triac_pct)
+
+
+def heater_time_constant_s(params: HeaterParams, triac_pct: float | None = None) -> float:
+    """Linearized time constant of the heater's power sag at a steady input [s].
+
+    Parameters
+    ----------
+    params :
+        Heater parameters.
+    triac_pct :
+        Steady input [%]; None: ``params.initial_triac_pct``.
+
+    Returns
+    -------
+    float
+        ``C / (4 eps A sigma T^3 + P alpha / rho(T))`` at the steady state (`sim.heater`).
+    """
+    s = params.initial_triac_pct if triac_pct is None else triac_pct
+    power_kw, temp_k = steady_state(s, params)
+    rho = 1.0 + params.resistance_tc_per_k * (temp_k - params.reference_temp_k)
+    conductance_kw_per_k = (4.0 * params.emissivity_area_m2 * STEFAN_BOLTZMANN_KW_PER_M2_K4
+                            * temp_k**3 + power_kw * params.resistance_tc_per_k / rho)
+    return params.heat_capacity_kj_per_k / conductance_kw_per_k
+
+
+def vary_heater(variation: PlantVariation, params: HeaterParams | None = None, *,
+                rng: np.random.Generator | int | None = None) -> DriftingPlant:
+    """A `VirtualHeater` with ``variation`` applied (module docstring for the meaning).
+
+    Parameters
+    ----------
+    variation :
+        Gain, time constant, delay and drifts.
+    params :
+        Nominal heater parameters; None: `HeaterParams()`.
+    rng :
+        Seed or generator of the first run.
+
+    Returns
+    -------
+    DriftingPlant
+    """
+    base = HeaterParams() if params is None else params
+    heater = VirtualHeater(base, rng=rng)
+
+    def set_dynamics(gain_factor: float, tau_s: float | None) -> None:
+        p = replace(base, rated_power_kw=base.rated_power_kw * gain_factor)
+        if tau_s is not None:
+            scale = tau_s / heater_time_constant_s(p)
+            p = replace(p, heat_capacity_kj_per_k=p.heat_capacity_kj_per_k * scale)
+        heater.params = p
+
+    plant = DriftingPlant(heater, set_dynamics=set_dynamics, variation=variation,
+                          initial_triac_pct=base.initial_triac_pct)
+    plant.reset(rng)
+    return plant
+
+
+__all__ = ["DriftEvent", "DriftingPlant", "PlantVariation", "heater_time_constant_s",
+           "model_time_constant_s", "parse_drift", "vary_heater", "vary_model_plant"]

@@ -1,0 +1,128 @@
+"""check-model (czmpc.commissioning.check): the verdicts the issue asks for, the checks, the check file."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from czmpc.commissioning.check import (
+    check_model,
+    check_path,
+    file_sha256,
+    model_with_parameters,
+    read_check,
+    write_check,
+)
+from czmpc.shipped import shipped_path
+from sim.heater import VirtualHeater
+from sysid.data import Dataset, read_csv
+from sysid.model import HammersteinModel
+from sysid.modelfile import load_model
+from sysid.pipeline import run_paper_pipeline
+from tests.tolerances import IDENTITY_RTOL
+
+SHIPPED_PATH = shipped_path("cz_heater_model.json")
+SHIPPED = load_model(SHIPPED_PATH)
+EXPERIMENT = read_csv(shipped_path("cz_heater_experiment.csv"))
+
+
+def _status(check: object, name: str) -> str:
+    return next(i.status for i in check.items if i.name == name)  # type: ignore[attr-defined]
+
+
+@pytest.mark.slow
+def test_the_shipped_model_on_the_shipped_experiment_is_ready() -> None:
+    check = check_model(SHIPPED, EXPERIMENT, mc_runs=3)
+    assert check.verdict == "ready", check.format_text()
+    assert check.reasons == ()
+    assert check.exit_code == 0
+    assert check.monte_carlo is not None and check.monte_carlo.n_good == 3
+
+
+def test_a_model_with_the_wrong_delay_is_not_ready() -> None:
+    wrong = SHIPPED.with_updates(b=np.concatenate([[0.0], SHIPPED.b]))
+    check = check_model(wrong, EXPERIMENT, mc_runs=0)
+    assert check.verdict == "not ready"
+    assert _status(check, "input-residual correlation") == "fail"
+    assert check.reasons[0].startswith("input-residual correlation: ")
+    assert "at lag 1" in check.reasons[0]
+    assert check.exit_code == 1
+
+
+def test_a_model_fitted_to_uninformative_data_is_not_ready() -> None:
+    """The heater dithered by +-0.3 % around 45 %: no information about the input range."""
+    rng = np.random.default_rng(4)
+    n = 2000
+    triac = 45.0 + 0.3 * np.sign(rng.standard_normal(n // 30 + 1)).repeat(30)[:n]
+    heater = VirtualHeater(rng=4)
+    power = [heater.reset(4)]
+    for k in range(n - 1):
+        power.append(heater.step(float(triac[k])))
+    data = Dataset(time_s=np.arange(n) * 2.0, triac_pct=triac, power_kw=np.array(power),
+                   ts_s=2.0, source="dither only")
+    model = run_paper_pipeline(data).models[-1].model
+    check = check_model(model, EXPERIMENT, mc_runs=2)
+    assert check.verdict == "not ready"
+    assert _status(check, "input range") == "fail"
+    assert any(r.startswith("input range: ") and "0.6 % wide" in r for r in check.reasons)
+
+
+def test_no_data_and_no_covariance_are_conditions() -> None:
+    bare = SHIPPED.with_updates(provenance=replace(SHIPPED.provenance, extra={}))
+    check = check_model(bare, None)
+    assert check.verdict == "ready with conditions"
+    assert {i.name for i in check.items if i.status != "pass"} == {
+        "validation fit", "parameter uncertainty", "closed-loop Monte Carlo"}
+
+
+def test_a_negative_gain_model_fails_the_static_gain() -> None:
+    negative = SHIPPED.with_updates(input_poly=-SHIPPED.input_poly)
+    check = check_model(negative, None, mc_runs=0)
+    assert _status(check, "static gain") == "fail"
+    assert check.verdict == "not ready"
+
+
+def test_recorded_parameters_rebuild_the_model() -> None:
+    """provenance.parameters (b2, d1, d2, a1, k1) map back to the file's polynomials."""
+    names = SHIPPED.provenance.parameter_names
+    assert names is not None
+    theta = np.asarray(SHIPPED.provenance.extra["parameters"], dtype=float)
+    rebuilt = model_with_parameters(SHIPPED, names, theta)
+    assert isinstance(rebuilt, HammersteinModel)
+    for got, want in ((rebuilt.a, SHIPPED.a), (rebuilt.b, SHIPPED.b), (rebuilt.c, SHIPPED.c),
+                      (rebuilt.input_poly, SHIPPED.input_poly)):
+        np.testing.assert_allclose(got, want, rtol=IDENTITY_RTOL, atol=1e-15)
+    assert model_with_parameters(SHIPPED, ("z1",), np.array([1.0])) is None
+
+
+def test_the_check_file_carries_the_verdict_until_the_model_changes(tmp_path: Path) -> None:
+    model_path = tmp_path / "model.json"
+    model_path.write_bytes(SHIPPED_PATH.read_bytes())
+    assert read_check(model_path)[0] is None
+    assert "never checked" in read_check(model_path)[1]
+    check = check_model(SHIPPED, None, mc_runs=0, model_sha256=file_sha256(model_path))
+    written = write_check(check, model_path)
+    assert written == tmp_path / "model.check.json" == check_path(model_path)
+    doc = json.loads(written.read_text(encoding="utf-8"))
+    assert doc["verdict"] == "ready with conditions"
+    assert doc["reasons"] == list(check.reasons)
+    verdict, note = read_check(model_path)
+    assert verdict == "ready with conditions"
+    assert "validation fit" in note
+    model_path.write_text(model_path.read_text(encoding="utf-8") + "\n", encoding="utf-8")
+    verdict, note = read_check(model_path)
+    assert verdict is None and "changed since" in note
+
+
+def test_validation_data_of_another_sampling_time_are_refused() -> None:
+    from sysid.errors import SamplingTimeError
+
+    other = Dataset(time_s=np.arange(100) * 1.0, triac_pct=np.full(100, 45.0),
+                    power_kw=np.full(100, 45.0), ts_s=1.0, source="fast.csv")
+    with pytest.raises(SamplingTimeError, match="fast.csv"):
+        check_model(SHIPPED, other, mc_runs=0)
+
