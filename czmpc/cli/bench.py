@@ -15,9 +15,10 @@ everywhere) are printed with the measured ratios; unless --no-record, the report
 under '## Setpoint-tracking benchmark' in BENCHMARKS.md with this command line and the
 machine. --short FACTOR shortens every scenario (times x FACTOR) for a quick look.
 
---update-golden rewrites the controller regression files tests/golden/*.json (short
-scenarios, metrics with tolerances derived from the solver tolerance and platform
-floating point) instead of running the benchmark.
+--update-golden is deprecated (since 0.2.0, removed in 0.3.0): the project's golden set
+is the shipped regression suite regress_project_golden.toml, recorded with
+`czmpc regress record regress_project_golden.toml --out tests/golden --force`, which
+--update-golden now runs (with a warning) instead of the benchmark.
 
 Exit codes: 0 done (goals met or not, unless --strict); 1 a goal missed with --strict;
 2 bad input.
@@ -71,8 +72,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-record", action="store_true",
                         help="do not write the section into BENCHMARKS.md")
     parser.add_argument("--update-golden", action="store_true",
-                        help="rewrite tests/golden/*.json (controller regression metrics) "
-                             "and exit")
+                        help="DEPRECATED, use 'czmpc regress record "
+                             "regress_project_golden.toml --out tests/golden --force' (which this "
+                             "runs, with a warning)")
     parser.add_argument("--golden-dir", metavar="DIR", type=Path, default=None,
                         help="where --update-golden writes (default: tests/golden)")
     parser.add_argument("--strict", action="store_true", help="exit 1 if a goal is missed")
@@ -86,8 +88,38 @@ def _command_line(args: argparse.Namespace) -> str:
     return "czmpc bench " + shlex.join(sys.argv[2:]) if len(sys.argv) > 1 else "czmpc bench"
 
 
+_SHIPPED_SUITE = "regress_project_golden.toml"
+
+
+def _update_golden(args: argparse.Namespace, progress: Progress) -> int:
+    """Deprecated --update-golden: `czmpc regress record` of the shipped suite."""
+    from czmpc.campaigns.golden import GOLDEN_DIR
+    from czmpc.shipped import shipped_path
+    from czmpc.testing.regress import RegressRunError, record_suite
+
+    out = args.golden_dir or GOLDEN_DIR
+    print(f"czmpc: warning: 'czmpc bench --update-golden' is deprecated (since 0.2.0) and will be "
+          f"removed in 0.3.0; use: czmpc regress record {_SHIPPED_SUITE} --out {out} --force",
+          file=sys.stderr)
+    unused = [o for o, v in (("--scenarios", args.scenarios), ("--model", args.model),
+                             ("--linear-model", args.linear_model)) if v is not None]
+    if unused:
+        print(f"czmpc: error: {', '.join(unused)} cannot be combined with --update-golden any more; "
+              f"write a regression suite naming them and run 'czmpc regress record SUITE.toml'",
+              file=sys.stderr)
+        return 2
+    try:
+        path = record_suite(shipped_path(_SHIPPED_SUITE), out, force=True,
+                            progress=lambda d, t: progress.fraction(d, t, what="runs"))
+    except RegressRunError as exc:
+        print(f"czmpc: error: {exc}", file=sys.stderr)
+        return 1
+    progress(f"recorded the project's golden set in {path.parent}")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
-    """Run the benchmark (or rewrite the golden files)."""
+    """Run the benchmark (or, deprecated, record the project's golden set)."""
     from czmpc.campaigns.bench import (
         BenchModels,
         check_goals,
@@ -101,6 +133,8 @@ def run(args: argparse.Namespace) -> int:
     from sysid.modelfile import load_model
 
     progress = Progress()
+    if args.update_golden:
+        return _update_golden(args, progress)
 
     shipped = BenchModels.shipped() if args.model is None or args.linear_model is None else None
     models = BenchModels(
@@ -108,13 +142,6 @@ def run(args: argparse.Namespace) -> int:
         linear=(load_model(args.linear_model) if args.linear_model is not None
                 else shipped.linear),  # type: ignore[union-attr]
     )
-    if args.update_golden:
-        from czmpc.campaigns.golden import GOLDEN_DIR, write_golden_set
-
-        paths = write_golden_set(args.golden_dir or GOLDEN_DIR, models=models,
-                                 scenario_names=args.scenarios, progress=progress)
-        progress(f"wrote {len(paths)} golden files to {paths[0].parent if paths else '-'}")
-        return 0
     if args.out is None:
         print("czmpc: error: --out DIR is required (unless --update-golden)", file=sys.stderr)
         return 2

@@ -1,4 +1,8 @@
-"""Controller regression tests: fresh runs against tests/golden/*.json (czmpc.campaigns.golden)."""
+"""The golden-set helpers of czmpc.campaigns.golden (tolerance rule, comparison, file format).
+
+The project's golden set itself is checked through czmpc.testing in
+tests/czmpc/testing/test_project_golden.py.
+"""
 
 from __future__ import annotations
 
@@ -8,54 +12,16 @@ from pathlib import Path
 
 import pytest
 
-from czmpc.campaigns.bench import CONTROLLERS, PLANTS, BenchModels
 from czmpc.campaigns.golden import (
     FLOAT_ATOL,
     FLOAT_RTOL,
-    GOLDEN_DIR,
     GOLDEN_METRICS,
     SOLVER_SAFETY,
     GoldenError,
-    check_golden_file,
     compare,
     load_golden,
     tolerances,
 )
-from sim.scenario import list_scenarios
-
-GOLDEN_FILES = sorted(GOLDEN_DIR.glob("*.json"))
-
-
-@pytest.fixture(scope="module")
-def models() -> BenchModels:
-    return BenchModels.shipped()
-
-
-def test_golden_set_covers_every_shipped_scenario_plant_and_controller() -> None:
-    assert [p.stem for p in GOLDEN_FILES] == sorted(list_scenarios())
-    for path in GOLDEN_FILES:
-        runs = load_golden(path)["runs"]
-        assert set(runs) == {f"{p}/{c}" for p in PLANTS for c in CONTROLLERS}
-        for metrics in runs.values():
-            assert set(metrics) == set(GOLDEN_METRICS)
-
-
-@pytest.mark.casadi
-@pytest.mark.parametrize("path", GOLDEN_FILES, ids=lambda p: p.stem)
-def test_fresh_runs_match_the_golden_metrics(path: Path, models: BenchModels) -> None:
-    mismatches = check_golden_file(path, models=models)
-    assert not mismatches, "\n".join(map(str, mismatches))
-
-
-def test_a_much_larger_move_weight_is_caught_as_a_regression(models: BenchModels) -> None:
-    path = GOLDEN_DIR / "staircase.json"
-    assert not check_golden_file(path, models=models, cases=["model/mpc"])
-    worse = check_golden_file(path, models=models, cases=["model/mpc"],
-                              settings_updates={"move_weight": 10.0})
-    assert {m.metric for m in worse} >= {"iae_kw_s", "ise_kw2_s"}
-    iae = next(m for m in worse if m.metric == "iae_kw_s")
-    assert iae.actual > iae.expected + 10 * iae.tolerance  # far outside, not marginal
-    assert "staircase-short/model/mpc: iae_kw_s" in str(iae)
 
 
 def test_compare_flags_values_outside_tolerance_and_missing_metrics() -> None:
