@@ -126,6 +126,9 @@ class DitheredMPC:
         """The MPC's status and verdict."""
         return self.driver.status_words()
 
+    def skipped(self, n_periods: int) -> None:
+        """Nothing (as the MPC)."""
+
     def finished(self) -> str | None:
         """Never."""
         return None

@@ -179,6 +179,7 @@ class ScheduleDriver:
         applied_triac_pct :
             The plant's applied input; the first one known is where the lead-in starts.
         """
+        self._phase = "LEAD_IN" if self._k_test is None else "TEST"
         if not math.isfinite(self._u):
             known = applied_triac_pct is not None and math.isfinite(applied_triac_pct)
             self._u = float(applied_triac_pct) if known else self.schedule.triac_at(0.0)  # type: ignore[arg-type]
@@ -190,15 +191,20 @@ class ScheduleDriver:
             if abs(self._u - target) <= 1e-9:
                 self._u = target
                 self._k_test = 0
-                self._phase = "TEST"
             return self._u
         self._k_test += 1
         self._u = self.schedule.triac_at(self._k_test * self.ts_s)
         return self._u
 
     def status_words(self) -> tuple[str, str]:
-        """``("LEAD_IN" | "TEST", "")``."""
+        """``("LEAD_IN" | "TEST", "")``: the phase of the last step."""
         return self._phase, ""
+
+    def skipped(self, n_periods: int) -> None:
+        """Keep the schedule on plant time: the skipped periods count as played (the
+        plant held the last command through them)."""
+        if self._k_test is not None:
+            self._k_test += n_periods
 
     def finished(self) -> str | None:
         """``"end of schedule"`` once the last row's time has been applied."""

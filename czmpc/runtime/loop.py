@@ -89,6 +89,9 @@ class LoopController(Protocol):
     def rate_limit_pct_per_step(self) -> float | None:
         """Largest move per sample [%] (the safe ramp's rate); None: no limit."""
 
+    def skipped(self, n_periods: int) -> None:
+        """The loop skipped ``n_periods`` sample periods after an overrun (plant time went on)."""
+
     def finished(self) -> str | None:
         """Why the run is complete (it then stops with the safe action, not failed), or None."""
 
@@ -125,6 +128,9 @@ class MPCDriver:
     def rate_limit_pct_per_step(self) -> float | None:
         """The settings' ``max_move_pct_per_step``."""
         return self.mpc.settings.max_move_pct_per_step
+
+    def skipped(self, n_periods: int) -> None:
+        """Nothing: the MPC's estimator predicts from the next measurement on."""
 
     def finished(self) -> str | None:
         """Never: the MPC runs until the duration or a signal."""
@@ -427,6 +433,8 @@ class ControlLoop:
                 self.summary.n_overruns += 1
                 self.summary.n_skipped += next_k - k - 1
             row["skipped"] = next_k - k - 1
+            if next_k - k - 1 > 0:
+                self.ctrl.skipped(next_k - k - 1)
             row["step_latency_s"] = end - woke
             self._check_limits(row, next_k - k)
             log.row(row)

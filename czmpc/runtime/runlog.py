@@ -9,8 +9,9 @@ directly by `czmpc identify`. The rules:
   written at row ``j`` (the plant applies a command over the sample after it arrives
   and publishes it with the power it produced);
 - a sample whose quality is not Good (Bad, Uncertain, stale, disconnected) is a gap,
-  and so is a jump of the time axis (periods skipped after an overrun): the data are
-  split into segments there (`sysid.data.Dataset.segment_starts`), each identified
+  and so is a run of more than `MAX_FILL_SAMPLES` periods the loop skipped after an
+  overrun (shorter runs are filled: input held, power interpolated); the data are
+  split into segments at the gaps (`sysid.data.Dataset.segment_starts`), each identified
   with its own initial state; segments shorter than `MIN_SEGMENT_SAMPLES` are dropped;
 - the provenance (config and its SHA-256, schedule and its SHA-256, start time, what
   drove the input, closed loop or not) goes into the data set's ``preprocessing`` and
@@ -35,6 +36,11 @@ from sysid.data import Dataset
 #: Shortest segment kept between gaps [samples]: shorter ones carry too little to fit
 #: an initial state and a model (a model of the paper's orders has 5 parameters).
 MIN_SEGMENT_SAMPLES = 10
+#: Longest run of periods skipped by the loop (overruns) that is filled rather than split
+#: [samples]: the input through them is known (the last command stays written), the
+#: power is interpolated linearly; two samples (4 s at Ts = 2 s) are far shorter than
+#: the heater's time constants (paper: about 200 s), so the interpolation error is small.
+MAX_FILL_SAMPLES = 2
 #: The columns that mark a file as a czmpc run log (the first of `LOG_COLUMNS`).
 _SIGNATURE = LOG_COLUMNS[:4]
 
@@ -87,40 +93,67 @@ def read_run_log(path: str | Path) -> Dataset:
     if not rows or missing:
         raise RunConfigError(f"{path}: not a czmpc run log with data (missing columns {missing})")
     rows = [r for r in rows if r["k"].strip() != ""]
-    time_s = np.array([_float(r["time_s"]) for r in rows])
-    power = np.array([_float(r["power_kw"]) if r["quality"] == "good" else math.nan for r in rows])
-    command = np.array([_float(r["triac_pct"]) for r in rows])
-    applied = np.array([_float(r["applied_triac_pct"]) for r in rows])
     meta = read_run_meta(path)
-    ts_s = float(meta.get("ts_s") or (np.median(np.diff(time_s)) if time_s.size > 1 else math.nan))
+    ks = np.array([int(_float(r["k"])) for r in rows])
+    if ks.size < MIN_SEGMENT_SAMPLES or (np.diff(ks) <= 0).any():
+        raise RunConfigError(f"{path}: expected at least {MIN_SEGMENT_SAMPLES} rows with an "
+                             "increasing sample index k")
+    ts_s = float(meta.get("ts_s") or _float(rows[1]["time_s"]) / max(1, int(ks[1])))
+    # one slot per sample period k, also for the periods the loop skipped after an overrun
+    n = int(ks[-1] - ks[0]) + 1
+    slot = ks - ks[0]
+    power = np.full(n, np.nan)
+    command = np.full(n, np.nan)
+    applied = np.full(n, np.nan)
+    logged = np.zeros(n, dtype=bool)
+    logged[slot] = True
+    power[slot] = [_float(r["power_kw"]) if r["quality"] == "good" else math.nan for r in rows]
+    command[slot] = [_float(r["triac_pct"]) for r in rows]
+    applied[slot] = [_float(r["applied_triac_pct"]) for r in rows]
+    # the command stays written through skipped periods: hold it there
+    for i in range(1, n):
+        if not logged[i]:
+            command[i] = command[i - 1]
     triac = command.copy()
-    if applied.size > 1:
-        nxt = applied[1:]
-        triac[:-1] = np.where(np.isfinite(nxt), nxt, command[:-1])
-    usable = np.isfinite(power) & np.isfinite(triac) & np.isfinite(time_s)
-    # a new segment starts after an unusable sample or a jump of the time axis
+    nxt = applied[1:]
+    triac[:-1] = np.where(np.isfinite(nxt), nxt, command[:-1])
+    # fill runs of skipped periods (not Bad samples) up to MAX_FILL_SAMPLES long
+    n_filled = 0
+    i = 0
+    while i < n:
+        if logged[i]:
+            i += 1
+            continue
+        j = i
+        while j < n and not logged[j]:
+            j += 1
+        if (j - i <= MAX_FILL_SAMPLES and i > 0 and j < n
+                and math.isfinite(power[i - 1]) and math.isfinite(power[j])):
+            w = (np.arange(i, j) - (i - 1)) / (j - (i - 1))
+            power[i:j] = power[i - 1] + w * (power[j] - power[i - 1])
+            n_filled += j - i
+        i = j
+    usable = np.isfinite(power) & np.isfinite(triac)
     starts: list[int] = []
     stops: list[int] = []
-    prev_t = math.nan
-    prev_i = 0
-    for i in range(time_s.size):
+    i = 0
+    while i < n:
         if not usable[i]:
-            prev_t = math.nan
+            i += 1
             continue
-        contiguous = math.isfinite(prev_t) and abs(time_s[i] - prev_t - ts_s) <= 0.01 * ts_s
-        if not contiguous:
-            if starts:
-                stops.append(prev_i)
-            starts.append(i)
-        prev_t, prev_i = time_s[i], i + 1
-    if starts:
-        stops.append(prev_i)
+        j = i
+        while j < n and usable[j]:
+            j += 1
+        starts.append(i)
+        stops.append(j)
+        i = j
     kept = [(a, b) for a, b in zip(starts, stops, strict=True) if b - a >= MIN_SEGMENT_SAMPLES]
     if not kept:
         raise RunConfigError(
             f"{path}: no stretch of {MIN_SEGMENT_SAMPLES} or more usable samples in a row "
-            f"(Good quality, known input); {int(usable.sum())} usable of {time_s.size}")
+            f"(Good quality, known input); {int(usable.sum())} usable of {n}")
     index = np.concatenate([np.arange(a, b) for a, b in kept])
+    time_s = (ks[0] + np.arange(n)) * ts_s
     seg_starts = tuple(int(v) for v in np.cumsum([0] + [b - a for a, b in kept[:-1]]))
     closed = bool(meta.get("closed_loop", any(r.get("status", "") not in ("", "LEAD_IN", "TEST")
                                               for r in rows)))
@@ -134,9 +167,12 @@ def read_run_log(path: str | Path) -> Dataset:
     }
     split: dict[str, Any] = {
         "what": "split at unusable samples",
-        "rule": f"Bad/Uncertain/stale/disconnected samples and time jumps are gaps; segments "
-                f"shorter than {MIN_SEGMENT_SAMPLES} samples dropped",
-        "samples_in_log": int(time_s.size), "samples_kept": int(index.size),
+        "rule": f"Bad/Uncertain/stale/disconnected samples are gaps; runs of up to "
+                f"{MAX_FILL_SAMPLES} periods skipped by the loop are filled (input held, power "
+                f"interpolated linearly), longer ones are gaps; segments shorter than "
+                f"{MIN_SEGMENT_SAMPLES} samples dropped",
+        "samples_in_log": int(ks.size), "periods": n, "samples_filled": n_filled,
+        "samples_kept": int(index.size),
         "segments": len(kept),
         "segment_time_s": [[float(time_s[a]), float(time_s[b - 1])] for a, b in kept],
     }
@@ -166,5 +202,5 @@ def describe_run_data(data: Dataset) -> str:
     return text
 
 
-__all__ = ["MIN_SEGMENT_SAMPLES", "describe_run_data", "is_run_log", "read_run_log",
+__all__ = ["MAX_FILL_SAMPLES", "MIN_SEGMENT_SAMPLES", "describe_run_data", "is_run_log", "read_run_log",
            "read_run_meta"]
