@@ -92,6 +92,12 @@ def run(args: argparse.Namespace) -> int:
                        run_duration_s=args.run_duration_s, mc_runs=args.mc_runs)
     words = ["czmpc", NAME, str(args.config), "--range-pct", f"{lo:g}", f"{hi:g}",
              "--tau-s", f"{tau_s:g}", "--out", str(args.out)]
+    if args.duration_s is not None:
+        words += ["--duration-s", f"{args.duration_s:g}"]
+    words += ["--kind", args.kind, "--max-step-pct", f"{args.max_step_pct:g}", "--seed",
+              str(args.seed), "--mc-runs", str(args.mc_runs)]
+    if args.run_duration_s is not None:
+        words += ["--run-duration-s", f"{args.run_duration_s:g}"]
     if args.switch_on:
         words.append("--switch-on")
     progress = Progress()
@@ -106,7 +112,8 @@ def run(args: argparse.Namespace) -> int:
         return 1
     check = result.check
     if check is not None:
-        print(f"verdict: {check.verdict}; held-out fit {result.fit_pct:.1f} %")
+        verdict = "none (no check made)" if check.verdict is None else check.verdict
+        print(f"verdict: {verdict}; held-out fit {result.fit_pct:.1f} %")
         for reason in check.reasons:
             print(f"  - {reason}")
     if result.run_summary is not None:

@@ -29,6 +29,7 @@ import datetime as dt
 import hashlib
 import importlib
 import math
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -289,8 +290,11 @@ def commission(config: RunConfig, plan: JourneyPlan, *,
     from czmpc.reports.identification import write_report
     from sysid.pipeline import run_paper_pipeline
 
-    result = run_paper_pipeline(est, level_shift="none", orders="auto", degree=DESIGN_DEGREE,
-                                progress=lambda m: say(f"    {m}"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = run_paper_pipeline(est, level_shift="none", orders="auto", degree=DESIGN_DEGREE,
+                                    progress=lambda m: say(f"    {m}"))
+    messages += [f"identification: {w.category.__name__}: {w.message}" for w in caught]
     if result.final is None:  # pragma: no cover - the pipeline raises instead
         raise JourneyError("identification produced no model")
     model = result.final.model.with_updates(units=Units(input=data.input_unit,
@@ -346,7 +350,8 @@ def _equation(model: HammersteinModel) -> list[str]:
 
 def _write_report(out: Path, *, config: RunConfig, plan: JourneyPlan, signal: ExcitationSignal,
                   schedule: InputSchedule, test_summary: RunSummary, started: str,
-                  command: str | None, lead_in_s: float = 0.0, data: Dataset | None = None, val: Dataset | None = None,
+                  command: str | None, lead_in_s: float = 0.0, data: Dataset | None = None,
+                  val: Dataset | None = None,
                   simulated: np.ndarray | None = None, fit: float | None = None,
                   model: HammersteinModel | None = None, check: CheckOutcome | None = None,
                   settings: MPCSettings | None = None, n_est: int = 0,
@@ -384,6 +389,7 @@ def _write_report(out: Path, *, config: RunConfig, plan: JourneyPlan, signal: Ex
                   "on validation data; no level-shift repair (the designed steps are not "
                   "sensor faults). Full report: [identification/report.md]"
                   "(identification/report.md). Model `model.json`:", "", *_equation(model), "",
+                  *[f"- {m}" for m in messages if m.startswith("identification:")], "",
                   "## 4. Fit on held-out data", "",
                   f"The last {val.n_samples} samples, simulated from their first measured power "
                   f"(ballistic, as MATLAB `compare`): fit **{fit:.1f} %**."]
@@ -391,7 +397,8 @@ def _write_report(out: Path, *, config: RunConfig, plan: JourneyPlan, signal: Ex
                                  fit_pct=fit)
         lines += ["", f"![held-out fit](figures/{fig.name})"]
     if check is not None:
-        lines += ["", "## 5. Check-model verdict", "", f"**{check.verdict}**", ""]
+        verdict = "none: no check was made" if check.verdict is None else check.verdict
+        lines += ["", "## 5. Check-model verdict", "", f"**{verdict}**", ""]
         lines += [f"- {r}" for r in check.reasons] or ["- (no reasons given)"]
         if check.items:
             lines += ["", "| check | status | detail |", "| --- | --- | --- |"]
@@ -411,7 +418,8 @@ def _write_report(out: Path, *, config: RunConfig, plan: JourneyPlan, signal: Ex
     if stage == "switched on":
         lines.append("The MPC was switched on with `model.json` (log `run.csv`).")
     elif plan.switch_on:
-        lines += [f"- {m}" for m in messages] or ["- not switched on"]
+        lines += [f"- {m}" for m in messages if not m.startswith("identification:")] \
+            or ["- not switched on"]
     else:
         lines.append("Not asked (--switch-on not given). To run the MPC: put `model.json` in "
                      "[controller] model and run `czmpc run CONFIG.toml`.")
