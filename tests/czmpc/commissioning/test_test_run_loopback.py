@@ -22,6 +22,7 @@ from commissioning_rig import (
 )
 
 from czmpc.cli import main
+from czmpc.shipped import shipped_path
 from sysid.design import ExcitationSpec, design_test_signal
 from sysid.modelfile import load_model
 
@@ -105,3 +106,33 @@ def test_a_test_leaving_the_band_aborts_to_the_safe_value(tmp_path: Path,
     assert ramp[-1] == 30.0
     moves = np.abs(np.diff([float(rows[abort_at]["triac_pct"]), *ramp]))
     assert moves.max() <= 15.0 + 1e-9
+
+
+def test_a_dithered_mpc_run_identifies_as_closed_loop_data(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    model = str(shipped_path("cz_heater_model.json"))
+    with served_plant(tmp_path, "--plant", "model", "--initial-triac-pct", "45",
+                      duration_s=3000.0) as endpoint:
+        cfg = write_config(tmp_path, endpoint, band_kw=(20.0, 70.0), model=model)
+        # seed 12 switches the dither 5 times in its first 200 samples (p = Ts / 249 s)
+        code = main(["run", str(cfg), "--dither-pct", "1.5", "--dither-seed", "12",
+                     "--duration-s", "600"])
+    assert code == 0
+    err = capsys.readouterr().err
+    assert "GBN dither on the MPC's input" in err
+    meta = json.loads((tmp_path / "run.meta.json").read_text(encoding="utf-8"))
+    assert meta["closed_loop"] is True and meta["dither"]["amplitude_pct"] == 1.5
+    rows = [r for r in _rows(tmp_path / "run.csv") if r["k"]]
+    # each switch moves the input by 2 x 1.5 % less the MPC's reaction, within the
+    # runtime rate limit (1.6 %/sample for the shipped model's 33..65 % range)
+    moves = np.abs(np.diff([float(r["triac_pct"]) for r in rows]))
+    assert np.count_nonzero(moves > 1.0) >= 3
+    assert moves.max() <= 1.6 + 1e-6
+    out = tmp_path / "id"
+    code = main(["identify", str(tmp_path / "run.csv"), "--out", str(out), "--orders", "paper",
+                 "--allow-unconverged"])
+    assert code == 0
+    err = capsys.readouterr().err
+    assert "CLOSED-LOOP DATA" in err
+    prov = load_model(out / "model.json").provenance.preprocessing[0]
+    assert prov["closed_loop"] is True and prov["dither"]["where"] == "input"
