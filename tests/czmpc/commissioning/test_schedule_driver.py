@@ -130,3 +130,13 @@ def test_bad_test_sections_are_named(tmp_path: Path, tables: dict[str, dict[str,
                                      key: str) -> None:
     with pytest.raises(RunConfigError, match=key.replace(".", r"\.")):
         run_config_from_dict(_doc(**tables), base_dir=tmp_path)
+
+
+def test_the_shipped_commissioning_config_reads() -> None:
+    from czmpc.runtime.config import load_run_config
+
+    repo = Path(__file__).resolve().parents[3]
+    cfg = load_run_config(repo / "examples" / "plant_link" / "commission.toml")
+    assert cfg.model_path is None
+    assert cfg.test_limits == ExperimentLimits(power_band_kw=(25.0, 70.0), max_bad_quality_s=10.0)
+    assert cfg.safe_triac_pct == 33.0 and cfg.setpoint_kw == 45.0
