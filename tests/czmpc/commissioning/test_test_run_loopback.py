@@ -136,3 +136,29 @@ def test_a_dithered_mpc_run_identifies_as_closed_loop_data(
     assert "CLOSED-LOOP DATA" in err
     prov = load_model(out / "model.json").provenance.preprocessing[0]
     assert prov["closed_loop"] is True and prov["dither"]["where"] == "input"
+
+
+def test_a_long_bad_quality_stretch_aborts_the_test(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    # the served plant's sensor drops out (Bad quality) for 60 s from 300 s of plant time
+    scenario = tmp_path / "dropout.toml"
+    scenario.write_text(
+        'name = "dropout"\ndescription = "sensor dropout"\nduration_s = 3000\nts_s = 2.0\n'
+        "plant_noise = true\ninitial_setpoint_kw = 45.0\ninitial_triac_pct = 45.0\n"
+        '[[fault]]\nkind = "missing_samples"\nat_s = 300\nduration_s = 60\n', encoding="utf-8")
+    sched = write_schedule(tmp_path / "test.csv", [0.0, 100.0, 900.0], [45.0, 47.0, 45.0])
+    with served_plant(tmp_path, "--plant", "model", "--initial-triac-pct", "45", "--scenario",
+                      str(scenario), duration_s=2900.0) as endpoint:
+        cfg = write_config(tmp_path, endpoint, band_kw=(20.0, 70.0), safe_triac_pct=40.0)
+        code = main(["run", str(cfg), "--test", str(sched)])
+    assert code == 1
+    assert "max_bad_quality_s" in capsys.readouterr().err
+    rows = _rows(tmp_path / "run.csv")
+    abort_at = next(i for i, r in enumerate(rows) if r["event"])
+    assert rows[abort_at]["quality"] == "bad"
+    # aborted once the Bad stretch exceeded 10 s of plant time (rows may skip periods
+    # after overruns on a busy machine, so plant time is what counts)
+    last_good = max(i for i in range(abort_at) if rows[i]["quality"] == "good")
+    bad_s = float(rows[abort_at]["time_s"]) - float(rows[last_good]["time_s"])
+    assert 10.0 < bad_s <= 20.0
+    assert float(rows[-1]["triac_pct"]) == 40.0 and rows[-1]["status"] == "SAFE_RAMP"
