@@ -46,10 +46,11 @@ from czmpc.commissioning.test_run import (
 from czmpc.controller import OffsetFreeMPC
 from czmpc.errors import CzmpcError
 from czmpc.reports import commissioning as figures
-from czmpc.runtime.config import RunConfig, runtime_settings
+from czmpc.runtime.config import RunConfig
 from czmpc.runtime.loop import ControlLoop, RunSummary
 from czmpc.runtime.runlog import read_run_log
 from czmpc.settings import MPCSettings
+from czmpc.settings_file import load_settings
 from sysid.atomic import atomic_write_text
 from sysid.data import Dataset
 from sysid.design import MIN_GBN_TAUS, ExcitationSignal, ExcitationSpec, design_test_signal
@@ -305,7 +306,8 @@ def commission(config: RunConfig, plan: JourneyPlan, *,
     simulated = simulate(model, val)
     fit = fit_percent(val.power_kw, simulated)
     # 4. check
-    settings = runtime_settings(model)
+    settings = (MPCSettings.default_for(model) if config.settings_path is None
+                else load_settings(config.settings_path, model))
     say(f"4/5 checking the model (held-out fit {fit:.1f} %, closed-loop Monte Carlo)")
     check = check_fn(model, val, settings, model_path, plan.mc_runs)
     say(f"    verdict: {check.verdict}")
@@ -408,8 +410,9 @@ def _write_report(out: Path, *, config: RunConfig, plan: JourneyPlan, signal: Ex
             lines += ["", f"![closed-loop Monte Carlo](figures/{fig.name})"]
     if settings is not None:
         lines += ["", "## 6. Controller settings chosen", "",
-                  "`czmpc.runtime.config.runtime_settings(model)`: the model's defaults with the "
-                  "runtime's rate limit.", "", "| setting | value |", "| --- | --- |"]
+                  "The config's [controller] settings file if it names one, else "
+                  "`MPCSettings.default_for(model)` (with its rate limit).", "",
+                  "| setting | value |", "| --- | --- |"]
         for f in dataclasses.fields(settings):
             value = getattr(settings, f.name)
             if not dataclasses.is_dataclass(value):

@@ -11,7 +11,7 @@ from czmpc.commissioning.dither import DitheredMPC, dominant_time_constant_s
 from czmpc.controller import OffsetFreeMPC
 from czmpc.errors import SettingsError
 from czmpc.modes import Mode
-from czmpc.runtime.config import runtime_settings
+from czmpc.settings import MPCSettings
 from czmpc.shipped import shipped_path
 from sim.model_plant import ModelPlant
 from sysid.modelfile import load_model
@@ -31,7 +31,7 @@ def test_dominant_time_constant_of_the_shipped_model() -> None:
 
 def test_dither_is_bounded_rate_limited_and_switches_at_the_designed_rate() -> None:
     model = load_model(shipped_path("cz_heater_model.json"))
-    settings = runtime_settings(model)
+    settings = MPCSettings.default_for(model)
     rate = settings.max_move_pct_per_step
     assert rate is not None
     mpc = OffsetFreeMPC(model, settings)
@@ -71,7 +71,7 @@ def test_dither_is_bounded_rate_limited_and_switches_at_the_designed_rate() -> N
 
 def test_no_dither_outside_on() -> None:
     model = load_model(shipped_path("cz_heater_model.json"))
-    mpc = OffsetFreeMPC(model, runtime_settings(model))
+    mpc = OffsetFreeMPC(model, MPCSettings.default_for(model))
     dith = DitheredMPC(mpc, amplitude_pct=2.0, switch_time_s=100.0, rng=0)
     dith.request_mode(Mode.PREDICT)
     dith.step(45.0, 45.0, applied_triac_pct=45.0)   # the request applies from this step on
