@@ -36,7 +36,8 @@ of +-A % is added to its INPUT (mean switching time = the model's dominant time
 constant; the MPC is told the applied input, so it is not misled). An input dither is
 the excitation itself, of known size in %, independent of the plant noise; a setpoint
 dither would reach the TRIAC only through the controller's filtering. The log is
-closed-loop data: 'czmpc identify' says so.
+closed-loop data: 'czmpc identify' says so. The [test] limits guard this run too (a
+plain MPC run without --test or --dither-pct ignores [test]).
 
 Exit codes: 0 done or stopped by a signal; 2 bad config, model or settings; 1 the
 plant could not be reached at the start, or a test was aborted.
@@ -121,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
         else:
             settings = load_settings(config.settings_path, model)
         mpc = OffsetFreeMPC(model, settings)
+        if args.dither_pct is None:   # [test] limits guard tests only (--test, --dither-pct)
+            config = dataclasses.replace(config, test_limits=None)
         controller: OffsetFreeMPC | LoopController = mpc
         provenance: dict[str, object] = {"kind": "MPC run", "closed_loop": True}
         if args.dither_pct is not None:
