@@ -71,3 +71,23 @@ def test_commission_then_switch_on_tracks_offset_free(tmp_path: Path) -> None:
     power = np.array([float(r["power_kw"]) for r in rows[-20:] if r["quality"] == "good"])
     assert power.size >= 15
     assert abs(float(power.mean()) - 44.0) < OFFSET_FREE_ATOL_KW
+
+
+def test_commission_with_the_real_check_stores_its_verdict(tmp_path: Path) -> None:
+    """With `czmpc check-model` installed (h/health), the verdict is made and stored."""
+    pytest.importorskip("czmpc.commissioning.check")
+    plant = fast_heater_model(tmp_path / "plant.json")
+    with served_plant(tmp_path, "--plant", "model", "--model", str(plant), "--initial-triac-pct",
+                      "45", "--safe-triac-pct", "40", duration_s=20000.0) as endpoint:
+        config = load_run_config(write_config(tmp_path, endpoint, band_kw=(20.0, 70.0)))
+        plan = JourneyPlan(range_pct=(38.0, 52.0), tau_s=FAST_TAU_S, out_dir=tmp_path / "out",
+                           kind="steps", max_step_pct=5.0, mc_runs=5)
+        result = commission(config, plan)
+    assert result.stage == "checked"
+    assert result.check is not None
+    assert result.check.verdict in ("ready", "ready with conditions", "not ready")
+    assert result.check.reasons or result.check.verdict == "ready"
+    assert any(p.name.startswith("model") and p.name != "model.json"
+               for p in (tmp_path / "out").iterdir())   # the verdict file beside the model
+    report = (tmp_path / "out" / "commissioning.md").read_text(encoding="utf-8")
+    assert f"**{result.check.verdict}**" in report
