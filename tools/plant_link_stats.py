@@ -42,7 +42,7 @@ def main(argv: list[str]) -> int:
     if len(argv) < 3:
         return 0
     from czmpc.campaigns.simulation import run_simulation
-    from czmpc.runtime.config import runtime_settings
+    from czmpc.settings import MPCSettings
     from czmpc.shipped import shipped_path
     from sim.scenario import load_scenario
     from sysid.modelfile import load_model
@@ -54,7 +54,7 @@ def main(argv: list[str]) -> int:
     p = np.array([float(r["power_kw"]) for r in rows])
     link = _iae_after_changes(sp, p, 2.0, window)
     out = run_simulation(model, scenario, plant="heater", seed=int(argv[2]),
-                         settings=runtime_settings(model))
+                         settings=MPCSettings.default_for(model))
     traj = out.result
     sp_i = np.asarray(traj.setpoint_kw)
     p_i = np.asarray(traj.power_measured_kw)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -129,8 +130,19 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
 
 
 def read_log(path: str | Path, args: argparse.Namespace) -> Dataset:
-    """Read ``path`` with the options of `add_log_options`."""
+    """Read ``path`` with the options of `add_log_options`.
+
+    A `czmpc run` log (open-loop test, dithered or plain MPC run) is recognised by its
+    header and read by `czmpc.runtime.runlog.read_run_log`; what it is (closed-loop or
+    not) is said on stderr.
+    """
+    from czmpc.runtime.runlog import describe_run_data, is_run_log, read_run_log
     from sysid.data import DEFAULT_SAMPLING_RTOL, read_csv
+
+    if args.columns is None and is_run_log(path):
+        data = read_run_log(path)
+        print(f"czmpc: note: {describe_run_data(data)}", file=sys.stderr)
+        return data
 
     rtol = DEFAULT_SAMPLING_RTOL if args.sampling_rtol is None else args.sampling_rtol
     return read_csv(path, columns=args.columns, ts_s=args.ts_s, sampling_rtol=rtol,

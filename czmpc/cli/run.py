@@ -26,8 +26,30 @@ Model check (czmpc check-model, MODEL.check.json beside the model): a model judg
 'not ready' runs in PREDICT only (shadow: nothing written, ON requests refused) unless
 --force, which is logged; a model never checked, or changed since, runs with a warning.
 
+Open-loop identification test (--test TEST.csv, a time_s,triac_pct schedule as
+written by 'czmpc design-test'): the same loop plays the schedule instead of the MPC;
+no model is needed ([controller] may be absent) but a [test] section is:
+power_band_kw = [LO, HI] [kW] and max_bad_quality_s [s] (default 10). It starts from
+the plant's applied input and ramps into the schedule no faster than the schedule's
+largest step; it ends by itself after the schedule's last row (exit 0). A Good
+measurement outside the band, or a longer stretch without usable samples (Bad,
+Uncertain, stale, disconnected), or the plant's mode leaving ON aborts it: the
+TRIAC moves to [safety] safe_triac_pct at the schedule's largest step per sample,
+the reason goes to the log (column event) and stderr, exit 1. 'czmpc identify RUN.csv'
+reads the log directly (applied input where published; unusable samples are gaps that
+split the data into segments; RUN.meta.json beside it carries the provenance: config
+and its SHA-256, the schedule's SHA-256, the start time).
+
+Closed-loop test (--dither-pct A): the MPC runs and a generalized-binary-noise dither
+of +-A % is added to its INPUT (mean switching time = the model's dominant time
+constant; the MPC is told the applied input, so it is not misled). An input dither is
+the excitation itself, of known size in %, independent of the plant noise; a setpoint
+dither would reach the TRIAC only through the controller's filtering. The log is
+closed-loop data: 'czmpc identify' says so. The [test] limits guard this run too (a
+plain MPC run without --test or --dither-pct ignores [test]).
+
 Exit codes: 0 done or stopped by a signal; 2 bad config, model or settings; 1 the
-plant could not be reached at the start.
+plant could not be reached at the start, or a test was aborted.
 """
 
 from __future__ import annotations
@@ -48,11 +70,22 @@ def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("config", metavar="CONFIG.toml", type=Path,
-                        help="run configuration: [plant], [nodes], [controller], [run], [safety]")
+                        help="run configuration: [plant], [nodes], [controller], [run], [safety], "
+                             "[test]")
     parser.add_argument("--duration-s", metavar="S", type=_argtypes.number(above=0.0, unit="s"),
                         default=None, help="plant time to run [s] (overrides [run].duration_s)")
     parser.add_argument("--log", metavar="RUN.csv", type=Path, default=None,
                         help="step log (overrides [run].log)")
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--test", metavar="TEST.csv", type=Path, default=None,
+                      help="open-loop identification test: play this time_s,triac_pct schedule "
+                           "(czmpc design-test) instead of the MPC; needs [test] in the config")
+    mode.add_argument("--dither-pct", metavar="A", default=None,
+                      type=_argtypes.number(above=0.0, at_most=10.0, unit="%"),
+                      help="closed-loop test: add a +-A %% GBN dither to the MPC's input "
+                           "(0 < A <= 10)")
+    parser.add_argument("--dither-seed", metavar="N", type=_argtypes.integer(0), default=0,
+                        help="seed of the dither's switching (default: 0)")
     parser.add_argument("--force", action="store_true",
                         help="switch ON even with a model 'czmpc check-model' judged not ready "
                              "(said on stderr at the start and in the run summary)")
@@ -84,8 +117,8 @@ def run(args: argparse.Namespace) -> int:
 
     from czmpc.controller import OffsetFreeMPC
     from czmpc.errors import SettingsError
-    from czmpc.runtime.config import load_run_config
-    from czmpc.runtime.loop import ControlLoop, tty_status
+    from czmpc.runtime.config import RunConfigError, load_run_config
+    from czmpc.runtime.loop import ControlLoop, LoopController, tty_status
     from czmpc.settings import MPCSettings
     from czmpc.settings_file import load_settings
     from sysid.modelfile import load_model
@@ -98,21 +131,50 @@ def run(args: argparse.Namespace) -> int:
         changes["log_path"] = args.log
     config = dataclasses.replace(config, **changes)  # type: ignore[arg-type]
     print(f"czmpc run: plant link {config.endpoint}: {config.security.describe()}", file=sys.stderr)
-    model = load_model(config.model_path)
-    if abs(model.ts_s - config.ts_s) > 1e-9 * config.ts_s:
-        raise SettingsError(f"plant.ts_s: expected the model's sampling time {model.ts_s:g} s; "
-                            f"got {config.ts_s:g} s")
-    allow_on, forced = _model_gate(config.model_path, args.force)
-    if config.settings_path is None:
-        settings = MPCSettings.default_for(model)
+    forced = False
+    if args.test is not None:
+        from czmpc.commissioning.test_run import load_input_schedule, make_test_loop
+
+        schedule = load_input_schedule(args.test)
+        loop = make_test_loop(config, schedule, status=tty_status())
+        limits = config.test_limits
+        print(f"czmpc run: open-loop test {args.test}: {schedule.duration_s:g} s of plant time, "
+              f"largest step {schedule.max_step_pct:g} %; band {limits.power_band_kw[0]:g}.."  # type: ignore[union-attr]
+              f"{limits.power_band_kw[1]:g} kW, at most {limits.max_bad_quality_s:g} s without "  # type: ignore[union-attr]
+              f"a usable sample; abort -> {config.safe_triac_pct:g} %", file=sys.stderr)
     else:
-        settings = load_settings(config.settings_path, model)
-    if not allow_on:
-        settings = dataclasses.replace(settings, reliability=dataclasses.replace(
-            settings.reliability, initial_mode="predict"))
-    controller = OffsetFreeMPC(model, settings)
-    loop = ControlLoop(config, controller, status=tty_status())
-    loop.allow_on = allow_on
+        if config.model_path is None:
+            raise RunConfigError("controller.model: missing; the MPC needs a model "
+                                 "(only an open-loop test, --test TEST.csv, runs without one)")
+        model = load_model(config.model_path)
+        if abs(model.ts_s - config.ts_s) > 1e-9 * config.ts_s:
+            raise SettingsError(f"plant.ts_s: expected the model's sampling time {model.ts_s:g} s; "
+                                f"got {config.ts_s:g} s")
+        allow_on, forced = _model_gate(config.model_path, args.force)
+        if config.settings_path is None:
+            settings = MPCSettings.default_for(model)
+        else:
+            settings = load_settings(config.settings_path, model)
+        if not allow_on:
+            settings = dataclasses.replace(settings, reliability=dataclasses.replace(
+                settings.reliability, initial_mode="predict"))
+        mpc = OffsetFreeMPC(model, settings)
+        if args.dither_pct is None:   # [test] limits guard tests only (--test, --dither-pct)
+            config = dataclasses.replace(config, test_limits=None)
+        controller: OffsetFreeMPC | LoopController = mpc
+        provenance: dict[str, object] = {"kind": "MPC run", "closed_loop": True}
+        if args.dither_pct is not None:
+            from czmpc.commissioning.dither import DitheredMPC, dominant_time_constant_s
+
+            dithered = DitheredMPC(mpc, amplitude_pct=args.dither_pct,
+                                   switch_time_s=dominant_time_constant_s(model),
+                                   rng=args.dither_seed)
+            controller, provenance = dithered, dithered.provenance(args.dither_seed)
+            print(f"czmpc run: closed-loop test: +-{args.dither_pct:g} % GBN dither on the MPC's "
+                  f"input, mean switching time {dithered.switch_time_s:.0f} s; the log is "
+                  "closed-loop data", file=sys.stderr)
+        loop = ControlLoop(config, controller, status=tty_status(), provenance=provenance)
+        loop.allow_on = allow_on
     try:
         summary = asyncio.run(loop.run())
     except ConnectionError as exc:
@@ -128,4 +190,8 @@ def run(args: argparse.Namespace) -> int:
     if summary.stale_alarm_at_s is not None:
         print(f"run: STALE-MODEL ALARM at {summary.stale_alarm_at_s:g} s of plant time: "
               f"{summary.stale_alarm_reason}")
+    if summary.abort_reason is not None:
+        print(f"czmpc: error: test aborted: {summary.abort_reason}; the TRIAC was moved to "
+              f"{config.safe_triac_pct:g} %; see the log's event column", file=sys.stderr)
+        return 1
     return 0

@@ -17,7 +17,7 @@ Layout (every key checked; an unknown key, a wrong type or a value out of range 
     heartbeat = "ns=2;s=Heater.Heartbeat"            # write, optional
     mode = "ns=2;s=Heater.Mode"                      # read, optional
     model_health = "ns=2;s=Heater.ModelHealth"       # write, optional (czmpc.health)
-    [controller]
+    [controller]                # optional for an open-loop test (`czmpc run --test`)
     model = "model.json"
     settings = "settings.toml"  # optional
     [run]
@@ -27,6 +27,9 @@ Layout (every key checked; an unknown key, a wrong type or a value out of range 
     [safety]                    # optional
     action = "hold"             # or "ramp" (to safe_triac_pct at the rate limit)
     safe_triac_pct = 20.0
+    [test]                      # required by `czmpc run --test`: the test's safety limits
+    power_band_kw = [30.0, 60.0]  # measured power must stay inside [kW]
+    max_bad_quality_s = 10.0    # longest tolerated stretch of missing samples [plant s]
 
 Relative paths are taken relative to the config file's directory.
 """
@@ -34,6 +37,7 @@ Relative paths are taken relative to the config file's directory.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import tomllib
 from dataclasses import dataclass
@@ -55,7 +59,12 @@ _TABLES: dict[str, tuple[str, ...]] = {
     "controller": ("model", "settings"),
     "run": ("duration_s", "setpoint_kw", "schedule", "log"),
     "safety": ("action", "safe_triac_pct"),
+    "test": ("power_band_kw", "max_bad_quality_s"),
 }
+
+#: Default of ``[test] max_bad_quality_s`` [plant s]: five samples at Ts = 2 s; longer
+#: blind stretches during an open-loop test leave the heater unwatched.
+DEFAULT_MAX_BAD_QUALITY_S = 10.0
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -90,6 +99,46 @@ class Schedule:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
+class ExperimentLimits:
+    """The safety limits of an open-loop or closed-loop test (``[test]``).
+
+    Parameters
+    ----------
+    power_band_kw :
+        ``(lo, hi)`` [kW]: a Good measurement outside this band aborts the test.
+    max_bad_quality_s :
+        Longest tolerated stretch of samples without a usable measurement (Bad,
+        Uncertain, stale or disconnected) [plant s]; a longer one aborts the test.
+    """
+
+    power_band_kw: tuple[float, float]
+    max_bad_quality_s: float = DEFAULT_MAX_BAD_QUALITY_S
+
+    def violation(self, power_kw: float, quality: str, bad_run_s: float) -> str | None:
+        """Why the test must stop now, or None.
+
+        Parameters
+        ----------
+        power_kw :
+            Measured power [kW] of this sample (NaN when not usable).
+        quality :
+            Its quality word (``"good"`` or why not).
+        bad_run_s :
+            Plant time [s] covered by the current stretch of unusable samples,
+            this one included (0 for a Good sample).
+        """
+        lo, hi = self.power_band_kw
+        if quality == "good" and not lo <= power_kw <= hi:
+            side = "below" if power_kw < lo else "above"
+            return (f"measured power {power_kw:.3f} kW is {side} the test band "
+                    f"[{lo:g}, {hi:g}] kW ([test] power_band_kw)")
+        if quality != "good" and bad_run_s > self.max_bad_quality_s:
+            return (f"no usable measurement for {bad_run_s:g} s (quality {quality}), longer than "
+                    f"[test] max_bad_quality_s = {self.max_bad_quality_s:g} s")
+        return None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
 class RunConfig:
     """A checked run configuration (module docstring for the keys and their units)."""
 
@@ -99,7 +148,7 @@ class RunConfig:
     max_sample_age_s: float
     connect_timeout_s: float
     nodes: NodeIds
-    model_path: Path
+    model_path: Path | None
     settings_path: Path | None
     duration_s: float | None
     setpoint_kw: float | None
@@ -108,6 +157,8 @@ class RunConfig:
     safe_action: str
     safe_triac_pct: float | None
     security: SecuritySettings = INSECURE_LOOPBACK
+    test_limits: ExperimentLimits | None = None
+    source_path: Path | None = None
 
     @property
     def period_s(self) -> float:
@@ -192,7 +243,7 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
                 raise RunConfigError(
                     f"{name}.{key}: unknown key; expected one of {', '.join(keys)}")
         tables[name] = table
-    plant, nodes, ctrl, run, safety = (tables[n] for n in _TABLES)
+    plant, nodes, ctrl, run, safety, test = (tables[n] for n in _TABLES)
     endpoint = _str(plant, "endpoint", "plant", required=True)
     assert_endpoint = endpoint or ""
     if not assert_endpoint.startswith("opc.tcp://"):
@@ -212,14 +263,16 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
         mode=_str(nodes, "mode", "nodes"),
         model_health=_str(nodes, "model_health", "nodes"),
     )
-    model = _str(ctrl, "model", "controller", required=True) or ""
+    # [controller] may be absent (an open-loop test needs no model); if given, it names one.
+    model = _str(ctrl, "model", "controller", required="controller" in doc)
     settings = _str(ctrl, "settings", "controller")
     duration = _num(run, "duration_s", "run", positive=True)
     setpoint = _num(run, "setpoint_kw", "run")
     schedule_name = _str(run, "schedule", "run")
     if setpoint is not None and schedule_name is not None:
         raise RunConfigError("run.schedule: give either run.setpoint_kw or run.schedule, not both")
-    if setpoint is None and schedule_name is None and node_ids.setpoint_kw is None:
+    if (model is not None and setpoint is None and schedule_name is None
+            and node_ids.setpoint_kw is None):
         raise RunConfigError(
             "run.setpoint_kw: missing; give nodes.setpoint_kw, run.setpoint_kw or run.schedule")
     log = _str(run, "log", "run") or "run.csv"
@@ -229,6 +282,10 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
     safe = _num(safety, "safe_triac_pct", "safety", minimum=0.0, maximum=100.0)
     if action == "ramp" and safe is None:
         raise RunConfigError("safety.safe_triac_pct: required when safety.action = 'ramp'")
+    limits = _test_limits(test) if "test" in doc else None
+    if limits is not None and safe is None:
+        raise RunConfigError("safety.safe_triac_pct: required with [test] (an aborted test moves "
+                             "the TRIAC there at the rate limit)")
     # Last, so that a plain key error is reported first.
     security_table = plant.get("security")
     if security_table is not None and not isinstance(security_table, dict):
@@ -237,12 +294,30 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
     return RunConfig(
         endpoint=assert_endpoint, ts_s=ts_s, time_scale=float(time_scale or 1.0),
         max_sample_age_s=float(max_age or 2.0 * ts_s), connect_timeout_s=float(conn_to or 2.0),
-        nodes=node_ids, model_path=base_dir / model,
+        nodes=node_ids, model_path=None if model is None else base_dir / model,
         settings_path=None if settings is None else base_dir / settings,
         duration_s=duration, setpoint_kw=setpoint,
         schedule=None if schedule_name is None else load_schedule(base_dir / schedule_name),
         log_path=base_dir / log, safe_action=action, safe_triac_pct=safe, security=security,
+        test_limits=limits,
     )
+
+
+def _test_limits(table: dict[str, Any]) -> ExperimentLimits:
+    band = table.get("power_band_kw")
+    if band is None:
+        raise RunConfigError("test.power_band_kw: missing (required in [test]); give [LO, HI] in kW")
+    if (not isinstance(band, list) or len(band) != 2
+            or not all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+                       for v in band)
+            or not band[0] < band[1]):
+        raise RunConfigError(
+            f"test.power_band_kw: expected [LO, HI] in kW with finite LO < HI; got {band!r}")
+    max_bad = _num(table, "max_bad_quality_s", "test", default=DEFAULT_MAX_BAD_QUALITY_S,
+                   minimum=0.0)
+    return ExperimentLimits(power_band_kw=(float(band[0]), float(band[1])),
+                      max_bad_quality_s=float(DEFAULT_MAX_BAD_QUALITY_S if max_bad is None
+                                              else max_bad))
 
 
 def load_run_config(path: Path) -> RunConfig:
@@ -254,8 +329,10 @@ def load_run_config(path: Path) -> RunConfig:
         raise RunConfigError(f"{path}: not valid TOML: {exc}") from exc
     except OSError as exc:
         raise RunConfigError(f"{path}: cannot read: {exc.strerror}") from exc
-    return run_config_from_dict(doc, base_dir=path.resolve().parent)
+    config = run_config_from_dict(doc, base_dir=path.resolve().parent)
+    return dataclasses.replace(config, source_path=path.resolve())
 
 
-__all__ = ["NodeIds", "RunConfig", "RunConfigError", "Schedule", "load_run_config",
-           "load_schedule", "run_config_from_dict"]
+__all__ = ["DEFAULT_MAX_BAD_QUALITY_S", "ExperimentLimits", "NodeIds", "RunConfig",
+           "RunConfigError", "Schedule", "load_run_config", "load_schedule",
+           "run_config_from_dict"]

@@ -23,6 +23,16 @@ backoff (up to `MAX_BACKOFF_S`); on return the applied input is read and handed 
 controller, so the next move starts from it within the rate limit (bumpless). A stop
 (SIGINT/SIGTERM, or the duration) writes the safe action: ``hold`` leaves the last
 command, ``ramp`` moves to ``safe_triac_pct`` at the rate limit, one move per period.
+
+The loop drives any `LoopController`: the MPC (`MPCDriver`), or an open-loop test
+schedule or a dithered MPC (`czmpc.commissioning`). With a ``[test]`` section in the
+config (`ExperimentLimits`) every sample is checked against the power band and the
+longest tolerated stretch of unusable samples; leaving either aborts the run: the
+reason goes into the log (column ``event``) and the summary, and the input moves to
+``safe_triac_pct`` at the controller's rate limit whatever ``[safety] action`` says.
+A controller may also end the run itself (`LoopController.finished`, e.g. at the end
+of a test schedule). Beside the log, ``<log>.meta.json`` records where the run came
+from (config file and its SHA-256, start time, what drove the input).
 """
 
 from __future__ import annotations
@@ -30,14 +40,16 @@ from __future__ import annotations
 import asyncio
 import csv
 import datetime as dt
+import hashlib
+import json
 import math
 import signal
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Protocol
 
 from czmpc.controller import OffsetFreeMPC
 from czmpc.health import RUNTIME_HEALTH, HealthSettings, ModelHealth, ModelHealthMonitor
@@ -58,7 +70,96 @@ STARTUP_WAIT_S = 15.0
 LOG_COLUMNS = ("k", "time_s", "wall_time_s", "power_kw", "quality", "setpoint_kw",
                "triac_pct", "applied_triac_pct", "status", "verdict", "mode", "connected",
                "written", "lateness_s", "step_latency_s", "skipped", "predicted_kw", "health",
-               "stale_alarm")
+               "stale_alarm", "event")
+#: Format tag of the run log's provenance file ``<log>.meta.json``.
+RUN_META_FORMAT = "czmpc-runlog/1"
+
+
+class LoopController(Protocol):
+    """What the loop drives: the MPC, an open-loop test schedule, a dithered MPC."""
+
+    @property
+    def mode(self) -> Mode:
+        """OFF / PREDICT / ON; the loop writes the command in ON only."""
+
+    def request_mode(self, mode: Mode) -> object:
+        """The operator asks for another mode (the plant's mode node)."""
+
+    def step(self, power_kw: float, setpoint_kw: float, *,
+             applied_triac_pct: float | None = None) -> float:
+        """Return the TRIAC input [%] to apply now (see `OffsetFreeMPC.step`)."""
+
+    def status_words(self) -> tuple[str, str]:
+        """``(status, verdict)`` of the last step, for the log."""
+
+    @property
+    def rate_limit_pct_per_step(self) -> float | None:
+        """Largest move per sample [%] (the safe ramp's rate); None: no limit."""
+
+    def skipped(self, n_periods: int) -> None:
+        """The loop skipped ``n_periods`` sample periods after an overrun (plant time went on)."""
+
+    def finished(self) -> str | None:
+        """Why the run is complete (it then stops with the safe action, not failed), or None."""
+
+    def abort_reason(self) -> str | None:
+        """Why the run must stop as failed (exit 1), or None."""
+
+
+class MPCDriver:
+    """The offset-free MPC as a `LoopController` (it never finishes or aborts by itself)."""
+
+    def __init__(self, mpc: OffsetFreeMPC) -> None:
+        self.mpc = mpc
+
+    @property
+    def mode(self) -> Mode:
+        """The MPC's mode."""
+        return self.mpc.mode
+
+    def request_mode(self, mode: Mode) -> object:
+        """Pass the request to the MPC."""
+        return self.mpc.request_mode(mode)
+
+    def step(self, power_kw: float, setpoint_kw: float, *,
+             applied_triac_pct: float | None = None) -> float:
+        """One MPC step."""
+        return self.mpc.step(power_kw, setpoint_kw, applied_triac_pct=applied_triac_pct)
+
+    def status_words(self) -> tuple[str, str]:
+        """Status and measurement verdict of the last step."""
+        diag = self.mpc.last_step
+        return ("", "") if diag is None else (diag.status.name, diag.verdict.name)
+
+    @property
+    def rate_limit_pct_per_step(self) -> float | None:
+        """The settings' ``max_move_pct_per_step``."""
+        return self.mpc.settings.max_move_pct_per_step
+
+    def skipped(self, n_periods: int) -> None:
+        """Nothing: the MPC's estimator predicts from the next measurement on."""
+
+    def finished(self) -> str | None:
+        """Never: the MPC runs until the duration or a signal."""
+        return None
+
+    def abort_reason(self) -> str | None:
+        """Never."""
+        return None
+
+
+def meta_path(log_path: Path) -> Path:
+    """The provenance file beside a run log: ``run.csv`` -> ``run.meta.json``."""
+    return log_path.with_suffix(".meta.json")
+
+
+def _sha256(path: Path | None) -> str | None:
+    if path is None:
+        return None
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        return None
 
 
 @dataclass(slots=True)
@@ -76,6 +177,13 @@ class RunSummary:
     stopped_by: str = "duration"
     stale_alarm_at_s: float | None = None
     stale_alarm_reason: str = ""
+    #: Why the run was aborted (a test limit or the controller); None: it was not.
+    abort_reason: str | None = None
+
+    @property
+    def failed(self) -> bool:
+        """True when the run was aborted (the CLI then exits 1)."""
+        return self.abort_reason is not None
 
 
 class _Link:
@@ -146,11 +254,23 @@ def _mode_of(value: Any) -> Mode | None:
 
 
 class RunLog:
-    """CSV log of every step, flushed per row (readable after a crash)."""
+    """CSV log of every step, flushed per row (readable after a crash).
 
-    def __init__(self, path: Path) -> None:
+    Parameters
+    ----------
+    path :
+        The CSV file (columns `LOG_COLUMNS`).
+    meta :
+        Provenance written to `meta_path` ``(path)`` as JSON (format `RUN_META_FORMAT`),
+        or None for no provenance file.
+    """
+
+    def __init__(self, path: Path, meta: Mapping[str, object] | None = None) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         self.path = path
+        if meta is not None:
+            doc = {"format": RUN_META_FORMAT, **meta}
+            meta_path(path).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
         self._fh: IO[str] = open(path, "w", newline="", encoding="utf-8")  # noqa: SIM115
         self._w = csv.writer(self._fh)
         self._w.writerow(LOG_COLUMNS)
@@ -180,7 +300,8 @@ class ControlLoop:
     config :
         The run configuration.
     controller :
-        The MPC (its ``ts_s`` must equal ``config.ts_s``).
+        The MPC (its ``ts_s`` must equal ``config.ts_s``; wrapped in `MPCDriver`) or any
+        `LoopController`.
     status :
         Called with a one-line status after each step (None: silent).
     step_delay_s :
@@ -189,14 +310,22 @@ class ControlLoop:
     health_settings :
         Window, reference and false-alarm rate of the model-health monitor (None:
         `czmpc.health.RUNTIME_HEALTH`, the change test against the run's first 30 min).
+    provenance :
+        What drives the input and where it came from (for example the test schedule
+        and its SHA-256), written with the config's path, its SHA-256 and the start
+        time into ``<log>.meta.json``.
     """
 
-    def __init__(self, config: RunConfig, controller: OffsetFreeMPC, *,
+    def __init__(self, config: RunConfig, controller: OffsetFreeMPC | LoopController, *,
                  status: Callable[[str], None] | None = None,
                  step_delay_s: dict[int, float] | None = None,
-                 health_settings: HealthSettings | None = None) -> None:
+                 health_settings: HealthSettings | None = None,
+                 provenance: Mapping[str, object] | None = None) -> None:
         self.config = config
-        self.mpc = controller
+        self.ctrl: LoopController = (MPCDriver(controller) if isinstance(controller, OffsetFreeMPC)
+                                     else controller)
+        self._provenance = dict(provenance or {})
+        self._bad_run = 0
         self.link = _Link(config)
         self.summary = RunSummary()
         self._status = status
@@ -208,9 +337,10 @@ class ControlLoop:
         self._backoff_s = config.period_s
         self._max_backoff_s = min(MAX_BACKOFF_S, MAX_BACKOFF_PERIODS * config.period_s)
         self._next_try = 0.0
-        model = getattr(controller, "model", None)   # a controller without a model: no monitor
-        self.health = (None if model is None
-                       else ModelHealthMonitor(model, health_settings or RUNTIME_HEALTH))
+        # The MPC inside the controller (a test schedule has none: no health monitor).
+        self._mpc: OffsetFreeMPC | None = getattr(self.ctrl, "mpc", None)
+        self.health = (None if self._mpc is None
+                       else ModelHealthMonitor(self._mpc.model, health_settings or RUNTIME_HEALTH))
         #: False: the model was judged not ready (check-model); requests for ON are refused.
         self.allow_on = True
         self._setpoint = config.setpoint_kw if config.setpoint_kw is not None else math.nan
@@ -265,7 +395,15 @@ class ControlLoop:
                 loop.add_signal_handler(sig, self.request_stop, sig.name)
             except (NotImplementedError, RuntimeError, ValueError):
                 pass
-        log = RunLog(cfg.log_path)
+        meta: dict[str, object] = {
+            "config": None if cfg.source_path is None else str(cfg.source_path),
+            "config_sha256": _sha256(cfg.source_path),
+            "endpoint": cfg.endpoint, "ts_s": cfg.ts_s, "time_scale": cfg.time_scale,
+            "start_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+            "model": None if cfg.model_path is None else str(cfg.model_path),
+            **self._provenance,
+        }
+        log = RunLog(cfg.log_path, meta)
         try:
             give_up = time.monotonic() + STARTUP_WAIT_S
             while not await self._try_connect(time.monotonic()):
@@ -314,10 +452,33 @@ class ControlLoop:
                 self.summary.n_overruns += 1
                 self.summary.n_skipped += next_k - k - 1
             row["skipped"] = next_k - k - 1
+            if next_k - k - 1 > 0:
+                self.ctrl.skipped(next_k - k - 1)
             row["step_latency_s"] = end - woke
+            self._check_limits(row, next_k - k)
             log.row(row)
             k = next_k
         self.summary.n_steps = k
+
+    def _check_limits(self, row: dict[str, object], n_periods: int) -> None:
+        """Stop the run if a test limit is left, the controller aborts or is done."""
+        limits = self.config.test_limits
+        reason = self.ctrl.abort_reason()
+        if reason is None and limits is not None:
+            quality = str(row["quality"])
+            power = float(row["power_kw"])  # type: ignore[arg-type]
+            self._bad_run = 0 if quality == "good" else self._bad_run + n_periods
+            reason = limits.violation(power, quality, self._bad_run * self.config.ts_s)
+        if reason is not None:
+            row["event"] = f"ABORT: {reason}"
+            self.summary.abort_reason = reason
+            self.request_stop("abort")
+            self._say(f"aborting: {reason}")
+            return
+        done = self.ctrl.finished()
+        if done is not None:
+            row["event"] = done
+            self.request_stop(done)
 
     async def _one_step(self, k: int, lateness: float) -> dict[str, object]:
         cfg = self.config
@@ -339,8 +500,8 @@ class ControlLoop:
                     mode = _mode_of(dv.Value.Value if dv.Value is not None else None)
                     if mode is Mode.ON and not self.allow_on:
                         mode = None   # a 'not ready' model stays in PREDICT (czmpc run --force)
-                    if mode is not None and mode is not self.mpc.mode:
-                        self.mpc.request_mode(mode)
+                    if mode is not None and mode is not self.ctrl.mode:
+                        self.ctrl.request_mode(mode)
                 if "applied_triac_pct" in self.link.nodes:
                     applied = await self._read_applied()
                     if math.isfinite(applied):
@@ -357,16 +518,16 @@ class ControlLoop:
             self.summary.n_missing += 1
         if k in self._delay:
             await asyncio.sleep(self._delay[k])
-        if self.mpc.mode is not Mode.ON and reported_applied is None:
+        if self.ctrl.mode is not Mode.ON and reported_applied is None:
             reported_applied = self._last_cmd if math.isfinite(self._last_cmd) else None
         applied_before = reported_applied if reported_applied is not None else self._last_cmd
-        command = self.mpc.step(power, self._setpoint, applied_triac_pct=reported_applied)
-        diag = self.mpc.last_step
-        health = self._health(k, power, applied_before, diag)
+        command = self.ctrl.step(power, self._setpoint, applied_triac_pct=reported_applied)
+        status_word, verdict_word = self.ctrl.status_words()
+        health = self._health(k, power, applied_before)
         written = False
         if self.link.connected:
             try:
-                if self.mpc.mode is Mode.ON and math.isfinite(command):
+                if self.ctrl.mode is Mode.ON and math.isfinite(command):
                     await self.link.write("triac_pct", float(command), ua.VariantType.Double)
                     written = True
                     self.summary.n_writes += 1
@@ -378,31 +539,30 @@ class ControlLoop:
                     await self.link.write("model_health", health.health, ua.VariantType.Double)
             except Exception as exc:  # noqa: BLE001 - any link failure: predict on
                 await self._lost(exc)
-        if self.mpc.mode is not Mode.ON:
+        if self.ctrl.mode is not Mode.ON:
             self._last_cmd = float(command)
         row: dict[str, object] = {
             "k": k, "time_s": k * cfg.ts_s, "wall_time_s": time.time(), "power_kw": power,
             "quality": quality, "setpoint_kw": self._setpoint, "triac_pct": float(command),
             "applied_triac_pct": math.nan if reported_applied is None else reported_applied,
-            "status": diag.status.name if diag is not None else "",
-            "verdict": diag.verdict.name if diag is not None else "",
-            "mode": self.mpc.mode.name, "connected": int(self.link.connected),
+            "status": status_word, "verdict": verdict_word,
+            "mode": self.ctrl.mode.name, "connected": int(self.link.connected),
             "written": int(written), "lateness_s": lateness, "step_latency_s": 0.0,
             "skipped": 0, "predicted_kw": math.nan if health is None else health.predicted_kw,
             "health": math.nan if health is None else health.health,
-            "stale_alarm": "" if health is None else int(health.stale_alarm),
+            "stale_alarm": "" if health is None else int(health.stale_alarm), "event": "",
         }
         self._say(f"k={k} t={k * cfg.ts_s:.0f}s P={power:.2f}kW ({quality}) "
                   f"SP={self._setpoint:.2f}kW u={command:.2f}% {row['status']} "
-                  f"{self.mpc.mode.name} late={lateness * 1e3:.1f}ms "
+                  f"{self.ctrl.mode.name} late={lateness * 1e3:.1f}ms "
                   f"{'' if health is None else health.status()}")
         return row
 
-    def _health(self, k: int, power: float, applied_before: float,
-                diag: Any) -> ModelHealth | None:
+    def _health(self, k: int, power: float, applied_before: float) -> ModelHealth | None:
         """Feed the model-health monitor; say the stale alarm once when it comes."""
-        if self.health is None:
+        if self.health is None or self._mpc is None:
             return None
+        diag = self._mpc.last_step
         d = float(getattr(diag, "disturbance_power_kw", math.nan)) if diag is not None else math.nan
         health = self.health.update(power, applied_before, d)
         if health.stale_alarm and self.summary.stale_alarm_at_s is None:
@@ -419,11 +579,12 @@ class ControlLoop:
 
     async def _safe_action(self, log: RunLog) -> None:
         cfg = self.config
-        if cfg.safe_action != "ramp" or cfg.safe_triac_pct is None:
+        ramp = cfg.safe_action == "ramp" or self.summary.failed
+        if not ramp or cfg.safe_triac_pct is None:
             self._say(f"stopped ({self.summary.stopped_by}): holding the last command")
             return
         ua = asyncua().ua
-        rate = self.mpc.settings.max_move_pct_per_step
+        rate = self.ctrl.rate_limit_pct_per_step
         step = math.inf if rate is None else float(rate)
         u = self._last_cmd
         target = cfg.safe_triac_pct
@@ -435,6 +596,9 @@ class ControlLoop:
             u = u + max(-step, min(step, target - u))
             try:
                 await self.link.write("triac_pct", u, ua.VariantType.Double)
+                if "heartbeat" in self.link.nodes:  # the plant's watchdog still sees us
+                    self._heartbeat += 1
+                    await self.link.write("heartbeat", self._heartbeat, ua.VariantType.Int64)
             except Exception:  # noqa: BLE001 - nothing more can be done without a link
                 break
             self.summary.n_writes += 1
@@ -459,4 +623,5 @@ def tty_status() -> Callable[[str], None] | None:
     return show
 
 
-__all__ = ["LOG_COLUMNS", "ControlLoop", "RunLog", "RunSummary", "tty_status"]
+__all__ = ["LOG_COLUMNS", "RUN_META_FORMAT", "ControlLoop", "LoopController", "MPCDriver",
+           "RunLog", "RunSummary", "meta_path", "tty_status"]

@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 from plant_rig import TIME_SCALE, free_port, served_nodes
 
+from czmpc.runtime.loop import LOG_COLUMNS
 from czmpc.shipped import shipped_path
 
 pytestmark = pytest.mark.slow
@@ -101,9 +102,9 @@ def test_sigterm_ramps_to_the_safe_input_and_exits_0(tmp_path: Path) -> None:
     assert ramp and ramp[-1] == 25.0
     moves = [abs(b - a) for a, b in zip(ramp, ramp[1:], strict=False)]
     assert max(moves, default=0.0) <= RATE_PCT + 1e-6
-    with open(tmp_path / "run.csv", encoding="utf-8") as fh:
-        lines = fh.read().splitlines()
-    assert all(line.count(",") == 15 for line in lines)   # every row complete
+    with open(tmp_path / "run.csv", newline="", encoding="utf-8") as fh:
+        cells = list(csv.reader(fh))
+    assert all(len(row) == len(LOG_COLUMNS) for row in cells)   # every row complete
 
 
 def test_server_restart_reconnects_without_bump_or_nan(tmp_path: Path) -> None:

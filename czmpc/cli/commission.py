@@ -1,0 +1,122 @@
+"""Commission a heater from nothing: test, identify, check, report, and switch the MPC on.
+
+czmpc commission CONFIG.toml --range-pct LO HI [--tau-s T] --out DIR [--switch-on]
+
+1. designs an open-loop test over LO..HI % (staircase + generalized binary noise, as
+   'czmpc design-test'; hold times and switching from the time constant T),
+2. runs it through the plant link of CONFIG.toml (as 'czmpc run --test': the config
+   needs [test] power_band_kw and [safety] safe_triac_pct; a test leaving the band
+   aborts, moves the TRIAC to the safe value and ends here with exit 1),
+3. identifies the model from the log (orders chosen automatically; the last 25 % of
+   the samples held out),
+4. checks it ('czmpc check-model': held-out fit, residuals, gain, stability,
+   closed-loop Monte Carlo) and stores the verdict beside DIR/model.json,
+5. writes DIR/commissioning.md with figures (the test and the response, the held-out
+   fit, the verdict and its Monte Carlo distribution, the controller settings), and
+6. with --switch-on and the verdict 'ready' only, runs the MPC with the new model
+   ('czmpc run', bumpless from the applied input; needs a setpoint in CONFIG.toml).
+
+T comes from --tau-s, else from the model named in CONFIG.toml's [controller] (a prior
+model's slowest pole). Exit codes: 0 a 'ready' model (and a switched-on run that
+ended normally); 1 the test was aborted, or the verdict is not 'ready'; 2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+from czmpc.cli import _argtypes as t
+from czmpc.cli._progress import Progress
+
+NAME = "commission"
+HELP = "commission a heater: design and run a test, identify, check, report, switch the MPC on"
+ORDER = 79
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """Add this command's options."""
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.add_argument("config", metavar="CONFIG.toml", type=Path,
+                        help="run configuration with [plant], [nodes], [test], [safety] "
+                             "(see czmpc run --help)")
+    parser.add_argument("--range-pct", type=t.number(at_least=0, at_most=100, unit="%"), nargs=2,
+                        metavar=("LO", "HI"), required=True,
+                        help="band of TRIAC inputs the test may visit [%%]")
+    parser.add_argument("--tau-s", type=t.number(above=0, unit="s"), default=None,
+                        help="guess of the dominant time constant [s] (default: from the "
+                             "config's [controller] model)")
+    parser.add_argument("--out", metavar="DIR", type=Path, required=True,
+                        help="output directory: test.csv, test_run.csv, model.json, "
+                             "identification/, commissioning.md, figures/, run.csv")
+    parser.add_argument("--switch-on", action="store_true",
+                        help="run the MPC with the new model if the verdict is 'ready'")
+    parser.add_argument("--duration-s", type=t.number(above=0, unit="s"), default=None,
+                        help="test length [plant s] (default: the shortest the design accepts)")
+    parser.add_argument("--kind", choices=("steps", "gbn", "mixed"), default="mixed",
+                        help="test signal (default: mixed = staircase + GBN)")
+    parser.add_argument("--max-step-pct", type=t.number(above=0, unit="%"), default=100.0,
+                        help="largest designed move per sample [%%] (default: no limit)")
+    parser.add_argument("--seed", type=t.integer(0, "a seed"), default=0,
+                        help="seed of the GBN part (default: 0)")
+    parser.add_argument("--run-duration-s", type=t.number(above=0, unit="s"), default=None,
+                        help="plant time the MPC runs after switch-on [s] (default: the "
+                             "config's [run] duration_s, else until Ctrl-C)")
+    parser.add_argument("--mc-runs", type=t.integer(0, "a count"), default=20,
+                        help="plants in the check's closed-loop Monte Carlo (default: 20)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the journey and say where it ended."""
+    from czmpc.commissioning.dither import dominant_time_constant_s
+    from czmpc.commissioning.journey import JourneyError, JourneyPlan, commission
+    from czmpc.runtime.config import load_run_config
+    from czmpc.runtime.loop import tty_status
+    from sysid.modelfile import load_model
+
+    config = load_run_config(args.config)
+    lo, hi = args.range_pct
+    if not lo < hi:
+        raise JourneyError(f"--range-pct: expected LO < HI; got {lo:g} {hi:g}")
+    tau_s = args.tau_s
+    if tau_s is None:
+        if config.model_path is None:
+            raise JourneyError("--tau-s: missing; give a guess of the heater's dominant time "
+                               "constant [s] (or a prior model in [controller] model)")
+        tau_s = dominant_time_constant_s(load_model(config.model_path))
+    plan = JourneyPlan(range_pct=(lo, hi), tau_s=tau_s, out_dir=args.out,
+                       duration_s=args.duration_s, kind=args.kind, max_step_pct=args.max_step_pct,
+                       seed=args.seed, switch_on=args.switch_on,
+                       run_duration_s=args.run_duration_s, mc_runs=args.mc_runs)
+    words = ["czmpc", NAME, str(args.config), "--range-pct", f"{lo:g}", f"{hi:g}",
+             "--tau-s", f"{tau_s:g}", "--out", str(args.out)]
+    if args.duration_s is not None:
+        words += ["--duration-s", f"{args.duration_s:g}"]
+    words += ["--kind", args.kind, "--max-step-pct", f"{args.max_step_pct:g}", "--seed",
+              str(args.seed), "--mc-runs", str(args.mc_runs)]
+    if args.run_duration_s is not None:
+        words += ["--run-duration-s", f"{args.run_duration_s:g}"]
+    if args.switch_on:
+        words.append("--switch-on")
+    progress = Progress()
+    result = commission(config, plan, progress=progress, run_status=tty_status(),
+                        command=" ".join(shlex.quote(w) for w in words))
+    print(f"commissioning report: {result.report_path}")
+    for message in result.messages:
+        print(f"czmpc: {message}", file=sys.stderr)
+    if result.stage == "test aborted":
+        print(f"czmpc: error: test aborted: {result.test_summary.abort_reason}; the TRIAC was "
+              f"moved to {config.safe_triac_pct:g} %", file=sys.stderr)
+        return 1
+    check = result.check
+    if check is not None:
+        verdict = "none (no check made)" if check.verdict is None else check.verdict
+        print(f"verdict: {verdict}; held-out fit {result.fit_pct:.1f} %")
+        for reason in check.reasons:
+            print(f"  - {reason}")
+    if result.run_summary is not None:
+        s = result.run_summary
+        print(f"MPC run: {s.n_steps} steps, stopped by {s.stopped_by}; log {args.out / 'run.csv'}")
+    return 0 if result.ok else 1

@@ -1,0 +1,148 @@
+"""A designed dither on the MPC's input for closed-loop identification (`czmpc run --dither-pct`).
+
+Where: on the INPUT, added to the MPC's command. Why there and not on the setpoint:
+a setpoint dither reaches the input only through the closed loop, so the MPC's move
+penalty and its slow terminal dynamics filter it and its amplitude at the TRIAC is
+unknown in advance; an input dither is the excitation itself, its amplitude ``A`` [%]
+is stated in the unit of the test band, and it is independent of the plant noise,
+which is what makes closed-loop data informative for the direct prediction-error
+method (Ljung, System Identification, 2nd ed., sec. 13.4: an external signal that is
+persistently exciting and uncorrelated with the noise). The MPC is told the input
+actually applied every step (``applied_triac_pct``), so its estimator is not misled by
+the dither and it corrects the dither's effect on the power like any known input.
+
+The dither is generalized binary noise of levels ``+A`` and ``-A`` (zero mean) whose
+mean switching time is the model's dominant time constant (the same rule as
+`sysid.design`: Tulleken 1990), seeded. The dithered input stays inside the MPC's
+input limits and within its rate limit of the previous applied input. In OFF and
+PREDICT nothing is added (the operator drives the TRIAC).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from czmpc.controller import OffsetFreeMPC
+from czmpc.errors import SettingsError
+from czmpc.modes import Mode
+from czmpc.runtime.loop import MPCDriver
+from sysid.model import HammersteinModel
+from sysid.polynomials import roots_z
+
+#: Largest dither amplitude [%] accepted: a dither is small by design; larger
+#: excitation is an open-loop test (`czmpc run --test`).
+MAX_DITHER_PCT = 10.0
+
+
+def dominant_time_constant_s(model: HammersteinModel) -> float:
+    """Time constant [s] of the model's slowest stable real-magnitude pole: ``-ts / ln|z|``.
+
+    Raises
+    ------
+    SettingsError
+        If the model has no stable pole with ``0 < |z| < 1`` (no time constant to use).
+    """
+    taus = [-model.ts_s / math.log(abs(z)) for z in roots_z(np.asarray(model.a)) if 0 < abs(z) < 1]
+    if not taus:
+        raise SettingsError("the model has no stable pole that gives a time constant for the dither")
+    return max(taus)
+
+
+class DitheredMPC:
+    """The MPC with a GBN dither of ``±amplitude_pct`` on its input (module docstring).
+
+    Parameters
+    ----------
+    mpc :
+        The controller.
+    amplitude_pct :
+        Dither amplitude ``A`` [%], ``0 < A <= MAX_DITHER_PCT``.
+    switch_time_s :
+        Mean switching time of the GBN [s] (default rule: `dominant_time_constant_s`).
+    rng :
+        Seed or generator of the switching.
+    """
+
+    def __init__(self, mpc: OffsetFreeMPC, *, amplitude_pct: float, switch_time_s: float,
+                 rng: np.random.Generator | int | None = None) -> None:
+        if not (math.isfinite(amplitude_pct) and 0.0 < amplitude_pct <= MAX_DITHER_PCT):
+            raise SettingsError(f"dither amplitude: expected 0 < A <= {MAX_DITHER_PCT:g} %; "
+                                f"got {amplitude_pct!r}")
+        if not (math.isfinite(switch_time_s) and switch_time_s > 0.0):
+            raise SettingsError(f"dither switching time: expected > 0 s; got {switch_time_s!r}")
+        self.driver = MPCDriver(mpc)
+        self.mpc = mpc
+        self.amplitude_pct = float(amplitude_pct)
+        self.switch_time_s = float(switch_time_s)
+        self.switch_probability = min(0.5, mpc.model.ts_s / self.switch_time_s)
+        self._rng = np.random.default_rng(rng)
+        self._sign = 1.0
+        self._last = math.nan
+        #: Dither actually added at the last step [%] (after the limits).
+        self.last_dither_pct = 0.0
+
+    @property
+    def mode(self) -> Mode:
+        """The MPC's mode."""
+        return self.mpc.mode
+
+    def request_mode(self, mode: Mode) -> object:
+        """Pass the request to the MPC."""
+        return self.mpc.request_mode(mode)
+
+    @property
+    def rate_limit_pct_per_step(self) -> float | None:
+        """The MPC's rate limit."""
+        return self.driver.rate_limit_pct_per_step
+
+    def step(self, power_kw: float, setpoint_kw: float, *,
+             applied_triac_pct: float | None = None) -> float:
+        """One MPC step plus the dither (ON only); the MPC learns the applied input."""
+        applied = applied_triac_pct
+        if (applied is None or not math.isfinite(applied)) and self.mpc.mode is Mode.ON \
+                and math.isfinite(self._last):
+            applied = self._last
+        u = self.mpc.step(power_kw, setpoint_kw, applied_triac_pct=applied)
+        if self.mpc.mode is not Mode.ON:
+            self._last = math.nan
+            self.last_dither_pct = 0.0
+            return u
+        if self._rng.random() < self.switch_probability:
+            self._sign = -self._sign
+        v = u + self._sign * self.amplitude_pct
+        rate = self.driver.rate_limit_pct_per_step
+        ref = applied if applied is not None and math.isfinite(applied) else u
+        if rate is not None:
+            v = min(ref + rate, max(ref - rate, v))
+        lo, hi = self.mpc.triac_limits_pct
+        v = min(hi, max(lo, v))
+        self.last_dither_pct = v - u
+        self._last = v
+        return v
+
+    def status_words(self) -> tuple[str, str]:
+        """The MPC's status and verdict."""
+        return self.driver.status_words()
+
+    def skipped(self, n_periods: int) -> None:
+        """Nothing (as the MPC)."""
+
+    def finished(self) -> str | None:
+        """Never."""
+        return None
+
+    def abort_reason(self) -> str | None:
+        """Never."""
+        return None
+
+    def provenance(self, seed: int | None) -> dict[str, object]:
+        """What the run log's ``<log>.meta.json`` records about the dither."""
+        return {"kind": "closed-loop run with input dither", "closed_loop": True,
+                "dither": {"where": "input", "amplitude_pct": self.amplitude_pct,
+                           "signal": "GBN", "switch_time_s": self.switch_time_s,
+                           "switch_probability": self.switch_probability, "seed": seed}}
+
+
+__all__ = ["MAX_DITHER_PCT", "DitheredMPC", "dominant_time_constant_s"]

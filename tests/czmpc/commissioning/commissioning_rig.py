@@ -1,0 +1,118 @@
+"""Helpers of the commissioning tests: a served plant as a subprocess, configs (imported as
+commissioning_rig)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+#: Every loopback test runs the plant at this many samples per Ts (period 2 s / 50 = 40 ms).
+TIME_SCALE = 50.0
+
+#: Longest wait for the served plant to listen [s wall] (Python start-up under load).
+SERVER_START_S = 60.0
+
+NODES = {
+    "power_kw": "ns=2;s=Heater.Power",
+    "triac_pct": "ns=2;s=Heater.TriacCommand",
+    "applied_triac_pct": "ns=2;s=Heater.TriacApplied",
+    "heartbeat": "ns=2;s=Heater.Heartbeat",
+    "mode": "ns=2;s=Heater.Mode",
+}
+
+
+def free_port() -> int:
+    """A free TCP port on 127.0.0.1."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@contextlib.contextmanager
+def served_plant(tmp_path: Path, *args: str, duration_s: float) -> Iterator[str]:
+    """Run ``czmpc plant serve ARGS`` on a free loopback port; yield its endpoint.
+
+    The server stops by itself after ``duration_s`` of plant time and is killed when
+    the block ends.
+    """
+    endpoint = f"opc.tcp://127.0.0.1:{free_port()}/czmpc/"
+    log = open(tmp_path / "serve.log", "w", encoding="utf-8")  # noqa: SIM115
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "czmpc.cli", "plant", "serve", "--endpoint", endpoint,
+         "--time-scale", f"{TIME_SCALE:g}", "--duration-s", f"{duration_s:g}", *args],
+        stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        port = int(endpoint.rsplit(":", 1)[1].split("/")[0])
+        give_up = time.monotonic() + SERVER_START_S
+        while True:   # wait until the server listens (start-up is slow on a busy machine)
+            with socket.socket() as s:
+                if s.connect_ex(("127.0.0.1", port)) == 0:
+                    break
+            if proc.poll() is not None or time.monotonic() > give_up:
+                raise RuntimeError(f"czmpc plant serve did not start; see {tmp_path / 'serve.log'}")
+            time.sleep(0.2)
+        yield endpoint
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(10)
+        log.close()
+
+
+def write_config(tmp_path: Path, endpoint: str, *, band_kw: tuple[float, float],
+                 safe_triac_pct: float = 40.0, model: str | None = None,
+                 extra: str = "") -> Path:
+    """A run config for the served plant (no [controller] unless ``model``)."""
+    nodes = "\n".join(f'{k} = "{v}"' for k, v in NODES.items())
+    text = (f'[plant]\nendpoint = "{endpoint}"\nts_s = 2.0\ntime_scale = {TIME_SCALE:g}\n'
+            f"max_sample_age_s = 1.0\n[nodes]\n{nodes}\n"
+            + (f'[controller]\nmodel = "{model}"\n[run]\nsetpoint_kw = 45.0\nlog = "run.csv"\n'
+               if model else '[run]\nlog = "run.csv"\n')
+            + f"[safety]\nsafe_triac_pct = {safe_triac_pct:g}\n"
+            f"[test]\npower_band_kw = [{band_kw[0]:g}, {band_kw[1]:g}]\nmax_bad_quality_s = 10.0\n"
+            + extra)
+    path = tmp_path / "run.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def write_schedule(path: Path, times_s: list[float], triac_pct: list[float]) -> Path:
+    """A time_s,triac_pct schedule file."""
+    rows = "".join(f"{t:g},{u:g}\n" for t, u in zip(times_s, triac_pct, strict=True))
+    path.write_text("time_s,triac_pct\n" + rows, encoding="utf-8")
+    return path
+
+
+def fast_heater_model(path: Path) -> Path:
+    """A model plant shaped like the shipped heater model but ~6 times faster (for CI).
+
+    Its slow mode has a1 = -0.95 (time constant -2 / ln 0.95 = 39 s, against about
+    250 s for the shipped model), b2 = -0.96 (static gain 0.8 of the instantaneous
+    one, as the heater's sag), the shipped f(ds) and C, noise std 0.05 kW.
+    """
+    import json
+
+    from czmpc.shipped import shipped_path
+
+    doc = json.loads(shipped_path("cz_heater_model.json").read_text(encoding="utf-8"))
+    doc.update({"A": [1.0, -0.95], "B": [0.0, 1.0, -0.96], "noise_std_kw": 0.05,
+                "covariance": None})
+    doc.pop("covariance")
+    doc["provenance"] = {"what": "test plant: the shipped heater model made faster"}
+    path.write_text(json.dumps(doc), encoding="utf-8")
+    return path
+
+
+#: Time constant of `fast_heater_model`'s slow mode [s].
+FAST_TAU_S = 39.0

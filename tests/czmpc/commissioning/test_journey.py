@@ -1,0 +1,93 @@
+"""`czmpc commission` on loopback: from a bare (served) heater to a running MPC.
+
+The served plant is `commissioning_rig.fast_heater_model` (time constant 39 s) at a
+time scale of 50, so the whole journey takes about two minutes of wall time.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+from commissioning_rig import FAST_TAU_S, fast_heater_model, served_plant, write_config
+
+from czmpc.commissioning.journey import CheckOutcome, JourneyPlan, commission
+from czmpc.runtime.config import load_run_config
+from czmpc.runtime.runlog import read_run_meta
+from czmpc.settings import MPCSettings
+from sysid.data import Dataset
+from sysid.model import HammersteinModel
+
+pytest.importorskip("asyncua")
+pytestmark = pytest.mark.slow
+
+#: The issue's offset-free bound: |mean error| over the last 20 samples [kW].
+OFFSET_FREE_ATOL_KW = 0.1
+#: Held-out fit [%] the identified model reaches on the noise-light fast plant
+#: (measured 91 % with overruns at a time scale of 50 on a busy machine).
+MIN_FIT_PCT = 75.0
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _says_ready(model: HammersteinModel, validation: Dataset, settings: MPCSettings,
+                model_path: Path, mc_runs: int) -> CheckOutcome:
+    """A stand-in verdict, so that this test exercises the switch-on alone."""
+    return CheckOutcome(verdict="ready", reasons=("stand-in check of the journey test",))
+
+
+def test_commission_then_switch_on_tracks_offset_free(tmp_path: Path) -> None:
+    plant = fast_heater_model(tmp_path / "plant.json")
+    with served_plant(tmp_path, "--plant", "model", "--model", str(plant), "--initial-triac-pct",
+                      "45", "--safe-triac-pct", "40", duration_s=20000.0) as endpoint:
+        path = write_config(tmp_path, endpoint, band_kw=(20.0, 70.0))
+        path.write_text(path.read_text(encoding="utf-8").replace(
+            '[run]\nlog = "run.csv"\n', '[run]\nlog = "run.csv"\nsetpoint_kw = 44.0\n'),
+            encoding="utf-8")
+        config = load_run_config(path)
+        plan = JourneyPlan(range_pct=(38.0, 52.0), tau_s=FAST_TAU_S, out_dir=tmp_path / "out",
+                           kind="steps", max_step_pct=5.0, switch_on=True, run_duration_s=300.0)
+        result = commission(config, plan, checker=_says_ready)
+    out = tmp_path / "out"
+    assert result.stage == "switched on" and result.ok
+    assert result.fit_pct is not None and result.fit_pct > MIN_FIT_PCT
+    for name in ("test.csv", "test_run.csv", "test_run.meta.json", "model.json",
+                 "identification/report.md", "commissioning.md", "figures/test.png",
+                 "figures/fit.png", "run.csv"):
+        assert (out / name).is_file(), name
+    report = (out / "commissioning.md").read_text(encoding="utf-8")
+    assert "**ready**" in report and "switched on" in report
+    rows = [r for r in _rows(out / "run.csv") if r["k"]]
+    assert read_run_meta(out / "run.csv")["kind"] == "MPC run after commissioning"
+    # bumpless: the MPC's first move starts from the input the plant applied
+    rate = 0.05 * 14.0   # runtime rate limit: 5 % of the model's input range per sample
+    first_applied = float(rows[0]["applied_triac_pct"])
+    assert abs(float(rows[0]["triac_pct"]) - first_applied) <= rate + 1e-6
+    power = np.array([float(r["power_kw"]) for r in rows[-20:] if r["quality"] == "good"])
+    assert power.size >= 15
+    assert abs(float(power.mean()) - 44.0) < OFFSET_FREE_ATOL_KW
+
+
+def test_commission_with_the_real_check_stores_its_verdict(tmp_path: Path) -> None:
+    """With `czmpc check-model` installed (h/health), the verdict is made and stored."""
+    pytest.importorskip("czmpc.commissioning.check")
+    plant = fast_heater_model(tmp_path / "plant.json")
+    with served_plant(tmp_path, "--plant", "model", "--model", str(plant), "--initial-triac-pct",
+                      "45", "--safe-triac-pct", "40", duration_s=20000.0) as endpoint:
+        config = load_run_config(write_config(tmp_path, endpoint, band_kw=(20.0, 70.0)))
+        plan = JourneyPlan(range_pct=(38.0, 52.0), tau_s=FAST_TAU_S, out_dir=tmp_path / "out",
+                           kind="steps", max_step_pct=5.0, mc_runs=5)
+        result = commission(config, plan)
+    assert result.stage == "checked"
+    assert result.check is not None
+    assert result.check.verdict in ("ready", "ready with conditions", "not ready")
+    assert result.check.reasons or result.check.verdict == "ready"
+    assert any(p.name.startswith("model") and p.name != "model.json"
+               for p in (tmp_path / "out").iterdir())   # the verdict file beside the model
+    report = (tmp_path / "out" / "commissioning.md").read_text(encoding="utf-8")
+    assert f"**{result.check.verdict}**" in report

@@ -1,0 +1,85 @@
+"""A czmpc run log read as identification data: applied input, gaps, fills, provenance."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from czmpc.runtime.config import RunConfigError
+from czmpc.runtime.loop import LOG_COLUMNS, RunLog, meta_path
+from czmpc.runtime.runlog import (
+    MIN_SEGMENT_SAMPLES,
+    describe_run_data,
+    is_run_log,
+    read_run_log,
+)
+from tests.tolerances import IDENTITY_RTOL
+
+
+def _write(path: Path, ks: list[int], quality: dict[int, str], *, closed: bool) -> None:
+    """Rows k with power 40 + k/10, command 30 + k, applied = previous command; one safe-ramp row."""
+    log = RunLog(path, {"ts_s": 2.0, "kind": "test kind", "closed_loop": closed,
+                        "schedule_sha256": "ab" * 32, "start_utc": "2026-01-01T00:00:00+00:00"})
+    prev_cmd = math.nan
+    for k in ks:
+        log.row({c: "" for c in LOG_COLUMNS} | {
+            "k": k, "time_s": 2.0 * k, "power_kw": 40.0 + k / 10, "quality": quality.get(k, "good"),
+            "triac_pct": 30.0 + k, "applied_triac_pct": 30.0 + k - 1 if k - 1 in ks else prev_cmd,
+            "status": "TEST"})
+        prev_cmd = 30.0 + k
+    log.row({c: "" for c in LOG_COLUMNS} | {"triac_pct": 20.0, "status": "SAFE_RAMP"})
+    log.close()
+
+
+def test_applied_input_gaps_and_fills(tmp_path: Path) -> None:
+    path = tmp_path / "run.csv"
+    # k = 0..59 logged except 20 (one skipped period: filled) and 40..44 (five skipped:
+    # a gap); 30 and 31 are Bad quality (a gap)
+    ks = [k for k in range(60) if k != 20 and not 40 <= k <= 44]
+    _write(path, ks, {30: "bad", 31: "stale"}, closed=False)
+    assert is_run_log(path)
+    data = read_run_log(path)
+    # segments: 0..29 (20 filled), 32..39 (8 samples: too short, dropped), 45..59
+    assert 40 - 32 < MIN_SEGMENT_SAMPLES
+    expected_k = np.r_[0:30, 45:60]
+    np.testing.assert_allclose(data.time_s, 2.0 * expected_k, rtol=IDENTITY_RTOL)
+    assert data.segment_starts == (0, 30)
+    # power: as logged; the skipped sample 20 interpolated (a straight line: exact)
+    np.testing.assert_allclose(data.power_kw, 40.0 + expected_k / 10, rtol=IDENTITY_RTOL)
+    # input of sample k: the applied input published at k + 1 (= command k here); at
+    # k = 19 the next row is missing, so the command; through the skipped k = 20 the
+    # plant held command 19, which row 21 publishes as applied
+    u = data.triac_pct
+    assert u[19] == 30.0 + 19 and u[20] == 30.0 + 19 and u[21] == 30.0 + 21
+    np.testing.assert_allclose(u[:19], 30.0 + np.arange(19), rtol=IDENTITY_RTOL)
+    info, split = data.preprocessing[0], data.preprocessing[1]
+    assert info["what"] == "czmpc run log" and info["closed_loop"] is False
+    assert info["schedule_sha256"] == "ab" * 32
+    assert split["samples_filled"] == 1 and split["segments"] == 2
+    assert data.sha256 is not None
+    assert "CLOSED-LOOP" not in describe_run_data(data)
+
+
+def test_closed_loop_logs_say_so(tmp_path: Path) -> None:
+    path = tmp_path / "run.csv"
+    _write(path, list(range(30)), {}, closed=True)
+    data = read_run_log(path)
+    assert data.preprocessing[0]["closed_loop"] is True
+    assert "CLOSED-LOOP" in describe_run_data(data)
+
+
+def test_a_log_without_usable_stretch_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "run.csv"
+    _write(path, list(range(30)), {k: "bad" for k in range(0, 30, 5)}, closed=False)
+    with pytest.raises(RunConfigError, match="usable samples in a row"):
+        read_run_log(path)
+
+
+def test_meta_file_sits_beside_the_log(tmp_path: Path) -> None:
+    assert meta_path(tmp_path / "run.csv") == tmp_path / "run.meta.json"
+    plain = tmp_path / "plain.csv"
+    plain.write_text("time_s,triac_pct,power_kw\n0,1,2\n", encoding="utf-8")
+    assert not is_run_log(plain)
