@@ -237,3 +237,43 @@ def test_the_shipped_run_config_runs_against_a_served_plant_from_the_wheel(
     assert len(good) >= len(rows) - 2, rows                         # a noise-free, healthy plant
     # the staircase starts at 45 kW in steady state: the MPC holds it
     assert all(abs(float(r["power_kw"]) - float(r["setpoint_kw"])) < 1.0 for r in good)
+
+
+@pytest.mark.slow
+def test_a_users_regression_suite_records_and_checks_from_the_wheel(
+        venv: Path, tmp_path: Path) -> None:
+    """Issue 16: outside the source tree, a suite of the user's own model, settings and
+    scenario files is recorded, holds unchanged, and fails (exit 1, naming the metric and
+    the first divergence) after one weight of the settings file is doubled."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "_regress_user_files", REPO / "tests" / "czmpc" / "testing" / "conftest.py")
+    assert spec is not None and spec.loader is not None
+    files = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(files)
+    RECIPE, SETTINGS, SUITE = files.RECIPE, files.SETTINGS, files.SUITE  # noqa: N806
+    folder = tmp_path / "puller7"
+    folder.mkdir()
+    shipped = venv.glob("lib/python*/site-packages/czmpc/data/cz_heater_model.json")
+    (folder / "puller7_model.json").write_bytes(next(shipped).read_bytes())
+    (folder / "puller7_settings.toml").write_text(SETTINGS, encoding="utf-8")
+    (folder / "recipe_a.toml").write_text(RECIPE, encoding="utf-8")
+    (folder / "suite.toml").write_text(SUITE, encoding="utf-8")
+
+    record = _czmpc(venv, tmp_path, "regress", "record", "puller7/suite.toml", "--out", "golden")
+    assert record.returncode == 0, record.stderr[-3000:]
+    assert _source_tree_reads(record) == "[]"
+    check = _czmpc(venv, tmp_path, "regress", "check", "golden", "--junit", "junit.xml")
+    assert check.returncode == 0, check.stderr[-3000:]
+    assert "puller-7: 2 of 2 case(s) hold" in check.stdout
+    assert _source_tree_reads(check) == "[]"
+
+    settings = folder / "puller7_settings.toml"
+    settings.write_text(SETTINGS.replace("move_weight = 0.1", "move_weight = 0.2"),
+                        encoding="utf-8")
+    failed = _czmpc(venv, tmp_path, "regress", "check", "golden")
+    assert failed.returncode == 1, failed.stderr[-3000:]
+    assert "iae_kw_s" in failed.stdout and "first divergence" in failed.stdout
+    assert "move_weight: 0.1 -> 0.2" in failed.stdout
+    assert _source_tree_reads(failed) == "[]"
