@@ -104,7 +104,9 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
                            "Node id to which the model-health score (`czmpc.health`) is "
                            "written every step."),
     "controller.model": ("string (file)", "required", "-",
-                         "Model file (:doc:`model_file`) the controller is built from."),
+                         "Model file (:doc:`model_file`) the controller is built from. An "
+                         "open-loop test (``czmpc run --test``) may leave out the whole "
+                         "``[controller]`` table."),
     "controller.settings": ("string (file)", "none (defaults from the model)", "-",
                             "MPC settings file (:doc:`settings_file`)."),
     "run.duration_s": ("number > 0", "none (until stopped)", "s",
@@ -120,8 +122,14 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
     "safety.action": ('``"hold"`` or ``"ramp"``', "hold", "-",
                       "On SIGINT/SIGTERM: hold the last command, or ramp to "
                       "``safety.safe_triac_pct`` at the rate limit."),
-    "safety.safe_triac_pct": ("number in [0, 100]", "none (required for ramp)", "%",
-                              "TRIAC input of the ramp."),
+    "safety.safe_triac_pct": ("number in [0, 100]", "none (required for ramp and for a test)",
+                              "%", "TRIAC input of the ramp, and where an aborted test moves to."),
+    "test.power_band_kw": ("[low, high] numbers, low < high", "required in [test]", "kW",
+                           "Band the measured power must stay in during ``czmpc run --test`` "
+                           "or ``--dither-pct``; leaving it aborts the test (exit 1)."),
+    "test.max_bad_quality_s": ("number > 0", "10", "s",
+                               "Longest stretch of plant time without a usable sample (Bad, "
+                               "Uncertain, stale, disconnected) a test tolerates."),
 }
 
 # The keys of a campaign spec (`czmpc campaign run SPEC.toml`): (type, default, meaning).

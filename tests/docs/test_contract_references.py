@@ -42,7 +42,7 @@ def test_every_documented_model_key_is_accepted_and_needed_as_documented(
 ) -> None:
     full = model_to_dict(model_from_dict(shipped_model))
     assert set(full) <= set(contracts.MODEL_KEYS)       # the writer writes only documented keys
-    assert set(contracts.MODEL_KEYS) - set(full) == {"units", "covariance"}   # optional, absent here
+    assert set(contracts.MODEL_KEYS) - set(full) == {"units"}   # optional, absent here
     model_from_dict(full)                               # and the reader accepts them all
     rst = contracts.model_file_rst()
     for key in full:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.stats import norm
@@ -41,7 +43,16 @@ IDENTIFIED_COVARIANCE = (
 
 @pytest.fixture(scope="module")
 def shipped() -> HammersteinModel:
-    return load_model(shipped_path("cz_heater_model.json"))
+    """The shipped model without its covariance (as model files written before 0.2.0)."""
+    return load_model(shipped_path("cz_heater_model.json")).with_updates(covariance=None)
+
+
+def test_the_shipped_model_carries_the_identified_covariance() -> None:
+    model = load_model(shipped_path("cz_heater_model.json"))
+    assert model.covariance is not None
+    np.testing.assert_allclose(np.asarray(model.covariance), np.asarray(IDENTIFIED_COVARIANCE),
+                               rtol=1e-6)
+    assert parameter_distribution(model).source == "covariance"
 
 
 @pytest.fixture(scope="module")
@@ -96,15 +107,17 @@ def test_a_singular_covariance_is_sampled_on_its_subspace() -> None:
 
 
 def test_without_covariance_the_standard_errors_are_used_with_a_warning(
-        shipped: HammersteinModel) -> None:
+        shipped: HammersteinModel, tmp_path: Path) -> None:
     dist = parameter_distribution(shipped)
     assert dist.source == "std_errors"
     assert "no parameter covariance" in dist.warning
     np.testing.assert_allclose(np.sqrt(np.diag(dist.covariance)),
                                shipped.provenance.extra["std_errors"], rtol=IDENTITY_RTOL)
     assert np.count_nonzero(dist.covariance - np.diag(np.diag(dist.covariance))) == 0
-    spec = spec_from_dict({"scenarios": ["staircase"], "controllers": [{"preset": "pi"}],
-                           "plants": [{"kind": "sampled", "n": 3}]})
+    save_model(shipped, tmp_path / "no_covariance.json")
+    spec = spec_from_dict({"model": "no_covariance.json", "scenarios": ["staircase"],
+                           "controllers": [{"preset": "pi"}],
+                           "plants": [{"kind": "sampled", "n": 3}]}, base_dir=tmp_path)
     assert len(spec.expand()) == 3
     assert any("standard errors" in w for w in spec.warnings)
 
