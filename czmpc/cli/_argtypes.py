@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from sysid.data import Dataset
+    from sysid.historian import LoadedLog
 
 _REPO = Path(__file__).resolve().parents[2]
 
@@ -117,6 +118,33 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
              "(default 0.01)",
     )
     parser.add_argument(
+        "--sep", metavar="SEP", type=separator, default=None,
+        help="CSV separator: ',', ';' or 'tab' (default: detected from the header line)",
+    )
+    parser.add_argument(
+        "--decimal", metavar="MARK", choices=(".", ","), default=None,
+        help="decimal mark of the numbers: '.' or ',' (default: ',' if the separator is "
+             "not a comma and the values look like 12,5; else '.')",
+    )
+    parser.add_argument(
+        "--gaps", choices=("refuse", "split", "fill"), default="refuse",
+        help="missing values (NaN, empty cells) and gaps in time: 'refuse' (default) stops "
+             "with the line; 'split' cuts the log into segments of complete samples, each "
+             "fitted with its own initial state; 'fill' interpolates runs of at most "
+             "--fill-max missing samples linearly and splits at longer ones",
+    )
+    parser.add_argument(
+        "--fill-max", metavar="N", type=positive_int, default=None,
+        help="longest run of missing samples --gaps fill interpolates (default 5)",
+    )
+    parser.add_argument(
+        "--resample", choices=("snap", "linear"), default="snap",
+        help="irregular time stamps: 'snap' (default) moves samples whose interval is "
+             "within 25 %% of a whole number of periods onto the grid t0 + k Ts (times "
+             "within --sampling-rtol are kept as logged) and refuses larger jitter; "
+             "'linear' interpolates the signals onto that grid",
+    )
+    parser.add_argument(
         "--input-unit", metavar="UNIT", default="%",
         help="unit of the input column (default: %%)",
     )
@@ -126,13 +154,52 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def read_log(path: str | Path, args: argparse.Namespace) -> Dataset:
-    """Read ``path`` with the options of `add_log_options`."""
-    from sysid.data import DEFAULT_SAMPLING_RTOL, read_csv
+def separator(text: str) -> str:
+    """``,``, ``;``, ``tab`` (or a tab character) as the separator character."""
+    value = {"tab": "\t", "\\t": "\t"}.get(text, text)
+    if value not in (",", ";", "\t"):
+        raise argparse.ArgumentTypeError(f"expected ',', ';' or 'tab'; got {text!r}")
+    return value
+
+
+def load_log(path: str | Path, args: argparse.Namespace) -> LoadedLog:
+    """Read ``path`` (CSV or Parquet) with the options of `add_log_options`."""
+    from sysid.data import DEFAULT_SAMPLING_RTOL
+    from sysid.historian import DEFAULT_FILL_MAX_SAMPLES, LoadPolicy
+    from sysid.historian import load_log as load
 
     rtol = DEFAULT_SAMPLING_RTOL if args.sampling_rtol is None else args.sampling_rtol
-    return read_csv(path, columns=args.columns, ts_s=args.ts_s, sampling_rtol=rtol,
-                    input_unit=args.input_unit, output_unit=args.output_unit)
+    policy = LoadPolicy(
+        gaps=args.gaps, resample=args.resample, ts_s=args.ts_s, sampling_rtol=rtol,
+        fill_max_samples=DEFAULT_FILL_MAX_SAMPLES if args.fill_max is None else args.fill_max)
+    return load(path, columns=args.columns, policy=policy, sep=args.sep, decimal=args.decimal,
+                input_unit=args.input_unit, output_unit=args.output_unit)
+
+
+def read_log(path: str | Path, args: argparse.Namespace) -> Dataset:
+    """Read ``path`` with the options of `add_log_options` (see `load_log`)."""
+    return load_log(path, args).data
+
+
+def log_option_words(args: argparse.Namespace) -> list[str]:
+    """The options of `add_log_options` as given, as command-line words (exact values)."""
+    words: list[str] = []
+    if args.columns is not None:
+        words += ["--columns", ",".join(f"{k}={v}" for k, v in args.columns.items())]
+    if args.ts_s is not None:
+        words += ["--ts-s", repr(float(args.ts_s))]
+    if args.sampling_rtol is not None:
+        words += ["--sampling-rtol", repr(float(args.sampling_rtol))]
+    if args.sep is not None:
+        words += ["--sep", "tab" if args.sep == "\t" else args.sep]
+    if args.decimal is not None:
+        words += ["--decimal", args.decimal]
+    words += ["--gaps", args.gaps]
+    if args.fill_max is not None:
+        words += ["--fill-max", str(args.fill_max)]
+    words += ["--resample", args.resample, "--input-unit", args.input_unit,
+              "--output-unit", args.output_unit]
+    return words
 
 
 def default_benchmarks_md() -> Path:

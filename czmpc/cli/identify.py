@@ -51,9 +51,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument(
-        "data", metavar="DATA.csv",
-        help="logged data, header time_s,triac_pct,power_kw (time [s], TRIAC input s [%%], "
-             "heater power P [kW]), uniform sampling",
+        "data", metavar="DATA",
+        help="logged data, CSV or Parquet: header time_s,triac_pct,power_kw (time [s], "
+             "TRIAC input s [%%], heater power P [kW]) or other names with --columns; time "
+             "in seconds or ISO-8601 stamps; NaN, gaps and jitter under --gaps/--resample",
     )
     parser.add_argument(
         "--out", metavar="DIR", required=True, type=Path,
@@ -89,6 +90,12 @@ def register(parser: argparse.ArgumentParser) -> None:
              "the log starts at rest at the operating point",
     )
     parser.add_argument(
+        "--reference", choices=("paper", "none"), default=None,
+        help="'paper' adds the paper's values (Komperod et al.: Tables 2-3, the route's V "
+             "and W) beside ours in the report; 'none' leaves them out. Default: 'paper' "
+             "for data in %% and kW (a CZ puller's log), else 'none'",
+    )
+    parser.add_argument(
         "--allow-unconverged", action="store_true",
         help="exit 0 even if an iterative fit (OE, ARMAX, PEM) did not converge; the "
              "report then flags it (default: exit 1)",
@@ -114,6 +121,9 @@ class IdentifyOutcome:
     warnings :
         Every warning raised while identifying (for example an optimizer's
         non-convergence message), as ``"Category: message"``.
+    notes :
+        What the run changed or left out that a user must know (the segment used, a
+        model kind other than the Hammerstein with noise model), as printed.
     findings :
         The paper's findings checked on these data (`czmpc.reports.identification.findings_checklist`),
         as in the report.
@@ -126,6 +136,7 @@ class IdentifyOutcome:
     unconverged: tuple[str, ...]
     warnings: tuple[str, ...] = ()
     findings: tuple[Finding, ...] = ()
+    notes: tuple[str, ...] = ()
 
 
 def _orders(text: str) -> str | tuple[int, ...]:
@@ -156,6 +167,7 @@ def identify_to_directory(
     command: str | None = None,
     orders: str | tuple[int, ...] = "paper",
     initial_state: str = "estimate",
+    reference: str | None = None,
 ) -> IdentifyOutcome:
     """Read a log, run the paper's pipeline and write model.json, models/, report.md.
 
@@ -179,6 +191,9 @@ def identify_to_directory(
         ``"auto"``, ``"paper"`` or ``(nb, nf, nk[, nc])`` (see ``czmpc identify --help``).
     initial_state :
         ``"estimate"``, ``"held"`` or ``"zero"``: initial state of the PEM fits.
+    reference :
+        ``"paper"`` to show the paper's values beside ours, ``"none"`` to leave them
+        out; None: ``"paper"`` for data in % and kW, else ``"none"``.
 
     Returns
     -------
@@ -207,6 +222,10 @@ def identify_to_directory(
         if progress is not None:
             progress(f"reading {data_path}")
         data = read_csv(data_path)
+    notes: list[str] = []
+    if data.n_segments > 1:
+        data, note = longest_segment(data)
+        notes.append(note)
     op = None if operating_point is None else OperatingPoint(
         triac_pct=operating_point[0], power_kw=operating_point[1])
     with warnings.catch_warnings(record=True) as caught:
@@ -238,35 +257,87 @@ def identify_to_directory(
     if result.final is None:  # pragma: no cover - the pipeline raises instead
         raise IdentificationError("identify: the pipeline returned no model")
     save_model(result.final.model.with_updates(units=units), model_path)
+    if reference is None:
+        reference = "paper" if (data.input_unit, data.output_unit) == ("%", "kW") else "none"
+    notes += model_kind_notes(result)
     files = write_report(
         result, out, model_file="model.json",
-        model_files=[p.relative_to(out).as_posix() for p in model_files], command=command)
+        model_files=[p.relative_to(out).as_posix() for p in model_files], command=command,
+        reference=reference == "paper", notes=notes)
     unconverged = tuple(
         f"{m.name} ({m.n_iterations} iterations)" for m in result.models if not m.converged)
     return IdentifyOutcome(model_path=model_path, model_files=tuple(model_files),
                            report_path=files.report_path, figure_files=files.figure_files,
                            unconverged=unconverged, warnings=messages,
-                           findings=findings_checklist(result))
+                           findings=findings_checklist(result),
+                           notes=(*notes, *(f"skipped: {x}" for x in result.skipped)))
+
+
+def longest_segment(data: Dataset) -> tuple[Dataset, str]:
+    """The longest segment of a split log, and a sentence saying so.
+
+    The paper's pipeline (outlier search, linear models, input steps, the Hammerstein
+    route) runs on one contiguous record; a log split into segments is identified on
+    its longest one, and the note names the segments left out.
+    """
+    bounds = data.segment_bounds()
+    lo, hi = max(bounds, key=lambda b: b[1] - b[0])
+    left = [f"{data.time_s[a]:g}..{data.time_s[b - 1]:g} s ({b - a} samples)"
+            for a, b in bounds if (a, b) != (lo, hi)]
+    note = (f"the log holds {len(bounds)} segments; the pipeline runs on one contiguous "
+            f"record, so it identifies the longest: t = {data.time_s[lo]:g}..."
+            f"{data.time_s[hi - 1]:g} s, {hi - lo} of {data.n_samples} samples (left out: "
+            + "; ".join(left) + ")")
+    return data.segment(lo, hi), note
+
+
+def model_kind_notes(result: Any) -> list[str]:
+    """Sentences for the terminal and the report when model.json is not the Hammerstein.
+
+    The pipeline writes the noise-model Hammerstein (eq. 30); if that was not fitted it
+    falls back to the OE Hammerstein, then to the best linear model on W. Each
+    fallback is said with the reasons the pipeline recorded.
+    """
+    final = result.final
+    if final is None or final.name == "hammerstein_armax":
+        return []
+    reasons = [s for s in result.skipped if "Hammerstein" in s or "hammerstein" in s
+               or "eq. 21" in s or "input polynomial" in s]
+    why = "; ".join(reasons) if reasons else "the noise-model Hammerstein was not fitted"
+    kind = "the OE Hammerstein (eq. 27, no noise model)" if final.name == "hammerstein_oe" \
+        else f"the linear model {final.label} (best W)"
+    return [f"model.json holds {kind} instead of the Hammerstein with a noise model "
+            f"(eq. 30): {why}"]
+
+
+def command_words(args: argparse.Namespace) -> list[str]:
+    """The command line that reproduces this run exactly (every option that matters)."""
+    words = ["czmpc", NAME, str(args.data), "--out", str(args.out)]
+    if args.operating_point is not None:
+        words += ["--operating-point", *(repr(float(v)) for v in args.operating_point)]
+    if args.level_shift is not None:
+        words += ["--level-shift", *(repr(float(v)) for v in args.level_shift)]
+    words += _argtypes.log_option_words(args)
+    orders_text = args.orders if isinstance(args.orders, str) else ",".join(
+        str(v) for v in args.orders)
+    words += ["--orders", orders_text, "--initial-state", args.initial_state]
+    if args.reference is not None:
+        words += ["--reference", args.reference]
+    if args.allow_unconverged:
+        words.append("--allow-unconverged")
+    return words
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the pipeline and write model.json, models/*.json and report.md into --out."""
     progress = Progress()
-    words = ["czmpc", NAME, str(args.data), "--out", str(args.out)]
-    if args.operating_point is not None:
-        words += ["--operating-point", *(f"{v:g}" for v in args.operating_point)]
-    if args.level_shift is not None:
-        words += ["--level-shift", *(f"{v:g}" for v in args.level_shift)]
-    orders_text = args.orders if isinstance(args.orders, str) else ",".join(
-        str(v) for v in args.orders)
-    words += ["--orders", orders_text, "--initial-state", args.initial_state]
-    if args.allow_unconverged:
-        words.append("--allow-unconverged")
-    command = " ".join(shlex.quote(w) for w in words)
-    if progress is not None:
-        progress(f"reading {args.data}")
+    command = " ".join(shlex.quote(w) for w in command_words(args))
+    progress(f"reading {args.data}")
+    loaded = _argtypes.load_log(args.data, args)
+    if not loaded.report.is_plain_contract:
+        print(f"czmpc: note: read {args.data}: {loaded.report.summary()}", file=sys.stderr)
     outcome = identify_to_directory(
-        _argtypes.read_log(args.data, args),
+        loaded.data,
         args.out,
         operating_point=None if args.operating_point is None else tuple(args.operating_point),
         level_shift=None if args.level_shift is None else tuple(args.level_shift),
@@ -274,10 +345,13 @@ def run(args: argparse.Namespace) -> int:
         command=command,
         orders=args.orders,
         initial_state=args.initial_state,
+        reference=args.reference,
     )
     progress(f"wrote {outcome.model_path}, {len(outcome.model_files)} model files in "
              f"{outcome.model_path.parent / 'models'}, {outcome.report_path} and "
              f"{len(outcome.figure_files)} figures")
+    for note in outcome.notes:
+        print(f"czmpc: note: {note}", file=sys.stderr)
     for message in outcome.warnings:
         print(f"czmpc: warning: {message}", file=sys.stderr)
     if outcome.unconverged:
