@@ -181,15 +181,21 @@ def read_log(path: str | Path, args: argparse.Namespace) -> Dataset:
     return load_log(path, args).data
 
 
+def exact(value: float) -> str:
+    """Shortest text of ``value`` that reads back to the same float (``45``, ``0.1``)."""
+    short = f"{value:g}"
+    return short if float(short) == value else repr(float(value))
+
+
 def log_option_words(args: argparse.Namespace) -> list[str]:
     """The options of `add_log_options` as given, as command-line words (exact values)."""
     words: list[str] = []
     if args.columns is not None:
         words += ["--columns", ",".join(f"{k}={v}" for k, v in args.columns.items())]
     if args.ts_s is not None:
-        words += ["--ts-s", repr(float(args.ts_s))]
+        words += ["--ts-s", exact(args.ts_s)]
     if args.sampling_rtol is not None:
-        words += ["--sampling-rtol", repr(float(args.sampling_rtol))]
+        words += ["--sampling-rtol", exact(args.sampling_rtol)]
     if args.sep is not None:
         words += ["--sep", "tab" if args.sep == "\t" else args.sep]
     if args.decimal is not None:

@@ -314,9 +314,9 @@ def command_words(args: argparse.Namespace) -> list[str]:
     """The command line that reproduces this run exactly (every option that matters)."""
     words = ["czmpc", NAME, str(args.data), "--out", str(args.out)]
     if args.operating_point is not None:
-        words += ["--operating-point", *(repr(float(v)) for v in args.operating_point)]
+        words += ["--operating-point", *(_argtypes.exact(v) for v in args.operating_point)]
     if args.level_shift is not None:
-        words += ["--level-shift", *(repr(float(v)) for v in args.level_shift)]
+        words += ["--level-shift", *(_argtypes.exact(v) for v in args.level_shift)]
     words += _argtypes.log_option_words(args)
     orders_text = args.orders if isinstance(args.orders, str) else ",".join(
         str(v) for v in args.orders)
