@@ -435,7 +435,7 @@ def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Fi
     if lin:
         sims = {_label(m[n], s, st.v_unit): _sim_dev(m[n].model, result) for n, s in lin}
         add("fig08_linear_simulations", "Fig. 8 analogue: ballistic simulations of the linear "
-            "models against the measured power.",
+            f"models against the measured {st.out_name}.",
             lambda p: figs.plot_simulations(t, dp, sims, p, input_pct=ds,
                                             labels=lab,
                                             title=st.title("Ballistic simulations, linear models",
@@ -499,7 +499,7 @@ def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Fi
         if tests is not None:
             auto, cross = tests
             add("residual_tests", f"Residual tests of the model in model.json ({final.label}): "
-                "autocorrelation of its one-step errors and their cross-correlation with ds, "
+                f"autocorrelation of its one-step errors and their cross-correlation with {st.in_sym}, "
                 "with 99 % bounds.",
                 lambda p: figs.plot_correlations(
                     auto.lags, auto.values, auto.bound, cross.lags, cross.values, cross.bound, p,
