@@ -640,6 +640,11 @@ def read_log_csv(
     except csv.Error as exc:
         raise DataFileError(f"not readable as CSV: {exc}", path=p, line=reader.line_num) from None
     header = [h.strip() for h in table[0]]
+    if len(header) < len(CSV_COLUMNS):
+        raise DataFileError(
+            f"the header holds {len(header)} field(s) with the separator {separator!r}; "
+            f"expected at least {len(CSV_COLUMNS)} (pass --sep ',', ';' or tab)",
+            path=p, line=1)
     if len(set(header)) != len(header):
         dup = next(h for h in header if header.count(h) > 1)
         raise DataFileError(f"header field '{dup}' appears twice", path=p, line=1, column=dup)
