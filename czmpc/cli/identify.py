@@ -285,7 +285,7 @@ def longest_segment(data: Dataset) -> tuple[Dataset, str]:
     left = [f"{data.time_s[a]:g}..{data.time_s[b - 1]:g} s ({b - a} samples)"
             for a, b in bounds if (a, b) != (lo, hi)]
     note = (f"the log holds {len(bounds)} segments; the pipeline runs on one contiguous "
-            f"record, so it identifies the longest: t = {data.time_s[lo]:g}..."
+            f"record, so it identifies the longest: t = {data.time_s[lo]:g}.."
             f"{data.time_s[hi - 1]:g} s, {hi - lo} of {data.n_samples} samples (left out: "
             + "; ".join(left) + ")")
     return data.segment(lo, hi), note
