@@ -137,6 +137,9 @@ class _Style:
 
     @property
     def labels(self) -> dict[str, str]:
+        if (self.in_name, self.out_name, self.in_unit, self.out_unit) == (
+                "TRIAC input s", "heater power P", *PAPER_UNITS):
+            return dict(figs.AXIS_LABELS)
         return figs.axis_labels(input_name=self.in_name, input_unit=self.in_unit,
                                 output_name=self.out_name, output_unit=self.out_unit,
                                 input_symbol=self.in_sym, output_symbol=self.out_sym)
