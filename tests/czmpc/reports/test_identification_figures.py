@@ -131,8 +131,9 @@ def test_labels_of_another_rig_reach_every_axis_and_legend(tmp_path: Path) -> No
     assert [ax.get_ylabel() for ax in ds.axes] == ["output plate [degC]", "input lamp [V]"]
     err = figs.plot_simulation_errors(t, {"OE": p - p.mean()}, tmp_path / "e.png", labels=labels)
     assert err.axes[0].get_ylabel() == "simulation error [degC]"
-    legend = [x.get_text() for x in err.axes[0].get_legend().get_texts()]
-    assert legend[0].endswith("degC^2)")
+    legend = err.axes[0].get_legend()
+    assert legend is not None
+    assert legend.get_texts()[0].get_text().endswith("degC^2)")
     gain = figs.plot_gain_curve(np.linspace(-2, 2, 9), {"f'": np.ones(9)}, tmp_path / "g.png",
                                 labels=labels)
     assert (gain.axes[0].get_xlabel(), gain.axes[0].get_ylabel()) == (
