@@ -1,6 +1,8 @@
 """Identify the heater's Hammerstein model from a logged CSV file, the paper's whole route.
 
-Reads DATA.csv (header time_s,triac_pct,power_kw; uniform sampling) and runs
+Reads DATA (CSV or Parquet; header time_s,triac_pct,power_kw or other names mapped
+with --columns; time in seconds or ISO-8601 stamps; NaN, gaps and jittered stamps under
+the stated --gaps/--resample policies, see sysid.historian) and runs
 Komperod et al.'s pipeline: operating point (sec. 5.1), outlier candidates from an
 ARX(10,10) model and their repair (sec. 5.2), the linear ARX/ARMAX/OE models of
 Table 2, the input-step gains of Table 3, the Hammerstein route of sec. 7.4-7.5
