@@ -436,7 +436,8 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
                         f"a gap in time: {hi - lo} missing sample(s) between {t_slot[lo - 1]:g} s "
                         f"and the next row (Ts = {ts_s:g} s); " + _gap_hint(policy))
         column = "triac_pct" if np.isnan(u_slot[k]) else "power_kw"
-        what = ("no measurement within " f"{LINEAR_GAP_PERIODS:g} periods of this grid instant"
+        what = (f"no value at grid instant t = {t_slot[k]:g} s (a NaN or empty cell beside "
+                f"it, or no sample within {LINEAR_GAP_PERIODS:g} periods)"
                 if policy.resample == "linear" else "a missing value (NaN or empty cell)")
         raise _fail(raw, int(line_rows[k]), column, what + "; " + _gap_hint(policy))
     filled = np.zeros(n_slots, dtype=bool)
@@ -870,8 +871,13 @@ def read_frame(
     time_name = wanted.get("time_s", "time_s")
     if time_name in frame.columns:
         time_series = frame[time_name]
-    else:
+    elif isinstance(frame.index, pd.DatetimeIndex) or frame.index.name == time_name:
         time_series = frame.index.to_series()
+    else:   # a RangeIndex counts rows, not seconds: never take it for time
+        raise DataFileError(
+            f"no column '{time_name}' and the index is neither a DatetimeIndex nor named "
+            f"'{time_name}'; got columns {[str(c) for c in frame.columns]} (map the time "
+            "column with columns={'time_s': NAME, ...})", column=time_name)
     header = [str(c) for c in frame.columns] + ([] if time_name in frame.columns else [time_name])
     names = _check_mapping(header, wanted, None)
     if pd.api.types.is_datetime64_any_dtype(time_series):

@@ -348,6 +348,18 @@ def test_dataframe_with_a_zoned_datetime_index(daisy: Dataset) -> None:
     np.testing.assert_array_equal(again.time_s, d.time_s)
 
 
+def test_a_frame_without_a_time_column_is_refused(daisy: Dataset) -> None:
+    pd = pytest.importorskip("pandas")
+    frame = pd.DataFrame({"lamp": daisy.triac_pct, "plate": daisy.power_kw})  # RangeIndex
+    with pytest.raises(DataFileError, match="neither a DatetimeIndex nor named 'time_s'"):
+        Dataset.from_frame(frame, columns={"time_s": "time_s", "triac_pct": "lamp",
+                                           "power_kw": "plate"})
+    seconds = frame.set_index(pd.Index(daisy.time_s, name="t"))
+    d = Dataset.from_frame(seconds, columns={"time_s": "t", "triac_pct": "lamp",
+                                             "power_kw": "plate"})
+    np.testing.assert_array_equal(d.time_s, daisy.time_s)
+
+
 def test_without_pandas_the_message_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
     import builtins
 
