@@ -110,12 +110,13 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--ts-s", metavar="X", type=positive_float, default=None,
-        help="nominal sampling time [s]; default: the median interval of the file",
+        help="nominal sampling time [s]; default: the median interval of the file (with "
+             "jittered time stamps: the mean period over the record)",
     )
     parser.add_argument(
         "--sampling-rtol", metavar="R", type=non_negative_float, default=None,
-        help="allowed relative deviation of any interval from the sampling time "
-             "(default 0.01)",
+        help="intervals within R x Ts of a whole number of periods keep their logged "
+             "times (default 0.01); larger jitter is handled by --resample",
     )
     parser.add_argument(
         "--sep", metavar="SEP", type=separator, default=None,
@@ -129,8 +130,8 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--gaps", choices=("refuse", "split", "fill"), default="refuse",
         help="missing values (NaN, empty cells) and gaps in time: 'refuse' (default) stops "
-             "with the line; 'split' cuts the log into segments of complete samples, each "
-             "fitted with its own initial state; 'fill' interpolates runs of at most "
+             "with the line; 'split' cuts the log into segments of complete samples "
+             "(identify runs on the longest and says so); 'fill' interpolates runs of at most "
              "--fill-max missing samples linearly and splits at longer ones",
     )
     parser.add_argument(
