@@ -448,7 +448,10 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
         filled = fu | fy
         t_slot = t_fill
     keep = ~(np.isnan(u_slot) | np.isnan(y_slot))
-    segments = [(a, b) for a, b in _runs(keep) if b - a >= policy.min_segment_samples]
+    if keep.all():   # nothing cut: the strict reader's minimum applies, not the segments'
+        segments = [(0, n_slots)]
+    else:
+        segments = [(a, b) for a, b in _runs(keep) if b - a >= policy.min_segment_samples]
     if not segments:
         raise DataFileError(
             f"no run of at least {policy.min_segment_samples} complete samples is left after "

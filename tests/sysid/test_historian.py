@@ -90,6 +90,14 @@ def test_a_contract_csv_loads_exactly_as_the_strict_reader(tmp_path: Path, daisy
     assert loaded.report.is_plain_contract and not loaded.report.changed_data
 
 
+def test_a_short_clean_log_keeps_the_strict_minimum_not_the_segment_minimum(
+    tmp_path: Path,
+) -> None:
+    path = _write(tmp_path / "short.csv", "time_s,triac_pct,power_kw",
+                  ["0,45,45", "2,45,45.01", "4,46,44.99"])   # 3 samples < MIN_SEGMENT_SAMPLES
+    np.testing.assert_array_equal(load_log(path).data.power_kw, read_csv(path).power_kw)
+
+
 # --- NaN and empty cells -----------------------------------------------------------------
 
 def _nan_rows(daisy: Dataset) -> list[str]:
