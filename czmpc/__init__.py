@@ -21,6 +21,7 @@ _EXPORTS = {
     **dict.fromkeys(["CzmpcError", "DesignError", "SettingsError"], "czmpc.errors"),
     **dict.fromkeys(["MPCSettings", "OSQPOptions"], "czmpc.settings"),
     **dict.fromkeys(["OffsetFreeMPC", "StepDiagnostics"], "czmpc.controller"),
+    **dict.fromkeys(["load_settings", "settings_to_toml"], "czmpc.settings_file"),
 }
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 __all__ = sorted(_EXPORTS)
@@ -29,3 +30,4 @@ if TYPE_CHECKING:
     from czmpc.controller import OffsetFreeMPC, StepDiagnostics
     from czmpc.errors import CzmpcError, DesignError, SettingsError
     from czmpc.settings import MPCSettings, OSQPOptions
+    from czmpc.settings_file import load_settings, settings_to_toml

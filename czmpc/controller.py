@@ -298,7 +298,12 @@ class OffsetFreeMPC:
     model :
         The identified Hammerstein (or linear) model; at least one sample of delay.
     settings :
-        Tuning; None for `MPCSettings.default_for` ``(model)``.
+        Tuning; None for `MPCSettings.default_for` ``(model)`` (rate limit on).
+    initial_triac_pct :
+        The TRIAC input the plant holds now [%] (read it from the plant), for a
+        bumpless start: the estimator starts at its steady state and the first move is
+        within the rate limit of it. Overrides ``settings.initial_triac_pct``; None
+        keeps that (None there too: the model's operating point).
 
     Attributes
     ----------
@@ -325,18 +330,21 @@ class OffsetFreeMPC:
     ...     operating_point=OperatingPoint(triac_pct=45.0, power_kw=45.0),
     ...     a=[1.0, -0.99], b=[0.0, 1.0, -0.991], c=[1.0, -0.9],
     ...     input_poly=[1.35, -0.0065], noise_std_kw=0.0134, input_range_pct=(20.0, 70.0))
-    >>> mpc = OffsetFreeMPC(m)
+    >>> mpc = OffsetFreeMPC(m, initial_triac_pct=45.0)
     >>> s = mpc.step(power_kw=45.0, setpoint_kw=46.0)
-    >>> 45.0 < s < 50.0
+    >>> 45.0 < s <= 45.0 + mpc.settings.max_move_pct_per_step
     True
     >>> mpc.last_step.status.name
     'GOOD'
     """
 
-    def __init__(self, model: HammersteinModel, settings: MPCSettings | None = None) -> None:
+    def __init__(self, model: HammersteinModel, settings: MPCSettings | None = None, *,
+                 initial_triac_pct: float | None = None) -> None:
         settings = MPCSettings.default_for(model) if settings is None else settings
         if not isinstance(settings, MPCSettings):
             raise TypeError(f"OffsetFreeMPC: settings must be MPCSettings; got {settings!r}")
+        if initial_triac_pct is not None:
+            settings = settings.with_updates(initial_triac_pct=initial_triac_pct)
         if settings.ts_s is not None and not math.isclose(settings.ts_s, model.ts_s,
                                                           rel_tol=1e-9, abs_tol=0.0):
             raise SettingsError(

@@ -29,6 +29,10 @@ HORIZON_FRACTION_OF_SLOW_MODE = 0.3
 #: Default horizons stay within these bounds [samples].
 MIN_DEFAULT_HORIZON_STEPS = 10
 MAX_DEFAULT_HORIZON_STEPS = 60
+#: Default TRIAC rate limit: this fraction of the model's identified input range per
+#: sample (5 %: the whole range in 20 samples, 40 s at Ts = 2 s), because a real TRIAC
+#: and heating element must not be slammed (see `MPCSettings.default_for`).
+DEFAULT_RATE_FRACTION_OF_RANGE = 0.05
 
 
 def _is_number(value: object) -> bool:
@@ -129,6 +133,9 @@ class ReliabilitySettings:
     stuck_samples :
         Identical readings in a row that count as a stuck sensor while the model's
         prediction moved by ``stuck_min_predicted_change_kw`` [kW]; 0 disables.
+    stuck_min_predicted_change_kw :
+        Smallest change of the model's prediction [kW] over a run of identical readings
+        for the run to count as a stuck sensor (a plant at rest legitimately repeats).
     spike_gate_k_sigma :
         Spike gate width in predicted innovation standard deviations; None (the
         default) disables it: a genuine step disturbance (a grid voltage sag) looks like
@@ -426,6 +433,11 @@ class MPCSettings:
         leave no offset. The input model stays available (it is refused when
         ``B(1) = 0``, where it is not detectable).
 
+        The TRIAC rate limit is on: `DEFAULT_RATE_FRACTION_OF_RANGE` (5 %) of the
+        model's identified input range ``input_range_pct`` per sample [%/step], so that
+        the whole range takes 20 samples (1.6 %/step for the shipped CZ heater model,
+        range 33..65 %).
+
         Parameters
         ----------
         model :
@@ -438,7 +450,9 @@ class MPCSettings:
             tau_steps = -1.0 / math.log(rho)
             horizon = math.ceil(HORIZON_FRACTION_OF_SLOW_MODE * tau_steps)
         horizon = min(MAX_DEFAULT_HORIZON_STEPS, max(MIN_DEFAULT_HORIZON_STEPS, horizon))
-        return cls(horizon_steps=horizon)
+        lo, hi = model.input_range_pct
+        return cls(horizon_steps=horizon,
+                   max_move_pct_per_step=DEFAULT_RATE_FRACTION_OF_RANGE * (hi - lo))
 
     @classmethod
     def preset(cls, name: PresetName, model: HammersteinModel) -> MPCSettings:
@@ -484,6 +498,7 @@ class MPCSettings:
 
 
 __all__ = [
+    "DEFAULT_RATE_FRACTION_OF_RANGE",
     "DisturbanceModel",
     "MPCSettings",
     "ModeName",

@@ -41,6 +41,7 @@ from czmpc.peers.open_loop import OpenLoopInversion
 from czmpc.peers.pi import PIController
 from czmpc.reports.benchmarks_md import write_benchmarks_section as _write_section
 from czmpc.settings import MPCSettings
+from czmpc.settings_file import settings_from_dict
 from czmpc.shipped import ARMAX_MODEL_JSON, HAMMERSTEIN_MODEL_JSON, shipped_path
 from sim.heater import HeaterParams, VirtualHeater
 from sim.loop import ClosedLoopResult, run_closed_loop
@@ -205,6 +206,7 @@ def build_plant(kind: str, model: HammersteinModel, scenario: Scenario) -> tuple
 def build_controller(
     name: str, models: BenchModels, scenario: Scenario, *, initial_triac_pct: float,
     settings_updates: Mapping[str, Any] | None = None, ipopt_tol: float | None = None,
+    settings_doc: Mapping[str, object] | None = None,
 ) -> Controller:
     """Controller ``name`` (see `CONTROLLERS`) set up for ``scenario``.
 
@@ -223,6 +225,9 @@ def build_controller(
         deliberately worse ``move_weight`` in a regression test.
     ipopt_tol :
         IPOPT tolerance of ``nmpc``; None: `czmpc.peers.nmpc.IPOPT_TOL`.
+    settings_doc :
+        A parsed settings file (`czmpc.settings_file`) applied to each model's own
+        defaults before ``settings_updates``; None: `MPCSettings.default_for`.
 
     Raises
     ------
@@ -231,8 +236,13 @@ def build_controller(
     """
     ham = models.hammerstein
     updates = dict(settings_updates or {})
+    def base(model: HammersteinModel) -> MPCSettings:
+        if settings_doc is None:
+            return MPCSettings.default_for(model).with_updates(**updates)
+        return settings_from_dict(settings_doc, model).with_updates(**updates)
+
     ham_settings = controller_settings(ham, scenario, initial_triac_pct=initial_triac_pct,
-                                       settings=MPCSettings.default_for(ham).with_updates(**updates))
+                                       settings=base(ham))
     if name == "mpc":
         return OffsetFreeMPC(ham, ham_settings)
     if name == "nmpc":
@@ -241,10 +251,9 @@ def build_controller(
         return NonlinearMPC(ham, ham_settings, ipopt_tol=ipopt_tol)
     if name == "linear_mpc":
         lin = models.linear
-        lin_base = MPCSettings.default_for(lin).with_updates(**updates)
         return OffsetFreeMPC(lin, controller_settings(lin, scenario,
                                                       initial_triac_pct=initial_triac_pct,
-                                                      settings=lin_base))
+                                                      settings=base(lin)))
     lo, hi = OffsetFreeMPC(ham, ham_settings).allowed_triac_range_pct
     s0 = ham_settings.initial_triac_pct
     if name in ("pi", "pi_gs"):
@@ -263,7 +272,7 @@ def build_controller(
 def run_case(
     scenario: Scenario, plant: str, controller: str, models: BenchModels, *,
     seed: int = BENCH_SEED, settings_updates: Mapping[str, Any] | None = None,
-    ipopt_tol: float | None = None,
+    ipopt_tol: float | None = None, settings_doc: Mapping[str, object] | None = None,
 ) -> BenchRun:
     """Run one (scenario, plant, controller) case and compute its metrics.
 
@@ -277,13 +286,14 @@ def run_case(
         The models.
     seed :
         Seed of the run.
-    settings_updates, ipopt_tol :
+    settings_updates, ipopt_tol, settings_doc :
         See `build_controller`.
     """
     t0 = time.perf_counter()
     the_plant, s0 = build_plant(plant, models.hammerstein, scenario)
     ctrl = build_controller(controller, models, scenario, initial_triac_pct=s0,
-                            settings_updates=settings_updates, ipopt_tol=ipopt_tol)
+                            settings_updates=settings_updates, ipopt_tol=ipopt_tol,
+                            settings_doc=settings_doc)
     result = run_closed_loop(the_plant, ctrl, scenario, rng=seed)
     metrics = compute_metrics(result)
     return BenchRun(scenario=scenario.name, plant=plant, controller=controller,
@@ -299,6 +309,7 @@ def run_bench(
     scenarios: Sequence[Scenario], *, controllers: Sequence[str] = tuple(CONTROLLERS),
     plants: Sequence[str] = tuple(PLANTS), models: BenchModels | None = None,
     seed: int = BENCH_SEED, progress: BenchProgress | None = None,
+    settings_doc: Mapping[str, object] | None = None,
 ) -> tuple[BenchRun, ...]:
     """Run every controller on every scenario and plant.
 
@@ -314,6 +325,8 @@ def run_bench(
         Seed of every run.
     progress :
         Called with one line per run (which run, elapsed, ETA).
+    settings_doc :
+        A parsed settings file for the MPC controllers (see `build_controller`).
 
     Raises
     ------
@@ -336,7 +349,7 @@ def run_bench(
             eta_text = "unknown" if math.isnan(eta) else f"{eta:.0f} s"
             progress(f"[{i}/{len(cases)}] {sc.name} / {p} / {c} ({sc.n_steps} samples); "
                      f"elapsed {elapsed:.1f} s, ETA {eta_text}")
-        run = run_case(sc, p, c, models, seed=seed)
+        run = run_case(sc, p, c, models, seed=seed, settings_doc=settings_doc)
         per_sample.setdefault(c, []).append(run.wall_time_s / sc.n_steps)
         runs.append(run)
     if progress is not None:

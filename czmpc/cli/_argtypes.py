@@ -13,8 +13,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from czmpc.settings import MPCSettings
     from sysid.data import Dataset
     from sysid.historian import LoadedLog
+    from sysid.model import HammersteinModel
 
 _REPO = Path(__file__).resolve().parents[2]
 
@@ -207,6 +209,35 @@ def log_option_words(args: argparse.Namespace) -> list[str]:
     words += ["--resample", args.resample, "--input-unit", args.input_unit,
               "--output-unit", args.output_unit]
     return words
+
+
+def add_settings_options(parser: argparse.ArgumentParser) -> None:
+    """``--settings FILE`` or ``--preset NAME`` (one of them) for the MPC's tuning."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument(
+        "--settings", metavar="SETTINGS.toml", type=Path, default=None,
+        help="controller settings file (TOML): horizon, weights, TRIAC and rate limits, "
+             "soft power limits, estimator noise, [reliability], [osqp]; keys it leaves out "
+             "come from its 'preset' key and the model. Print a complete one with "
+             "'czmpc settings --show'",
+    )
+    group.add_argument(
+        "--preset", choices=("default", "aggressive", "smooth"), default="default",
+        help="controller tuning without a file: 'default' (output weight 1, move weight "
+             "0.1 1/kW^2, rate limit 5 %% of the model's input range per sample), "
+             "'aggressive' (near-deadbeat, move weight 1e-4), 'smooth' (move weight 1, "
+             "slower disturbance estimate) (default: default)",
+    )
+
+
+def settings_for(args: argparse.Namespace, model: HammersteinModel) -> MPCSettings:
+    """The settings that `add_settings_options` asked for, for ``model``."""
+    from czmpc.settings import MPCSettings
+    from czmpc.settings_file import load_settings
+
+    if args.settings is not None:
+        return load_settings(args.settings, model)
+    return MPCSettings.preset(args.preset, model)
 
 
 def default_benchmarks_md() -> Path:

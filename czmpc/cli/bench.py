@@ -76,6 +76,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--golden-dir", metavar="DIR", type=Path, default=None,
                         help="where --update-golden writes (default: tests/golden)")
     parser.add_argument("--strict", action="store_true", help="exit 1 if a goal is missed")
+    parser.add_argument("--settings", metavar="SETTINGS.toml", type=Path, default=None,
+                        help="controller settings file for mpc, nmpc and linear_mpc (keys it "
+                             "leaves out come from each model's defaults; see 'czmpc settings "
+                             "--show'); default: each model's defaults")
 
 
 def _command_line(args: argparse.Namespace) -> str:
@@ -124,7 +128,15 @@ def run(args: argparse.Namespace) -> int:
         kwargs["controllers"] = args.controllers
     if args.plants is not None:
         kwargs["plants"] = args.plants
-    runs = run_bench(scenarios, models=models, progress=progress, **kwargs)
+    settings_doc = None
+    if args.settings is not None:
+        from czmpc.settings_file import load_settings_doc, settings_from_dict
+
+        settings_doc = load_settings_doc(args.settings)
+        # Refuse a bad file before the first run, not in the middle of the bench.
+        settings_from_dict(settings_doc, models.hammerstein, source=str(args.settings))
+    runs = run_bench(scenarios, models=models, progress=progress, settings_doc=settings_doc,
+                     **kwargs)
     wall_s = progress.elapsed_s
     goals = check_goals(runs)
     text = section_text(runs, goals, command=_command_line(args), machine=machine.describe(),

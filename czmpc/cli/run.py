@@ -52,8 +52,10 @@ def run(args: argparse.Namespace) -> int:
 
     from czmpc.controller import OffsetFreeMPC
     from czmpc.errors import SettingsError
-    from czmpc.runtime.config import load_run_config, runtime_settings
+    from czmpc.runtime.config import load_run_config
     from czmpc.runtime.loop import ControlLoop, tty_status
+    from czmpc.settings import MPCSettings
+    from czmpc.settings_file import load_settings
     from sysid.modelfile import load_model
 
     config = load_run_config(args.config)
@@ -68,7 +70,11 @@ def run(args: argparse.Namespace) -> int:
     if abs(model.ts_s - config.ts_s) > 1e-9 * config.ts_s:
         raise SettingsError(f"plant.ts_s: expected the model's sampling time {model.ts_s:g} s; "
                             f"got {config.ts_s:g} s")
-    controller = OffsetFreeMPC(model, runtime_settings(model))
+    if config.settings_path is None:
+        settings = MPCSettings.default_for(model)
+    else:
+        settings = load_settings(config.settings_path, model)
+    controller = OffsetFreeMPC(model, settings)
     loop = ControlLoop(config, controller, status=tty_status())
     try:
         summary = asyncio.run(loop.run())

@@ -70,12 +70,7 @@ def register(parser: argparse.ArgumentParser) -> None:
         help="seed of the plant noise and sensor faults; the same seed gives the same run "
              "bit for bit (default: 0)",
     )
-    parser.add_argument(
-        "--preset", choices=("default", "aggressive", "smooth"), default="default",
-        help="controller tuning: 'default' (output weight 1, move weight 0.1 1/kW^2), "
-             "'aggressive' (near-deadbeat, move weight 1e-4), 'smooth' (move weight 1, "
-             "slower disturbance estimate) (default: default)",
-    )
+    _argtypes.add_settings_options(parser)
     parser.add_argument(
         "--noise", action=argparse.BooleanOptionalAction, default=None,
         help="plant noise on or off: the model's innovations (noise_std_kw [kW]) through "
@@ -97,7 +92,6 @@ def register(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Load model and scenario, run the closed loop, write the files, print the metrics."""
     from czmpc.campaigns.simulation import run_simulation, write_outputs
-    from czmpc.settings import MPCSettings
     from sim.scenario import load_scenario
     from sysid.modelfile import load_model
 
@@ -106,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     if args.short is not None and args.short < 1.0:
         scenario = scenario.shortened(args.short)
     noise = scenario.plant_noise if args.noise is None else bool(args.noise)
-    settings = MPCSettings.preset(args.preset, model)
+    settings = _argtypes.settings_for(args, model)
     outcome = run_simulation(model, scenario, plant=args.plant, seed=args.seed,
                              settings=settings, noise=noise,
                              progress=partial(Progress(quiet_for_s=PROGRESS_AFTER_S).fraction,

@@ -41,8 +41,6 @@ from typing import Any
 
 from czmpc.errors import CzmpcError
 from czmpc.runtime.security import INSECURE_LOOPBACK, SecuritySettings, parse_security
-from czmpc.settings import MPCSettings
-from sysid.model import HammersteinModel
 
 
 class RunConfigError(CzmpcError, ValueError):
@@ -255,25 +253,5 @@ def load_run_config(path: Path) -> RunConfig:
     return run_config_from_dict(doc, base_dir=path.resolve().parent)
 
 
-#: The runtime's rate limit when the settings have none: this fraction of the model's
-#: identified input range per sample (5 %: the whole range in 20 samples = 40 s at
-#: Ts = 2 s), because a real TRIAC and heating element must not be slammed.
-RUNTIME_RATE_FRACTION_OF_RANGE = 0.05
-
-
-def runtime_settings(model: HammersteinModel) -> MPCSettings:
-    """`MPCSettings.default_for` ``(model)`` with a rate limit when it has none.
-
-    The limit is `RUNTIME_RATE_FRACTION_OF_RANGE` of the model's input range per sample
-    [%/step] (1.6 %/step for the shipped CZ heater model, range 33..65 %).
-    """
-    settings = MPCSettings.default_for(model)
-    if settings.max_move_pct_per_step is None:
-        lo, hi = model.input_range_pct
-        settings = settings.with_updates(
-            max_move_pct_per_step=RUNTIME_RATE_FRACTION_OF_RANGE * (hi - lo))
-    return settings
-
-
 __all__ = ["NodeIds", "RunConfig", "RunConfigError", "Schedule", "load_run_config",
-           "load_schedule", "run_config_from_dict", "runtime_settings"]
+           "load_schedule", "run_config_from_dict"]

@@ -18,9 +18,9 @@ from asyncua import ua
 from plant_rig import TIME_SCALE, free_port, make_config, served_nodes
 
 from czmpc.controller import OffsetFreeMPC
-from czmpc.runtime.config import runtime_settings
 from czmpc.runtime.loop import ControlLoop
 from czmpc.runtime.served import ServedPlant, ServeOptions
+from czmpc.settings import MPCSettings
 from czmpc.shipped import shipped_path
 from sim.model_plant import ModelPlant
 from sim.scenario import scenario_from_dict
@@ -133,7 +133,7 @@ def test_served_steps_track_and_start_bumplessly(tmp_path: Path) -> None:
     nodes = {k: v for k, v in served_nodes().items() if k != "setpoint_kw"}
     cfg = make_config(tmp_path, port, duration_s=300.0, run={"schedule": "recipe.csv"},
                       nodes=nodes)
-    settings = runtime_settings(model)
+    settings = MPCSettings.default_for(model)
     rate = settings.max_move_pct_per_step
     assert rate is not None
     mpc = OffsetFreeMPC(model, settings)
@@ -168,7 +168,7 @@ def test_bad_quality_is_a_missing_sample_then_shed(tmp_path: Path) -> None:
     port = free_port()
     model, _plant, served = _served_model(port, scenario=scenario)
     cfg = make_config(tmp_path, port, duration_s=240.0)
-    mpc = OffsetFreeMPC(model, runtime_settings(model))
+    mpc = OffsetFreeMPC(model, MPCSettings.default_for(model))
     asyncio.run(_with_served(served, ControlLoop(cfg, mpc).run()))
     rows = _rows(cfg.log_path)
     bad = [r for r in rows if r["quality"] == "bad"]
@@ -186,7 +186,7 @@ def test_watchdog_moves_to_the_safe_input_when_the_controller_dies(tmp_path: Pat
     port = free_port()
     model, _plant, served = _served_model(port, watchdog_s=10.0)
     cfg = make_config(tmp_path, port, duration_s=40.0, run={"setpoint_kw": 30.0})
-    mpc = OffsetFreeMPC(model, runtime_settings(model))
+    mpc = OffsetFreeMPC(model, MPCSettings.default_for(model))
 
     async def body() -> None:
         await ControlLoop(cfg, mpc).run()   # the controller stops (dies) after 40 s
@@ -210,7 +210,7 @@ def test_an_overrun_never_writes_twice_in_a_period(tmp_path: Path) -> None:
     port = free_port()
     model, _plant, served = _served_model(port)
     cfg = make_config(tmp_path, port, duration_s=60.0, run={"setpoint_kw": 30.0})
-    mpc = OffsetFreeMPC(model, runtime_settings(model))
+    mpc = OffsetFreeMPC(model, MPCSettings.default_for(model))
     period = cfg.period_s
     loop = ControlLoop(cfg, mpc, step_delay_s={5: 2.5 * period})
     summary = asyncio.run(_with_served(served, loop.run()))

@@ -1,0 +1,61 @@
+"""Print the effective controller settings for a model, as a settings file.
+
+The output is a complete settings TOML file: every key with its value and, as a
+comment, its meaning and unit. Keys the given file (or preset) leaves out are shown
+with the value they take for this model (the horizon from its slow time constant, the
+rate limit from its input range). Save it, edit it, and pass it back with
+``--settings`` to ``czmpc simulate``, ``czmpc bench`` or ``[controller].settings`` of
+``czmpc run``.
+
+The settings are checked completely: every key and value, and that a controller can be
+built from them and the model (allowed input range on the monotone branch of f, a
+detectable estimator). Exit 2 names what is wrong.
+
+Example::
+
+    czmpc settings --show > settings.toml           # the shipped model's defaults
+    czmpc settings --show --model model.json --settings settings.toml
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from czmpc.cli import _argtypes
+
+NAME = "settings"
+HELP = "show (and check) the effective MPC settings for a model, as a settings TOML file"
+ORDER = 45
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """Add this command's options."""
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.add_argument("--show", action="store_true",
+                        help="print the effective settings as TOML (the default action)")
+    parser.add_argument("--model", metavar="MODEL.json", type=Path, default=None,
+                        help="the model the settings are for (default: the shipped CZ "
+                             "heater model)")
+    _argtypes.add_settings_options(parser)
+    parser.add_argument("--no-comments", action="store_true",
+                        help="values only, without the meaning and unit of each key")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Build the settings, check them against the model, print them."""
+    from czmpc.controller import OffsetFreeMPC
+    from czmpc.settings_file import settings_to_toml
+    from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
+    from sysid.modelfile import load_model
+
+    model_path = args.model if args.model is not None else shipped_path(HAMMERSTEIN_MODEL_JSON)
+    model = load_model(model_path)
+    settings = _argtypes.settings_for(args, model)
+    OffsetFreeMPC(model, settings)  # raises DesignError (exit 2) if no controller can be built
+    source = (f"file {args.settings}" if args.settings is not None
+              else f"preset {args.preset!r}")
+    print(f"# czmpc MPC settings for {model_path} (Ts = {model.ts_s:g} s), from {source}.\n"
+          f"# Optional settings are switched off with \"off\".")
+    print(settings_to_toml(settings, comments=not args.no_comments), end="")
+    return 0
