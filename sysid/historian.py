@@ -386,8 +386,8 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
     rows = rows[~no_time]
     time, u, y = raw.time[rows], raw.u[rows], raw.y[rows]
     if time.size < MIN_SAMPLES:
-        raise DataFileError(f"expected at least {MIN_SAMPLES} rows with a time stamp; got "
-                            f"{time.size}", path=raw.path)
+        raise DataFileError(f"expected at least {MIN_SAMPLES} samples; got {time.size}",
+                            path=raw.path)
     back = np.flatnonzero(np.diff(time) <= 0)
     if back.size:
         k = int(back[0]) + 1
@@ -644,18 +644,29 @@ def read_log_csv(
     except csv.Error as exc:
         raise DataFileError(f"not readable as CSV: {exc}", path=p, line=reader.line_num) from None
     header = [h.strip() for h in table[0]]
-    if len(header) < len(CSV_COLUMNS):
+    if len(header) == 1 and any(sep_ in header[0] for sep_ in SEPARATORS):
         raise DataFileError(
-            f"the header holds {len(header)} field(s) with the separator {separator!r}; "
-            f"expected at least {len(CSV_COLUMNS)} (pass --sep ',', ';' or tab)",
-            path=p, line=1)
+            f"the header is one field with the separator {separator!r}; got {header[0]!r} "
+            "(pass --sep ',', ';' or tab)", path=p, line=1)
     if len(set(header)) != len(header):
         dup = next(h for h in header if header.count(h) > 1)
         raise DataFileError(f"header field '{dup}' appears twice", path=p, line=1, column=dup)
     names = _check_mapping(header, columns, str(p))
+    if columns is None and header != list(CSV_COLUMNS):
+        extra = [h for h in header if h not in CSV_COLUMNS]
+        detail = f"extra field(s) {extra}" if extra else f"fields in the order {header}"
+        raise DataFileError(
+            f"header must be exactly 'time_s,triac_pct,power_kw'; got {detail} (pass --columns "
+            "time_s=NAME,triac_pct=NAME,power_kw=NAME to read other layouts)",
+            path=p, line=1, column=extra[0] if extra else None)
     index = {c: header.index(names[c]) for c in CSV_COLUMNS}
     body = table[1:]
+    if len(body) < MIN_SAMPLES:
+        raise DataFileError(f"expected at least {MIN_SAMPLES} samples; got {len(body)}", path=p)
     for i, row in enumerate(body):
+        if policy.gaps == "refuse" and not any(c.strip() for c in row):
+            raise DataFileError("blank line; expected a row of numbers (--gaps split or "
+                                "--gaps fill skip it as a missing sample)", path=p, line=i + 2)
         if row and any(c.strip() for c in row) and len(row) != len(header):
             hint = "" if sep is not None else f" (separator {separator!r} detected; pass --sep)"
             raise DataFileError(f"expected {len(header)} cells like the header; got {len(row)}"
