@@ -15,6 +15,7 @@ from sysid._lazy import lazy_exports
 
 _EXPORTS = {
     **dict.fromkeys(["CSV_COLUMNS", "Dataset", "read_csv", "write_csv"], "sysid.data"),
+    **dict.fromkeys(["LoadPolicy", "LoadReport", "load_log"], "sysid.historian"),
     **dict.fromkeys(
         ["DataFileError", "IdentificationError", "IdentificationWarning", "ModelFileError",
          "SamplingTimeError", "SysidError", "UnstableModelError"], "sysid.errors"),
@@ -52,6 +53,7 @@ if TYPE_CHECKING:
     )
     from sysid.greybox import GreyBoxStructure, fit_greybox
     from sysid.hammerstein import fit_hammerstein
+    from sysid.historian import LoadPolicy, LoadReport, load_log
     from sysid.linear import fit_armax, fit_arx, fit_oe
     from sysid.model import Criteria, HammersteinModel, OperatingPoint, Provenance, Units
     from sysid.modelfile import load_model, save_model

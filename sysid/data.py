@@ -161,6 +161,27 @@ class Dataset:
                     path=self.source)
         return starts
 
+    @classmethod
+    def from_frame(
+        cls,
+        frame: Any,
+        *,
+        columns: Mapping[str, str] | None = None,
+        policy: Any = None,
+        input_unit: str = "%",
+        output_unit: str = "kW",
+    ) -> Dataset:
+        """A data set from a pandas DataFrame (needs ``pip install czmpc[pandas]``).
+
+        See `sysid.historian.read_frame` for the columns, the time (a column or the
+        index; seconds or time stamps) and the `sysid.historian.LoadPolicy` for NaN,
+        gaps and jitter; what was done is recorded in ``preprocessing``.
+        """
+        from sysid.historian import read_frame
+
+        return read_frame(frame, columns=columns, policy=policy, input_unit=input_unit,
+                          output_unit=output_unit).data
+
     @property
     def n_segments(self) -> int:
         """Number of segments (experiments)."""

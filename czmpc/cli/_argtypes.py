@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from czmpc.settings import MPCSettings
     from sysid.data import Dataset
+    from sysid.historian import LoadedLog
     from sysid.model import HammersteinModel
 
 _REPO = Path(__file__).resolve().parents[2]
@@ -112,12 +113,40 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--ts-s", metavar="X", type=positive_float, default=None,
-        help="nominal sampling time [s]; default: the median interval of the file",
+        help="nominal sampling time [s]; default: the median interval of the file (with "
+             "jittered time stamps: the mean period over the record)",
     )
     parser.add_argument(
         "--sampling-rtol", metavar="R", type=non_negative_float, default=None,
-        help="allowed relative deviation of any interval from the sampling time "
-             "(default 0.01)",
+        help="intervals within R x Ts of a whole number of periods keep their logged "
+             "times (default 0.01); larger jitter is handled by --resample",
+    )
+    parser.add_argument(
+        "--sep", metavar="SEP", type=separator, default=None,
+        help="CSV separator: ',', ';' or 'tab' (default: detected from the header line)",
+    )
+    parser.add_argument(
+        "--decimal", metavar="MARK", choices=(".", ","), default=None,
+        help="decimal mark of the numbers: '.' or ',' (default: ',' if the separator is "
+             "not a comma and the values look like 12,5; else '.')",
+    )
+    parser.add_argument(
+        "--gaps", choices=("refuse", "split", "fill"), default="refuse",
+        help="missing values (NaN, empty cells) and gaps in time: 'refuse' (default) stops "
+             "with the line; 'split' cuts the log into segments of complete samples "
+             "(identify runs on the longest and says so); 'fill' interpolates runs of at most "
+             "--fill-max missing samples linearly and splits at longer ones",
+    )
+    parser.add_argument(
+        "--fill-max", metavar="N", type=positive_int, default=None,
+        help="longest run of missing samples --gaps fill interpolates (default 5)",
+    )
+    parser.add_argument(
+        "--resample", choices=("snap", "linear"), default="snap",
+        help="irregular time stamps: 'snap' (default) moves samples whose interval is "
+             "within 25 %% of a whole number of periods onto the grid t0 + k Ts (times "
+             "within --sampling-rtol are kept as logged) and refuses larger jitter; "
+             "'linear' interpolates the signals onto that grid",
     )
     parser.add_argument(
         "--input-unit", metavar="UNIT", default="%",
@@ -129,24 +158,73 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def separator(text: str) -> str:
+    """``,``, ``;``, ``tab`` (or a tab character) as the separator character."""
+    value = {"tab": "\t", "\\t": "\t"}.get(text, text)
+    if value not in (",", ";", "\t"):
+        raise argparse.ArgumentTypeError(f"expected ',', ';' or 'tab'; got {text!r}")
+    return value
+
+
+def load_log(path: str | Path, args: argparse.Namespace) -> LoadedLog:
+    """Read ``path`` (CSV or Parquet) with the options of `add_log_options`."""
+    from sysid.data import DEFAULT_SAMPLING_RTOL
+    from sysid.historian import DEFAULT_FILL_MAX_SAMPLES, LoadPolicy
+    from sysid.historian import load_log as load
+
+    rtol = DEFAULT_SAMPLING_RTOL if args.sampling_rtol is None else args.sampling_rtol
+    policy = LoadPolicy(
+        gaps=args.gaps, resample=args.resample, ts_s=args.ts_s, sampling_rtol=rtol,
+        fill_max_samples=DEFAULT_FILL_MAX_SAMPLES if args.fill_max is None else args.fill_max)
+    return load(path, columns=args.columns, policy=policy, sep=args.sep, decimal=args.decimal,
+                input_unit=args.input_unit, output_unit=args.output_unit)
+
+
 def read_log(path: str | Path, args: argparse.Namespace) -> Dataset:
-    """Read ``path`` with the options of `add_log_options`.
+    """Read ``path`` with the options of `add_log_options` (see `load_log`).
 
     A `czmpc run` log (open-loop test, dithered or plain MPC run) is recognised by its
     header and read by `czmpc.runtime.runlog.read_run_log`; what it is (closed-loop or
-    not) is said on stderr.
+    not) is said on stderr. Any other log goes through the historian loader, and what it
+    did (gaps split or filled, jitter snapped, ...) is said on stderr too.
     """
     from czmpc.runtime.runlog import describe_run_data, is_run_log, read_run_log
-    from sysid.data import DEFAULT_SAMPLING_RTOL, read_csv
 
     if args.columns is None and is_run_log(path):
         data = read_run_log(path)
         print(f"czmpc: note: {describe_run_data(data)}", file=sys.stderr)
         return data
+    loaded = load_log(path, args)
+    if not loaded.report.is_plain_contract:
+        print(f"czmpc: note: read {path}: {loaded.report.summary()}", file=sys.stderr)
+    return loaded.data
 
-    rtol = DEFAULT_SAMPLING_RTOL if args.sampling_rtol is None else args.sampling_rtol
-    return read_csv(path, columns=args.columns, ts_s=args.ts_s, sampling_rtol=rtol,
-                    input_unit=args.input_unit, output_unit=args.output_unit)
+
+def exact(value: float) -> str:
+    """Shortest text of ``value`` that reads back to the same float (``45``, ``0.1``)."""
+    short = f"{value:g}"
+    return short if float(short) == value else repr(float(value))
+
+
+def log_option_words(args: argparse.Namespace) -> list[str]:
+    """The options of `add_log_options` as given, as command-line words (exact values)."""
+    words: list[str] = []
+    if args.columns is not None:
+        words += ["--columns", ",".join(f"{k}={v}" for k, v in args.columns.items())]
+    if args.ts_s is not None:
+        words += ["--ts-s", exact(args.ts_s)]
+    if args.sampling_rtol is not None:
+        words += ["--sampling-rtol", exact(args.sampling_rtol)]
+    if args.sep is not None:
+        words += ["--sep", "tab" if args.sep == "\t" else args.sep]
+    if args.decimal is not None:
+        words += ["--decimal", args.decimal]
+    words += ["--gaps", args.gaps]
+    if args.fill_max is not None:
+        words += ["--fill-max", str(args.fill_max)]
+    words += ["--resample", args.resample, "--input-unit", args.input_unit,
+              "--output-unit", args.output_unit]
+    return words
 
 
 def add_settings_options(parser: argparse.ArgumentParser) -> None:

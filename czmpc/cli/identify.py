@@ -1,6 +1,8 @@
 """Identify the heater's Hammerstein model from a logged CSV file, the paper's whole route.
 
-Reads DATA.csv (header time_s,triac_pct,power_kw; uniform sampling) and runs
+Reads DATA (CSV or Parquet; header time_s,triac_pct,power_kw or other names mapped
+with --columns; time in seconds or ISO-8601 stamps; NaN, gaps and jittered stamps under
+the stated --gaps/--resample policies, see sysid.historian) and runs
 Komperod et al.'s pipeline: operating point (sec. 5.1), outlier candidates from an
 ARX(10,10) model and their repair (sec. 5.2), the linear ARX/ARMAX/OE models of
 Table 2, the input-step gains of Table 3, the Hammerstein route of sec. 7.4-7.5
@@ -61,9 +63,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument(
-        "data", metavar="DATA.csv",
-        help="logged data, header time_s,triac_pct,power_kw (time [s], TRIAC input s [%%], "
-             "heater power P [kW]), uniform sampling",
+        "data", metavar="DATA",
+        help="logged data, CSV or Parquet: header time_s,triac_pct,power_kw (time [s], "
+             "TRIAC input s [%%], heater power P [kW]) or other names with --columns; time "
+             "in seconds or ISO-8601 stamps; NaN, gaps and jitter under --gaps/--resample",
     )
     parser.add_argument(
         "--out", metavar="DIR", required=True, type=Path,
@@ -107,6 +110,12 @@ def register(parser: argparse.ArgumentParser) -> None:
              "write nothing)",
     )
     parser.add_argument(
+        "--reference", choices=("paper", "none"), default=None,
+        help="'paper' adds the paper's values (Komperod et al.: Tables 2-3, the route's V "
+             "and W) beside ours in the report; 'none' leaves them out. Default: 'paper' "
+             "for data in %% and kW (a CZ puller's log), else 'none'",
+    )
+    parser.add_argument(
         "--allow-unconverged", action="store_true",
         help="exit 0 even if an iterative fit (OE, ARMAX, PEM) did not converge; the "
              "report then flags it (default: exit 1)",
@@ -132,6 +141,9 @@ class IdentifyOutcome:
     warnings :
         Every warning raised while identifying (for example an optimizer's
         non-convergence message), as ``"Category: message"``.
+    notes :
+        What the run changed or left out that a user must know (the segment used, a
+        model kind other than the Hammerstein with noise model), as printed.
     findings :
         The paper's findings checked on these data (`czmpc.reports.identification.findings_checklist`),
         as in the report.
@@ -148,6 +160,7 @@ class IdentifyOutcome:
     warnings: tuple[str, ...] = ()
     findings: tuple[Finding, ...] = ()
     identifiability: IdentifiabilityAssessment | None = None
+    notes: tuple[str, ...] = ()
 
 
 def _orders(text: str) -> str | tuple[int, ...]:
@@ -179,6 +192,7 @@ def identify_to_directory(
     orders: str | tuple[int, ...] = "paper",
     initial_state: str = "estimate",
     accept_unidentifiable: bool = False,
+    reference: str | None = None,
 ) -> IdentifyOutcome:
     """Read a log, run the paper's pipeline and write model.json, models/, report.md.
 
@@ -204,6 +218,9 @@ def identify_to_directory(
         ``"estimate"``, ``"held"`` or ``"zero"``: initial state of the PEM fits.
     accept_unidentifiable :
         Write the files even when the identifiability checks refuse the data.
+    reference :
+        ``"paper"`` to show the paper's values beside ours, ``"none"`` to leave them
+        out; None: ``"paper"`` for data in % and kW, else ``"none"``.
 
     Returns
     -------
@@ -236,6 +253,10 @@ def identify_to_directory(
         if progress is not None:
             progress(f"reading {data_path}")
         data = read_csv(data_path)
+    notes: list[str] = []
+    if data.n_segments > 1:
+        data, note = longest_segment(data)
+        notes.append(note)
     from sysid.identifiability import (
         UnidentifiableDataError,
         assess_data,
@@ -284,9 +305,13 @@ def identify_to_directory(
         **final.provenance.extra, "identifiability": judged.as_dicts(),
         **({"accepted_unidentifiable": True} if judged.refusals else {})})
     save_model(final.with_updates(units=units, provenance=provenance), model_path)
+    if reference is None:
+        reference = "paper" if (data.input_unit, data.output_unit) == ("%", "kW") else "none"
+    notes += model_kind_notes(result)
     files = write_report(
         result, out, model_file="model.json",
-        model_files=[p.relative_to(out).as_posix() for p in model_files], command=command)
+        model_files=[p.relative_to(out).as_posix() for p in model_files], command=command,
+        reference=reference == "paper", notes=notes)
     atomic_write_text(files.report_path, files.report_path.read_text(encoding="utf-8")
                       + "\n" + judged.markdown())
     unconverged = tuple(
@@ -294,27 +319,72 @@ def identify_to_directory(
     return IdentifyOutcome(model_path=model_path, model_files=tuple(model_files),
                            report_path=files.report_path, figure_files=files.figure_files,
                            unconverged=unconverged, warnings=messages,
-                           findings=findings_checklist(result), identifiability=judged)
+                           findings=findings_checklist(result), identifiability=judged,
+                           notes=(*notes, *(f"skipped: {x}" for x in result.skipped)))
+
+
+def longest_segment(data: Dataset) -> tuple[Dataset, str]:
+    """The longest segment of a split log, and a sentence saying so.
+
+    The paper's pipeline (outlier search, linear models, input steps, the Hammerstein
+    route) runs on one contiguous record; a log split into segments is identified on
+    its longest one, and the note names the segments left out.
+    """
+    bounds = data.segment_bounds()
+    lo, hi = max(bounds, key=lambda b: b[1] - b[0])
+    left = [f"{data.time_s[a]:g}..{data.time_s[b - 1]:g} s ({b - a} samples)"
+            for a, b in bounds if (a, b) != (lo, hi)]
+    note = (f"the log holds {len(bounds)} segments; the pipeline runs on one contiguous "
+            f"record, so it identifies the longest: t = {data.time_s[lo]:g}.."
+            f"{data.time_s[hi - 1]:g} s, {hi - lo} of {data.n_samples} samples (left out: "
+            + "; ".join(left) + ")")
+    return data.segment(lo, hi), note
+
+
+def model_kind_notes(result: Any) -> list[str]:
+    """Sentences for the terminal and the report when model.json is not the Hammerstein.
+
+    The pipeline writes the noise-model Hammerstein (eq. 30); if that was not fitted it
+    falls back to the OE Hammerstein, then to the best linear model on W. Each
+    fallback is said with the reasons the pipeline recorded.
+    """
+    final = result.final
+    if final is None or final.name == "hammerstein_armax":
+        return []
+    reasons = [s for s in result.skipped if "Hammerstein" in s or "hammerstein" in s
+               or "eq. 21" in s or "input polynomial" in s]
+    why = "; ".join(reasons) if reasons else "the noise-model Hammerstein was not fitted"
+    kind = "the OE Hammerstein (eq. 27, no noise model)" if final.name == "hammerstein_oe" \
+        else f"the linear model {final.label} (best W)"
+    return [f"model.json holds {kind} instead of the Hammerstein with a noise model "
+            f"(eq. 30): {why}"]
+
+
+def command_words(args: argparse.Namespace) -> list[str]:
+    """The command line that reproduces this run exactly (every option that matters)."""
+    words = ["czmpc", NAME, str(args.data), "--out", str(args.out)]
+    if args.operating_point is not None:
+        words += ["--operating-point", *(_argtypes.exact(v) for v in args.operating_point)]
+    if args.level_shift is not None:
+        words += ["--level-shift", *(_argtypes.exact(v) for v in args.level_shift)]
+    words += _argtypes.log_option_words(args)
+    orders_text = args.orders if isinstance(args.orders, str) else ",".join(
+        str(v) for v in args.orders)
+    words += ["--orders", orders_text, "--initial-state", args.initial_state]
+    if args.reference is not None:
+        words += ["--reference", args.reference]
+    if args.allow_unconverged:
+        words.append("--allow-unconverged")
+    if args.accept_unidentifiable:
+        words.append("--accept-unidentifiable")
+    return words
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the pipeline and write model.json, models/*.json and report.md into --out."""
     progress = Progress()
-    words = ["czmpc", NAME, str(args.data), "--out", str(args.out)]
-    if args.operating_point is not None:
-        words += ["--operating-point", *(f"{v:g}" for v in args.operating_point)]
-    if args.level_shift is not None:
-        words += ["--level-shift", *(f"{v:g}" for v in args.level_shift)]
-    orders_text = args.orders if isinstance(args.orders, str) else ",".join(
-        str(v) for v in args.orders)
-    words += ["--orders", orders_text, "--initial-state", args.initial_state]
-    if args.allow_unconverged:
-        words.append("--allow-unconverged")
-    if args.accept_unidentifiable:
-        words.append("--accept-unidentifiable")
-    command = " ".join(shlex.quote(w) for w in words)
-    if progress is not None:
-        progress(f"reading {args.data}")
+    command = " ".join(shlex.quote(w) for w in command_words(args))
+    progress(f"reading {args.data}")
     from sysid.identifiability import UnidentifiableDataError
 
     try:
@@ -328,6 +398,7 @@ def run(args: argparse.Namespace) -> int:
             orders=args.orders,
             initial_state=args.initial_state,
             accept_unidentifiable=args.accept_unidentifiable,
+            reference=args.reference,
         )
     except UnidentifiableDataError as exc:
         refusals = exc.assessment.refusals
@@ -341,6 +412,8 @@ def run(args: argparse.Namespace) -> int:
     progress(f"wrote {outcome.model_path}, {len(outcome.model_files)} model files in "
              f"{outcome.model_path.parent / 'models'}, {outcome.report_path} and "
              f"{len(outcome.figure_files)} figures")
+    for note in outcome.notes:
+        print(f"czmpc: note: {note}", file=sys.stderr)
     for message in outcome.warnings:
         print(f"czmpc: warning: {message}", file=sys.stderr)
     judged = outcome.identifiability

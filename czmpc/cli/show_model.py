@@ -36,19 +36,29 @@ def describe_model(model: object) -> str:
 
     units = model.effective_units
     u_in, u_out = units.input, units.output
-    f_terms = " ".join(f"{p:+.6g} ds^{i + 1}" for i, p in enumerate(model.input_poly))
+    # a CZ puller's log (TRIAC s in %, power P in kW) keeps the paper's symbols; any
+    # other rig reads as input u and output y
+    s_, p_ = ("s", "P") if (u_in, u_out) == ("%", "kW") else ("u", "y")
+    ds, dp = f"d{s_}", f"d{p_}"
+    f_terms = " ".join(f"{p:+.6g} {ds}^{i + 1}" for i, p in enumerate(model.input_poly))
+    names = _column_names(model)
     lines = [
         f"kind: {model.kind} ({model.linear_block} linear block), Ts = {model.ts_s:g} s, "
         f"delay = {model.delay_steps} sample(s)",
         f"units: input {u_in}, output {u_out}"
         + ("" if model.units is not None else " (the file has no units: % and kW assumed)"),
-        f"operating point: s_nom = {op.triac_pct:g} {u_in}, P_nom = {op.power_kw:g} {u_out}",
-        f"A(q) dP = B(q) f(ds) + C(q) e   with dP = P - P_nom [{u_out}], "
-        f"ds = s - s_nom [{u_in}]",
+    ]
+    if names is not None:
+        lines.append(f"signals: input {s_} = column '{names[0]}' [{u_in}], output {p_} = "
+                     f"column '{names[1]}' [{u_out}]")
+    lines += [
+        f"operating point: {s_}_nom = {op.triac_pct:g} {u_in}, {p_}_nom = {op.power_kw:g} {u_out}",
+        f"A(q) {dp} = B(q) f({ds}) + C(q) e   with {dp} = {p_} - {p_}_nom [{u_out}], "
+        f"{ds} = {s_} - {s_}_nom [{u_in}]",
         "  " + poly("A", model.a),
         "  " + poly("B", model.b),
         "  " + poly("C", model.c),
-        f"  f(ds) = {f_terms}   [{u_out}]",
+        f"  f({ds}) = {f_terms}   [{u_out}]",
         f"  noise std(e) = {model.noise_std_kw:.4g} {u_out}",
         f"linear-block static gain B(1)/A(1) = {model.linear_static_gain:.4g}",
     ]
@@ -63,7 +73,7 @@ def describe_model(model: object) -> str:
     slopes = model.input_nonlinearity_slope(grid - op.triac_pct)
     steady = model.steady_state_power_kw(grid)
     lines.append(f"identified input range: {lo:g} .. {hi:g} {u_in}")
-    lines.append(f"      s [{u_in}]   f'(ds) [{u_out}/{u_in}]   steady P [{u_out}]")
+    lines.append(f"      {s_} [{u_in}]   f'({ds}) [{u_out}/{u_in}]   steady {p_} [{u_out}]")
     for s, g, p in zip(grid, slopes, steady, strict=True):
         lines.append(f"  {s:9.2f}   {g:13.4f}   {p:13.3f}")
     crit = model.criteria
@@ -76,9 +86,26 @@ def describe_model(model: object) -> str:
     if prov.data_file or prov.method:
         lines.append(f"provenance: data {prov.data_file}, method {prov.method}")
     for step in prov.preprocessing:
-        lines.append(f"  preprocessing: {dict(step)}")
+        if step.get("what") == "load_log":
+            lines.append(
+                f"  loaded: {step.get('format')}, time {step.get('time_format')}, --gaps "
+                f"{step.get('gaps')} ({step.get('n_filled')} filled, {step.get('n_dropped')} "
+                f"dropped, {step.get('n_segments')} segment(s)), --resample "
+                f"{step.get('resample')} ({step.get('n_snapped')} snapped)")
+        else:
+            lines.append(f"  preprocessing: {dict(step)}")
     lines.extend(f"WARNING: {w}" for w in model_warnings(model))
     return "\n".join(lines)
+
+
+def _column_names(model: object) -> tuple[str, str] | None:
+    """The log's input and output column names, if the model's provenance records them."""
+    prov = getattr(model, "provenance", None)
+    for step in getattr(prov, "preprocessing", ()):
+        columns = step.get("columns") if step.get("what") == "load_log" else None
+        if isinstance(columns, dict) and "triac_pct" in columns and "power_kw" in columns:
+            return str(columns["triac_pct"]), str(columns["power_kw"])
+    return None
 
 
 #: A pole this close to |z| = 1 (time constant over 1e5 samples) acts as an integrator

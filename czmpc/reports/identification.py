@@ -116,6 +116,66 @@ class ReportFiles:
     figure_files: tuple[Path, ...]
 
 
+# --- how the report speaks of the data --------------------------------------------------
+
+#: Units of the paper's experiment: data in these units get the paper's names and,
+#: unless told otherwise, its values beside ours.
+PAPER_UNITS = ("%", "kW")
+
+
+@dataclass(frozen=True, kw_only=True)
+class _Style:
+    """Names, units and symbols of the data, and whether the paper's values are shown."""
+
+    paper: bool
+    in_name: str
+    out_name: str
+    in_unit: str
+    out_unit: str
+    in_sym: str
+    out_sym: str
+
+    @property
+    def labels(self) -> dict[str, str]:
+        if (self.in_name, self.out_name, self.in_unit, self.out_unit) == (
+                "TRIAC input s", "heater power P", *PAPER_UNITS):
+            return dict(figs.AXIS_LABELS)
+        return figs.axis_labels(input_name=self.in_name, input_unit=self.in_unit,
+                                output_name=self.out_name, output_unit=self.out_unit,
+                                input_symbol=self.in_sym, output_symbol=self.out_sym)
+
+    @property
+    def v_unit(self) -> str:
+        return f"{self.out_unit}^2"
+
+    def title(self, text: str, paper_part: str) -> str:
+        """A figure title, with the paper's figure named only when the paper is shown."""
+        return f"{text} ({paper_part})" if self.paper else text
+
+
+def load_record(result: PipelineResult) -> Mapping[str, Any] | None:
+    """The ``load_log`` entry of the raw data's preprocessing (how the log was read), if any."""
+    return next((step for step in result.raw_data.preprocessing
+                 if step.get("what") == "load_log"), None)
+
+
+def _style(result: PipelineResult, reference: bool | None) -> _Style:
+    raw = result.raw_data
+    units = (raw.input_unit, raw.output_unit)
+    puller = units == PAPER_UNITS
+    record = load_record(result)
+    columns = {} if record is None else dict(record.get("columns") or {})
+    in_col = columns.get("triac_pct", "triac_pct")
+    out_col = columns.get("power_kw", "power_kw")
+    if puller and in_col == "triac_pct" and out_col == "power_kw":
+        in_name, out_name = "TRIAC input s", "heater power P"
+    else:
+        in_name, out_name = f"input {in_col}", f"output {out_col}"
+    return _Style(paper=puller if reference is None else reference, in_name=in_name,
+                  out_name=out_name, in_unit=raw.input_unit, out_unit=raw.output_unit,
+                  in_sym="ds" if puller else "du", out_sym="dP" if puller else "dy")
+
+
 # --- small helpers ---------------------------------------------------------------------
 
 def _models(result: PipelineResult) -> dict[str, NamedModel]:
@@ -155,21 +215,26 @@ def _lagged_sum(coefs: Sequence[float] | np.ndarray, term: Callable[[str], str])
     return " ".join(parts) if parts else "0"
 
 
-def model_equation(model: HammersteinModel) -> str:
+def model_equation(model: HammersteinModel, *, input_symbol: str = "ds",
+                   output_symbol: str = "dP", output_unit: str | None = None) -> str:
     """The model's difference equation in the paper's notation (eqs. 27, 30), as text.
 
     Parameters
     ----------
     model :
         A `sysid.model.HammersteinModel`.
+    input_symbol, output_symbol :
+        Names of the input and output deviations (``ds``, ``dP`` for the puller).
+    output_unit :
+        Unit of ``f``; default the model's output unit.
 
     Returns
     -------
     str
         Two lines: the difference equation in ``dP``, ``f(ds)`` and the error, and ``f``.
     """
-    lhs = _lagged_sum(model.a, lambda k: f"dP_{k}")
-    rhs = _lagged_sum(model.b, lambda k: f"f(ds_{k})")
+    lhs = _lagged_sum(model.a, lambda k: f"{output_symbol}_{k}")
+    rhs = _lagged_sum(model.b, lambda k: f"f({input_symbol}_{k})")
     if model.linear_block == "oe":
         noise = "eps_k   (output error: no noise model)"
     elif model.linear_block == "arx":
@@ -178,10 +243,11 @@ def model_equation(model: HammersteinModel) -> str:
         noise = _lagged_sum(model.c, lambda k: f"e_{k}")
     f_terms = ""
     for power, p in enumerate(model.input_poly, start=1):
-        term = "ds" if power == 1 else f"ds^{power}"
+        term = input_symbol if power == 1 else f"{input_symbol}^{power}"
         sign = ("-" if p < 0 else "") if not f_terms else (" - " if p < 0 else " + ")
         f_terms += f"{sign}{abs(float(p)):.6g} {term}"
-    return f"{lhs} = {rhs} + {noise}\nf(ds) = {f_terms}   [kW]"
+    unit = model.effective_units.output if output_unit is None else output_unit
+    return f"{lhs} = {rhs} + {noise}\nf({input_symbol}) = {f_terms}   [{unit}]"
 
 
 # --- findings --------------------------------------------------------------------------
@@ -206,6 +272,7 @@ def findings_checklist(result: PipelineResult) -> tuple[Finding, ...]:
     """
     m = _models(result)
     out: list[Finding] = []
+    u2 = f"{result.raw_data.output_unit}^2"
 
     arx, armax, oe = m.get("arx_1_2"), m.get("armax_1_2_1"), m.get("oe_2_1")
     claim = "OE(2,1) has a lower V than ARX(1,2) and ARMAX(1,2,1) (Table 2)"
@@ -217,7 +284,7 @@ def findings_checklist(result: PipelineResult) -> tuple[Finding, ...]:
         out.append(Finding(
             claim=claim, paper=paper,
             ours=(f"V: OE {oe.ballistic_mse_kw2:.4g} vs ARX {arx.ballistic_mse_kw2:.4g}, "
-                  f"ARMAX {armax.ballistic_mse_kw2:.4g} kW^2"),
+                  f"ARMAX {armax.ballistic_mse_kw2:.4g} {u2}"),
             verdict="shown" if shown else "not shown"))
 
     claim = (f"one order more improves V by at most {100 * HIGHER_ORDER_MAX_IMPROVEMENT:.0f} % "
@@ -236,7 +303,7 @@ def findings_checklist(result: PipelineResult) -> tuple[Finding, ...]:
         out.append(Finding(claim=claim, paper=paper, ours="models missing", verdict="not measured"))
     else:
         shown = max(improvements) <= HIGHER_ORDER_MAX_IMPROVEMENT
-        out.append(Finding(claim=claim, paper=paper, ours="V: " + ", ".join(parts) + " kW^2",
+        out.append(Finding(claim=claim, paper=paper, ours="V: " + ", ".join(parts) + f" {u2}",
                            verdict="shown" if shown else "not shown"))
 
     final_oe = m.get("hammerstein_oe")
@@ -264,7 +331,7 @@ def findings_checklist(result: PipelineResult) -> tuple[Finding, ...]:
         red = 1.0 - noise.one_step_mse_kw2 / armax.one_step_mse_kw2
         out.append(Finding(
             claim=claim, paper=paper,
-            ours=(f"W {armax.one_step_mse_kw2:.3g} -> {noise.one_step_mse_kw2:.3g} kW^2, "
+            ours=(f"W {armax.one_step_mse_kw2:.3g} -> {noise.one_step_mse_kw2:.3g} {u2}, "
                   f"{100 * red:.0f} % lower"),
             verdict="shown" if red >= NOISE_MODEL_MIN_W_REDUCTION else "not shown"))
 
@@ -306,11 +373,11 @@ def _pred_error(model: HammersteinModel, result: PipelineResult) -> np.ndarray:
     return np.asarray(result.data.power_kw) - np.asarray(predict_one_step(model, result.data))
 
 
-def _label(named: NamedModel, short: str) -> str:
-    return f"{short}, V = {named.ballistic_mse_kw2:.3g} kW^2"
+def _label(named: NamedModel, short: str, v_unit: str = "kW^2") -> str:
+    return f"{short}, V = {named.ballistic_mse_kw2:.3g} {v_unit}"
 
 
-def _draw_figures(result: PipelineResult, fig_dir: Path) -> list[_Figure]:
+def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Figure]:
     """Draw every figure the result supports; return them in report order."""
     from sysid.errors import SysidError
     from sysid.residuals import CorrelationResult, autocorrelation, cross_correlation
@@ -319,15 +386,17 @@ def _draw_figures(result: PipelineResult, fig_dir: Path) -> list[_Figure]:
     raw = result.raw_data
     t, ds, dp = _deviation(result)
     drawn: list[_Figure] = []
+    lab = st.labels
 
     def add(key: str, caption: str, draw: Callable[[Path], object]) -> None:
         path = fig_dir / f"{key}.png"
         draw(path)
         drawn.append(_Figure(key=key, caption=caption, path=path))
 
-    add("fig02_data", "Fig. 2 analogue: the logged data (TRIAC input s and heater power P).",
+    add("fig02_data", f"Fig. 2 analogue: the logged data ({st.in_name} [{st.in_unit}] "
+        f"and {st.out_name} [{st.out_unit}]).",
         lambda p: figs.plot_dataset(raw.time_s, raw.triac_pct, raw.power_kw, p,
-                                    title="Logged data (paper Fig. 2)"))
+                                    labels=lab, title=st.title("Logged data", "paper Fig. 2")))
     out = result.outliers
     if out is not None:
         marks = [c.time_s for c in out.candidates]
@@ -335,7 +404,8 @@ def _draw_figures(result: PipelineResult, fig_dir: Path) -> list[_Figure]:
             f"({out.na},{out.nb}) on the raw data; outlier candidates marked.",
             lambda p: figs.plot_residuals(
                 raw.time_s, {f"ARX({out.na},{out.nb}) on raw data": out.residuals_kw}, p,
-                marked_time_s=marks, title=f"Residuals of ARX({out.na},{out.nb}) (paper Fig. 3)"))
+                marked_time_s=marks, labels=lab,
+                title=st.title(f"Residuals of ARX({out.na},{out.nb})", "paper Fig. 3")))
         op = result.operating_point.operating_point
         for i, cand in enumerate(out.candidates, start=1):
             add(f"fig04_zoom_{i}",
@@ -344,7 +414,9 @@ def _draw_figures(result: PipelineResult, fig_dir: Path) -> list[_Figure]:
                     figs.plot_outlier_zoom, raw.time_s, out.residuals_kw,
                     np.asarray(raw.power_kw) - op.power_kw, cand.time_s,
                     half_width_s=ZOOM_HALF_WIDTH_S,
-                    title=f"Outlier candidate {i}: {cand.kind} at {cand.time_s:g} s (paper Figs. 4-5)"))
+                    labels=lab,
+                    title=st.title(f"Outlier candidate {i}: {cand.kind} at {cand.time_s:g} s",
+                                   "paper Figs. 4-5")))
     after = result.outliers_after
     if after is not None:
         add("fig06_residuals_after", "Fig. 6 analogue: residuals of the same ARX model after "
@@ -352,7 +424,7 @@ def _draw_figures(result: PipelineResult, fig_dir: Path) -> list[_Figure]:
             lambda p: figs.plot_residuals(
                 t, {f"ARX({after.na},{after.nb}) after repairs": after.residuals_kw}, p,
                 marked_time_s=[c.time_s for c in after.candidates],
-                title="Residuals after handling outliers (paper Fig. 6)"))
+                labels=lab, title=st.title("Residuals after handling outliers", "paper Fig. 6")))
     repair_times = [float(step.get("time_s", step.get("from_time_s", math.nan)))
                     for step in result.data.preprocessing
                     if "time_s" in step or "from_time_s" in step]
@@ -360,49 +432,57 @@ def _draw_figures(result: PipelineResult, fig_dir: Path) -> list[_Figure]:
         "operating point; repairs marked.",
         lambda p: figs.plot_dataset(t, ds, dp, p, deviation=True, marked_time_s=repair_times,
                                     marked_label="repair",
-                                    title="Preprocessed data (paper Fig. 7)"))
+                                    labels=lab, title=st.title("Preprocessed data", "paper Fig. 7")))
     lin = [(n, s) for n, s in (("arx_1_2", "ARX(1,2)"), ("armax_1_2_1", "ARMAX(1,2,1)"),
                                ("oe_2_1", "OE(2,1)")) if n in m]
     if lin:
-        sims = {_label(m[n], s): _sim_dev(m[n].model, result) for n, s in lin}
+        sims = {_label(m[n], s, st.v_unit): _sim_dev(m[n].model, result) for n, s in lin}
         add("fig08_linear_simulations", "Fig. 8 analogue: ballistic simulations of the linear "
-            "models against the measured power.",
+            f"models against the measured {st.out_name}.",
             lambda p: figs.plot_simulations(t, dp, sims, p, input_pct=ds,
-                                            title="Ballistic simulations, linear models (paper Fig. 8)"))
-        errs = {s: dp - sims[_label(m[n], s)] for n, s in lin}
+                                            labels=lab,
+                                            title=st.title("Ballistic simulations, linear models",
+                                                           "paper Fig. 8")))
+        errs = {s: dp - sims[_label(m[n], s, st.v_unit)] for n, s in lin}
         add("fig09_linear_errors", "Fig. 9 analogue: ballistic simulation errors of the linear models.",
             lambda p: figs.plot_simulation_errors(
-                t, errs, p, title="Simulation errors, linear models (paper Fig. 9)"))
+                t, errs, p, labels=lab, title=st.title("Simulation errors, linear models", "paper Fig. 9")))
     if "hammerstein_eq21" in m:
-        curves = {_label(m["hammerstein_eq21"], "Hammerstein, eq. 21"):
+        curves = {_label(m["hammerstein_eq21"], "Hammerstein, eq. 21", st.v_unit):
                   _sim_dev(m["hammerstein_eq21"].model, result)}
         if "arx_1_2" in m:
-            curves[_label(m["arx_1_2"], "ARX(1,2)")] = _sim_dev(m["arx_1_2"].model, result)
+            curves[_label(m["arx_1_2"], "ARX(1,2)", st.v_unit)] = _sim_dev(m["arx_1_2"].model, result)
         add("fig12_eq21", "Fig. 12 analogue: the Hammerstein model of eq. 21 (ARX block, f from "
             "the step gains) against ARX(1,2) and the measurement.",
             lambda p: figs.plot_simulations(t, dp, curves, p, input_pct=ds,
-                                            title="Hammerstein from eq. 21 vs ARX (paper Fig. 12)"))
+                                            labels=lab,
+                                            title=st.title("Hammerstein from eq. 21 vs ARX",
+                                                           "paper Fig. 12")))
     re = [(n, s) for n, s in (("hammerstein_arx_reidentified", "Hammerstein, ARX-reidentified"),
                               ("hammerstein_oe_reidentified", "Hammerstein, OE-reidentified"))
           if n in m]
     if re:
-        curves13 = {_label(m[n], s): _sim_dev(m[n].model, result) for n, s in re}
+        curves13 = {_label(m[n], s, st.v_unit): _sim_dev(m[n].model, result) for n, s in re}
         add("fig13_reidentified", "Fig. 13 analogue: Hammerstein models with f fixed and the "
             "linear block re-identified by ARX and by OE.",
             lambda p: figs.plot_simulations(t, dp, curves13, p, input_pct=ds,
-                                            title="Re-identified Hammerstein models (paper Fig. 13)"))
+                                            labels=lab,
+                                            title=st.title("Re-identified Hammerstein models",
+                                                           "paper Fig. 13")))
     if "hammerstein_oe" in m:
         fin = m["hammerstein_oe"]
         sim = _sim_dev(fin.model, result)
         add("fig15_final_simulation", "Fig. 15 analogue: ballistic simulation of the final "
             "Hammerstein model (eq. 27).",
-            lambda p: figs.plot_simulations(t, dp, {_label(fin, "final Hammerstein (eq. 27)"): sim},
+            lambda p: figs.plot_simulations(
+                t, dp, {_label(fin, "final Hammerstein (eq. 27)", st.v_unit): sim},
                                             p, input_pct=ds,
-                                            title="Final Hammerstein model (paper Fig. 15)"))
+                                            labels=lab,
+                                            title=st.title("Final Hammerstein model", "paper Fig. 15")))
         add("fig16_final_error", "Fig. 16 analogue: its ballistic simulation error.",
             lambda p: figs.plot_simulation_errors(
                 t, {"final Hammerstein (eq. 27)": dp - sim}, p,
-                title="Simulation error, final Hammerstein (paper Fig. 16)"))
+                labels=lab, title=st.title("Simulation error, final Hammerstein", "paper Fig. 16")))
     if "armax_1_2_1" in m and "hammerstein_armax" in m:
         e_lin = _pred_error(m["armax_1_2_1"].model, result)
         e_ham = _pred_error(m["hammerstein_armax"].model, result)
@@ -410,7 +490,7 @@ def _draw_figures(result: PipelineResult, fig_dir: Path) -> list[_Figure]:
             "ARMAX(1,2,1) (upper) and the noise-model Hammerstein of eq. 30 (lower).",
             lambda p: figs.plot_residuals(
                 t, {"ARMAX(1,2,1)": e_lin, "Hammerstein with noise model (eq. 30)": e_ham}, p,
-                title="One-step-ahead prediction errors (paper Fig. 18)"))
+                labels=lab, title=st.title("One-step-ahead prediction errors", "paper Fig. 18")))
     final = result.final
     if final is not None:
         e = _pred_error(final.model, result)
@@ -422,11 +502,11 @@ def _draw_figures(result: PipelineResult, fig_dir: Path) -> list[_Figure]:
         if tests is not None:
             auto, cross = tests
             add("residual_tests", f"Residual tests of the model in model.json ({final.label}): "
-                "autocorrelation of its one-step errors and their cross-correlation with ds, "
+                f"autocorrelation of its one-step errors and their cross-correlation with {st.in_sym}, "
                 "with 99 % bounds.",
                 lambda p: figs.plot_correlations(
                     auto.lags, auto.values, auto.bound, cross.lags, cross.values, cross.bound, p,
-                    title=f"Residual tests: {final.label}"))
+                    labels=lab, title=f"Residual tests: {final.label}"))
     gain_models = [(n, s) for n, s in (("hammerstein_eq21", "eq. 21 initial"),
                                        ("hammerstein_oe", "final (eq. 27)"),
                                        ("hammerstein_armax", "noise model (eq. 30)")) if n in m]
@@ -436,13 +516,16 @@ def _draw_figures(result: PipelineResult, fig_dir: Path) -> list[_Figure]:
                         for s in result.steps])
         r = np.array([s.gain_kw_per_pct for s in result.steps])
         grid = np.linspace(float(np.min(ds)), float(np.max(ds)), 101)
-        curves_g = {f"{s}: b1 f'(ds)": _instant_gain(m[n].model, grid) for n, s in gain_models}
+        curves_g = {f"{s}: b1 f'({st.in_sym})": _instant_gain(m[n].model, grid) for n, s in gain_models}
         add("gain_curve", "Table 3 analogue: the instantaneous gain of each Hammerstein model "
             "against the measured step gains r (at each step's midpoint, where a quadratic f's "
             "secant slope equals f').",
             lambda p: figs.plot_gain_curve(grid, curves_g, p, step_ds_pct=mid,
                                            step_gain_kw_per_pct=r,
-                                           title="Instantaneous gain f'(ds) vs step gains r (Table 3)"))
+                                           labels=lab,
+                                           title=st.title(f"Instantaneous gain f'({st.in_sym}) vs "
+                                                          "step gains r",
+                                                          "Table 3")))
     return drawn
 
 
@@ -454,7 +537,7 @@ def _instant_gain(model: HammersteinModel, ds_grid: np.ndarray) -> np.ndarray:
 
 # --- the report ------------------------------------------------------------------------
 
-def _data_section(result: PipelineResult) -> str:
+def _data_section(result: PipelineResult, st: _Style) -> str:
     raw = result.raw_data
     src = raw.source or "(in memory)"
     rows = [
@@ -462,43 +545,75 @@ def _data_section(result: PipelineResult) -> str:
         ["samples", f"{raw.n_samples}"],
         ["sampling time Ts", f"{raw.ts_s:g} s"],
         ["time", f"{raw.time_s[0]:g} .. {raw.time_s[-1]:g} s ({raw.duration_s / 3600:.2f} h)"],
-        ["TRIAC input s", f"{np.min(raw.triac_pct):.4g} .. {np.max(raw.triac_pct):.4g} {raw.input_unit}"],
-        ["heater power P", f"{np.min(raw.power_kw):.4g} .. {np.max(raw.power_kw):.4g} {raw.output_unit}"],
+        [st.in_name, f"{np.min(raw.triac_pct):.4g} .. {np.max(raw.triac_pct):.4g} {raw.input_unit}"],
+        [st.out_name, f"{np.min(raw.power_kw):.4g} .. {np.max(raw.power_kw):.4g} {raw.output_unit}"],
         ["sha256", f"`{raw.sha256 or '-'}`"],
     ]
+    record = load_record(result)
+    if record is not None:
+        rows += _load_rows(record)
     return "## Data\n\n" + _md_table(["", "value"], rows, "ll")
 
 
-def _describe_repair(step: Mapping[str, Any]) -> tuple[str, str, str]:
+def _load_rows(record: Mapping[str, Any]) -> list[list[str]]:
+    """Rows of the data table saying how the log was read (`sysid.historian`)."""
+    fmt = str(record.get("format"))
+    if fmt == "csv":
+        fmt += f", separator {record.get('separator')!r}, decimal {record.get('decimal')!r}"
+    columns = record.get("columns") or {}
+    rows = [["format", fmt],
+            ["columns", ", ".join(f"{k} = `{v}`" for k, v in columns.items())],
+            ["time", "seconds" if record.get("time_format") == "seconds"
+             else f"time stamps, t = 0 at {record.get('time_origin')}"],
+            ["missing data", f"{record.get('n_missing_cells')} empty/NaN cell(s), "
+             f"{record.get('n_gap_samples')} missing sampling instant(s); policy "
+             f"`--gaps {record.get('gaps')}`"
+             + (f" (runs of at most {record.get('fill_max_samples')} filled)"
+                if record.get("gaps") == "fill" else "")],
+            ["changes", f"{record.get('n_filled')} sample(s) filled, {record.get('n_dropped')} "
+             f"dropped, {record.get('n_segments')} segment(s)"],
+            ["time stamps", "resampled by linear interpolation onto t0 + k Ts"
+             if record.get("resampled") else
+             f"{record.get('n_snapped')} snapped onto t0 + k Ts (largest jitter "
+             f"{100 * float(record.get('max_jitter_fraction_of_ts') or 0.0):.3g} % of Ts; "
+             "`--resample snap`)"]]
+    return rows
+
+
+def _describe_repair(step: Mapping[str, Any], unit: str = "kW") -> tuple[str, str, str]:
     what = str(step.get("what", "?"))
     if what == "interpolate_spike":
         where = f"sample {step.get('sample')} (t = {step.get('time_s')} s)"
-        how = (f"P {step.get('old_value')} -> {_num(step.get('new_value'), '.6g')} kW "
+        how = (f"{step.get('old_value')} -> {_num(step.get('new_value'), '.6g')} {unit} "
                "(mean of the neighbours)")
     elif what == "correct_level_shift":
         where = f"t >= {step.get('from_time_s')} s (sample {step.get('from_sample')} on)"
-        how = (f"{_num(step.get('shift_kw'), '.4g')} kW subtracted from "
+        how = (f"{_num(step.get('shift_kw'), '.4g')} {unit} subtracted from "
                f"{step.get('n_samples_changed')} samples")
+    elif what == "load_log":
+        where, how = "whole log", "read under the policies in the Data table"
     else:
         keys = {k: v for k, v in step.items() if k != "what"}
         where, how = "", ", ".join(f"{k} = {v}" for k, v in keys.items())
     return what, where, how
 
 
-def _preprocessing_section(result: PipelineResult) -> str:
+def _preprocessing_section(result: PipelineResult, st: _Style) -> str:
     choice = result.operating_point
     op = choice.operating_point
+    u, y = st.in_unit, st.out_unit
     how = {"given": "given on the command line",
            "means": "sample means of the record (no steady window found)",
            "steady": "means over the longest steady window (paper sec. 5.1)"}[choice.method]
     lines = ["## Preprocessing (paper sec. 5)", "",
-             f"Operating point: **s_nom = {op.triac_pct:.4g} %, P_nom = {op.power_kw:.4g} kW**, {how}."]
+             f"Operating point: **{st.in_sym[1:]}_nom = {op.triac_pct:.4g} {u}, "
+             f"{st.out_sym[1:]}_nom = {op.power_kw:.4g} {y}**, {how}."]
     w = choice.window
     if w is not None:
         lines.append(
             f"Steady window t = {w.start_time_s:g} .. {w.end_time_s:g} s (samples {w.start_sample}.."
-            f"{w.stop_sample}); output std {w.output_std_kw:.3g} kW, drift {w.output_drift_kw:.3g} kW. "
-            "The paper found t in [8700, 10300] s at (45 %, 45 kW).")
+            f"{w.stop_sample}); output std {w.output_std_kw:.3g} {y}, drift {w.output_drift_kw:.3g} {y}."
+            + (" The paper found t in [8700, 10300] s at (45 %, 45 kW)." if st.paper else ""))
     out = result.outliers
     lines.append("")
     if out is None:
@@ -507,56 +622,59 @@ def _preprocessing_section(result: PipelineResult) -> str:
         lines.append(
             f"Outlier candidates from the one-step residuals of ARX({out.na},{out.nb}) with delay "
             f"{out.nk} (paper Fig. 3): threshold {out.threshold:g} robust scales = "
-            f"{out.threshold_kw:.3g} kW (scale {out.scale_kw:.3g} kW). {len(out.step_residuals)} "
+            f"{out.threshold_kw:.3g} {y} (scale {out.scale_kw:.3g} {y}). {len(out.step_residuals)} "
             "large-residual event(s) right after input steps are model imperfection, not outliers, "
-            f"and are excluded. {len(out.candidates)} candidate(s) remain (the paper found two: "
-            "a one-sample power drop and a 0.15 kW level shift at t = 20714 s):")
+            f"and are excluded. {len(out.candidates)} candidate(s) remain"
+            + (" (the paper found two: a one-sample power drop and a 0.15 kW level shift at "
+               "t = 20714 s)" if st.paper else "") + ":")
         lines.append("")
         if out.candidates:
             rows = [[str(i), f"{c.time_s:g}", str(c.sample), c.kind, f"{c.peak_residual_kw:+.3g}",
                      f"{c.output_jump_kw:+.3g}", f"{c.persisting_change_kw:+.3g}"]
                     for i, c in enumerate(out.candidates, start=1)]
-            lines.append(_md_table(["#", "t [s]", "sample", "kind", "peak residual [kW]",
-                                 "output jump [kW]", "persisting change [kW]"], rows, "rrrlrrr"))
+            lines.append(_md_table(["#", "t [s]", "sample", "kind", f"peak residual [{y}]",
+                                    f"output jump [{y}]", f"persisting change [{y}]"], rows,
+                                   "rrrlrrr"))
         if out.clipped_samples:
             lines.append(f"\n{len(out.clipped_samples)} sample(s) sit in a constant run at the output's "
                          "extreme (possible sensor clipping); reported, not repaired.")
-    lines += ["", "Repairs applied (each is recorded in every model file's provenance):", ""]
-    repairs = [s for s in result.data.preprocessing]
+    lines += ["", "Changes made to the data (each is recorded in every model file's provenance):",
+              ""]
+    repairs = list(result.data.preprocessing)
     if repairs:
-        lines.append(_md_table(["what", "where", "how much"], [list(_describe_repair(s)) for s in repairs],
-                            "lll"))
-        lines.append("\nThe paper replaced the spike by the mean of its neighbours and subtracted "
-                     "0.15 kW from dP for t >= 20714 s.")
+        lines.append(_md_table(["what", "where", "how much"],
+                               [list(_describe_repair(s, y)) for s in repairs], "lll"))
+        if st.paper:
+            lines.append("\nThe paper replaced the spike by the mean of its neighbours and "
+                         "subtracted 0.15 kW from dP for t >= 20714 s.")
     else:
         lines.append("none.")
     after = result.outliers_after
     if after is not None:
-        lines.append(f"\nAfter the repairs the same search finds {len(after.candidates)} candidate(s) "
-                     "(paper Fig. 6: none).")
+        lines.append(f"\nAfter the repairs the same search finds {len(after.candidates)} candidate(s)"
+                     + (" (paper Fig. 6: none)." if st.paper else "."))
     return "\n".join(lines)
 
 
-def _table2_section(result: PipelineResult) -> str:
-    m = _models(result)
-    specs = [("arx_1_2", "ARX", "1", "2", "-", "-"), ("arx_2_3", "ARX", "2", "3", "-", "-"),
-             ("armax_1_2_1", "ARMAX", "1", "2", "1", "-"), ("armax_2_3_2", "ARMAX", "2", "3", "2", "-"),
-             ("oe_2_1", "OE", "-", "2", "-", "1"), ("oe_3_2", "OE", "-", "3", "-", "2")]
+def _table2_section(result: PipelineResult, st: _Style) -> str:
     rows = []
-    for name, kind, na, nb, nc, nf in specs:
-        if name not in m:
-            rows.append([kind, na, nb, nc, nf, "skipped", "-", "-", _num(PAPER_TABLE2_V[name], ".3f")])
-            continue
-        nm = m[name]
+    for nm in result.linear:
         conv = "" if nm.converged else " (not converged)"
-        rows.append([kind, na, nb, nc, nf, f"{nm.ballistic_mse_kw2:.4g}{conv}",
-                     f"{nm.one_step_mse_kw2:.3g}", str(nm.n_iterations),
-                     f"{PAPER_TABLE2_V[name]:.3f}"])
-    return ("## Linear models (paper Table 2)\n\nAll with a delay of one sample. V: mean squared "
+        row = [nm.label, f"{nm.ballistic_mse_kw2:.4g}{conv}", f"{nm.one_step_mse_kw2:.3g}",
+               str(nm.n_parameters), str(nm.n_iterations)]
+        if st.paper:
+            row.append(_num(PAPER_TABLE2_V.get(nm.name), ".3f"))
+        rows.append(row)
+    nk = result.final.model.delay_steps if result.final is not None else 1
+    header = ["model", f"V [{st.v_unit}]", f"W [{st.v_unit}]", "parameters", "iterations"]
+    if st.paper:
+        header.append("paper V [kW^2]")
+    return (("## Linear models (paper Table 2)" if st.paper else "## Linear models")
+            + f"\n\nAll with a delay of {nk} sample(s). V: mean squared "
             "ballistic simulation error (eq. 9); W: mean squared one-step-ahead prediction error "
             "(eq. 10); ARX by least squares, ARMAX on W, OE on V.\n\n"
-            + _md_table(["model", "na", "nb", "nc", "nf", "V [kW^2]", "W [kW^2]", "iterations",
-                      "paper V [kW^2]"], rows, "lrrrrrrrr"))
+            + (_md_table(header, rows, "l" + "r" * (len(header) - 1)) if rows
+               else "No linear model could be fitted."))
 
 
 def _match_paper_step(step: InputStep) -> tuple[float, float, float, float, float] | None:
@@ -569,34 +687,45 @@ def _match_paper_step(step: InputStep) -> tuple[float, float, float, float, floa
     return None
 
 
-def _table3_section(result: PipelineResult) -> str:
+def _table3_section(result: PipelineResult, st: _Style) -> str:
     op = result.operating_point.operating_point
+    u, y, ds, dp = st.in_unit, st.out_unit, st.in_sym, st.out_sym
     rows = []
-    for st in result.steps:
-        paper = _match_paper_step(st)
-        rows.append([
-            f"{st.time_s:g}",
-            f"{st.triac_before_pct:.4g} -> {st.triac_after_pct:.4g}",
-            f"{st.triac_before_pct - op.triac_pct:.2f} -> {st.triac_after_pct - op.triac_pct:.2f}",
-            f"{st.power_before_kw - op.power_kw:.2f} -> {st.power_after_kw - op.power_kw:.2f}",
-            f"{st.gain_kw_per_pct:.2f}",
-            "-" if paper is None else f"{paper[2]:.2f} -> {paper[3]:.2f}",
-            "-" if paper is None else f"{paper[4]:.2f}",
-        ])
-    return ("## Input steps and instantaneous gains (paper Table 3)\n\nr = (dP after - dP before) / "
-            "(ds after - ds before), the first output sample that shows the step against the last "
-            "one before it. The paper lists the four steps of +5 % after t = 10^4 s; its rows "
-            "stand beside ours for the same absolute input step (its s_nom = 45 %, P_nom = 45 kW; "
-            f"ours: {op.triac_pct:.4g} %, {op.power_kw:.4g} kW).\n\n"
-            + (_md_table(["t [s]", "step s [%]", "step ds [%]", "step dP [kW]", "r [kW/%]",
-                       "paper step dP [kW]", "paper r [kW/%]"], rows, "rlllrlr")
-               if rows else "No input steps found.")
-            + "\n\nThe paper's Table 3 (ds [%]: dP [kW], r [kW/%]): "
-            + "; ".join(f"{a:g} -> {b:g}: {pa:.2f} -> {pb:.2f}, r = {r:.2f}"
-                        for a, b, pa, pb, r in PAPER_TABLE3) + ".")
+    for step in result.steps:
+        paper = _match_paper_step(step)
+        row = [
+            f"{step.time_s:g}",
+            f"{step.triac_before_pct:.4g} -> {step.triac_after_pct:.4g}",
+            f"{step.triac_before_pct - op.triac_pct:.2f} -> {step.triac_after_pct - op.triac_pct:.2f}",
+            f"{step.power_before_kw - op.power_kw:.2f} -> {step.power_after_kw - op.power_kw:.2f}",
+            f"{step.gain_kw_per_pct:.2f}",
+        ]
+        if st.paper:
+            row += ["-" if paper is None else f"{paper[2]:.2f} -> {paper[3]:.2f}",
+                    "-" if paper is None else f"{paper[4]:.2f}"]
+        rows.append(row)
+    header = ["t [s]", f"step {ds[1:]} [{u}]", f"step {ds} [{u}]", f"step {dp} [{y}]",
+              f"r [{y}/{u}]"]
+    if st.paper:
+        header += ["paper step dP [kW]", "paper r [kW/%]"]
+    text = (("## Input steps and instantaneous gains (paper Table 3)" if st.paper
+             else "## Input steps and instantaneous gains")
+            + f"\n\nr = ({dp} after - {dp} before) / ({ds} after - {ds} before), the first "
+            "output sample that shows the step against the last one before it.")
+    if st.paper:
+        text += (" The paper lists the four steps of +5 % after t = 10^4 s; its rows "
+                 "stand beside ours for the same absolute input step (its s_nom = 45 %, "
+                 f"P_nom = 45 kW; ours: {op.triac_pct:.4g} %, {op.power_kw:.4g} kW).")
+    text += "\n\n" + (_md_table(header, rows, "rlllr" + "lr" * st.paper) if rows
+                       else "No input steps found.")
+    if st.paper:
+        text += ("\n\nThe paper's Table 3 (ds [%]: dP [kW], r [kW/%]): "
+                 + "; ".join(f"{a:g} -> {b:g}: {pa:.2f} -> {pb:.2f}, r = {r:.2f}"
+                             for a, b, pa, pb, r in PAPER_TABLE3) + ".")
+    return text
 
 
-def _route_section(result: PipelineResult) -> str:
+def _route_section(result: PipelineResult, st: _Style) -> str:
     m = _models(result)
     labels = [("hammerstein_eq21", "eq. 21 initial (ARX block, f from the step gains; Fig. 12)"),
               ("hammerstein_arx_reidentified", "f fixed, ARX-reidentified (Fig. 13)"),
@@ -607,46 +736,57 @@ def _route_section(result: PipelineResult) -> str:
     rows = []
     for name, label in labels:
         paper_it = PAPER_ITERATIONS.get(name)
-        paper_w = PAPER_W.get(name)
+        paper = [_num(PAPER_ROUTE_V[name], ".3f"), _num(PAPER_W.get(name), ".2g"),
+                 "-" if paper_it is None else str(paper_it)] if st.paper else []
         if name not in m:
-            rows.append([label, "skipped", "-", "-", "-", _num(PAPER_ROUTE_V[name], ".3f"),
-                         _num(paper_w, ".2g"), "-" if paper_it is None else str(paper_it)])
+            rows.append([label, "skipped", "-", "-", "-", *paper])
             continue
         nm = m[name]
         conv = "" if nm.converged else " (not converged)"
         rows.append([label, f"{nm.ballistic_mse_kw2:.4g}{conv}", f"{nm.one_step_mse_kw2:.3g}",
-                     str(nm.n_parameters), str(nm.n_iterations), f"{PAPER_ROUTE_V[name]:.3f}",
-                     _num(paper_w, ".2g"), "-" if paper_it is None else str(paper_it)])
+                     str(nm.n_parameters), str(nm.n_iterations), *paper])
+    header = ["step", f"V [{st.v_unit}]", f"W [{st.v_unit}]", "parameters", "iterations"]
+    if st.paper:
+        header += ["paper V [kW^2]", "paper W [kW^2]", "paper iterations"]
     text = ("## The Hammerstein route (paper secs. 7.4-7.6)\n\n"
-            + _md_table(["step", "V [kW^2]", "W [kW^2]", "parameters", "iterations", "paper V [kW^2]",
-                      "paper W [kW^2]", "paper iterations"], rows, "lrrrrrrr"))
-    if "armax_1_2_1" in m and "hammerstein_armax" in m:
-        w_lin = m["armax_1_2_1"].one_step_mse_kw2
+            + _md_table(header, rows, "l" + "r" * (len(header) - 1)))
+    arx_like = [n for n in m if n.startswith("armax_")]
+    if arx_like and "hammerstein_armax" in m:
+        base = m[arx_like[0]]
+        w_lin = base.one_step_mse_kw2
         w_ham = m["hammerstein_armax"].one_step_mse_kw2
-        text += (f"\n\nOne-step prediction (Fig. 18): W of ARMAX(1,2,1) = {w_lin:.3g} kW^2, of the "
-                 f"noise-model Hammerstein = {w_ham:.3g} kW^2: **{100 * (1 - w_ham / w_lin):.0f} % "
-                 f"lower** (paper: 3.1e-4 vs 1.8e-4 kW^2, {100 * PAPER_W_REDUCTION:.0f} % lower).")
+        text += (f"\n\nOne-step prediction (Fig. 18): W of {base.label} = {w_lin:.3g} {st.v_unit}, "
+                 f"of the noise-model Hammerstein = {w_ham:.3g} {st.v_unit}: "
+                 f"**{100 * (1 - w_ham / w_lin):.0f} % lower**"
+                 + (f" (paper: 3.1e-4 vs 1.8e-4 kW^2, {100 * PAPER_W_REDUCTION:.0f} % lower)."
+                    if st.paper else "."))
     f = result.findings
     if f.iterations_from_zeros is not None:
-        text += (f"\n\nFinal PEM: {f.iterations_from_initial_values} iterations from the OE-reidentified "
-                 f"values, {f.iterations_from_zeros} from zeros (paper: 3 and 17); largest relative "
-                 f"parameter difference between the two: {_num(f.from_zeros_relative_difference, '.2g')}.")
+        text += (f"\n\nFinal PEM: {f.iterations_from_initial_values} iterations from the "
+                 f"OE-reidentified values, {f.iterations_from_zeros} from zeros"
+                 + (" (paper: 3 and 17)" if st.paper else "")
+                 + "; largest relative parameter difference between the two: "
+                 f"{_num(f.from_zeros_relative_difference, '.2g')}.")
     return text
 
 
-def _final_section(result: PipelineResult, model_file: str) -> str:
+def _final_section(result: PipelineResult, model_file: str, st: _Style) -> str:
     final = result.final
     if final is None:
         return "## Final model\n\nNo model could be identified."
     model = final.model
+    u, y = st.in_unit, st.out_unit
     extra = dict(model.provenance.extra)
     lines = [f"## The model for control: `{model_file}`", "",
-             f"{final.label}: V = {final.ballistic_mse_kw2:.4g} kW^2, W = {final.one_step_mse_kw2:.3g} "
-             f"kW^2, noise std {model.noise_std_kw:.3g} kW, valid for s in "
-             f"{model.input_range_pct[0]:g} .. {model.input_range_pct[1]:g} % "
-             f"(the identification data's range). Deviations dP = P - {model.operating_point.power_kw:.4g} "
-             f"kW, ds = s - {model.operating_point.triac_pct:.4g} %.", "", "```",
-             model_equation(model), "```"]
+             f"{final.label}: V = {final.ballistic_mse_kw2:.4g} {st.v_unit}, "
+             f"W = {final.one_step_mse_kw2:.3g} {st.v_unit}, noise std {model.noise_std_kw:.3g} "
+             f"{y}, valid for {st.in_sym[1:]} in {model.input_range_pct[0]:g} .. "
+             f"{model.input_range_pct[1]:g} {u} (the identification data's range). Deviations "
+             f"{st.out_sym} = {st.out_sym[1:]} - {model.operating_point.power_kw:.4g} {y}, "
+             f"{st.in_sym} = {st.in_sym[1:]} - {model.operating_point.triac_pct:.4g} {u}.",
+             "", "```",
+             model_equation(model, input_symbol=st.in_sym, output_symbol=st.out_sym,
+                            output_unit=y), "```"]
     names = extra.get("parameter_names")
     values = extra.get("parameters")
     ses = extra.get("std_errors")
@@ -659,15 +799,17 @@ def _final_section(result: PipelineResult, model_file: str) -> str:
                   "noise model c1 = a1 + k1, eq. 32):", "",
                   _md_table(["parameter", "estimate", "standard error", "relative"], rows)]
     lines += ["", f"Linear-block static gain B(1)/A(1) = {model.linear_static_gain:.4g}; "
-              f"instantaneous gain f'(0) = {float(model.input_nonlinearity_slope(0.0)):.4g} kW/%."]
+              f"instantaneous gain f'(0) = {float(model.input_nonlinearity_slope(0.0)):.4g} "
+              f"{y}/{u}."]
     return "\n".join(lines)
 
 
-def _findings_section(findings: Sequence[Finding]) -> str:
+def _findings_section(findings: Sequence[Finding], paper: bool = True) -> str:
     box = {"shown": "[x]", "not shown": "[ ]", "not measured": "[?]"}
     lines = ["## Findings of the paper, checked on these data", ""]
     for f in findings:
-        lines.append(f"- {box[f.verdict]} **{f.verdict}**: {f.claim}. Ours: {f.ours}. Paper: {f.paper}.")
+        lines.append(f"- {box[f.verdict]} **{f.verdict}**: {f.claim}. Ours: {f.ours}."
+                     + (f" Paper: {f.paper}." if paper else ""))
     return "\n".join(lines)
 
 
@@ -698,6 +840,8 @@ def render_report(
     model_file: str = "model.json",
     model_files: Sequence[str] = (),
     command: str | None = None,
+    reference: bool | None = None,
+    notes: Sequence[str] = (),
 ) -> str:
     """The Markdown text of report.md.
 
@@ -713,28 +857,45 @@ def render_report(
         Relative paths of the intermediate model files.
     command :
         The command line that produced the report, if known.
+    reference :
+        Show the paper's values beside ours; default: for data in % and kW only.
+    notes :
+        What the run changed or left out (a segment chosen, a model kind other than
+        the Hammerstein with noise model), shown under the header.
 
     Returns
     -------
     str
         The report.
     """
+    st = _style(result, reference)
     findings = findings_checklist(result)
-    parts = ["# Identification report",
-             "Komperød et al., *Empirical Modeling of Heating Element Power for the Czochralski "
-             "Crystallization Process*, secs. 5-7, rerun on these data. The paper's values stand "
-             "beside ours; they come from the authors' log, so they are a yardstick, not a target."]
+    raw = result.raw_data
+    intro = ("Komperød et al., *Empirical Modeling of Heating Element Power for the Czochralski "
+             "Crystallization Process*, secs. 5-7, rerun on these data.")
+    if st.paper:
+        intro += (" The paper's values stand beside ours; they come from the authors' log, so "
+                  "they are a yardstick, not a target.")
+    else:
+        intro += (f" Input: {st.in_name} [{raw.input_unit}]; output: {st.out_name} "
+                  f"[{raw.output_unit}]. The paper's values (a CZ puller's heater, % and kW) are "
+                  "not shown; pass --reference paper to show them.")
+    parts = ["# Identification report", intro]
     parts.append(f"Produced by {SOFTWARE}" + (f": `{command}`." if command else "."))
+    for note in notes:
+        parts.append(f"**Note:** {note}.")
     unconverged = result.unconverged
     if unconverged:
         parts.append("**Warning: not converged: " + ", ".join(unconverged)
                      + ".** Their numbers are the optimizer's last iterate.")
     if result.skipped:
         parts.append("Skipped: " + "; ".join(result.skipped) + ".")
-    parts.append(_findings_section(findings))
-    sections = (("data", _data_section(result)), ("preprocessing", _preprocessing_section(result)),
-                ("linear", _table2_section(result)), ("steps", _table3_section(result)),
-                ("route", _route_section(result)), ("final", _final_section(result, model_file)))
+    parts.append(_findings_section(findings, st.paper))
+    sections = (("data", _data_section(result, st)),
+                ("preprocessing", _preprocessing_section(result, st)),
+                ("linear", _table2_section(result, st)), ("steps", _table3_section(result, st)),
+                ("route", _route_section(result, st)),
+                ("final", _final_section(result, model_file, st)))
     placed: set[str] = set()
     for key, text in sections:
         parts.append(text)
@@ -760,6 +921,8 @@ def write_report(
     model_files: Sequence[str] = (),
     command: str | None = None,
     figure_dir: str = "figures",
+    reference: bool | None = None,
+    notes: Sequence[str] = (),
 ) -> ReportFiles:
     """Draw the figures into ``out_dir/figures`` and write ``out_dir/report.md``.
 
@@ -777,6 +940,10 @@ def write_report(
         The command line, for the report's header.
     figure_dir :
         Sub-directory of `out_dir` for the PNGs.
+    reference :
+        Show the paper's values beside ours; default: for data in % and kW only.
+    notes :
+        Sentences shown under the header (see `render_report`).
 
     Returns
     -------
@@ -785,10 +952,11 @@ def write_report(
     out = Path(out_dir)
     fig_dir = out / figure_dir
     fig_dir.mkdir(parents=True, exist_ok=True)
-    drawn = _draw_figures(result, fig_dir)
+    drawn = _draw_figures(result, fig_dir, _style(result, reference))
     text = render_report(
         result, [(f.caption, f.path.relative_to(out).as_posix()) for f in drawn],
-        model_file=model_file, model_files=model_files, command=command)
+        model_file=model_file, model_files=model_files, command=command, reference=reference,
+        notes=notes)
     report = out / "report.md"
     atomic_write_text(report, text)
     return ReportFiles(report_path=report, figure_files=tuple(f.path for f in drawn))

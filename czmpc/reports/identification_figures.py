@@ -56,7 +56,38 @@ AXIS_LABELS: dict[str, str] = {
     "autocorr": "autocorrelation of e [-]",
     "crosscorr": "cross-correlation of ds and e [-]",
     "gain": "gain [kW/%]",
+    "unit_out": "kW",
 }
+
+
+
+def axis_labels(*, input_name: str = "TRIAC input s", input_unit: str = "%",
+                output_name: str = "power P", output_unit: str = "kW",
+                input_symbol: str = "ds", output_symbol: str = "dP") -> dict[str, str]:
+    """Axis labels for a log of any rig: its signal names and units.
+
+    The defaults give `AXIS_LABELS` (the CZ puller: TRIAC input in %, power in kW).
+    Pass the ``labels`` keyword of every ``plot_*`` function the result.
+    """
+    return {
+        "time": "time [s]",
+        "power": f"{output_name} [{output_unit}]",
+        "power_dev": f"{output_name} deviation {output_symbol} [{output_unit}]",
+        "triac": f"{input_name} [{input_unit}]",
+        "triac_dev": f"{input_name} deviation {input_symbol} [{input_unit}]",
+        "residual": f"residual e [{output_unit}]",
+        "sim_error": f"simulation error [{output_unit}]",
+        "lag": "lag [samples]",
+        "autocorr": "autocorrelation of e [-]",
+        "crosscorr": f"cross-correlation of {input_symbol} and e [-]",
+        "gain": f"gain [{output_unit}/{input_unit}]",
+        "unit_out": output_unit,
+    }
+
+
+def _labels(labels: Mapping[str, str] | None) -> Mapping[str, str]:
+    return AXIS_LABELS if labels is None else labels
+
 
 _MEASURED_STYLE = {"color": "black", "linewidth": 1.2, "label": "measured"}
 _PALETTE = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
@@ -117,6 +148,7 @@ def plot_dataset(
     title: str = "Identification data",
     marked_time_s: Sequence[float] = (),
     marked_label: str = "marked",
+    labels: Mapping[str, str] | None = None,
 ) -> Figure:
     """Input and power against time, two stacked panels (paper figs. 2 and 7).
 
@@ -154,11 +186,11 @@ def plot_dataset(
     p = _vector(power_kw, "power_kw", t.size)
     fig, (ax_p, ax_s) = _new_figure(2)
     ax_p.plot(t, p, color="tab:red", linewidth=1.0, label="dP" if deviation else "P")
-    ax_p.set_ylabel(AXIS_LABELS["power_dev" if deviation else "power"])
+    ax_p.set_ylabel(_labels(labels)["power_dev" if deviation else "power"])
     ax_s.plot(t, s, color="tab:blue", linewidth=1.0, drawstyle="steps-post",
               label="ds" if deviation else "s")
-    ax_s.set_ylabel(AXIS_LABELS["triac_dev" if deviation else "triac"])
-    ax_s.set_xlabel(AXIS_LABELS["time"])
+    ax_s.set_ylabel(_labels(labels)["triac_dev" if deviation else "triac"])
+    ax_s.set_xlabel(_labels(labels)["time"])
     for ax in (ax_p, ax_s):
         for i, tm in enumerate(marked_time_s):
             ax.axvline(tm, color="tab:purple", linestyle=":", linewidth=1.0,
@@ -176,6 +208,7 @@ def plot_residuals(
     title: str = "One-step-ahead prediction errors",
     marked_time_s: Sequence[float] = (),
     marked_label: str = "outlier candidate",
+    labels: Mapping[str, str] | None = None,
 ) -> Figure:
     """One-step residuals against time, one panel per series, same y scale (figs. 3, 6, 18).
 
@@ -217,15 +250,15 @@ def plot_residuals(
     marks = np.asarray(list(marked_time_s), dtype=float)
     for i, (ax, (name, e)) in enumerate(zip(axes, series.items(), strict=True)):
         ax.plot(t, e, color=_PALETTE[i % len(_PALETTE)], linewidth=0.8,
-                label=f"{name} (RMS {_rms(e):.3g} kW)")
+                label=f"{name} (RMS {_rms(e):.3g} {_labels(labels)['unit_out']})")
         if marks.size:
             idx = np.clip(np.searchsorted(t, marks), 0, t.size - 1)
             top = float(np.nanmax(np.abs(e)))
             ax.plot(t[idx], np.full(idx.size, 1.05 * top), linestyle="none", marker="v",
                     markersize=9, color="tab:purple", label=marked_label)
-        ax.set_ylabel(AXIS_LABELS["residual"])
+        ax.set_ylabel(_labels(labels)["residual"])
         _legend_above(ax)
-    axes[-1].set_xlabel(AXIS_LABELS["time"])
+    axes[-1].set_xlabel(_labels(labels)["time"])
     fig.suptitle(title)
     return _save(fig, path)
 
@@ -239,6 +272,7 @@ def plot_outlier_zoom(
     *,
     half_width_s: float = 60.0,
     title: str = "Outlier candidate",
+    labels: Mapping[str, str] | None = None,
 ) -> Figure:
     """Residual (upper) and measured ``dP`` (lower) around one candidate (figs. 4, 5).
 
@@ -279,10 +313,10 @@ def plot_outlier_zoom(
         )
     fig, (ax_e, ax_p) = _new_figure(2)
     ax_e.plot(t[window], e[window], marker=".", color="tab:blue", linewidth=0.8, label="e")
-    ax_e.set_ylabel(AXIS_LABELS["residual"])
+    ax_e.set_ylabel(_labels(labels)["residual"])
     ax_p.plot(t[window], p[window], marker=".", color="tab:red", linewidth=0.8, label="dP")
-    ax_p.set_ylabel(AXIS_LABELS["power_dev"])
-    ax_p.set_xlabel(AXIS_LABELS["time"])
+    ax_p.set_ylabel(_labels(labels)["power_dev"])
+    ax_p.set_xlabel(_labels(labels)["time"])
     for ax in (ax_e, ax_p):
         ax.axvline(center_time_s, color="tab:purple", linestyle=":", linewidth=1.0,
                    label=f"candidate at {center_time_s:g} s")
@@ -299,6 +333,7 @@ def plot_simulations(
     *,
     title: str = "Ballistic simulations",
     input_pct: Sequence[float] | np.ndarray | None = None,
+    labels: Mapping[str, str] | None = None,
 ) -> Figure:
     """Ballistic simulations of several models against the measured ``dP`` (figs. 8, 12, 13, 15).
 
@@ -338,14 +373,14 @@ def plot_simulations(
     for i, (name, sim) in enumerate(sims.items()):
         ax.plot(t, sim, color=_PALETTE[i % len(_PALETTE)], linewidth=1.0,
                 linestyle=("--", "-.", ":", (0, (5, 1)))[i % 4], label=name)
-    ax.set_ylabel(AXIS_LABELS["power_dev"])
+    ax.set_ylabel(_labels(labels)["power_dev"])
     _legend_above(ax)
     if input_pct is not None:
         u = _vector(input_pct, "input_pct", t.size)
         axes[1].plot(t, u, color="tab:gray", linewidth=1.0, drawstyle="steps-post", label="ds")
-        axes[1].set_ylabel(AXIS_LABELS["triac_dev"])
+        axes[1].set_ylabel(_labels(labels)["triac_dev"])
         _legend_above(axes[1])
-    axes[-1].set_xlabel(AXIS_LABELS["time"])
+    axes[-1].set_xlabel(_labels(labels)["time"])
     fig.suptitle(title)
     return _save(fig, path)
 
@@ -356,6 +391,7 @@ def plot_simulation_errors(
     path: str | os.PathLike[str],
     *,
     title: str = "Ballistic simulation errors",
+    labels: Mapping[str, str] | None = None,
 ) -> Figure:
     """Ballistic simulation errors ``eps = dP - dP_sim`` against time (figs. 9, 16).
 
@@ -388,9 +424,9 @@ def plot_simulation_errors(
     ax.axhline(0.0, color="black", linewidth=0.8)
     for i, (name, eps) in enumerate(errs.items()):
         ax.plot(t, eps, color=_PALETTE[i % len(_PALETTE)], linewidth=1.0,
-                label=f"{name} (V = {np.mean(eps ** 2):.3g} kW^2)")
-    ax.set_ylabel(AXIS_LABELS["sim_error"])
-    ax.set_xlabel(AXIS_LABELS["time"])
+                label=f"{name} (V = {np.mean(eps ** 2):.3g} {_labels(labels)['unit_out']}^2)")
+    ax.set_ylabel(_labels(labels)["sim_error"])
+    ax.set_xlabel(_labels(labels)["time"])
     _legend_above(ax)
     fig.suptitle(title)
     return _save(fig, path)
@@ -407,6 +443,7 @@ def plot_correlations(
     *,
     title: str = "Residual tests",
     confidence: float = 0.99,
+    labels: Mapping[str, str] | None = None,
 ) -> Figure:
     """Residual autocorrelation (upper) and input-residual cross-correlation (lower).
 
@@ -470,8 +507,8 @@ def plot_correlations(
                    label=f"{100 * confidence:g} % band +-{bound:.3g}")
         ax.axhline(-bound, color="tab:gray", linestyle="--", linewidth=1.0)
         ax.axhline(0.0, color="black", linewidth=0.6)
-        ax.set_ylabel(AXIS_LABELS[key])
-        ax.set_xlabel(AXIS_LABELS["lag"])
+        ax.set_ylabel(_labels(labels)[key])
+        ax.set_xlabel(_labels(labels)["lag"])
         _legend_above(ax)
     fig.suptitle(title)
     return _save(fig, path)
@@ -485,6 +522,7 @@ def plot_gain_curve(
     step_ds_pct: Sequence[float] | np.ndarray = (),
     step_gain_kw_per_pct: Sequence[float] | np.ndarray = (),
     title: str = "Instantaneous gain of the input nonlinearity",
+    labels: Mapping[str, str] | None = None,
 ) -> Figure:
     """Instantaneous gains ``f'(ds)`` of models against the measured step gains ``r`` (Table 3).
 
@@ -528,8 +566,8 @@ def plot_gain_curve(
     if step_ds.size:
         ax.plot(step_ds, step_r, linestyle="none", marker="o", color="black",
                 label="measured step gains r")
-    ax.set_xlabel(AXIS_LABELS["triac_dev"])
-    ax.set_ylabel(AXIS_LABELS["gain"])
+    ax.set_xlabel(_labels(labels)["triac_dev"])
+    ax.set_ylabel(_labels(labels)["gain"])
     ax.legend(loc="upper right")
     fig.suptitle(title)
     return _save(fig, path)

@@ -163,12 +163,21 @@ def _check_arrays(y: Any, ds: Any, where: str) -> tuple[FloatArray, FloatArray]:
 
 
 def _check_excitation(ds: FloatArray, degree: int, n_parameters: int, where: str) -> None:
-    levels = np.unique(ds)
-    if levels.size < degree + 1:
+    """Refuse an input that cannot determine ``f`` or data too short for the parameters.
+
+    ``f(ds) = d1 ds + ... + dn ds^n`` has no constant term (``f(0) = 0``), so its ``n``
+    coefficients are fixed by its values at ``n`` distinct non-zero deviations
+    (a Vandermonde system without the column of ones): a quadratic needs the input at
+    2 levels other than the operating point, not 3. The operating-point level itself
+    (``ds = 0``) carries no information on ``f``.
+    """
+    levels = np.unique(ds[ds != 0.0])
+    if levels.size < degree:
         raise IdentificationError(
-            f"{where}: a degree-{degree} input polynomial needs the input at >= {degree + 1} "
-            f"distinct levels; got {levels.size} (the record does not excite the "
-            "nonlinearity)"
+            f"{where}: a degree-{degree} input polynomial without constant term needs the "
+            f"input at >= {degree} distinct levels other than the operating point (ds != 0); "
+            f"got {levels.size} (the record does not excite the nonlinearity; lower the "
+            "degree or log more input levels)"
         )
     if ds.size < 10 * n_parameters:
         raise IdentificationError(

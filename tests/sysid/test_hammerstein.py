@@ -331,9 +331,10 @@ def test_fit_hammerstein_without_steps_skips_eq21_and_still_fits(
 
 def test_unexciting_or_short_data_and_bad_options_raise(rng: np.random.Generator) -> None:
     y, ds, _ = _oe_truth_record(rng, 600, 0.05)
-    two_levels = np.where(ds > 0, 5.0, -5.0)
-    with pytest.raises(IdentificationError, match="distinct levels"):
-        fit_hammerstein_oe(y, two_levels, degree=2)
+    one_level = np.where(ds > 0, 5.0, 0.0)   # ds = 0 says nothing about f: one level
+    with pytest.raises(IdentificationError, match=r">= 2 distinct levels other than the "
+                       r"operating point \(ds != 0\); got 1"):
+        fit_hammerstein_oe(y, one_level, degree=2)
     with pytest.raises(IdentificationError, match="at least 40 samples"):
         fit_hammerstein_oe(y[:30], np.tile([-5.0, 0.0, 5.0], 10))
     with pytest.raises(IdentificationError, match="degree must be an int >= 1"):
@@ -432,3 +433,16 @@ def test_covariance_is_sigma2_inverse_jtj_and_matches_the_std_errors(
                      ) / (2 * step)
     sigma2 = float(fit.residuals @ fit.residuals) / (y.size - p)
     np.testing.assert_allclose(fit.covariance, sigma2 * np.linalg.inv(jac.T @ jac), rtol=1e-4)
+
+
+def test_a_quadratic_without_constant_is_determined_by_two_nonzero_levels(
+    rng: np.random.Generator,
+) -> None:
+    # f(ds) = d1 ds + d2 ds^2 has no constant: f(5) = 5 d1 + 25 d2 and f(-5) = -5 d1 + 25 d2
+    # form a regular 2x2 system, so two levels other than ds = 0 suffice (issue 9)
+    ds = np.repeat(rng.choice([-5.0, 5.0], size=80), 12)
+    assert np.linalg.matrix_rank(np.column_stack([ds, ds**2])) == 2   # independent check
+    w = 0.8 * ds + 0.03 * ds**2
+    y = lfilter([0.0, 1.0, 0.5], [1.0, -0.9], w)
+    fit = fit_hammerstein_oe(y, ds, degree=2, nb=2, nf=1, nk=1, initial_state="zero")
+    np.testing.assert_allclose(fit.input_poly, [0.8, 0.03], rtol=NOISE_FREE_RTOL)

@@ -78,5 +78,5 @@ def test_identify_cli_reads_a_log_of_another_rig_through_a_column_mapping(
     assert main(["show-model", str(out / "model.json")]) == 0
     shown = capsys.readouterr().out
     assert "units: input V, output degC" in shown
-    assert "s_nom = 6 V, P_nom = 129.32 degC" in shown
+    assert "u_nom = 6 V, y_nom = 129.32 degC" in shown   # u, y: not the puller's s, P
     assert " kW" not in shown and "[%]" not in shown

@@ -121,3 +121,24 @@ def test_bad_arrays_raise_figure_error_and_write_nothing(
     with pytest.raises(figs.FigureError, match=match):
         call(path)
     assert not path.exists()
+
+
+def test_labels_of_another_rig_reach_every_axis_and_legend(tmp_path: Path) -> None:
+    t, s, p = _signals()
+    labels = figs.axis_labels(input_name="input lamp", input_unit="V", output_name="output plate",
+                              output_unit="degC", input_symbol="du", output_symbol="dy")
+    ds = figs.plot_dataset(t, s, p, tmp_path / "d.png", labels=labels)
+    assert [ax.get_ylabel() for ax in ds.axes] == ["output plate [degC]", "input lamp [V]"]
+    err = figs.plot_simulation_errors(t, {"OE": p - p.mean()}, tmp_path / "e.png", labels=labels)
+    assert err.axes[0].get_ylabel() == "simulation error [degC]"
+    legend = err.axes[0].get_legend()
+    assert legend is not None
+    assert legend.get_texts()[0].get_text().endswith("degC^2)")
+    gain = figs.plot_gain_curve(np.linspace(-2, 2, 9), {"f'": np.ones(9)}, tmp_path / "g.png",
+                                labels=labels)
+    assert (gain.axes[0].get_xlabel(), gain.axes[0].get_ylabel()) == (
+        "input lamp deviation du [V]", "gain [degC/V]")
+    # the defaults name the puller's signals and units
+    defaults = figs.axis_labels()
+    for key in ("power", "triac", "residual", "gain", "unit_out"):
+        assert defaults[key] == figs.AXIS_LABELS[key]
