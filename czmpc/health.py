@@ -447,6 +447,11 @@ class ModelHealthMonitor:
             self._f, self._p, self._dof = 0.0, 1.0, max(q, 0)
             return
         f_stat = ((rss_restr - rss_full) / q) / (rss_full / dof_den)
+        self._conclude(f_stat, q, dof_den, n_w, "the residuals' relation to past inputs and "
+                       "outputs changed since the baseline")
+
+    def _conclude(self, f_stat: float, q: int, dof_den: int, n: int, finding: str) -> None:
+        """Record a partial F test of ``q`` directions; latch the alarm when it exceeds its limit."""
         self._f, self._dof = f_stat, q
         self._f_limit = self._limit(q, dof_den)
         self._p = float(special.fdtrc(q, dof_den, f_stat))
@@ -454,9 +459,9 @@ class ModelHealthMonitor:
             self.stale_alarm = True
             self.alarm_k = self._k
             self.alarm_reason = (
-                f"stale model: the residuals' relation to past inputs and outputs changed since "
-                f"the baseline (F = {f_stat:.3g} > {self._f_limit:.3g}, p = {self._p:.2g} < "
-                f"{self.settings.false_alarm_per_test:g}, {q} directions, {n_w} samples)")
+                f"stale model: {finding} (F = {f_stat:.3g} > {self._f_limit:.3g}, p = "
+                f"{self._p:.2g} < {self.settings.false_alarm_per_test:g}, {q} directions, "
+                f"{n} samples)")
 
     def _limit(self, q: int, dof_den: int) -> float:
         key = (q, dof_den)
@@ -496,16 +501,7 @@ class ModelHealthMonitor:
             self._f, self._p, self._dof = 0.0, 1.0, q
             return
         f_stat = (explained / q) / (rss1 / dof_den)
-        self._f, self._dof = f_stat, q
-        self._f_limit = self._limit(q, dof_den)
-        self._p = float(special.fdtrc(q, dof_den, f_stat))
-        if f_stat > self._f_limit and not self.stale_alarm:
-            self.stale_alarm = True
-            self.alarm_k = self._k
-            self.alarm_reason = (
-                f"stale model: residuals correlate with past inputs and outputs (F = "
-                f"{f_stat:.3g} > {self._f_limit:.3g}, p = {self._p:.2g} < "
-                f"{self.settings.false_alarm_per_test:g}, {q} directions, {n} samples)")
+        self._conclude(f_stat, q, dof_den, n, "residuals correlate with past inputs and outputs")
 
     def _view(self, residual: float, predicted_kw: float) -> ModelHealth:
         st = self._last_stats

@@ -284,18 +284,29 @@ def _plants(doc: Any, where: str) -> list[PlantSpec]:
             _check_keys(table, ["kind"], here)
             out.append(PlantSpec(kind=kind))
             continue
-        _check_keys(table, ["kind", "gain_factors", "time_constant_factors", "extra_delays_steps"],
-                    here)
-        gains = _number_list(table, "gain_factors", [1.0], here)
-        taus = _number_list(table, "time_constant_factors", [1.0], here)
-        delays = _number_list(table, "extra_delays_steps", [0], here)
-        if not all(v > 0 for v in gains + taus) or not all(d >= 0 and d == int(d) for d in delays):
-            raise CampaignError(f"{here}: expected factors > 0 and whole delays >= 0; got gains "
-                                f"{gains}, time constants {taus}, delays {delays}")
-        out += [PlantSpec(kind="perturbed", gain_factor=g, time_constant_factor=m,
-                          extra_delay_steps=int(d))
-                for d in delays for m in taus for g in gains]
+        out += perturbed_plants(table, here)
     return out
+
+
+def perturbed_plants(table: Mapping[str, Any], where: str) -> list[PlantSpec]:
+    """The grid of a ``kind = "perturbed"`` plant table: one plant per combination.
+
+    Raises
+    ------
+    CampaignError
+        An unknown key, a factor <= 0 or a delay that is not a whole number >= 0.
+    """
+    _check_keys(table, ["kind", "gain_factors", "time_constant_factors", "extra_delays_steps"],
+                where)
+    gains = _number_list(table, "gain_factors", [1.0], where)
+    taus = _number_list(table, "time_constant_factors", [1.0], where)
+    delays = _number_list(table, "extra_delays_steps", [0], where)
+    if not all(v > 0 for v in gains + taus) or not all(d >= 0 and d == int(d) for d in delays):
+        raise CampaignError(f"{where}: expected factors > 0 and whole delays >= 0; got gains "
+                            f"{gains}, time constants {taus}, delays {delays}")
+    return [PlantSpec(kind="perturbed", gain_factor=g, time_constant_factor=m,
+                      extra_delay_steps=int(d))
+            for d in delays for m in taus for g in gains]
 
 
 def _settings(table: Mapping[str, Any], base: Path, model_path: Path,

@@ -28,6 +28,7 @@ import math
 import os
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
 from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
@@ -148,7 +149,23 @@ def _iter_processes(runs: Sequence[RunSpec], workers: int) -> Iterator[dict[str,
                 future.cancel()
 
 
-def _iter_dask(runs: Sequence[RunSpec], workers: int, address: str) -> Iterator[dict[str, Any]]:
+@contextmanager
+def dask_client(workers: int, address: str) -> Iterator[tuple[Any, Any]]:
+    """``(dask.distributed, client)``: a local cluster or a scheduler, closed on exit.
+
+    Parameters
+    ----------
+    workers :
+        Worker processes of a ``LocalCluster`` (one thread each, on 127.0.0.1 only, no
+        dashboard), for ``address == "local"``.
+    address :
+        ``"local"`` or a scheduler address such as ``tcp://host:8786``.
+
+    Raises
+    ------
+    CampaignError
+        dask.distributed is not installed (the ``czmpc[dask]`` extra).
+    """
     try:  # untyped library: used through Any
         distributed: Any = importlib.import_module("dask.distributed")
     except ImportError:
@@ -157,19 +174,24 @@ def _iter_dask(runs: Sequence[RunSpec], workers: int, address: str) -> Iterator[
     cluster = None
     if address == "local":
         cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               host="127.0.0.1", dashboard_address=None,
-                                       silence_logs=logging.CRITICAL)
+                                           host="127.0.0.1", dashboard_address=None,
+                                           silence_logs=logging.CRITICAL)
         client = distributed.Client(cluster)
     else:
         client = distributed.Client(address)
     try:
-        futures = client.map(execute_run, list(runs), pure=False)
-        for future in distributed.as_completed(futures):
-            yield future.result()
+        yield distributed, client
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def _iter_dask(runs: Sequence[RunSpec], workers: int, address: str) -> Iterator[dict[str, Any]]:
+    with dask_client(workers, address) as (distributed, client):
+        futures = client.map(execute_run, list(runs), pure=False)
+        for future in distributed.as_completed(futures):
+            yield future.result()
 
 
 def write_parquet(rows: Sequence[dict[str, Any]], path: Path) -> None:
@@ -304,6 +326,7 @@ def run_campaign(
 
 __all__ = [
     "CAMPAIGN_FILE",
+    "dask_client",
     "EXECUTORS",
     "RESULTS_FILE",
     "ROWS_FILE",

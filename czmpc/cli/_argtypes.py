@@ -227,6 +227,25 @@ def log_option_words(args: argparse.Namespace) -> list[str]:
     return words
 
 
+def file_or_shipped(text: str, what: str) -> Path:
+    """``text`` as a file if it is one, else the shipped data file of that name.
+
+    Raises
+    ------
+    OSError
+        Neither exists (exit 2, naming ``what``).
+    """
+    from czmpc.shipped import shipped_path
+
+    path = Path(text)
+    if path.is_file():
+        return path
+    try:
+        return shipped_path(text)
+    except FileNotFoundError:
+        raise OSError(f"{what} {text!r}: no such file, and no shipped {what} of that name") from None
+
+
 def add_settings_options(parser: argparse.ArgumentParser) -> None:
     """``--settings FILE`` or ``--preset NAME`` (one of them) for the MPC's tuning."""
     group = parser.add_mutually_exclusive_group()

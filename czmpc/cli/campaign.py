@@ -31,6 +31,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from czmpc.cli import _argtypes
+
 NAME = "campaign"
 HELP = "run a campaign spec on serial, process or Dask executors; summarise its results"
 ORDER = 32
@@ -112,15 +114,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def _spec_path(text: str) -> Path:
-    from czmpc.shipped import shipped_path
-
-    path = Path(text)
-    if path.is_file():
-        return path
-    try:
-        return shipped_path(text)
-    except FileNotFoundError:
-        raise OSError(f"campaign spec {text!r}: no such file, and no shipped spec of that name") from None
+    return _argtypes.file_or_shipped(text, "campaign spec")
 
 
 def _run(args: argparse.Namespace) -> int:

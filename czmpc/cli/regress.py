@@ -110,15 +110,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def _suite_path(text: str) -> Path:
-    from czmpc.shipped import shipped_path
-
-    path = Path(text)
-    if path.is_file():
-        return path
-    try:
-        return shipped_path(text)
-    except FileNotFoundError:
-        raise OSError(f"suite {text!r}: no such file, and no shipped suite of that name") from None
+    return _argtypes.file_or_shipped(text, "suite")
 
 
 def _record(args: argparse.Namespace) -> int:

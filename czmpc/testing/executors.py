@@ -11,14 +11,12 @@ executor gives the same numbers.
 
 from __future__ import annotations
 
-import importlib
-import logging
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
-from typing import Any
 
-from czmpc.campaigns.runner import EXECUTORS, pin_blas_threads
+from czmpc.campaigns.campaign import CampaignError
+from czmpc.campaigns.runner import EXECUTORS, dask_client, pin_blas_threads
 from czmpc.testing.cases import CaseResult, CaseTask, run_task
 from czmpc.testing.suite import RegressError
 
@@ -28,28 +26,14 @@ TaskProgress = Callable[[int, int], None]
 
 def _dask_results(tasks: Sequence[CaseTask], workers: int, address: str,
                   done: Callable[[int, CaseResult], None]) -> None:
-    try:  # untyped library: used through Any
-        distributed: Any = importlib.import_module("dask.distributed")
-    except ImportError:
-        raise RegressError("the dask executor needs dask.distributed: pip install 'czmpc[dask]'") from None
-    pin_blas_threads()
-    cluster = None
-    if address == "local":
-        cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                           host="127.0.0.1", dashboard_address=None,
-                                           silence_logs=logging.CRITICAL)
-        client = distributed.Client(cluster)
-    else:
-        client = distributed.Client(address)
     try:
-        futures = client.map(run_task, list(tasks), pure=False)
-        index = {f.key: i for i, f in enumerate(futures)}
-        for future in distributed.as_completed(futures):
-            done(index[future.key], future.result())
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        with dask_client(workers, address) as (distributed, client):
+            futures = client.map(run_task, list(tasks), pure=False)
+            index = {f.key: i for i, f in enumerate(futures)}
+            for future in distributed.as_completed(futures):
+                done(index[future.key], future.result())
+    except CampaignError as exc:
+        raise RegressError(str(exc)) from None
 
 
 def map_tasks(tasks: Sequence[CaseTask], *, executor: str = "serial", workers: int = 2,

@@ -48,7 +48,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from czmpc.campaigns.campaign import PlantSpec
+from czmpc.campaigns.campaign import CampaignError, PlantSpec, perturbed_plants
 from czmpc.errors import CzmpcError
 
 #: Controller kinds (the names of `czmpc.campaigns.bench.CONTROLLERS`).
@@ -264,14 +264,6 @@ def _controllers(doc: object, base: Path, where: str) -> tuple[ControllerEntry, 
     return tuple(out)
 
 
-def _number_list(table: Mapping[str, Any], key: str, default: list[float], where: str) -> list[float]:
-    values = table.get(key, default)
-    if (not isinstance(values, list) or not values
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)):
-        raise RegressError(f"{where}: expected '{key}' a non-empty list of numbers; got {values!r}")
-    return [float(v) for v in values]
-
-
 def _plants(doc: object, where: str) -> tuple[PlantSpec, ...]:
     if not isinstance(doc, list) or not doc or not all(isinstance(t, dict) for t in doc):
         raise RegressError(f"{where}: expected at least one [[plants]] table")
@@ -285,16 +277,10 @@ def _plants(doc: object, where: str) -> tuple[PlantSpec, ...]:
             _check_keys(table, ["kind"], here)
             out.append(PlantSpec(kind=kind))
             continue
-        _check_keys(table, ["kind", "gain_factors", "time_constant_factors", "extra_delays_steps"],
-                    here)
-        gains = _number_list(table, "gain_factors", [1.0], here)
-        taus = _number_list(table, "time_constant_factors", [1.0], here)
-        delays = _number_list(table, "extra_delays_steps", [0], here)
-        if not all(v > 0 for v in gains + taus) or not all(d >= 0 and d == int(d) for d in delays):
-            raise RegressError(f"{here}: expected factors > 0 and whole delays >= 0; got gains "
-                               f"{gains}, time constants {taus}, delays {delays}")
-        out += [PlantSpec(kind="perturbed", gain_factor=g, time_constant_factor=m,
-                          extra_delay_steps=int(d)) for d in delays for m in taus for g in gains]
+        try:
+            out += perturbed_plants(table, here)
+        except CampaignError as exc:
+            raise RegressError(str(exc)) from None
     labels = [p.label for p in out]
     if len(set(labels)) != len(labels):
         raise RegressError(f"{where}: plants must differ; got {labels}")
