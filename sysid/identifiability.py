@@ -9,7 +9,10 @@ Checks on the data (before a fit, `assess_data`, and again with the fitted model
 orders in `assess_model`), each a refusal when it fails:
 
 * ``input_excitation``: the input's standard deviation against its scale;
-* ``input_levels``: distinct input levels against the polynomial degree + 1;
+* ``input_levels``: distinct input levels: fewer than 2 is a refusal (nothing about the
+  input can be learned); fewer than the polynomial degree + 1 only a warning (the
+  input polynomial cannot be fitted and the pipeline writes a lower-order model, which
+  the data do support);
 * ``persistent_excitation``: the input's order of persistent excitation against the
   number of ``B`` coefficients;
 * ``samples_per_parameter``: samples against estimated parameters;
@@ -473,13 +476,18 @@ def _data_checks(data: Dataset, *, degree: int, nb: int, n_parameters: int,
                        f"of its scale [{unit}])"
                        + ("" if ratio >= INPUT_STD_RTOL else
                           f"; the input is constant but for noise: {_ADVICE_TEST}"))),
-        Check(name="input_levels", passed=levels >= degree + 1, severity="refusal",
+        Check(name="input_levels", passed=levels >= degree + 1,
+              severity="refusal" if levels < 2 else "warning",
               measured=float(levels), threshold=float(degree + 1),
               message=(f"input levels: {levels} distinct input value(s), at least "
                        f"{degree + 1} needed for the degree-{degree} input polynomial of "
                        f"{what} ({degree} coefficient(s) of f and the output at the operating "
                        "point)"
-                       + ("" if levels >= degree + 1 else f"; {_ADVICE_TEST}"
+                       + ("" if levels >= degree + 1 else
+                          (f"; {_ADVICE_TEST}" if levels < 2 else
+                           "; the input polynomial cannot be fitted from these levels, so the "
+                           "model written is of lower order (the terminal says which); for "
+                           f"the nonlinearity, {_ADVICE_TEST}")
                           + (", or a lower degree (--orders)" if degree > 1 else "")))),
         Check(name="persistent_excitation", passed=pe >= nb, severity="refusal",
               measured=float(pe), threshold=float(nb),

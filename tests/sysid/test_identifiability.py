@@ -75,8 +75,7 @@ def test_input_std_ratio_is_zero_for_a_constant_input_and_ignores_nan() -> None:
 @pytest.mark.parametrize(
     ("case", "refused"),
     [("constant", ["input_excitation", "input_levels", "persistent_excitation"]),
-     ("dither", ["input_excitation"]), ("two_levels", ["input_levels"]),
-     ("twenty_samples", ["samples_per_parameter"])],
+     ("dither", ["input_excitation"]), ("twenty_samples", ["samples_per_parameter"])],
 )
 def test_assess_data_refuses_logs_without_information(case: str, refused: list[str]) -> None:
     rng = np.random.default_rng(2)
@@ -85,8 +84,6 @@ def test_assess_data_refuses_logs_without_information(case: str, refused: list[s
         s = np.full(n, 45.0)
     elif case == "dither":                       # 0.01 % of scale: noise, not excitation
         s = 45.0 + 0.0045 * rng.standard_normal(n)
-    elif case == "two_levels":
-        s = np.where(np.arange(n) % 80 < 40, 40.0, 50.0)
     else:
         s = _steps(n, rng, hold=5)
     data = _log(s, rng.standard_normal(n))
@@ -99,6 +96,22 @@ def test_assess_data_refuses_logs_without_information(case: str, refused: list[s
         assert failed.measured < failed.threshold
     if case == "twenty_samples":
         assert (failed.measured, failed.threshold) == (20.0, SAMPLES_PER_PARAMETER * 5.0)
+
+
+def test_two_levels_warn_for_the_polynomial_but_support_a_linear_model() -> None:
+    """A square wave between two levels identifies a linear model (the pipeline falls back
+    to one) but not a quadratic f: a warning, not a refusal."""
+    rng = np.random.default_rng(2)
+    s = np.where(np.arange(400) % 80 < 40, 40.0, 50.0)
+    data = _log(s, rng.standard_normal(400))
+    degree, nb, n_par, what = structure_before_fit("paper")
+    judged = assess_data(data, degree=degree, nb=nb, n_parameters=n_par, what=what)
+    assert not judged.refusals
+    assert judged.is_identifiable
+    levels = judged.check("input_levels")
+    assert not levels.passed and levels.severity == "warning"
+    assert (levels.measured, levels.threshold) == (2.0, 3.0)
+    assert "model written is of lower order" in levels.message
 
 
 def test_structure_before_fit_counts_the_parameters_of_each_orders_option() -> None:
