@@ -30,7 +30,7 @@ def _synthetic_log(path: Path) -> None:
                  "verdict": "VALID", "mode": "PREDICT" if k < 50 else "ON", "connected": 1,
                  "written": int(k >= 50), "lateness_s": 0.001, "step_latency_s": 0.002,
                  "skipped": 1 if k == 150 else 0, "predicted_kw": 45.0, "health": health,
-                 "stale_alarm": int(health >= 1.0)})
+                 "stale_alarm": int(health >= 1.0), "event": ""})
     for u in (38.0, 36.0):
         log.row({c: "" for c in LOG_COLUMNS} | {"triac_pct": u, "status": "SAFE_RAMP",
                                                "written": 1, "wall_time_s": 1.8e9})
