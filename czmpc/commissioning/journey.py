@@ -44,7 +44,7 @@ from czmpc.commissioning.test_run import (
     make_test_loop,
 )
 from czmpc.controller import OffsetFreeMPC
-from czmpc.errors import CzmpcError
+from czmpc.errors import CzmpcError, DesignError
 from czmpc.reports import commissioning as figures
 from czmpc.runtime.config import RunConfig
 from czmpc.runtime.loop import ControlLoop, RunSummary
@@ -314,19 +314,24 @@ def commission(config: RunConfig, plan: JourneyPlan, *,
     # 5. report, 6. switch on
     run_summary: RunSummary | None = None
     stage = "checked"
+    mpc: OffsetFreeMPC | None = None
     if plan.switch_on and check.verdict == "ready":
+        try:
+            mpc = OffsetFreeMPC(model, settings)
+        except DesignError as exc:   # a verdict that missed what the controller refuses
+            messages.append(f"not switched on: the controller refuses the model: {exc}")
+    if mpc is not None:
         run_cfg = dataclasses.replace(config, model_path=model_path, log_path=out / "run.csv",
                                       test_limits=None,
                                       duration_s=plan.run_duration_s or config.duration_s)
         say(f"5/5 switching the MPC on with {model_path} (bumpless from the applied input); "
             f"log {run_cfg.log_path}")
-        mpc = OffsetFreeMPC(model, settings)
         run_loop = ControlLoop(run_cfg, mpc, status=run_status, provenance={
             "kind": "MPC run after commissioning", "closed_loop": True,
             "commissioning": str(out)})
         run_summary = asyncio.run(run_loop.run())
         stage = "switched on"
-    elif plan.switch_on:
+    elif plan.switch_on and check.verdict != "ready":
         messages.append(f"not switched on: the verdict is {check.verdict!r}, not 'ready'")
     report = _write_report(out, config=config, plan=plan, signal=signal, schedule=schedule,
                            test_summary=test_summary, started=started, command=command,
