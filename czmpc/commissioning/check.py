@@ -487,6 +487,7 @@ def _monte_carlo(model: HammersteinModel,
                  cov: tuple[tuple[str, ...], np.ndarray, np.ndarray] | None,
                  settings: MPCSettings | None, n_runs: int,
                  seed: int) -> tuple[CheckItem, MonteCarloSummary | None]:
+    from czmpc.errors import CzmpcError
     from sim.errors import SimError
 
     if cov is None or n_runs < 1:
@@ -495,7 +496,11 @@ def _monte_carlo(model: HammersteinModel,
                          detail=f"skipped ({why})"), None
     names, theta, sigma = cov
     scenario = _mc_scenario(model)
-    _, nominal_iae = _closed_loop(model, model, scenario, settings, seed)
+    try:
+        _, nominal_iae = _closed_loop(model, model, scenario, settings, seed)
+    except (SimError, CzmpcError) as exc:   # no delay, a gain the MPC refuses, ...
+        return CheckItem(name="closed-loop Monte Carlo", status="fail",
+                         detail=f"the MPC cannot run on the model's own plant: {exc}"), None
     rng = np.random.default_rng(seed)
     ratios: list[float] = []
     n_good = n_free = n_redrawn = 0

@@ -126,3 +126,13 @@ def test_validation_data_of_another_sampling_time_are_refused() -> None:
     with pytest.raises(SamplingTimeError, match="fast.csv"):
         check_model(SHIPPED, other, mc_runs=0)
 
+
+
+def test_a_model_without_input_delay_is_not_ready_and_does_not_crash() -> None:
+    """A model fitted with delay 0 (B starting non-zero): neither the MPC nor the model
+    plant of the Monte Carlo can run on it; the check says so instead of raising."""
+    no_delay = SHIPPED.with_updates(b=np.asarray(SHIPPED.b)[1:])
+    check = check_model(no_delay, None, mc_runs=2)
+    assert _status(check, "closed-loop Monte Carlo") == "fail"
+    assert check.verdict == "not ready"
+    assert any("cannot run on the model's own plant" in r for r in check.reasons)
