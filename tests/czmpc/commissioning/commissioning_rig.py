@@ -15,6 +15,10 @@ from pathlib import Path
 
 #: Every loopback test runs the plant at this many samples per Ts (period 2 s / 50 = 40 ms).
 TIME_SCALE = 50.0
+#: ... except the journey tests, which identify a model from the loopback test: at 40 ms
+#: periods an OPC UA read-step-write (about 25 ms median, 76 ms p99, BENCHMARKS.md) overruns
+#: often enough to corrupt the identification now and then; at 100 ms it does not.
+JOURNEY_TIME_SCALE = 20.0
 
 #: Longest wait for the served plant to listen [s wall] (Python start-up under load).
 SERVER_START_S = 60.0
@@ -36,7 +40,8 @@ def free_port() -> int:
 
 
 @contextlib.contextmanager
-def served_plant(tmp_path: Path, *args: str, duration_s: float) -> Iterator[str]:
+def served_plant(tmp_path: Path, *args: str, duration_s: float,
+                 time_scale: float = TIME_SCALE) -> Iterator[str]:
     """Run ``czmpc plant serve ARGS`` on a free loopback port; yield its endpoint.
 
     The server stops by itself after ``duration_s`` of plant time and is killed when
@@ -46,7 +51,7 @@ def served_plant(tmp_path: Path, *args: str, duration_s: float) -> Iterator[str]
     log = open(tmp_path / "serve.log", "w", encoding="utf-8")  # noqa: SIM115
     proc = subprocess.Popen(
         [sys.executable, "-m", "czmpc.cli", "plant", "serve", "--endpoint", endpoint,
-         "--time-scale", f"{TIME_SCALE:g}", "--duration-s", f"{duration_s:g}", *args],
+         "--time-scale", f"{time_scale:g}", "--duration-s", f"{duration_s:g}", *args],
         stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:
         port = int(endpoint.rsplit(":", 1)[1].split("/")[0])
@@ -72,10 +77,10 @@ def served_plant(tmp_path: Path, *args: str, duration_s: float) -> Iterator[str]
 
 def write_config(tmp_path: Path, endpoint: str, *, band_kw: tuple[float, float],
                  safe_triac_pct: float = 40.0, model: str | None = None,
-                 extra: str = "") -> Path:
+                 extra: str = "", time_scale: float = TIME_SCALE) -> Path:
     """A run config for the served plant (no [controller] unless ``model``)."""
     nodes = "\n".join(f'{k} = "{v}"' for k, v in NODES.items())
-    text = (f'[plant]\nendpoint = "{endpoint}"\nts_s = 2.0\ntime_scale = {TIME_SCALE:g}\n'
+    text = (f'[plant]\nendpoint = "{endpoint}"\nts_s = 2.0\ntime_scale = {time_scale:g}\n'
             f"max_sample_age_s = 1.0\n[nodes]\n{nodes}\n"
             + (f'[controller]\nmodel = "{model}"\n[run]\nsetpoint_kw = 45.0\nlog = "run.csv"\n'
                if model else '[run]\nlog = "run.csv"\n')

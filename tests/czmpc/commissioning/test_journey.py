@@ -11,7 +11,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from commissioning_rig import FAST_TAU_S, fast_heater_model, served_plant, write_config
+from commissioning_rig import (
+    FAST_TAU_S,
+    JOURNEY_TIME_SCALE,
+    fast_heater_model,
+    served_plant,
+    write_config,
+)
 
 from czmpc.commissioning.journey import CheckOutcome, JourneyPlan, commission
 from czmpc.runtime.config import load_run_config
@@ -44,8 +50,10 @@ def _says_ready(model: HammersteinModel, validation: Dataset, settings: MPCSetti
 def test_commission_then_switch_on_tracks_offset_free(tmp_path: Path) -> None:
     plant = fast_heater_model(tmp_path / "plant.json")
     with served_plant(tmp_path, "--plant", "model", "--model", str(plant), "--initial-triac-pct",
-                      "45", "--safe-triac-pct", "40", duration_s=20000.0) as endpoint:
-        path = write_config(tmp_path, endpoint, band_kw=(20.0, 70.0))
+                      "45", "--safe-triac-pct", "40", duration_s=20000.0,
+                      time_scale=JOURNEY_TIME_SCALE) as endpoint:
+        path = write_config(tmp_path, endpoint, band_kw=(20.0, 70.0),
+                            time_scale=JOURNEY_TIME_SCALE)
         path.write_text(path.read_text(encoding="utf-8").replace(
             '[run]\nlog = "run.csv"\n', '[run]\nlog = "run.csv"\nsetpoint_kw = 44.0\n'),
             encoding="utf-8")
@@ -78,8 +86,10 @@ def test_commission_with_the_real_check_stores_its_verdict(tmp_path: Path) -> No
     pytest.importorskip("czmpc.commissioning.check")
     plant = fast_heater_model(tmp_path / "plant.json")
     with served_plant(tmp_path, "--plant", "model", "--model", str(plant), "--initial-triac-pct",
-                      "45", "--safe-triac-pct", "40", duration_s=20000.0) as endpoint:
-        config = load_run_config(write_config(tmp_path, endpoint, band_kw=(20.0, 70.0)))
+                      "45", "--safe-triac-pct", "40", duration_s=20000.0,
+                      time_scale=JOURNEY_TIME_SCALE) as endpoint:
+        config = load_run_config(write_config(tmp_path, endpoint, band_kw=(20.0, 70.0),
+                                              time_scale=JOURNEY_TIME_SCALE))
         plan = JourneyPlan(range_pct=(38.0, 52.0), tau_s=FAST_TAU_S, out_dir=tmp_path / "out",
                            kind="steps", max_step_pct=5.0, mc_runs=5)
         result = commission(config, plan)
