@@ -543,6 +543,7 @@ def run_paper_pipeline(
     initial_state: InitialState = "estimate",
     orders: OrdersOption = "paper",
     nc: int | None = None,
+    min_nk: int = 0,
 ) -> PipelineResult:
     """Run the paper's identification route on one SISO log (secs. 5-7).
 
@@ -585,6 +586,9 @@ def run_paper_pipeline(
         ``hammerstein_armax_paper``) and shown beside it.
     nc :
         Order of the noise model's ``C``; default ``nf`` (the paper: ``nc = na``).
+    min_nk :
+        Smallest delay the ``"auto"`` search may choose [samples]; 1 for a log of a
+        loop that reads before it writes (`sysid.structure.select_structure`).
 
     Returns
     -------
@@ -615,7 +619,7 @@ def run_paper_pipeline(
             f"{operating_point!r}"
         )
     for name, value, minimum in (("degree", degree, 1), ("nb", nb, 1), ("nf", nf, 0),
-                                 ("nk", nk, 0)):
+                                 ("nk", nk, 0), ("min_nk", min_nk, 0)):
         if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
             raise IdentificationError(
                 f"run_paper_pipeline: {name} must be an int >= {minimum}; got {value!r}"
@@ -632,7 +636,7 @@ def run_paper_pipeline(
         result = _run_stages(
             data, operating_point, shift, repair_spikes, steady_output_atol, degree, nb, nf,
             nk, from_zeros, clock, skipped, check_initial_state(initial_state, "run_paper_pipeline"),
-            _check_orders_option(orders), nc,
+            _check_orders_option(orders), nc, min_nk,
         )
     messages: list[str] = []
     for w in caught:
@@ -666,6 +670,7 @@ def _run_stages(
     initial_state: InitialState,
     orders: OrdersOption,
     nc: int | None,
+    min_nk: int = 0,
 ) -> PipelineResult:
 
     clock.start("operating point")
@@ -698,6 +703,7 @@ def _run_stages(
             structure = select_structure(
                 [(clean.power_kw - op.power_kw, clean.triac_pct - op.triac_pct)],
                 paper_orders=paper_orders,
+                min_nk=min_nk,
             )
             degree, nb, nf, nk = structure.chosen.orders
         except SysidError as exc:

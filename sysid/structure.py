@@ -362,6 +362,7 @@ def select_structure(
     validation_fraction: float = 1.0 / 3.0,
     n_refine: int = 3,
     max_iterations: int = 50,
+    min_nk: int = 0,
 ) -> StructureChoice:
     """Choose the Hammerstein-OE structure (degree, nb, nf, nk) on validation data.
 
@@ -379,6 +380,10 @@ def select_structure(
         Number of best linear structures tried with degrees 2..`degree_max`.
     max_iterations :
         Iteration limit of each fit.
+    min_nk :
+        Smallest delay tried [samples]. 1 for a log written by a loop that reads the
+        output before it writes the input (every `czmpc run` log): such a loop cannot
+        see its own write within the same sample, so ``nk = 0`` would only fit jitter.
 
     Returns
     -------
@@ -398,9 +403,11 @@ def select_structure(
             f"select_structure: validation_fraction must lie in [0.05, 0.5]; got "
             f"{validation_fraction!r}"
         )
+    if isinstance(min_nk, bool) or not isinstance(min_nk, int) or min_nk < 0:
+        raise IdentificationError(f"select_structure: min_nk must be an int >= 0; got {min_nk!r}")
     delay = estimate_delay(segments)
-    nks = sorted({max(delay.delay_steps - 1, 0), delay.delay_steps, delay.delay_steps + 1,
-                  paper_orders[3]})
+    nks = sorted({max(nk, min_nk) for nk in (delay.delay_steps - 1, delay.delay_steps,
+                                              delay.delay_steps + 1, paper_orders[3])})
     folds = _split(segments, validation_fraction)
     grid = _Grid(folds, max_iterations)
     for nk in nks:

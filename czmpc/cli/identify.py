@@ -193,6 +193,7 @@ def identify_to_directory(
     initial_state: str = "estimate",
     accept_unidentifiable: bool = False,
     reference: str | None = None,
+    min_nk: int = 0,
 ) -> IdentifyOutcome:
     """Read a log, run the paper's pipeline and write model.json, models/, report.md.
 
@@ -221,6 +222,9 @@ def identify_to_directory(
     reference :
         ``"paper"`` to show the paper's values beside ours, ``"none"`` to leave them
         out; None: ``"paper"`` for data in % and kW, else ``"none"``.
+    min_nk :
+        Smallest delay ``orders="auto"`` may choose [samples]: 1 for a `czmpc run` log
+        (its loop reads the power before it writes the input).
 
     Returns
     -------
@@ -277,7 +281,7 @@ def identify_to_directory(
             if len(orders) == 4:
                 order_kw["nc"] = orders[3]
         else:
-            order_kw = {"orders": orders}
+            order_kw = {"orders": orders, "min_nk": min_nk}
         result = run_paper_pipeline(
             data, operating_point=op, level_shift="auto" if level_shift is None else level_shift,
             progress=progress, initial_state=initial_state,  # type: ignore[arg-type]
@@ -385,6 +389,7 @@ def run(args: argparse.Namespace) -> int:
     progress = Progress()
     command = " ".join(shlex.quote(w) for w in command_words(args))
     progress(f"reading {args.data}")
+    from czmpc.runtime.runlog import is_run_log
     from sysid.identifiability import UnidentifiableDataError
 
     try:
@@ -399,6 +404,7 @@ def run(args: argparse.Namespace) -> int:
             initial_state=args.initial_state,
             accept_unidentifiable=args.accept_unidentifiable,
             reference=args.reference,
+            min_nk=1 if args.columns is None and is_run_log(args.data) else 0,
         )
     except UnidentifiableDataError as exc:
         refusals = exc.assessment.refusals

@@ -294,7 +294,7 @@ def commission(config: RunConfig, plan: JourneyPlan, *,
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = run_paper_pipeline(est, level_shift="none", orders="auto", degree=DESIGN_DEGREE,
-                                    progress=lambda m: say(f"    {m}"))
+                                    min_nk=1, progress=lambda m: say(f"    {m}"))
     messages += [f"identification: {w.category.__name__}: {w.message}" for w in caught]
     if result.final is None:  # pragma: no cover - the pipeline raises instead
         raise JourneyError("identification produced no model")

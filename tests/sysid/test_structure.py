@@ -13,6 +13,7 @@ from scipy.signal import lfilter
 
 from sysid.criteria import ballistic_mse
 from sysid.data import read_csv
+from sysid.errors import IdentificationError
 from sysid.model import OperatingPoint
 from sysid.pipeline import PipelineResult, run_paper_pipeline
 from sysid.reallogs import read_cascaded_tanks, read_daisy_heating, read_tclab
@@ -71,6 +72,19 @@ def test_higher_orders_never_end_worse_than_the_nested_lower_order(
     assert choice.chosen.orders == PAPER_ORDERS        # the truth is the paper's structure
     assert choice.residual_autocorrelation is not None
     assert choice.validation_fit_percent > 90.0
+
+
+def test_min_nk_keeps_the_search_off_delays_a_read_then_write_loop_cannot_have(
+    rng: np.random.Generator,
+) -> None:
+    y, ds = _oe_record(rng, 1600, nk=0)       # direct feedthrough: the free search finds it
+    free = select_structure([(y, ds)], nb_max=2, nf_max=1, degree_max=1, n_refine=1)
+    held = select_structure([(y, ds)], nb_max=2, nf_max=1, degree_max=1, n_refine=1, min_nk=1)
+    assert free.chosen.orders[3] == 0
+    assert min(c.orders[3] for c in held.candidates) == 1
+    assert held.chosen.orders[3] >= 1
+    with pytest.raises(IdentificationError, match="min_nk must be an int >= 0; got -1"):
+        select_structure([(y, ds)], min_nk=-1)
 
 
 # ---------------------------------------------------------------- the done-when

@@ -62,7 +62,7 @@ def test_commission_then_switch_on_tracks_offset_free(tmp_path: Path) -> None:
                            kind="steps", max_step_pct=5.0, switch_on=True, run_duration_s=300.0)
         result = commission(config, plan, checker=_says_ready)
     out = tmp_path / "out"
-    assert result.stage == "switched on" and result.ok
+    assert result.stage == "switched on" and result.ok, result.messages
     assert result.fit_pct is not None and result.fit_pct > MIN_FIT_PCT
     for name in ("test.csv", "test_run.csv", "test_run.meta.json", "model.json",
                  "identification/report.md", "commissioning.md", "figures/test.png",
