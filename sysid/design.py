@@ -23,6 +23,17 @@ Three kinds:
 ``mixed`` (default)
     The staircase followed by GBN around the middle of the band for the rest of the
     duration.
+``multilevel``
+    Generalized multilevel noise for short tests of slow plants: it switches with the
+    GBN's probability ``p_sw = ts_s / tau_s``, but to another of the staircase's
+    ``n_levels`` levels each time (levels drawn in shuffled rounds, so every level is
+    visited equally often; a jump larger than ``max_step_pct`` is ramped). A binary
+    signal excites only two points of the static nonlinearity f; a multilevel one
+    excites f at every level and the dynamics over the same band as the GBN (Godfrey,
+    ed., Perturbation Signals for System Identification, Prentice Hall 1993, ch. 7-8 on
+    multilevel signals for nonlinear systems). It needs no settled holds, so it fits
+    a plant with tau = 600 s into 2 h where ``mixed`` needs 8 h. Shortest duration:
+    ``MIN_MULTILEVEL_ROUNDS`` rounds of the levels, ``tau_s`` per visit on average.
 """
 
 from __future__ import annotations
@@ -37,8 +48,8 @@ from sysid._typing import FloatArray
 from sysid.errors import SysidError
 
 __all__ = [
-    "HOLD_TAUS", "MIN_GBN_TAUS", "ExcitationSignal", "ExcitationSpec", "SignalDesignError",
-    "design_test_signal",
+    "HOLD_TAUS", "KINDS", "MIN_GBN_TAUS", "MIN_MULTILEVEL_ROUNDS", "ExcitationSignal",
+    "ExcitationSpec", "SignalDesignError", "design_test_signal", "shortest_duration_s",
 ]
 
 HOLD_TAUS = 4.0
@@ -46,7 +57,13 @@ HOLD_TAUS = 4.0
 MIN_GBN_TAUS = 20.0
 """Shortest GBN part of a mixed signal, in time constants (about 20 switches)."""
 
-Kind = Literal["steps", "gbn", "mixed"]
+MIN_MULTILEVEL_ROUNDS = 2
+"""Shortest multilevel signal, in rounds through all its levels (each level visited
+twice, from two predecessors: f is seen from both directions on average)."""
+
+Kind = Literal["steps", "gbn", "mixed", "multilevel"]
+#: Every kind `design_test_signal` builds (the CLI's choices).
+KINDS: tuple[str, ...] = ("steps", "gbn", "mixed", "multilevel")
 
 
 class SignalDesignError(SysidError, ValueError):
@@ -69,7 +86,7 @@ class ExcitationSpec:
         Length of the test [s].
     max_step_pct : float
         Largest allowed jump between two consecutive samples [%].
-    kind : {"steps", "gbn", "mixed"}
+    kind : {"steps", "gbn", "mixed", "multilevel"}
         Signal kind (see module docstring).
     degree : int
         Degree of the input polynomial f to be identified; the staircase has at least
@@ -94,8 +111,8 @@ class ExcitationSpec:
                 and 0.0 <= self.lo_pct < self.hi_pct <= 100.0):
             raise SignalDesignError(
                 f"range must satisfy 0 <= LO < HI <= 100 %; got {self.lo_pct!r} .. {self.hi_pct!r}")
-        if self.kind not in ("steps", "gbn", "mixed"):
-            raise SignalDesignError(f"kind must be steps, gbn or mixed; got {self.kind!r}")
+        if self.kind not in KINDS:
+            raise SignalDesignError(f"kind must be one of {', '.join(KINDS)}; got {self.kind!r}")
         if self.degree < 1:
             raise SignalDesignError(f"degree must be >= 1; got {self.degree!r}")
         if self.duration_s < 2 * self.ts_s:
@@ -108,7 +125,10 @@ class ExcitationSpec:
 
     @property
     def n_levels(self) -> int:
-        """Staircase levels: ``degree + 2`` at least, more if ``max_step_pct`` demands it."""
+        """Levels: ``degree + 2`` at least; a staircase has more if ``max_step_pct``
+        demands it (a multilevel signal ramps its larger jumps instead)."""
+        if self.kind == "multilevel":
+            return self.degree + 2
         by_step = math.ceil((self.hi_pct - self.lo_pct) / self.max_step_pct) + 1
         return max(self.degree + 2, by_step)
 
@@ -132,7 +152,7 @@ class ExcitationSignal:
     time_s, triac_pct : ndarray
         Sample times [s] and set-points [%].
     levels_pct : ndarray
-        Staircase levels [%] (empty for a pure GBN signal).
+        Staircase or multilevel levels [%] (empty for a pure GBN signal).
     steps_samples : int
         Samples of the staircase part (it comes first).
     """
@@ -178,14 +198,19 @@ class ExcitationSignal:
             f"largest jump {np.abs(np.diff(self.triac_pct)).max():g} % (limit {spec.max_step_pct:g} %)",
             f"distinct levels visited: {np.unique(self.triac_pct).size}",
         ]
-        if self.levels_pct.size:
+        if self.levels_pct.size and spec.kind == "multilevel":
+            lines.append("levels [%]: " + ", ".join(f"{v:g}" for v in self.levels_pct)
+                         + ", visited in shuffled rounds")
+        elif self.levels_pct.size:
             lines.append("staircase levels [%]: " + ", ".join(f"{v:g}" for v in self.levels_pct)
                          + f"; each held {spec.hold_samples * spec.ts_s:g} s = {HOLD_TAUS:g} tau")
         lines.append(f"hold times: min {holds.min():g} s ({holds.min() / spec.tau_s:.2f} tau), "
                      f"median {np.median(holds):g} s ({np.median(holds) / spec.tau_s:.2f} tau), "
                      f"max {holds.max():g} s ({holds.max() / spec.tau_s:.2f} tau)")
         if spec.kind != "steps":
-            lines.append(f"GBN mean switching time T_sw = {spec.ts_s / spec.gbn_switch_probability:g} s "
+            what = "multilevel" if spec.kind == "multilevel" else "GBN"
+            lines.append(f"{what} mean switching time T_sw = "
+                         f"{spec.ts_s / spec.gbn_switch_probability:g} s "
                          f"(p_sw = {spec.gbn_switch_probability:.4g} per sample)")
         lines.append(f"plant bandwidth 1/tau = {band:.4g} rad/s; signal power below it "
                      f"{100 * self.power_fraction_below(band):.1f} %, below 2/tau "
@@ -214,26 +239,68 @@ def _ramp(start_pct: float, end_pct: float, max_step_pct: float) -> FloatArray:
     return np.linspace(start_pct, end_pct, n + 1)[1:-1] if n > 1 else np.zeros(0)
 
 
+def _multilevel(spec: ExcitationSpec, n: int, rng: np.random.Generator) -> FloatArray:
+    levels = np.linspace(spec.lo_pct, spec.hi_pct, spec.n_levels)
+    switches = rng.random(n) < spec.gbn_switch_probability
+    switches[0] = False
+    order: list[int] = []
+    while len(order) < int(switches.sum()) + 1:   # shuffled rounds, never the same level twice
+        round_ = list(rng.permutation(levels.size))
+        if order and round_[0] == order[-1]:
+            round_.append(round_.pop(0))
+        order += round_
+    target = levels[np.asarray(order)[np.cumsum(switches)]]
+    u = np.empty(n)
+    u[0] = target[0]
+    for k in range(1, n):   # ramp jumps above max_step_pct (the target is held meanwhile)
+        u[k] = u[k - 1] + float(np.clip(target[k] - u[k - 1], -spec.max_step_pct,
+                                        spec.max_step_pct))
+    return u
+
+
+def shortest_duration_s(spec: ExcitationSpec) -> float:
+    """Shortest test [s] `design_test_signal` accepts for ``spec``'s kind and band.
+
+    ``steps``: the staircase (``2 n_levels - 1`` holds of ``HOLD_TAUS`` tau); ``mixed``:
+    that plus ``MIN_GBN_TAUS`` tau of GBN; ``gbn``: ``MIN_GBN_TAUS`` tau;
+    ``multilevel``: ``MIN_MULTILEVEL_ROUNDS`` rounds of ``n_levels`` visits of one tau.
+    """
+    stairs_s = ((2 * spec.n_levels - 1) * spec.hold_samples - 1) * spec.ts_s
+    return {"steps": stairs_s, "gbn": MIN_GBN_TAUS * spec.tau_s,
+            "mixed": stairs_s + MIN_GBN_TAUS * spec.tau_s,
+            "multilevel": MIN_MULTILEVEL_ROUNDS * spec.n_levels * spec.tau_s}[spec.kind]
+
+
 def design_test_signal(spec: ExcitationSpec, rng: np.random.Generator) -> ExcitationSignal:
-    """Build the test signal of ``spec``; ``rng`` drives the GBN part (seed it to repeat).
+    """Build the test signal of ``spec``; ``rng`` drives the GBN and multilevel parts.
 
     Raises
     ------
     SignalDesignError
-        If the duration cannot hold the staircase (``steps``) or the staircase plus
-        ``MIN_GBN_TAUS`` time constants of GBN (``mixed``).
+        If the duration is shorter than `shortest_duration_s`: it cannot hold the
+        staircase (``steps``), the staircase plus ``MIN_GBN_TAUS`` time constants of
+        GBN (``mixed``), or ``MIN_MULTILEVEL_ROUNDS`` rounds of the levels
+        (``multilevel``).
     """
     n = spec.n_samples
     levels: FloatArray = np.zeros(0)
     if spec.kind == "gbn":
         u = _gbn(spec, n, True, rng)
         steps_n = 0
+    elif spec.kind == "multilevel":
+        need_s = shortest_duration_s(spec)
+        if need_s > spec.duration_s:
+            raise SignalDesignError(
+                f"duration_s = {spec.duration_s:g} s is too short for a multilevel test: "
+                f"{MIN_MULTILEVEL_ROUNDS} rounds of {spec.n_levels} levels at one tau = "
+                f"{spec.tau_s:g} s per visit need at least {math.ceil(need_s):d} s")
+        u = _multilevel(spec, n, rng)
+        levels = np.linspace(spec.lo_pct, spec.hi_pct, spec.n_levels)
+        steps_n = 0
     else:
         stairs, levels = _staircase(spec)
         steps_n = stairs.size
-        need_s = (steps_n - 1) * spec.ts_s
-        if spec.kind == "mixed":
-            need_s += MIN_GBN_TAUS * spec.tau_s
+        need_s = shortest_duration_s(spec)
         if need_s > spec.duration_s:
             raise SignalDesignError(
                 f"duration_s = {spec.duration_s:g} s is too short for a {spec.kind} test with "

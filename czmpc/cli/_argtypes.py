@@ -22,6 +22,10 @@ if TYPE_CHECKING:
 _REPO = Path(__file__).resolve().parents[2]
 
 
+#: The test-signal kinds of `sysid.design.KINDS`, here so that ``--help`` needs no numpy
+#: (a test holds the two equal).
+TEST_SIGNAL_KINDS = ("steps", "gbn", "mixed", "multilevel")
+
 def integer(minimum: int, what: str = "an integer") -> Callable[[str], int]:
     """Converter to an int >= ``minimum``."""
 

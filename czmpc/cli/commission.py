@@ -55,12 +55,13 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="run the MPC with the new model if the verdict is 'ready'")
     parser.add_argument("--duration-s", type=t.number(above=0, unit="s"), default=None,
                         help="test length [plant s] (default: the shortest the design accepts)")
-    parser.add_argument("--kind", choices=("steps", "gbn", "mixed"), default="mixed",
-                        help="test signal (default: mixed = staircase + GBN)")
+    parser.add_argument("--kind", choices=t.TEST_SIGNAL_KINDS, default="mixed",
+                        help="test signal (default: mixed = staircase + GBN; multilevel: "
+                             "the short test for a slow plant)")
     parser.add_argument("--max-step-pct", type=t.number(above=0, unit="%"), default=100.0,
                         help="largest designed move per sample [%%] (default: no limit)")
     parser.add_argument("--seed", type=t.integer(0, "a seed"), default=0,
-                        help="seed of the GBN part (default: 0)")
+                        help="seed of the GBN or multilevel part (default: 0)")
     parser.add_argument("--run-duration-s", type=t.number(above=0, unit="s"), default=None,
                         help="plant time the MPC runs after switch-on [s] (default: the "
                              "config's [run] duration_s, else until Ctrl-C)")

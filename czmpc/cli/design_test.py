@@ -37,10 +37,12 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="length of the test [s]")
     parser.add_argument("--max-step-pct", type=t.number(above=0, unit="%"), default=100.0,
                         help="largest jump between consecutive samples [%%] (default: no limit)")
-    parser.add_argument("--kind", choices=("steps", "gbn", "mixed"), default="mixed",
-                        help="staircase, generalized binary noise, or both (default mixed)")
+    parser.add_argument("--kind", choices=t.TEST_SIGNAL_KINDS, default="mixed",
+                        help="staircase, generalized binary noise, both (default mixed), or "
+                             "multilevel noise: the short test for a slow plant (2 rounds of "
+                             "degree + 2 levels at one tau each)")
     parser.add_argument("--seed", type=t.integer(0, "a seed"), default=0,
-                        help="seed of the GBN random switching (default 0)")
+                        help="seed of the GBN or multilevel random switching (default 0)")
     parser.add_argument("--out", metavar="TEST.csv", required=True,
                         help="output CSV with header time_s,triac_pct")
     parser.add_argument("--plot", metavar="FILE.png", type=Path, default=None,

@@ -53,7 +53,12 @@ from czmpc.settings import MPCSettings
 from czmpc.settings_file import load_settings
 from sysid.atomic import atomic_write_text
 from sysid.data import Dataset
-from sysid.design import MIN_GBN_TAUS, ExcitationSignal, ExcitationSpec, design_test_signal
+from sysid.design import (
+    ExcitationSignal,
+    ExcitationSpec,
+    design_test_signal,
+    shortest_duration_s,
+)
 from sysid.model import HammersteinModel, Units
 from sysid.modelfile import save_model
 from sysid.simulate import simulate
@@ -85,7 +90,8 @@ class JourneyPlan:
     duration_s :
         Test length [plant s]; None: the shortest the design of ``kind`` accepts.
     kind :
-        ``"mixed"`` (staircase + GBN), ``"steps"`` or ``"gbn"``.
+        ``"mixed"`` (staircase + GBN), ``"steps"``, ``"gbn"`` or ``"multilevel"``
+        (the short test for a slow plant, `sysid.design`).
     max_step_pct :
         Largest designed move per sample [%]; also the test's ramp rate.
     seed :
@@ -192,10 +198,7 @@ def design_spec(plan: JourneyPlan, ts_s: float) -> ExcitationSpec:
         probe = ExcitationSpec(ts_s=ts_s, lo_pct=lo, hi_pct=hi, tau_s=plan.tau_s,
                                duration_s=2 * ts_s, max_step_pct=plan.max_step_pct,
                                kind=plan.kind, degree=DESIGN_DEGREE)  # type: ignore[arg-type]
-        stairs_s = (2 * probe.n_levels - 1) * probe.hold_samples * ts_s
-        gbn_s = MIN_GBN_TAUS * plan.tau_s
-        duration = {"steps": stairs_s, "gbn": gbn_s}.get(plan.kind, stairs_s + gbn_s)
-        duration = ts_s * math.ceil(duration / ts_s)
+        duration = ts_s * math.ceil(shortest_duration_s(probe) / ts_s)
     return ExcitationSpec(ts_s=ts_s, lo_pct=lo, hi_pct=hi, tau_s=plan.tau_s, duration_s=duration,
                           max_step_pct=plan.max_step_pct, kind=plan.kind,  # type: ignore[arg-type]
                           degree=DESIGN_DEGREE)

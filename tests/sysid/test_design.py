@@ -61,3 +61,40 @@ def test_too_short_names_the_need() -> None:
 def test_bad_range_rejected() -> None:
     with pytest.raises(SignalDesignError, match="60"):
         _spec(lo_pct=60.0, hi_pct=20.0)
+
+
+def test_multilevel_visits_every_level_equally_and_ramps_large_jumps() -> None:
+    spec = _spec(kind="multilevel", degree=2, duration_s=400_000.0)
+    sig = design_test_signal(spec, np.random.default_rng(3))
+    np.testing.assert_allclose(sig.levels_pct, np.linspace(20.0, 60.0, 4))
+    # no step limit: every switch jumps to another level; the shuffled rounds visit each
+    # level once per round, so the visit counts differ by at most one
+    starts = np.concatenate(([0], np.flatnonzero(np.diff(sig.triac_pct)) + 1))
+    assert np.all(np.diff(sig.triac_pct[starts]) != 0.0)
+    visits = [int(np.count_nonzero(np.isclose(sig.triac_pct[starts], v))) for v in sig.levels_pct]
+    assert max(visits) - min(visits) <= 1 and sum(visits) == starts.size, visits
+    # the switch rate is the GBN's: about one per tau
+    assert abs(starts.size - 400_000.0 / 300.0) < 4.0 * np.sqrt(400_000.0 / 300.0)
+    limited = design_test_signal(_spec(kind="multilevel", degree=2, duration_s=400_000.0,
+                                       max_step_pct=15.0), np.random.default_rng(3))
+    assert np.abs(np.diff(limited.triac_pct)).max() <= 15.0 + 1e-12
+    assert set(sig.levels_pct) <= set(np.unique(limited.triac_pct))
+
+
+def test_multilevel_fits_a_slow_plant_into_two_hours_where_mixed_cannot() -> None:
+    from sysid.design import MIN_MULTILEVEL_ROUNDS, shortest_duration_s
+
+    slow = dict(ts_s=2.0, lo_pct=35.0, hi_pct=60.0, tau_s=600.0, duration_s=7200.0,
+                max_step_pct=5.0, degree=2)
+    ml = ExcitationSpec(kind="multilevel", **slow)  # type: ignore[arg-type]
+    assert shortest_duration_s(ml) == MIN_MULTILEVEL_ROUNDS * 4 * 600.0 == 4800.0
+    sig = design_test_signal(ml, np.random.default_rng(0))
+    assert sig.time_s[-1] == 7200.0 and np.unique(np.round(sig.triac_pct, 9)).size > 4
+    mixed = ExcitationSpec(kind="mixed", **slow)  # type: ignore[arg-type]
+    # 6 levels (25 % in steps of 5 %) held 4 tau, up and down, plus 20 tau of GBN
+    assert shortest_duration_s(mixed) == (11 * 1200 - 1) * 2.0 + 20 * 600.0
+    with pytest.raises(SignalDesignError, match="too short for a mixed test"):
+        design_test_signal(mixed, np.random.default_rng(0))
+    with pytest.raises(SignalDesignError, match="at least 4800 s"):
+        design_test_signal(ExcitationSpec(kind="multilevel", **{**slow, "duration_s": 4000.0}),
+                           np.random.default_rng(0))

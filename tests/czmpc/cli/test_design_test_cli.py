@@ -77,3 +77,25 @@ def test_design_test_plot_draws_signal_holds_and_spectrum(
     # the staircase levels hold 4 tau = 400 s each
     holds = axes[1].collections[0].get_offsets()[:, 1]
     assert np.count_nonzero(np.isclose(holds, 4.0, rtol=1e-12)) >= 9
+
+
+def test_the_cli_offers_every_kind_the_design_builds() -> None:
+    from czmpc.cli._argtypes import TEST_SIGNAL_KINDS
+    from sysid.design import KINDS
+
+    assert TEST_SIGNAL_KINDS == KINDS
+
+
+def test_design_test_multilevel_prints_its_levels_and_switching(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str],
+) -> None:
+    out = tmp_path / "test.csv"
+    code = main(["design-test", "--ts-s", "2", "--range-pct", "35", "60", "--tau-s", "600",
+                 "--duration-s", "7200", "--max-step-pct", "5", "--kind", "multilevel",
+                 "--out", str(out)])
+    assert code == 0
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert table.shape == (3601, 2) and np.abs(np.diff(table[:, 1])).max() <= 5.0 + 1e-9
+    text = capsys.readouterr().out
+    assert "levels [%]: 35, 41.25, 47.5, 53.75, 60, visited in shuffled rounds" in text  # degree 3
+    assert "multilevel mean switching time T_sw = 600 s" in text
