@@ -93,6 +93,7 @@ def estimate_delay(
     n_coefficients: int = 12,
     na: int = 2,
     threshold_sigma: float = 3.0,
+    min_relative_size: float = 0.1,
 ) -> DelayEstimate:
     """Estimate the input delay from an ARX(na, n_coefficients, nk=0) fit.
 
@@ -107,6 +108,12 @@ def estimate_delay(
         Order of ``A`` (absorbs the slow dynamics so that ``B`` stays short).
     threshold_sigma :
         A coefficient is significant if ``|b_j| > threshold_sigma * std(b_j)``.
+    min_relative_size :
+        ... and at least this share of the largest ``|b_j|``. Coloured noise (a slow
+        grid wander) and the input nonlinearity bias the ARX fit: on a heater with three
+        samples of delay, lags 0 and 1 came out at 3.7 sigma with 0.6 % of the size of
+        lag 3's coefficient (94 sigma). The share leaves the delays of the three real
+        logs and of the paper's experiment unchanged (tests).
 
     Returns
     -------
@@ -143,7 +150,8 @@ def estimate_delay(
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     b = theta[na:]
     b_std = std[na:]
-    significant = np.flatnonzero(np.abs(b) > threshold_sigma * b_std)
+    significant = np.flatnonzero((np.abs(b) > threshold_sigma * b_std)
+                                 & (np.abs(b) >= min_relative_size * np.max(np.abs(b))))
     delay = int(significant[0]) if significant.size else 0
     a = np.concatenate([[1.0], theta[:na]])
     pulse = np.zeros(n_coefficients)

@@ -221,6 +221,70 @@ def split_estimation_validation(data: Dataset) -> tuple[Dataset, Dataset]:
     return data.segment(0, n_est), data.segment(n_est, data.n_samples)
 
 
+@dataclass(frozen=True, kw_only=True, eq=False)
+class IdentifiedTest:
+    """The model identified from a test log, and its fit on the held-out end.
+
+    Attributes
+    ----------
+    model :
+        The final model, in the log's units.
+    pipeline :
+        The whole pipeline result (`sysid.pipeline.PipelineResult`: every model,
+        the findings, for the identification report).
+    validation :
+        The held-out samples (the last ``1 - ESTIMATION_FRACTION``).
+    simulated_kw :
+        The model's ballistic simulation over ``validation`` [output unit].
+    fit_pct :
+        MATLAB ``compare``'s fit on ``validation`` [%] (`fit_percent`).
+    messages :
+        The warnings of the identification, one line each.
+    """
+
+    model: HammersteinModel
+    pipeline: Any
+    validation: Dataset
+    simulated_kw: np.ndarray
+    fit_pct: float
+    messages: tuple[str, ...]
+
+
+def identify_test(data: Dataset, *,
+                  progress: Callable[[str], None] | None = None) -> IdentifiedTest:
+    """Identify a model from an open-loop test's log as the journey does (stage 3).
+
+    The first `ESTIMATION_FRACTION` of the samples, the paper's pipeline with orders
+    chosen on validation data (``orders="auto"``, degree `DESIGN_DEGREE`), at least one
+    sample of delay (the loop reads the power before it writes the input), no
+    level-shift repair (the designed steps are not sensor faults); the rest is held out
+    for the fit.
+
+    Raises
+    ------
+    JourneyError
+        Too few samples to identify and hold out data.
+    IdentificationError
+        Data that support no model.
+    """
+    from sysid.pipeline import run_paper_pipeline
+
+    est, val = split_estimation_validation(data)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = run_paper_pipeline(est, level_shift="none", orders="auto", degree=DESIGN_DEGREE,
+                                    min_nk=1, progress=progress)
+    if result.final is None:  # pragma: no cover - the pipeline raises instead
+        raise JourneyError("identification produced no model")
+    model = result.final.model.with_updates(units=Units(input=data.input_unit,
+                                                        output=data.output_unit))
+    simulated = simulate(model, val)
+    return IdentifiedTest(
+        model=model, pipeline=result, validation=val, simulated_kw=simulated,
+        fit_pct=fit_percent(val.power_kw, simulated),
+        messages=tuple(f"identification: {w.category.__name__}: {w.message}" for w in caught))
+
+
 def commission(config: RunConfig, plan: JourneyPlan, *,
                progress: Callable[[str], None] | None = None,
                checker: Checker | None = None, command: str | None = None,
@@ -291,23 +355,16 @@ def commission(config: RunConfig, plan: JourneyPlan, *,
     data = read_run_log(test_cfg.log_path)
     est, val = split_estimation_validation(data)
     say(f"3/5 identifying (orders auto) from {est.n_samples} samples; {val.n_samples} held out")
-    from czmpc.reports.identification import write_report
-    from sysid.pipeline import run_paper_pipeline
-
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        result = run_paper_pipeline(est, level_shift="none", orders="auto", degree=DESIGN_DEGREE,
-                                    min_nk=1, progress=lambda m: say(f"    {m}"))
-    messages += [f"identification: {w.category.__name__}: {w.message}" for w in caught]
-    if result.final is None:  # pragma: no cover - the pipeline raises instead
-        raise JourneyError("identification produced no model")
-    model = result.final.model.with_updates(units=Units(input=data.input_unit,
-                                                        output=data.output_unit))
+    identified = identify_test(data, progress=lambda m: say(f"    {m}"))
+    messages += list(identified.messages)
+    model = identified.model
     model_path = out / "model.json"
     save_model(model, model_path)
-    write_report(result, out / "identification", model_file="../model.json", command=command)
-    simulated = simulate(model, val)
-    fit = fit_percent(val.power_kw, simulated)
+    from czmpc.reports.identification import write_report
+
+    write_report(identified.pipeline, out / "identification", model_file="../model.json",
+                 command=command)
+    simulated, fit = identified.simulated_kw, identified.fit_pct
     # 4. check
     settings = (MPCSettings.default_for(model) if config.settings_path is None
                 else load_settings(config.settings_path, model))

@@ -55,6 +55,23 @@ def test_delay_estimate_finds_the_delay_and_returns_its_evidence(
     np.testing.assert_allclose(est.impulse_response[4], 1.2, rtol=0.1)
 
 
+def test_delay_estimate_ignores_tiny_lags_that_coloured_noise_makes_significant() -> None:
+    # truth: delay 3; a slow random-walk disturbance biases the ARX fit: with this seed
+    # lag 0 gets a tiny coefficient of more than 3 sigma
+    rng = np.random.default_rng(4)
+    n = 6000
+    ds = np.repeat(rng.uniform(-10.0, 10.0, n // 30 + 1), 30)[:n]
+    y = lfilter([0.0, 0.0, 0.0, 1.0, -0.9], [1.0, -0.95], ds)
+    y += np.cumsum(0.05 * rng.standard_normal(n)) + 0.05 * rng.standard_normal(n)
+    plain = estimate_delay([(y, ds)], min_relative_size=0.0)
+    sized = estimate_delay([(y, ds)])
+    assert sized.delay_steps == 3
+    small = np.abs(sized.coefficients[:3]) < 0.1 * np.max(np.abs(sized.coefficients))
+    assert small.all()
+    # what the share guards against: with no share any lag above 3 sigma counts
+    assert plain.delay_steps == 0
+
+
 def test_higher_orders_never_end_worse_than_the_nested_lower_order(
     rng: np.random.Generator,
 ) -> None:
