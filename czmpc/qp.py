@@ -130,10 +130,69 @@ def terminal_cost(
     try:
         P = scipy.linalg.solve_discrete_are(Axi, Bxi, Qxi, Rxi, s=Sxi)
     except (ValueError, np.linalg.LinAlgError) as exc:
-        raise DesignError(
-            f"MPC terminal cost: the control DARE must have a stabilizing solution; got: {exc}"
-        ) from exc
+        # scipy's QZ ordering can fail on a slow pole near z = 1 next to the delay
+        # states' poles at z = 0 ("Reordering ... failed"); the doubling algorithm
+        # needs no ordering. Its answer is accepted only if it solves the DARE and
+        # stabilizes the loop.
+        P = dare_by_doubling(Axi, Bxi, Qxi, Rxi, Sxi)
+        if P is None:
+            raise DesignError(
+                f"MPC terminal cost: the control DARE must have a stabilizing solution; got: "
+                f"{exc} (and the doubling algorithm found none)"
+            ) from exc
     return np.asarray(0.5 * (P + P.T), dtype=float)
+
+
+#: Relative residual below which `dare_by_doubling` accepts its solution.
+DARE_RESIDUAL_RTOL = 1e-9
+
+
+def dare_by_doubling(A: FloatArray, B: FloatArray, Q: FloatArray, R: FloatArray,
+                     S: FloatArray, *, max_iterations: int = 100) -> FloatArray | None:
+    """Stabilizing solution of the DARE with cross term by the doubling algorithm.
+
+    Solves ``P = A^T P A - (A^T P B + S)(R + B^T P B)^{-1}(B^T P A + S^T) + Q`` (scipy's
+    convention) by the structure-preserving doubling algorithm (Chu, Fan, Lin, "A
+    structure-preserving doubling algorithm for continuous-time algebraic Riccati
+    equations", Linear Algebra Appl. 396, 2005, and its discrete-time form): the cross
+    term is removed (``A - B R^-1 S^T``, ``Q - S R^-1 S^T``), then ``A_k, G_k, H_k``
+    double the horizon each step and ``H_k`` converges quadratically to ``P``.
+
+    Returns
+    -------
+    ndarray or None
+        ``P``, or None when the iteration does not converge, the DARE residual is
+        above `DARE_RESIDUAL_RTOL` relative to ``|P|``, or ``A - B K`` is not stable.
+    """
+    r_inv = np.linalg.inv(R)
+    a_k = A - B @ r_inv @ S.T
+    g_k = B @ r_inv @ B.T
+    h_k = Q - S @ r_inv @ S.T
+    eye = np.eye(A.shape[0])
+    for _ in range(max_iterations):
+        try:
+            w_inv = np.linalg.inv(eye + g_k @ h_k)
+        except np.linalg.LinAlgError:
+            return None
+        a_next = a_k @ w_inv @ a_k
+        g_next = g_k + a_k @ w_inv @ g_k @ a_k.T
+        h_next = h_k + a_k.T @ h_k @ w_inv @ a_k
+        done = float(np.linalg.norm(h_next - h_k)) <= 1e-14 * max(1.0, float(np.linalg.norm(h_next)))
+        a_k, g_k, h_k = a_next, g_next, h_next
+        if not np.all(np.isfinite(h_k)):
+            return None
+        if done:
+            break
+    else:
+        return None
+    P = 0.5 * (h_k + h_k.T)
+    gain = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A + S.T)
+    residual = A.T @ P @ A - (A.T @ P @ B + S) @ gain + Q - P
+    if float(np.linalg.norm(residual)) > DARE_RESIDUAL_RTOL * max(1.0, float(np.linalg.norm(P))):
+        return None
+    if np.max(np.abs(np.linalg.eigvals(A - B @ gain))) >= 1.0:
+        return None
+    return np.asarray(P, dtype=float)
 
 
 def lq_problem(
@@ -484,9 +543,11 @@ class MPCQP:
 
 
 __all__ = [
+    "DARE_RESIDUAL_RTOL",
     "MPCQP",
     "OSQP_INFINITY",
     "QPSolution",
+    "dare_by_doubling",
     "lq_problem",
     "move_bounds",
     "terminal_cost",

@@ -750,7 +750,7 @@ def _run_stages(
         hammerstein += _paper_models(clean, op, paper_orders, initial_state, clock, skipped)
     clock.stop()
 
-    final = _choose_final(linear, hammerstein)
+    final = _choose_final(linear, hammerstein, clean.n_samples, skipped)
     if final is None:
         raise IdentificationError(
             "run_paper_pipeline: no model could be identified from this record: "
@@ -775,13 +775,40 @@ def _run_stages(
     )
 
 
+def _slowest_tau_samples(model: HammersteinModel) -> float:
+    """``-1 / ln|z|`` of the largest root of ``A`` [samples] (``inf`` if ``|z| >= 1``)."""
+    radius = float(np.max(np.abs(np.roots(model.a)), initial=0.0)) if model.a.size > 1 else 0.0
+    if radius >= 1.0:
+        return math.inf
+    return 0.0 if radius == 0.0 else -1.0 / math.log(radius)
+
+
 def _choose_final(
-    linear: tuple[NamedModel, ...], hammerstein: tuple[NamedModel, ...]
+    linear: tuple[NamedModel, ...], hammerstein: tuple[NamedModel, ...], n_samples: int,
+    skipped: list[str],
 ) -> NamedModel | None:
+    """The noise-model Hammerstein (the paper's final model), else the Hammerstein-OE.
+
+    The noise model shares ``A`` with the input path: a slow drift of the output (a
+    random walk, as a wandering grid voltage makes) can pull a pole of ``A`` onto
+    ``z = 1`` and give the input an integrator that is not there. When the
+    noise-model Hammerstein's slowest time constant is longer than the record, the
+    Hammerstein-OE (whose poles are the input's alone) is the final model, and the
+    reason is listed with what was skipped.
+    """
     by_name = {m.name: m for m in hammerstein}
-    for name in ("hammerstein_armax", "hammerstein_oe"):
-        if name in by_name:
-            return by_name[name]
+    armax, oe = by_name.get("hammerstein_armax"), by_name.get("hammerstein_oe")
+    if armax is not None and oe is not None and _slowest_tau_samples(armax.model) > n_samples \
+            and _slowest_tau_samples(oe.model) <= n_samples:
+        skipped.append(
+            f"hammerstein_armax not used as the final model: its slowest time constant "
+            f"({_slowest_tau_samples(armax.model):.4g} samples) is longer than the "
+            f"{n_samples}-sample record, so the data cannot tell it from an integrator "
+            "(an output drift absorbed into A); hammerstein_oe is the final model")
+        return oe
+    for named in (armax, oe):
+        if named is not None:
+            return named
     if linear:
         return min(linear, key=lambda m: m.one_step_mse_kw2)
     return None

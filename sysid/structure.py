@@ -44,6 +44,12 @@ from sysid.residuals import CorrelationResult, autocorrelation, cross_correlatio
 SHORT_LOG_SAMPLES = 1500
 #: The paper's structure is kept unless the best beats its validation V by this share.
 PAPER_MARGIN = 0.05
+#: Among candidates whose validation V is within this share of the lowest, the one with
+#: the fewest parameters is the best (then the lowest V): a structure one order too
+#: large fits the noise as well as the plant, and its extra pole and zero can nearly
+#: cancel (seen: a double pole at z = 0.998 over a double zero 1e-5 away, whose
+#: static gain is the ratio of two numbers near zero).
+PARSIMONY_MARGIN = 0.02
 #: The paper's structure: (degree, nb, nf, nk).
 PAPER_ORDERS: tuple[int, int, int, int] = (2, 2, 1, 1)
 
@@ -185,6 +191,9 @@ class CandidateScore:
         ``N log V + 2 p`` and ``N log V + p log N`` on the estimation blocks.
     converged :
         Every search of this structure converged.
+    slowest_tau_samples :
+        Time constant of the slowest pole of ``F`` [samples], the largest over the
+        folds (``-1 / ln|z|``; ``inf`` for a pole on or outside the unit circle).
     """
 
     degree: int
@@ -197,6 +206,7 @@ class CandidateScore:
     aic: float
     bic: float
     converged: bool
+    slowest_tau_samples: float = 0.0
 
     @property
     def orders(self) -> tuple[int, int, int, int]:
@@ -267,6 +277,16 @@ def _split(
     return [(first, second), (second, first)]
 
 
+def _slowest_tau_samples(orders: HammersteinOrders, theta: np.ndarray) -> float:
+    """``-1 / ln|z|`` of the largest root of ``F`` [samples] (``inf`` if ``|z| >= 1``)."""
+    named = dict(zip(orders.parameter_names(), theta, strict=True))
+    f = [1.0, *(float(named[f"f{i}"]) for i in range(1, orders.na + 1))]
+    radius = float(np.max(np.abs(np.roots(f)), initial=0.0))
+    if radius >= 1.0:
+        return math.inf
+    return 0.0 if radius == 0.0 else -1.0 / math.log(radius)
+
+
 class _Grid:
     """Fits on the estimation folds, warm-started from nested lower orders."""
 
@@ -332,6 +352,7 @@ class _Grid:
             estimation_v_kw2=v_est, validation_v_kw2=float(np.mean(vals)),
             aic=n_est * log_v + 2 * p, bic=n_est * log_v + p * math.log(n_est),
             converged=converged,
+            slowest_tau_samples=max(_slowest_tau_samples(orders, t) for t in thetas),
         )
         self.scores[key] = score
         return score
@@ -431,8 +452,19 @@ def select_structure(
             grid.fit((degree, nb, nf, nk))
     if not grid.scores:
         raise IdentificationError("select_structure: no structure of the grid could be fitted")
-    best = min(grid.scores.values(), key=lambda s: s.validation_v_kw2)
-    paper = grid.scores.get(paper_orders)
+    # A time constant longer than the estimation record cannot be told from an integrator
+    # (a slow drift of the output fits as one): such candidates fit well over a short
+    # validation block and have a meaningless static gain. They stay in the table but
+    # are not chosen, unless nothing else could be fitted.
+    record = min(sum(y.size for y, _ in est) for est, _ in folds)
+    admissible = {k: s for k, s in grid.scores.items() if s.slowest_tau_samples <= record}
+    excluded = len(grid.scores) - len(admissible)
+    pool = admissible or grid.scores
+    lowest = min(s.validation_v_kw2 for s in pool.values())
+    best = min((s for s in pool.values()
+                if s.validation_v_kw2 <= (1.0 + PARSIMONY_MARGIN) * lowest),
+               key=lambda s: (s.n_parameters, s.validation_v_kw2))
+    paper = pool.get(paper_orders)
     if paper is None:
         chosen, reason = best, "the paper's structure could not be fitted; lowest validation V"
     elif best.validation_v_kw2 < (1.0 - PAPER_MARGIN) * paper.validation_v_kw2:
@@ -450,6 +482,12 @@ def select_structure(
             f"({paper.validation_v_kw2:.4g}) by more than {100 * PAPER_MARGIN:.0f} % (best: "
             f"{best.label()}, V {best.validation_v_kw2:.4g})"
         )
+    if excluded and admissible:
+        reason += (f"; {excluded} candidate(s) with a time constant longer than the "
+                   f"{record}-sample estimation record not chosen")
+    elif excluded:
+        reason += ("; every candidate has a time constant longer than the estimation record: "
+                   "the data cannot tell the slow mode from an integrator")
     auto, cross, fit_pct = _residual_tests(grid, chosen, folds)
     return StructureChoice(
         delay=delay,
@@ -490,6 +528,7 @@ def _residual_tests(
 
 __all__ = [
     "PAPER_MARGIN",
+    "PARSIMONY_MARGIN",
     "PAPER_ORDERS",
     "SHORT_LOG_SAMPLES",
     "CandidateScore",

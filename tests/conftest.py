@@ -6,8 +6,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import settings
 
 from sysid import HammersteinModel, OperatingPoint
+
+# No per-example deadline: `make test` runs the suite on two workers on a shared 2-core
+# machine, where an example's wall time says nothing about the code (speed goals live
+# in the benchmarks, never in assertions).
+settings.register_profile("czmpc", deadline=None)
+settings.load_profile("czmpc")
 
 REPO = Path(__file__).resolve().parents[1]
 SHIPPED_EXPERIMENT = REPO / "data" / "cz_heater_experiment.csv"

@@ -7,7 +7,8 @@ as `czmpc commission` does, run the MPC on it through setpoints 36 -> 40 -> 45 -
 on the same plant, and compare its IAE with the MPC on the model from the paper's
 experiment. Prints a table (test length, orders, fit, IAE, IAE ratio, offset-free) and
 draws the IAE ratio against the test length; with --record-benchmarks it also puts
-the table into BENCHMARKS.md. Seeds are fixed: the same command gives the same numbers.
+the table into BENCHMARKS.md. Each test runs --seeds times (seeds 0..N-1, fixed: the same command gives the
+same numbers); a ratio compares runs of the same seed.
 
 A run takes a few minutes (each identification takes 10 s to 1 min).
 
@@ -27,29 +28,29 @@ HELP = "test length against closed-loop tracking for a heater unlike the shipped
 ORDER = 84
 
 
-def _case(text: str) -> tuple[str, float]:
-    """``KIND:SECONDS`` or ``paper`` (argparse type)."""
-    if text == "paper":
-        return "paper", 23998.0
-    kind, _, seconds = text.partition(":")
-    if kind not in _argtypes.TEST_SIGNAL_KINDS:
+def _case(text: str) -> tuple[str, float | None]:
+    """``KIND:SECONDS``, ``KIND`` (its shortest design) or ``paper`` (argparse type)."""
+    kind, colon, seconds = text.partition(":")
+    if kind not in (*_argtypes.TEST_SIGNAL_KINDS, "paper") or (kind == "paper" and colon):
         raise argparse.ArgumentTypeError(
-            f"expected KIND:SECONDS with KIND one of {', '.join(_argtypes.TEST_SIGNAL_KINDS)}, "
-            f"or 'paper'; got {text!r}")
-    return kind, _argtypes.number(above=0.0, unit="s")(seconds)
+            f"expected KIND:SECONDS or KIND with KIND one of "
+            f"{', '.join(_argtypes.TEST_SIGNAL_KINDS)}, or 'paper'; got {text!r}")
+    return kind, _argtypes.number(above=0.0, unit="s")(seconds) if colon else None
 
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
-    parser.add_argument("--case", metavar="KIND:S|paper", type=_case, action="append",
+    parser.add_argument("--case", metavar="KIND[:S]|paper", type=_case, action="append",
                         default=None,
                         help="a test: a design kind and its length in plant seconds "
-                             "(multilevel:7200), or 'paper' for the paper's experiment; "
-                             "repeatable (default: multilevel 4800/6000/7200, gbn 12000, "
-                             "mixed 28800, paper)")
-    parser.add_argument("--seed", metavar="N", type=_argtypes.integer(0), default=0,
-                        help="seed of the designs and the noise (default: 0)")
+                             "(multilevel:7200), a kind alone for its shortest design "
+                             "(mixed), or 'paper' for the paper's experiment; repeatable "
+                             "(default: multilevel:4800, multilevel:6000, multilevel:7200, "
+                             "gbn:12000, mixed, paper)")
+    parser.add_argument("--seeds", metavar="N", type=_argtypes.positive_int, default=3,
+                        help="runs of every test, seeds 0..N-1 (design, test noise, "
+                             "closed-loop noise) (default: 3)")
     parser.add_argument("--out", metavar="DIR", type=Path, default=Path("out/bench/commission"),
                         help="where the figure goes (default: out/bench/commission)")
     parser.add_argument("--record-benchmarks", action="store_true",
@@ -69,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
         MAX_TEST_S,
         LengthCase,
         format_study,
-        reference_iae_kw_s,
+        iae_ratio,
         run_length_study,
     )
     from czmpc.reports.benchmarks_md import machine_info, write_benchmarks_section
@@ -77,19 +78,18 @@ def run(args: argparse.Namespace) -> int:
 
     cases = DEFAULT_CASES if args.case is None else tuple(
         LengthCase(kind=k, duration_s=s) for k, s in args.case)
-    words = ["czmpc", NAME, "--seed", str(args.seed)]
+    words = ["czmpc", NAME, "--seeds", str(args.seeds)]
     for c in args.case or ():
-        words += ["--case", "paper" if c[0] == "paper" else f"{c[0]}:{c[1]:g}"]
+        words += ["--case", c[0] if c[1] is None else f"{c[0]}:{c[1]:g}"]
     progress = Progress()
-    rows = run_length_study(cases, seed=args.seed, progress=progress)
+    rows = run_length_study(cases, seeds=range(args.seeds), progress=progress)
     text = format_study(rows, command=" ".join(shlex.quote(w) for w in words),
                         machine=machine_info().describe())
     print(text, end="")
     args.out.mkdir(parents=True, exist_ok=True)
-    ref = reference_iae_kw_s(rows)
     fig = length_study_figure(
         args.out / "test_length.png",
-        [(r.case.kind, r.test_s, r.iae_kw_s / ref) for r in rows if r.failure is None],
+        [(r.case.kind, r.test_s, iae_ratio(r, rows)) for r in rows if r.failure is None],
         goal_ratio=MAX_IAE_RATIO, max_test_s=MAX_TEST_S)
     progress(f"wrote {fig}")
     if args.record_benchmarks:

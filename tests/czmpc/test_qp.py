@@ -14,7 +14,7 @@ from czmpc.inversion import InputMap, build_input_map
 from czmpc.qp import MPCQP, move_bounds
 from czmpc.realization import InnovationsForm, innovations_form
 from czmpc.settings import OSQPOptions
-from sysid.model import HammersteinModel
+from sysid.model import HammersteinModel, OperatingPoint
 
 #: OSQP run to eps 1e-9 with polishing: the polished unconstrained solution solves the
 #: KKT system directly, so it matches the closed form to about 1e-9 relative; 1e-6 kW
@@ -227,3 +227,51 @@ def test_terminal_cost_without_stabilizing_solution_is_a_design_error() -> None:
     with pytest.raises(DesignError, match="control DARE must have a stabilizing solution"):
         terminal_cost(A, np.array([0.0, 1.0]), np.array([1.0, 1.0]), output_weight=1.0,
                       input_target_weight=0.01, move_weight=0.1)
+
+
+def _linear_model(a: list[float], b: list[float], c: list[float]) -> HammersteinModel:
+    return HammersteinModel(kind="hammerstein", linear_block="armax", ts_s=2.0,
+                            operating_point=OperatingPoint(triac_pct=45.0, power_kw=45.0),
+                            a=a, b=b, c=c, input_poly=[1.0], noise_std_kw=0.1,
+                            input_range_pct=(20.0, 70.0))
+
+
+def _lq(a: list[float], b: list[float], c: list[float]) -> tuple[np.ndarray, ...]:
+    from czmpc.qp import lq_problem
+
+    form = innovations_form(_linear_model(a, b, c))
+    return lq_problem(form.A, form.B, form.C, output_weight=1.0, input_target_weight=0.01,
+                      move_weight=0.1)
+
+
+def test_dare_by_doubling_matches_scipy_where_scipy_solves() -> None:
+    from czmpc.qp import dare_by_doubling
+
+    A, B, Q, R, S = _lq([1.0, -0.99], [0.0, 1.0, -0.991], [1.0, -0.9])
+    reference = scipy.linalg.solve_discrete_are(A, B, Q, R, s=S)
+    P = dare_by_doubling(A, B, Q, R, S)
+    assert P is not None
+    # both solve the same well-conditioned DARE: agreement to rounding of |P| ~ 1e2
+    np.testing.assert_allclose(P, reference, rtol=1e-8, atol=1e-8 * np.abs(reference).max())
+
+
+def test_terminal_cost_survives_a_dare_that_scipy_cannot_reorder() -> None:
+    # identified on a heater with a 3-sample delay (czmpc bench-commission, seed 0): a
+    # double pole at 0.998 over a nearly cancelling double zero, next to the delay
+    # states' poles at 0; scipy's QZ reordering fails on it
+    from czmpc.qp import terminal_cost
+
+    a = [1.0, -1.9963490489735305, 0.9963597332532107]
+    b = [0.0, 0.0, 0.0, 1.0, -1.9965315612772834, 0.9965405535039659]
+    c = [1.0, -1.794239969121802, 0.7946518608054333]
+    A, B, Q, R, S = _lq(a, b, c)
+    with pytest.raises(ValueError, match="Reordering"):
+        scipy.linalg.solve_discrete_are(A, B, Q, R, s=S)
+    form = innovations_form(_linear_model(a, b, c))
+    P = terminal_cost(form.A, form.B, form.C, output_weight=1.0, input_target_weight=0.01,
+                      move_weight=0.1)
+    # independent checks: the Riccati residual and a stable closed loop
+    K = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A + S.T)
+    residual = A.T @ P @ A - (A.T @ P @ B + S) @ K + Q - P
+    assert np.abs(residual).max() < 1e-8 * np.abs(P).max()
+    assert np.abs(np.linalg.eigvals(A - B @ K)).max() < 1.0

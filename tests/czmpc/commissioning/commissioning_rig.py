@@ -15,10 +15,13 @@ from pathlib import Path
 
 #: Every loopback test runs the plant at this many samples per Ts (period 2 s / 50 = 40 ms).
 TIME_SCALE = 50.0
-#: ... except the journey tests, which identify a model from the loopback test: at 40 ms
-#: periods an OPC UA read-step-write (about 25 ms median, 76 ms p99, BENCHMARKS.md) overruns
-#: often enough to corrupt the identification now and then; at 100 ms it does not.
-JOURNEY_TIME_SCALE = 20.0
+#: The journey tests identify a model from the loopback test: at 40 ms periods an OPC UA
+#: read-step-write (about 25 ms median, 76 ms p99, BENCHMARKS.md) overruns often enough
+#: to corrupt the identification now and then; at 100 ms it does not. So their plant
+#: samples every 5 s (`fast_heater_model` at ``ts_s = JOURNEY_TS_S``: the same
+#: difference equation, so the same journey in samples), at a time scale of 50.
+JOURNEY_TS_S = 5.0
+JOURNEY_TIME_SCALE = 50.0
 
 #: Longest wait for the served plant to listen [s wall] (Python start-up under load).
 SERVER_START_S = 60.0
@@ -77,10 +80,10 @@ def served_plant(tmp_path: Path, *args: str, duration_s: float,
 
 def write_config(tmp_path: Path, endpoint: str, *, band_kw: tuple[float, float],
                  safe_triac_pct: float = 40.0, model: str | None = None,
-                 extra: str = "", time_scale: float = TIME_SCALE) -> Path:
+                 extra: str = "", time_scale: float = TIME_SCALE, ts_s: float = 2.0) -> Path:
     """A run config for the served plant (no [controller] unless ``model``)."""
     nodes = "\n".join(f'{k} = "{v}"' for k, v in NODES.items())
-    text = (f'[plant]\nendpoint = "{endpoint}"\nts_s = 2.0\ntime_scale = {time_scale:g}\n'
+    text = (f'[plant]\nendpoint = "{endpoint}"\nts_s = {ts_s:g}\ntime_scale = {time_scale:g}\n'
             f"max_sample_age_s = 1.0\n[nodes]\n{nodes}\n"
             + (f'[controller]\nmodel = "{model}"\n[run]\nsetpoint_kw = 45.0\nlog = "run.csv"\n'
                if model else '[run]\nlog = "run.csv"\n')
@@ -99,12 +102,12 @@ def write_schedule(path: Path, times_s: list[float], triac_pct: list[float]) -> 
     return path
 
 
-def fast_heater_model(path: Path) -> Path:
+def fast_heater_model(path: Path, ts_s: float = 2.0) -> Path:
     """A model plant shaped like the shipped heater model but ~6 times faster (for CI).
 
-    Its slow mode has a1 = -0.95 (time constant -2 / ln 0.95 = 39 s, against about
-    250 s for the shipped model), b2 = -0.96 (static gain 0.8 of the instantaneous
-    one, as the heater's sag), the shipped f(ds) and C, noise std 0.05 kW.
+    Its slow mode has a1 = -0.95 (time constant -Ts / ln 0.95 = 39 s at Ts = 2 s, against
+    about 250 s for the shipped model; `fast_tau_s`), b2 = -0.96 (static gain 0.8 of the
+    instantaneous one, as the heater's sag), the shipped f(ds) and C, noise std 0.05 kW.
     """
     import json
 
@@ -112,12 +115,19 @@ def fast_heater_model(path: Path) -> Path:
 
     doc = json.loads(shipped_path("cz_heater_model.json").read_text(encoding="utf-8"))
     doc.update({"A": [1.0, -0.95], "B": [0.0, 1.0, -0.96], "noise_std_kw": 0.05,
-                "covariance": None})
+                "covariance": None, "ts_s": ts_s})
     doc.pop("covariance")
     doc["provenance"] = {"what": "test plant: the shipped heater model made faster"}
     path.write_text(json.dumps(doc), encoding="utf-8")
     return path
 
 
-#: Time constant of `fast_heater_model`'s slow mode [s].
+def fast_tau_s(ts_s: float = 2.0) -> float:
+    """Time constant of `fast_heater_model`'s slow mode [s]: -Ts / ln 0.95."""
+    import math
+
+    return -ts_s / math.log(0.95)
+
+
+#: ... at Ts = 2 s (39 s).
 FAST_TAU_S = 39.0

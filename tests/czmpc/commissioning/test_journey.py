@@ -1,7 +1,8 @@
 """`czmpc commission` on loopback: from a bare (served) heater to a running MPC.
 
-The served plant is `commissioning_rig.fast_heater_model` (time constant 39 s) at a
-time scale of 50, so the whole journey takes about two minutes of wall time.
+The served plant is `commissioning_rig.fast_heater_model` sampled every 5 s (time
+constant 97 s) at a time scale of 50 (100 ms periods), so each journey takes about a
+minute of wall time.
 """
 
 from __future__ import annotations
@@ -12,9 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from commissioning_rig import (
-    FAST_TAU_S,
     JOURNEY_TIME_SCALE,
+    JOURNEY_TS_S,
     fast_heater_model,
+    fast_tau_s,
     served_plant,
     write_config,
 )
@@ -27,7 +29,7 @@ from sysid.data import Dataset
 from sysid.model import HammersteinModel
 
 pytest.importorskip("asyncua")
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]
 
 #: The issue's offset-free bound: |mean error| over the last 20 samples [kW].
 OFFSET_FREE_ATOL_KW = 0.1
@@ -48,18 +50,19 @@ def _says_ready(model: HammersteinModel, validation: Dataset, settings: MPCSetti
 
 
 def test_commission_then_switch_on_tracks_offset_free(tmp_path: Path) -> None:
-    plant = fast_heater_model(tmp_path / "plant.json")
+    plant = fast_heater_model(tmp_path / "plant.json", ts_s=JOURNEY_TS_S)
     with served_plant(tmp_path, "--plant", "model", "--model", str(plant), "--initial-triac-pct",
-                      "45", "--safe-triac-pct", "40", duration_s=20000.0,
+                      "45", "--safe-triac-pct", "40", duration_s=50000.0,
                       time_scale=JOURNEY_TIME_SCALE) as endpoint:
         path = write_config(tmp_path, endpoint, band_kw=(20.0, 70.0),
-                            time_scale=JOURNEY_TIME_SCALE)
+                            time_scale=JOURNEY_TIME_SCALE, ts_s=JOURNEY_TS_S)
         path.write_text(path.read_text(encoding="utf-8").replace(
             '[run]\nlog = "run.csv"\n', '[run]\nlog = "run.csv"\nsetpoint_kw = 44.0\n'),
             encoding="utf-8")
         config = load_run_config(path)
-        plan = JourneyPlan(range_pct=(38.0, 52.0), tau_s=FAST_TAU_S, out_dir=tmp_path / "out",
-                           kind="steps", max_step_pct=5.0, switch_on=True, run_duration_s=300.0)
+        plan = JourneyPlan(range_pct=(38.0, 52.0), tau_s=fast_tau_s(JOURNEY_TS_S),
+                           out_dir=tmp_path / "out",
+                           kind="steps", max_step_pct=5.0, switch_on=True, run_duration_s=750.0)
         result = commission(config, plan, checker=_says_ready)
     out = tmp_path / "out"
     assert result.stage == "switched on" and result.ok, result.messages
@@ -84,13 +87,14 @@ def test_commission_then_switch_on_tracks_offset_free(tmp_path: Path) -> None:
 def test_commission_with_the_real_check_stores_its_verdict(tmp_path: Path) -> None:
     """With `czmpc check-model` installed (h/health), the verdict is made and stored."""
     pytest.importorskip("czmpc.commissioning.check")
-    plant = fast_heater_model(tmp_path / "plant.json")
+    plant = fast_heater_model(tmp_path / "plant.json", ts_s=JOURNEY_TS_S)
     with served_plant(tmp_path, "--plant", "model", "--model", str(plant), "--initial-triac-pct",
-                      "45", "--safe-triac-pct", "40", duration_s=20000.0,
+                      "45", "--safe-triac-pct", "40", duration_s=50000.0,
                       time_scale=JOURNEY_TIME_SCALE) as endpoint:
         config = load_run_config(write_config(tmp_path, endpoint, band_kw=(20.0, 70.0),
-                                              time_scale=JOURNEY_TIME_SCALE))
-        plan = JourneyPlan(range_pct=(38.0, 52.0), tau_s=FAST_TAU_S, out_dir=tmp_path / "out",
+                                              time_scale=JOURNEY_TIME_SCALE, ts_s=JOURNEY_TS_S))
+        plan = JourneyPlan(range_pct=(38.0, 52.0), tau_s=fast_tau_s(JOURNEY_TS_S),
+                           out_dir=tmp_path / "out",
                            kind="steps", max_step_pct=5.0, mc_runs=5)
         result = commission(config, plan)
     assert result.stage == "checked"

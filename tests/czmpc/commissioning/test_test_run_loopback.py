@@ -27,7 +27,7 @@ from sysid.design import ExcitationSpec, design_test_signal
 from sysid.modelfile import load_model
 
 pytest.importorskip("asyncua")
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]
 
 #: Mean static gain over the test band [kW/%] of the identified model against the served
 #: model's: 550 samples of a 4-level staircase held 4 time constants each pin it to a

@@ -21,7 +21,7 @@ from plant_rig import TIME_SCALE, free_port, served_nodes
 from czmpc.runtime.loop import LOG_COLUMNS
 from czmpc.shipped import shipped_path
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]
 
 CLI = [sys.executable, "-c", "import sys; from czmpc.cli import main; sys.exit(main())"]
 #: Rate limit of the runtime for the shipped model: 5 % of its 33..65 % range [%/step].

@@ -26,7 +26,7 @@ from sim.model_plant import ModelPlant
 from sim.scenario import scenario_from_dict
 from sysid.modelfile import load_model
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]
 
 #: Steady-state tracking band [kW] on the noise-free model plant: the controller is
 #: offset-free, so what is left is the residue of the last setpoint step's transient

@@ -9,9 +9,12 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
 from opcua_rig import PASSWORD, PASSWORD_ENV, USER, Pki, secured_server
 
 from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
+
+pytestmark = pytest.mark.realtime
 
 #: The issue's bound on the time to a security verdict [s].
 VERDICT_BOUND_S = 10.0

@@ -18,6 +18,8 @@ from opcua_rig import PASSWORD, PASSWORD_ENV, USER, Pki, free_port, run_async, s
 from czmpc.runtime.secure_client import PlantUnreachableError, SecurityRejectedError, connect
 from czmpc.runtime.security import INSECURE_LOOPBACK, SecuritySettings, parse_security
 
+pytestmark = pytest.mark.realtime
+
 #: The issue's bound on the time to a security verdict [s].
 VERDICT_BOUND_S = 10.0
 

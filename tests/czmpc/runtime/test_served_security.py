@@ -49,6 +49,8 @@ from czmpc.shipped import shipped_path
 from sim.model_plant import ModelPlant
 from sysid.modelfile import load_model
 
+pytestmark = pytest.mark.realtime
+
 #: Time within which a refused `plant serve` must have exited [s] (interpreter start-up
 #: and imports included; the refusal itself needs no network wait).
 REFUSAL_BOUND_S = 15.0

@@ -25,7 +25,7 @@ from opcua_rig import OPERATOR_ENV, PASSWORD_ENV, USER, Pki, free_port, served_s
 from czmpc.runtime.config import load_run_config
 from czmpc.shipped import shipped_path
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]
 
 CLI = [sys.executable, "-m", "czmpc.cli"]
 #: Plant samples per Ts of wall time (the issue asks for >= 20): a 100 ms period.
