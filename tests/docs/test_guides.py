@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 import shlex
+import shutil
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,7 @@ from typing import Any
 import pytest
 
 from czmpc.cli import build_parser
+from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
 
 REPO = Path(__file__).resolve().parents[2]
 GUIDES = sorted((REPO / "docs" / "guides").glob("*.rst"))
@@ -44,7 +46,7 @@ def _czmpc_commands(text: str) -> list[list[str]]:
 
 def test_the_guides_are_found() -> None:
     names = {p.stem for p in GUIDES}
-    assert {"identify", "tune", "plant_link", "campaigns", "commission"} <= names
+    assert {"identify", "tune", "plant_link", "campaigns", "commission", "regress"} <= names
     assert sum(len(_czmpc_commands(p.read_text(encoding="utf-8"))) for p in GUIDES) >= 15
 
 
@@ -84,15 +86,24 @@ def test_the_guides_run_configs_pass_the_validator(tmp_path: Path) -> None:
 
 
 def test_the_guides_campaign_spec_passes_the_validator(tmp_path: Path) -> None:
-    import shutil
-
     from czmpc.campaigns.campaign import spec_from_dict
-    from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
 
-    (doc,) = [doc for _, doc in _toml_blocks() if "controllers" in doc]
+    (doc,) = [doc for _, doc in _toml_blocks() if "controllers" in doc and "model" in doc]
     shutil.copy(shipped_path(HAMMERSTEIN_MODEL_JSON), tmp_path / doc["model"])
     spec = spec_from_dict(doc, source=str(tmp_path / "mine.toml"), base_dir=tmp_path)
     assert len(spec.expand()) == 620          # as the guide counts them
+
+
+def test_the_guides_regression_suite_passes_the_validator(tmp_path: Path) -> None:
+    from czmpc.testing.suite import suite_from_dict
+
+    (doc,) = [doc for _, doc in _toml_blocks() if "controllers" in doc and "model" not in doc]
+    for entry in doc["controllers"]:       # the reader's own files, made here
+        shutil.copy(shipped_path(HAMMERSTEIN_MODEL_JSON), tmp_path / entry["model"])
+        (tmp_path / entry["settings"]).write_text("horizon_steps = 60\n", encoding="utf-8")
+    suite = suite_from_dict(doc, source=str(tmp_path / "suite.toml"), base_dir=tmp_path)
+    assert suite.name == "puller-7"
+    assert len(suite.expand()) == 2 * 3      # 2 scenarios x (model + 2 perturbed plants)
 
 
 @pytest.mark.slow
