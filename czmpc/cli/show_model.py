@@ -1,7 +1,13 @@
 """Print a model file as an engineer reads it: equation, parameters, gains, time constants.
 
 Checks the file against the czmpc-model/1 contract on the way (a bad file exits with
-code 2 and says what is wrong).
+code 2 and says what is wrong). With --plot DIR it also draws, linearized at --levels-pct
+(default: the ends and the middle of the identified input range): the response to a
+1-unit input step, the Bode plot up to the Nyquist frequency and the poles and zeros,
+each with a 95 % band from models drawn from the parameter covariance (--draws, seeded).
+--export-mat FILE writes the model and those linearizations for MATLAB or Octave
+(tf(num(i,:), den(i,:), Ts)); in Python, sysid.export.to_python_control gives
+python-control objects (pip install 'czmpc[control]').
 """
 
 from __future__ import annotations
@@ -16,7 +22,24 @@ ORDER = 30
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
+    from pathlib import Path
+
+    from czmpc.cli import _argtypes
+
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("model", metavar="MODEL.json", help="model file to show")
+    parser.add_argument("--plot", metavar="DIR", type=Path, default=None,
+                        help="also draw step.png, bode.png and poles_zeros.png into DIR")
+    parser.add_argument("--levels-pct", metavar="PCT", type=_argtypes.number(unit="%"),
+                        nargs="+", default=None,
+                        help="input levels to linearize at (default: the ends and the middle "
+                             "of the identified input range)")
+    parser.add_argument("--draws", metavar="N", type=_argtypes.integer(0), default=200,
+                        help="models drawn from the parameter covariance for the bands "
+                             "(default: 200; 0: no bands)")
+    parser.add_argument("--export-mat", metavar="FILE.mat", type=Path, default=None,
+                        help="write the model and its linearizations at the levels as a "
+                             "MATLAB .mat file")
 
 
 def describe_model(model: object) -> str:
@@ -170,8 +193,34 @@ def model_warnings(model: object) -> tuple[str, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Load and print the model."""
+    """Load and print the model; draw and export it when asked."""
     from sysid.modelfile import load_model
 
-    print(describe_model(load_model(args.model)))
+    model = load_model(args.model)
+    print(describe_model(model))
+    if args.plot is None and args.export_mat is None:
+        return 0
+    lo, hi = model.input_range_pct
+    levels = tuple(args.levels_pct) if args.levels_pct else (lo, 0.5 * (lo + hi), hi)
+    if args.export_mat is not None:
+        from sysid.export import save_mat
+
+        args.export_mat.parent.mkdir(parents=True, exist_ok=True)
+        save_mat(model, args.export_mat, levels)
+        print(f"wrote {args.export_mat} (linearized at {', '.join(f'{v:g}' for v in levels)} "
+              f"{model.effective_units.input})")
+    if args.plot is not None:
+        from czmpc.reports.model_figures import (
+            bode_figure,
+            draw_models,
+            pole_zero_figure,
+            step_figure,
+        )
+
+        args.plot.mkdir(parents=True, exist_ok=True)
+        draws = draw_models(model, args.draws)
+        paths = (step_figure(args.plot / "step.png", model, levels, draws),
+                 bode_figure(args.plot / "bode.png", model, levels, draws),
+                 pole_zero_figure(args.plot / "poles_zeros.png", model, draws))
+        print(f"{draws.note}; wrote {', '.join(str(p) for p in paths)}")
     return 0

@@ -55,8 +55,10 @@ import numpy as np
 
 from czmpc.settings import MPCSettings
 from sysid.data import Dataset
+from sysid.errors import ModelFileError
 from sysid.model import HammersteinModel
 from sysid.polynomials import roots_z
+from sysid.uncertainty import ParameterError, model_with_parameters, parameter_distribution
 
 Verdict = Literal["ready", "ready with conditions", "not ready"]
 ItemStatus = Literal["pass", "condition", "fail", "skipped"]
@@ -359,61 +361,23 @@ def _data_checks(model: HammersteinModel, data: Dataset | None) -> list[CheckIte
 
 
 def _covariance(model: HammersteinModel) -> tuple[tuple[str, ...], np.ndarray, np.ndarray] | None:
-    """Parameter names, values and covariance, from the file's covariance or std errors."""
-    names = model.provenance.parameter_names
-    values = model.provenance.extra.get("parameters")
-    if names is None or not isinstance(values, (list, tuple)) or len(values) != len(names):
-        return None
-    theta = np.asarray(values, dtype=float)
-    cov = model.covariance_matrix
-    if cov is None:
-        std = model.provenance.extra.get("std_errors")
-        if not isinstance(std, (list, tuple)) or len(std) != len(names):
-            return None
-        cov = np.diag(np.asarray(std, dtype=float) ** 2)
-    if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(cov))):
-        return None
-    return names, theta, np.asarray(cov, dtype=float)
-
-
-def model_with_parameters(model: HammersteinModel, names: tuple[str, ...],
-                          theta: np.ndarray) -> HammersteinModel | None:
-    """``model`` with the named parameters set (``a``/``f``, ``b``, ``c``, ``k``, ``d``).
-
-    ``a_i`` (``f_i`` for OE, with ``C = A``) set ``A[i]``; ``b_j`` set ``B[j]``; ``c_i``
-    set ``C[i]``; ``k_i`` set ``C[i] = A[i] + k_i`` (the innovations-form gain of the
-    ARMAX fits); ``d_i`` the input polynomial's ``i``-th coefficient. Returns None for a
-    name of another kind, or a result the model type refuses (unstable).
-    """
-    a = np.array(model.a, dtype=float)
-    b = np.array(model.b, dtype=float)
-    c = np.array(model.c, dtype=float)
-    poly = np.array(model.input_poly, dtype=float)
-    ks: dict[int, float] = {}
-    for name, value in zip(names, theta, strict=True):
-        kind, index_text = name[:1], name[1:]
-        if not index_text.isdigit():
-            return None
-        i = int(index_text)
-        if kind in "af" and 1 <= i < len(a):
-            a[i] = value
-        elif kind == "b" and 0 <= i < len(b):
-            b[i] = value
-        elif kind == "c" and 1 <= i < len(c):
-            c[i] = value
-        elif kind == "k" and 1 <= i < len(c):
-            ks[i] = float(value)
-        elif kind == "d" and 1 <= i <= len(poly):
-            poly[i - 1] = value
-        else:
-            return None
-    if model.linear_block == "oe":
-        c = a.copy()
-    for i, k in ks.items():
-        c[i] = (a[i] if i < len(a) else 0.0) + k
+    """Parameter names, values and covariance (`sysid.uncertainty`: the file's covariance,
+    else its standard errors), or None when the model records neither."""
     try:
-        return model.with_updates(a=a, b=b, c=c, input_poly=poly, covariance=None)
-    except ValueError:
+        dist = parameter_distribution(model)
+    except ParameterError:
+        return None
+    if not (np.all(np.isfinite(dist.theta)) and np.all(np.isfinite(dist.covariance))):
+        return None
+    return dist.names, dist.theta, dist.covariance
+
+
+def _with_parameters(model: HammersteinModel, names: tuple[str, ...],
+                     theta: np.ndarray) -> HammersteinModel | None:
+    """`sysid.uncertainty.model_with_parameters`, None for a draw the model type refuses."""
+    try:
+        return model_with_parameters(model, names, theta)
+    except (ParameterError, ModelFileError):
         return None
 
 
@@ -431,7 +395,7 @@ def _gain_uncertainty(model: HammersteinModel,
         h = 1e-6 * max(1.0, abs(theta[i]))
         up = theta.copy()
         up[i] += h
-        m = model_with_parameters(model, names, up)
+        m = _with_parameters(model, names, up)
         if m is None:
             return CheckItem(name="parameter uncertainty", status="condition",
                              detail="the parameters cannot be mapped to the model's "
@@ -506,7 +470,7 @@ def _monte_carlo(model: HammersteinModel,
     n_good = n_free = n_redrawn = 0
     while len(ratios) < n_runs and n_redrawn <= 3 * n_runs:
         draw = rng.multivariate_normal(theta, sigma, method="eigh")
-        plant_model = model_with_parameters(model, names, draw)
+        plant_model = _with_parameters(model, names, draw)
         if plant_model is None or plant_model.delay_steps < 1:
             n_redrawn += 1
             continue
@@ -590,4 +554,4 @@ def check_model(model: HammersteinModel, data: Dataset | None = None,
 
 __all__ = ["CHECK_FORMAT", "CheckItem", "ItemStatus", "ModelCheck",
            "MonteCarloSummary", "Verdict", "check_model", "check_path", "file_sha256",
-           "model_with_parameters", "read_check", "write_check"]
+           "read_check", "write_check"]

@@ -141,3 +141,14 @@ def test_benchmark_reports_every_executor_and_consistent_rates() -> None:
     assert text.count("\n| ") == 5  # header, separator, three executors
     assert all(t.load_average_start >= 0 and t.load_average_end >= 0 for t in timings)
     assert f"{timings[0].load_average_start:.1f} / {timings[0].load_average_end:.1f}" in text
+
+
+def test_dask_batches_keep_every_run_once_in_order() -> None:
+    from czmpc.campaigns.runner import DASK_BATCH_MAX, dask_batches
+
+    runs = list(range(10_001))
+    batches = dask_batches(runs, 2)   # type: ignore[arg-type]
+    assert [r for b in batches for r in b] == runs
+    assert max(len(b) for b in batches) == DASK_BATCH_MAX
+    small = dask_batches(list(range(30)), 2)   # type: ignore[arg-type]
+    assert [len(b) for b in small] == [1] * 30      # few runs: one per task, all workers busy

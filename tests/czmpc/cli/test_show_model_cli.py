@@ -64,3 +64,27 @@ def test_show_model_prints_units_of_the_file(
     out = capsys.readouterr().out
     assert "units: input V, output degC\n" in out
     assert "noise std(e) = 0.01341 degC" in out and "kW" not in out
+
+
+def test_show_model_draws_step_bode_and_poles_with_bands_and_exports_a_mat(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import scipy.io
+
+    code = main(["show-model", str(shipped_path("cz_heater_model.json")), "--plot",
+                 str(tmp_path / "fig"), "--levels-pct", "40", "55", "--draws", "50",
+                 "--export-mat", str(tmp_path / "mat" / "model.mat")])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "percentiles of 50 models drawn from the parameter covariance" in out
+    for name in ("step.png", "bode.png", "poles_zeros.png"):
+        assert (tmp_path / "fig" / name).stat().st_size > 10_000, name
+    mat = scipy.io.loadmat(tmp_path / "mat" / "model.mat")
+    assert mat["levels"].ravel().tolist() == [40.0, 55.0]
+    assert "wrote" in out and "linearized at 40, 55 %" in out
+
+
+def test_show_model_without_draws_says_there_are_no_bands(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["show-model", str(shipped_path("cz_heater_model.json")), "--plot",
+                 str(tmp_path), "--draws", "0"]) == 0
+    assert "no bands (no draws asked for)" in capsys.readouterr().out
