@@ -16,15 +16,13 @@ demo: $(STAMP)
 	$(VENV)/bin/czmpc demo --out out/demo
 
 # CI runs `make test` only (.ci/run), so the documentation site is built here too.
-# The suite runs on two workers (pytest-xdist), except the wall-clock loops against a
-# served plant (marker realtime): they run after, alone, since a busy core overruns
-# their periods.
+# tools/run_suite.sh: the suite on two workers (pytest-xdist) and then the docs build at
+# nice 10, while the wall-clock loops against a served plant (marker realtime) run at
+# normal priority, so that the workers never delay a loop period.
 test: $(STAMP)
 	$(VENV)/bin/ruff check sysid sim czmpc tests docs
 	$(VENV)/bin/mypy sysid sim czmpc
-	$(PY) -m pytest -q -p no:cacheprovider -n 2 --dist loadfile -m "not realtime"
-	$(PY) -m pytest -q -p no:cacheprovider -m realtime
-	$(MAKE) docs
+	bash tools/run_suite.sh $(PY)
 
 # The documentation site: warnings are errors, every gallery example is executed.
 # Output: docs/_build/html/index.html

@@ -35,6 +35,10 @@ _EXPORTS = {
     **dict.fromkeys(["autocorrelation", "cross_correlation"], "sysid.residuals"),
     **dict.fromkeys(["InputStep", "detect_steps"], "sysid.steps"),
     **dict.fromkeys(["PipelineResult", "run_paper_pipeline"], "sysid.pipeline"),
+    **dict.fromkeys(["ExportError", "Linearization", "linearize", "save_mat",
+                     "to_python_control"], "sysid.export"),
+    **dict.fromkeys(["ParameterDistribution", "ParameterError", "draw_parameters",
+                     "model_with_parameters", "parameter_distribution"], "sysid.uncertainty"),
 }
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 __all__ = sorted(_EXPORTS)
@@ -51,6 +55,7 @@ if TYPE_CHECKING:
         SysidError,
         UnstableModelError,
     )
+    from sysid.export import ExportError, Linearization, linearize, save_mat, to_python_control
     from sysid.greybox import GreyBoxStructure, fit_greybox
     from sysid.hammerstein import fit_hammerstein
     from sysid.historian import LoadPolicy, LoadReport, load_log
@@ -69,3 +74,10 @@ if TYPE_CHECKING:
     from sysid.result import IdentificationResult
     from sysid.simulate import predict_one_step, simulate
     from sysid.steps import InputStep, detect_steps
+    from sysid.uncertainty import (
+        ParameterDistribution,
+        ParameterError,
+        draw_parameters,
+        model_with_parameters,
+        parameter_distribution,
+    )
