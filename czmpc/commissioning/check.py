@@ -454,17 +454,19 @@ def _monte_carlo(model: HammersteinModel,
     from czmpc.errors import CzmpcError
     from sim.errors import SimError
 
-    if cov is None or n_runs < 1:
-        why = "no parameter covariance" if cov is None else "no runs asked for"
+    if n_runs < 1:
         return CheckItem(name="closed-loop Monte Carlo", status="skipped",
-                         detail=f"skipped ({why})"), None
-    names, theta, sigma = cov
+                         detail="skipped (no runs asked for)"), None
     scenario = _mc_scenario(model)
     try:
         _, nominal_iae = _closed_loop(model, model, scenario, settings, seed)
     except (SimError, CzmpcError) as exc:   # no delay, a gain the MPC refuses, ...
         return CheckItem(name="closed-loop Monte Carlo", status="fail",
                          detail=f"the MPC cannot run on the model's own plant: {exc}"), None
+    if cov is None:
+        return CheckItem(name="closed-loop Monte Carlo", status="skipped",
+                         detail="skipped (no parameter covariance)"), None
+    names, theta, sigma = cov
     rng = np.random.default_rng(seed)
     ratios: list[float] = []
     n_good = n_free = n_redrawn = 0

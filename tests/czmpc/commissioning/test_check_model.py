@@ -13,7 +13,6 @@ from czmpc.commissioning.check import (
     check_model,
     check_path,
     file_sha256,
-    model_with_parameters,
     read_check,
     write_check,
 )
@@ -23,6 +22,7 @@ from sysid.data import Dataset, read_csv
 from sysid.model import HammersteinModel
 from sysid.modelfile import load_model
 from sysid.pipeline import run_paper_pipeline
+from sysid.uncertainty import ParameterError, model_with_parameters
 from tests.tolerances import IDENTITY_RTOL
 
 SHIPPED_PATH = shipped_path("cz_heater_model.json")
@@ -96,7 +96,8 @@ def test_recorded_parameters_rebuild_the_model() -> None:
     for got, want in ((rebuilt.a, SHIPPED.a), (rebuilt.b, SHIPPED.b), (rebuilt.c, SHIPPED.c),
                       (rebuilt.input_poly, SHIPPED.input_poly)):
         np.testing.assert_allclose(got, want, rtol=IDENTITY_RTOL, atol=1e-15)
-    assert model_with_parameters(SHIPPED, ("z1",), np.array([1.0])) is None
+    with pytest.raises(ParameterError, match="parameter 'z1' does not exist"):
+        model_with_parameters(SHIPPED, ("z1",), np.array([1.0]))
 
 
 def test_the_check_file_carries_the_verdict_until_the_model_changes(tmp_path: Path) -> None:
