@@ -293,12 +293,16 @@ def iae_ratio(row: LengthRow, rows: Sequence[LengthRow]) -> float:
 
 
 def goal_met(case: LengthCase, rows: Sequence[LengthRow]) -> bool:
-    """A test of at most `MAX_TEST_S` whose every seed ran offset-free within
-    `MAX_IAE_RATIO` of its reference."""
+    """A test of at most `MAX_TEST_S` whose every seed ran offset-free, within
+    `MAX_IAE_RATIO` of its reference on every seed whose reference ran (a seed whose
+    reference model the MPC refused has no ratio; at least one ratio is needed)."""
     mine = [r for r in rows if r.case == case]
-    return (case.kind != "paper" and bool(mine)
+    ratios = [iae_ratio(r, rows) for r in mine]
+    finite = [v for v in ratios if math.isfinite(v)]
+    return (case.kind != "paper" and bool(mine) and bool(finite)
             and all(r.test_s <= MAX_TEST_S and r.failure is None and r.offset_free
-                    and iae_ratio(r, rows) <= MAX_IAE_RATIO for r in mine))
+                    for r in mine)
+            and all(v <= MAX_IAE_RATIO for v in finite))
 
 
 def format_study(rows: Sequence[LengthRow], *, command: str, machine: str,
@@ -317,8 +321,10 @@ def format_study(rows: Sequence[LengthRow], *, command: str, machine: str,
              "36 -> 40 -> 45 -> 50 kW (6,000 s) on the same plant. Offset-free: |mean error| "
              f"< {OFFSET_FREE_ATOL_KW:g} kW over the last {SEGMENT_TAIL_SAMPLES} samples of "
              "every segment (true power). IAE ratio: against the paper's 24,000 s experiment "
-             "identified the same way, same seed (goal: offset-free and at most "
-             f"{MAX_IAE_RATIO:.2f} on every seed, with a test of at most {MAX_TEST_S:g} s). "
+             "identified the same way, same seed (goal: a test of at most "
+             f"{MAX_TEST_S:g} s, offset-free on every seed and at most {MAX_IAE_RATIO:.2f} "
+             "on every seed whose reference ran: where the MPC refused the reference "
+             "model there is no ratio). "
              f"Seeds {', '.join(str(s) for s in seeds)}.", "",
              "| test | plant time [s] | runs | offset-free | no model or no MPC | "
              "IAE ratio, median [-] | IAE ratio, worst [-] |",
@@ -350,8 +356,8 @@ def format_study(rows: Sequence[LengthRow], *, command: str, machine: str,
                      f"{r.identify_wall_s:.1f} |")
     met = [c.label for c in cases if goal_met(c, rows)]
     lines += ["", ("Goal met by: " + ", ".join(met) + ".") if met
-              else "Goal not met: no test of at most 2 h gave an offset-free MPC within "
-                   f"{MAX_IAE_RATIO:.2f} of the reference's IAE on every seed."]
+              else "Goal not met: no test of at most 2 h gave an offset-free MPC on every "
+                   f"seed within {MAX_IAE_RATIO:.2f} of the reference's IAE."]
     return "\n".join(lines) + "\n"
 
 
