@@ -45,6 +45,7 @@ from sysid.hammerstein import (
 from sysid.hammerstein.filtering import InitialState, check_initial_state
 from sysid.linear import fit_armax, fit_arx, fit_oe
 from sysid.model import HammersteinModel, OperatingPoint
+from sysid.polynomials import slowest_time_constant_samples
 from sysid.preprocess import (
     OperatingPointChoice,
     OutlierReport,
@@ -775,14 +776,6 @@ def _run_stages(
     )
 
 
-def _slowest_tau_samples(model: HammersteinModel) -> float:
-    """``-1 / ln|z|`` of the largest root of ``A`` [samples] (``inf`` if ``|z| >= 1``)."""
-    radius = float(np.max(np.abs(np.roots(model.a)), initial=0.0)) if model.a.size > 1 else 0.0
-    if radius >= 1.0:
-        return math.inf
-    return 0.0 if radius == 0.0 else -1.0 / math.log(radius)
-
-
 def _choose_final(
     linear: tuple[NamedModel, ...], hammerstein: tuple[NamedModel, ...], n_samples: int,
     skipped: list[str],
@@ -798,11 +791,12 @@ def _choose_final(
     """
     by_name = {m.name: m for m in hammerstein}
     armax, oe = by_name.get("hammerstein_armax"), by_name.get("hammerstein_oe")
-    if armax is not None and oe is not None and _slowest_tau_samples(armax.model) > n_samples \
-            and _slowest_tau_samples(oe.model) <= n_samples:
+    tau_armax = math.inf if armax is None else slowest_time_constant_samples(armax.model.a)
+    if armax is not None and oe is not None and tau_armax > n_samples \
+            and slowest_time_constant_samples(oe.model.a) <= n_samples:
         skipped.append(
             f"hammerstein_armax not used as the final model: its slowest time constant "
-            f"({_slowest_tau_samples(armax.model):.4g} samples) is longer than the "
+            f"({tau_armax:.4g} samples) is longer than the "
             f"{n_samples}-sample record, so the data cannot tell it from an integrator "
             "(an output drift absorbed into A); hammerstein_oe is the final model")
         return oe

@@ -30,6 +30,18 @@ def max_root_modulus(poly: FloatArray) -> float:
     return float(np.max(np.abs(r))) if r.size else 0.0
 
 
+def slowest_time_constant_samples(poly: FloatArray) -> float:
+    """``-1 / ln|z|`` of the largest root of a q^-1 polynomial [samples].
+
+    ``inf`` for a root on or outside the unit circle (an integrator or worse), 0.0 for a
+    constant or roots only at ``z = 0``.
+    """
+    radius = max_root_modulus(poly)
+    if radius >= 1.0:
+        return float("inf")
+    return 0.0 if radius == 0.0 else -1.0 / float(np.log(radius))
+
+
 def is_stable(poly: FloatArray, *, margin: float = 0.0) -> bool:
     """True if every root of ``poly`` lies strictly inside the circle |z| < 1 - margin."""
     return max_root_modulus(poly) < 1.0 - margin

@@ -38,6 +38,7 @@ from sysid.greybox import GreyBoxStructure
 from sysid.hammerstein.filtering import HammersteinOrders, Segment, mean_square_criterion
 from sysid.hammerstein.fitting import _pem
 from sysid.hammerstein.model import hammerstein_oe_structure
+from sysid.polynomials import slowest_time_constant_samples
 from sysid.residuals import CorrelationResult, autocorrelation, cross_correlation
 
 #: Logs shorter than this many samples are scored by two-fold cross-validation.
@@ -278,13 +279,10 @@ def _split(
 
 
 def _slowest_tau_samples(orders: HammersteinOrders, theta: np.ndarray) -> float:
-    """``-1 / ln|z|`` of the largest root of ``F`` [samples] (``inf`` if ``|z| >= 1``)."""
+    """Slowest time constant of ``F`` [samples] (`slowest_time_constant_samples`)."""
     named = dict(zip(orders.parameter_names(), theta, strict=True))
-    f = [1.0, *(float(named[f"f{i}"]) for i in range(1, orders.na + 1))]
-    radius = float(np.max(np.abs(np.roots(f)), initial=0.0))
-    if radius >= 1.0:
-        return math.inf
-    return 0.0 if radius == 0.0 else -1.0 / math.log(radius)
+    return slowest_time_constant_samples(
+        np.array([1.0, *(float(named[f"f{i}"]) for i in range(1, orders.na + 1))]))
 
 
 class _Grid:

@@ -21,6 +21,7 @@ from scipy.signal import lfilter
 from sysid.errors import ModelFileError
 from sysid.export import linearize
 from sysid.model import HammersteinModel
+from sysid.polynomials import slowest_time_constant_samples
 from sysid.uncertainty import (
     ParameterError,
     draw_parameters,
@@ -97,7 +98,8 @@ def step_figure(path: Path, model: HammersteinModel, levels_pct: Sequence[float]
                 ) -> Path:
     """Output response to a ``step_pct`` TRIAC step from each level, with its band."""
     units = model.effective_units
-    tau = _slowest_tau_s(model)
+    tau = model.ts_s * slowest_time_constant_samples(model.a)
+    tau = tau if np.isfinite(tau) else 0.0
     duration = duration_s if duration_s is not None else max(10 * model.ts_s, 5.0 * tau)
     n = int(duration / model.ts_s) + 1
     t = np.arange(n) * model.ts_s
@@ -174,8 +176,3 @@ def pole_zero_figure(path: Path, model: HammersteinModel, draws: ModelDraws) -> 
     ax.legend(loc="lower left", fontsize=8)
     fig.savefig(path, dpi=110)
     return path
-
-
-def _slowest_tau_s(model: HammersteinModel) -> float:
-    radius = float(np.max(np.abs(np.roots(model.a)), initial=0.0)) if model.a.size > 1 else 0.0
-    return 0.0 if radius <= 0.0 or radius >= 1.0 else -model.ts_s / float(np.log(radius))
