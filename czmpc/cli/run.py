@@ -151,6 +151,14 @@ def run(args: argparse.Namespace) -> int:
             raise SettingsError(f"plant.ts_s: expected the model's sampling time {model.ts_s:g} s; "
                                 f"got {config.ts_s:g} s")
         allow_on, forced = _model_gate(config.model_path, args.force)
+        if config.candidate_path is not None:
+            candidate = load_model(config.candidate_path)   # checked before anything runs
+            if abs(candidate.ts_s - config.ts_s) > 1e-9 * config.ts_s:
+                raise SettingsError(f"controller.candidate: expected the sampling time "
+                                    f"{config.ts_s:g} s; {config.candidate_path} has "
+                                    f"{candidate.ts_s:g} s")
+            print(f"czmpc run: candidate model {config.candidate_path} in shadow (logged, "
+                  "compared, never driving)", file=sys.stderr)
         if config.settings_path is None:
             settings = MPCSettings.default_for(model)
         else:
@@ -190,6 +198,12 @@ def run(args: argparse.Namespace) -> int:
     if summary.stale_alarm_at_s is not None:
         print(f"run: STALE-MODEL ALARM at {summary.stale_alarm_at_s:g} s of plant time: "
               f"{summary.stale_alarm_reason}")
+    if config.candidate_path is not None:
+        print(f"run: candidate {config.candidate_path}: RMS one-step error "
+              f"{summary.candidate_rms_kw:.4g} kW against {summary.active_rms_kw:.4g} kW for the "
+              "active model"
+              + ("" if summary.candidate_stale_alarm_at_s is None else
+                 f"; its stale alarm at {summary.candidate_stale_alarm_at_s:g} s"))
     if summary.abort_reason is not None:
         print(f"czmpc: error: test aborted: {summary.abort_reason}; the TRIAC was moved to "
               f"{config.safe_triac_pct:g} %; see the log's event column", file=sys.stderr)

@@ -20,6 +20,7 @@ Layout (every key checked; an unknown key, a wrong type or a value out of range 
     [controller]                # optional for an open-loop test (`czmpc run --test`)
     model = "model.json"
     settings = "settings.toml"  # optional
+    candidate = "new.json"      # optional: a model run in shadow beside the active one
     [run]
     duration_s = 3600           # optional: run until stopped
     setpoint_kw = 45.0          # or schedule = "recipe.csv"
@@ -56,7 +57,7 @@ _TABLES: dict[str, tuple[str, ...]] = {
     "plant": ("endpoint", "ts_s", "time_scale", "max_sample_age_s", "connect_timeout_s", "security"),
     "nodes": ("power_kw", "triac_pct", "applied_triac_pct", "setpoint_kw", "heartbeat", "mode",
               "model_health"),
-    "controller": ("model", "settings"),
+    "controller": ("model", "settings", "candidate"),
     "run": ("duration_s", "setpoint_kw", "schedule", "log"),
     "safety": ("action", "safe_triac_pct"),
     "test": ("power_band_kw", "max_bad_quality_s"),
@@ -159,6 +160,7 @@ class RunConfig:
     security: SecuritySettings = INSECURE_LOOPBACK
     test_limits: ExperimentLimits | None = None
     source_path: Path | None = None
+    candidate_path: Path | None = None
 
     @property
     def period_s(self) -> float:
@@ -266,6 +268,7 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
     # [controller] may be absent (an open-loop test needs no model); if given, it names one.
     model = _str(ctrl, "model", "controller", required="controller" in doc)
     settings = _str(ctrl, "settings", "controller")
+    candidate = _str(ctrl, "candidate", "controller")   # [controller] requires model
     duration = _num(run, "duration_s", "run", positive=True)
     setpoint = _num(run, "setpoint_kw", "run")
     schedule_name = _str(run, "schedule", "run")
@@ -300,6 +303,7 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
         schedule=None if schedule_name is None else load_schedule(base_dir / schedule_name),
         log_path=base_dir / log, safe_action=action, safe_triac_pct=safe, security=security,
         test_limits=limits,
+        candidate_path=None if candidate is None else base_dir / candidate,
     )
 
 

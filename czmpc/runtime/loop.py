@@ -58,6 +58,7 @@ from czmpc.runtime._opcua import asyncua
 from czmpc.runtime.config import RunConfig
 from czmpc.runtime.secure_client import SecurityRejectedError
 from czmpc.runtime.secure_client import connect as secure_connect
+from sysid.modelfile import load_model
 
 #: Longest wait between reconnect attempts [s wall] (also at most `MAX_BACKOFF_PERIODS`
 #: loop periods; the first wait is one period).
@@ -70,7 +71,8 @@ STARTUP_WAIT_S = 15.0
 LOG_COLUMNS = ("k", "time_s", "wall_time_s", "power_kw", "quality", "setpoint_kw",
                "triac_pct", "applied_triac_pct", "status", "verdict", "mode", "connected",
                "written", "lateness_s", "step_latency_s", "skipped", "predicted_kw", "health",
-               "stale_alarm", "event")
+               "stale_alarm", "event", "candidate_predicted_kw", "candidate_health",
+               "candidate_stale_alarm")
 #: Format tag of the run log's provenance file ``<log>.meta.json``.
 RUN_META_FORMAT = "czmpc-runlog/1"
 
@@ -177,6 +179,11 @@ class RunSummary:
     stopped_by: str = "duration"
     stale_alarm_at_s: float | None = None
     stale_alarm_reason: str = ""
+    #: RMS one-step prediction error [kW] of the active model and of the shadow candidate
+    #: (`RunConfig.candidate_path`) over the samples where both predicted; NaN without one.
+    active_rms_kw: float = math.nan
+    candidate_rms_kw: float = math.nan
+    candidate_stale_alarm_at_s: float | None = None
     #: Why the run was aborted (a test limit or the controller); None: it was not.
     abort_reason: str | None = None
 
@@ -341,6 +348,14 @@ class ControlLoop:
         self._mpc: OffsetFreeMPC | None = getattr(self.ctrl, "mpc", None)
         self.health = (None if self._mpc is None
                        else ModelHealthMonitor(self._mpc.model, health_settings or RUNTIME_HEALTH))
+        #: The candidate model in shadow (config `[controller] candidate`): its own
+        #: one-step predictor and health test, fed the same samples; it never drives.
+        self.shadow = (None if self._mpc is None or config.candidate_path is None
+                       else ModelHealthMonitor(load_model(config.candidate_path),
+                                               health_settings or RUNTIME_HEALTH))
+        self._sq_active_kw2 = 0.0      # sums of squared one-step errors where both predicted
+        self._sq_candidate_kw2 = 0.0
+        self._n_compared = 0
         #: False: the model was judged not ready (check-model); requests for ON are refused.
         self.allow_on = True
         self._setpoint = config.setpoint_kw if config.setpoint_kw is not None else math.nan
@@ -551,6 +566,7 @@ class ControlLoop:
             "skipped": 0, "predicted_kw": math.nan if health is None else health.predicted_kw,
             "health": math.nan if health is None else health.health,
             "stale_alarm": "" if health is None else int(health.stale_alarm), "event": "",
+            **self._shadow_columns(k, power, applied_before, health),
         }
         self._say(f"k={k} t={k * cfg.ts_s:.0f}s P={power:.2f}kW ({quality}) "
                   f"SP={self._setpoint:.2f}kW u={command:.2f}% {row['status']} "
@@ -570,6 +586,27 @@ class ControlLoop:
             self.summary.stale_alarm_reason = health.alarm_reason
             self._say(f"STALE-MODEL ALARM at t={k * self.config.ts_s:.0f}s: {health.alarm_reason}")
         return health
+
+    def _shadow_columns(self, k: int, power: float, applied_before: float,
+                        health: ModelHealth | None) -> dict[str, object]:
+        """Feed the shadow candidate; its log columns; the RMS errors of both models."""
+        if self.shadow is None or health is None:
+            return {"candidate_predicted_kw": math.nan, "candidate_health": math.nan,
+                    "candidate_stale_alarm": ""}
+        cand = self.shadow.update(power, applied_before)
+        if math.isfinite(power) and math.isfinite(health.predicted_kw) \
+                and math.isfinite(cand.predicted_kw):
+            self._sq_active_kw2 += (power - health.predicted_kw) ** 2
+            self._sq_candidate_kw2 += (power - cand.predicted_kw) ** 2
+            self._n_compared += 1
+            self.summary.active_rms_kw = math.sqrt(self._sq_active_kw2 / self._n_compared)
+            self.summary.candidate_rms_kw = math.sqrt(self._sq_candidate_kw2 / self._n_compared)
+        if cand.stale_alarm and self.summary.candidate_stale_alarm_at_s is None:
+            self.summary.candidate_stale_alarm_at_s = k * self.config.ts_s
+            self._say(f"candidate model: stale alarm at t={k * self.config.ts_s:.0f}s: "
+                      f"{cand.alarm_reason}")
+        return {"candidate_predicted_kw": cand.predicted_kw, "candidate_health": cand.health,
+                "candidate_stale_alarm": int(cand.stale_alarm)}
 
     async def _lost(self, exc: BaseException) -> None:
         self._say(f"link lost ({type(exc).__name__}); predicting, reconnecting")

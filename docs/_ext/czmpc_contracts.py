@@ -109,6 +109,13 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
                          "``[controller]`` table."),
     "controller.settings": ("string (file)", "none (defaults from the model)", "-",
                             "MPC settings file (:doc:`settings_file`)."),
+    "controller.candidate": ("string (file)", "none", "-",
+                             "a candidate model file run in shadow beside the active model: "
+                             "its one-step prediction and model-health figure are logged "
+                             "(``candidate_predicted_kw``, ``candidate_health``, "
+                             "``candidate_stale_alarm``) and its RMS one-step error is "
+                             "compared with the active model's at the end; it never drives "
+                             "the TRIAC."),
     "run.duration_s": ("number > 0", "none (until stopped)", "s",
                        "Plant time to run (``--duration-s`` overrides it)."),
     "run.setpoint_kw": ("number", "none", "kW",

@@ -41,7 +41,7 @@ def _full_run_config(tmp_path: Path) -> dict[str, Any]:
                         security={"policy": "None"})
     doc["nodes"].update(applied_triac_pct="ns=2;s=A", setpoint_kw="ns=2;s=S",
                         heartbeat="ns=2;s=H", mode="ns=2;s=M", model_health="ns=2;s=MH")
-    doc["controller"]["settings"] = "settings.toml"
+    doc["controller"].update(settings="settings.toml", candidate="new.json")
     doc["run"].update(duration_s=10.0, log="log.csv")
     doc["safety"] = {"action": "ramp", "safe_triac_pct": 20.0}
     return doc
@@ -70,6 +70,16 @@ def test_documented_run_config_keys_are_the_validators(contracts: ModuleType, tm
         doc.setdefault(table, {})["colour"] = "red"
         with pytest.raises(RunConfigError, match=rf"{table}\.colour: unknown key"):
             run_config_from_dict(doc, base_dir=tmp_path)
+
+
+def test_a_candidate_needs_an_active_model(tmp_path: Path) -> None:
+    doc = _minimal_run_config()
+    assert run_config_from_dict(doc, base_dir=tmp_path).candidate_path is None
+    doc["controller"]["candidate"] = "new.json"
+    assert run_config_from_dict(doc, base_dir=tmp_path).candidate_path == tmp_path / "new.json"
+    del doc["controller"]["model"]          # a candidate beside no active model
+    with pytest.raises(RunConfigError, match="controller.model: missing"):
+        run_config_from_dict(doc, base_dir=tmp_path)
 
 
 def test_documented_required_run_config_keys_are_required(contracts: ModuleType, tmp_path: Path) -> None:

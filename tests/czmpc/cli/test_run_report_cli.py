@@ -23,7 +23,8 @@ def _synthetic_log(path: Path) -> None:
     for k in range(300):
         bad = 100 <= k < 110
         health = 0.2 + 0.8 * k / 200.0
-        log.row({"k": k, "time_s": 2.0 * k, "wall_time_s": 1.7e9 + 0.04 * k,
+        log.row({c: "" for c in LOG_COLUMNS} | {"k": k, "time_s": 2.0 * k,
+                 "wall_time_s": 1.7e9 + 0.04 * k,
                  "power_kw": math.nan if bad else 45.0 + 0.01 * math.sin(k),
                  "quality": "bad" if bad else "good", "setpoint_kw": 45.0,
                  "triac_pct": 40.0, "applied_triac_pct": 40.0, "status": "OK",
