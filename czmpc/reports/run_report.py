@@ -77,6 +77,9 @@ class RunRecord:
         Periods skipped after each step (overruns).
     health :
         The model-health figure [-] (NaN where the log has none).
+    candidate_predicted_kw :
+        The shadow candidate model's one-step prediction [kW] (NaN where the log has none:
+        no ``[controller] candidate``).
     stale_alarm :
         True from the stale alarm on.
     n_safe_rows :
@@ -98,6 +101,7 @@ class RunRecord:
     skipped: np.ndarray = field(repr=False)
     health: FloatArray = field(repr=False)
     stale_alarm: np.ndarray = field(repr=False)
+    candidate_predicted_kw: FloatArray = field(repr=False)
     n_safe_rows: int = 0
 
     @property
@@ -152,7 +156,7 @@ def read_run_log(path: str | os.PathLike[str]) -> RunRecord:
         cols: dict[str, list[float]] = {c: [] for c in (
             "time_s", "power_kw", "setpoint_kw", "triac_pct", "applied_triac_pct",
             "predicted_kw", "lateness_s", "step_latency_s", "skipped", "health", "written",
-            "stale_alarm")}
+            "stale_alarm", "candidate_predicted_kw")}
         quality: list[bool] = []
         modes: list[str] = []
         n_safe = 0
@@ -178,7 +182,7 @@ def read_run_log(path: str | os.PathLike[str]) -> RunRecord:
         written=np.nan_to_num(arr("written")) > 0, lateness_s=arr("lateness_s"),
         latency_s=arr("step_latency_s"), skipped=np.nan_to_num(arr("skipped")).astype(int),
         health=arr("health"), stale_alarm=np.nan_to_num(arr("stale_alarm")) > 0,
-        n_safe_rows=n_safe)
+        candidate_predicted_kw=arr("candidate_predicted_kw"), n_safe_rows=n_safe)
 
 
 def plot_run(record: RunRecord, path: str | os.PathLike[str]) -> Figure:
@@ -205,6 +209,9 @@ def plot_run(record: RunRecord, path: str | os.PathLike[str]) -> Figure:
     if np.any(np.isfinite(record.predicted_kw)):
         ax_p.plot(t, record.predicted_kw, color="tab:blue", linewidth=0.8, alpha=0.8,
                   label="model one-step prediction")
+    if np.any(np.isfinite(record.candidate_predicted_kw)):
+        ax_p.plot(t, record.candidate_predicted_kw, color="tab:orange", linewidth=0.8,
+                  linestyle=":", label="candidate model (shadow) one-step prediction")
     ax_p.plot(t, record.setpoint_kw, color="tab:red", linestyle="--", linewidth=1.0,
               drawstyle="steps-post", label="setpoint")
     ax_p.set_ylabel("power [kW]")
@@ -285,6 +292,13 @@ def summary_markdown(record: RunRecord, figure_name: str) -> str:
         lines.append(f"- model health: largest {np.nanmax(record.health):.2f} (alarm at 1); "
                      + ("no stale-model alarm" if alarm is None
                         else f"**stale-model alarm at {alarm:g} s**"))
+    both = (record.good & np.isfinite(record.predicted_kw)
+            & np.isfinite(record.candidate_predicted_kw))
+    if np.any(both):
+        rms = [float(np.sqrt(np.mean((record.power_kw[both] - p[both]) ** 2)))
+               for p in (record.predicted_kw, record.candidate_predicted_kw)]
+        lines.append(f"- one-step prediction, RMS error over {int(both.sum())} samples: active "
+                     f"model {rms[0]:.4g} kW, candidate model (shadow) {rms[1]:.4g} kW")
     if record.n_safe_rows:
         lines.append(f"- safe action after the stop: {record.n_safe_rows} rows")
     lines += ["", f"![run]({figure_name})", ""]

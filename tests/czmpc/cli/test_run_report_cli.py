@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from czmpc.cli import main
-from czmpc.reports.run_report import plot_run, read_run_log
+from czmpc.reports.run_report import plot_run, read_run_log, summary_markdown
 
 pytest.importorskip("asyncua")
 
@@ -76,3 +76,19 @@ def test_a_file_that_is_no_run_log_exits_2(tmp_path: Path, capsys: pytest.Captur
     bad.write_text("time_s,triac_pct,power_kw\n0,45,45\n", encoding="utf-8")
     assert main(["run-report", str(bad), "--out", str(tmp_path / "r")]) == 2
     assert "missing ['k'" in capsys.readouterr().err
+
+
+def test_the_report_compares_a_shadow_candidate_with_the_active_model(tmp_path: Path) -> None:
+    log = tmp_path / "run.csv"
+    run_log = RunLog(log)
+    for k in range(40):
+        power = 45.0 + (1.0 if k >= 20 else 0.0)
+        run_log.row({c: "" for c in LOG_COLUMNS} | {
+            "k": k, "time_s": 2.0 * k, "wall_time_s": 1.7e9 + k, "power_kw": power,
+            "quality": "good", "setpoint_kw": 46.0, "triac_pct": 40.0, "mode": "PREDICT",
+            "predicted_kw": power + 0.1, "candidate_predicted_kw": power - 0.3})
+    run_log.close()
+    record = read_run_log(log)
+    text = summary_markdown(record, "run.png")
+    assert ("one-step prediction, RMS error over 40 samples: active model 0.1 kW, candidate "
+            "model (shadow) 0.3 kW") in text
