@@ -32,6 +32,8 @@ one is returned with it (a row column), and a plant with no accepted draw is an 
 from __future__ import annotations
 
 import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,12 +61,19 @@ class SamplingError(CzmpcError, ValueError):
     """A model whose parameters cannot be sampled (no names, no uncertainty, bad draws)."""
 
 
-def model_parameters(model: HammersteinModel, names: tuple[str, ...]) -> FloatArray:
-    """`sysid.uncertainty.model_parameters`, refusals as `SamplingError`."""
+@contextmanager
+def _as_sampling_error() -> Iterator[None]:
+    """Re-raise `sysid.uncertainty`'s refusals as `SamplingError` (this module's error)."""
     try:
-        return _uncertainty.model_parameters(model, names)
+        yield
     except ParameterError as exc:
         raise SamplingError(f"sampled plant: {exc}") from exc
+
+
+def model_parameters(model: HammersteinModel, names: tuple[str, ...]) -> FloatArray:
+    """`sysid.uncertainty.model_parameters`, refusals as `SamplingError`."""
+    with _as_sampling_error():
+        return _uncertainty.model_parameters(model, names)
 
 
 def model_with_parameters(model: HammersteinModel, names: tuple[str, ...],
@@ -79,10 +88,8 @@ def model_with_parameters(model: HammersteinModel, names: tuple[str, ...],
         The result breaks the model contract; `sysid.errors.UnstableModelError` for an
         ``A`` or ``C`` outside the unit circle.
     """
-    try:
+    with _as_sampling_error():
         return _uncertainty.model_with_parameters(model, names, values)
-    except ParameterError as exc:
-        raise SamplingError(f"sampled plant: {exc}") from exc
 
 
 def parameter_distribution(model: HammersteinModel) -> ParameterDistribution:
@@ -94,10 +101,8 @@ def parameter_distribution(model: HammersteinModel) -> ParameterDistribution:
         The model names no parameters, or has neither a covariance nor finite
         standard errors for every parameter.
     """
-    try:
+    with _as_sampling_error():
         return _uncertainty.parameter_distribution(model)
-    except ParameterError as exc:
-        raise SamplingError(f"sampled plant: {exc}") from exc
 
 
 def _gain_grid(model: HammersteinModel) -> FloatArray:

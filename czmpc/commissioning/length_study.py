@@ -37,6 +37,7 @@ from sim.scenario import Scenario, load_scenario, scenario_from_dict
 from sysid.data import Dataset
 from sysid.design import SignalDesignError, design_test_signal
 from sysid.errors import SysidError
+from sysid.uncertainty import static_gain_kw_per_pct
 
 #: The issue's plant: gain x0.8, slow time constant 600 s, two samples more delay.
 ISSUE_VARIATION = PlantVariation(gain_factor=0.8, tau_s=600.0, extra_delay_samples=2)
@@ -218,7 +219,7 @@ def run_case(case: LengthCase, *, variation: PlantVariation = ISSUE_VARIATION,
     model = identified.model
     orders = (model.input_degree, model.b.size - model.delay_steps, model.a.size - 1,
               model.delay_steps)
-    gain = model.linear_static_gain * float(model.input_nonlinearity_slope(0.0))
+    gain = float(static_gain_kw_per_pct(model, np.array(model.operating_point.triac_pct)))
     row = LengthRow(case=case, seed=seed, test_s=test_s, orders=orders,
                     static_gain_kw_per_pct=gain, fit_pct=identified.fit_pct, identify_wall_s=wall)
     say(f"{case.label}, seed {seed}: fit {identified.fit_pct:.1f} %, orders {orders}; "
