@@ -43,6 +43,7 @@ from sysid.hammerstein import (
     run_hammerstein_route,
 )
 from sysid.hammerstein.filtering import InitialState, check_initial_state
+from sysid.hammerstein.route import N_POLE_STARTS
 from sysid.linear import fit_armax, fit_arx, fit_oe
 from sysid.model import HammersteinModel, OperatingPoint
 from sysid.polynomials import slowest_time_constant_samples
@@ -739,6 +740,9 @@ def _run_stages(
             initial_state=initial_state,
             progress=clock.fit_progress,
             extra_start=None if structure is None else structure.chosen_parameters,
+            # a chosen structure is refined on the whole record from several starts too:
+            # the OE search is not convex, and the chosen orders have no paper-tested start
+            pole_starts=0 if structure is None else N_POLE_STARTS,
         )
         skipped.extend(route.skipped)
     except SysidError as exc:

@@ -7,17 +7,19 @@ Steps 1-2 here (`initial_input_poly`, `reidentify_linear_block`), steps 3-4 in
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
+from scipy.signal import lfilter
 
 from sysid._arrays import readonly_array as _readonly
 from sysid._typing import FloatArray
 from sysid.data import Dataset
-from sysid.errors import IdentificationError
+from sysid.errors import IdentificationError, IdentificationWarning
 from sysid.hammerstein.filtering import InitialState
 from sysid.hammerstein.fitting import fit_hammerstein_armax, fit_hammerstein_oe
 from sysid.hammerstein.model import (
@@ -301,6 +303,154 @@ def reidentify_linear_block(
 
 
 
+# =========================================================================== multistart
+#: Fixed-pole starts of the final OE fit when the caller asks for them (``czmpc identify
+#: --orders auto``): this many time constants, spaced geometrically from one sample to a
+#: tenth of the record (a ratio of about 2 between neighbours on a 1000-sample log).
+N_POLE_STARTS = 8
+#: A multistart fit replaces the fit from the route's own start only if its V is lower by
+#: more than this share: equal minima reached from two starts differ by the searches'
+#: tolerances (ftol 1e-12), and the route's own fit (its iterations) is then kept.
+MULTISTART_V_RTOL = 1e-6
+
+
+def pole_start_time_constants(n_samples: int, n_starts: int = N_POLE_STARTS) -> FloatArray:
+    """Time constants [samples] of the fixed-pole starts: geometric from 1 to ``n_samples / 10``.
+
+    Parameters
+    ----------
+    n_samples :
+        Samples in the record; a time constant longer than a tenth of it is not started
+        from (the record shows too little of its settling).
+    n_starts :
+        Number of time constants (>= 1; 1 gives one sample).
+
+    Returns
+    -------
+    FloatArray
+        Shape ``(n_starts,)`` [samples], increasing.
+
+    Raises
+    ------
+    IdentificationError
+        ``n_samples < 1`` or ``n_starts < 1``.
+    """
+    where = "pole_start_time_constants"
+    n = _check_int("n_samples", n_samples, 1, where)
+    m = _check_int("n_starts", n_starts, 1, where)
+    out: FloatArray = np.geomspace(1.0, max(n / 10.0, 1.0), m)
+    return out
+
+
+def fixed_pole_starts(
+    y: FloatArray,
+    ds: FloatArray,
+    *,
+    nb: int,
+    nf: int,
+    nk: int,
+    time_constants_samples: Sequence[float] | FloatArray,
+) -> tuple[dict[str, float], ...]:
+    """Starts of a Hammerstein-OE fit with ``F`` fixed at repeated poles and ``B`` by least squares.
+
+    The OE search is not convex, and its usual start, the ARX least squares, is biased
+    when the noise is not white (on the cascaded tanks the ARX puts a pole on ``z = 1``
+    and two at 0.36; the OE search from there ends at 1.08 against 0.48 from a
+    fixed-pole start). For each time constant ``tau``, ``F = (1 - z q^-1)^nf`` with
+    ``z = exp(-1 / tau)``; with ``F`` fixed, ``y = B/F ds`` is linear in ``B``, so ``B``
+    is the least-squares fit of ``y`` on the lagged ``ds / F`` (zero initial state).
+    ``f(ds) = b_nk ds`` (degree 1; higher ``d_i`` start at zero).
+
+    Parameters
+    ----------
+    y, ds :
+        Output and input deviations, shape ``(N,)``.
+    nb, nf, nk :
+        Orders of the OE block (``nb`` counts ``b_nk``) and the delay [samples].
+    time_constants_samples :
+        Time constants of the repeated pole [samples], each > 0 (for example
+        `pole_start_time_constants`). With ``nf = 0`` one start is returned.
+
+    Returns
+    -------
+    tuple of dict
+        Start values by name (``d1``, ``b_{nk+1}..`` normalized by ``b_nk``, ``f1..``),
+        one per time constant; a time constant whose ``b_nk`` comes out zero or
+        non-finite gives none.
+
+    Raises
+    ------
+    IdentificationError
+        Bad arrays or orders, or a time constant that is not finite and > 0.
+    """
+    where = "fixed_pole_starts"
+    y_arr, ds_arr = _check_arrays(y, ds, where)
+    _, nb, nf, nk = _check_orders(1, nb, nf, nk, where)
+    taus = np.asarray(time_constants_samples, dtype=float).reshape(-1)
+    if taus.size == 0 or not np.all(np.isfinite(taus) & (taus > 0)):
+        raise IdentificationError(
+            f"{where}: time_constants_samples must be finite numbers > 0; got {taus.tolist()}"
+        )
+    out: list[dict[str, float]] = []
+    for tau in taus if nf else taus[:1]:
+        f = np.poly(np.full(nf, np.exp(-1.0 / tau))) if nf else np.array([1.0])
+        filtered = lfilter([1.0], f, ds_arr)
+        phi = np.zeros((ds_arr.size, nb))
+        for col, lag in enumerate(range(nk, nk + nb)):
+            if lag < ds_arr.size:
+                phi[lag:, col] = filtered[: ds_arr.size - lag]
+        b, *_ = np.linalg.lstsq(phi, y_arr, rcond=None)
+        if not np.all(np.isfinite(b)) or b[0] == 0.0:
+            continue
+        start = {"d1": float(b[0])}
+        start.update({f"b{nk + j}": float(b[j] / b[0]) for j in range(1, nb)})
+        start.update({f"f{i}": float(f[i]) for i in range(1, nf + 1)})
+        out.append(start)
+    return tuple(out)
+
+
+def _multistart(
+    final: HammersteinFit,
+    y: FloatArray,
+    ds: FloatArray,
+    *,
+    degree: int,
+    nb: int,
+    nf: int,
+    nk: int,
+    n_starts: int,
+    max_iterations: int,
+    initial_state: InitialState,
+    progress: Callable[[int, float], None] | None,
+) -> HammersteinFit:
+    """The best of `final` and the OE fits from `fixed_pole_starts` (see `MULTISTART_V_RTOL`).
+
+    The losing searches' non-convergence warnings are dropped (they are not kept); the
+    winner's is issued again.
+    """
+    best = final
+    kept: list[warnings.WarningMessage] = []
+    for start in fixed_pole_starts(
+        y, ds, nb=nb, nf=nf, nk=nk,
+        time_constants_samples=pole_start_time_constants(y.size, n_starts),
+    ):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", IdentificationWarning)
+            try:
+                fit = fit_hammerstein_oe(
+                    y, ds, initial=start, degree=degree, nb=nb, nf=nf, nk=nk,
+                    max_iterations=max_iterations, initial_state=initial_state,
+                    progress=progress,
+                )
+            except IdentificationError:
+                continue
+        if fit.cost < (1.0 - MULTISTART_V_RTOL) * best.cost:
+            best, kept = fit, [w for w in caught if issubclass(w.category, IdentificationWarning)]
+    for w in kept:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return best
+
+
 # =========================================================================== public entry
 @dataclass(frozen=True, kw_only=True, eq=False)
 class HammersteinRoute:
@@ -356,6 +506,7 @@ def run_hammerstein_route(
     initial_state: InitialState = "estimate",
     progress: Callable[[str, int, float], None] | None = None,
     extra_start: Mapping[str, float] | None = None,
+    pole_starts: int = 0,
 ) -> HammersteinRoute:
     """Run steps 1-4 of the paper's route on deviation arrays.
 
@@ -388,6 +539,11 @@ def run_hammerstein_route(
     extra_start :
         A second start of step 3 by parameter name (for example the structure
         search's fit); the better of the two final OE fits on V is kept.
+    pole_starts :
+        Also run step 3 from this many fixed-pole starts (`fixed_pole_starts` at
+        `pole_start_time_constants`); one replaces the fit from the route's own start
+        only if its V is lower by more than `MULTISTART_V_RTOL`. 0 (default): the
+        paper's route alone.
 
     Returns
     -------
@@ -458,6 +614,13 @@ def run_hammerstein_route(
         )
         if other.cost < final.cost:
             final = other
+    if pole_starts:
+        final = _multistart(
+            final, y_arr, ds_arr, degree=degree, nb=nb, nf=nf, nk=nk,
+            n_starts=_check_int("pole_starts", pole_starts, 0, where),
+            max_iterations=max_iterations, initial_state=initial_state,
+            progress=report("joint PEM of the OE block from fixed poles (V)"),
+        )
     zeros = None
     if from_zeros:
         zeros = fit_hammerstein_oe(

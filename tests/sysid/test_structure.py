@@ -161,9 +161,9 @@ def _auto(name: str) -> PipelineResult:
 @pytest.mark.parametrize("name", [
     "daisy",
     "tclab",
-    pytest.param("tanks", marks=pytest.mark.xfail(
-        strict=True, reason="not met yet: the cascaded tanks' written models reach V = 0.535 "
-        "against 0.462 for the best linear OE (ratio 1.16 > 1.10)")),
+    # the tanks met the bar once the chosen structure was refined from fixed-pole starts
+    # (sysid.hammerstein.route.fixed_pole_starts): V 0.535 -> 0.480 against 0.462
+    "tanks",
 ])
 def test_auto_orders_model_is_within_ten_percent_of_the_best_linear_oe(name: str) -> None:
     result = _auto(name)
