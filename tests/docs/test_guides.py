@@ -121,7 +121,7 @@ def test_the_commissioning_playback_script_runs(tmp_path: Path, monkeypatch: pyt
     (script,) = _blocks(page, "python")
     exec(compile(script, "commission.rst", "exec"), {})
     printed = capsys.readouterr().out
-    assert "wrote test-log.csv: 8001 samples, power 31.2 .. 62.7 kW" in printed   # as in the guide
+    assert "wrote test-log.csv: 8501 samples, power 31.2 .. 62.7 kW" in printed   # as in the guide
 
 
 def test_the_tune_guides_settings_file_passes_the_reader() -> None:

@@ -150,6 +150,28 @@ def test_steady_prefers_a_settled_window_to_a_longer_drifting_one() -> None:
     assert (window.start_sample, window.stop_sample) == (n_ramp, n_ramp + n_flat)
 
 
+def _held_levels(levels_and_lengths: tuple[tuple[float, int], ...]) -> Dataset:
+    """Input levels held for the given samples; output settles at once (P = s) + noise."""
+    triac = np.concatenate([np.full(n, level) for level, n in levels_and_lengths])
+    power = triac + 0.01 * np.random.default_rng(3).standard_normal(triac.size)
+    return Dataset(time_s=np.arange(triac.size, dtype=float), triac_pct=triac,
+                   power_kw=power, ts_s=1.0)
+
+
+def test_steady_takes_the_window_nearest_the_middle_of_the_input_range() -> None:
+    # a record that starts at rest at the bottom of its range (the usual test): the
+    # longest window is the first; the middle of 30 .. 70 % is 50 %
+    data = _held_levels(((30.0, 400), (40.0, 150), (50.0, 250), (60.0, 300), (70.0, 100)))
+    choice = find_operating_point(data, method="steady")
+    assert choice.window is not None
+    assert choice.operating_point.triac_pct == 50.0          # 250 >= 400 / 2 samples
+    assert (choice.window.start_sample, choice.window.stop_sample) == (550, 800)
+    # a central window shorter than half the longest is too poorly averaged to compete:
+    # 60 % (300 samples) is then the nearest to the middle that qualifies
+    data = _held_levels(((30.0, 400), (40.0, 150), (50.0, 150), (60.0, 300), (70.0, 100)))
+    assert find_operating_point(data, method="steady").operating_point.triac_pct == 60.0
+
+
 def test_steady_input_tolerance_joins_a_dithered_input() -> None:
     n = 200
     triac = 45.0 + 0.01 * (-1.0) ** np.arange(n)

@@ -196,5 +196,5 @@ def test_shipped_experiment_keeps_the_papers_structure_and_findings() -> None:
     assert f.noise_model_w_reduction >= MIN_NOISE_MODEL_W_REDUCTION
     assert f.from_zeros_relative_difference is not None
     assert f.from_zeros_relative_difference < MAX_FROM_ZEROS_RELATIVE_DIFFERENCE
-    assert f.higher_order_v_improvement is not None
-    assert f.higher_order_v_improvement <= MAX_HIGHER_ORDER_V_IMPROVEMENT
+    assert f.higher_order_improvement is not None
+    assert f.higher_order_improvement <= MAX_HIGHER_ORDER_V_IMPROVEMENT

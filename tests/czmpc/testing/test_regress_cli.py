@@ -43,10 +43,11 @@ def test_record_check_pass_then_a_doubled_weight_fails_naming_metric_and_diverge
     assert "FAIL" in out and "iae_kw_s" in out and "0 of 2 case(s) hold; 2 FAILED" in out
     assert "input file changed: puller7_settings.toml" in out
     assert "move_weight: 0.1 -> 0.2" in out
-    # The first divergence: after the first setpoint step at 60 s (before it the loop
-    # holds its steady state; the larger move weight only slows the response).
+    # The first divergence is reported inside the 600 s run: the doubled move weight
+    # changes how the loop answers the plant noise from the start, and the setpoint step
+    # at 60 s at the latest.
     divergence = out.split("t = ", 1)[1].split(" s", 1)[0]
-    assert 60.0 <= float(divergence) < 600.0
+    assert 0.0 <= float(divergence) <= 60.0
     root = ET.parse(junit).getroot()
     assert root.get("failures") == "2"
     props = {p.get("name"): p.get("value") for p in root.iter("property")}
@@ -94,7 +95,7 @@ plant_noise = true
 initial_setpoint_kw = 45.0
 initial_triac_pct = 45.0
 [limits]
-max_move_pct_per_step = 0.3
+max_move_pct_per_step = 0.2
 [[setpoint]]
 kind = "step"
 at_s = 40
@@ -122,8 +123,9 @@ def test_audit_reports_caught_mutations_and_flags_a_suite_that_catches_none(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     busy = _suite(tmp_path / "busy", RATE_LIMITED)
     assert main(["regress", "record", str(busy), "--out", str(tmp_path / "g1")]) == 0
-    # A 15 kW step through a tight rate limit: the limit binds for about 30 samples, longer
-    # than the shortened horizon, so each of the four mutations changes the IAE.
+    # A 15 kW step through a tight rate limit: the limit binds for about 55 samples (11 %
+    # at 0.2 %/step), longer than the horizon (39 samples for the shipped model) and the
+    # shortened one, so each of the four mutations changes the response.
     assert main(["regress", "audit", str(tmp_path / "g1")]) == 0
     out = capsys.readouterr().out
     for mutation in MUTATIONS:
