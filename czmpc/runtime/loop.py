@@ -16,6 +16,12 @@ model's own one-step residual and the stale-model test); its figure is logged
 (``health``, ``stale_alarm``), written to the optional ``model_health`` node and shown in
 the live status, and the alarm is said once when it is raised (`RunSummary`).
 
+Reads are kept just after the plant publishes its sample (`czmpc.runtime.alignment`,
+``[plant] align_to_plant``): from the power's source timestamps the loop estimates
+where in the plant's period it reads and, when that is late in the period (so that a
+write could land on either side of the plant's next step), delays its schedule once
+by less than a period.
+
 A step that ends past its deadline is an overrun: the periods it covered are skipped
 (recorded in ``skipped``), never caught up, so there is at most one write per period.
 Lost connection: the controller keeps predicting; reconnects are tried with a doubling
@@ -54,6 +60,7 @@ from typing import IO, Any, Protocol
 from czmpc.controller import OffsetFreeMPC
 from czmpc.health import RUNTIME_HEALTH, HealthSettings, ModelHealth, ModelHealthMonitor
 from czmpc.modes import Mode
+from czmpc.runtime import alignment
 from czmpc.runtime._opcua import asyncua
 from czmpc.runtime.config import RunConfig
 from czmpc.runtime.secure_client import SecurityRejectedError
@@ -186,6 +193,10 @@ class RunSummary:
     candidate_stale_alarm_at_s: float | None = None
     #: Why the run was aborted (a test limit or the controller); None: it was not.
     abort_reason: str | None = None
+    #: Read phases estimated (`czmpc.runtime.alignment.read_phase`) and the delays
+    #: [wall s] the schedule took to read just after the plant publishes.
+    read_phases: list[float] = field(default_factory=list)
+    alignment_delays_s: list[float] = field(default_factory=list)
 
     @property
     def failed(self) -> bool:
@@ -231,18 +242,24 @@ class _Link:
         await asyncio.wait_for(self.nodes[name].write_value(dv), self.config.connect_timeout_s)
 
 
+def _age_s(dv: Any) -> float | None:
+    """Age of a DataValue [wall s]: now minus its source timestamp (None without one)."""
+    ts = dv.SourceTimestamp
+    if ts is None:
+        return None
+    if ts.tzinfo is None:
+        ts = ts.replace(tzinfo=dt.UTC)
+    return float((dt.datetime.now(dt.UTC) - ts).total_seconds())
+
+
 def _measurement(dv: Any, max_age_s: float) -> tuple[float, str]:
     """Power [kW] and a quality word from a DataValue; NaN for Bad/Uncertain/stale."""
     status = dv.StatusCode
     if status is not None and not status.is_good():
         return math.nan, "uncertain" if status.is_uncertain() else "bad"
-    ts = dv.SourceTimestamp
-    if ts is not None:
-        if ts.tzinfo is None:
-            ts = ts.replace(tzinfo=dt.UTC)
-        age = (dt.datetime.now(dt.UTC) - ts).total_seconds()
-        if age > max_age_s:
-            return math.nan, "stale"
+    age = _age_s(dv)
+    if age is not None and age > max_age_s:
+        return math.nan, "stale"
     try:
         value = float(dv.Value.Value)
     except (TypeError, ValueError, AttributeError):
@@ -344,6 +361,7 @@ class ControlLoop:
         self._backoff_s = config.period_s
         self._max_backoff_s = min(MAX_BACKOFF_S, MAX_BACKOFF_PERIODS * config.period_s)
         self._next_try = 0.0
+        self._ages_s: list[float] = []   # good samples' ages since the last phase estimate
         # The MPC inside the controller (a test schedule has none: no health monitor).
         self._mpc: OffsetFreeMPC | None = getattr(self.ctrl, "mpc", None)
         self.health = (None if self._mpc is None
@@ -471,9 +489,34 @@ class ControlLoop:
                 self.ctrl.skipped(next_k - k - 1)
             row["step_latency_s"] = end - woke
             self._check_limits(row, next_k - k)
+            t0 += self._align(row)
             log.row(row)
             k = next_k
         self.summary.n_steps = k
+
+    def _align(self, row: dict[str, object]) -> float:
+        """Delay [wall s] that moves the reads to just after the plant's publication.
+
+        Once `alignment.WINDOW` good samples' ages are in, their read phase is
+        estimated; outside `alignment.BAND` the schedule is delayed (less than a
+        period) and the row says so. 0 otherwise (`czmpc.runtime.alignment`).
+        """
+        if not self.config.align_to_plant or len(self._ages_s) < alignment.WINDOW:
+            return 0.0
+        period = self.config.period_s
+        phase = alignment.read_phase(self._ages_s, period)
+        self._ages_s.clear()
+        if phase is None:
+            return 0.0
+        self.summary.read_phases.append(phase)
+        delay = alignment.alignment_delay_s(phase, period)
+        if delay is None:
+            return 0.0
+        self.summary.alignment_delays_s.append(delay)
+        if not row["event"]:
+            row["event"] = (f"reads moved to {alignment.TARGET_PHASE:.2f} of the period after the "
+                            f"plant publishes (were at {phase:.2f}; delay {delay * 1e3:.1f} ms)")
+        return delay
 
     def _check_limits(self, row: dict[str, object], n_periods: int) -> None:
         """Stop the run if a test limit is left, the controller aborts or is done."""
@@ -504,8 +547,11 @@ class ControlLoop:
         reported_applied: float | None = None
         if self.link.connected:
             try:
-                power, quality = _measurement(await self.link.read("power_kw"),
-                                              cfg.max_sample_age_s)
+                dv = await self.link.read("power_kw")
+                power, quality = _measurement(dv, cfg.max_sample_age_s)
+                age = _age_s(dv)
+                if quality == "good" and age is not None:
+                    self._ages_s.append(age)
                 if "setpoint_kw" in self.link.nodes:
                     sp, q = _measurement(await self.link.read("setpoint_kw"), math.inf)
                     if q == "good":

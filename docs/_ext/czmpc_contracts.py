@@ -87,6 +87,12 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
                                "a missing sample."),
     "plant.connect_timeout_s": ("number > 0", "2", "s",
                                 "Time allowed for each connection attempt."),
+    "plant.align_to_plant": ("true or false", "true", "-",
+                             "Keep the reads just after the plant publishes its sample (from "
+                             "the power's source timestamps, on a clock synchronised with "
+                             "the controller's), so that each write lands before the plant's "
+                             "next step and the input delay does not jitter by a sample "
+                             "(``czmpc.runtime.alignment``)."),
     "plant.security": ("table", "none (loopback only)", "-",
                        "Channel security: see :doc:`plant_security`."),
     "nodes.power_kw": ("string", "required", "kW", "Node id of the measured heater power (read)."),

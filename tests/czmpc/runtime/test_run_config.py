@@ -16,6 +16,7 @@ def test_a_valid_config_reads_with_defaults(tmp_path: Path) -> None:
     assert cfg.safe_action == "hold"
     assert cfg.log_path == tmp_path / "run.csv"
     assert cfg.nodes.mode == "ns=2;s=Heater.Mode"
+    assert cfg.align_to_plant is True
 
 
 @pytest.mark.parametrize(("text", "key"), [
@@ -30,6 +31,8 @@ def test_a_valid_config_reads_with_defaults(tmp_path: Path) -> None:
      '[safety]\naction = "ramp"\n',
      "safety.safe_triac_pct"),
     ('[plantt]\n', "plantt"),
+    ('[plant]\nendpoint = "opc.tcp://h:1/"\nts_s = 2.0\nalign_to_plant = "yes"\n',
+     "plant.align_to_plant"),
 ])
 def test_bad_keys_are_named(tmp_path: Path, text: str, key: str) -> None:
     path = tmp_path / "run.toml"

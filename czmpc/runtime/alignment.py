@@ -1,0 +1,99 @@
+"""Read just after the plant publishes: the loop's phase against the plant's sample clock.
+
+A plant (a PLC, or `czmpc plant serve`) takes its samples on its own clock: every
+``ts_s`` it latches the TRIAC command and publishes the power with a source timestamp.
+The loop reads, steps the MPC and writes on *its* clock, with the same period. Where
+the two clocks' phases lie is chance. If the loop reads just before the plant's
+step, its write lands *after* that step on some periods and before it on others
+(read and write latencies jitter by milliseconds). The input then reaches the
+heater one sample later on some periods than on others: a delay that jitters
+between ``nk`` and ``nk + 1``. On a test log this shows as residuals correlated
+with the input moves at lag 1, and in closed loop as a model that is sometimes one
+sample off.
+
+The loop avoids this by reading a fixed share `TARGET_PHASE` of a period after the
+plant published. The *phase* of a read is the sample's age ``now - SourceTimestamp``
+as a share of the period, taken modulo 1. Over `WINDOW` good samples its circular
+mean is taken (`read_phase`). When that lies outside `BAND`, the loop delays its
+schedule once by less than a period (`alignment_delay_s`), so the next reads come at
+`TARGET_PHASE`. That one sample period is longer by the delay, and the row records
+it as an event.
+
+This needs the plant's source timestamps on a clock synchronised with the
+controller's (NTP on a real plant; the same clock on loopback), as the stale-sample
+test (``max_sample_age_s``) already does. Phases spread around the circle
+(concentration below `MIN_CONCENTRATION`: a plant that publishes at another rate,
+or clocks that jump) give no estimate, and the schedule is left alone. Set
+``[plant] align_to_plant = false`` to turn it off.
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+from collections.abc import Sequence
+
+#: Where in the plant's period the loop reads [share of the period after the plant
+#: published]: late enough that read jitter cannot put a read before the plant's own
+#: publication, early enough that the write lands long before its next step.
+TARGET_PHASE = 0.2
+#: Read phases inside this band [share of the period] are left alone.
+BAND = (0.05, 0.5)
+#: Good samples whose phases make one estimate.
+WINDOW = 8
+#: Smallest length of the mean phase vector (1: every phase equal; 0: spread evenly)
+#: that counts as a phase at all.
+MIN_CONCENTRATION = 0.8
+
+
+def read_phase(ages_s: Sequence[float], period_s: float) -> float | None:
+    """The circular mean of ``(age / period) mod 1`` over `ages_s`, or None.
+
+    Parameters
+    ----------
+    ages_s :
+        Ages ``now - SourceTimestamp`` of samples at the moment the loop read them
+        [wall s]; at least one.
+    period_s :
+        The loop's (and the plant's) period [wall s], > 0.
+
+    Returns
+    -------
+    float or None
+        The read phase in ``[0, 1)``, or None when the phases are spread (the length
+        of their mean unit vector is below `MIN_CONCENTRATION`).
+
+    Raises
+    ------
+    ValueError
+        No ages, a non-finite age, or a period that is not positive.
+    """
+    if not (math.isfinite(period_s) and period_s > 0.0):
+        raise ValueError(f"read_phase: period_s must be a finite number > 0; got {period_s!r}")
+    if not ages_s or not all(math.isfinite(a) for a in ages_s):
+        raise ValueError(f"read_phase: expected finite ages; got {list(ages_s)!r}")
+    mean = sum(cmath.exp(2j * math.pi * a / period_s) for a in ages_s) / len(ages_s)
+    if abs(mean) < MIN_CONCENTRATION:
+        return None
+    return (cmath.phase(mean) / (2.0 * math.pi)) % 1.0
+
+
+def alignment_delay_s(phase: float, period_s: float) -> float | None:
+    """How long to delay the loop's schedule so that reads come at `TARGET_PHASE`.
+
+    Parameters
+    ----------
+    phase :
+        The current read phase (`read_phase`), in ``[0, 1)``.
+    period_s :
+        The period [wall s].
+
+    Returns
+    -------
+    float or None
+        ``((TARGET_PHASE - phase) mod 1) * period_s`` [wall s], less than a period;
+        None when `phase` lies inside `BAND`.
+    """
+    if BAND[0] <= phase <= BAND[1]:
+        return None
+    return ((TARGET_PHASE - phase) % 1.0) * period_s
