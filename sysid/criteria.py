@@ -5,9 +5,12 @@ Notation
 ``eps_k = P_k - Psim_k`` is the ballistic simulation error and ``e_k = P_k - Ppred_k`` the
 one-step-ahead prediction error [kW] (Table 1). Both criteria average over every sample
 of the record, ``k = 0 .. N-1``, by default with the held-past initial conditions of
-`sysid.simulate`; ``initial_state="estimate"`` scores the model with its initial state
-fitted by least squares (the errors are affine in it), as MATLAB's ``compare`` with
-``'InitialCondition', 'estimate'``, which is fair to records that do not start at rest.
+`sysid.simulate`. A record of several segments (``Dataset.segment_starts``) is scored
+segment by segment, each restarted with its own initial state under the same policy,
+and the squared errors are pooled over all samples; ``initial_state="estimate"``
+scores the model with its initial state (each segment's) fitted by least squares (the
+errors are affine in it), as MATLAB's ``compare`` with ``'InitialCondition',
+'estimate'``, which is fair to records that do not start at rest.
 """
 
 from __future__ import annotations
@@ -62,10 +65,19 @@ def estimated_state_errors(
 
 
 def _estimated_errors(model: HammersteinModel, data: Dataset, one_step: bool) -> FloatArray:
+    """Errors of every segment, each with its own fitted initial state, concatenated."""
     model.check_ts(data.ts_s)
     op = model.operating_point
     y = data.power_kw - op.power_kw
     w = np.asarray(model.input_nonlinearity(data.triac_pct - op.triac_pct), dtype=float)
+    parts = [_segment_estimated_errors(model, y[lo:hi], w[lo:hi], one_step)
+             for lo, hi in data.segment_bounds()]
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+def _segment_estimated_errors(
+    model: HammersteinModel, y: FloatArray, w: FloatArray, one_step: bool
+) -> FloatArray:
     a, b = model.a, model.b
     if not one_step or model.linear_block == "oe":
         return estimated_state_errors(b, a, w, y, max(a.size, b.size) - 1)

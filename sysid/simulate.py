@@ -166,7 +166,9 @@ def simulate(model: HammersteinModel, data: Dataset) -> FloatArray:
         The model; ``dP = B/A f(ds)`` is simulated whatever its noise model.
     data :
         The record: its TRIAC input drives the model; its first measured power sets
-        the initial condition (held-past rule, see the module docstring).
+        the initial condition (held-past rule, see the module docstring). A record of
+        several segments is simulated segment by segment, each restarted from its own
+        first sample by the same rule.
 
     Returns
     -------
@@ -179,7 +181,9 @@ def simulate(model: HammersteinModel, data: Dataset) -> FloatArray:
         ``data.ts_s`` differs from ``model.ts_s``.
     """
     dp_kw, w = _deviations(model, data)
-    yhat = simulate_arrays(model.b, model.a, w, y_past=float(dp_kw[0]))
+    yhat = np.empty_like(dp_kw)
+    for lo, hi in data.segment_bounds():
+        yhat[lo:hi] = simulate_arrays(model.b, model.a, w[lo:hi], y_past=float(dp_kw[lo]))
     return yhat + model.operating_point.power_kw
 
 
@@ -195,7 +199,8 @@ def predict_one_step(model: HammersteinModel, data: Dataset) -> FloatArray:
     model :
         The model.
     data :
-        The record (measured power and TRIAC input), held-past initial conditions.
+        The record (measured power and TRIAC input), held-past initial conditions;
+        restarted at the first sample of each segment.
 
     Returns
     -------
@@ -211,7 +216,9 @@ def predict_one_step(model: HammersteinModel, data: Dataset) -> FloatArray:
         return simulate(model, data)
     dp_kw, w = _deviations(model, data)
     c = np.array([1.0]) if model.linear_block == "arx" else model.c
-    yhat = predict_one_step_arrays(model.a, model.b, c, dp_kw, w)
+    yhat = np.empty_like(dp_kw)
+    for lo, hi in data.segment_bounds():
+        yhat[lo:hi] = predict_one_step_arrays(model.a, model.b, c, dp_kw[lo:hi], w[lo:hi])
     return yhat + model.operating_point.power_kw
 
 
