@@ -94,6 +94,29 @@ def lagged(x: FloatArray, lag: int) -> FloatArray:
     return z
 
 
+def segment_bounds(
+    n: int, segment_starts: tuple[int, ...] | list[int] | None, where: str
+) -> tuple[tuple[int, int], ...]:
+    """``(start, stop)`` of each segment of an ``n``-sample record (one segment for None).
+
+    Raises
+    ------
+    IdentificationError
+        `segment_starts` not starting at 0 or not strictly increasing below ``n``.
+    """
+    if segment_starts is None:
+        return ((0, n),)
+    starts = [int(v) for v in segment_starts]
+    if not starts or starts[0] != 0 or starts[-1] >= n or any(
+            b <= a for a, b in zip(starts, starts[1:], strict=False)):
+        raise IdentificationError(
+            f"{where}: segment_starts must start at 0 and increase strictly below {n}; got "
+            f"{starts}"
+        )
+    bounds = [*starts, n]
+    return tuple(zip(bounds[:-1], bounds[1:], strict=True))
+
+
 @dataclass(frozen=True, kw_only=True, eq=False)
 class ArxFit:
     """Least-squares ARX estimate ``A y = B u + e`` (paper eq. 5) on plain arrays.
@@ -111,8 +134,11 @@ class ArxFit:
     residuals :
         Equation errors ``e_k = A y_k - B u_k`` for the samples with a complete
         regressor only, ``k = first_sample .. N-1``; shape ``(N - first_sample,)``.
+        With several segments: those of each segment (from its own ``first_sample``),
+        concatenated.
     first_sample :
-        ``max(na, nk + nb - 1)``: index of the sample `residuals` starts at.
+        ``max(na, nk + nb - 1)``: index of the sample `residuals` starts at (in each
+        segment).
     na, nb, nk :
         The orders used.
     """
@@ -158,7 +184,13 @@ def arx_regressor(
 
 
 def arx_least_squares(
-    y: FloatArray, u: FloatArray, *, na: int, nb: int, nk: int
+    y: FloatArray,
+    u: FloatArray,
+    *,
+    na: int,
+    nb: int,
+    nk: int,
+    segment_starts: tuple[int, ...] | list[int] | None = None,
 ) -> ArxFit:
     """Fit ``A(q) y = B(q) u + e`` (paper eq. 5) by ordinary least squares.
 
@@ -174,6 +206,11 @@ def arx_least_squares(
         Number of ``B`` coefficients (>= 1).
     nk :
         Input delay [samples] (>= 0).
+    segment_starts :
+        First sample of each segment (experiment) of the record, starting with 0;
+        default one segment. No regressor reaches across a segment boundary: each
+        segment contributes its own samples ``k >= max(na, nk + nb - 1)`` (counted from
+        its start); a segment shorter than that contributes none.
 
     Returns
     -------
@@ -203,15 +240,26 @@ def arx_least_squares(
     nb = _check_order("nb", nb, 1)
     nk = _check_order("nk", nk, 0)
     y, u = _check_signals(y, u, "arx_least_squares")
+    bounds = segment_bounds(y.size, segment_starts, "arx_least_squares")
     n0 = max(na, nk + nb - 1)
     n_par = na + nb
-    if y.size < n0 + n_par + 1:
+    n_rows = sum(max(hi - lo - n0, 0) for lo, hi in bounds)
+    if n_rows < n_par + 1:
         raise IdentificationError(
             f"arx_least_squares: na={na}, nb={nb}, nk={nk} need at least {n0 + n_par + 1} "
             f"samples ({n0} to fill the regressor, then more than {n_par} equations); got "
-            f"{y.size}; use a longer record or lower orders"
+            f"{y.size}"
+            + ("" if len(bounds) == 1 else
+               f" in {len(bounds)} segments ({n_rows} complete regressors)")
+            + "; use a longer record or lower orders"
         )
-    phi, target, n0 = arx_regressor(y, u, na=na, nb=nb, nk=nk)
+    if len(bounds) == 1:
+        phi, target, n0 = arx_regressor(y, u, na=na, nb=nb, nk=nk)
+    else:
+        parts = [arx_regressor(y[lo:hi], u[lo:hi], na=na, nb=nb, nk=nk)
+                 for lo, hi in bounds if hi - lo > n0]
+        phi = np.vstack([p[0] for p in parts])
+        target = np.concatenate([p[1] for p in parts])
     col_scale = np.linalg.norm(phi, axis=0)
     if np.any(col_scale == 0.0):
         raise IdentificationError(
@@ -282,7 +330,7 @@ class PemFit:
         ``w``: the part of the `scipy.signal.lfilter` (direct form II transposed) state of
         ``1/F`` (OE, length ``nf``) or ``1/C`` (ARMAX, length ``nc``) that the samples
         before the record leave. Held: OE ``lfiltic([1], F, [y_0]*nf)``, ARMAX zeros.
-        Estimated: fitted.
+        Estimated: fitted. With several segments, each segment's, concatenated.
     converged, message, n_iterations :
         From the optimizer.
     lm :
@@ -372,6 +420,35 @@ def _check_length(n: int, n_total: int, max_lag: int, where: str) -> None:
             f"{where}: these orders need at least {needed} samples ({n_total} parameters "
             f"and lags up to {max_lag}); got {n}; use a longer record or lower orders"
         )
+
+
+Problem = Callable[[FloatArray], tuple[FloatArray, FloatArray]]
+
+
+def _stacked_problem(problems: list[Problem], n_model: int, n_state: int) -> Problem:
+    """Residuals of several segments, concatenated: shared model, own initial states.
+
+    ``theta = [model (n_model), state of segment 0 (n_state), state of segment 1, ..]``;
+    each segment's problem sees ``[model, its state]`` and its Jacobian columns land in
+    the model block and its own state block (zero elsewhere).
+    """
+    if len(problems) == 1:
+        return problems[0]
+    n_theta = n_model + len(problems) * n_state
+
+    def fun(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+        rs, js = [], []
+        for s, problem in enumerate(problems):
+            lo = n_model + s * n_state
+            r, jac = problem(np.concatenate([theta[:n_model], theta[lo : lo + n_state]]))
+            full = np.zeros((r.size, n_theta))
+            full[:, :n_model] = jac[:, :n_model]
+            full[:, lo : lo + n_state] = jac[:, n_model:]
+            rs.append(r)
+            js.append(full)
+        return np.concatenate(rs), np.vstack(js)
+
+    return fun
 
 
 def _oe_problem(
@@ -486,34 +563,39 @@ def _oe_pem(
     theta0: FloatArray | None,
     initial_conditions: object,
     max_iterations: int,
+    segment_starts: tuple[int, ...] | list[int] | None = None,
 ) -> PemFit:
     nb = _check_order("nb", nb, 1)
     nf = _check_order("nf", nf, 0)
     nk = _check_order("nk", nk, 0)
     ic = _check_initial_conditions(initial_conditions)
     y, u = _check_signals(y, u, "oe_pem")
+    bounds = segment_bounds(y.size, segment_starts, "oe_pem")
     n_model = nb + nf
     estimate = ic == "estimated"
-    n_total = n_model + (nf if estimate else 0)
+    n_state = nf if estimate else 0
+    n_total = n_model + len(bounds) * n_state
     _check_length(y.size, n_total, max(nf, nk + nb - 1), "oe_pem")
     start = _check_theta0(theta0, n_model, "oe_pem")
     if start is None:
-        arx = arx_least_squares(y, u, na=nf, nb=nb, nk=nk)
+        arx = arx_least_squares(y, u, na=nf, nb=nb, nk=nk, segment_starts=segment_starts)
         start = np.concatenate([arx.b[nk:], arx.a[1:]])
     project = _stabilizer((slice(nb, nb + nf),))
     if estimate and nf > 0:
         f0 = np.concatenate([[1.0], project(start)[nb:]])
-        start = np.concatenate([start, lfiltic([1.0], f0, np.full(nf, y[0]))])
-    lm = levenberg_marquardt(
-        _oe_problem(y, u, nb, nf, nk, estimate), start, project=project,
-        max_iterations=max_iterations,
-    )
+        start = np.concatenate(
+            [start, *(lfiltic([1.0], f0, np.full(nf, y[lo])) for lo, _ in bounds)])
+    problem = _stacked_problem(
+        [_oe_problem(y[lo:hi], u[lo:hi], nb, nf, nk, estimate) for lo, hi in bounds],
+        n_model, n_state)
+    lm = levenberg_marquardt(problem, start, project=project, max_iterations=max_iterations)
     f = np.concatenate([[1.0], lm.theta[nb : nb + nf]])
     b = np.concatenate([np.zeros(nk), lm.theta[:nb]])
     names = tuple(f"b{j}" for j in range(nk, nk + nb)) + tuple(
         f"f{i}" for i in range(1, nf + 1)
     )
-    held_state = lfiltic([1.0], f, np.full(nf, y[0])) if nf else np.zeros(0)
+    held_state = np.concatenate(
+        [lfiltic([1.0], f, np.full(nf, y[lo])) for lo, _ in bounds]) if nf else np.zeros(0)
     return _finish("oe", lm, n_model, names, (f, b, f), ic, held_state)
 
 
@@ -527,6 +609,7 @@ def oe_pem(
     theta0: FloatArray | None = None,
     initial_conditions: InitialConditions = "held",
     max_iterations: int = 100,
+    segment_starts: tuple[int, ...] | list[int] | None = None,
 ) -> PemFit:
     """Output-error model ``y = B/F u + eps`` minimizing V (paper eqs. 7, 9).
 
@@ -552,6 +635,10 @@ def oe_pem(
         are extra parameters, for records that do not start at rest.
     max_iterations :
         Levenberg-Marquardt iteration limit.
+    segment_starts :
+        First sample of each segment (experiment), starting with 0; default one
+        segment. Each segment is filtered from its own start (held past, or its own
+        estimated initial state); `PemFit.initial_state` then holds each segment's.
 
     Returns
     -------
@@ -572,7 +659,8 @@ def oe_pem(
     into the unit circle at every trial point.
     """
     fit = _oe_pem(y, u, nb=nb, nf=nf, nk=nk, theta0=theta0,
-                  initial_conditions=initial_conditions, max_iterations=max_iterations)
+                  initial_conditions=initial_conditions, max_iterations=max_iterations,
+                  segment_starts=segment_starts)
     if not fit.converged:
         warnings.warn(f"oe_pem did not converge: {fit.message}", IdentificationWarning,
                       stacklevel=2)
@@ -590,6 +678,7 @@ def _armax_pem(
     theta0: FloatArray | None,
     initial_conditions: object,
     max_iterations: int,
+    segment_starts: tuple[int, ...] | list[int] | None = None,
 ) -> PemFit:
     na = _check_order("na", na, 0)
     nb = _check_order("nb", nb, 1)
@@ -597,21 +686,23 @@ def _armax_pem(
     nk = _check_order("nk", nk, 0)
     ic = _check_initial_conditions(initial_conditions)
     y, u = _check_signals(y, u, "armax_pem")
+    bounds = segment_bounds(y.size, segment_starts, "armax_pem")
     n_model = na + nb + nc
     estimate = ic == "estimated"
-    n_total = n_model + (nc if estimate else 0)
+    n_state = nc if estimate else 0
+    n_total = n_model + len(bounds) * n_state
     _check_length(y.size, n_total, max(na, nc, nk + nb - 1), "armax_pem")
     start = _check_theta0(theta0, n_model, "armax_pem")
     project = _stabilizer((slice(0, na), slice(na + nb, n_model)))
     if start is None:
-        arx = arx_least_squares(y, u, na=na, nb=nb, nk=nk)
+        arx = arx_least_squares(y, u, na=na, nb=nb, nk=nk, segment_starts=segment_starts)
         start = project(np.concatenate([arx.theta, np.zeros(nc)]))
     if estimate:
-        start = np.concatenate([start, np.zeros(nc)])
-    lm = levenberg_marquardt(
-        _armax_problem(y, u, na, nb, nc, nk, estimate), start, project=project,
-        max_iterations=max_iterations,
-    )
+        start = np.concatenate([start, np.zeros(len(bounds) * nc)])
+    problem = _stacked_problem(
+        [_armax_problem(y[lo:hi], u[lo:hi], na, nb, nc, nk, estimate) for lo, hi in bounds],
+        n_model, n_state)
+    lm = levenberg_marquardt(problem, start, project=project, max_iterations=max_iterations)
     a = np.concatenate([[1.0], lm.theta[:na]])
     b = np.concatenate([np.zeros(nk), lm.theta[na : na + nb]])
     c = np.concatenate([[1.0], lm.theta[na + nb : n_model]])
@@ -620,7 +711,7 @@ def _armax_pem(
         + tuple(f"b{j}" for j in range(nk, nk + nb))
         + tuple(f"c{i}" for i in range(1, nc + 1))
     )
-    return _finish("armax", lm, n_model, names, (a, b, c), ic, np.zeros(nc))
+    return _finish("armax", lm, n_model, names, (a, b, c), ic, np.zeros(len(bounds) * nc))
 
 
 def armax_pem(
@@ -634,6 +725,7 @@ def armax_pem(
     theta0: FloatArray | None = None,
     initial_conditions: InitialConditions = "held",
     max_iterations: int = 100,
+    segment_starts: tuple[int, ...] | list[int] | None = None,
 ) -> PemFit:
     """ARMAX model ``A y = B u + C e`` minimizing W (paper eqs. 6, 10).
 
@@ -662,6 +754,10 @@ def armax_pem(
         (`PemFit.initial_state`) are extra parameters.
     max_iterations :
         Levenberg-Marquardt iteration limit.
+    segment_starts :
+        First sample of each segment (experiment), starting with 0; default one
+        segment. Each segment is filtered from its own start (held past, or its own
+        estimated initial state); `PemFit.initial_state` then holds each segment's.
 
     Returns
     -------
@@ -683,7 +779,8 @@ def armax_pem(
     stable; ``A`` keeps the model storable).
     """
     fit = _armax_pem(y, u, na=na, nb=nb, nc=nc, nk=nk, theta0=theta0,
-                     initial_conditions=initial_conditions, max_iterations=max_iterations)
+                     initial_conditions=initial_conditions, max_iterations=max_iterations,
+                     segment_starts=segment_starts)
     if not fit.converged:
         warnings.warn(f"armax_pem did not converge: {fit.message}", IdentificationWarning,
                       stacklevel=2)
@@ -822,7 +919,7 @@ def fit_arx(
         Never for a valid `Dataset` (the model takes the data's sampling time).
     """
     dy, du = _deviation_arrays(data, operating_point, "fit_arx")
-    fit = arx_least_squares(dy, du, na=na, nb=nb, nk=nk)
+    fit = arx_least_squares(dy, du, na=na, nb=nb, nk=nk, segment_starts=data.segment_starts)
     model = _linear_model(
         data, operating_point, block="arx", a=fit.a, b=fit.b, c=np.array([1.0]),
         residuals=fit.residuals, n_parameters=fit.theta.size, method="arx-least-squares",
@@ -899,7 +996,8 @@ def fit_oe(
     """
     dy, du = _deviation_arrays(data, operating_point, "fit_oe")
     fit = _oe_pem(dy, du, nb=nb, nf=nf, nk=nk, theta0=None,
-                  initial_conditions=initial_conditions, max_iterations=max_iterations)
+                  initial_conditions=initial_conditions, max_iterations=max_iterations,
+                  segment_starts=data.segment_starts)
     return _pem_result(data, operating_point, fit, block="oe", criterion="ballistic",
                        method="oe-pem-ballistic", where="fit_oe")
 
@@ -950,7 +1048,8 @@ def fit_armax(
     """
     dy, du = _deviation_arrays(data, operating_point, "fit_armax")
     fit = _armax_pem(dy, du, na=na, nb=nb, nc=nc, nk=nk, theta0=None,
-                     initial_conditions=initial_conditions, max_iterations=max_iterations)
+                     initial_conditions=initial_conditions, max_iterations=max_iterations,
+                     segment_starts=data.segment_starts)
     return _pem_result(data, operating_point, fit, block="armax", criterion="one_step",
                        method="armax-pem-one-step", where="fit_armax")
 
@@ -967,4 +1066,5 @@ __all__ = [
     "fit_oe",
     "lagged",
     "oe_pem",
+    "segment_bounds",
 ]
