@@ -248,7 +248,9 @@ def find_operating_point(
     Notes
     -----
     The ``"steady"`` rule (a settling-time test): split the record into maximal
-    stretches of constant input (within `input_tol`). In a stretch, the final level
+    stretches of constant input (within `input_tol`), within each segment (a window
+    never reaches across a segment boundary; ``sigma_y`` uses differences within
+    segments only). In a stretch, the final level
     is the mean of its last quarter (at least ``W = min_window_samples`` samples);
     the window starts at the first sample ``m`` after which every ``W``-sample moving
     average of the output stays within ``limit`` of that final level, and runs to the
@@ -298,10 +300,16 @@ def find_operating_point(
             f"find_operating_point: min_window_samples must be an int >= 4; got "
             f"{min_window_samples!r}"
         )
-    sigma_y = _robust_scale(np.diff(y)) / math.sqrt(2.0)
+    bounds = data.segment_bounds()
+    # differences and constant-input runs within each segment, never across a boundary
+    diffs = np.diff(y) if len(bounds) == 1 else np.concatenate(
+        [np.diff(y[lo:hi]) for lo, hi in bounds])
+    sigma_y = _robust_scale(diffs) / math.sqrt(2.0)
     limit = max(drift_sigmas * sigma_y, output_atol_kw)
+    runs = [(lo + a, lo + b) for lo, hi in bounds
+            for a, b in _constant_input_runs(u[lo:hi], input_tol)]
     windows = [(found[0], b, found[1], found[2])
-               for a, b in _constant_input_runs(u, input_tol)
+               for a, b in runs
                if (found := _settled_start(y, a, b, min_window_samples, limit)) is not None]
     best = _central_window(windows, u) if windows else None
     if best is None:
@@ -415,9 +423,11 @@ class OutlierReport:
     ----------
     residuals_kw :
         One-step-ahead ARX residuals aligned with the data's samples, shape
-        ``(n_samples,)`` [output unit]; NaN (no prediction) before `first_sample`.
+        ``(n_samples,)`` [output unit]; NaN (no prediction) before `first_sample`
+        (of each segment: the ARX regressors never reach across a segment boundary).
     first_sample :
-        First sample with a residual, ``max(na, nk + nb - 1)``.
+        First sample with a residual, ``max(na, nk + nb - 1)`` (counted from the start
+        of each segment).
     scale_kw :
         Robust residual scale ``sigma`` (MAD) [output unit].
     threshold :
@@ -559,9 +569,11 @@ def find_outlier_candidates(
         raise IdentificationError(f"{where}: input_step_tol must be a finite number >= 0 or "
                                   f"None; got {input_step_tol!r}")
     ds, dp = to_deviation(data, operating_point)
-    fit = arx_least_squares(dp, ds, na=na, nb=nb, nk=nk)
+    fit = arx_least_squares(dp, ds, na=na, nb=nb, nk=nk, segment_starts=data.segment_starts)
     n0 = fit.first_sample
     e = fit.residuals
+    # the sample index of each residual: those of each segment from its own n0 on
+    rows = np.concatenate([np.arange(lo + n0, hi) for lo, hi in data.segment_bounds()])
     scale = _robust_scale(e)
     if scale <= EXACT_FIT_RTOL * float(np.std(dp)):
         raise IdentificationError(
@@ -570,16 +582,18 @@ def find_outlier_candidates(
             "so no outlier can be told from the rest"
         )
     residuals = np.full(data.n_samples, np.nan)
-    residuals[n0:] = e
+    residuals[rows] = e
     du = np.diff(data.triac_pct)
-    step_tol = INPUT_STEP_SIGMAS * _robust_scale(du) if input_step_tol is None \
+    within = np.ones(du.size, dtype=bool)   # du[j] = u[j+1] - u[j] inside one segment
+    within[np.asarray(data.segment_starts[1:], dtype=int) - 1] = False
+    step_tol = INPUT_STEP_SIGMAS * _robust_scale(du[within]) if input_step_tol is None \
         else float(input_step_tol)
-    steps = np.flatnonzero(np.abs(du) > step_tol) + 1
+    steps = np.flatnonzero((np.abs(du) > step_tol) & within) + 1
     limit = threshold * scale
     candidates: list[OutlierCandidate] = []
     step_residuals: list[StepResidual] = []
     y = data.power_kw
-    for first, last in _events(np.flatnonzero(np.abs(e) > limit) + n0):
+    for first, last in _events(rows[np.abs(e) > limit]):
         peak = first + int(np.argmax(np.abs(residuals[first : last + 1])))
         lags = first - nk - steps
         near = steps[(lags >= 0) & (lags <= step_guard_samples)]
@@ -655,7 +669,8 @@ def interpolate_spike(
     ------
     DataFileError
         Neither or both of `sample` and `time_s`; a time outside the record; a sample
-        outside the record or at its first or last sample (one neighbour only).
+        outside the record or at its first or last sample, or at the first or last
+        sample of a segment (one neighbour only: none across a segment boundary).
     """
     where = "interpolate_spike"
     if (sample is None) == (time_s is None):
@@ -672,6 +687,12 @@ def interpolate_spike(
         raise DataFileError(
             f"{where}: expected a sample with two neighbours, 1 <= sample <= "
             f"{data.n_samples - 2}; got {k}", path=data.source,
+        )
+    if k in data.segment_starts or k + 1 in data.segment_starts:
+        raise DataFileError(
+            f"{where}: expected a sample with two neighbours in its own segment; got {k}, "
+            f"at a segment boundary (segments start at {list(data.segment_starts)})",
+            path=data.source,
         )
     power = np.array(data.power_kw, copy=True)
     old = float(power[k])
@@ -772,7 +793,8 @@ def estimate_level_shift(
     from_time_s :
         Onset of the shift [s] (e.g. `OutlierCandidate.time_s`).
     window_samples :
-        Samples used on each side (>= 2; fewer near the record's ends).
+        Samples used on each side (>= 2; fewer near the record's ends; the windows
+        never reach outside the onset's segment).
     transition_samples :
         Samples from the onset left out (the shift may take 1-3 samples, paper
         Fig. 5) (>= 0).
@@ -799,8 +821,10 @@ def estimate_level_shift(
     w = _check_int(where, "window_samples", window_samples, 2)
     m = _check_int(where, "transition_samples", transition_samples, 0)
     k0 = _sample_at(data, from_time_s, where)
-    before = (max(k0 - w, 0), k0)
-    after = (min(k0 + m, data.n_samples), min(k0 + m + w, data.n_samples))
+    # the windows stay inside the onset's segment
+    lo, hi = next((a, b) for a, b in data.segment_bounds() if a <= k0 < b)
+    before = (max(k0 - w, lo), k0)
+    after = (min(k0 + m, hi), min(k0 + m + w, hi))
     if before[1] - before[0] < 2 or after[1] - after[0] < 2:
         raise IdentificationError(
             f"{where}: expected at least 2 samples before {from_time_s:g} s and 2 after "

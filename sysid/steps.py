@@ -128,7 +128,9 @@ def detect_steps(
     -------
     tuple of InputStep
         The steps in time order. A step whose response ``y_{k+nk}`` falls after the
-        end of the record cannot be measured and is not listed. Steps closer together
+        end of the record (of its segment) cannot be measured and is not listed; nor
+        is the change from one segment's last sample to the next one's first (no step
+        across a segment boundary). Steps closer together
         than ``nk`` samples share output samples; their gains then mix.
 
     Raises
@@ -156,12 +158,15 @@ def detect_steps(
                 f"detect_steps: min_step must be a finite number >= 0; got {min_step!r}"
             )
     u, y = data.triac_pct, data.power_kw
-    n = data.n_samples
     candidates = np.flatnonzero(np.abs(np.diff(u)) > threshold) + 1
+    # the segment each sample is in, and that segment's end: no step across a boundary
+    seg_end = np.repeat([hi for _, hi in data.segment_bounds()],
+                        [hi - lo for lo, hi in data.segment_bounds()])
+    starts = set(data.segment_starts)
     steps = []
     for k in candidates.tolist():
         after = k + delay_steps
-        if after >= n:
+        if k in starts or after >= seg_end[k]:
             continue
         before = after - 1
         du = float(u[k] - u[k - 1])
