@@ -17,6 +17,16 @@ them all; the wall time of each stage is recorded (for the benchmark only, never
 in a decision). The route works on any SISO log (units from the `Dataset`); what a
 log cannot support (no steady window, fewer steps than the polynomial degree, a
 model that fails) is skipped and said in `PipelineResult.skipped`.
+
+A log of several segments (``Dataset.segment_starts``: separate experiments, or one
+log split at gaps) is used whole, each segment with its own initial state: the
+operating-point windows, the outlier search's ARX, the input steps and every ARX
+regressor stay inside a segment; the OE, ARMAX and Hammerstein PEM fits and the
+criteria V and W restart in each segment (held past, or the segment's own estimated
+initial state) and pool the errors of all samples; structure selection validates on
+each segment's end. A level shift found in one segment is corrected to the end of
+the record (said in `PipelineResult.skipped`). The models' provenance records the
+segments (``extra["n_segments"]``, ``["n_samples"]``, ``["segment_starts"]``).
 """
 
 from __future__ import annotations
@@ -30,6 +40,7 @@ from typing import Literal
 
 import numpy as np
 
+from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import IdentificationError, IdentificationWarning, SysidError
 from sysid.hammerstein import (
@@ -360,11 +371,38 @@ class _Clock:
             self._progress(f"  {step}: iteration {iteration}, cost {cost:.6g} (mean square)")
 
 
-def _named(name: str, label: str, result: IdentificationResult) -> NamedModel:
+def _segments_note(data: Dataset) -> dict[str, object]:
+    """Provenance entries of a record of several segments (empty for one segment)."""
+    if data.n_segments == 1:
+        return {}
+    return {"n_segments": data.n_segments, "n_samples": data.n_samples,
+            "segment_starts": list(data.segment_starts)}
+
+
+def _segment_starts(data: Dataset) -> tuple[int, ...] | None:
+    """``segment_starts`` for the array kernels: None for one segment (their default)."""
+    return None if data.n_segments == 1 else data.segment_starts
+
+
+def _segments(data: Dataset, op: OperatingPoint) -> list[tuple[FloatArray, FloatArray]]:
+    """``(dP, ds)`` deviation arrays of each segment."""
+    y = data.power_kw - op.power_kw
+    ds = data.triac_pct - op.triac_pct
+    return [(y[lo:hi], ds[lo:hi]) for lo, hi in data.segment_bounds()]
+
+
+def _named(
+    name: str, label: str, result: IdentificationResult, data: Dataset | None = None
+) -> NamedModel:
+    model = result.model
+    note = {} if data is None else _segments_note(data)
+    if note:
+        model = model.with_updates(provenance=replace(
+            model.provenance, extra={**model.provenance.extra, **note}))
     return NamedModel(
         name=name,
         label=label,
-        model=result.model,
+        model=model,
         n_parameters=len(result.parameter_names),
         n_iterations=result.n_iterations,
         converged=result.converged,
@@ -374,7 +412,8 @@ def _named(name: str, label: str, result: IdentificationResult) -> NamedModel:
 def _named_fit(
     name: str, label: str, fit: HammersteinFit, data: Dataset, op: OperatingPoint
 ) -> NamedModel:
-    model = hammerstein_model(fit, data, operating_point=op, extra={"pipeline_name": name})
+    model = hammerstein_model(fit, data, operating_point=op,
+                              extra={"pipeline_name": name, **_segments_note(data)})
     return NamedModel(
         name=name,
         label=label,
@@ -433,6 +472,10 @@ def _preprocess(
                 repaired = correct_level_shift(
                     repaired, from_time_s=est.from_time_s, shift_kw=est.shift_kw
                 )
+                if est.from_sample < repaired.segment_starts[-1]:
+                    skipped.append(
+                        f"level shift at {cand.time_s:g} s corrected to the end of the record, "
+                        "in the later segments too (one sensor across the segments assumed)")
             except SysidError as exc:
                 skipped.append(f"level shift at {cand.time_s:g} s not corrected: {exc}")
     return repaired, report
@@ -466,7 +509,7 @@ def _linear_models(
         except SysidError as exc:
             skipped.append(f"{label} skipped: {exc}")
             continue
-        out.append(_named(name, label, result))
+        out.append(_named(name, label, result, data))
     return tuple(out)
 
 
@@ -573,19 +616,22 @@ def _paper_models(
     degree, nb, nf, nk = paper_orders
     y = data.power_kw - op.power_kw
     ds = data.triac_pct - op.triac_pct
+    seg = _segment_starts(data)
     out: list[NamedModel] = []
     try:
         oe = fit_hammerstein_oe(
             y, ds, initial=reidentify_linear_block(
-                y, ds, np.eye(degree)[0], method="oe", nb=nb, nf=nf, nk=nk),
+                y, ds, np.eye(degree)[0], method="oe", nb=nb, nf=nf, nk=nk,
+                segment_starts=seg),
             degree=degree, nb=nb, nf=nf, nk=nk, initial_state=initial_state,
+            segment_starts=seg,
             progress=lambda i, c: clock.fit_progress("paper's orders, OE block (V)", i, c),
         )
         out.append(_named_fit("hammerstein_oe_paper",
                               "Hammerstein-OE at the paper's orders, PEM on V", oe, data, op))
         armax = fit_hammerstein_armax(
             y, ds, initial=oe, degree=degree, na=nf, nb=nb, nc=nf, nk=nk,
-            initial_state=initial_state,
+            initial_state=initial_state, segment_starts=seg,
             progress=lambda i, c: clock.fit_progress("paper's orders, noise model (W)", i, c),
         )
         out.append(_named_fit("hammerstein_armax_paper",
@@ -769,7 +815,7 @@ def _run_stages(
         clock.start("structure selection (delay, orders on validation data)")
         try:
             structure = select_structure(
-                [(clean.power_kw - op.power_kw, clean.triac_pct - op.triac_pct)],
+                _segments(clean, op),
                 paper_orders=paper_orders,
                 min_nk=min_nk,
             )
@@ -809,6 +855,7 @@ def _run_stages(
             # a chosen structure is refined on the whole record from several starts too:
             # the OE search is not convex, and the chosen orders have no paper-tested start
             pole_starts=0 if structure is None else N_POLE_STARTS,
+            segment_starts=_segment_starts(clean),
         )
         skipped.extend(route.skipped)
     except SysidError as exc:
@@ -821,7 +868,9 @@ def _run_stages(
         hammerstein += _paper_models(clean, op, paper_orders, initial_state, clock, skipped)
     clock.stop()
 
-    final = _choose_final(linear, hammerstein, clean.n_samples, skipped)
+    # the slowest time constant a record can show is bounded by its longest segment
+    longest = max(hi - lo for lo, hi in clean.segment_bounds())
+    final = _choose_final(linear, hammerstein, longest, skipped)
     if final is None:
         raise IdentificationError(
             "run_paper_pipeline: no model could be identified from this record: "
@@ -855,9 +904,10 @@ def _choose_final(
     The noise model shares ``A`` with the input path: a slow drift of the output (a
     random walk, as a wandering grid voltage makes) can pull a pole of ``A`` onto
     ``z = 1`` and give the input an integrator that is not there. When the
-    noise-model Hammerstein's slowest time constant is longer than the record, the
-    Hammerstein-OE (whose poles are the input's alone) is the final model, and the
-    reason is listed with what was skipped.
+    noise-model Hammerstein's slowest time constant is longer than the record (its
+    longest segment, for a record of several), the Hammerstein-OE (whose poles are
+    the input's alone) is the final model, and the reason is listed with what was
+    skipped.
     """
     by_name = {m.name: m for m in hammerstein}
     armax, oe = by_name.get("hammerstein_armax"), by_name.get("hammerstein_oe")

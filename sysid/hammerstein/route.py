@@ -31,7 +31,7 @@ from sysid.hammerstein.model import (
     _poly_eval,
     hammerstein_model,
 )
-from sysid.linear import arx_least_squares, oe_pem
+from sysid.linear import arx_least_squares, oe_pem, segment_bounds
 from sysid.model import OperatingPoint
 from sysid.optimize import parameter_std_errors
 from sysid.result import IdentificationResult
@@ -224,6 +224,7 @@ def reidentify_linear_block(
     nf: int = 1,
     nk: int = 1,
     max_iterations: int = 100,
+    segment_starts: Sequence[int] | None = None,
 ) -> HammersteinFit:
     """Re-identify the linear block with ``f`` fixed: input ``w = f(ds)`` (sec. 7.4).
 
@@ -241,6 +242,10 @@ def reidentify_linear_block(
         Orders of ``B`` and ``F`` (or ``A``) and the delay.
     max_iterations :
         Iteration limit of the OE search.
+    segment_starts :
+        First sample of each segment (experiment), starting with 0; default one
+        segment. The ARX regressors never reach across a boundary; the OE simulation
+        restarts in each segment (held past).
 
     Returns
     -------
@@ -266,15 +271,17 @@ def reidentify_linear_block(
     if method not in ("arx", "oe"):
         raise IdentificationError(f"{where}: method must be 'arx' or 'oe'; got {method!r}")
     w = _poly_eval(poly, ds_arr)
+    starts = None if segment_starts is None else tuple(int(v) for v in segment_starts)
     if method == "arx":
-        arx = arx_least_squares(y_arr, w, na=nf, nb=nb, nk=nk)
+        arx = arx_least_squares(y_arr, w, na=nf, nb=nb, nk=nk, segment_starts=starts)
         a, b, c = arx.a, arx.b, np.array([1.0])
         names = arx.parameter_names
         theta, std, residuals = arx.theta, arx.std_errors, arx.residuals
         n_it, converged, message = 0, True, "least squares: exact solution"
         criterion: Literal["ballistic", "least_squares"] = "least_squares"
     else:
-        pem = oe_pem(y_arr, w, nb=nb, nf=nf, nk=nk, max_iterations=max_iterations)
+        pem = oe_pem(y_arr, w, nb=nb, nf=nf, nk=nk, max_iterations=max_iterations,
+                     segment_starts=starts)
         a, b, c = pem.a, pem.b, pem.c
         names = pem.parameter_names
         theta, std, residuals = pem.theta, pem.std_errors, pem.residuals
@@ -350,6 +357,7 @@ def fixed_pole_starts(
     nf: int,
     nk: int,
     time_constants_samples: Sequence[float] | FloatArray,
+    segment_starts: Sequence[int] | None = None,
 ) -> tuple[dict[str, float], ...]:
     """Starts of a Hammerstein-OE fit with ``F`` fixed at repeated poles and ``B`` by least squares.
 
@@ -370,6 +378,10 @@ def fixed_pole_starts(
     time_constants_samples :
         Time constants of the repeated pole [samples], each > 0 (for example
         `pole_start_time_constants`). With ``nf = 0`` one start is returned.
+    segment_starts :
+        First sample of each segment, starting with 0; default one segment. Each
+        segment is filtered from a zero state and its lags never reach across a
+        boundary; the least squares pools the rows of all segments.
 
     Returns
     -------
@@ -392,13 +404,16 @@ def fixed_pole_starts(
             f"{where}: time_constants_samples must be finite numbers > 0; got {taus.tolist()}"
         )
     out: list[dict[str, float]] = []
+    bounds = segment_bounds(ds_arr.size, None if segment_starts is None
+                            else tuple(int(v) for v in segment_starts), where)
     for tau in taus if nf else taus[:1]:
         f = np.poly(np.full(nf, np.exp(-1.0 / tau))) if nf else np.array([1.0])
-        filtered = lfilter([1.0], f, ds_arr)
         phi = np.zeros((ds_arr.size, nb))
-        for col, lag in enumerate(range(nk, nk + nb)):
-            if lag < ds_arr.size:
-                phi[lag:, col] = filtered[: ds_arr.size - lag]
+        for lo, hi in bounds:
+            filtered = lfilter([1.0], f, ds_arr[lo:hi])
+            for col, lag in enumerate(range(nk, nk + nb)):
+                if lag < hi - lo:
+                    phi[lo + lag : hi, col] = filtered[: hi - lo - lag]
         b, *_ = np.linalg.lstsq(phi, y_arr, rcond=None)
         if not np.all(np.isfinite(b)) or b[0] == 0.0:
             continue
@@ -422,6 +437,7 @@ def _multistart(
     max_iterations: int,
     initial_state: InitialState,
     progress: Callable[[int, float], None] | None,
+    segment_starts: Sequence[int] | None = None,
 ) -> HammersteinFit:
     """The best of `final` and the OE fits from `fixed_pole_starts` (see `MULTISTART_V_RTOL`).
 
@@ -430,9 +446,13 @@ def _multistart(
     """
     best = final
     kept: list[warnings.WarningMessage] = []
+    # the longest segment bounds the time constants its settling can show
+    longest = max(hi - lo for lo, hi in segment_bounds(
+        y.size, None if segment_starts is None else tuple(segment_starts), "_multistart"))
     for start in fixed_pole_starts(
         y, ds, nb=nb, nf=nf, nk=nk,
-        time_constants_samples=pole_start_time_constants(y.size, n_starts),
+        time_constants_samples=pole_start_time_constants(longest, n_starts),
+        segment_starts=segment_starts,
     ):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", IdentificationWarning)
@@ -440,7 +460,7 @@ def _multistart(
                 fit = fit_hammerstein_oe(
                     y, ds, initial=start, degree=degree, nb=nb, nf=nf, nk=nk,
                     max_iterations=max_iterations, initial_state=initial_state,
-                    progress=progress,
+                    segment_starts=segment_starts, progress=progress,
                 )
             except IdentificationError:
                 continue
@@ -507,6 +527,7 @@ def run_hammerstein_route(
     progress: Callable[[str, int, float], None] | None = None,
     extra_start: Mapping[str, float] | None = None,
     pole_starts: int = 0,
+    segment_starts: Sequence[int] | None = None,
 ) -> HammersteinRoute:
     """Run steps 1-4 of the paper's route on deviation arrays.
 
@@ -544,6 +565,12 @@ def run_hammerstein_route(
         `pole_start_time_constants`); one replaces the fit from the route's own start
         only if its V is lower by more than `MULTISTART_V_RTOL`. 0 (default): the
         paper's route alone.
+    segment_starts :
+        First sample of each segment (experiment) of the record, starting with 0;
+        default one segment. Every step uses all segments, each with its own initial
+        state: the ARX fits never reach across a boundary, the OE and joint PEM fits
+        restart in each segment (the steps must not straddle a boundary either; see
+        `sysid.steps.detect_steps`).
 
     Returns
     -------
@@ -561,7 +588,8 @@ def run_hammerstein_route(
     degree, nb, nf, nk = _check_orders(degree, nb, nf, nk, where)
     nc_used = nf if nc is None else _check_int("nc", nc, 0, where)
     skipped: list[str] = []
-    arx_fit = arx_least_squares(y_arr, ds_arr, na=nf, nb=nb, nk=nk)
+    seg = None if segment_starts is None else tuple(int(v) for v in segment_starts)
+    arx_fit = arx_least_squares(y_arr, ds_arr, na=nf, nb=nb, nk=nk, segment_starts=seg)
     b_first = float(arx_fit.b[nk])
     arx = HammersteinFit(
         linear_block="arx",
@@ -592,9 +620,11 @@ def run_hammerstein_route(
         skipped.append(f"eq. 21 initial polynomial skipped ({exc}); f(ds) = ds used instead")
         poly = np.zeros(degree)
         poly[0] = 1.0
-    arx_re = reidentify_linear_block(y_arr, ds_arr, poly, method="arx", nb=nb, nf=nf, nk=nk)
+    arx_re = reidentify_linear_block(y_arr, ds_arr, poly, method="arx", nb=nb, nf=nf, nk=nk,
+                                     segment_starts=seg)
     oe_re = reidentify_linear_block(
-        y_arr, ds_arr, poly, method="oe", nb=nb, nf=nf, nk=nk, max_iterations=max_iterations
+        y_arr, ds_arr, poly, method="oe", nb=nb, nf=nf, nk=nk, max_iterations=max_iterations,
+        segment_starts=seg,
     )
     def report(step: str) -> Callable[[int, float], None] | None:
         if progress is None:
@@ -603,13 +633,13 @@ def run_hammerstein_route(
 
     final = fit_hammerstein_oe(
         y_arr, ds_arr, initial=oe_re, degree=degree, nb=nb, nf=nf, nk=nk,
-        max_iterations=max_iterations, initial_state=initial_state,
+        max_iterations=max_iterations, initial_state=initial_state, segment_starts=seg,
         progress=report("joint PEM of the OE block (V)"),
     )
     if extra_start is not None:
         other = fit_hammerstein_oe(
             y_arr, ds_arr, initial=extra_start, degree=degree, nb=nb, nf=nf, nk=nk,
-            max_iterations=max_iterations, initial_state=initial_state,
+            max_iterations=max_iterations, initial_state=initial_state, segment_starts=seg,
             progress=report("joint PEM of the OE block from the structure search (V)"),
         )
         if other.cost < final.cost:
@@ -618,21 +648,21 @@ def run_hammerstein_route(
         final = _multistart(
             final, y_arr, ds_arr, degree=degree, nb=nb, nf=nf, nk=nk,
             n_starts=_check_int("pole_starts", pole_starts, 0, where),
-            max_iterations=max_iterations, initial_state=initial_state,
+            max_iterations=max_iterations, initial_state=initial_state, segment_starts=seg,
             progress=report("joint PEM of the OE block from fixed poles (V)"),
         )
     zeros = None
     if from_zeros:
         zeros = fit_hammerstein_oe(
             y_arr, ds_arr, initial=None, degree=degree, nb=nb, nf=nf, nk=nk,
-            max_iterations=max_iterations, initial_state=initial_state,
+            max_iterations=max_iterations, initial_state=initial_state, segment_starts=seg,
             progress=report("joint PEM of the OE block from zeros (V)"),
         )
     noise = None
     if noise_model:
         noise = fit_hammerstein_armax(
             y_arr, ds_arr, initial=final, degree=degree, na=nf, nb=nb, nc=nc_used, nk=nk,
-            max_iterations=max_iterations, initial_state=initial_state,
+            max_iterations=max_iterations, initial_state=initial_state, segment_starts=seg,
             progress=report("joint PEM of the noise model (W)"),
         )
     return HammersteinRoute(
@@ -742,7 +772,7 @@ def fit_hammerstein(
     route = run_hammerstein_route(
         y, ds, steps=used_steps, operating_point=operating_point, degree=degree, nb=nb,
         nf=nf, nk=nk, noise_model=noise_model, nc=nc, max_iterations=max_iterations,
-        initial_state=initial_state,
+        initial_state=initial_state, segment_starts=data.segment_starts,
     )
     fit = route.noise_model if route.noise_model is not None else route.final_oe
     model = hammerstein_model(
