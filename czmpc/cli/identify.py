@@ -142,7 +142,7 @@ class IdentifyOutcome:
         Every warning raised while identifying (for example an optimizer's
         non-convergence message), as ``"Category: message"``.
     notes :
-        What the run changed or left out that a user must know (the segment used, a
+        What the run changed or left out that a user must know (the segments used, a
         model kind other than the Hammerstein with noise model), as printed.
     findings :
         The paper's findings checked on these data (`czmpc.reports.identification.findings_checklist`),
@@ -259,8 +259,7 @@ def identify_to_directory(
         data = read_csv(data_path)
     notes: list[str] = []
     if data.n_segments > 1:
-        data, note = longest_segment(data)
-        notes.append(note)
+        notes.append(segments_note(data))
     from sysid.identifiability import (
         UnidentifiableDataError,
         assess_data,
@@ -327,22 +326,17 @@ def identify_to_directory(
                            notes=(*notes, *(f"skipped: {x}" for x in result.skipped)))
 
 
-def longest_segment(data: Dataset) -> tuple[Dataset, str]:
-    """The longest segment of a split log, and a sentence saying so.
+def segments_note(data: Dataset) -> str:
+    """A sentence saying that every segment of a split log is used, and which they are.
 
-    The paper's pipeline (outlier search, linear models, input steps, the Hammerstein
-    route) runs on one contiguous record; a log split into segments is identified on
-    its longest one, and the note names the segments left out.
+    The pipeline (`sysid.pipeline.run_paper_pipeline`) uses all segments, each with its
+    own initial state; nothing is left out.
     """
     bounds = data.segment_bounds()
-    lo, hi = max(bounds, key=lambda b: b[1] - b[0])
-    left = [f"{data.time_s[a]:g}..{data.time_s[b - 1]:g} s ({b - a} samples)"
-            for a, b in bounds if (a, b) != (lo, hi)]
-    note = (f"the log holds {len(bounds)} segments; the pipeline runs on one contiguous "
-            f"record, so it identifies the longest: t = {data.time_s[lo]:g}.."
-            f"{data.time_s[hi - 1]:g} s, {hi - lo} of {data.n_samples} samples (left out: "
-            + "; ".join(left) + ")")
-    return data.segment(lo, hi), note
+    parts = [f"{data.time_s[a]:g}..{data.time_s[b - 1]:g} s ({b - a} samples)"
+             for a, b in bounds]
+    return (f"the log holds {len(bounds)} segments; all are used, each with its own initial "
+            f"state ({data.n_samples} samples: " + "; ".join(parts) + ")")
 
 
 def model_kind_notes(result: Any) -> list[str]:

@@ -181,7 +181,7 @@ def test_a_skipped_hammerstein_is_said_on_the_terminal_with_the_right_reason(
 
 
 @pytest.mark.slow
-def test_a_split_log_is_identified_on_its_longest_segment_and_says_so(
+def test_a_split_log_is_identified_on_all_its_segments_and_says_so(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     log = _european_export(tmp_path / "export.csv", nan_line=202)   # sample 200 missing
@@ -190,10 +190,15 @@ def test_a_split_log_is_identified_on_its_longest_segment_and_says_so(
                        "--gaps", "split", "--orders", "paper"], capsys)
     assert rc == 0, err
     assert "split into 2 segments" in err
-    assert ("identifies the longest: t = 402..1600 s, 600 of 800 samples (left out: "
-            "0..398 s (200 samples))") in err
+    assert ("the log holds 2 segments; all are used, each with its own initial state "
+            "(800 samples: 0..398 s (200 samples); 402..1600 s (600 samples))") in err
+    assert "identifies the longest" not in err
     model = load_model(out / "model.json")
     report = (out / "report.md").read_text(encoding="utf-8")
     assert "**Note:** the log holds 2 segments" in report
     steps = [s["what"] for s in model.provenance.preprocessing]
-    assert steps[:2] == ["load_log", "segment"]
+    assert steps[0] == "load_log" and "segment" not in steps
+    # the model was fitted to, and scored on, all 800 samples of both segments
+    assert model.provenance.extra["n_segments"] == 2
+    assert model.provenance.extra["n_samples"] == 800
+    assert model.provenance.extra["segment_starts"] == [0, 200]
