@@ -545,6 +545,10 @@ def _data_section(result: PipelineResult, st: _Style) -> str:
         [st.out_name, f"{np.min(raw.power_kw):.4g} .. {np.max(raw.power_kw):.4g} {raw.output_unit}"],
         ["sha256", f"`{raw.sha256 or '-'}`"],
     ]
+    if raw.n_segments > 1:
+        rows.insert(2, ["segments", f"{raw.n_segments}, all used, each with its own initial "
+                                    "state (starting at samples "
+                                    + ", ".join(str(k) for k in raw.segment_starts) + ")"])
     record = load_record(result)
     if record is not None:
         rows += _load_rows(record)
@@ -857,7 +861,7 @@ def render_report(
     reference :
         Show the paper's values beside ours; default: for data in % and kW only.
     notes :
-        What the run changed or left out (a segment chosen, a model kind other than
+        What the run changed or left out (the segments used, a model kind other than
         the Hammerstein with noise model), shown under the header.
 
     Returns

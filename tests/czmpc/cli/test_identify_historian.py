@@ -196,6 +196,8 @@ def test_a_split_log_is_identified_on_all_its_segments_and_says_so(
     model = load_model(out / "model.json")
     report = (out / "report.md").read_text(encoding="utf-8")
     assert "**Note:** the log holds 2 segments" in report
+    assert "| segments | 2, all used, each with its own initial state (starting at samples 0, " \
+        "200) |" in report
     steps = [s["what"] for s in model.provenance.preprocessing]
     assert steps[0] == "load_log" and "segment" not in steps
     # the model was fitted to, and scored on, all 800 samples of both segments
