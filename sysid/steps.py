@@ -82,13 +82,19 @@ class InputStep:
         return self.triac_after_pct - self.triac_before_pct
 
 
-def default_step_threshold(triac_pct: FloatArray) -> float:
+def default_step_threshold(
+    triac_pct: FloatArray, *, segment_starts: tuple[int, ...] = (0,)
+) -> float:
     """Smallest input change counted as a step when none is given.
 
     Parameters
     ----------
     triac_pct :
         Input signal, shape ``(n_samples,)`` [any unit].
+    segment_starts :
+        First sample of each segment, starting with 0 (`sysid.data.Dataset`); the
+        change from one segment's last sample to the next one's first is no
+        sample-to-sample change and is left out of ``sigma``.
 
     Returns
     -------
@@ -103,6 +109,8 @@ def default_step_threshold(triac_pct: FloatArray) -> float:
     if u.size < 2:
         return 0.0
     changes = np.diff(u)
+    if len(segment_starts) > 1:
+        changes = np.delete(changes, np.asarray(segment_starts[1:], dtype=int) - 1)
     sigma = _MAD_TO_STD * float(np.median(np.abs(changes - np.median(changes))))
     span = float(np.max(u) - np.min(u))
     return max(DEFAULT_STEP_FRACTION_OF_RANGE * span, DEFAULT_STEP_NOISE_SIGMAS * sigma)
@@ -150,7 +158,7 @@ def detect_steps(
     if isinstance(delay_steps, bool) or not isinstance(delay_steps, int) or delay_steps < 0:
         raise IdentificationError(f"detect_steps: delay_steps must be an int >= 0; got {delay_steps!r}")
     if min_step is None:
-        threshold = default_step_threshold(data.triac_pct)
+        threshold = default_step_threshold(data.triac_pct, segment_starts=data.segment_starts)
     else:
         threshold = float(min_step)
         if not (math.isfinite(threshold) and threshold >= 0.0):

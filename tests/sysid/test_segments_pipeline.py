@@ -14,6 +14,7 @@ import warnings
 import numpy as np
 import pytest
 from scipy.signal import lfilter, lfiltic
+from scipy.stats import norm
 
 from sysid.criteria import ballistic_mse, one_step_mse
 from sysid.data import Dataset
@@ -21,7 +22,7 @@ from sysid.linear import armax_pem, arx_least_squares, fit_armax, fit_oe, oe_pem
 from sysid.model import HammersteinModel, OperatingPoint
 from sysid.pipeline import run_paper_pipeline
 from sysid.preprocess import find_operating_point, find_outlier_candidates
-from sysid.steps import detect_steps
+from sysid.steps import default_step_threshold, detect_steps
 
 TS_S = 2.0
 OP = OperatingPoint(triac_pct=45.0, power_kw=45.0)
@@ -268,3 +269,16 @@ def test_one_segment_gives_what_the_pipeline_gave_before_segments_reached_it(
                    initial_conditions="estimated")
     np.testing.assert_array_equal(fit_a.parameters, fit_b.parameters)
     assert "n_segments" not in fit_a.model.provenance.extra
+
+
+def test_the_default_step_threshold_ignores_the_jumps_between_segments() -> None:
+    # a noisy input (sigma 0.5) at a different level in each of 10 segments: the noise
+    # scale comes from the changes inside the segments only
+    rng = np.random.default_rng(7)
+    u = np.repeat(rng.uniform(0.0, 3.0, 10), 4) + 0.5 * rng.standard_normal(40)
+    starts = tuple(range(0, 40, 4))
+    inside = np.concatenate([np.diff(u[k : k + 4]) for k in starts])
+    sigma = float(np.median(np.abs(inside - np.median(inside)))) / norm.ppf(0.75)
+    expected = max(0.05 * float(np.ptp(u)), 5.0 * sigma)
+    assert default_step_threshold(u, segment_starts=starts) == pytest.approx(expected, rel=1e-12)
+    assert default_step_threshold(u) != pytest.approx(expected, rel=1e-3)
