@@ -127,11 +127,15 @@ class OperatingPointChoice:
         ``"steady"`` (means over the most central long steady window).
     window :
         The steady window for ``"steady"``, else None.
+    power_offset_kw :
+        For ``"means"`` put on the steady-state curve (`sysid.offset`): how far ``P_nom``
+        was moved from the sample mean [output unit]; 0 otherwise.
     """
 
     operating_point: OperatingPoint
     method: OperatingPointMethod
     window: SteadyWindow | None = None
+    power_offset_kw: float = 0.0
 
 
 def _constant_input_runs(u: FloatArray, tol: float) -> list[tuple[int, int]]:

@@ -603,7 +603,11 @@ def _preprocessing_section(result: PipelineResult, st: _Style) -> str:
     op = choice.operating_point
     u, y = st.in_unit, st.out_unit
     how = {"given": "given on the command line",
-           "means": "sample means of the record (no steady window found)",
+           "means": ("sample means of the record (no steady window found)"
+                     if choice.power_offset_kw == 0.0 else
+                     f"sample means of the record (no steady window found), the output's moved "
+                     f"by {choice.power_offset_kw:+.4g} {y} onto the steady-state curve "
+                     "(sysid.offset)"),
            "steady": ("means over the steady window nearest the middle of the input range "
                       "(paper sec. 5.1)")}[choice.method]
     lines = ["## Preprocessing (paper sec. 5)", "",
