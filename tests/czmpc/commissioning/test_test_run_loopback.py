@@ -32,7 +32,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.realtime]
 #: Mean static gain over the test band [kW/%] of the identified model against the served
 #: model's: 550 samples of a 4-level staircase held 4 time constants each pin it to a
 #: few %; at a time scale of 50 on a busy machine the loop's 40 ms period overruns
-#: (skipped periods are filled, reads straddle plant ticks), which costs accuracy
+#: (skipped periods are gaps, reads straddle plant ticks), which costs accuracy
 #: (measured: 4 % off with 133 overruns in 554 periods); a model of the wrong sign,
 #: units or input column misses by far more.
 STATIC_GAIN_RTOL = 0.15

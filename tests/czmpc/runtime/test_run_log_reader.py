@@ -34,31 +34,28 @@ def _write(path: Path, ks: list[int], quality: dict[int, str], *, closed: bool) 
     log.close()
 
 
-def test_applied_input_gaps_and_fills(tmp_path: Path) -> None:
+def test_applied_input_and_gaps(tmp_path: Path) -> None:
     path = tmp_path / "run.csv"
-    # k = 0..59 logged except 20 (one skipped period: filled) and 40..44 (five skipped:
-    # a gap); 30 and 31 are Bad quality (a gap)
+    # k = 0..59 logged except 20 (one skipped period) and 40..44 (five skipped); 30 and 31
+    # are Bad quality: every one of them is a gap
     ks = [k for k in range(60) if k != 20 and not 40 <= k <= 44]
     _write(path, ks, {30: "bad", 31: "stale"}, closed=False)
     assert is_run_log(path)
     data = read_run_log(path)
-    # segments: 0..29 (20 filled), 32..39 (8 samples: too short, dropped), 45..59
-    assert 40 - 32 < MIN_SEGMENT_SAMPLES
-    expected_k = np.r_[0:30, 45:60]
+    # segments: 0..19, 21..29 (9 samples) and 32..39 (8: both too short, dropped), 45..59
+    assert 30 - 21 < MIN_SEGMENT_SAMPLES and 40 - 32 < MIN_SEGMENT_SAMPLES
+    expected_k = np.r_[0:20, 45:60]
     np.testing.assert_allclose(data.time_s, 2.0 * expected_k, rtol=IDENTITY_RTOL)
-    assert data.segment_starts == (0, 30)
-    # power: as logged; the skipped sample 20 interpolated (a straight line: exact)
+    assert data.segment_starts == (0, 20)
     np.testing.assert_allclose(data.power_kw, 40.0 + expected_k / 10, rtol=IDENTITY_RTOL)
     # input of sample k: the applied input published at k + 1 (= command k here); at
-    # k = 19 the next row is missing, so the command; through the skipped k = 20 the
-    # plant held command 19, which row 21 publishes as applied
+    # k = 19 the next row is missing, so the command written at 19
     u = data.triac_pct
-    assert u[19] == 30.0 + 19 and u[20] == 30.0 + 19 and u[21] == 30.0 + 21
-    np.testing.assert_allclose(u[:19], 30.0 + np.arange(19), rtol=IDENTITY_RTOL)
+    np.testing.assert_allclose(u[:20], 30.0 + np.arange(20), rtol=IDENTITY_RTOL)
     info, split = data.preprocessing[0], data.preprocessing[1]
     assert info["what"] == "czmpc run log" and info["closed_loop"] is False
     assert info["schedule_sha256"] == "ab" * 32
-    assert split["samples_filled"] == 1 and split["segments"] == 2
+    assert split["segments"] == 2 and split["samples_kept"] == 35
     assert data.sha256 is not None
     assert "CLOSED-LOOP" not in describe_run_data(data)
 
