@@ -92,7 +92,7 @@ def test_commission_then_switch_on_tracks_offset_free(tmp_path: Path) -> None:
 
 
 def test_commission_with_the_real_check_stores_its_verdict(tmp_path: Path) -> None:
-    """With `czmpc check-model` installed (h/health), the verdict is made and stored."""
+    """The real check on the commissioned model: not 'not ready', and stored beside it."""
     pytest.importorskip("czmpc.commissioning.check")
     plant = fast_heater_model(tmp_path / "plant.json", ts_s=JOURNEY_TS_S)
     with served_plant(tmp_path, "--plant", "model", "--model", str(plant), "--initial-triac-pct",
@@ -106,7 +106,10 @@ def test_commission_with_the_real_check_stores_its_verdict(tmp_path: Path) -> No
         result = commission(config, plan)
     assert result.stage == "checked"
     assert result.check is not None
-    assert result.check.verdict in ("ready", "ready with conditions", "not ready")
+    # measured on loopback after the operating point was put on the steady-state curve and
+    # overrun periods became gaps: 'ready' in 7 of 8 journeys, 'ready with conditions'
+    # (residual whiteness) in one; never 'not ready'
+    assert result.check.verdict != "not ready", result.check.reasons
     assert result.check.reasons or result.check.verdict == "ready"
     assert any(p.name.startswith("model") and p.name != "model.json"
                for p in (tmp_path / "out").iterdir())   # the verdict file beside the model
