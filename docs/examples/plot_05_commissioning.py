@@ -11,8 +11,8 @@ shipped model, and the identified model is compared with that prior and with the
 true steady-state curve.
 
 To keep this example short the test assumes a time constant of 120 s (8,000 s of test);
-``czmpc design-test --prior model.json`` takes the prior model's slowest pole (249 s here)
-and asks for 16,000 s, which is what a real commissioning should use
+``czmpc design-test --prior model.json`` takes the prior model's slowest pole (256 s here)
+and asks for at least 16,350 s, which is what a real commissioning should use
 (:doc:`/guides/commission`).
 """
 
