@@ -8,6 +8,7 @@ at k + 1 when the write landed before the plant's next step, at k + 2 when after
 
 from __future__ import annotations
 
+import asyncio
 import csv
 from pathlib import Path
 
@@ -59,8 +60,6 @@ def test_reads_move_to_just_after_the_plant_publishes(tmp_path: Path) -> None:
                       time_scale=JOURNEY_TIME_SCALE) as endpoint:
         cfg = load_run_config(write_config(tmp_path, endpoint, band_kw=(20.0, 80.0),
                                            time_scale=JOURNEY_TIME_SCALE, ts_s=JOURNEY_TS_S))
-        import asyncio
-
         loop = make_test_loop(cfg, sched)
         summary = asyncio.run(loop.run())
     assert summary.abort_reason is None
