@@ -315,12 +315,15 @@ def segment_residuals(
 
 
 def estimate_transients(
-    orders: HammersteinOrders, theta_model: FloatArray, segments: Sequence[Segment]
+    orders: HammersteinOrders, theta_model: FloatArray, segments: Sequence[Segment],
+    *, fit_samples: int | None = None,
 ) -> FloatArray:
     """Least-squares initial transients of every segment for fixed model parameters.
 
     The residuals are affine in the transients, so one least-squares solve per
     segment gives the exact minimum of V (OE) or W (ARMAX) over the initial state.
+    With ``fit_samples``, only the first ``fit_samples`` samples of each segment are
+    fitted (a burn-in: the rest can then be scored on data the state never saw).
 
     Returns
     -------
@@ -335,7 +338,8 @@ def estimate_transients(
     for y, ds in segments:
         # r = r0 + P h is affine in h: h = argmin |r0 + P h|
         r0, _, pulses = kernel(orders, theta_model, np.zeros(n), y, ds, "estimate", True)
-        out.append(np.linalg.lstsq(pulses, -r0, rcond=None)[0])
+        m = y.size if fit_samples is None else fit_samples
+        out.append(np.linalg.lstsq(pulses[:m], -r0[:m], rcond=None)[0])
     return np.concatenate(out)
 
 
