@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -80,8 +81,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--no-noise", action="store_true", help="noise-free plant")
     p.add_argument("--initial-triac-pct", metavar="PCT",
                    type=_argtypes.number(at_least=0.0, at_most=100.0, unit="%"), default=None,
-                   help="start in steady state at this TRIAC input [%%] (model plant; default: "
-                        "the model's operating point / the heater's initial input)")
+                   help="start in steady state at this TRIAC input [%%] (default: the "
+                        "model's operating point for --plant model, 45 %% for the heater)")
     p.add_argument("--watchdog-s", metavar="S", type=_argtypes.number(above=0.0, unit="s"),
                    default=10.0, help="heartbeat silence [plant s] that trips the watchdog "
                                       "(default: 10)")
@@ -92,6 +93,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                    default=None, help="stop after this plant time [s] (default: run until Ctrl-C)")
     p.add_argument("--setpoint-kw", metavar="KW", type=_argtypes.number(unit="kW"),
                    default=45.0, help="initial value of Heater.PowerSetpoint [kW] (default: 45)")
+    p.add_argument("--log", metavar="PLANT.csv", type=Path, default=None,
+                   help="write the plant log: one row per sample with the true power beside "
+                        "the published one, the applied input and the wall time (columns "
+                        "plant_time_s, wall_time_s, triac_applied_pct, power_true_kw, "
+                        "power_measured_kw, quality, watchdog_tripped)")
     sec = p.add_argument_group("security (see above)")
     sec.add_argument("--policy", choices=("None", *SECURE_POLICIES), default="None",
                      help="security policy of the only endpoint offered (default: None, allowed "
@@ -147,6 +153,8 @@ def run(args: argparse.Namespace) -> int:
     if args.plant == "heater":
         params = HeaterParams(sensor_noise_std_kw=0.0, grid_wander_std=0.0) if args.no_noise \
             else HeaterParams()
+        if args.initial_triac_pct is not None:
+            params = dataclasses.replace(params, initial_triac_pct=args.initial_triac_pct)
         if variation.is_nominal:
             heater = VirtualHeater(params, rng=args.seed)
             plant, initial = heater, heater.params.initial_triac_pct
@@ -168,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
     options = ServeOptions(endpoint=args.endpoint, time_scale=args.time_scale,
                            watchdog_s=args.watchdog_s, safe_triac_pct=args.safe_triac_pct,
                            duration_s=args.duration_s, setpoint_kw=args.setpoint_kw,
-                           security=security)
+                           security=security, log_path=args.log)
     served = ServedPlant(plant, initial_triac_pct=initial, options=options, scenario=scenario,
                          seed=args.seed, log=lambda m: print(m, file=sys.stderr, flush=True))
     print(f"serving the {args.plant} plant on {args.endpoint} (Ts {plant.ts_s:g} s, time scale "

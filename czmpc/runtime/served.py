@@ -36,6 +36,12 @@ is admitted only when
 
 Each refusal is logged (``log``): user name or client URI and the reason, never a password.
 
+Plant log (``ServeOptions.log_path``): one CSV row per plant sample, flushed as written,
+with what no controller can see: the *true* power next to the published one
+(`PLANT_LOG_COLUMNS`). Closed-loop figures of merit (IAE against the true power, as the
+in-process simulations compute them) are taken from it; the wall time of each sample
+lines it up with a controller's run log.
+
 Without security the server offers policy None with anonymous access; the command
 line allows that only on loopback or with ``--insecure``.
 """
@@ -43,12 +49,15 @@ line allows that only on loopback or with ``--insecure``.
 from __future__ import annotations
 
 import asyncio
+import csv
 import datetime as dt
 import hmac
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
+from typing import IO, Any
 
 import numpy as np
 
@@ -59,6 +68,22 @@ from sim.protocols import NOMINAL, Exogenous, Plant
 from sim.scenario import Scenario
 
 NAMESPACE_URI = "urn:czmpc:plant"
+#: The served plant's node ids by the run config's ``[nodes]`` keys (``ns=2``: the
+#: namespace `NAMESPACE_URI` is the first one a fresh server registers).
+SERVED_NODE_IDS = {
+    "power_kw": "ns=2;s=Heater.Power",
+    "triac_pct": "ns=2;s=Heater.TriacCommand",
+    "applied_triac_pct": "ns=2;s=Heater.TriacApplied",
+    "setpoint_kw": "ns=2;s=Heater.PowerSetpoint",
+    "heartbeat": "ns=2;s=Heater.Heartbeat",
+    "mode": "ns=2;s=Heater.Mode",
+    "model_health": "ns=2;s=Heater.ModelHealth",
+}
+#: Columns of the plant log: plant time [s], wall-clock time of the sample [s since the
+#: epoch, as a run log's ``wall_time_s``], TRIAC input applied over the sample [%], true
+#: and published power [kW], ``good`` or ``bad`` quality, and the watchdog's state (0/1).
+PLANT_LOG_COLUMNS = ("plant_time_s", "wall_time_s", "triac_applied_pct", "power_true_kw",
+                     "power_measured_kw", "quality", "watchdog_tripped")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -81,6 +106,8 @@ class ServeOptions:
         Initial value of the setpoint node [kW].
     security :
         Policy, certificates and users (module docstring); None: no security.
+    log_path :
+        Plant log (CSV, `PLANT_LOG_COLUMNS`, one row per sample); None: none.
     """
 
     endpoint: str
@@ -90,6 +117,7 @@ class ServeOptions:
     duration_s: float | None = None
     setpoint_kw: float = 45.0
     security: ServerSecurity | None = None
+    log_path: Path | None = None
 
 
 def _utcnow() -> dt.datetime:
@@ -191,12 +219,25 @@ class ServedPlant:
         await self._add(folder, idx, "PlantTime_s", 0.0, D, False)
         await self._add(folder, idx, "ModelHealth", 0.0, D, True)
         self._server = server
-        async with server:
-            self.ready.set()
-            await self._run_clock()
+        log_file: IO[str] | None = None
+        if self.options.log_path is not None:
+            self.options.log_path.parent.mkdir(parents=True, exist_ok=True)
+            log_file = open(self.options.log_path, "w", newline="", encoding="utf-8")  # noqa: SIM115
+        try:
+            async with server:
+                self.ready.set()
+                await self._run_clock(None if log_file is None else csv.writer(log_file),
+                                      log_file)
+        finally:
+            if log_file is not None:
+                log_file.close()
 
-    async def _run_clock(self) -> None:
+    async def _run_clock(self, log: Any, log_file: IO[str] | None) -> None:
         ua = asyncua().ua
+        if log is not None and log_file is not None:
+            log.writerow(PLANT_LOG_COLUMNS)
+            log.writerow(self._log_row(float(self.plant.true_power_kw), good=True))
+            log_file.flush()
         D = ua.VariantType.Double
         period = self.ts_s / self.options.time_scale
         wd_samples = (None if self.options.watchdog_s is None
@@ -244,7 +285,16 @@ class ServedPlant:
             await self._publish("TriacApplied", self._triac_pct, D)
             await self._publish("WatchdogTripped", self.watchdog_tripped, ua.VariantType.Boolean)
             await self._publish("PlantTime_s", self.k * self.ts_s, D)
+            if log is not None and log_file is not None:
+                log.writerow(self._log_row(measured, good=good))
+                log_file.flush()
         self._log(f"plant: stopped after {self.k * self.ts_s:g} s of plant time")
+
+    def _log_row(self, measured_kw: float, *, good: bool) -> tuple[object, ...]:
+        """One row of the plant log (`PLANT_LOG_COLUMNS`) for the current sample."""
+        return (f"{self.k * self.ts_s:.6g}", f"{time.time():.6f}", f"{self._triac_pct:.6g}",
+                f"{float(self.plant.true_power_kw):.9g}", f"{measured_kw:.9g}",
+                "good" if good else "bad", int(self.watchdog_tripped))
 
 
 def _application_uri(certificate_der: bytes) -> str | None:

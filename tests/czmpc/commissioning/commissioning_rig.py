@@ -4,14 +4,11 @@ commissioning_rig)."""
 from __future__ import annotations
 
 import contextlib
-import os
-import signal
-import socket
-import subprocess
-import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
+
+from czmpc.runtime.serve_process import free_loopback_port as free_port  # noqa: F401  (the tests import it from here)
+from czmpc.runtime.serve_process import serving
 
 #: Every loopback test runs the plant at this many samples per Ts (period 2 s / 50 = 40 ms).
 TIME_SCALE = 50.0
@@ -23,9 +20,6 @@ TIME_SCALE = 50.0
 JOURNEY_TS_S = 5.0
 JOURNEY_TIME_SCALE = 50.0
 
-#: Longest wait for the served plant to listen [s wall] (Python start-up under load).
-SERVER_START_S = 60.0
-
 NODES = {
     "power_kw": "ns=2;s=Heater.Power",
     "triac_pct": "ns=2;s=Heater.TriacCommand",
@@ -35,47 +29,13 @@ NODES = {
 }
 
 
-def free_port() -> int:
-    """A free TCP port on 127.0.0.1."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @contextlib.contextmanager
 def served_plant(tmp_path: Path, *args: str, duration_s: float,
                  time_scale: float = TIME_SCALE) -> Iterator[str]:
-    """Run ``czmpc plant serve ARGS`` on a free loopback port; yield its endpoint.
-
-    The server stops by itself after ``duration_s`` of plant time and is killed when
-    the block ends.
-    """
-    endpoint = f"opc.tcp://127.0.0.1:{free_port()}/czmpc/"
-    log = open(tmp_path / "serve.log", "w", encoding="utf-8")  # noqa: SIM115
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "czmpc.cli", "plant", "serve", "--endpoint", endpoint,
-         "--time-scale", f"{time_scale:g}", "--duration-s", f"{duration_s:g}", *args],
-        stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    try:
-        port = int(endpoint.rsplit(":", 1)[1].split("/")[0])
-        give_up = time.monotonic() + SERVER_START_S
-        while True:   # wait until the server listens (start-up is slow on a busy machine)
-            with socket.socket() as s:
-                if s.connect_ex(("127.0.0.1", port)) == 0:
-                    break
-            if proc.poll() is not None or time.monotonic() > give_up:
-                raise RuntimeError(f"czmpc plant serve did not start; see {tmp_path / 'serve.log'}")
-            time.sleep(0.2)
+    """``czmpc plant serve ARGS`` on a free loopback port (output in ``serve.log``)."""
+    with serving(*args, output=tmp_path / "serve.log", time_scale=time_scale,
+                 duration_s=duration_s) as endpoint:
         yield endpoint
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(10)
-        log.close()
 
 
 def write_config(tmp_path: Path, endpoint: str, *, band_kw: tuple[float, float],

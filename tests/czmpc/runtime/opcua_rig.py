@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import socket
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from czmpc.runtime.pki import create_application_certificate
+from czmpc.runtime.serve_process import free_loopback_port as free_port
 
 USER = "mpc-operator"
 PASSWORD = "s3cret-Pa55-never-logged"
@@ -44,12 +44,6 @@ def make_pki(root: Path) -> Pki:
                                            name="other_server", role="server")
     return Pki(root, client.certificate, client.private_key, server.certificate, server.private_key,
                rogue.certificate, rogue.private_key, other.certificate)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @contextlib.asynccontextmanager

@@ -2,25 +2,18 @@
 
 from __future__ import annotations
 
-import socket
 from pathlib import Path
 
 import pytest
 
 from czmpc.runtime.config import RunConfig, run_config_from_dict
+from czmpc.runtime.serve_process import free_loopback_port as free_port  # noqa: F401  (the tests import it from here)
 from czmpc.shipped import shipped_path
 
 pytest.importorskip("asyncua")
 
 #: Every loopback test runs the plant at this many samples per Ts (period 2 s / 50 = 40 ms).
 TIME_SCALE = 50.0
-
-
-def free_port() -> int:
-    """A free TCP port on 127.0.0.1."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def served_nodes() -> dict[str, str]:
