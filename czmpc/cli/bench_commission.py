@@ -12,6 +12,13 @@ same numbers); a ratio compares runs of the same seed.
 
 A run takes a few minutes (each identification takes 10 s to 1 min).
 
+With --plant-link the journey runs as a user runs it: the heater is served over OPC UA
+on 127.0.0.1 by `czmpc plant serve` in its own process (with --log: its true power),
+`czmpc commission --switch-on` tests, identifies, checks and switches the MPC on for the
+staircase (a recipe file), and the reference model runs through the link too; both runs
+are scored on the served plant's true power. One seed takes (test + 2 runs) / time
+scale of wall time: 7,200 s + 2 x 6,000 s at --time-scale 20 is 16 min.
+
 Exit codes: 0 done (whatever the numbers); 2 bad options.
 """
 
@@ -19,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import shlex
+import sys
 from pathlib import Path
 
 from czmpc.cli import _argtypes
@@ -51,6 +59,16 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", metavar="N", type=_argtypes.positive_int, default=3,
                         help="runs of every test, seeds 0..N-1 (design, test noise, "
                              "closed-loop noise) (default: 3)")
+    parser.add_argument("--plant-link", action="store_true",
+                        help="run `czmpc commission --switch-on` against the heater served over "
+                             "OPC UA on loopback, with the reference through the link too (the "
+                             "--case options do not apply; the test is --test-s of multilevel)")
+    parser.add_argument("--time-scale", metavar="X", type=_argtypes.number(at_least=1.0),
+                        default=20.0, help="with --plant-link: plant samples per Ts of wall "
+                                           "time (default: 20, 100 ms periods)")
+    parser.add_argument("--test-s", metavar="S", type=_argtypes.number(above=0.0, unit="s"),
+                        default=7200.0, help="with --plant-link: length of the multilevel test "
+                                             "[plant s] (default: 7200, the issue's 2 h)")
     parser.add_argument("--out", metavar="DIR", type=Path, default=Path("out/bench/commission"),
                         help="where the figure goes (default: out/bench/commission)")
     parser.add_argument("--record-benchmarks", action="store_true",
@@ -76,6 +94,8 @@ def run(args: argparse.Namespace) -> int:
     from czmpc.reports.benchmarks_md import machine_info, write_benchmarks_section
     from czmpc.reports.commissioning import length_study_figure
 
+    if args.plant_link:
+        return _run_plant_link(args)
     cases = DEFAULT_CASES if args.case is None else tuple(
         LengthCase(kind=k, duration_s=s) for k, s in args.case)
     words = ["czmpc", NAME, "--seeds", str(args.seeds)]
@@ -92,6 +112,31 @@ def run(args: argparse.Namespace) -> int:
         [(r.case.kind, r.test_s, iae_ratio(r, rows)) for r in rows if r.failure is None],
         goal_ratio=MAX_IAE_RATIO, max_test_s=MAX_TEST_S)
     progress(f"wrote {fig}")
+    if args.record_benchmarks:
+        target = args.benchmarks_md or _argtypes.default_benchmarks_md()
+        write_benchmarks_section(target, text, heading=BENCHMARK_HEADING)
+        progress(f"wrote the table to {target}")
+    return 0
+
+
+def _run_plant_link(args: argparse.Namespace) -> int:
+    """The study through the plant link (`czmpc.commissioning.link_study`)."""
+    from czmpc.cli._progress import Progress
+    from czmpc.commissioning.link_study import BENCHMARK_HEADING, format_link_study, run_seed
+    from czmpc.reports.benchmarks_md import machine_info, write_benchmarks_section
+
+    if args.case:
+        print("czmpc: error: --case does not apply with --plant-link (its test is --test-s of "
+              "the multilevel design)", file=sys.stderr)
+        return 2
+    words = ["czmpc", NAME, "--plant-link", "--seeds", str(args.seeds), "--time-scale",
+             f"{args.time_scale:g}", "--test-s", f"{args.test_s:g}"]
+    progress = Progress()
+    runs = [run_seed(seed, out_dir=args.out / "plant_link", time_scale=args.time_scale,
+                     test_s=args.test_s, progress=progress) for seed in range(args.seeds)]
+    text = format_link_study(runs, command=" ".join(shlex.quote(w) for w in words),
+                             machine=machine_info().describe(), time_scale=args.time_scale)
+    print(text, end="")
     if args.record_benchmarks:
         target = args.benchmarks_md or _argtypes.default_benchmarks_md()
         write_benchmarks_section(target, text, heading=BENCHMARK_HEADING)

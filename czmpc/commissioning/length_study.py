@@ -180,11 +180,13 @@ def apply_open_loop(triac_pct: np.ndarray, variation: PlantVariation, *, ts_s: f
 def segment_tail_errors_kw(setpoint_kw: np.ndarray, power_kw: np.ndarray,
                            tail: int = SEGMENT_TAIL_SAMPLES) -> tuple[float, ...]:
     """Mean of ``setpoint - power`` over the last ``tail`` samples of each constant-setpoint
-    segment [kW]."""
+    segment [kW] (over the whole segment when it is shorter)."""
     r = np.asarray(setpoint_kw, dtype=float)
     y = np.asarray(power_kw, dtype=float)
     ends = np.concatenate((np.flatnonzero(np.diff(r) != 0.0) + 1, [r.size]))
-    return tuple(float(np.mean(r[end - tail:end] - y[end - tail:end])) for end in ends)
+    starts = np.concatenate(([0], ends[:-1]))
+    return tuple(float(np.mean(r[max(s, e - tail):e] - y[max(s, e - tail):e]))
+                 for s, e in zip(starts, ends, strict=True))
 
 
 def run_case(case: LengthCase, *, variation: PlantVariation = ISSUE_VARIATION,
