@@ -163,3 +163,38 @@ def test_a_correct_model_gets_a_correlation_condition_one_time_in_a_hundred() ->
     # 1 - 0.99^26 = 0.23 for independent N(0, 1/N) values; the variance at lag tau is
     # (N - tau)/N^2, a little less, so the rate is a little lower (measured 19.9 %)
     assert 0.17 <= over_lag / trials <= 0.26
+
+
+def test_the_missed_response_is_the_residuals_impulse_response_to_moves() -> None:
+    """Residuals = 0.2 x the move three samples back + white noise: the least-squares fit
+    on the lagged moves finds 0.2 at lag 3, 20 % of an instantaneous gain of 1 (and 10 %
+    of a gain of 2)."""
+    from czmpc.commissioning.check import missed_response_pct
+
+    rng = np.random.default_rng(3)
+    moves = np.where(rng.random(5000) < 0.1, rng.choice([-5.0, 5.0], 5000), 0.0)
+    e = 0.2 * np.concatenate([np.zeros(3), moves[:-3]]) + 0.05 * rng.standard_normal(moves.size)
+    # the coefficient's std error: 0.05 / (5 sqrt(0.1 x 5000)) = 4.5e-4, 0.2 % of 0.2
+    pct, lag = missed_response_pct(e, moves, 1.0)
+    assert lag == 3 and pct == pytest.approx(20.0, rel=0.01)
+    assert missed_response_pct(e, moves, -2.0)[0] == pytest.approx(10.0, rel=0.01)
+
+
+@pytest.mark.parametrize(("gain", "status"), [(1.01, "pass"), (1.15, "fail")])
+def test_a_significant_input_correlation_fails_only_when_the_error_matters(
+        gain: float, status: str) -> None:
+    """Data from the shipped model with f scaled by ``gain`` and little noise (5 W): a 1 %
+    gain error is highly significant and negligible (it misses 1 % of the response to a
+    move), a 15 % one is neither (14 %)."""
+    from sysid.simulate import simulate
+
+    truth = SHIPPED.with_updates(input_poly=gain * np.asarray(SHIPPED.input_poly))
+    rng = np.random.default_rng(5)
+    clean = np.asarray(simulate(truth, EXPERIMENT), dtype=float)
+    data = Dataset(time_s=EXPERIMENT.time_s, triac_pct=EXPERIMENT.triac_pct,
+                   power_kw=clean + 0.005 * rng.standard_normal(clean.size), ts_s=EXPERIMENT.ts_s,
+                   source=f"shipped model, gain x{gain:g}")
+    check = check_model(SHIPPED, data, mc_runs=0)
+    item = next(i for i in check.items if i.name == "input-residual correlation")
+    assert item.value is not None and item.value > 3.0          # significant either way
+    assert item.status == status, item.detail
