@@ -21,12 +21,9 @@ from commissioning_rig import (
     write_config,
 )
 
-from czmpc.commissioning.journey import CheckOutcome, JourneyPlan, commission
+from czmpc.commissioning.journey import JourneyPlan, commission
 from czmpc.runtime.config import load_run_config
 from czmpc.runtime.runlog import read_run_meta
-from czmpc.settings import MPCSettings
-from sysid.data import Dataset
-from sysid.model import HammersteinModel
 
 pytest.importorskip("asyncua")
 pytestmark = [pytest.mark.slow, pytest.mark.realtime]
@@ -50,12 +47,6 @@ def _rows(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(fh))
 
 
-def _says_ready(model: HammersteinModel, validation: Dataset, settings: MPCSettings,
-                model_path: Path, mc_runs: int) -> CheckOutcome:
-    """A stand-in verdict, so that this test exercises the switch-on alone."""
-    return CheckOutcome(verdict="ready", reasons=("stand-in check of the journey test",))
-
-
 def test_commission_then_switch_on_tracks_offset_free(tmp_path: Path) -> None:
     plant = fast_heater_model(tmp_path / "plant.json", ts_s=JOURNEY_TS_S)
     with served_plant(tmp_path, "--plant", "model", "--model", str(plant), "--initial-triac-pct",
@@ -68,11 +59,17 @@ def test_commission_then_switch_on_tracks_offset_free(tmp_path: Path) -> None:
             encoding="utf-8")
         config = load_run_config(path)
         plan = JourneyPlan(range_pct=RANGE_PCT, tau_s=fast_tau_s(JOURNEY_TS_S),
-                           out_dir=tmp_path / "out",
-                           kind="steps", max_step_pct=5.0, switch_on=True, run_duration_s=750.0)
-        result = commission(config, plan, checker=_says_ready)
+                           out_dir=tmp_path / "out", kind="steps", max_step_pct=5.0,
+                           switch_on=True, run_duration_s=750.0, mc_runs=5)
+        result = commission(config, plan)
     out = tmp_path / "out"
+    # the real check-model verdict on the commissioned model: measured 'ready' in 9 of 9
+    # loopback journeys once validation scored no fitted initial state (before: 'ready
+    # with conditions' in about one of eight, a cancelling pole-zero pair chosen)
+    assert result.check is not None and result.check.verdict == "ready", result.check
     assert result.stage == "switched on" and result.ok, result.messages
+    assert any(p.name.startswith("model") and p.name.endswith(".check.json")
+               for p in out.iterdir())   # the verdict file beside the model
     assert result.fit_pct is not None and result.fit_pct > MIN_FIT_PCT
     for name in ("test.csv", "test_run.csv", "test_run.meta.json", "model.json",
                  "identification/report.md", "commissioning.md", "figures/test.png",
@@ -89,29 +86,3 @@ def test_commission_then_switch_on_tracks_offset_free(tmp_path: Path) -> None:
     power = np.array([float(r["power_kw"]) for r in rows[-20:] if r["quality"] == "good"])
     assert power.size >= 15
     assert abs(float(power.mean()) - 44.0) < OFFSET_FREE_ATOL_KW
-
-
-def test_commission_with_the_real_check_stores_its_verdict(tmp_path: Path) -> None:
-    """The real check on the commissioned model: not 'not ready', and stored beside it."""
-    pytest.importorskip("czmpc.commissioning.check")
-    plant = fast_heater_model(tmp_path / "plant.json", ts_s=JOURNEY_TS_S)
-    with served_plant(tmp_path, "--plant", "model", "--model", str(plant), "--initial-triac-pct",
-                      "45", "--safe-triac-pct", "40", "--watchdog-s", WATCHDOG_S,
-                      duration_s=50000.0, time_scale=JOURNEY_TIME_SCALE) as endpoint:
-        config = load_run_config(write_config(tmp_path, endpoint, band_kw=(20.0, 70.0),
-                                              time_scale=JOURNEY_TIME_SCALE, ts_s=JOURNEY_TS_S))
-        plan = JourneyPlan(range_pct=RANGE_PCT, tau_s=fast_tau_s(JOURNEY_TS_S),
-                           out_dir=tmp_path / "out",
-                           kind="steps", max_step_pct=5.0, mc_runs=5)
-        result = commission(config, plan)
-    assert result.stage == "checked"
-    assert result.check is not None
-    # measured on loopback after the operating point was put on the steady-state curve and
-    # overrun periods became gaps: 'ready' in 7 of 8 journeys, 'ready with conditions'
-    # (residual whiteness) in one; never 'not ready'
-    assert result.check.verdict != "not ready", result.check.reasons
-    assert result.check.reasons or result.check.verdict == "ready"
-    assert any(p.name.startswith("model") and p.name != "model.json"
-               for p in (tmp_path / "out").iterdir())   # the verdict file beside the model
-    report = (tmp_path / "out" / "commissioning.md").read_text(encoding="utf-8")
-    assert f"**{result.check.verdict}**" in report
