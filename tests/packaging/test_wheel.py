@@ -28,9 +28,10 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 VERSION = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))["project"]["version"]
 
-# Runs a command of the installed czmpc with an audit hook that records every file opened
-# inside the source tree (its .venv, which holds the dependencies, excepted), then prints
-# them on stderr after a marker so that the test can fail on any.
+# Runs a command of the installed czmpc (or pytest, for the plugin) with an audit hook that
+# records every file opened inside the source tree (its .venv, which holds the
+# dependencies, excepted), then prints them on stderr after a marker so that the test can
+# fail on any.
 _GUARD = """
 import os, sys
 repo, venv = os.path.realpath(sys.argv[1]), os.path.realpath(os.path.join(sys.argv[1], ".venv"))
@@ -41,7 +42,7 @@ def hook(event, args):
         if path.startswith(repo + os.sep) and not path.startswith(venv + os.sep):
             seen.append(path)
 sys.addaudithook(hook)
-from czmpc.cli import main
+from {module} import main
 try:
     code = main(sys.argv[2:])
 finally:
@@ -106,8 +107,14 @@ def test_sdist_and_wheel_carry_the_version_licence_and_package_data(dist: Path) 
 
 
 def _czmpc(venv: Path, cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    return _run([str(venv / "bin" / "python"), "-c", _GUARD, str(REPO), *args], cwd=cwd,
-                warnings="error::DeprecationWarning")
+    return _run([str(venv / "bin" / "python"), "-c", _GUARD.format(module="czmpc.cli"), str(REPO),
+                 *args], cwd=cwd, warnings="error::DeprecationWarning")
+
+
+def _pytest(venv: Path, cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    """pytest in the wheel's environment: plugins come from entry points, czmpc's from the wheel."""
+    return _run([str(venv / "bin" / "python"), "-c", _GUARD.format(module="pytest"), str(REPO),
+                 "-p", "no:cacheprovider", *args], cwd=cwd)
 
 
 def _source_tree_reads(proc: subprocess.CompletedProcess[str]) -> str:
@@ -244,7 +251,8 @@ def test_a_users_regression_suite_records_and_checks_from_the_wheel(
         venv: Path, tmp_path: Path) -> None:
     """Issue 16: outside the source tree, a suite of the user's own model, settings and
     scenario files is recorded, holds unchanged, and fails (exit 1, naming the metric and
-    the first divergence) after one weight of the settings file is doubled."""
+    the first divergence) after one weight of the settings file is doubled; through the
+    command and through the pytest plugin of the installed wheel."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location(
@@ -268,6 +276,14 @@ def test_a_users_regression_suite_records_and_checks_from_the_wheel(
     assert check.returncode == 0, check.stderr[-3000:]
     assert "puller-7: 2 of 2 case(s) hold" in check.stdout
     assert _source_tree_reads(check) == "[]"
+    # the same check from the user's own pytest suite, through the plugin's fixture
+    (tmp_path / "test_puller7.py").write_text(_USER_PLUGIN_TEST, encoding="utf-8")
+    plugin = _pytest(venv, tmp_path, "-q", "-s", "test_puller7.py")
+    assert plugin.returncode == 0, plugin.stdout[-3000:] + plugin.stderr[-3000:]
+    assert "1 passed" in plugin.stdout
+    (plugin_file,) = re.findall(r"PLUGIN-FROM:(\S+)", plugin.stdout)
+    assert Path(plugin_file).resolve().is_relative_to(venv.resolve()), plugin_file
+    assert _source_tree_reads(plugin) == "[]"
 
     settings = folder / "puller7_settings.toml"
     settings.write_text(SETTINGS.replace("move_weight = 0.1", "move_weight = 0.2"),
@@ -277,3 +293,19 @@ def test_a_users_regression_suite_records_and_checks_from_the_wheel(
     assert "iae_kw_s" in failed.stdout and "first divergence" in failed.stdout
     assert "move_weight: 0.1 -> 0.2" in failed.stdout
     assert _source_tree_reads(failed) == "[]"
+    plugin = _pytest(venv, tmp_path, "-q", "test_puller7.py")
+    assert plugin.returncode == 1, plugin.stdout[-3000:] + plugin.stderr[-3000:]
+    assert "1 failed" in plugin.stdout
+    assert "iae_kw_s" in plugin.stdout and "move_weight: 0.1 -> 0.2" in plugin.stdout
+    assert _source_tree_reads(plugin) == "[]"
+
+
+#: A user's test of their suite through the pytest plugin (fixture ``czmpc_regress``).
+_USER_PLUGIN_TEST = """
+import czmpc.testing
+
+def test_puller7_did_not_change(czmpc_regress):
+    print("PLUGIN-FROM:" + czmpc.testing.__file__)
+    report = czmpc_regress.check("golden")
+    assert len(report.cases) == 2
+"""
