@@ -9,6 +9,7 @@ from pathlib import Path
 
 from czmpc.runtime.serve_process import free_loopback_port as free_port  # noqa: F401  (the tests import it from here)
 from czmpc.runtime.serve_process import serving
+from czmpc.runtime.served import SERVED_NODE_IDS
 
 #: Every loopback test runs the plant at this many samples per Ts (period 2 s / 50 = 40 ms).
 TIME_SCALE = 50.0
@@ -20,13 +21,8 @@ TIME_SCALE = 50.0
 JOURNEY_TS_S = 5.0
 JOURNEY_TIME_SCALE = 50.0
 
-NODES = {
-    "power_kw": "ns=2;s=Heater.Power",
-    "triac_pct": "ns=2;s=Heater.TriacCommand",
-    "applied_triac_pct": "ns=2;s=Heater.TriacApplied",
-    "heartbeat": "ns=2;s=Heater.Heartbeat",
-    "mode": "ns=2;s=Heater.Mode",
-}
+NODES = {k: SERVED_NODE_IDS[k]
+         for k in ("power_kw", "triac_pct", "applied_triac_pct", "heartbeat", "mode")}
 
 
 @contextlib.contextmanager

@@ -8,6 +8,7 @@ import pytest
 
 from czmpc.runtime.config import RunConfig, run_config_from_dict
 from czmpc.runtime.serve_process import free_loopback_port as free_port  # noqa: F401  (the tests import it from here)
+from czmpc.runtime.served import SERVED_NODE_IDS
 from czmpc.shipped import shipped_path
 
 pytest.importorskip("asyncua")
@@ -17,15 +18,8 @@ TIME_SCALE = 50.0
 
 
 def served_nodes() -> dict[str, str]:
-    """Node ids of czmpc's served plant."""
-    return {
-        "power_kw": "ns=2;s=Heater.Power",
-        "triac_pct": "ns=2;s=Heater.TriacCommand",
-        "applied_triac_pct": "ns=2;s=Heater.TriacApplied",
-        "setpoint_kw": "ns=2;s=Heater.PowerSetpoint",
-        "heartbeat": "ns=2;s=Heater.Heartbeat",
-        "mode": "ns=2;s=Heater.Mode",
-    }
+    """Node ids of czmpc's served plant (without the model-health node)."""
+    return {k: v for k, v in SERVED_NODE_IDS.items() if k != "model_health"}
 
 
 def make_config(tmp_path: Path, port: int, *, nodes: dict[str, str] | None = None,
