@@ -1,109 +1,103 @@
 """
-Commissioning a heater: design a test, run it, identify, compare
-================================================================
+Commissioning a served heater: from a bare rig to a running MPC
+===============================================================
 
-Before the MPC goes on a new heater, the heater is identified from a test designed for
-it: `sysid.design.design_test_signal` (``czmpc design-test`` on the command line) makes a
-staircase across the band the controller will use, each level held several time
-constants, then generalized binary noise whose mean switching time equals the plant's
-time constant. Here the "plant" is the virtual heater of `sim`, the prior knowledge is the
-shipped model, and the identified model is compared with that prior and with the heater's
-true steady-state curve.
+The whole journey of ``czmpc commission --switch-on`` (:doc:`/guides/commission`),
+against the virtual heater served over OPC UA by ``czmpc plant serve`` in a process of
+its own on 127.0.0.1, as a hardware-in-the-loop rig would serve it. The heater's gain is
+0.8 of the shipped model's (``--gain-factor 0.8``): the shipped model is not this
+heater's model, so the journey has to find one. It
 
-To keep this example short the test assumes a time constant of 120 s (8,000 s of test);
-``czmpc design-test --prior model.json`` takes the prior model's slowest pole (256 s here)
-and asks for at least 16,350 s, which is what a real commissioning should use
-(:doc:`/guides/commission`).
+1. designs a multilevel test over 35..60 % for a time constant guessed at 250 s,
+2. applies it through the plant link with the run loop (heartbeat, safety band, quality),
+3. identifies a model from the log (orders chosen on held-out data),
+4. checks it (``czmpc check-model``: fit, residuals, gain, a closed-loop Monte Carlo),
+5. and, on a ``ready`` verdict, switches the MPC on for a recipe of setpoints,
+   bumplessly from the input the plant applies at that moment.
+
+The plant runs 40 times faster than real time (50 ms per 2 s sample), so the 50 min
+test and the 30 min run take about 2 min of wall time. The served plant writes its own
+log (``--log``) with the *true* power, which no controller sees; the figure draws it.
 """
+
+import csv
+import tempfile
+from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
 
-import sim
-import sysid
-from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
-from sim.heater import steady_state
-from sysid.design import ExcitationSpec, design_test_signal
+from czmpc.commissioning.journey import JourneyPlan, commission
+from czmpc.commissioning.link_study import write_link_config
+from czmpc.runtime.config import load_run_config
+from czmpc.runtime.serve_process import serving
 
-prior = sysid.load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
-spec = ExcitationSpec(ts_s=prior.ts_s, lo_pct=35.0, hi_pct=60.0, tau_s=120.0,
-                      duration_s=8000.0, max_step_pct=5.0)
-test = design_test_signal(spec, np.random.default_rng(0))
-print(f"test: {test.triac_pct.size} samples, staircase levels {test.levels_pct.tolist()} %, "
-      f"each held {spec.hold_samples * spec.ts_s:g} s, then GBN")
+TIME_SCALE = 40.0
+work = Path(tempfile.mkdtemp(prefix="czmpc-commission-"))
+recipe = work / "recipe.csv"
+recipe.write_text("time_s,setpoint_kw\n0,38\n600,42\n1200,46\n", encoding="utf-8")
 
+plan = JourneyPlan(range_pct=(35.0, 60.0), tau_s=250.0, out_dir=work / "out", kind="multilevel",
+                   duration_s=3000.0, max_step_pct=5.0, switch_on=True, run_duration_s=1800.0,
+                   mc_runs=5)
+with serving("--plant", "heater", "--gain-factor", "0.8", "--seed", "3",
+             "--log", str(work / "plant.csv"), "--watchdog-s", "600", "--safe-triac-pct", "45",
+             output=work / "serve.log", time_scale=TIME_SCALE) as endpoint:
+    config = load_run_config(write_link_config(work / "run.toml", endpoint,
+                                               time_scale=TIME_SCALE, recipe=recipe))
+    result = commission(config, plan, progress=print)
 
-def run_on_heater(triac_pct: np.ndarray, seed: int) -> sysid.Dataset:
-    """Apply the set-points to the virtual heater (one per sample) and log the power."""
-    params = sim.HeaterParams(ts_s=spec.ts_s, initial_triac_pct=float(triac_pct[0]))
-    heater = sim.VirtualHeater(params, rng=seed)
-    power_kw = [heater.reset(seed)]
-    power_kw += [heater.step(float(u)) for u in triac_pct[:-1]]
-    time_s = spec.ts_s * np.arange(triac_pct.size)
-    return sysid.Dataset(time_s=time_s, triac_pct=triac_pct.astype(float),
-                         power_kw=np.asarray(power_kw), ts_s=spec.ts_s)
-
-
-log = run_on_heater(test.triac_pct, seed=11)
+print(f"journey ended: {result.stage}; verdict {result.check.verdict if result.check else None}; "
+      f"held-out fit {result.fit_pct if result.fit_pct is not None else float('nan'):.1f} %")
+for reason in result.check.reasons if result.check else ():
+    print("  reason:", reason)
 
 # %%
-# Identify with the paper's route and orders (as ``czmpc identify --orders paper``):
-result = sysid.run_paper_pipeline(log, orders="paper")
-model = result.final.model
+# The test and the run, from the two run logs, with the true power from the plant's log
+# (lined up by wall time). Time is plant time from the start of the test.
 
 
-def time_constant_s(m: sysid.HammersteinModel) -> float:
-    return float(-m.ts_s / np.log(max(abs(np.roots(m.a)))))
+def columns(path, *names):
+    with open(path, newline="", encoding="utf-8") as fh:
+        rows = [r for r in csv.DictReader(fh) if r.get(names[0])]
+    return [np.array([float(r[n]) for r in rows]) for n in names]
 
 
-for name, m in (("prior (shipped)", prior), ("identified", model)):
-    slope = float(m.input_nonlinearity_slope(0.0))
-    print(f"{name:16s} static gain {m.linear_static_gain:.3f}, time constant "
-          f"{time_constant_s(m):.0f} s, f'(0) = {slope:.3f} kW/% at s_nom = "
-          f"{m.operating_point.triac_pct:g} %")
+plant_wall, plant_true = columns(work / "plant.csv", "wall_time_s", "power_true_kw")
+test_wall, test_power, test_input = columns(result.out_dir / "test_run.csv", "wall_time_s",
+                                            "power_kw", "applied_triac_pct")
+t0 = test_wall[0]
 
-# %%
-# Validate on a second test the fit never saw (another GBN realisation and noise), and
-# compare each model's steady-state power with the heater's true one (the curves agree
-# within a fraction of a kW over 30 to 62 kW, so their differences are plotted):
-validation = run_on_heater(design_test_signal(spec, np.random.default_rng(1)).triac_pct, seed=12)
-fits = {}
-for name, m in (("prior", prior), ("identified", model)):
-    yhat = sysid.simulate(m, validation)
-    err = validation.power_kw - yhat
-    fits[name] = 100.0 * (1.0 - np.linalg.norm(err) / np.linalg.norm(
-        validation.power_kw - validation.power_kw.mean()))
-    print(f"{name:10s} simulation fit on the validation test: {fits[name]:.1f} %")
 
-s_grid = np.linspace(spec.lo_pct, spec.hi_pct, 26)
-true_kw = [steady_state(float(s), sim.HeaterParams())[0] for s in s_grid]
-fig, axes = plt.subplots(3, 1, figsize=(8, 8))
-hours = log.time_s / 3600.0
-axes[0].plot(hours, log.triac_pct, lw=0.8, color="C0")
-axes[0].set_ylabel("TRIAC input s [%]", color="C0")
-ax_p = axes[0].twinx()
-ax_p.plot(hours, log.power_kw, lw=0.6, color="C1")
-ax_p.set_ylabel("power P [kW]", color="C1")
-axes[0].set_xlabel("time [h]")
-axes[0].set_title("the designed test on the virtual heater")
-print(f"largest steady-state error over {spec.lo_pct:g}..{spec.hi_pct:g} %: prior "
-      f"{np.max(np.abs(prior.steady_state_power_kw(s_grid) - true_kw)):.2f} kW, identified "
-      f"{np.max(np.abs(model.steady_state_power_kw(s_grid) - true_kw)):.2f} kW")
-axes[1].axhline(0.0, color="k", lw=0.8)
-axes[1].plot(s_grid, prior.steady_state_power_kw(s_grid) - true_kw, "--", label="prior (shipped model)")
-axes[1].plot(s_grid, model.steady_state_power_kw(s_grid) - true_kw, "-", label="identified")
-axes[1].set_xlabel("TRIAC input s [%]")
-axes[1].set_ylabel("steady power - true [kW]")
-axes[1].set_title("steady-state error of each model against the virtual heater")
-axes[1].legend(fontsize=8)
-vh = validation.time_s / 3600.0
-axes[2].plot(vh, validation.power_kw, lw=0.6, color="0.5", label="measured")
-axes[2].plot(vh, sysid.simulate(model, validation), lw=0.8,
-             label=f"identified ({fits['identified']:.1f} %)")
-axes[2].plot(vh, sysid.simulate(prior, validation), lw=0.8, ls="--",
-             label=f"prior ({fits['prior']:.1f} %)")
-axes[2].set_xlabel("time [h]")
-axes[2].set_ylabel("power P [kW]")
-axes[2].set_title("validation test: simulated against measured")
-axes[2].legend(fontsize=8)
+def plant_time_h(wall):
+    return (wall - t0) * TIME_SCALE / 3600.0
+
+
+fig, (ax_p, ax_u) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
+ax_p.plot(plant_time_h(test_wall), test_power, lw=0.7, color="C1", label="measured (test)")
+ax_u.plot(plant_time_h(test_wall), test_input, lw=0.8, color="C0", label="test input")
+if result.stage == "switched on":
+    run_wall, run_power, run_sp, run_input = columns(
+        result.out_dir / "run.csv", "wall_time_s", "power_kw", "setpoint_kw", "triac_pct")
+    ax_p.plot(plant_time_h(run_wall), run_power, lw=0.7, color="C2", label="measured (MPC on)")
+    ax_p.step(plant_time_h(run_wall), run_sp, where="post", color="k", lw=1.0, label="setpoint")
+    ax_u.plot(plant_time_h(run_wall), run_input, lw=0.8, color="C2", label="MPC command")
+    ax_p.axvspan(plant_time_h(test_wall[-1]), plant_time_h(run_wall[0]), color="0.9",
+                 label="identify + check")
+ax_p.plot(plant_time_h(plant_wall), plant_true, lw=0.6, color="0.3", ls=":",
+          label="true power (plant log)")
+ax_p.set_ylabel("power P [kW]")
+ax_p.set_title(f"commissioning through OPC UA: verdict "
+               f"{result.check.verdict if result.check else 'none'}, {result.stage}")
+ax_p.legend(fontsize=7, ncol=2)
+ax_u.set_ylabel("TRIAC input s [%]")
+ax_u.set_xlabel("plant time [h]")
+ax_u.legend(fontsize=7)
 fig.tight_layout()
+
+# %%
+# The journey leaves every file a commissioning engineer needs in its output
+# directory: the designed test, the test's run log and provenance, the model with its
+# check verdict beside it, the identification report, ``commissioning.md`` with its
+# figures, and the MPC's run log after switch-on.
+print(sorted(p.name for p in result.out_dir.iterdir()))
