@@ -32,7 +32,7 @@ VERSION = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))["
 # records every file opened inside the source tree (its .venv, which holds the
 # dependencies, excepted), then prints them on stderr after a marker so that the test can
 # fail on any.
-_GUARD = """
+_GUARD_OF = """
 import os, sys
 repo, venv = os.path.realpath(sys.argv[1]), os.path.realpath(os.path.join(sys.argv[1], ".venv"))
 seen = []
@@ -49,6 +49,8 @@ finally:
     print("SOURCE-TREE-READS:" + repr(sorted(set(seen))), file=sys.stderr)
 sys.exit(code)
 """
+#: The guard around the czmpc command line.
+_GUARD = _GUARD_OF.format(module="czmpc.cli")
 
 
 def _run(args: list[str], cwd: Path, timeout_s: float = 300,
@@ -107,13 +109,13 @@ def test_sdist_and_wheel_carry_the_version_licence_and_package_data(dist: Path) 
 
 
 def _czmpc(venv: Path, cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    return _run([str(venv / "bin" / "python"), "-c", _GUARD.format(module="czmpc.cli"), str(REPO),
+    return _run([str(venv / "bin" / "python"), "-c", _GUARD, str(REPO),
                  *args], cwd=cwd, warnings="error::DeprecationWarning")
 
 
 def _pytest(venv: Path, cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
     """pytest in the wheel's environment: plugins come from entry points, czmpc's from the wheel."""
-    return _run([str(venv / "bin" / "python"), "-c", _GUARD.format(module="pytest"), str(REPO),
+    return _run([str(venv / "bin" / "python"), "-c", _GUARD_OF.format(module="pytest"), str(REPO),
                  "-p", "no:cacheprovider", *args], cwd=cwd)
 
 
