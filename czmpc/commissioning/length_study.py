@@ -146,8 +146,13 @@ class LengthRow:
     @property
     def offset_free(self) -> bool:
         """Every segment's tail mean error within `OFFSET_FREE_ATOL_KW`."""
-        return bool(self.segment_errors_kw) and all(
-            abs(e) < OFFSET_FREE_ATOL_KW for e in self.segment_errors_kw)
+        return offset_free(self.segment_errors_kw)
+
+
+def offset_free(segment_errors_kw: Sequence[float]) -> bool:
+    """Offset-free as the issue defines it: at least one segment, and every segment's tail
+    mean error [kW] within `OFFSET_FREE_ATOL_KW`."""
+    return bool(segment_errors_kw) and all(abs(e) < OFFSET_FREE_ATOL_KW for e in segment_errors_kw)
 
 
 def paper_schedule_pct(ts_s: float) -> np.ndarray:
@@ -368,7 +373,8 @@ __all__ = [
     "BENCHMARK_HEADING", "DEFAULT_CASES", "ISSUE_VARIATION", "MAX_IAE_RATIO", "MAX_TEST_S",
     "OFFSET_FREE_ATOL_KW", "SEGMENT_TAIL_SAMPLES", "TEST_BAND_PCT", "LengthCase",
     "LengthStudyError", "LengthRow", "apply_open_loop", "commissioning_staircase",
-    "format_study", "goal_met", "iae_ratio", "paper_schedule_pct", "reference_iae_kw_s",
+    "format_study", "goal_met", "iae_ratio", "offset_free", "paper_schedule_pct",
+    "reference_iae_kw_s",
     "run_case",
     "segment_tail_errors_kw", "run_length_study",
 ]

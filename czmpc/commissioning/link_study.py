@@ -26,7 +26,7 @@ import csv
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +39,7 @@ from czmpc.commissioning.length_study import (
     TEST_BAND_PCT,
     apply_open_loop,
     commissioning_staircase,
+    offset_free,
     paper_schedule_pct,
     segment_tail_errors_kw,
 )
@@ -51,6 +52,7 @@ from czmpc.runtime.served import SERVED_NODE_IDS
 from czmpc.settings import MPCSettings
 from sim.drift import PlantVariation
 from sysid.errors import SysidError
+from sysid.modelfile import load_model, save_model
 
 #: Sampling time of the served heater [s] (the paper's).
 TS_S = 2.0
@@ -88,8 +90,7 @@ class Tracking:
     @property
     def offset_free(self) -> bool:
         """Every segment's tail mean error within `length_study.OFFSET_FREE_ATOL_KW`."""
-        return bool(self.segment_errors_kw) and all(
-            abs(e) < OFFSET_FREE_ATOL_KW for e in self.segment_errors_kw)
+        return offset_free(self.segment_errors_kw)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -220,8 +221,6 @@ def write_link_config(path: Path, endpoint: str, *, time_scale: float,
 
 def reference_model_path(out: Path, variation: PlantVariation, seed: int) -> Path:
     """Identify the paper-length reference on the same plant and seed; write it."""
-    from sysid.modelfile import save_model
-
     data = apply_open_loop(paper_schedule_pct(TS_S), variation, ts_s=TS_S, seed=seed)
     path = out / "reference_model.json"
     save_model(identify_test(data).model, path)
@@ -250,8 +249,6 @@ def run_seed(seed: int, *, out_dir: Path, time_scale: float, test_s: float = 720
     check = result.check
     model_orders: tuple[int, ...] = ()
     if result.model_path is not None and result.model_path.is_file():
-        from sysid.modelfile import load_model
-
         m = load_model(result.model_path)
         model_orders = (m.input_degree, m.b.size - m.delay_steps, m.a.size - 1, m.delay_steps)
     base = LinkRun(seed=seed, test_s=test_s, stage=result.stage,
@@ -278,10 +275,6 @@ def run_seed(seed: int, *, out_dir: Path, time_scale: float, test_s: float = 720
             config = load_run_config(write_link_config(
                 out / "reference.toml", endpoint, time_scale=time_scale, recipe=recipe,
                 model=ref_model, log=str((out / "reference_run.csv").resolve())))
-            from dataclasses import replace
-
-            from sysid.modelfile import load_model
-
             model = load_model(ref_model)
             mpc = OffsetFreeMPC(model, MPCSettings.default_for(model))
             summary = asyncio.run(ControlLoop(replace(config, duration_s=run_s), mpc).run())
@@ -302,8 +295,6 @@ def _first_applied_pct(run_log: Path) -> float:
 
 
 def _done(base: LinkRun, started: float, **changes: object) -> LinkRun:
-    from dataclasses import replace
-
     return replace(base, wall_s=time.perf_counter() - started, **changes)  # type: ignore[arg-type]
 
 
