@@ -328,8 +328,11 @@ marker = pathlib.Path(sys.argv[1])
 real_fsync = sysid.atomic._fsync_file
 
 def slow_fsync(path):
-    # the temporary file is written, not yet renamed: tell the parent, wait for SIGTERM
-    marker.write_text(str(path))
+    # the temporary file is written, not yet renamed: tell the parent (the marker appears
+    # whole, by a rename: the parent must never read it half written), wait for SIGTERM
+    partial = marker.with_name(marker.name + ".partial")
+    partial.write_text(str(path))
+    partial.replace(marker)
     time.sleep(60)
     real_fsync(path)
 
@@ -342,21 +345,23 @@ def test_sigterm_while_writing_leaves_no_temporary_file_and_exits_143(tmp_path: 
     marker = tmp_path / "writing"
     argv = _simulate(tmp_path)
     argv[argv.index("--short") + 1] = "0.05"
-    child = subprocess.Popen([sys.executable, "-c", _CHILD, str(marker), *argv],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO)
-    try:
-        deadline = time.monotonic() + 120.0
-        while not marker.exists() and child.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert marker.exists(), child.communicate(timeout=10)[1].decode()
-        temporary = Path(marker.read_text())
-        assert temporary.exists() and temporary.name.startswith(".")
-        child.send_signal(signal.SIGTERM)
-        _, err = child.communicate(timeout=30)
-    finally:
-        if child.poll() is None:
-            child.kill()
-            child.wait()
+    # the context manager closes the pipes whatever happens (an unclosed one warns later,
+    # in whichever test the garbage collector runs)
+    with subprocess.Popen([sys.executable, "-c", _CHILD, str(marker), *argv],
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO) as child:
+        try:
+            deadline = time.monotonic() + 120.0
+            while not marker.exists() and child.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert marker.exists(), child.communicate(timeout=10)[1].decode()
+            temporary = Path(marker.read_text())
+            assert temporary.exists() and temporary.name.startswith("."), temporary
+            child.send_signal(signal.SIGTERM)
+            _, err = child.communicate(timeout=30)
+        finally:
+            if child.poll() is None:
+                child.kill()
+                child.wait()
     assert child.returncode == SIGTERM_EXIT_CODE == 143
     assert "czmpc: error" not in err.decode() and "Traceback" not in err.decode()
     assert "terminated" in err.decode()
