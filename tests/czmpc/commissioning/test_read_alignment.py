@@ -44,8 +44,10 @@ def _one_sample_share(log: Path, after_k: int) -> float:
     k = np.array([int(r["k"]) for r in rows])
     cmd = np.array([float(r["triac_pct"]) for r in rows])
     applied = np.array([float(r["applied_triac_pct"]) for r in rows])
-    assert np.all(np.diff(k) == 1), "skipped periods: the test needs consecutive samples"
-    moves = [i for i in range(1, k.size - 2) if cmd[i] != cmd[i - 1] and k[i] >= after_k]
+    # a move is judged only between consecutive samples: a period skipped after an overrun
+    # (a loaded machine; CI saw one in 240) has no row, so its neighbours say nothing
+    moves = [i for i in range(1, k.size - 2) if cmd[i] != cmd[i - 1] and k[i] >= after_k
+             and k[i] - k[i - 1] == 1 and k[i + 1] - k[i] == 1]
     assert len(moves) > 20
     return float(np.mean([applied[i + 1] == cmd[i] for i in moves]))
 
