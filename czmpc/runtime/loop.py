@@ -187,7 +187,8 @@ class RunSummary:
     stale_alarm_at_s: float | None = None
     stale_alarm_reason: str = ""
     #: RMS one-step prediction error [kW] of the active model and of the shadow candidate
-    #: (`RunConfig.candidate_path`) over the samples where both predicted; NaN without one.
+    #: (`RunConfig.candidate_path`) over the samples where both have a residual (none while
+    #: a gap's transient settles, `ModelHealth.residual_kw`); NaN without a candidate.
     active_rms_kw: float = math.nan
     candidate_rms_kw: float = math.nan
     candidate_stale_alarm_at_s: float | None = None
@@ -487,6 +488,7 @@ class ControlLoop:
             row["skipped"] = next_k - k - 1
             if next_k - k - 1 > 0:
                 self.ctrl.skipped(next_k - k - 1)
+                self._monitors_skipped(next_k - k - 1)
             row["step_latency_s"] = end - woke
             self._check_limits(row, next_k - k)
             t0 += self._align(row)
@@ -633,6 +635,20 @@ class ControlLoop:
             self._say(f"STALE-MODEL ALARM at t={k * self.config.ts_s:.0f}s: {health.alarm_reason}")
         return health
 
+    def _monitors_skipped(self, n_periods: int) -> None:
+        """Carry the one-step predictors over skipped periods as missing samples.
+
+        Without this the next sample, ``n_periods + 1`` periods after the last one, would be
+        scored against a prediction one period ahead. The command is taken as held over
+        the skipped periods; when the late write really landed is not known, so no
+        residual counts until the gap's transient has settled (`ModelHealth.residual_kw`).
+        """
+        for monitor in (self.health, self.shadow):
+            if monitor is None:
+                continue
+            for _ in range(n_periods):
+                monitor.update(math.nan, self._last_cmd)
+
     def _shadow_columns(self, k: int, power: float, applied_before: float,
                         health: ModelHealth | None) -> dict[str, object]:
         """Feed the shadow candidate; its log columns; the RMS errors of both models."""
@@ -640,10 +656,10 @@ class ControlLoop:
             return {"candidate_predicted_kw": math.nan, "candidate_health": math.nan,
                     "candidate_stale_alarm": ""}
         cand = self.shadow.update(power, applied_before)
-        if math.isfinite(power) and math.isfinite(health.predicted_kw) \
-                and math.isfinite(cand.predicted_kw):
-            self._sq_active_kw2 += (power - health.predicted_kw) ** 2
-            self._sq_candidate_kw2 += (power - cand.predicted_kw) ** 2
+        # one-step residuals: none for a missing sample or while a gap's transient settles
+        if math.isfinite(health.residual_kw) and math.isfinite(cand.residual_kw):
+            self._sq_active_kw2 += health.residual_kw ** 2
+            self._sq_candidate_kw2 += cand.residual_kw ** 2
             self._n_compared += 1
             self.summary.active_rms_kw = math.sqrt(self._sq_active_kw2 / self._n_compared)
             self.summary.candidate_rms_kw = math.sqrt(self._sq_candidate_kw2 / self._n_compared)

@@ -305,16 +305,21 @@ def test_a_candidate_model_runs_in_shadow_and_is_compared(tmp_path: Path) -> Non
     cfg = dataclasses.replace(make_config(tmp_path, port, duration_s=300.0, nodes=nodes,
                                           run={"setpoint_kw": 31.0}),
                               candidate_path=tmp_path / "candidate.json")
-    loop = ControlLoop(cfg, OffsetFreeMPC(model))
+    # an overrun while the input moves: both predictors are carried over the skipped periods
+    # with the held command (scored one period ahead instead, the active error was 2e-3 kW)
+    loop = ControlLoop(cfg, OffsetFreeMPC(model), step_delay_s={8: 2.5 * cfg.period_s})
     summary = asyncio.run(_with_served(served, loop.run()))
+    assert summary.n_skipped >= 2
     rows = [r for r in _rows(cfg.log_path) if r["k"]]
     predicted = [float(r["candidate_predicted_kw"]) for r in rows]
     assert sum(math.isfinite(p) for p in predicted) >= len(rows) - 2
     assert all(r["candidate_stale_alarm"] in ("0", "1") for r in rows)
-    # the active model is the plant (noise-free): its one-step error is rounding and the
-    # loop's sample-phase jitter; the candidate's gain is 20 % off while the input moves
-    # (measured: 1e-15 kW against 0.035 kW over 150 samples, the MPC moving 45 -> 31 kW)
-    assert summary.active_rms_kw < 1e-6
+    # the active model is the plant (noise-free): its one-step error is rounding, plus the
+    # residue of the overrun (the late write's landing is not known), decayed by the C
+    # filter to TRANSIENT_DECAY before residuals count again (measured 1.6e-7 to 5.4e-7 kW;
+    # 1e-15 without the overrun). The candidate's gain is 20 % off while the input moves
+    # (measured 0.053 kW over 150 samples, the MPC moving 45 -> 31 kW).
+    assert summary.active_rms_kw < 1e-4
     assert summary.candidate_rms_kw > 0.01
     # it never drove: the written commands are the active MPC's (tracked offset-free)
     tail = [float(r["power_kw"]) for r in rows[-10:] if r["quality"] == "good"]
