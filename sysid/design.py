@@ -24,16 +24,25 @@ Three kinds:
     The staircase followed by GBN around the middle of the band for the rest of the
     duration.
 ``multilevel``
-    Generalized multilevel noise for short tests of slow plants: it switches with the
-    GBN's probability ``p_sw = ts_s / tau_s``, but to another of the staircase's
-    ``n_levels`` levels each time (levels drawn in shuffled rounds, so every level is
-    visited equally often; a jump larger than ``max_step_pct`` is ramped). A binary
-    signal excites only two points of the static nonlinearity f; a multilevel one
-    excites f at every level and the dynamics over the same band as the GBN (Godfrey,
-    ed., Perturbation Signals for System Identification, Prentice Hall 1993, ch. 7-8 on
-    multilevel signals for nonlinear systems). It needs no settled holds, so it fits
-    a plant with tau = 600 s into 2 h where ``mixed`` needs 8 h. Shortest duration:
-    ``MIN_MULTILEVEL_ROUNDS`` rounds of the levels, ``tau_s`` per visit on average.
+    Multilevel noise for short tests of slow plants: it switches about once per time
+    constant, as the GBN does, but to another of the staircase's ``n_levels`` levels each
+    time. A binary signal excites only two points of the static nonlinearity f; a
+    multilevel one excites f at every level and the dynamics over the same band as the
+    GBN (Godfrey, ed., Perturbation Signals for System Identification, Prentice Hall
+    1993, ch. 7-8 on multilevel signals for nonlinear systems). It needs no settled
+    holds, so it fits a plant with tau = 600 s into 2 h where ``mixed`` needs 8 h.
+    Shortest duration: ``MIN_MULTILEVEL_ROUNDS`` rounds of the levels, ``tau_s`` per
+    visit on average.
+
+    Rules, for a short test that is cut in halves to be identified (the order search
+    estimates on the first half and validates on the second): each half of the test
+    makes a whole number of shuffled rounds through the levels, as many as give holds
+    nearest one ``tau_s`` on average (so every level is held equally often in both
+    halves), and the hold times are spread evenly within ``MULTILEVEL_HOLD_SPREAD`` of
+    their mean in random order, not drawn geometrically as the GBN's. Geometric holds
+    of mean tau range from a few samples to several tau: in 2 h one level could be held
+    142 s in one half and 1,254 s in the other, and a model fitted to the first half
+    then extrapolated f on the second. A jump larger than ``max_step_pct`` is ramped.
 """
 
 from __future__ import annotations
@@ -48,7 +57,8 @@ from sysid._typing import FloatArray
 from sysid.errors import SysidError
 
 __all__ = [
-    "HOLD_TAUS", "KINDS", "MIN_GBN_TAUS", "MIN_MULTILEVEL_ROUNDS", "ExcitationSignal",
+    "HOLD_TAUS", "KINDS", "MIN_GBN_TAUS", "MIN_MULTILEVEL_ROUNDS", "MULTILEVEL_HOLD_SPREAD",
+    "ExcitationSignal",
     "ExcitationSpec", "SignalDesignError", "design_test_signal", "shortest_duration_s",
 ]
 
@@ -60,6 +70,10 @@ MIN_GBN_TAUS = 20.0
 MIN_MULTILEVEL_ROUNDS = 2
 """Shortest multilevel signal, in rounds through all its levels (each level visited
 twice, from two predecessors: f is seen from both directions on average)."""
+MULTILEVEL_HOLD_SPREAD = 0.5
+"""Multilevel hold times spread evenly within this fraction of their mean (about one
+``tau_s``) around it: from half a time constant (a level shorter than that barely shows
+in f) to 1.5 (one long hold would leave the other levels short in a 2 h test)."""
 
 Kind = Literal["steps", "gbn", "mixed", "multilevel"]
 #: Every kind `design_test_signal` builds (the CLI's choices).
@@ -138,6 +152,19 @@ class ExcitationSpec:
         return max(1, math.ceil(HOLD_TAUS * self.tau_s / self.ts_s))
 
     @property
+    def multilevel_rounds_per_half(self) -> int:
+        """Rounds through the levels in each half of a multilevel test: as many as give
+        holds nearest ``tau_s`` on average (at least one)."""
+        half_s = (self.n_samples // 2) * self.ts_s
+        return max(1, round(half_s / (self.tau_s * self.n_levels)))
+
+    @property
+    def multilevel_mean_hold_s(self) -> float:
+        """Mean hold of a multilevel test [s]: half the test over one half's visits."""
+        return (self.n_samples // 2) * self.ts_s / (self.multilevel_rounds_per_half
+                                                    * self.n_levels)
+
+    @property
     def gbn_switch_probability(self) -> float:
         """Per-sample switching probability ``p_sw = ts_s / T_sw`` with ``T_sw = tau_s``."""
         return min(0.5, self.ts_s / self.tau_s)
@@ -163,11 +190,19 @@ class ExcitationSignal:
     levels_pct: FloatArray
     steps_samples: int
 
-    def hold_times_s(self) -> FloatArray:
-        """Lengths of the constant stretches of the signal [s] (last one included)."""
+    def hold_times_s(self, *, at_levels: bool = False) -> FloatArray:
+        """Lengths of the constant stretches of the signal [s] (last one included).
+
+        ``at_levels``: only the stretches at one of ``levels_pct`` (not a ramp's steps).
+        """
         change = np.flatnonzero(np.diff(self.triac_pct) != 0.0) + 1
-        edges = np.concatenate(([0], change, [self.triac_pct.size]))
-        return np.diff(edges).astype(float) * self.spec.ts_s
+        starts = np.concatenate(([0], change))
+        edges = np.concatenate((starts, [self.triac_pct.size]))
+        holds = np.diff(edges).astype(float) * self.spec.ts_s
+        if at_levels:
+            at = np.isclose(self.triac_pct[starts][:, None], self.levels_pct[None, :]).any(axis=1)
+            holds = holds[at]
+        return holds
 
     def spectrum(self) -> tuple[FloatArray, FloatArray]:
         """One-sided periodogram of the mean-removed signal: frequency [rad/s], power [%^2 s]."""
@@ -189,6 +224,8 @@ class ExcitationSignal:
         """Multi-line description: levels, hold times vs tau, spectrum vs bandwidth, duration."""
         spec = self.spec
         holds = self.hold_times_s()
+        if spec.kind == "multilevel":   # the ramps between levels are not holds
+            holds = self.hold_times_s(at_levels=True)
         band = 1.0 / spec.tau_s
         lines = [
             f"kind {spec.kind}: {self.triac_pct.size} samples at Ts = {spec.ts_s:g} s, "
@@ -207,9 +244,15 @@ class ExcitationSignal:
         lines.append(f"hold times: min {holds.min():g} s ({holds.min() / spec.tau_s:.2f} tau), "
                      f"median {np.median(holds):g} s ({np.median(holds) / spec.tau_s:.2f} tau), "
                      f"max {holds.max():g} s ({holds.max() / spec.tau_s:.2f} tau)")
-        if spec.kind != "steps":
-            what = "multilevel" if spec.kind == "multilevel" else "GBN"
-            lines.append(f"{what} mean switching time T_sw = "
+        if spec.kind == "multilevel":
+            mean_s = spec.multilevel_mean_hold_s
+            lines.append(f"multilevel mean switching time T_sw = {mean_s:g} s "
+                         f"({mean_s / spec.tau_s:.2f} tau; holds drawn in "
+                         f"{1 - MULTILEVEL_HOLD_SPREAD:g} .. {1 + MULTILEVEL_HOLD_SPREAD:g} T_sw); "
+                         f"{spec.multilevel_rounds_per_half} round(s) of the levels in each "
+                         f"half of the test")
+        elif spec.kind != "steps":
+            lines.append(f"GBN mean switching time T_sw = "
                          f"{spec.ts_s / spec.gbn_switch_probability:g} s "
                          f"(p_sw = {spec.gbn_switch_probability:.4g} per sample)")
         lines.append(f"plant bandwidth 1/tau = {band:.4g} rad/s; signal power below it "
@@ -239,17 +282,50 @@ def _ramp(start_pct: float, end_pct: float, max_step_pct: float) -> FloatArray:
     return np.linspace(start_pct, end_pct, n + 1)[1:-1] if n > 1 else np.zeros(0)
 
 
-def _multilevel(spec: ExcitationSpec, n: int, rng: np.random.Generator) -> FloatArray:
-    levels = np.linspace(spec.lo_pct, spec.hi_pct, spec.n_levels)
-    switches = rng.random(n) < spec.gbn_switch_probability
-    switches[0] = False
+def _level_sequence(n_levels: int, n_visits: int, after: int | None,
+                    rng: np.random.Generator) -> list[int]:
+    """``n_visits`` level indices in shuffled rounds, never one level twice in a row.
+
+    A round whose first level would repeat the previous one is rotated by one.
+
+    ``after``: the level before the sequence (None at the start of the test).
+    """
     order: list[int] = []
-    while len(order) < int(switches.sum()) + 1:   # shuffled rounds, never the same level twice
-        round_ = list(rng.permutation(levels.size))
-        if order and round_[0] == order[-1]:
+    while len(order) < n_visits:
+        round_ = [int(i) for i in rng.permutation(n_levels)]
+        last = order[-1] if order else after
+        if last is not None and round_[0] == last:
             round_.append(round_.pop(0))
         order += round_
-    target = levels[np.asarray(order)[np.cumsum(switches)]]
+    return order[:n_visits]
+
+
+def _hold_samples(n_visits: int, total: int, rng: np.random.Generator) -> FloatArray:
+    """``n_visits`` hold lengths [samples] that sum to ``total``, in random order.
+
+    Evenly spread over ``1 +- MULTILEVEL_HOLD_SPREAD`` times their mean ``total /
+    n_visits`` (a stratified draw: short and long holds in every half, none outside the
+    spread), rounded to samples with the largest remainders getting the leftover ones.
+    """
+    exact = (total / n_visits) * (1.0 + MULTILEVEL_HOLD_SPREAD
+                                  * np.linspace(-1.0, 1.0, n_visits))[rng.permutation(n_visits)]
+    holds = np.maximum(np.floor(exact), 1.0)
+    short = total - int(holds.sum())
+    if short > 0:
+        holds[np.argsort(holds - exact)[:short]] += 1.0
+    return holds
+
+
+def _multilevel(spec: ExcitationSpec, n: int, rng: np.random.Generator) -> FloatArray:
+    levels = np.linspace(spec.lo_pct, spec.hi_pct, spec.n_levels)
+    # each half of the test on its own: whole rounds of the levels (one visit each per
+    # round, about one tau per visit) in its own half of the samples
+    half_samples = (n // 2, n - n // 2)
+    half_visits = spec.multilevel_rounds_per_half * levels.size
+    first = _level_sequence(levels.size, half_visits, None, rng)
+    second = _level_sequence(levels.size, half_visits, first[-1], rng)
+    holds = np.concatenate([_hold_samples(half_visits, m, rng) for m in half_samples])
+    target = np.repeat(levels[np.asarray(first + second)], holds.astype(int))
     u = np.empty(n)
     u[0] = target[0]
     for k in range(1, n):   # ramp jumps above max_step_pct (the target is held meanwhile)

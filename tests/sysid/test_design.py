@@ -81,6 +81,32 @@ def test_multilevel_visits_every_level_equally_and_ramps_large_jumps() -> None:
     assert set(sig.levels_pct) <= set(np.unique(limited.triac_pct))
 
 
+def test_multilevel_holds_every_level_in_each_half_for_about_one_tau() -> None:
+    """The order search estimates on one half of a test and validates on the other: each
+    half holds every level equally often, and no hold is far from the mean (geometric
+    holds gave one level 142 s in one half and 1,254 s in the other)."""
+    from sysid.design import MULTILEVEL_HOLD_SPREAD
+
+    spec = ExcitationSpec(ts_s=2.0, lo_pct=35.0, hi_pct=60.0, tau_s=600.0, duration_s=7200.0,
+                          max_step_pct=5.0, kind="multilevel", degree=3)
+    assert spec.multilevel_rounds_per_half == 1     # 3600 s / 5 levels: 720 s per visit
+    assert spec.multilevel_mean_hold_s == 720.0
+    for seed in range(20):
+        sig = design_test_signal(spec, np.random.default_rng(seed))
+        u = sig.triac_pct
+        half = u.size // 2
+        for part in (u[:half], u[half:]):
+            starts = np.concatenate(([0], np.flatnonzero(np.diff(part)) + 1))
+            at_level = [v for v in part[starts] if np.isclose(sig.levels_pct, v).any()]
+            assert sorted(np.round(at_level, 6)) == sorted(np.round(sig.levels_pct, 6)), seed
+        holds = sig.hold_times_s(at_levels=True)
+        # 360 .. 1080 s evenly; a ramp of up to 25 % / 5 % = 5 samples (10 s) eats into the
+        # level it leads to
+        assert holds.min() >= (1 - MULTILEVEL_HOLD_SPREAD) * 720.0 - 10.0 - 2.0, seed
+        assert holds.max() <= (1 + MULTILEVEL_HOLD_SPREAD) * 720.0 + 2.0, seed
+        assert abs(np.median(holds) - 720.0) <= 0.25 * 720.0, seed
+
+
 def test_multilevel_fits_a_slow_plant_into_two_hours_where_mixed_cannot() -> None:
     from sysid.design import MIN_MULTILEVEL_ROUNDS, shortest_duration_s
 

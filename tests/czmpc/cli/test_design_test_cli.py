@@ -98,4 +98,5 @@ def test_design_test_multilevel_prints_its_levels_and_switching(
     assert table.shape == (3601, 2) and np.abs(np.diff(table[:, 1])).max() <= 5.0 + 1e-9
     text = capsys.readouterr().out
     assert "levels [%]: 35, 41.25, 47.5, 53.75, 60, visited in shuffled rounds" in text  # degree 3
-    assert "multilevel mean switching time T_sw = 600 s" in text
+    assert ("multilevel mean switching time T_sw = 720 s (1.20 tau; holds drawn in 0.5 .. 1.5 "
+            "T_sw); 1 round(s) of the levels in each half of the test") in text
