@@ -180,6 +180,29 @@ def test_the_missed_response_is_the_residuals_impulse_response_to_moves() -> Non
     assert missed_response_pct(e, moves, -2.0)[0] == pytest.approx(10.0, rel=0.01)
 
 
+def test_the_missed_response_scale_does_not_depend_on_how_f_and_b_share_the_gain() -> None:
+    """A fit may put a tiny f'(0) before a large B (seen: f'(0) = 0.0023, B = 1 + 454 q^-1
+    - 454 q^-2): the scale of the missed response is the model's largest step response
+    over lags 0..25, the same for both sharings, and against scipy's lfilter."""
+    from scipy.signal import lfilter
+
+    from czmpc.commissioning.check import MAX_LAG, largest_move_response
+
+    model = load_model(SHIPPED_PATH)
+    eps = 2e-3   # a first B coefficient of eps before the model's own, one sample later
+    shared = model.with_updates(b=np.concatenate(([0.0, 1.0], model.b[1:] / eps)),
+                                input_poly=eps * model.input_poly, covariance=None)
+    expected = float(np.max(np.abs(lfilter(model.b, model.a, np.ones(MAX_LAG + 1))))) \
+        * float(model.input_poly[0])
+    assert largest_move_response(model) == pytest.approx(expected, rel=1e-12)
+    # the same response one sample later, plus eps f'(0) times the step response of 1/A
+    # (at most 26 eps = 5.2 % over lags 0..25): close to the model's, not to f'(0) = 0.2 %
+    assert largest_move_response(shared) == pytest.approx(expected, rel=26 * eps)
+    # the shipped model's first response is its instantaneous gain; over 25 samples its
+    # slow mode adds a little (the scale stays within 20 % of f'(0))
+    assert float(model.input_poly[0]) <= expected <= 1.2 * float(model.input_poly[0])
+
+
 @pytest.mark.parametrize(("gain", "status"), [(1.01, "pass"), (1.15, "fail")])
 def test_a_significant_input_correlation_fails_only_when_the_error_matters(
         gain: float, status: str) -> None:
