@@ -52,6 +52,7 @@ from czmpc.runtime.runlog import read_run_log
 from czmpc.settings import MPCSettings
 from czmpc.settings_file import load_settings
 from sysid.atomic import atomic_write_text
+from sysid.criteria import errors_with_fitted_state, fit_percent
 from sysid.data import Dataset
 from sysid.design import (
     ExcitationSignal,
@@ -61,7 +62,6 @@ from sysid.design import (
 )
 from sysid.model import HammersteinModel, Units
 from sysid.modelfile import save_model
-from sysid.simulate import simulate
 
 #: Share of the test's samples the model is identified from; the rest (the end of
 #: the test, inside the GBN part of a mixed design) is held out for the check's fit.
@@ -204,14 +204,6 @@ def design_spec(plan: JourneyPlan, ts_s: float) -> ExcitationSpec:
                           degree=DESIGN_DEGREE)
 
 
-def fit_percent(measured: np.ndarray, simulated: np.ndarray) -> float:
-    """``100 (1 - |y - y_sim| / |y - mean y|)``, MATLAB ``compare``'s NRMSE fit [%]."""
-    y = np.asarray(measured, dtype=float)
-    e = y - np.asarray(simulated, dtype=float)
-    denom = float(np.linalg.norm(y - y.mean()))
-    return math.nan if denom == 0.0 else 100.0 * (1.0 - float(np.linalg.norm(e)) / denom)
-
-
 def split_estimation_validation(data: Dataset) -> tuple[Dataset, Dataset]:
     """First `ESTIMATION_FRACTION` of the samples and the rest (each at least 10 samples)."""
     n_est = int(round(ESTIMATION_FRACTION * data.n_samples))
@@ -235,9 +227,12 @@ class IdentifiedTest:
     validation :
         The held-out samples (the last ``1 - ESTIMATION_FRACTION``).
     simulated_kw :
-        The model's ballistic simulation over ``validation`` [output unit].
+        The model's ballistic simulation over ``validation`` [output unit], its initial
+        state fitted by least squares (`sysid.criteria.errors_with_fitted_state`: the
+        held-out end of a test can start mid-ramp).
     fit_pct :
-        MATLAB ``compare``'s fit on ``validation`` [%] (`fit_percent`).
+        MATLAB ``compare``'s fit on ``validation`` [%] (`sysid.criteria.fit_percent`);
+        NaN for a constant held-out power.
     messages :
         The warnings of the identification, one line each.
     """
@@ -281,10 +276,11 @@ def identify_test(data: Dataset, *,
         raise JourneyError("identification produced no model")
     model = result.final.model.with_updates(units=Units(input=data.input_unit,
                                                         output=data.output_unit))
-    simulated = simulate(model, val)
+    simulated = val.power_kw - errors_with_fitted_state(model, val)
+    constant = bool(np.all(val.power_kw == val.power_kw[0]))
     return IdentifiedTest(
         model=model, pipeline=result, validation=val, simulated_kw=simulated,
-        fit_pct=fit_percent(val.power_kw, simulated),
+        fit_pct=math.nan if constant else fit_percent(val.power_kw, simulated),
         messages=tuple(f"identification: {w.category.__name__}: {w.message}" for w in caught))
 
 
@@ -461,8 +457,9 @@ def _write_report(out: Path, *, config: RunConfig, plan: JourneyPlan, signal: Ex
                   "(identification/report.md). Model `model.json`:", "", *_equation(model), "",
                   *[f"- {m}" for m in messages if m.startswith("identification:")], "",
                   "## 4. Fit on held-out data", "",
-                  f"The last {val.n_samples} samples, simulated from their first measured power "
-                  f"(ballistic, as MATLAB `compare`): fit **{fit:.1f} %**."]
+                  f"The last {val.n_samples} samples, simulated with their initial state "
+                  f"fitted by least squares (ballistic, as MATLAB `compare`): fit "
+                  f"**{fit:.1f} %**."]
         fig = figures.fit_figure(fig_dir / "fit.png", val.time_s, val.power_kw, simulated,
                                  fit_pct=fit)
         lines += ["", f"![held-out fit](figures/{fig.name})"]

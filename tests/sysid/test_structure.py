@@ -17,7 +17,12 @@ from sysid.errors import IdentificationError
 from sysid.model import OperatingPoint
 from sysid.pipeline import PipelineResult, run_paper_pipeline
 from sysid.reallogs import read_cascaded_tanks, read_daisy_heating, read_tclab
-from sysid.structure import PAPER_ORDERS, estimate_delay, select_structure
+from sysid.structure import (
+    MIN_POLE_ZERO_SHARE,
+    PAPER_ORDERS,
+    estimate_delay,
+    select_structure,
+)
 from tests.sysid.test_pipeline import (
     MAX_FROM_ZEROS_RELATIVE_DIFFERENCE,
     MAX_HIGHER_ORDER_V_IMPROVEMENT,
@@ -102,6 +107,26 @@ def test_min_nk_keeps_the_search_off_delays_a_read_then_write_loop_cannot_have(
     assert held.chosen.orders[3] >= 1
     with pytest.raises(IdentificationError, match="min_nk must be an int >= 0; got -1"):
         select_structure([(y, ds)], min_nk=-1)
+
+
+def test_a_candidate_whose_pole_a_zero_cancels_is_not_chosen(rng: np.random.Generator) -> None:
+    """Truth B = 1 - 0.5 q^-1, F = 1 - 0.9 q^-1 (nk 2): its pair's share |p - z| / |1 - p|
+    is |0.9 - 0.5| / 0.1 = 4; nb 3, nf 2 fits it with an extra pole over an extra zero.
+
+    That candidate scores the lowest validation V (by a hair), is counted as
+    cancelling in the reason, and is not chosen even with no paper's structure to fall
+    back on (the paper's orders here: degree 2, nb 1, nf 1, nk 1, far worse).
+    """
+    y, ds = _oe_record(rng, 3000, nk=2)
+    choice = select_structure([(y, ds)], nb_max=3, nf_max=2, degree_max=2, n_refine=2,
+                              paper_orders=(2, 1, 1, 1))
+    by_orders = {c.orders: c for c in choice.candidates}
+    # 3,000 samples at 0.05 noise: the pole and zero are within about 1e-3 of the truth's
+    assert by_orders[(2, 2, 1, 2)].pole_zero_share == pytest.approx(4.0, rel=0.05)
+    assert by_orders[(2, 3, 2, 2)].pole_zero_share < MIN_POLE_ZERO_SHARE
+    assert choice.chosen.pole_zero_share >= MIN_POLE_ZERO_SHARE
+    assert choice.chosen.orders == (2, 2, 1, 2)
+    assert "a pole that a zero nearly cancels" in choice.reason
 
 
 # ---------------------------------------------------------------- the done-when
