@@ -98,6 +98,11 @@ def _as_bound(bound: FloatArray | None, p: int, fill: float, name: str) -> Float
     return arr
 
 
+#: `levenberg_marquardt`'s step and cost tolerances: tight, for a final fit.
+DEFAULT_XTOL = 1e-10
+DEFAULT_FTOL = 1e-12
+
+
 def levenberg_marquardt(
     fun: Callable[[FloatArray], tuple[FloatArray, FloatArray]],
     theta0: FloatArray,
@@ -106,8 +111,8 @@ def levenberg_marquardt(
     upper: FloatArray | None = None,
     project: Callable[[FloatArray], FloatArray] | None = None,
     max_iterations: int = 100,
-    xtol: float = 1e-10,
-    ftol: float = 1e-12,
+    xtol: float = DEFAULT_XTOL,
+    ftol: float = DEFAULT_FTOL,
     gtol: float = 1e-10,
     callback: Callable[[int, float], None] | None = None,
 ) -> LMResult:

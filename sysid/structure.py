@@ -80,6 +80,12 @@ MAX_GAIN_RSD = 0.5
 #: validation; refitted on the whole record, the pair moved onto z = 1, an integrator
 #: that the MPC's disturbance model cannot tell from the disturbance).
 MIN_POLE_ZERO_SHARE = 0.01
+#: LM's ``ftol`` and ``xtol`` for the grid's fits, which only rank structures: the
+#: choice's margins are 2 % and 5 % of V, so the search stops once an iteration improves
+#: the cost by under 1e-6 relative instead of crawling on to the final fit's 1e-12 (the
+#: chosen structure is refitted on the whole record at full tolerance). On the shipped
+#: experiment: the same choice in about half the time.
+RANKING_TOLERANCE = 1e-6
 #: The paper's structure: (degree, nb, nf, nk).
 PAPER_ORDERS: tuple[int, int, int, int] = (2, 2, 1, 1)
 
@@ -466,7 +472,8 @@ class _Grid:
                 )
                 try:
                     trial, _, _, _ = _pem(
-                        orders, structure, est, "estimate", self.max_iterations, None
+                        orders, structure, est, "estimate", self.max_iterations, None,
+                        tolerance=RANKING_TOLERANCE,
                     )
                 except IdentificationError:
                     continue
@@ -702,6 +709,7 @@ __all__ = [
     "PARSIMONY_MARGIN",
     "MAX_GAIN_RSD",
     "MIN_POLE_ZERO_SHARE",
+    "RANKING_TOLERANCE",
     "PAPER_ORDERS",
     "SHORT_LOG_SAMPLES",
     "CandidateScore",

@@ -35,7 +35,13 @@ from sysid.hammerstein.model import (
     hammerstein_armax_structure,
     hammerstein_oe_structure,
 )
-from sysid.optimize import LMResult, levenberg_marquardt, parameter_std_errors
+from sysid.optimize import (
+    DEFAULT_FTOL,
+    DEFAULT_XTOL,
+    LMResult,
+    levenberg_marquardt,
+    parameter_std_errors,
+)
 
 #: ``progress(iteration, cost)`` after every Levenberg-Marquardt iteration.
 ProgressCallback = Callable[[int, float], None]
@@ -82,8 +88,14 @@ def _pem(
     initial_state: InitialState,
     max_iterations: int,
     progress: ProgressCallback | None,
+    *,
+    tolerance: float | None = None,
 ) -> tuple[LMResult, FloatArray, FloatArray, FloatArray]:
-    """The search; returns the LM result, model covariance, std errors and transients."""
+    """The search; returns the LM result, model covariance, std errors and transients.
+
+    ``tolerance``: LM's ``ftol`` and ``xtol`` both (None: `levenberg_marquardt`'s tight
+    defaults, for a final fit; looser for a fit that only ranks structures).
+    """
     p = orders.n_model
     theta0 = np.array(structure.initial_values, dtype=float)
     project = structure.project
@@ -99,6 +111,8 @@ def _pem(
     lm = levenberg_marquardt(
         residual_function(orders, segments, initial_state), theta0, project=project_full,
         max_iterations=max_iterations, callback=progress,
+        ftol=DEFAULT_FTOL if tolerance is None else tolerance,
+        xtol=DEFAULT_XTOL if tolerance is None else tolerance,
     )
     cov = covariance_from_jacobian(lm.jacobian, lm.residuals)[:p, :p]
     std = parameter_std_errors(lm.jacobian, lm.residuals)[:p]
