@@ -32,7 +32,7 @@ arrays (`sysid.hammerstein.filtering`).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,7 +49,7 @@ from sysid.hammerstein.filtering import (
     mean_square_criterion,
     segment_residuals,
 )
-from sysid.hammerstein.fitting import _pem, covariance_from_jacobian
+from sysid.hammerstein.fitting import _pem
 from sysid.hammerstein.model import hammerstein_oe_structure
 from sysid.polynomials import slowest_time_constant_samples
 from sysid.residuals import CorrelationResult, autocorrelation, cross_correlation
@@ -465,25 +465,24 @@ class _Grid:
             nested = self._start(key, i)
             if nested is not None:
                 starts.append(nested)
-            lm = None
+            best = None
             for start in starts:
                 structure: GreyBoxStructure = hammerstein_oe_structure(
                     degree=degree, nb=nb, nf=nf, nk=nk, initial_values=start
                 )
                 try:
-                    trial, _, _, _ = _pem(
+                    trial, trial_cov, _, _ = _pem(
                         orders, structure, est, "estimate", self.max_iterations, None,
                         tolerance=RANKING_TOLERANCE,
                     )
                 except IdentificationError:
                     continue
-                if lm is None or trial.cost < lm.cost:
-                    lm = trial
-            if lm is None:
+                if best is None or trial.cost < best[0].cost:
+                    best = (trial, trial_cov)
+            if best is None:
                 return None
+            lm, cov = best
             thetas.append(lm.theta[: orders.n_model])
-            cov = covariance_from_jacobian(lm.jacobian, lm.residuals)[:orders.n_model,
-                                                                      :orders.n_model]
             rsds.append(_static_gain_rsd(orders, lm.theta, cov))
             fulls.append(lm.theta)
             costs.append(lm.cost)
@@ -512,24 +511,27 @@ class _Grid:
         return score
 
 
-def _parsimony_order(scores: Iterable[CandidateScore]) -> list[CandidateScore]:
-    """Candidates within `PARSIMONY_MARGIN` of the lowest validation V, fewest parameters
-    first, then the rest by V.
+def _parsimony_order(
+    scores: Iterable[CandidateScore],
+    v: Callable[[CandidateScore], float] = lambda s: s.validation_v_kw2,
+) -> list[CandidateScore]:
+    """Candidates within `PARSIMONY_MARGIN` of the lowest V, fewest parameters first, then
+    the rest by V (``v``: the validation V, or another criterion).
 
-    The refinement's bases: by V alone they are the supersets of the true dynamics (a
+    The first is the choice's best (a structure one order too large fits the noise as
+    well as the plant). The refinement's bases: by V alone they are the supersets of the true dynamics (a
     delay one sample short with one ``B`` coefficient more fits as well), which bury it
     (seen on the paper's experiment of a heater with ``nk = 3``: the three best were nk 1
     and 2 with nb 3 and 4, the true nb 2, nk 3 fourth by 0.1 %, so its cubic ``f`` was
     never fitted and the choice was nb 3, nk 2 with a first coefficient near zero, f'(0)
     of the wrong sign).
     """
-    ranked = sorted(scores, key=lambda s: s.validation_v_kw2)
+    ranked = sorted(scores, key=v)
     if not ranked:
         return []
-    bound = (1.0 + PARSIMONY_MARGIN) * ranked[0].validation_v_kw2
-    near = sorted((s for s in ranked if s.validation_v_kw2 <= bound),
-                  key=lambda s: (s.n_parameters, s.validation_v_kw2))
-    return near + [s for s in ranked if s.validation_v_kw2 > bound]
+    bound = (1.0 + PARSIMONY_MARGIN) * v(ranked[0])
+    near = sorted((s for s in ranked if v(s) <= bound), key=lambda s: (s.n_parameters, v(s)))
+    return near + [s for s in ranked if v(s) > bound]
 
 
 def _oe_orders(degree: int, nb: int, nf: int, nk: int) -> HammersteinOrders:
@@ -657,9 +659,7 @@ def select_structure(
     def v(score: CandidateScore) -> float:
         return score.validation_v_kw2 if admissible else score.validation_v_free_state_kw2
 
-    lowest = min(v(s) for s in pool.values())
-    best = min((s for s in pool.values() if v(s) <= (1.0 + PARSIMONY_MARGIN) * lowest),
-               key=lambda s: (s.n_parameters, v(s)))
+    best = _parsimony_order(pool.values(), v)[0]
     paper = pool.get(paper_orders)
     if paper is None:
         chosen, reason = best, "the paper's structure could not be fitted; lowest validation V"
