@@ -191,7 +191,8 @@ def run(args: argparse.Namespace) -> int:
     if sys.stderr.isatty():
         sys.stderr.write("\n")
     print(f"run: {summary.n_steps} steps, {summary.n_writes} writes, {summary.n_missing} missing "
-          f"samples, {summary.n_overruns} overruns, {summary.n_reconnects} reconnects; "
+          f"samples ({summary.n_repeated} read twice), {summary.n_overruns} overruns, "
+          f"{summary.n_reconnects} reconnects; "
           f"stopped by {summary.stopped_by}; log {config.log_path}")
     if forced:
         print("run: forced (--force): the model was judged not ready by check-model")

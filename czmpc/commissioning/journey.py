@@ -434,7 +434,9 @@ def _write_report(out: Path, *, config: RunConfig, plan: JourneyPlan, signal: Ex
              "```", signal.summary(), "```", "",
              "## 2. The test through the plant link", "",
              f"- {test_summary.n_steps} sample periods, {test_summary.n_writes} writes, "
-             f"{test_summary.n_missing} missing samples, {test_summary.n_overruns} overruns "
+             f"{test_summary.n_missing} missing samples ({test_summary.n_repeated} read twice: "
+             "the plant's step came after the read), "
+             f"{test_summary.n_overruns} overruns "
              f"({test_summary.n_skipped} periods skipped), {test_summary.n_reconnects} reconnects",
              f"- safety band {band[0]:g}..{band[1]:g} kW; stopped by: {test_summary.stopped_by}",
              "- log `test_run.csv` (provenance in `test_run.meta.json`)"]

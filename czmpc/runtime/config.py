@@ -10,6 +10,7 @@ Layout (every key checked; an unknown key, a wrong type or a value out of range 
     max_sample_age_s = 4.0      # optional: older source timestamps are missing samples
     connect_timeout_s = 2.0     # optional
     align_to_plant = true       # optional: read just after the plant publishes (loop.py)
+    reject_repeated_samples = true  # optional: a sample read twice is a missing sample
     [nodes]
     power_kw = "ns=2;s=Heater.Power"                 # read
     triac_pct = "ns=2;s=Heater.TriacCommand"         # write
@@ -56,7 +57,7 @@ class RunConfigError(CzmpcError, ValueError):
 
 _TABLES: dict[str, tuple[str, ...]] = {
     "plant": ("endpoint", "ts_s", "time_scale", "max_sample_age_s", "connect_timeout_s",
-              "align_to_plant", "security"),
+              "align_to_plant", "reject_repeated_samples", "security"),
     "nodes": ("power_kw", "triac_pct", "applied_triac_pct", "setpoint_kw", "heartbeat", "mode",
               "model_health"),
     "controller": ("model", "settings", "candidate"),
@@ -164,11 +165,19 @@ class RunConfig:
     source_path: Path | None = None
     candidate_path: Path | None = None
     align_to_plant: bool = True
+    reject_repeated_samples: bool = True
 
     @property
     def period_s(self) -> float:
         """Wall-clock period of the loop [s]: ``ts_s / time_scale``."""
         return self.ts_s / self.time_scale
+
+
+def _bool(table: dict[str, Any], key: str, where: str, *, default: bool) -> bool:
+    value = table.get(key, default)
+    if not isinstance(value, bool):
+        raise RunConfigError(f"{where}.{key}: expected true or false; got {value!r}")
+    return value
 
 
 def _num(table: dict[str, Any], key: str, where: str, *, default: float | None = None,
@@ -259,9 +268,8 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
     time_scale = _num(plant, "time_scale", "plant", default=1.0, minimum=1.0, maximum=1000.0)
     max_age = _num(plant, "max_sample_age_s", "plant", default=2.0 * ts_s, positive=True)
     conn_to = _num(plant, "connect_timeout_s", "plant", default=2.0, positive=True)
-    align = plant.get("align_to_plant", True)
-    if not isinstance(align, bool):
-        raise RunConfigError(f"plant.align_to_plant: expected true or false; got {align!r}")
+    align = _bool(plant, "align_to_plant", "plant", default=True)
+    reject_repeated = _bool(plant, "reject_repeated_samples", "plant", default=True)
     node_ids = NodeIds(
         power_kw=_str(nodes, "power_kw", "nodes", required=True) or "",
         triac_pct=_str(nodes, "triac_pct", "nodes", required=True) or "",
@@ -310,7 +318,7 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
         log_path=base_dir / log, safe_action=action, safe_triac_pct=safe, security=security,
         test_limits=limits,
         candidate_path=None if candidate is None else base_dir / candidate,
-        align_to_plant=align,
+        align_to_plant=align, reject_repeated_samples=reject_repeated,
     )
 
 

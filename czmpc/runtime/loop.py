@@ -6,8 +6,10 @@ Each period (``ts_s / time_scale`` wall seconds, on a monotonic-clock schedule
 1. read the measured power (with its status code and source timestamp), and the
    optional setpoint, mode and applied-input nodes;
 2. step the controller; a Bad or Uncertain status, a source timestamp older than
-   ``max_sample_age_s``, or no connection is a missing sample (NaN): the controller
-   predicts (soft sensor), then sheds, as in simulation;
+   ``max_sample_age_s``, one not later than the previous read's (``repeated``: the
+   plant's step was late and the previous sample was read again; ``[plant]
+   reject_repeated_samples``), or no connection is a missing sample (NaN): the
+   controller predicts (soft sensor), then sheds, as in simulation;
 3. write the command (mode ON only: in OFF/PREDICT the operator drives the TRIAC) and
    the heartbeat; record the row in the log (flushed per row).
 
@@ -181,6 +183,9 @@ class RunSummary:
     n_skipped: int = 0
     n_reconnects: int = 0
     n_missing: int = 0
+    #: Reads of a sample already read (source timestamp not later than the previous
+    #: read's: the plant's step was late); also counted in `n_missing`.
+    n_repeated: int = 0
     lateness_s: list[float] = field(default_factory=list)
     latency_s: list[float] = field(default_factory=list)
     stopped_by: str = "duration"
@@ -243,24 +248,38 @@ class _Link:
         await asyncio.wait_for(self.nodes[name].write_value(dv), self.config.connect_timeout_s)
 
 
-def _age_s(dv: Any) -> float | None:
-    """Age of a DataValue [wall s]: now minus its source timestamp (None without one)."""
-    ts = dv.SourceTimestamp
+def _source_time(dv: Any) -> dt.datetime | None:
+    """A DataValue's source timestamp in UTC (None without one)."""
+    ts: dt.datetime | None = dv.SourceTimestamp
     if ts is None:
         return None
-    if ts.tzinfo is None:
-        ts = ts.replace(tzinfo=dt.UTC)
-    return float((dt.datetime.now(dt.UTC) - ts).total_seconds())
+    return ts.replace(tzinfo=dt.UTC) if ts.tzinfo is None else ts
 
 
-def _measurement(dv: Any, max_age_s: float) -> tuple[float, str]:
-    """Power [kW] and a quality word from a DataValue; NaN for Bad/Uncertain/stale."""
+def _age_s(dv: Any) -> float | None:
+    """Age of a DataValue [wall s]: now minus its source timestamp (None without one)."""
+    ts = _source_time(dv)
+    return None if ts is None else float((dt.datetime.now(dt.UTC) - ts).total_seconds())
+
+
+def _measurement(dv: Any, max_age_s: float,
+                 previous_source: dt.datetime | None = None) -> tuple[float, str]:
+    """Power [kW] and a quality word from a DataValue; NaN unless ``"good"``.
+
+    ``"bad"`` and ``"uncertain"`` come from the status code, ``"stale"`` from a source
+    timestamp older than `max_age_s`, and ``"repeated"`` from one that is not later than
+    `previous_source` (the source timestamp of the previous read): the plant has not
+    published since, so the value is the previous sample's read again.
+    """
     status = dv.StatusCode
     if status is not None and not status.is_good():
         return math.nan, "uncertain" if status.is_uncertain() else "bad"
     age = _age_s(dv)
     if age is not None and age > max_age_s:
         return math.nan, "stale"
+    source = _source_time(dv)
+    if source is not None and previous_source is not None and source <= previous_source:
+        return math.nan, "repeated"
     try:
         value = float(dv.Value.Value)
     except (TypeError, ValueError, AttributeError):
@@ -363,6 +382,7 @@ class ControlLoop:
         self._max_backoff_s = min(MAX_BACKOFF_S, MAX_BACKOFF_PERIODS * config.period_s)
         self._next_try = 0.0
         self._ages_s: list[float] = []   # good samples' ages since the last phase estimate
+        self._last_source: dt.datetime | None = None   # the power's last source timestamp
         # The MPC inside the controller (a test schedule has none: no health monitor).
         self._mpc: OffsetFreeMPC | None = getattr(self.ctrl, "mpc", None)
         self.health = (None if self._mpc is None
@@ -550,7 +570,12 @@ class ControlLoop:
         if self.link.connected:
             try:
                 dv = await self.link.read("power_kw")
-                power, quality = _measurement(dv, cfg.max_sample_age_s)
+                power, quality = _measurement(
+                    dv, cfg.max_sample_age_s,
+                    self._last_source if cfg.reject_repeated_samples else None)
+                self._last_source = _source_time(dv) or self._last_source
+                if quality == "repeated":
+                    self.summary.n_repeated += 1
                 age = _age_s(dv)
                 if quality == "good" and age is not None:
                     self._ages_s.append(age)

@@ -8,7 +8,7 @@ directly by `czmpc identify`. The rules:
   applied input the plant publishes at row ``j + 1`` where it does, else the command
   written at row ``j`` (the plant applies a command over the sample after it arrives
   and publishes it with the power it produced);
-- a sample whose quality is not Good (Bad, Uncertain, stale, disconnected) is a gap,
+- a sample whose quality is not Good (Bad, Uncertain, stale, repeated, disconnected) is a gap,
   and so is every period the loop skipped after an overrun (nothing was read there;
   the heater's power jumps at a step, so no interpolation is right just after one: on a
   loopback journey whose overruns fell just after steps, filling them by

@@ -93,6 +93,12 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
                              "the controller's), so that each write lands before the plant's "
                              "next step and the input delay does not jitter by a sample "
                              "(``czmpc.runtime.alignment``)."),
+    "plant.reject_repeated_samples": ("true or false", "true", "-",
+                                      "A power sample whose source timestamp is not later "
+                                      "than the previous read's (the plant's step was late, "
+                                      "so the previous sample was read again) is a missing "
+                                      "sample. Set false for a server that refreshes the "
+                                      "source timestamp only when the value changes."),
     "plant.security": ("table", "none (loopback only)", "-",
                        "Channel security: see :doc:`plant_security`."),
     "nodes.power_kw": ("string", "required", "kW", "Node id of the measured heater power (read)."),

@@ -9,6 +9,8 @@ from __future__ import annotations
 import asyncio
 import csv
 import math
+from dataclasses import replace
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -117,8 +119,10 @@ def test_run_tracks_an_independent_server_offset_free(tmp_path: Path) -> None:
     summary = asyncio.run(main())
     rows = _rows(cfg.log_path)
     assert summary.n_steps == 120
-    tail = [float(r["power_kw"]) for r in rows[-20:]]
-    assert all(math.isfinite(p) for p in tail)
+    # its sleep-based clock runs slower than the loop's grid: now and then the loop reads
+    # a sample twice, and the second read is a missing sample (quality 'repeated')
+    tail = [float(r["power_kw"]) for r in rows[-20:] if r["quality"] == "good"]
+    assert len(tail) >= 14 and all(math.isfinite(p) for p in tail)
     assert abs(sum(tail) / len(tail) - 48.0) < TRACKING_ATOL_KW
     assert summary.n_writes == summary.n_steps - summary.n_skipped   # skipped periods write nothing
 
@@ -157,6 +161,74 @@ def _served_model(port: int, *, scenario: Any = None, watchdog_s: float | None =
                                               time_scale=TIME_SCALE, watchdog_s=watchdog_s,
                                               safe_triac_pct=20.0, duration_s=duration_s))
     return model, plant, served
+
+
+class _LateStepServer:
+    """A server that publishes a new power sample (with its source timestamp) every
+    period on a fixed grid, except that its steps `late` come after the loop's read:
+    it publishes nothing there, so the loop reads the previous sample again."""
+
+    def __init__(self, port: int, late: range) -> None:
+        self.endpoint = f"opc.tcp://127.0.0.1:{port}/late/"
+        self.late = late
+        self.ready = asyncio.Event()
+
+    async def serve(self) -> None:
+        server = asyncua.Server()
+        await server.init()
+        server.set_endpoint(self.endpoint)
+        idx = await server.register_namespace("urn:example:late-plc")
+        obj = await server.nodes.objects.add_object(ua.NodeId(1000, idx), "Furnace")
+        power = await obj.add_variable(ua.NodeId(1001, idx), "PV", 30.0)
+        cv = await obj.add_variable(ua.NodeId(1002, idx), "CV", 45.0)
+        await cv.set_writable()
+        period = 2.0 / TIME_SCALE
+        async with server:
+            self.ready.set()
+            t0 = asyncio.get_running_loop().time()
+            for k in range(10_000):
+                await asyncio.sleep(max(0.0, t0 + k * period - asyncio.get_running_loop().time()))
+                if k not in self.late:     # 30 kW + 0.01 kW per sample: no two alike
+                    await power.write_value(ua.DataValue(
+                        ua.Variant(30.0 + 0.01 * k, ua.VariantType.Double),
+                        SourceTimestamp=datetime.now(UTC)))
+
+
+@pytest.mark.parametrize("reject", [True, False])
+def test_a_sample_read_twice_is_a_missing_sample(tmp_path: Path, reject: bool) -> None:
+    port = free_port()
+    server = _LateStepServer(port, late=range(20, 23))
+    cfg = make_config(tmp_path, port, duration_s=100.0, run={"setpoint_kw": 30.0}, nodes={
+        "power_kw": "ns=2;i=1001", "triac_pct": "ns=2;i=1002"})
+    cfg = replace(cfg, endpoint=server.endpoint, reject_repeated_samples=reject)
+    mpc = OffsetFreeMPC(load_model(cfg.model_path))
+
+    async def main() -> Any:
+        task = asyncio.create_task(server.serve())
+        try:
+            await asyncio.wait_for(server.ready.wait(), 20.0)
+            return await ControlLoop(cfg, mpc).run()
+        finally:
+            task.cancel()
+            try:
+                await task
+            except asyncio.CancelledError:
+                pass
+
+    summary = asyncio.run(main())
+    rows = _rows(cfg.log_path)
+    good = [float(r["power_kw"]) for r in rows if r["quality"] == "good"]
+    read_again = sum(a == b for a, b in zip(good, good[1:], strict=False))
+    repeated = [r for r in rows if r["quality"] == "repeated"]
+    if reject:
+        # three late steps: two or three reads of an old sample (the loop's phase)
+        assert len(repeated) >= 2 and summary.n_repeated == len(repeated)
+        assert all(r["power_kw"] == "nan" for r in repeated)
+        assert read_again == 0            # no old sample was taken for a new one
+        assert summary.n_missing >= len(repeated)
+    else:
+        assert not repeated and summary.n_repeated == 0
+        assert read_again >= 2
 
 
 def test_bad_quality_is_a_missing_sample_then_shed(tmp_path: Path) -> None:
