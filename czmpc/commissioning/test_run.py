@@ -6,11 +6,21 @@ so the test runs in the same loop as the MPC: same timing, heartbeat, quality
 handling, plant watchdog and SIGTERM safe action, and the ``[test]`` limits of the
 config abort it (`czmpc.runtime.config.ExperimentLimits`).
 
-Start (bumpless): the first command is the input the plant applies now; from there
-the driver ramps to the schedule's first value at the schedule's own largest step per
-sample (`InputSchedule.max_step_pct`), then plays the schedule (zero-order hold on
-the loop's samples) and reports the run finished after its last row. An operator who
-switches the plant's mode away from ON aborts the test.
+Start (bumpless): the first command is the input the plant applies now, held for
+`LEAD_IN_HOLD_SAMPLES` samples; from there the driver ramps to the schedule's first
+value at the schedule's own largest step per sample (`InputSchedule.max_step_pct`),
+then plays the schedule (zero-order hold on the loop's samples) and reports the run
+finished after its last row. An operator who switches the plant's mode away from ON
+aborts the test.
+
+The hold lets the loop find where in the plant's period it reads before any input
+moves (`czmpc.runtime.alignment`: `alignment.WINDOW` good samples, then at most one
+delay). Until then a read may fall just at the plant's step, and a write then lands
+after that step on some periods and before it on others: the input reaches the heater
+a sample late now and then. On a loaded machine at a time scale of 40, the lead-in
+ramp's third move arrived a sample late before the loop had aligned, and the ±5 kW
+one-step residual it left at the start of the log made check-model's residual
+whiteness fail (25 of 25 lags) on a test that was otherwise clean.
 """
 
 from __future__ import annotations
@@ -25,12 +35,17 @@ import numpy as np
 
 from czmpc.errors import CzmpcError
 from czmpc.modes import Mode
+from czmpc.runtime import alignment
 from czmpc.runtime.config import RunConfig
 from czmpc.runtime.loop import ControlLoop, RunSummary
 from sysid._typing import FloatArray
 
 #: Ramp rate [%/sample] into a schedule whose value never changes (its largest step is 0).
 CONSTANT_SCHEDULE_RAMP_PCT = 1.0
+#: Samples the applied input is held at the start, before the lead-in ramp (module
+#: docstring): the loop's read phase is estimated from `alignment.WINDOW` good samples
+#: and applied on the next; two more for a sample missed on the way.
+LEAD_IN_HOLD_SAMPLES = alignment.WINDOW + 2
 
 
 class ScheduleError(CzmpcError, ValueError):
@@ -138,17 +153,23 @@ class ScheduleDriver:
         The designed schedule.
     ts_s :
         Sampling time of the loop [s].
+    hold_samples :
+        Samples the applied input is held before the lead-in ramp, >= 0.
     """
 
-    def __init__(self, schedule: InputSchedule, ts_s: float) -> None:
+    def __init__(self, schedule: InputSchedule, ts_s: float, *,
+                 hold_samples: int = LEAD_IN_HOLD_SAMPLES) -> None:
+        if isinstance(hold_samples, bool) or not isinstance(hold_samples, int) or hold_samples < 0:
+            raise ScheduleError(f"hold_samples must be an integer >= 0; got {hold_samples!r}")
         self.schedule = schedule
         self.ts_s = float(ts_s)
+        self._hold_left = hold_samples
         self._mode = Mode.ON
         self._u = math.nan
         self._k_test: int | None = None   # samples since the schedule started
         self._abort: str | None = None
         self._phase = "LEAD_IN"
-        #: Samples spent ramping into the schedule.
+        #: Samples spent holding and ramping into the schedule (the last is its time 0).
         self.lead_in_samples = 0
 
     @property
@@ -170,7 +191,7 @@ class ScheduleDriver:
 
     def step(self, power_kw: float, setpoint_kw: float, *,
              applied_triac_pct: float | None = None) -> float:
-        """The schedule's input now (the lead-in ramp first); measurements are not used.
+        """The schedule's input now (the lead-in hold and ramp first); measurements are not used.
 
         Parameters
         ----------
@@ -183,6 +204,10 @@ class ScheduleDriver:
         if not math.isfinite(self._u):
             known = applied_triac_pct is not None and math.isfinite(applied_triac_pct)
             self._u = float(applied_triac_pct) if known else self.schedule.triac_at(0.0)  # type: ignore[arg-type]
+        if self._hold_left > 0:
+            self._hold_left -= 1
+            self.lead_in_samples += 1
+            return self._u
         if self._k_test is None:
             target = self.schedule.triac_at(0.0)
             rate = self.rate_limit_pct_per_step
@@ -244,5 +269,6 @@ def make_test_loop(config: RunConfig, schedule: InputSchedule, **loop_options: o
 
 
 
-__all__ = ["CONSTANT_SCHEDULE_RAMP_PCT", "InputSchedule", "RunSummary", "ScheduleDriver",
-           "ScheduleError", "load_input_schedule", "make_test_loop", "schedule_provenance"]
+__all__ = ["CONSTANT_SCHEDULE_RAMP_PCT", "LEAD_IN_HOLD_SAMPLES", "InputSchedule", "RunSummary",
+           "ScheduleDriver", "ScheduleError", "load_input_schedule", "make_test_loop",
+           "schedule_provenance"]

@@ -11,12 +11,14 @@ from commissioning_rig import write_schedule
 
 from czmpc.commissioning.test_run import (
     CONSTANT_SCHEDULE_RAMP_PCT,
+    LEAD_IN_HOLD_SAMPLES,
     InputSchedule,
     ScheduleDriver,
     ScheduleError,
     load_input_schedule,
 )
 from czmpc.modes import Mode
+from czmpc.runtime import alignment
 from czmpc.runtime.config import ExperimentLimits, RunConfigError, run_config_from_dict
 
 
@@ -47,7 +49,7 @@ def _schedule(times: list[float], values: list[float]) -> InputSchedule:
 
 
 def test_driver_starts_bumplessly_and_ramps_at_the_largest_designed_step() -> None:
-    drv = ScheduleDriver(_schedule([0, 4, 8], [45, 50, 45]), ts_s=2.0)
+    drv = ScheduleDriver(_schedule([0, 4, 8], [45, 50, 45]), ts_s=2.0, hold_samples=0)
     # the plant sits at 30 %: ramp 30 -> 35 -> 40 -> 45 at 5 %/sample (the sample that
     # arrives is the schedule's time 0), then the schedule at 2, 4, 6, 8 s
     u = [drv.step(math.nan, math.nan, applied_triac_pct=30.0)]
@@ -62,8 +64,23 @@ def test_driver_starts_bumplessly_and_ramps_at_the_largest_designed_step() -> No
     assert drv.finished() == "end of schedule"
 
 
+def test_the_driver_holds_the_applied_input_until_the_loop_has_aligned() -> None:
+    drv = ScheduleDriver(_schedule([0, 4], [45, 50]), ts_s=2.0)
+    u = [drv.step(math.nan, math.nan, applied_triac_pct=30.0)]
+    u += [drv.step(math.nan, math.nan) for _ in range(LEAD_IN_HOLD_SAMPLES + 2)]
+    # held at 30 % while the loop estimates its read phase (8 good samples, then a delay),
+    # then the ramp at 5 %/sample
+    assert LEAD_IN_HOLD_SAMPLES > alignment.WINDOW
+    assert u[:LEAD_IN_HOLD_SAMPLES] == [30.0] * LEAD_IN_HOLD_SAMPLES
+    assert u[LEAD_IN_HOLD_SAMPLES:] == [35.0, 40.0, 45.0]
+    assert drv.lead_in_samples == LEAD_IN_HOLD_SAMPLES + 3
+    assert drv.status_words()[0] == "LEAD_IN"
+    with pytest.raises(ScheduleError, match="hold_samples"):
+        ScheduleDriver(_schedule([0, 4], [45, 50]), ts_s=2.0, hold_samples=-1)
+
+
 def test_skipped_periods_keep_the_schedule_on_plant_time() -> None:
-    drv = ScheduleDriver(_schedule([0, 10, 20], [45, 55, 45]), ts_s=2.0)
+    drv = ScheduleDriver(_schedule([0, 10, 20], [45, 55, 45]), ts_s=2.0, hold_samples=0)
     drv.step(math.nan, math.nan, applied_triac_pct=45.0)   # at 45: schedule sample 0
     drv.skipped(4)                                           # plant time 8 s
     assert drv.step(math.nan, math.nan) == 55.0              # sample 5 = 10 s
@@ -74,7 +91,7 @@ def test_skipped_periods_keep_the_schedule_on_plant_time() -> None:
 
 
 def test_constant_schedule_ramps_at_the_stated_rate() -> None:
-    drv = ScheduleDriver(_schedule([0, 10], [50, 50]), ts_s=2.0)
+    drv = ScheduleDriver(_schedule([0, 10], [50, 50]), ts_s=2.0, hold_samples=0)
     assert drv.rate_limit_pct_per_step == CONSTANT_SCHEDULE_RAMP_PCT
     assert drv.step(math.nan, math.nan, applied_triac_pct=47.5) == 47.5 + CONSTANT_SCHEDULE_RAMP_PCT
 

@@ -49,7 +49,8 @@ def _model_plant() -> tuple[Any, ModelPlant]:
     return model, plant
 
 
-async def _with_served(served: ServedPlant, body: Any) -> Any:
+async def _with_served(served: Any, body: Any) -> Any:
+    """Run `body` while `served` (anything with ``serve()`` and a ``ready`` event) serves."""
     task = asyncio.create_task(served.serve())
     try:
         await asyncio.wait_for(served.ready.wait(), 20.0)
@@ -103,20 +104,7 @@ def test_run_tracks_an_independent_server_offset_free(tmp_path: Path) -> None:
     cfg = type(cfg)(**{**{f: getattr(cfg, f) for f in cfg.__dataclass_fields__},
                        "endpoint": other.endpoint})
     mpc = OffsetFreeMPC(load_model(cfg.model_path))
-
-    async def main() -> Any:
-        task = asyncio.create_task(other.serve())
-        try:
-            await asyncio.wait_for(other.ready.wait(), 20.0)
-            return await ControlLoop(cfg, mpc).run()
-        finally:
-            task.cancel()
-            try:
-                await task
-            except asyncio.CancelledError:
-                pass
-
-    summary = asyncio.run(main())
+    summary = asyncio.run(_with_served(other, ControlLoop(cfg, mpc).run()))
     rows = _rows(cfg.log_path)
     assert summary.n_steps == 120
     # its sleep-based clock runs slower than the loop's grid: now and then the loop reads
@@ -202,20 +190,7 @@ def test_a_sample_read_twice_is_a_missing_sample(tmp_path: Path, reject: bool) -
         "power_kw": "ns=2;i=1001", "triac_pct": "ns=2;i=1002"})
     cfg = replace(cfg, endpoint=server.endpoint, reject_repeated_samples=reject)
     mpc = OffsetFreeMPC(load_model(cfg.model_path))
-
-    async def main() -> Any:
-        task = asyncio.create_task(server.serve())
-        try:
-            await asyncio.wait_for(server.ready.wait(), 20.0)
-            return await ControlLoop(cfg, mpc).run()
-        finally:
-            task.cancel()
-            try:
-                await task
-            except asyncio.CancelledError:
-                pass
-
-    summary = asyncio.run(main())
+    summary = asyncio.run(_with_served(server, ControlLoop(cfg, mpc).run()))
     rows = _rows(cfg.log_path)
     good = [float(r["power_kw"]) for r in rows if r["quality"] == "good"]
     read_again = sum(a == b for a, b in zip(good, good[1:], strict=False))
