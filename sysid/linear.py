@@ -40,6 +40,7 @@ from sysid.model import (
     normalize_input_gain,
 )
 from sysid.optimize import (
+    MAX_ITERATIONS,
     LMResult,
     levenberg_marquardt,
     parameter_std_errors,
@@ -608,7 +609,7 @@ def oe_pem(
     nk: int,
     theta0: FloatArray | None = None,
     initial_conditions: InitialConditions = "held",
-    max_iterations: int = 100,
+    max_iterations: int = MAX_ITERATIONS,
     segment_starts: tuple[int, ...] | list[int] | None = None,
 ) -> PemFit:
     """Output-error model ``y = B/F u + eps`` minimizing V (paper eqs. 7, 9).
@@ -724,7 +725,7 @@ def armax_pem(
     nk: int,
     theta0: FloatArray | None = None,
     initial_conditions: InitialConditions = "held",
-    max_iterations: int = 100,
+    max_iterations: int = MAX_ITERATIONS,
     segment_starts: tuple[int, ...] | list[int] | None = None,
 ) -> PemFit:
     """ARMAX model ``A y = B u + C e`` minimizing W (paper eqs. 6, 10).
@@ -960,7 +961,7 @@ def fit_oe(
     nf: int = 1,
     nk: int = 1,
     initial_conditions: InitialConditions = "held",
-    max_iterations: int = 100,
+    max_iterations: int = MAX_ITERATIONS,
 ) -> IdentificationResult:
     """Fit a linear OE model ``dP = B/F ds + eps`` minimizing V (paper eqs. 7, 9, sec. 6).
 
@@ -1011,7 +1012,7 @@ def fit_armax(
     nc: int = 1,
     nk: int = 1,
     initial_conditions: InitialConditions = "held",
-    max_iterations: int = 100,
+    max_iterations: int = MAX_ITERATIONS,
 ) -> IdentificationResult:
     """Fit a linear ARMAX model ``A dP = B ds + C e`` minimizing W (eqs. 6, 10, sec. 6).
 

@@ -101,6 +101,17 @@ def _as_bound(bound: FloatArray | None, p: int, fill: float, name: str) -> Float
 #: `levenberg_marquardt`'s step and cost tolerances: tight, for a final fit.
 DEFAULT_XTOL = 1e-10
 DEFAULT_FTOL = 1e-12
+#: Progress test: the search stops (converged) when the cost fell by less than this,
+#: relative, over the last `PROGRESS_WINDOW` iterations. A slow crawl along a flat
+#: valley (a pole creeping towards z = 1) then ends as an answer instead of running
+#: into the iteration cap; 1e-6 of V per ten iterations is far below any difference
+#: the criteria resolve (MATLAB's pem stops at 1e-4 expected improvement).
+DEFAULT_PROGRESS_RTOL = 1e-6
+#: Iterations over which the progress test compares the cost.
+PROGRESS_WINDOW = 10
+#: Cap on the iterations of every prediction-error search (a safety net: the progress
+#: test ends a search long before it on a well-posed problem). Stated in the report.
+MAX_ITERATIONS = 1000
 
 
 def levenberg_marquardt(
@@ -110,10 +121,11 @@ def levenberg_marquardt(
     lower: FloatArray | None = None,
     upper: FloatArray | None = None,
     project: Callable[[FloatArray], FloatArray] | None = None,
-    max_iterations: int = 100,
+    max_iterations: int = MAX_ITERATIONS,
     xtol: float = DEFAULT_XTOL,
     ftol: float = DEFAULT_FTOL,
     gtol: float = 1e-10,
+    progress_rtol: float = DEFAULT_PROGRESS_RTOL,
     callback: Callable[[int, float], None] | None = None,
 ) -> LMResult:
     """Minimize ``sum r(theta)^2`` by Levenberg-Marquardt with exact Jacobians.
@@ -134,7 +146,8 @@ def levenberg_marquardt(
         Maps a trial point into the feasible set after clipping, or None. Used to keep
         F(q) and C(q) stable (`sysid.polynomials.reflect_unstable_roots`).
     max_iterations :
-        Largest number of iterations (each: one Jacobian, one damping search).
+        Cap on the iterations (each: one Jacobian, one damping search); the progress
+        test (`progress_rtol`) normally ends the search first.
     xtol :
         Converged when a step satisfies ``||s|| <= xtol (xtol + ||theta||)``.
     ftol :
@@ -144,6 +157,11 @@ def levenberg_marquardt(
         Converged when ``max_i |J_i' r| / (||J_i|| ||r||) <= gtol`` over the free
         parameters (MINPACK's scale-free gradient test: the largest cosine between
         the residual and a Jacobian column).
+    progress_rtol :
+        Converged when the cost fell by at most ``progress_rtol`` relative over the
+        last `PROGRESS_WINDOW` iterations: the budget follows progress, so a search
+        that still improves V keeps going (up to `max_iterations`) and one that crawls
+        stops. 0 turns the test off.
     callback :
         Called after every iteration as ``callback(iteration, cost)`` with the cost
         (mean squared residual) of the best iterate so far: progress on long fits.
@@ -175,7 +193,8 @@ def levenberg_marquardt(
         raise IdentificationError(
             f"levenberg_marquardt: max_iterations must be an int >= 1; got {max_iterations!r}"
         )
-    for name, tol in (("xtol", xtol), ("ftol", ftol), ("gtol", gtol)):
+    for name, tol in (("xtol", xtol), ("ftol", ftol), ("gtol", gtol),
+                      ("progress_rtol", progress_rtol)):
         if not (np.isfinite(tol) and tol >= 0):
             raise IdentificationError(
                 f"levenberg_marquardt: {name} must be a finite number >= 0; got {tol!r}"
@@ -214,6 +233,7 @@ def levenberg_marquardt(
     converged = False
     message = ""
     iteration = 0
+    history = [ssr]
     while iteration < max_iterations:
         iteration += 1
         if ssr <= np.finfo(float).tiny:
@@ -281,6 +301,12 @@ def levenberg_marquardt(
             nu *= 2.0
         if callback is not None:
             callback(iteration, ssr / n)
+        history.append(ssr)
+        if not converged and len(history) > PROGRESS_WINDOW and (
+                history[-1 - PROGRESS_WINDOW] - ssr <= progress_rtol * ssr):
+            converged = True
+            message = (f"V fell by less than {progress_rtol:g} relative over the last "
+                       f"{PROGRESS_WINDOW} iterations (the progress test)")
         if converged:
             break
         if not accepted:
@@ -351,4 +377,12 @@ def parameter_std_errors(jacobian: FloatArray, residuals: FloatArray) -> FloatAr
     return np.asarray(out, dtype=float)
 
 
-__all__ = ["LMResult", "levenberg_marquardt", "parameter_std_errors", "sum_of_squares"]
+__all__ = [
+    "DEFAULT_PROGRESS_RTOL",
+    "MAX_ITERATIONS",
+    "PROGRESS_WINDOW",
+    "LMResult",
+    "levenberg_marquardt",
+    "parameter_std_errors",
+    "sum_of_squares",
+]

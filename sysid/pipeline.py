@@ -97,6 +97,8 @@ class NamedModel:
         Iterations of its search (0 for least squares).
     converged :
         Whether its search converged.
+    message :
+        Why its search stopped, in the optimizer's words ("" for least squares).
     """
 
     name: str
@@ -105,6 +107,7 @@ class NamedModel:
     n_parameters: int
     n_iterations: int
     converged: bool
+    message: str = ""
 
     @property
     def ballistic_mse_kw2(self) -> float:
@@ -407,6 +410,7 @@ def _named(
         n_parameters=len(result.parameter_names),
         n_iterations=result.n_iterations,
         converged=result.converged,
+        message=result.message,
     )
 
 
@@ -422,6 +426,7 @@ def _named_fit(
         n_parameters=len(fit.parameter_names),
         n_iterations=fit.n_iterations,
         converged=fit.converged,
+        message=fit.message,
     )
 
 

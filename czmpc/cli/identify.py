@@ -27,10 +27,16 @@ on the input) is refused with exit 1, every reason on stderr, and nothing writte
 significant or not positive, a pole at z = 1, a long delay) is a warning on stderr, in
 report.md and in model.json's provenance ("identifiability"), with exit 0.
 
+Every prediction-error search stops when V falls by less than 1e-6 relative over ten
+iterations (its budget follows progress), with a cap of 1000 iterations stated in the
+report. An intermediate model whose search hit the cap is reported (stderr and the
+report) and does not fail the run.
+
 Progress (stage names with elapsed seconds) goes to stderr. Exit codes: 0 success;
-1 an optimizer did not converge (the files are still written; pass
---allow-unconverged to accept that), or the data cannot support a model; 2 bad input
-(file, options).
+1 the search of model.json's own model did not converge (the files are still written;
+the message names the model and the optimizer's reason; pass --allow-unconverged to
+accept it), or the data cannot support a model; 2 bad input (file, options, numbers
+that cannot be represented).
 """
 
 from __future__ import annotations
@@ -117,8 +123,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--allow-unconverged", action="store_true",
-        help="exit 0 even if an iterative fit (OE, ARMAX, PEM) did not converge; the "
-             "report then flags it (default: exit 1)",
+        help="exit 0 even if the search of model.json's own model did not converge; the "
+             "report then flags it (default: exit 1; an intermediate model that did not "
+             "converge is reported and never fails the run)",
     )
 
 
@@ -137,7 +144,11 @@ class IdentifyOutcome:
     figure_files :
         The report's PNG figures.
     unconverged :
-        ``"name (n iterations)"`` of each fit that did not converge (empty if all did).
+        ``"name (n iterations)"`` of each intermediate fit that did not converge (empty
+        if all did); model.json's own fit is never among them.
+    final_unconverged :
+        Why model.json's own fit did not converge (``"name: optimizer message"``), or
+        None if it converged: the only non-convergence that fails the command.
     warnings :
         Every warning raised while identifying (for example an optimizer's
         non-convergence message), as ``"Category: message"``.
@@ -157,6 +168,7 @@ class IdentifyOutcome:
     report_path: Path
     figure_files: tuple[Path, ...]
     unconverged: tuple[str, ...]
+    final_unconverged: str | None = None
     warnings: tuple[str, ...] = ()
     findings: tuple[Finding, ...] = ()
     identifiability: IdentifiabilityAssessment | None = None
@@ -317,11 +329,15 @@ def identify_to_directory(
         reference=reference == "paper", notes=notes)
     atomic_write_text(files.report_path, files.report_path.read_text(encoding="utf-8")
                       + "\n" + judged.markdown())
-    unconverged = tuple(
-        f"{m.name} ({m.n_iterations} iterations)" for m in result.models if not m.converged)
+    unconverged = tuple(f"{m.name} ({m.n_iterations} iterations)" for m in result.models
+                        if not m.converged and m.name != result.final.name)
+    final_unconverged = None if result.final.converged else (
+        f"{result.final.name} after {result.final.n_iterations} iterations: "
+        f"{result.final.message}")
     return IdentifyOutcome(model_path=model_path, model_files=tuple(model_files),
                            report_path=files.report_path, figure_files=files.figure_files,
-                           unconverged=unconverged, warnings=messages,
+                           unconverged=unconverged, final_unconverged=final_unconverged,
+                           warnings=messages,
                            findings=findings_checklist(result), identifiability=judged,
                            notes=(*notes, *(f"skipped: {x}" for x in result.skipped)))
 
@@ -424,13 +440,16 @@ def run(args: argparse.Namespace) -> int:
         for check in judged.warnings:
             print(f"czmpc: WARNING: {check.message}", file=sys.stderr)
     if outcome.unconverged:
-        detail = ", ".join(outcome.unconverged)
+        print(f"czmpc: note: intermediate fit(s) not converged, reported in "
+              f"{outcome.report_path}: {', '.join(outcome.unconverged)}; model.json is not "
+              "among them", file=sys.stderr)
+    if outcome.final_unconverged is not None:
         if args.allow_unconverged:
-            print(f"czmpc: warning: not converged: {detail}; accepted (--allow-unconverged)",
-                  file=sys.stderr)
+            print(f"czmpc: warning: model.json not converged ({outcome.final_unconverged}); "
+                  "accepted (--allow-unconverged)", file=sys.stderr)
             return 0
-        print(f"czmpc: error: not converged: {detail}. The files are written and the report "
-              "flags them; check the data, or pass --allow-unconverged to accept the last "
-              "iterate.", file=sys.stderr)
+        print(f"czmpc: error: model.json not converged ({outcome.final_unconverged}). The "
+              "files are written and the report flags it; check the data, or pass "
+              "--allow-unconverged to accept the last iterate.", file=sys.stderr)
         return 1
     return 0

@@ -27,6 +27,7 @@ from czmpc.reports import identification_figures as figs
 from czmpc.reports.tables import format_table
 from sysid._version import SOFTWARE
 from sysid.atomic import atomic_write_text
+from sysid.optimize import DEFAULT_PROGRESS_RTOL, MAX_ITERATIONS, PROGRESS_WINDOW
 
 if TYPE_CHECKING:
     from sysid.model import HammersteinModel
@@ -891,8 +892,14 @@ def render_report(
         parts.append(f"**Note:** {note}.")
     unconverged = result.unconverged
     if unconverged:
+        final = result.final.name if result.final is not None else ""
+        which = ("including model.json's own" if final in unconverged
+                 else "intermediate models only; model.json's search converged")
         parts.append("**Warning: not converged: " + ", ".join(unconverged)
-                     + ".** Their numbers are the optimizer's last iterate.")
+                     + f" ({which}).** Their numbers are the optimizer's last iterate.")
+    parts.append(f"Each prediction-error search stops when V falls by less than "
+                 f"{DEFAULT_PROGRESS_RTOL:g} relative over {PROGRESS_WINDOW} iterations, "
+                 f"or at the cap of {MAX_ITERATIONS} iterations.")
     if result.skipped:
         parts.append("Skipped: " + "; ".join(result.skipped) + ".")
     parts.append(_findings_section(findings, st.paper))

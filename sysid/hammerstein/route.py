@@ -33,7 +33,7 @@ from sysid.hammerstein.model import (
 )
 from sysid.linear import arx_least_squares, oe_pem, segment_bounds
 from sysid.model import OperatingPoint
-from sysid.optimize import parameter_std_errors
+from sysid.optimize import MAX_ITERATIONS, parameter_std_errors
 from sysid.result import IdentificationResult
 from sysid.steps import InputStep, detect_steps
 
@@ -223,7 +223,7 @@ def reidentify_linear_block(
     nb: int = 2,
     nf: int = 1,
     nk: int = 1,
-    max_iterations: int = 100,
+    max_iterations: int = MAX_ITERATIONS,
     segment_starts: Sequence[int] | None = None,
 ) -> HammersteinFit:
     """Re-identify the linear block with ``f`` fixed: input ``w = f(ds)`` (sec. 7.4).
@@ -522,7 +522,7 @@ def run_hammerstein_route(
     nc: int | None = None,
     from_zeros: bool = False,
     row_form: RowForm = "eq21",
-    max_iterations: int = 100,
+    max_iterations: int = MAX_ITERATIONS,
     initial_state: InitialState = "estimate",
     progress: Callable[[str, int, float], None] | None = None,
     extra_start: Mapping[str, float] | None = None,
@@ -689,7 +689,7 @@ def fit_hammerstein(
     noise_model: bool = True,
     nc: int | None = None,
     steps: Sequence[InputStep] | None = None,
-    max_iterations: int = 100,
+    max_iterations: int = MAX_ITERATIONS,
     initial_state: InitialState = "estimate",
 ) -> IdentificationResult:
     """Identify a Hammerstein model of a heater log by the paper's route (secs. 7.3-7.6).

@@ -145,3 +145,24 @@ def test_std_errors_are_infinite_only_for_unidentifiable_parameters(
     assert np.isinf(se[0]) and np.isinf(se[1])
     assert np.isfinite(se[2])
     assert np.all(np.isinf(parameter_std_errors(np.ones((2, 2)), np.ones(2))))
+
+
+def test_the_budget_follows_progress_a_crawl_stops_converged_by_the_progress_test() -> None:
+    """``r = [1, exp(-theta)]``: each Gauss-Newton step adds 1 to theta, so V = (1 +
+    exp(-2 theta)) / 2 crawls down to its floor by a factor e^-2 less per iteration; the
+    progress test (V down by < 1e-6 over 10 iterations) ends the search as converged
+    well before ftol = 1e-12 would."""
+    def crawl(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        tail = np.exp(-theta[0])
+        return np.array([1.0, tail]), np.array([[0.0], [-tail]])
+
+    stopped = levenberg_marquardt(crawl, np.zeros(1))
+    assert stopped.converged and "progress test" in stopped.message
+    assert stopped.cost == pytest.approx(0.5, rel=1e-6)
+    # V - 0.5 = exp(-2 theta) / 2 falls by ~1e-6 relative over ten steps near theta = 10
+    assert 8.0 < stopped.theta[0] < 12.0
+    without = levenberg_marquardt(crawl, np.zeros(1), progress_rtol=0.0)
+    assert without.converged and "ftol" in without.message
+    assert without.n_iterations > stopped.n_iterations
+    with pytest.raises(IdentificationError, match="progress_rtol must be a finite number >= 0"):
+        levenberg_marquardt(crawl, np.zeros(1), progress_rtol=-1.0)

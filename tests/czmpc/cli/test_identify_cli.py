@@ -131,31 +131,55 @@ def test_operating_point_and_level_shift_options_are_used_and_recorded(
     assert "--operating-point 45 45 --level-shift 4000 0.05" in text
 
 
-def _unconverged_pipeline(real: Callable[..., Any]) -> Callable[..., Any]:
+def _unconverged_pipeline(real: Callable[..., Any], name: str) -> Callable[..., Any]:
+    """The real pipeline with the search of model `name` marked as stopped at the cap."""
     def run(*args: Any, **kwargs: Any) -> Any:
         result = real(*args, **kwargs)
-        warnings.warn("PEM on W stopped at the iteration limit", IdentificationWarning, stacklevel=2)
-        broken = dataclasses.replace(result.hammerstein[-1], converged=False)
-        return dataclasses.replace(result, hammerstein=result.hammerstein[:-1] + (broken,))
+        warnings.warn(f"{name} stopped at the iteration cap", IdentificationWarning, stacklevel=2)
+
+        def broken(m: Any) -> Any:
+            return dataclasses.replace(m, converged=False, message="the cap was reached") \
+                if m.name == name else m
+        return dataclasses.replace(result, hammerstein=tuple(map(broken, result.hammerstein)),
+                                   final=broken(result.final))
     return run
 
 
 @pytest.mark.parametrize(("allow", "expected_rc"), [(False, 1), (True, 0)],
                          ids=["refused", "allowed"])
-def test_unconverged_fit_exits_1_unless_allowed_and_the_report_flags_it(
+def test_unconverged_final_model_exits_1_unless_allowed_and_the_report_flags_it(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
     allow: bool, expected_rc: int,
 ) -> None:
-    monkeypatch.setattr(sysid.pipeline, "run_paper_pipeline",
-                        _unconverged_pipeline(sysid.pipeline.run_paper_pipeline))
+    monkeypatch.setattr(sysid.pipeline, "run_paper_pipeline", _unconverged_pipeline(
+        sysid.pipeline.run_paper_pipeline, "hammerstein_armax"))
     data = _synthetic_log(tmp_path / "log.csv")
     argv = ["identify", str(data), "--out", str(tmp_path / "o")] + (["--allow-unconverged"] if allow else [])
     rc, _, err = _run(argv, capsys)
     assert rc == expected_rc
-    assert "not converged: hammerstein_armax" in err
-    assert "czmpc: warning: IdentificationWarning: PEM on W stopped at the iteration limit" in err
+    assert re.search(r"model.json not converged \(hammerstein_armax after \d+ iterations: the "
+                     r"cap was reached\)", err)
+    assert "czmpc: warning: IdentificationWarning: hammerstein_armax stopped at the iteration cap" in err
     assert (tmp_path / "o" / "model.json").is_file()
-    assert "Warning: not converged: hammerstein_armax" in (tmp_path / "o" / "report.md").read_text()
+    report = (tmp_path / "o" / "report.md").read_text()
+    assert "Warning: not converged: hammerstein_armax (including model.json's own)" in report
+    assert "or at the cap of 1000 iterations" in report
+
+
+def test_unconverged_intermediate_model_is_reported_and_does_not_fail_the_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(sysid.pipeline, "run_paper_pipeline", _unconverged_pipeline(
+        sysid.pipeline.run_paper_pipeline, "hammerstein_oe_from_zeros"))
+    rc, _, err = _run(["identify", str(_synthetic_log(tmp_path / "log.csv")), "--out",
+                       str(tmp_path / "o")], capsys)
+    assert rc == 0, err
+    assert "czmpc: note: intermediate fit(s) not converged" in err
+    assert "hammerstein_oe_from_zeros (" in err and "model.json is not among them" in err
+    assert "error" not in err
+    report = (tmp_path / "o" / "report.md").read_text()
+    assert ("Warning: not converged: hammerstein_oe_from_zeros (intermediate models only; "
+            "model.json's search converged)") in report
 
 
 BAD_FILES = {
