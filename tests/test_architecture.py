@@ -6,11 +6,12 @@ Layers, lowest first; a module imports only from lower layers and from its own r
     4  czmpc.commissioning   czmpc.testing
     3  czmpc.runtime         czmpc.campaigns
     2  czmpc.peers           czmpc.reports
+  1.5  czmpc.pid             (tuning from a model: uses the core, the peers use it)
     1  czmpc (the core)      sim
     0  sysid
 
-On top of the layers: neither the core nor `czmpc.peers` imports `sim` (they talk to
-plants only through the structural `sim.protocols.Controller`). Every import counts,
+On top of the layers: neither the core, `czmpc.pid` nor `czmpc.peers` imports `sim` (they
+talk to plants only through the structural `sim.protocols.Controller`). Every import counts,
 also those inside functions and under ``TYPE_CHECKING``: a lazy import is still a
 dependency.
 """
@@ -26,10 +27,11 @@ REPO = Path(__file__).resolve().parents[1]
 
 #: Layer of each room. A room is ``sysid``, ``sim``, ``czmpc`` (the core: the modules at
 #: the top of czmpc/) or ``czmpc.<subpackage>``.
-LAYERS = {
+LAYERS: dict[str, float] = {
     "sysid": 0,
     "sim": 1,
     "czmpc": 1,
+    "czmpc.pid": 1.5,
     "czmpc.peers": 2,
     "czmpc.reports": 2,
     "czmpc.campaigns": 3,
@@ -39,7 +41,7 @@ LAYERS = {
     "czmpc.cli": 5,
 }
 #: Imports forbidden although the layers would allow them.
-FORBIDDEN = {("czmpc", "sim"), ("czmpc.peers", "sim")}
+FORBIDDEN = {("czmpc", "sim"), ("czmpc.pid", "sim"), ("czmpc.peers", "sim")}
 
 
 def room_of_module(module: str) -> str | None:
@@ -104,6 +106,9 @@ def test_contract_catches_upward_and_forbidden_imports() -> None:
     assert violations("czmpc", {"czmpc.cli.identify"}) == [
         "czmpc (layer 1) imports czmpc.cli.identify (czmpc.cli, layer 5)"]
     assert violations("czmpc.peers", {"sim.loop"})
+    assert violations("czmpc.pid", {"sim.loop"})
+    assert violations("czmpc.pid", {"czmpc.peers.pi"})
+    assert violations("czmpc.peers", {"czmpc.pid.rules", "czmpc.inversion"}) == []
     assert violations("czmpc.reports", {"czmpc.campaigns.bench"})
     assert violations("sim", {"czmpc.settings"})
     assert violations("sysid", {"sim"})

@@ -1,0 +1,228 @@
+"""The gain schedule: breakpoints over the TRIAC range, one tuned row each, checked between.
+
+`tune_schedule` linearises the model at each breakpoint (`czmpc.pid.plant.local_plant`),
+tunes the row (`czmpc.pid.design.tune_local`), computes its margins on the sampled loop
+and ``worst_ms_to_next``: the largest Ms of the row's controller on the local plants from
+its breakpoint to the next (the row holds there, `czmpc.pid.controller.TableSchedule`).
+
+The schedule *holds* between two breakpoints when, for the row's controller on every
+plant between them,
+
+* ``Ms <= bound``: the Ms bound asked for, or without one the row's own Ms times
+  ``1 + MS_SLACK`` (robustness as tuned), and
+* the instantaneous gain ``f'`` stays within ``MAX_GAIN_CHANGE`` of the row's (speed
+  as tuned).
+
+Default breakpoints are the ends of the allowed range and the operating point; where the
+schedule does not hold, a breakpoint is added halfway, until it holds or the interval is
+narrower than ``MIN_INTERVAL_PCT`` (then a warning says where it does not hold).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from czmpc.pid.controller import TableSchedule
+from czmpc.pid.design import DesignSpec, tune_local
+from czmpc.pid.errors import PIDTuningError
+from czmpc.pid.margins import LoopMargins, sampled_margins
+from czmpc.pid.plant import LocalPlant, RulePlant, local_plant, reduce_to_rule_plant
+from czmpc.pid.rules import PIDTuning
+from sysid.model import HammersteinModel
+
+#: Largest relative change of the instantaneous gain ``f'`` over one row's interval [-].
+MAX_GAIN_CHANGE = 0.10
+#: Without an Ms bound, a row's worst Ms up to the next breakpoint may exceed its own by
+#: this fraction [-].
+MS_SLACK = 0.05
+#: Narrowest interval bisection creates [%].
+MIN_INTERVAL_PCT = 0.5
+#: Plants checked between two breakpoints (both ends included) [-].
+CHECK_POINTS = 9
+#: Ms above which a row is flagged whatever was asked (a common upper limit) [-].
+MS_WARNING = 2.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ScheduleRow:
+    """One breakpoint of the schedule: the local plant, its tuning and margins.
+
+    Parameters
+    ----------
+    plant :
+        The local plant at the breakpoint.
+    rule_plant :
+        Its first-order-plus-dead-time reduction (None when the model has no such
+        reduction and the ``ms`` rule tuned on the sampled model alone).
+    tuning :
+        The tuned PID (ideal ISA form).
+    margins :
+        Margins of ``tuning`` on ``plant`` (sampled loop).
+    worst_ms_to_next :
+        Largest Ms of ``tuning`` on the plants from this breakpoint to the next [-].
+    worst_gain_change :
+        Largest relative change of ``f'`` from this breakpoint to the next [-].
+    """
+
+    plant: LocalPlant
+    rule_plant: RulePlant | None
+    tuning: PIDTuning
+    margins: LoopMargins
+    worst_ms_to_next: float
+    worst_gain_change: float
+
+    @property
+    def triac_pct(self) -> float:
+        """The breakpoint [%]."""
+        return self.plant.triac_pct
+
+
+@dataclass(frozen=True, kw_only=True)
+class GainSchedule:
+    """A tuned schedule with what it was tuned for.
+
+    Parameters
+    ----------
+    rows :
+        One row per breakpoint, by increasing TRIAC input.
+    spec :
+        How the rows were tuned.
+    ts_s :
+        Sampling time of the model and the controller [s].
+    triac_range_pct :
+        ``(min, max)`` TRIAC range the schedule covers [%].
+    added_breakpoints_pct :
+        Breakpoints added because the schedule did not hold [%].
+    warnings :
+        Where the schedule does not hold, in words.
+    """
+
+    rows: tuple[ScheduleRow, ...]
+    spec: DesignSpec
+    ts_s: float
+    triac_range_pct: tuple[float, float]
+    added_breakpoints_pct: tuple[float, ...]
+    warnings: tuple[str, ...]
+
+    @property
+    def breakpoints_pct(self) -> tuple[float, ...]:
+        """The breakpoints [%]."""
+        return tuple(r.triac_pct for r in self.rows)
+
+    def table_schedule(self) -> TableSchedule:
+        """The schedule the controller runs (`czmpc.pid.controller.TableSchedule`)."""
+        return TableSchedule(breakpoints_pct=self.breakpoints_pct,
+                             tunings=tuple(r.tuning for r in self.rows))
+
+
+def _reduced(plant: LocalPlant) -> RulePlant | None:
+    try:
+        return reduce_to_rule_plant(plant)
+    except PIDTuningError:
+        return None
+
+
+def _interval_check(model: HammersteinModel, tuning: PIDTuning, lo_pct: float,
+                    hi_pct: float) -> tuple[float, float]:
+    """``(worst Ms, worst relative change of f')`` of ``tuning`` on plants in [lo, hi]."""
+    base = local_plant(model, lo_pct)
+    worst_ms, worst_change = 0.0, 0.0
+    for s in np.linspace(lo_pct, hi_pct, CHECK_POINTS if hi_pct > lo_pct else 1):
+        plant = local_plant(model, float(s))
+        worst_ms = max(worst_ms, sampled_margins(tuning, plant).ms)
+        worst_change = max(worst_change,
+                           abs(plant.gain_kw_per_pct / base.gain_kw_per_pct - 1.0))
+    return worst_ms, worst_change
+
+
+def tune_schedule(
+    model: HammersteinModel, spec: DesignSpec, *, triac_range_pct: tuple[float, float],
+    breakpoints_pct: tuple[float, ...] | None = None, add_breakpoints: bool = True,
+) -> GainSchedule:
+    """Tune a gain schedule of ``model`` over ``triac_range_pct`` (module notes).
+
+    Parameters
+    ----------
+    model :
+        The identified model.
+    spec :
+        Rule, type and knob or Ms bound of every row.
+    triac_range_pct :
+        ``(min, max)`` TRIAC input the schedule covers [%] (the controller's allowed
+        range).
+    breakpoints_pct :
+        Breakpoints to start from [%], inside the range; None: the range's ends and the
+        operating point.
+    add_breakpoints :
+        Add breakpoints where the schedule does not hold (default); False keeps the
+        given ones and only warns.
+
+    Raises
+    ------
+    PIDTuningError
+        An empty range, breakpoints outside it or repeated, or a row that cannot be
+        tuned.
+    """
+    lo, hi = (float(v) for v in triac_range_pct)
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise PIDTuningError(f"TRIAC range: expected min < max [%]; got {triac_range_pct!r}")
+    if breakpoints_pct is None:
+        s_nom = model.operating_point.triac_pct
+        points = sorted({lo, hi} | ({s_nom} if lo < s_nom < hi else set()))
+    else:
+        points = sorted(float(v) for v in breakpoints_pct)
+        bad = [v for v in points if not (math.isfinite(v) and lo <= v <= hi)]
+        if bad or len(set(points)) != len(points) or not points:
+            raise PIDTuningError(
+                f"breakpoints: expected distinct TRIAC inputs inside the range [{lo:g}, {hi:g}] "
+                f"%; got {list(breakpoints_pct)}")
+    given = set(points)
+    tunings: dict[float, PIDTuning] = {}
+
+    def tuning_at(s: float) -> PIDTuning:
+        if s not in tunings:
+            tunings[s] = tune_local(local_plant(model, s), spec)
+        return tunings[s]
+
+    warnings: list[str] = []
+    i = 0
+    while i < len(points):
+        s = points[i]
+        nxt = points[i + 1] if i + 1 < len(points) else (hi if s < hi else s)
+        tuning = tuning_at(s)
+        own = sampled_margins(tuning, local_plant(model, s)).ms
+        bound = spec.ms_bound if spec.ms_bound is not None else own * (1.0 + MS_SLACK)
+        worst_ms, change = _interval_check(model, tuning, s, nxt)
+        holds = worst_ms <= bound and change <= MAX_GAIN_CHANGE
+        if not holds and add_breakpoints and nxt - s >= 2 * MIN_INTERVAL_PCT:
+            points.insert(i + 1, s + (nxt - s) / 2.0)
+            continue
+        if not holds:
+            warnings.append(
+                f"between {s:g} % and {nxt:g} % the schedule does not hold: worst Ms "
+                f"{worst_ms:.3f} (bound {bound:.3f}), gain change {100 * change:.1f} % "
+                f"(limit {100 * MAX_GAIN_CHANGE:g} %)")
+        i += 1
+    rows = []
+    for i, s in enumerate(points):
+        plant = local_plant(model, s)
+        tuning = tuning_at(s)
+        margins = sampled_margins(tuning, plant)
+        nxt = points[i + 1] if i + 1 < len(points) else (hi if s < hi else s)
+        worst_ms, change = _interval_check(model, tuning, s, nxt)
+        if margins.ms > MS_WARNING:
+            warnings.append(f"row at {s:g} %: Ms {margins.ms:.3f} exceeds {MS_WARNING:g}; the "
+                            "loop is fragile")
+        rows.append(ScheduleRow(plant=plant, rule_plant=_reduced(plant), tuning=tuning,
+                                margins=margins, worst_ms_to_next=worst_ms,
+                                worst_gain_change=change))
+    return GainSchedule(rows=tuple(rows), spec=spec, ts_s=model.ts_s, triac_range_pct=(lo, hi),
+                        added_breakpoints_pct=tuple(p for p in points if p not in given),
+                        warnings=tuple(warnings))
+
+
+__all__ = ["CHECK_POINTS", "MAX_GAIN_CHANGE", "MIN_INTERVAL_PCT", "MS_SLACK", "MS_WARNING",
+           "GainSchedule", "ScheduleRow", "tune_schedule"]
