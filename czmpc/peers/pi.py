@@ -5,23 +5,19 @@ Every controller here has ``ts_s``, ``step(power_kw, setpoint_kw) -> triac_pct``
 like the MPC. The nonlinear MPC reference lives in `czmpc.peers.nmpc`; the linear MPC
 baseline is `OffsetFreeMPC` on a ``kind = "linear"`` model and needs no code here.
 
-PI notation
------------
-``e_k = r_k - y_k`` [kW]; ``K_c`` [%/kW]; ``T_i`` [s]; ``T_t`` tracking time [s]::
-
-    v_k = I_k + K_c(s_{k-1}) e_k                 (unsaturated input [%])
-    u_k = sat(v_k)                               (TRIAC and rate limits)
-    I_{k+1} = I_k + K_c(s_{k-1}) ts/T_i e_k + ts/T_t (u_k - v_k)   (back-calculation)
-
-With ``T_t = ts_s`` (the default) the integrator is reset each sample to exactly what
-the limits allowed, which removes windup completely (the law is then the velocity form
-``u_k = u_{k-1} + K_c,k e_k - K_c,k-1 e_{k-1} (1 - ts/T_i)``, so a changing gain causes
-no bump). Gain scheduling (the paper's sec. 7.3 suggestion) divides the gain by the
-instantaneous gain of the identified nonlinearity at the input last applied::
+The rule and the controller are those of `czmpc.pid`: `PIController` is a
+`czmpc.pid.controller.ScheduledPID` (velocity form, anti-windup at the TRIAC and rate
+limits) whose tuning is one PI, and `PIController.tuned_for` tunes it by
+`czmpc.pid.rules.gain_delay_sampled`. What is the peer's own is the continuous schedule:
+gain scheduling (the paper's sec. 7.3 suggestion) divides the gain by the instantaneous
+gain of the identified nonlinearity at the input last applied::
 
     K_c(s) = K_c0 f'(ds_0) / f'(ds),   ds = s - s_nom clipped to the model's valid range
 
-so the loop gain at the heater's instantaneous response, ``K_c f'``, stays constant.
+so the loop gain at the heater's instantaneous response, ``K_c f'``, stays constant. The
+gain acts on the whole proportional term (``bumpless=False`` of `ScheduledPID`), the law
+the benchmark's recorded results (tests/golden) were made with. A tuned table of
+breakpoints (``czmpc tune-pid``) is the bumpless alternative.
 """
 
 from __future__ import annotations
@@ -31,12 +27,15 @@ from dataclasses import dataclass
 
 from czmpc.errors import SettingsError
 from czmpc.inversion import InputMap, build_input_map, slope
+from czmpc.pid.controller import PIDStep, ScheduledPID
+from czmpc.pid.rules import GAIN_DELAY_LOOP_GAIN, PIDTuning, gain_delay_sampled
 from sysid.model import HammersteinModel
 
-#: Cap on the proportional loop gain at the instantaneous response, ``K_c f'(ds)``. With
-#: one sample of delay the loop ``y+ = -g K_c y`` oscillates for ``g K_c >= 1``; 0.5
-#: leaves a gain margin of 2.
-MAX_INSTANT_LOOP_GAIN = 0.5
+#: Cap on the proportional loop gain at the instantaneous response, ``K_c f'(ds)``
+#: (`czmpc.pid.rules.GAIN_DELAY_LOOP_GAIN`).
+MAX_INSTANT_LOOP_GAIN = GAIN_DELAY_LOOP_GAIN
+#: Diagnostics of one PI step (`czmpc.pid.controller.PIDStep`).
+PIStep = PIDStep
 #: Default closed-loop time constant ``lambda`` of `PIController.tuned_for` [s]: three
 #: samples of 2 s, so ``T_i = lambda beta / (1 + beta) = ts_s``, the fastest integral
 #: action the rule allows. Measured on the shipped model's staircase (exact model plant,
@@ -102,39 +101,21 @@ class GainSchedule:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class PIStep:
-    """Diagnostics of one PI step.
+class _ScaledTuning:
+    """The schedule of `PIController`: one PI, its gain scaled by a `GainSchedule`."""
 
-    Parameters
-    ----------
-    measurement_used :
-        False when the power sample was missing (NaN or infinite) and the input was held.
-    error_kw :
-        ``r - y`` [kW] (NaN when the sample was missing).
-    gain_pct_per_kw :
-        ``K_c`` used in this step [%/kW] (scheduled or fixed).
-    unsaturated_pct :
-        ``v_k`` before the limits [%].
-    triac_pct :
-        What `PIController.step` returned [%].
-    saturated :
-        True when a limit changed the input.
-    fallback :
-        Always ``"none"``: the PI never falls back (the field the metrics count).
-    """
+    base: PIDTuning
+    gain_schedule: GainSchedule | None
 
-    measurement_used: bool
-    error_kw: float
-    gain_pct_per_kw: float
-    unsaturated_pct: float
-    triac_pct: float
-    saturated: bool
-    fallback: str = "none"
+    def tuning_at(self, triac_pct: float) -> PIDTuning:
+        if self.gain_schedule is None:
+            return self.base
+        return self.base.scaled(self.gain_schedule.gain_factor(triac_pct))
 
 
-class PIController:
-    """PI control of heater power with TRIAC limits, back-calculation anti-windup and
-    optional gain scheduling (module notes).
+class PIController(ScheduledPID):
+    """PI control of heater power with TRIAC limits, anti-windup and optional gain
+    scheduling on ``f'`` (module notes).
 
     Parameters
     ----------
@@ -145,19 +126,17 @@ class PIController:
     ts_s :
         Sampling time [s].
     initial_triac_pct :
-        Input at start (the integrator's initial value, for a bumpless start) [%].
+        Input at start [%] (the controller starts at rest there).
     triac_limits_pct :
         ``(min, max)`` input [%].
     max_move_pct_per_step :
         Largest input change per sample [%], or None.
-    tracking_time_s :
-        Anti-windup tracking time ``T_t`` [s]; None: ``ts_s``.
     gain_schedule :
         Scale ``K_c`` by `GainSchedule.gain_factor` of the input last applied; None: fixed.
 
     Raises
     ------
-    SettingsError
+    PIDTuningError
         Non-positive gains or times, inverted limits, a start outside the limits.
     """
 
@@ -170,41 +149,16 @@ class PIController:
         initial_triac_pct: float,
         triac_limits_pct: tuple[float, float] = (0.0, 100.0),
         max_move_pct_per_step: float | None = None,
-        tracking_time_s: float | None = None,
         gain_schedule: GainSchedule | None = None,
     ) -> None:
-        tracking = ts_s if tracking_time_s is None else tracking_time_s
-        for name, value in (("gain_pct_per_kw", gain_pct_per_kw),
-                            ("integral_time_s", integral_time_s), ("ts_s", ts_s),
-                            ("tracking_time_s", tracking)):
-            if not (math.isfinite(value) and value > 0):
-                raise SettingsError(
-                    f"PIController.{name}: expected a number > 0; got {value!r}")
-        lo, hi = (float(v) for v in triac_limits_pct)
-        if not lo < hi:
-            raise SettingsError(
-                f"PIController.triac_limits_pct: expected min < max [%]; got {triac_limits_pct!r}"
-            )
-        if not lo <= initial_triac_pct <= hi:
-            raise SettingsError(
-                f"PIController.initial_triac_pct: expected a value in [{lo:g}, {hi:g}] %; "
-                f"got {initial_triac_pct!r}"
-            )
-        if max_move_pct_per_step is not None and not max_move_pct_per_step > 0:
-            raise SettingsError(
-                f"PIController.max_move_pct_per_step: expected a number > 0; "
-                f"got {max_move_pct_per_step!r}"
-            )
-        self.gain_pct_per_kw = float(gain_pct_per_kw)
-        self.integral_time_s = float(integral_time_s)
-        self.ts_s = float(ts_s)
-        self.initial_triac_pct = float(initial_triac_pct)
-        self.triac_limits_pct = (lo, hi)
-        self.max_move_pct_per_step = max_move_pct_per_step
-        self.tracking_time_s = float(tracking)
+        base = PIDTuning(kc_pct_per_kw=gain_pct_per_kw, ti_s=integral_time_s)
+        super().__init__(schedule=_ScaledTuning(base=base, gain_schedule=gain_schedule),
+                         ts_s=ts_s, initial_triac_pct=initial_triac_pct,
+                         triac_limits_pct=triac_limits_pct,
+                         max_move_pct_per_step=max_move_pct_per_step, bumpless=False)
+        self.gain_pct_per_kw = base.kc_pct_per_kw
+        self.integral_time_s = base.ti_s
         self.gain_schedule = gain_schedule
-        self._kt = self.ts_s / self.tracking_time_s
-        self.reset()
 
     @classmethod
     def tuned_for(
@@ -220,14 +174,12 @@ class PIController:
     ) -> PIController:
         """Tune on the instantaneous gain ``f'(ds_0)``, which dominates the heater's response.
 
-        Rule (lambda tuning on a gain-plus-delay model): the paper's heater answers a
-        step in ``s`` at once with ``f'(ds)`` (Table 3) and then drifts only by the
-        factor ``B(1)/A(1)`` (about 0.9). Treating it as the static gain
-        ``g = f'(ds_0)`` with one sample of delay, a PI with ``K_c = beta / g`` and
-        ``T_i = lambda beta / (1 + beta)`` puts the dominant closed-loop pole at the
-        time constant ``lambda`` (from ``z^2 + (beta - 1) z + beta (ts/T_i - 1) = 0``
-        near ``z = 1``), and ``beta = MAX_INSTANT_LOOP_GAIN = 0.5`` keeps a gain margin
-        of 2. With ``gain_scheduled`` the gain follows ``f'`` (module notes), so the
+        The paper's heater answers a step in ``s`` at once with ``f'(ds)`` (Table 3) and
+        then drifts only by the factor ``B(1)/A(1)`` (about 0.9), so it is tuned as a
+        gain ``g = f'(ds_0)`` with one sample of delay by
+        `czmpc.pid.rules.gain_delay_sampled` (``K_c = beta/g``,
+        ``T_i = lambda beta/(1 + beta)``, ``beta = MAX_INSTANT_LOOP_GAIN``: a gain margin
+        of 2). With ``gain_scheduled`` the gain follows ``f'`` (module notes), so the
         margin holds at every input, not only at ``s_0``.
 
         Parameters
@@ -277,57 +229,11 @@ class PIController:
             raise SettingsError(
                 f"PIController.tuned_for: expected f'(ds_0) > 0 at s_0 = {s0:g} %; got {g:.4g}"
             )
-        beta = MAX_INSTANT_LOOP_GAIN
-        return cls(gain_pct_per_kw=beta / g,
-                   integral_time_s=closed_loop_time_constant_s * beta / (1.0 + beta),
+        tuning = gain_delay_sampled(g, lambda_s=closed_loop_time_constant_s,
+                                    loop_gain=MAX_INSTANT_LOOP_GAIN)
+        return cls(gain_pct_per_kw=tuning.kc_pct_per_kw, integral_time_s=tuning.ti_s,
                    ts_s=model.ts_s, initial_triac_pct=s0, triac_limits_pct=triac_limits_pct,
                    max_move_pct_per_step=max_move_pct_per_step, gain_schedule=schedule)
-
-    def reset(self) -> None:
-        """Forget all state: integrator back at ``initial_triac_pct``."""
-        self._integral = self.initial_triac_pct
-        self._last = self.initial_triac_pct
-        self._last_step: PIStep | None = None
-
-    @property
-    def last_step(self) -> PIStep | None:
-        """Diagnostics of the latest `step`, None before the first."""
-        return self._last_step
-
-    def gain_at(self, triac_pct: float) -> float:
-        """``K_c`` [%/kW] the controller uses when ``triac_pct`` was the last input."""
-        if self.gain_schedule is None:
-            return self.gain_pct_per_kw
-        return self.gain_pct_per_kw * self.gain_schedule.gain_factor(triac_pct)
-
-    def step(self, power_kw: float, setpoint_kw: float) -> float:
-        """Return the TRIAC input [%] for this sample; a missing ``power_kw`` holds the input.
-
-        Parameters
-        ----------
-        power_kw :
-            Measured power [kW]; NaN (or inf) marks a missing sample.
-        setpoint_kw :
-            Desired power [kW]; a non-finite value holds the input.
-        """
-        gain = self.gain_at(self._last)
-        if not (math.isfinite(power_kw) and math.isfinite(setpoint_kw)):
-            self._last_step = PIStep(measurement_used=False, error_kw=math.nan,
-                                     gain_pct_per_kw=gain, unsaturated_pct=self._last,
-                                     triac_pct=self._last, saturated=False)
-            return self._last
-        error = setpoint_kw - power_kw
-        v = self._integral + gain * error
-        lo, hi = self.triac_limits_pct
-        if self.max_move_pct_per_step is not None:
-            lo = max(lo, self._last - self.max_move_pct_per_step)
-            hi = min(hi, self._last + self.max_move_pct_per_step)
-        u = lo if v < lo else hi if v > hi else v
-        self._integral += gain * self.ts_s / self.integral_time_s * error + self._kt * (u - v)
-        self._last = u
-        self._last_step = PIStep(measurement_used=True, error_kw=error, gain_pct_per_kw=gain,
-                                 unsaturated_pct=v, triac_pct=u, saturated=u != v)
-        return u
 
 
 __all__ = [

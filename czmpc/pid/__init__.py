@@ -25,11 +25,11 @@ from czmpc.pid.errors import PIDTuningError
 from czmpc.pid.margins import LoopMargins, loop_margins, sampled_margins
 from czmpc.pid.plant import LocalPlant, RulePlant, local_plant, reduce_to_rule_plant
 from czmpc.pid.rules import PIDTuning, amigo, gain_delay_sampled, lambda_imc, simc
-from czmpc.pid.schedule import GainSchedule, ScheduleRow, tune_schedule
+from czmpc.pid.schedule import PIDSchedule, ScheduleRow, tune_schedule
 
 __all__ = [
     "DesignSpec",
-    "GainSchedule",
+    "PIDSchedule",
     "LocalPlant",
     "LoopMargins",
     "PIDStep",

@@ -81,7 +81,7 @@ class ScheduleRow:
 
 
 @dataclass(frozen=True, kw_only=True)
-class GainSchedule:
+class PIDSchedule:
     """A tuned schedule with what it was tuned for.
 
     Parameters
@@ -141,7 +141,7 @@ def _interval_check(model: HammersteinModel, tuning: PIDTuning, lo_pct: float,
 def tune_schedule(
     model: HammersteinModel, spec: DesignSpec, *, triac_range_pct: tuple[float, float],
     breakpoints_pct: tuple[float, ...] | None = None, add_breakpoints: bool = True,
-) -> GainSchedule:
+) -> PIDSchedule:
     """Tune a gain schedule of ``model`` over ``triac_range_pct`` (module notes).
 
     Parameters
@@ -219,10 +219,10 @@ def tune_schedule(
         rows.append(ScheduleRow(plant=plant, rule_plant=_reduced(plant), tuning=tuning,
                                 margins=margins, worst_ms_to_next=worst_ms,
                                 worst_gain_change=change))
-    return GainSchedule(rows=tuple(rows), spec=spec, ts_s=model.ts_s, triac_range_pct=(lo, hi),
+    return PIDSchedule(rows=tuple(rows), spec=spec, ts_s=model.ts_s, triac_range_pct=(lo, hi),
                         added_breakpoints_pct=tuple(p for p in points if p not in given),
                         warnings=tuple(warnings))
 
 
 __all__ = ["CHECK_POINTS", "MAX_GAIN_CHANGE", "MIN_INTERVAL_PCT", "MS_SLACK", "MS_WARNING",
-           "GainSchedule", "ScheduleRow", "tune_schedule"]
+           "PIDSchedule", "ScheduleRow", "tune_schedule"]

@@ -14,6 +14,7 @@ from czmpc.peers.pi import (
     GainSchedule,
     PIController,
 )
+from czmpc.pid.errors import PIDTuningError
 from sim.loop import run_closed_loop
 from sim.metrics import compute_metrics
 from sim.model_plant import ModelPlant
@@ -138,12 +139,12 @@ def test_pi_tracks_a_step_without_offset_on_the_model_plant(
 
 
 def test_pi_rejects_bad_parameters() -> None:
-    with pytest.raises(SettingsError, match="gain_pct_per_kw: expected a number > 0"):
+    with pytest.raises(PIDTuningError, match=r"kc_pct_per_kw: expected a finite value.*got 0.0"):
         PIController(gain_pct_per_kw=0.0, integral_time_s=1.0, ts_s=2.0, initial_triac_pct=45.0)
-    with pytest.raises(SettingsError, match="triac_limits_pct"):
+    with pytest.raises(PIDTuningError, match="triac_limits_pct"):
         PIController(gain_pct_per_kw=1.0, integral_time_s=1.0, ts_s=2.0, initial_triac_pct=45.0,
                      triac_limits_pct=(50.0, 40.0))
-    with pytest.raises(SettingsError, match="initial_triac_pct"):
+    with pytest.raises(PIDTuningError, match="initial_triac_pct"):
         PIController(gain_pct_per_kw=1.0, integral_time_s=1.0, ts_s=2.0, initial_triac_pct=95.0,
                      triac_limits_pct=(0.0, 70.0))
 
