@@ -110,7 +110,7 @@ import numpy as np
 from czmpc.errors import DesignError, SettingsError
 from czmpc.inversion import InputMap, build_input_map, slope
 from czmpc.kalman import SteadyStateKalman, design_estimator, innovation_variance_after_gap
-from czmpc.mismatch import InnovationMonitor, MismatchStats
+from czmpc.mismatch import InnovationMonitor, MismatchStats, monitored_noise_std_kw
 from czmpc.modes import Mode, ModeTransition, Status, transition
 from czmpc.qp import MPCQP, QPSolution, move_bounds
 from czmpc.realization import AugmentedModel, augment, innovations_form
@@ -411,7 +411,7 @@ class OffsetFreeMPC:
             None if settings.soft_power_max_kw is None else settings.soft_power_max_kw - self._p_nom
         )
         self._max_move = settings.max_move_pct_per_step
-        sigma = model.noise_std_kw
+        sigma = monitored_noise_std_kw(model)
         gap_var = innovation_variance_after_gap(
             self._aug, self._kf, settings.disturbance_noise, rel.max_predicted_samples + 1)
         self._innovation_std_kw = [sigma * math.sqrt(v) for v in gap_var.tolist()]

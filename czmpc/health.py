@@ -83,7 +83,7 @@ import numpy as np
 from scipy import special
 
 from czmpc.errors import SettingsError
-from czmpc.mismatch import InnovationMonitor
+from czmpc.mismatch import InnovationMonitor, monitored_noise_std_kw
 from sysid._typing import FloatArray
 from sysid.model import HammersteinModel
 from sysid.polynomials import roots_z
@@ -297,7 +297,8 @@ class ModelHealthMonitor:
         self._rows: deque[tuple[float, ...]] = deque(maxlen=s.window_samples)
         self._d: deque[float] = deque(maxlen=s.window_samples)
         self._stats = InnovationMonitor(window_samples=s.window_samples,
-                                        sigma_kw=self.model.noise_std_kw, min_samples=2)
+                                        sigma_kw=monitored_noise_std_kw(self.model),
+                                        min_samples=2)
         self._last_stats = self._stats.stats(0.0)
         self._k = -1
         self._started = False

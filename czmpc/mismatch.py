@@ -16,13 +16,55 @@ It also watches the disturbance estimate: the offset-free estimator turns a pers
 sensor bias or gain drift into ``d``, so ``|d| > disturbance_limit_kw`` flags it even
 after the innovations are white again. Nothing here changes the control; it reports.
 Memory is bounded by the window (running sums over a ring buffer).
+
+A noise-free model (``noise_std_kw = 0``, a fit to simulated data) is monitored with
+`monitored_noise_std_kw`: a millionth of the model's own output span over its input
+range, so that the normalised statistics stay finite, rounding on a model plant stays
+far inside the limits, and any real noise on a plant flags the model's claim.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 from collections import deque
 from dataclasses import dataclass
+
+import numpy as np
+
+from sysid.model import HammersteinModel
+
+#: A noise-free model is monitored as if its innovations had this fraction of its
+#: output span over the input range as standard deviation.
+NOISE_FREE_STD_FRACTION = 1e-6
+#: Smallest monitored standard deviation: its square is still a normal float.
+_MIN_MONITORED_STD = math.sqrt(sys.float_info.min)
+
+
+def monitored_noise_std_kw(model: HammersteinModel) -> float:
+    """The innovation standard deviation the monitors divide by [output unit].
+
+    Parameters
+    ----------
+    model :
+        The controller's model.
+
+    Returns
+    -------
+    float
+        ``noise_std_kw``, but at least `NOISE_FREE_STD_FRACTION` times the span of the
+        model's steady-state output over its input range (and at least the square
+        root of the smallest normal float): > 0 and finite for every model that loads.
+
+    Notes
+    -----
+    The Kalman gain of the innovations form does not depend on the noise level
+    (DESIGN.md, "The controller, precisely", item 1); only the monitors divide by it.
+    """
+    lo, hi = model.input_range_pct
+    power_kw = model.steady_state_power_kw(np.linspace(lo, hi, 101))
+    span_kw = float(np.ptp(power_kw)) if np.all(np.isfinite(power_kw)) else 0.0
+    return max(model.noise_std_kw, NOISE_FREE_STD_FRACTION * span_kw, _MIN_MONITORED_STD)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -170,4 +212,5 @@ class InnovationMonitor:
         )
 
 
-__all__ = ["InnovationMonitor", "MismatchStats"]
+__all__ = ["NOISE_FREE_STD_FRACTION", "InnovationMonitor", "MismatchStats",
+           "monitored_noise_std_kw"]

@@ -38,10 +38,6 @@ LinearBlock = Literal["armax", "oe", "arx"]
 #: this only absorbs arithmetic in user code that builds models by hand).
 NORMALIZATION_ATOL = 1e-9
 
-#: Smallest innovation standard deviation a model may have [output unit]. The
-#: controller divides by ``noise_std_kw`` and its square; below this the square is
-#: no longer a normal float. Zero (a perfect fit) is refused: what loads, runs.
-MIN_NOISE_STD_KW = 1e-150
 
 
 def _frozen_array(values: Any, name: str) -> FloatArray:
@@ -212,8 +208,8 @@ class HammersteinModel:
     ------
     ModelFileError
         Wrong lengths, non-finite numbers, a non-monic ``A``/``C``, an un-normalized
-        ``B``, an inverted input range, ``noise_std_kw`` below `MIN_NOISE_STD_KW`
-        (zero included), or a covariance that is not a finite symmetric
+        ``B``, an inverted input range, ``noise_std_kw`` negative or not finite,
+        or a covariance that is not a finite symmetric
         square matrix with a non-negative diagonal matching the parameter names.
     UnstableModelError
         ``A`` or ``C`` with a root on or outside the unit circle.
@@ -274,11 +270,10 @@ class HammersteinModel:
                 f"a linear model has one input coefficient (b1); got input_poly of "
                 f"length {self.input_poly.size}"
             )
-        if not (math.isfinite(self.noise_std_kw) and self.noise_std_kw >= MIN_NOISE_STD_KW):
+        if not (math.isfinite(self.noise_std_kw) and self.noise_std_kw >= 0.0):
             raise ModelFileError(
-                f"noise_std_kw must be finite and >= {MIN_NOISE_STD_KW:g} (the controller's "
-                "estimator and mismatch monitor divide by it; a model with no noise cannot "
-                f"be run); got {self.noise_std_kw!r}"
+                f"noise_std_kw must be finite and >= 0 (0: a noise-free model, which the "
+                f"controller runs); got {self.noise_std_kw!r}"
             )
         object.__setattr__(self, "noise_std_kw", float(self.noise_std_kw))
         lo, hi = (float(v) for v in self.input_range_pct)
