@@ -93,8 +93,13 @@ def local_plant(model: HammersteinModel, triac_pct: float) -> LocalPlant:
     Raises
     ------
     PIDTuningError
-        ``f'`` is not positive at that input (the loop would change sign).
+        ``f'`` is not positive at that input (the loop would change sign), or ``B`` has
+        no delay (a sampled loop reads, computes and writes: it needs ``B(0) = 0``).
     """
+    if model.delay_steps < 1:
+        raise PIDTuningError(
+            f"local plant: expected at least one sample of delay (B starting with 0) for a "
+            f"sampled loop; got B = {[float(v) for v in model.b]}")
     ds = float(triac_pct) - model.operating_point.triac_pct
     g = slope(tuple(float(v) for v in model.input_poly), ds)
     if not (math.isfinite(g) and g > 0.0):

@@ -224,5 +224,66 @@ def tune_schedule(
                         warnings=tuple(warnings))
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Region:
+    """A range of TRIAC inputs that shares one tuning (a DCS block's scheduling region).
+
+    Parameters
+    ----------
+    lo_pct, hi_pct :
+        The region's inputs [%].
+    row :
+        The row whose tuning the region uses.
+    worst_ms :
+        Largest Ms of that tuning over the region's local plants [-].
+    """
+
+    lo_pct: float
+    hi_pct: float
+    row: ScheduleRow
+    worst_ms: float
+
+
+def merge_regions(schedule: PIDSchedule, model: HammersteinModel, n_regions: int = 3
+                  ) -> tuple[Region, ...]:
+    """Merge the rows into ``n_regions`` contiguous regions of about equal width.
+
+    Region boundaries are the breakpoints nearest to the equal divisions of the range;
+    each region uses, of its own rows, the one whose tuning has the smallest worst Ms over
+    the whole region (the most robust there), and reports that Ms.
+
+    Parameters
+    ----------
+    schedule :
+        The tuned schedule.
+    model :
+        The model it was tuned on.
+    n_regions :
+        Number of regions (DeltaV's template has three), at most the number of rows.
+
+    Raises
+    ------
+    PIDTuningError
+        ``n_regions`` below 1.
+    """
+    if n_regions < 1:
+        raise PIDTuningError(f"regions: expected at least 1; got {n_regions}")
+    lo, hi = schedule.triac_range_pct
+    points = list(schedule.breakpoints_pct)
+    n = min(n_regions, len(points))
+    starts = sorted({min(range(len(points)), key=lambda i: abs(points[i] - target))
+                     for target in np.linspace(lo, hi, n + 1)[:-1]} | {0})
+    regions = []
+    for j, first in enumerate(starts):
+        last = starts[j + 1] if j + 1 < len(starts) else len(points)
+        r_lo = lo if j == 0 else points[first]
+        r_hi = points[last] if last < len(points) else hi
+        scored = [(_interval_check(model, row.tuning, r_lo, r_hi)[0], row)
+                  for row in schedule.rows[first:last]]
+        worst, row = min(scored, key=lambda t: t[0])
+        regions.append(Region(lo_pct=r_lo, hi_pct=r_hi, row=row, worst_ms=worst))
+    return tuple(regions)
+
+
 __all__ = ["CHECK_POINTS", "MAX_GAIN_CHANGE", "MIN_INTERVAL_PCT", "MS_SLACK", "MS_WARNING",
-           "PIDSchedule", "ScheduleRow", "tune_schedule"]
+           "PIDSchedule", "Region", "ScheduleRow", "merge_regions", "tune_schedule"]

@@ -1,0 +1,221 @@
+"""``report.md`` and its figures: the schedule, the margins, step and load responses per row.
+
+Figures are drawn with matplotlib's object API on the Agg canvas (no display needed),
+every axis with its unit. The responses are of the running law
+(`czmpc.pid.controller.ScheduledPID`, one row fixed) on the row's local sampled plant, in
+deviation from the breakpoint: a setpoint step of `SETPOINT_STEP_KW` and a load step of
+`LOAD_STEP_PCT` added to the TRIAC input.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from czmpc.pid.controller import ScheduledPID, TableSchedule
+from czmpc.pid.plant import LocalPlant
+from czmpc.pid.rules import PIDTuning
+from czmpc.pid.schedule import PIDSchedule, Region
+from czmpc.pid.table import COLUMN_MEANINGS, COLUMNS, row_values
+from czmpc.pid.vendor import VendorTable
+from sysid._typing import FloatArray
+from sysid.atomic import atomic_write_text
+
+#: Setpoint step of the response figures [kW].
+SETPOINT_STEP_KW = 1.0
+#: Load step at the TRIAC input of the response figures [%].
+LOAD_STEP_PCT = 1.0
+#: Length of the response figures [samples].
+RESPONSE_SAMPLES = 40
+FIGURE_FILES = ("schedule.png", "margins.png", "responses.png")
+
+
+def simulate_row(tuning: PIDTuning, plant: LocalPlant, *, setpoint_kw: float, load_pct: float,
+                 n_samples: int = RESPONSE_SAMPLES) -> tuple[FloatArray, FloatArray]:
+    """Power [kW] and TRIAC input [%] deviations of the loop after a step at sample 0.
+
+    ``y_k = g (sum_i b_i (u + d)_{k-i} - sum_{i>0} a_i y_{k-i})`` with the controller's
+    law run step by step, unbounded (no limits).
+    """
+    pid = ScheduledPID(schedule=TableSchedule(breakpoints_pct=(0.0,), tunings=(tuning,)),
+                       ts_s=plant.ts_s, initial_triac_pct=0.0,
+                       triac_limits_pct=(-1e9, 1e9))
+    a, b, g = plant.a, plant.b, plant.gain_kw_per_pct
+    y, u = np.zeros(n_samples), np.zeros(n_samples)
+    for k in range(n_samples):
+        acc = sum(g * b[i] * (u[k - i] + load_pct) for i in range(1, len(b)) if k - i >= 0)
+        acc -= sum(a[i] * y[k - i] for i in range(1, len(a)) if k - i >= 0)
+        y[k] = acc
+        u[k] = pid.step(power_kw=y[k], setpoint_kw=setpoint_kw)
+    return y, u
+
+
+def _save(fig: Figure, path: Path) -> None:
+    FigureCanvasAgg(fig)
+    fig.savefig(path, dpi=110)
+
+
+def _schedule_figure(schedule: PIDSchedule, path: Path) -> None:
+    lo, hi = schedule.triac_range_pct
+    s = np.array(schedule.breakpoints_pct + (hi,))
+    def steps(values: Sequence[float]) -> FloatArray:
+        return np.append(np.asarray(values, dtype=float), values[-1])
+    fig = Figure(figsize=(7.0, 7.0))
+    axes = fig.subplots(3, 1, sharex=True)
+    rows = schedule.rows
+    axes[0].plot(s[:-1], [r.plant.gain_kw_per_pct for r in rows], "o-")
+    axes[0].set_ylabel("f'(s) [kW/%]")
+    axes[0].set_title(f"gain schedule ({schedule.spec.describe()}, Ts = {schedule.ts_s:g} s)")
+    axes[1].step(s, steps([r.tuning.kc_pct_per_kw for r in rows]), where="post")
+    axes[1].set_ylabel("Kc [%/kW]")
+    axes[2].step(s, steps([r.tuning.ti_s for r in rows]), where="post", label="Ti")
+    if any(r.tuning.td_s > 0 for r in rows):
+        axes[2].step(s, steps([r.tuning.td_s for r in rows]), where="post", label="Td")
+        axes[2].legend()
+    axes[2].set_ylabel("Ti, Td [s]")
+    axes[2].set_xlabel("TRIAC input s [%]")
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+        for x in s[:-1]:
+            ax.axvline(x, color="0.8", lw=0.6)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def _margins_figure(schedule: PIDSchedule, path: Path, ms_bound: float | None) -> None:
+    s = schedule.breakpoints_pct
+    rows = schedule.rows
+    fig = Figure(figsize=(7.0, 7.0))
+    axes = fig.subplots(3, 1, sharex=True)
+    axes[0].plot(s, [r.margins.ms for r in rows], "o-", label="Ms at the breakpoint")
+    axes[0].plot(s, [r.worst_ms_to_next for r in rows], "s--", label="worst Ms to the next")
+    if ms_bound is not None:
+        axes[0].axhline(ms_bound, color="r", lw=0.8, label=f"bound {ms_bound:g}")
+    axes[0].set_ylabel("Ms [-]")
+    axes[0].legend(fontsize=8)
+    axes[0].set_title("robustness of the sampled loop (hold and delay included)")
+    axes[1].plot(s, [r.margins.phase_margin_deg for r in rows], "o-")
+    axes[1].set_ylabel("phase margin [deg]")
+    axes[2].plot(s, [r.margins.gain_margin for r in rows], "o-")
+    axes[2].set_ylabel("gain margin [-]")
+    axes[2].set_xlabel("TRIAC input s [%]")
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def _responses_figure(schedule: PIDSchedule, path: Path) -> None:
+    fig = Figure(figsize=(9.0, 6.5))
+    axes = fig.subplots(2, 2, sharex=True)
+    t = np.arange(RESPONSE_SAMPLES) * schedule.ts_s
+    for r in schedule.rows:
+        label = f"row at {r.triac_pct:g} %"
+        y, u = simulate_row(r.tuning, r.plant, setpoint_kw=SETPOINT_STEP_KW, load_pct=0.0)
+        axes[0, 0].step(t, y, where="post", label=label)
+        axes[1, 0].step(t, u, where="post")
+        y, u = simulate_row(r.tuning, r.plant, setpoint_kw=0.0, load_pct=LOAD_STEP_PCT)
+        axes[0, 1].step(t, y, where="post")
+        axes[1, 1].step(t, u, where="post")
+    axes[0, 0].set_title(f"setpoint step {SETPOINT_STEP_KW:g} kW")
+    axes[0, 1].set_title(f"load step {LOAD_STEP_PCT:g} % at the TRIAC input")
+    axes[0, 0].set_ylabel("power deviation [kW]")
+    axes[1, 0].set_ylabel("TRIAC deviation [%]")
+    for ax in axes[1]:
+        ax.set_xlabel("time [s]")
+    for ax in axes.flat:
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.4g}"
+
+
+def write_report(
+    schedule: PIDSchedule, directory: str | os.PathLike[str], *, command: str, model_source: str,
+    files: Sequence[str], characterizer_error_pct: float, regions: tuple[Region, ...],
+    vendor_tables: Sequence[VendorTable] = (),
+) -> tuple[Path, ...]:
+    """Write ``report.md`` and `FIGURE_FILES` into ``directory``; return their paths.
+
+    Parameters
+    ----------
+    schedule :
+        The tuned schedule.
+    directory :
+        Output directory (exists).
+    command :
+        The command line that made it (for the record).
+    model_source :
+        The model file.
+    files :
+        The other files written (named in the report).
+    characterizer_error_pct :
+        Largest TRIAC error of the characterizer's interpolation [%].
+    regions :
+        The three-region merge (`czmpc.pid.schedule.merge_regions`).
+    vendor_tables :
+        The vendor forms written, whose notes the report repeats.
+    """
+    out = Path(directory)
+    bound = schedule.spec.ms_bound
+    _schedule_figure(schedule, out / FIGURE_FILES[0])
+    _margins_figure(schedule, out / FIGURE_FILES[1], bound)
+    _responses_figure(schedule, out / FIGURE_FILES[2])
+    lo, hi = schedule.triac_range_pct
+    lines = [
+        "# PID gain schedule", "",
+        f"- model: `{model_source}`, sampling time {schedule.ts_s:g} s (the tuning is for "
+        "this sampling time and the loop's one-sample delay)",
+        f"- rule: {schedule.spec.describe()}",
+        f"- TRIAC range covered: {lo:g} .. {hi:g} %",
+        f"- command: `{command}`",
+        f"- files: {', '.join(f'`{f}`' for f in files)}", "",
+        "Gains are in the ideal ISA form `u = Kc (e + (1/Ti) integral e dt + Td de/dt)` in "
+        "engineering units (Kc in % TRIAC per kW, times in seconds). Row i holds from its "
+        "`triac_pct` up to the next row's, chosen by the TRIAC input last applied.", "",
+        "## Rows", "",
+        "| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+    for r in schedule.rows:
+        values = row_values(r)
+        lines.append("| " + " | ".join(_fmt(values[c]) for c in COLUMNS) + " |")
+    lines += ["", "Columns:", ""] + [f"- `{c}`: {COLUMN_MEANINGS[c]}" for c in COLUMNS] + [""]
+    lines += ["## Does the schedule hold?", ""]
+    if schedule.added_breakpoints_pct:
+        lines.append("Breakpoints added where the schedule did not hold: "
+                     + ", ".join(f"{p:g} %" for p in schedule.added_breakpoints_pct) + ".")
+    worst = max(r.worst_ms_to_next for r in schedule.rows)
+    lines.append(f"Largest Ms between breakpoints: {worst:.3f}"
+                 + (f" (bound {bound:g})." if bound is not None else "."))
+    lines += [f"- WARNING: {w}" for w in schedule.warnings] or ["No warnings."]
+    lines += ["", "## Fewer regions (for blocks with a fixed number of regions)", ""]
+    for j, reg in enumerate(regions, start=1):
+        t = reg.row.tuning
+        lines.append(f"- region {j}: {reg.lo_pct:g} .. {reg.hi_pct:g} %: Kc "
+                     f"{t.kc_pct_per_kw:.4g} %/kW, Ti {t.ti_s:.4g} s, Td {t.td_s:.4g} s (row at "
+                     f"{reg.row.triac_pct:g} %); worst Ms in the region {reg.worst_ms:.3f}")
+    lines += ["", "## Characterizer instead of a schedule", "",
+              "`characterizer.csv` maps the output x [%] of one fixed PI to the TRIAC input "
+              "y [%] so that the PI sees the plant at the operating point everywhere; use the "
+              "tuning of the row at the operating point with it. Linear interpolation between "
+              f"its points misses f^-1 by at most {characterizer_error_pct:.3g} % TRIAC.", ""]
+    for vt in vendor_tables:
+        lines += [f"## {vt.block} (`vendor_{vt.form}.csv`)", ""] + [f"- {n}" for n in vt.notes]
+        lines.append("")
+    lines += ["## Figures", "",
+              "![schedule](schedule.png)", "", "![margins](margins.png)", "",
+              "![responses](responses.png)", ""]
+    atomic_write_text(out / "report.md", "\n".join(lines))
+    return (out / "report.md",) + tuple(out / f for f in FIGURE_FILES)
+
+
+__all__ = ["FIGURE_FILES", "LOAD_STEP_PCT", "RESPONSE_SAMPLES", "SETPOINT_STEP_KW",
+           "simulate_row", "write_report"]

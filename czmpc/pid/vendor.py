@@ -1,0 +1,316 @@
+"""The schedule in the forms and units of DCS and PLC PID blocks, and the unit conversions.
+
+Blocks that work in percent of span need the spans of their PV (power) and output (TRIAC)
+ranges: the dimensionless gain is ``K = Kc * pv_span_kw / out_span_pct`` [% of output
+span per % of PV span]. The spans are the user's (the ranges configured in the block);
+they are never assumed, so `Spans` has no defaults.
+
+The forms follow the vendors' published descriptions of their blocks (parameter names
+as they appear there); check them against the manual of the firmware on site:
+
+* ``siemens`` - S7-1200/1500 ``PID_Compact``: ``Gain`` (output % per PV unit), ``Ti``,
+  ``Td`` [s], ``TdFiltRatio``, ``PWeighting``, ``DWeighting``, ``Cycle`` [s] in
+  ``Retain.CtrlParams``;
+* ``deltav`` - Emerson DeltaV PID (FORM Standard): ``GAIN`` [%/%], ``RESET`` [s/repeat],
+  ``RATE`` [s], ``STRUCTURE``, ``BETA``; plus the three-region gain-scheduling template;
+* ``honeywell`` - Honeywell Experion PID (non-interactive form): ``K`` [%/%], ``T1``
+  [min], ``T2`` [min], ``CTLEQN`` (A, B or C);
+* ``rockwell`` - Rockwell Logix ``PIDE``, dependent (``PGain`` [-], ``IGain`` [min/repeat],
+  ``DGain`` [min]) and independent (``PGain`` [-], ``IGain`` [1/min], ``DGain`` [min]).
+
+Every form also has the proportional band ``PB = 100/K`` [%] for blocks that want one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+from czmpc.pid.errors import PIDTuningError
+from czmpc.pid.schedule import PIDSchedule, Region
+
+VendorForm = Literal["siemens", "deltav", "honeywell", "rockwell"]
+FORMS: tuple[str, ...] = ("siemens", "deltav", "honeywell", "rockwell")
+SECONDS_PER_MINUTE = 60.0
+
+
+# --- conversions (each has its inverse; tests check the round trips) -------------------
+def gain_to_band_pct(gain: float) -> float:
+    """Proportional band [%] of a dimensionless gain [%/%]: ``100/K``."""
+    return 100.0 / gain
+
+
+def band_to_gain(band_pct: float) -> float:
+    """Dimensionless gain [%/%] of a proportional band [%]: ``100/PB``."""
+    return 100.0 / band_pct
+
+
+def seconds_to_minutes(time_s: float) -> float:
+    """[s] to [min]."""
+    return time_s / SECONDS_PER_MINUTE
+
+
+def minutes_to_seconds(time_min: float) -> float:
+    """[min] to [s]."""
+    return time_min * SECONDS_PER_MINUTE
+
+
+def minutes_per_repeat_to_repeats_per_minute(ti_min: float) -> float:
+    """Integral time [min/repeat] to integral rate [repeats/min]: ``1/Ti``."""
+    return 1.0 / ti_min
+
+
+def repeats_per_minute_to_minutes_per_repeat(rate_per_min: float) -> float:
+    """Integral rate [repeats/min] to integral time [min/repeat]: ``1/rate``."""
+    return 1.0 / rate_per_min
+
+
+def dependent_to_independent(kc: float, ti_min: float, td_min: float) -> tuple[float, float, float]:
+    """Dependent ``Kc (e + 1/Ti int e + Td de/dt)`` to independent ``Kp e + Ki int e + Kd de/dt``.
+
+    Returns ``(Kp, Ki [1/min], Kd [min]) = (Kc, Kc/Ti, Kc Td)``.
+    """
+    return kc, kc / ti_min, kc * td_min
+
+
+def independent_to_dependent(kp: float, ki_per_min: float,
+                             kd_min: float) -> tuple[float, float, float]:
+    """Independent ``(Kp, Ki [1/min], Kd [min])`` to dependent ``(Kc, Ti [min], Td [min])``."""
+    return kp, kp / ki_per_min, kd_min / kp
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Spans:
+    """The PV and output ranges configured in the block (no defaults: never assumed).
+
+    Parameters
+    ----------
+    pv_range_kw :
+        ``(lo, hi)`` of the PV (power) range [kW].
+    out_range_pct :
+        ``(lo, hi)`` of the output (TRIAC) range [%].
+
+    Raises
+    ------
+    PIDTuningError
+        A range that is not finite and increasing.
+    """
+
+    pv_range_kw: tuple[float, float]
+    out_range_pct: tuple[float, float]
+
+    def __post_init__(self) -> None:
+        for name, (lo, hi) in (("pv_range_kw", self.pv_range_kw),
+                               ("out_range_pct", self.out_range_pct)):
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+                raise PIDTuningError(
+                    f"Spans.{name}: expected LO < HI, both finite; got {lo!r} {hi!r}")
+
+    @property
+    def pv_span_kw(self) -> float:
+        """PV span [kW]."""
+        return self.pv_range_kw[1] - self.pv_range_kw[0]
+
+    @property
+    def out_span_pct(self) -> float:
+        """Output span [%]."""
+        return self.out_range_pct[1] - self.out_range_pct[0]
+
+    def dimensionless_gain(self, kc_pct_per_kw: float) -> float:
+        """``K = Kc pv_span/out_span`` [% of output span per % of PV span]."""
+        return kc_pct_per_kw * self.pv_span_kw / self.out_span_pct
+
+    def engineering_gain(self, gain: float) -> float:
+        """``Kc = K out_span/pv_span`` [% TRIAC per kW], the inverse of `dimensionless_gain`."""
+        return gain * self.out_span_pct / self.pv_span_kw
+
+
+@dataclass(frozen=True, kw_only=True)
+class VendorTable:
+    """One vendor form of the schedule: columns with units, one row per breakpoint, notes.
+
+    Parameters
+    ----------
+    form :
+        The form's name.
+    block :
+        The vendor's block.
+    header :
+        Column names, each with its unit in brackets.
+    rows :
+        Values (numbers or the vendor's option strings), one tuple per breakpoint.
+    notes :
+        What the engineer must know to enter them.
+    """
+
+    form: str
+    block: str
+    header: tuple[str, ...]
+    rows: tuple[tuple[float | str, ...], ...]
+    notes: tuple[str, ...]
+
+
+def _weight_note(block: str, b: float) -> str | None:
+    if b in (0.0, 1.0):
+        return None
+    return (f"{block}: setpoint weight b = {b:g} has no setting here; the table gives b = 1 "
+            "(proportional on error). The margins are unchanged; the setpoint response "
+            "overshoots more than tuned.")
+
+
+def _siemens(schedule: PIDSchedule, spans: Spans) -> VendorTable:
+    scale = 100.0 / spans.out_span_pct
+    rows = []
+    for r in schedule.rows:
+        t = r.tuning
+        rows.append((r.triac_pct, t.kc_pct_per_kw * scale, t.ti_s, t.td_s,
+                     t.td_filter_s / t.td_s if t.td_s > 0 else 0.0, t.setpoint_weight, 0.0,
+                     schedule.ts_s, gain_to_band_pct(spans.dimensionless_gain(t.kc_pct_per_kw))))
+    return VendorTable(
+        form="siemens", block="Siemens S7-1200/1500 PID_Compact",
+        header=("from_triac_pct [%]", "Gain [% output per kW]", "Ti [s]", "Td [s]",
+                "TdFiltRatio [-]", "PWeighting [-]", "DWeighting [-]", "Cycle [s]", "PB [%]"),
+        rows=tuple(rows),
+        notes=(f"Gain is in % of the PID output (0..100 %, driving the TRIAC over "
+               f"{spans.out_range_pct[0]:g}..{spans.out_range_pct[1]:g} %) per kW of the "
+               "scaled input.",
+               "PID_Compact does not schedule by itself: the user program writes "
+               "Retain.CtrlParams (Gain, Ti, Td, TdFiltRatio, PWeighting, DWeighting, Cycle) "
+               "when the TRIAC output enters another row's range; pretuning or fine tuning "
+               "overwrites them.",
+               "DWeighting 0: derivative on the measurement only, as tuned.",
+               f"Cycle must be the loop's sampling time, {schedule.ts_s:g} s: the tuning is "
+               "for it."))
+
+
+def _structure(b: float, has_d: bool) -> str:
+    if b == 1.0:
+        return "PI action on error, D action on PV" if has_d else "PI action on error"
+    if b == 0.0:
+        return "I action on error, PD action on PV" if has_d else "I action on error, P action on PV"
+    return "Two degrees of freedom controller"
+
+
+def _deltav(schedule: PIDSchedule, spans: Spans, regions: tuple[Region, ...]) -> VendorTable:
+    rows = []
+    for r in schedule.rows:
+        t = r.tuning
+        k = spans.dimensionless_gain(t.kc_pct_per_kw)
+        rows.append((r.triac_pct, k, t.ti_s, t.td_s, _structure(t.setpoint_weight, t.td_s > 0),
+                     t.setpoint_weight, gain_to_band_pct(k)))
+    notes = [f"GAIN in % of PV span ({spans.pv_range_kw[0]:g}..{spans.pv_range_kw[1]:g} kW) "
+             f"per % of OUT span ({spans.out_range_pct[0]:g}..{spans.out_range_pct[1]:g} %); "
+             "FORM Standard; RESET in seconds per repeat; RATE in seconds.",
+             "Three-region template (GAIN, RESET, RATE per region of the TRIAC output):"]
+    for j, reg in enumerate(regions, start=1):
+        t = reg.row.tuning
+        notes.append(f"region {j}: {reg.lo_pct:g}..{reg.hi_pct:g} %: GAIN "
+                     f"{spans.dimensionless_gain(t.kc_pct_per_kw):.4g}, RESET {t.ti_s:.4g} s, "
+                     f"RATE {t.td_s:.4g} s (row at {reg.row.triac_pct:g} %; worst Ms in the "
+                     f"region {reg.worst_ms:.3f})")
+    return VendorTable(
+        form="deltav", block="Emerson DeltaV PID",
+        header=("from_triac_pct [%]", "GAIN [%/%]", "RESET [s/repeat]", "RATE [s]",
+                "STRUCTURE", "BETA [-]", "PB [%]"),
+        rows=tuple(rows), notes=tuple(notes))
+
+
+def _honeywell(schedule: PIDSchedule, spans: Spans) -> VendorTable:
+    rows, notes = [], [
+        f"K in % of the output range ({spans.out_range_pct[0]:g}..{spans.out_range_pct[1]:g} %) "
+        f"per % of the PV range ({spans.pv_range_kw[0]:g}..{spans.pv_range_kw[1]:g} kW); "
+        "T1 and T2 in minutes; PIDFORM non-interactive: CV = K (e + 1/T1 int e dt + T2 de/dt).",
+        "CTLEQN: A = P, I, D on error; B = P, I on error, D on PV; C = I on error, P, D on PV.",
+        "Experion's derivative filter is its own (derivative gain); check it against "
+        "td_filter_s of pid_table.csv."]
+    for r in schedule.rows:
+        t = r.tuning
+        k = spans.dimensionless_gain(t.kc_pct_per_kw)
+        note = _weight_note("Experion", t.setpoint_weight)
+        if note and note not in notes:
+            notes.append(note)
+        rows.append((r.triac_pct, k, seconds_to_minutes(t.ti_s), seconds_to_minutes(t.td_s),
+                     "C" if t.setpoint_weight == 0.0 else "B", gain_to_band_pct(k)))
+    return VendorTable(form="honeywell", block="Honeywell Experion PID",
+                       header=("from_triac_pct [%]", "K [%/%]", "T1 [min]", "T2 [min]",
+                               "CTLEQN", "PB [%]"),
+                       rows=tuple(rows), notes=tuple(notes))
+
+
+def _rockwell(schedule: PIDSchedule, spans: Spans) -> VendorTable:
+    rows, notes = [], [
+        f"Gains in % of the CV span per % of the PV span: set PVEUMin/PVEUMax to "
+        f"{spans.pv_range_kw[0]:g}/{spans.pv_range_kw[1]:g} kW and CVEUMin/CVEUMax to "
+        f"{spans.out_range_pct[0]:g}/{spans.out_range_pct[1]:g} %.",
+        "Dependent gains (DependIndepend = 1): PGain, IGain = Ti [min/repeat], DGain = Td "
+        "[min]. Independent (DependIndepend = 0): PGain, IGain [1/min], DGain [min].",
+        "PVEProportional 0 (P on error, b = 1) or 1 (P on PV, b = 0); PVEDerivative 1 "
+        "(D on PV)."]
+    for r in schedule.rows:
+        t = r.tuning
+        k = spans.dimensionless_gain(t.kc_pct_per_kw)
+        ti_min, td_min = seconds_to_minutes(t.ti_s), seconds_to_minutes(t.td_s)
+        kp, ki, kd = dependent_to_independent(k, ti_min, td_min)
+        note = _weight_note("PIDE", t.setpoint_weight)
+        if note and note not in notes:
+            notes.append(note)
+        rows.append((r.triac_pct, k, ti_min, td_min, kp, ki, kd,
+                     1.0 if t.setpoint_weight == 0.0 else 0.0, gain_to_band_pct(k)))
+    return VendorTable(
+        form="rockwell", block="Rockwell Logix PIDE",
+        header=("from_triac_pct [%]", "dependent PGain [-]", "dependent IGain [min/repeat]",
+                "dependent DGain [min]", "independent PGain [-]", "independent IGain [1/min]",
+                "independent DGain [min]", "PVEProportional [0/1]", "PB [%]"),
+        rows=tuple(rows), notes=tuple(notes))
+
+
+def vendor_table(schedule: PIDSchedule, form: str, spans: Spans | None,
+                 regions: tuple[Region, ...] = ()) -> VendorTable:
+    """The schedule in vendor form ``form``.
+
+    Parameters
+    ----------
+    schedule :
+        The tuned schedule.
+    form :
+        One of `FORMS`.
+    spans :
+        The block's PV and output ranges; required (None raises, naming what to give).
+    regions :
+        The DeltaV template's regions (`czmpc.pid.schedule.merge_regions`).
+
+    Raises
+    ------
+    PIDTuningError
+        An unknown form, or no spans.
+    """
+    if form not in FORMS:
+        raise PIDTuningError(f"vendor form: expected one of {', '.join(FORMS)}; got {form!r}")
+    if spans is None:
+        raise PIDTuningError(
+            f"vendor form {form!r} needs the spans the block scales with: give the PV range "
+            "in kW and the output range in % (--pv-range-kw LO HI --out-range-pct LO HI); "
+            "they are not assumed")
+    if form == "siemens":
+        return _siemens(schedule, spans)
+    if form == "deltav":
+        return _deltav(schedule, spans, regions)
+    if form == "honeywell":
+        return _honeywell(schedule, spans)
+    return _rockwell(schedule, spans)
+
+
+def vendor_csv_text(table: VendorTable) -> str:
+    """CSV text of a `VendorTable`: header with units, rows (shortest round-trip floats)."""
+    def cell(v: float | str) -> str:
+        return repr(float(v)) if isinstance(v, float | int) else f'"{v}"'
+    return "\n".join([",".join(f'"{h}"' for h in table.header)]
+                     + [",".join(cell(v) for v in row) for row in table.rows]) + "\n"
+
+
+__all__ = ["FORMS", "SECONDS_PER_MINUTE", "Spans", "VendorForm", "VendorTable", "band_to_gain",
+           "dependent_to_independent", "gain_to_band_pct", "independent_to_dependent",
+           "minutes_per_repeat_to_repeats_per_minute", "minutes_to_seconds",
+           "repeats_per_minute_to_minutes_per_repeat", "seconds_to_minutes", "vendor_table",
+           "vendor_csv_text"]
