@@ -25,6 +25,7 @@ import math
 import os
 import shutil
 import tempfile
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Literal, get_args
@@ -43,12 +44,15 @@ from sim.heater import HeaterParams, VirtualHeater, steady_state
 from sim.loop import ClosedLoopResult, ProgressCallback, run_closed_loop
 from sim.metrics import ClosedLoopMetrics, compute_metrics
 from sim.model_plant import ModelPlant
-from sim.protocols import Plant
+from sim.protocols import Controller, Plant
 from sim.scenario import Scenario
 from sysid.atomic import atomic_write_text
 from sysid.model import HammersteinModel
 
 PlantKind = Literal["model", "heater"]
+#: A controller to run instead of the MPC: its name and how to build it from the completed
+#: settings and the allowed input range [%] (`run_simulation`).
+ControllerFactory = tuple[str, Callable[[MPCSettings, tuple[float, float]], Controller]]
 
 #: What each plant kind is, for tables, figures and metrics.json.
 PLANT_DESCRIPTIONS: dict[str, str] = {
@@ -89,6 +93,9 @@ class SimulationOutcome:
     metrics :
         Its metrics on the plant's true power (without sensor noise, spikes and missing
         samples).
+    controller :
+        What ran: ``"mpc"`` (`OffsetFreeMPC` with ``settings``) or the name the caller
+        gave its own controller (`run_simulation`'s ``controller_factory``).
     metrics_measured :
         Its metrics on the measured power (NaN samples skipped; spikes included). On
         the model plant this is the signal to judge offsets by: the model's noise
@@ -107,6 +114,7 @@ class SimulationOutcome:
     result: ClosedLoopResult
     metrics: ClosedLoopMetrics
     metrics_measured: ClosedLoopMetrics
+    controller: str = "mpc"
 
     @property
     def scenario(self) -> Scenario:
@@ -127,6 +135,7 @@ class SimulationOutcome:
             "n_steps": self.result.n_steps,
             "ts_s": self.result.ts_s,
             "initial_triac_pct": self.initial_triac_pct,
+            "controller": self.controller,
             "allowed_triac_range_pct": list(self.allowed_triac_range_pct),
             "controller_settings": settings,
             "metrics": self.metrics.to_dict(),
@@ -314,8 +323,9 @@ def run_simulation(
     noise: bool = True,
     progress: ProgressCallback | None = None,
     variation: PlantVariation | None = None,
+    controller_factory: ControllerFactory | None = None,
 ) -> SimulationOutcome:
-    """Run the offset-free MPC of ``model`` through ``scenario`` on one plant.
+    """Run the offset-free MPC of ``model`` (or another controller) through ``scenario``.
 
     Parameters
     ----------
@@ -340,6 +350,10 @@ def run_simulation(
     variation :
         A plant that differs from its nominal self and drifts (`sim.drift`); None: the
         nominal plant.
+    controller_factory :
+        ``(name, build)``: run ``build(settings, allowed_triac_range_pct)`` instead of the
+        MPC, with the completed settings (limits, rate limit, start input) and the MPC's
+        allowed input range, so it gets what the MPC would; None: the MPC.
 
     Returns
     -------
@@ -362,11 +376,19 @@ def run_simulation(
     model.check_ts(scenario.ts_s, what=f"scenario '{scenario.name}'")
     the_plant, s0 = _build_plant(model, scenario, plant, bool(noise), variation)
     used = controller_settings(model, scenario, initial_triac_pct=s0, settings=settings)
-    controller = OffsetFreeMPC(model, used)
+    allowed = allowed_triac_range(model, triac_min_pct=used.triac_min_pct,
+                                  triac_max_pct=used.triac_max_pct,
+                                  validity_margin_pct=used.validity_margin_pct)
+    controller: Controller
+    if controller_factory is None:
+        mpc = OffsetFreeMPC(model, used)
+        name, controller, allowed = "mpc", mpc, mpc.allowed_triac_range_pct
+    else:
+        name, controller = controller_factory[0], controller_factory[1](used, allowed)
     result = run_closed_loop(the_plant, controller, scenario, rng=int(seed), progress=progress)
     return SimulationOutcome(
         plant=plant, noise=bool(noise), seed=int(seed), initial_triac_pct=s0, settings=used,
-        allowed_triac_range_pct=controller.allowed_triac_range_pct, result=result,
+        controller=name, allowed_triac_range_pct=allowed, result=result,
         metrics=compute_metrics(result),
         metrics_measured=compute_metrics(result, power_signal="measured"),
     )

@@ -27,6 +27,13 @@ mismatch) from the input whose steady power is the initial setpoint.
 Shipped scenarios: staircase, level_shift, voltage_sag, large_step, meltdown_ramp,
 missing_samples, combined.
 
+A tuned PID table (czmpc tune-pid): --controller DIR/pid_table.csv runs three controllers
+with the same limits, start and seed: the table's scheduled PI (pi_table), the MPC (mpc)
+and the table's row at the operating point as a fixed-gain PI (pi_fixed). DIR then holds
+one sub-directory per controller with the three files above, and comparison.csv: per
+controller the IAE [kW s], its ratio to the MPC's [-], the largest IAE of one setpoint
+change [kW s] and the largest overshoot [% of the step].
+
 A plant that differs from the model: --gain-factor, --tau-s, --extra-delay-samples and
 --drift as for 'czmpc plant serve' (see sim.drift); the plant then starts at the nominal
 plant's input for the initial setpoint.
@@ -40,9 +47,16 @@ from __future__ import annotations
 import argparse
 from functools import partial
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from czmpc.cli import _argtypes, _variation
 from czmpc.cli._progress import Progress
+from czmpc.errors import SettingsError
+
+if TYPE_CHECKING:
+    from czmpc.settings import MPCSettings
+    from sim.scenario import Scenario
+    from sysid.model import HammersteinModel
 
 NAME = "simulate"
 HELP = "run the offset-free MPC through a scenario on a plant; write trajectory, metrics, figure"
@@ -91,6 +105,11 @@ def register(parser: argparse.ArgumentParser) -> None:
         help="output directory for trajectory.csv, metrics.json, figure.png (created; "
              "files of those names are replaced)",
     )
+    parser.add_argument(
+        "--controller", metavar="pid_table.csv", type=Path, default=None,
+        help="run this PID table (czmpc tune-pid) beside the MPC and a fixed-gain PI at the "
+             "operating point, and compare them (default: the MPC alone)",
+    )
     _variation.add_variation_options(parser)
 
 
@@ -106,6 +125,8 @@ def run(args: argparse.Namespace) -> int:
         scenario = scenario.shortened(args.short)
     noise = scenario.plant_noise if args.noise is None else bool(args.noise)
     settings = _argtypes.settings_for(args, model)
+    if args.controller is not None:
+        return _compare(args, model, scenario, noise, settings)
     outcome = run_simulation(model, scenario, plant=args.plant, seed=args.seed,
                              settings=settings, noise=noise,
                              variation=_variation.variation(args),
@@ -113,5 +134,32 @@ def run(args: argparse.Namespace) -> int:
                                               what="simulating"))
     files = write_outputs(outcome, args.out)
     print(outcome.metrics_table())
+    print(f"wrote {', '.join(str(f) for f in files)}")
+    return 0
+
+
+def _compare(args: argparse.Namespace, model: HammersteinModel, scenario: Scenario,
+             noise: bool, settings: MPCSettings) -> int:
+    """Run the PID table, the MPC and the fixed PI; write each run and comparison.csv."""
+    from czmpc.campaigns.pid_comparison import compare_pid_table, comparison_csv, comparison_table
+    from czmpc.campaigns.simulation import write_outputs
+    from czmpc.pid.table import read_pid_table
+    from sysid.atomic import atomic_write_text
+
+    if not _variation.variation(args).is_nominal:
+        raise SettingsError("simulate: --controller compares on the nominal plant; drop the "
+                            "plant-variation options (--gain-factor, --tau-s, ...)")
+    table = read_pid_table(args.controller)
+    summaries = compare_pid_table(model, table.schedule, scenario, plant=args.plant,
+                                  seed=args.seed, noise=noise, settings=settings)
+    files: list[Path] = []
+    for s in summaries:
+        files += write_outputs(s.outcome, args.out / s.name)
+    args.out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(args.out / "comparison.csv", comparison_csv(summaries))
+    files.append(args.out / "comparison.csv")
+    print(comparison_table(summaries, title=(
+        f"scenario '{scenario.name}', plant '{args.plant}', seed {args.seed}, noise "
+        f"{'on' if noise else 'off'}; table {args.controller}")))
     print(f"wrote {', '.join(str(f) for f in files)}")
     return 0
