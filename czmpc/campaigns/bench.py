@@ -10,6 +10,11 @@ Controllers (all behind the `sim.protocols.Controller` protocol, see `CONTROLLER
   Hammerstein, with and without gain scheduling on ``f'``;
 * ``open_loop`` — `czmpc.peers.pi.OpenLoopInversion`, the feed-forward floor.
 
+`build_controller` also builds ``pi_table`` (`OPTIONAL_CONTROLLERS`), the PI schedule
+that `czmpc.pid` tunes on the Hammerstein (as ``czmpc tune-pid MODEL --ms 1.4``) over
+the same allowed range; campaigns and regression suites run it, ``czmpc bench`` and the
+project's golden set keep the six above.
+
 Plants: ``model`` (`sim.model_plant.ModelPlant` of the Hammerstein: no mismatch for the
 Hammerstein controllers) and ``heater`` (`sim.heater.VirtualHeater`: grey-box physics),
 built and started as `czmpc.campaigns.simulation` does. Fairness: every controller gets the same
@@ -39,6 +44,9 @@ from czmpc.errors import CzmpcError
 from czmpc.peers.nmpc import NonlinearMPC
 from czmpc.peers.open_loop import OpenLoopInversion
 from czmpc.peers.pi import PIController
+from czmpc.pid.controller import ScheduledPID
+from czmpc.pid.design import DesignSpec
+from czmpc.pid.schedule import tune_schedule
 from czmpc.reports.benchmarks_md import write_benchmarks_section as _write_section
 from czmpc.settings import MPCSettings
 from czmpc.settings_file import settings_from_dict
@@ -69,6 +77,12 @@ CONTROLLERS: dict[str, str] = {
     "pi": "PI, anti-windup, fixed gain",
     "open_loop": "open-loop inversion of the steady state (no feedback)",
 }
+#: Controllers `build_controller` builds beside `CONTROLLERS` (not in the default bench).
+OPTIONAL_CONTROLLERS: dict[str, str] = {
+    "pi_table": "PI scheduled by a czmpc.pid table (SIMC, Ms <= 1.4 per row), velocity form",
+}
+#: Ms bound of the ``pi_table`` controller's rows [-].
+PI_TABLE_MS = 1.4
 #: Plant names and what they are.
 PLANTS: dict[str, str] = {
     "model": "ModelPlant of the Hammerstein (no mismatch for the Hammerstein controllers)",
@@ -208,12 +222,12 @@ def build_controller(
     settings_updates: Mapping[str, Any] | None = None, ipopt_tol: float | None = None,
     settings_doc: Mapping[str, object] | None = None,
 ) -> Controller:
-    """Controller ``name`` (see `CONTROLLERS`) set up for ``scenario``.
+    """Controller ``name`` (see `CONTROLLERS` and `OPTIONAL_CONTROLLERS`) set up for ``scenario``.
 
     Parameters
     ----------
     name :
-        A key of `CONTROLLERS`.
+        A key of `CONTROLLERS` or `OPTIONAL_CONTROLLERS`.
     models :
         The models.
     scenario :
@@ -262,11 +276,18 @@ def build_controller(
             max_move_pct_per_step=ham_settings.max_move_pct_per_step,
             validity_margin_pct=ham_settings.validity_margin_pct,
         )
+    if name == "pi_table":
+        schedule = tune_schedule(ham, DesignSpec(ms=PI_TABLE_MS), triac_range_pct=(lo, hi))
+        return ScheduledPID(schedule=schedule.table_schedule(), ts_s=ham.ts_s,
+                            initial_triac_pct=min(hi, max(lo, initial_triac_pct)),
+                            triac_limits_pct=(lo, hi),
+                            max_move_pct_per_step=ham_settings.max_move_pct_per_step)
     if name == "open_loop":
         return OpenLoopInversion(ham, initial_triac_pct=s0, triac_limits_pct=(lo, hi),
                                  validity_margin_pct=ham_settings.validity_margin_pct,
                                  max_move_pct_per_step=ham_settings.max_move_pct_per_step)
-    raise BenchError(f"bench: expected a controller among {', '.join(CONTROLLERS)}; got {name!r}")
+    raise BenchError(f"bench: expected a controller among "
+                     f"{', '.join([*CONTROLLERS, *OPTIONAL_CONTROLLERS])}; got {name!r}")
 
 
 def run_case(

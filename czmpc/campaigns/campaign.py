@@ -22,8 +22,8 @@ Spec (TOML)::
 
     [[controllers]]
     name = "mpc"
-    preset = "mpc"                   # "mpc", "pi", "pi-scheduled", "linear-mpc", "nmpc",
-                                     # "open-loop" (as `czmpc bench` builds them)
+    preset = "mpc"                   # "mpc", "pi", "pi-scheduled", "pi-table", "linear-mpc",
+                                     # "nmpc", "open-loop" (as `czmpc bench` builds them)
     # settings = "file.toml"         # optional MPC settings file (`czmpc.settings_file`,
                                      # as `czmpc bench --settings`); preset default "mpc"
 
@@ -40,7 +40,8 @@ Spec (TOML)::
     # first = 0                      # numbers first .. first+n-1 (extend a study later)
 
 Presets: ``mpc`` is `OffsetFreeMPC` on the campaign's model; ``pi`` / ``pi-scheduled``
-the `PIController` tuned on it; ``linear-mpc`` the `OffsetFreeMPC` on the linear ARMAX
+the `PIController` tuned on it; ``pi-table`` the PI schedule `czmpc.pid` tunes on it
+(``czmpc tune-pid --ms 1.4``: bench's ``pi_table``); ``linear-mpc`` the `OffsetFreeMPC` on the linear ARMAX
 model ``linear_model`` (no static nonlinearity: the linear MPC of `czmpc bench`),
 ``nmpc`` the CasADi/IPOPT NMPC and ``open-loop`` the steady-state inversion. Every
 preset is built as `czmpc.campaigns.bench.build_controller` builds it: every controller
@@ -80,10 +81,12 @@ import numpy as np
 
 from czmpc.errors import CzmpcError
 
-PresetName = Literal["mpc", "pi", "pi-scheduled", "linear-mpc", "nmpc", "open-loop"]
-PRESETS: tuple[str, ...] = ("mpc", "pi", "pi-scheduled", "linear-mpc", "nmpc", "open-loop")
+PresetName = Literal["mpc", "pi", "pi-scheduled", "pi-table", "linear-mpc", "nmpc", "open-loop"]
+PRESETS: tuple[str, ...] = ("mpc", "pi", "pi-scheduled", "pi-table", "linear-mpc", "nmpc",
+                            "open-loop")
 #: Preset -> the name `czmpc.campaigns.bench.build_controller` builds it by.
-_BENCH_NAMES = {"mpc": "mpc", "pi": "pi", "pi-scheduled": "pi_gs", "linear-mpc": "linear_mpc",
+_BENCH_NAMES = {"mpc": "mpc", "pi": "pi", "pi-scheduled": "pi_gs", "pi-table": "pi_table",
+                "linear-mpc": "linear_mpc",
                 "nmpc": "nmpc", "open-loop": "open_loop"}
 PlantKindName = Literal["model", "heater", "perturbed", "sampled"]
 PLANT_KINDS: tuple[str, ...] = ("model", "heater", "perturbed", "sampled")

@@ -11,7 +11,7 @@ perturbed), seeds and the metrics to hold. A minimal suite (paths relative to it
     scenarios = ["recipe_a.toml", "staircase"]   # your scenario files or shipped names
     seeds = [3]
     [[controllers]]
-    kind = "mpc"              # or nmpc, linear_mpc, pi_gs, pi, open_loop
+    kind = "mpc"              # or nmpc, linear_mpc, pi_gs, pi, pi_table, open_loop
     model = "my_model.json"
     settings = "my_settings.toml"
     [[plants]]

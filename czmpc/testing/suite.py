@@ -20,7 +20,7 @@ Suite (TOML)::
 
     [[controllers]]
     name = "tuned"                     # default: the kind
-    kind = "mpc"                       # mpc, nmpc, linear_mpc, pi_gs, pi, open_loop
+    kind = "mpc"                       # mpc, nmpc, linear_mpc, pi_gs, pi, pi_table, open_loop
     model = "puller7_model.json"       # path (relative to the suite) or shipped name
     settings = "puller7_settings.toml" # optional MPC settings file (default settings without)
     # linear_model = "armax.json"      # linear_mpc only (default: the shipped ARMAX)
@@ -51,8 +51,10 @@ from typing import Any
 from czmpc.campaigns.campaign import CampaignError, PlantSpec, perturbed_plants
 from czmpc.errors import CzmpcError
 
-#: Controller kinds (the names of `czmpc.campaigns.bench.CONTROLLERS`).
-CONTROLLER_KINDS: tuple[str, ...] = ("mpc", "nmpc", "linear_mpc", "pi_gs", "pi", "open_loop")
+#: Controller kinds (the names of `czmpc.campaigns.bench.CONTROLLERS` and ``pi_table``, the
+#: PI schedule tuned by `czmpc.pid`).
+CONTROLLER_KINDS: tuple[str, ...] = ("mpc", "nmpc", "linear_mpc", "pi_gs", "pi", "pi_table",
+                                     "open_loop")
 PLANT_KINDS: tuple[str, ...] = ("model", "heater", "perturbed")
 #: Metrics a suite may hold (units in the names); counts must match exactly.
 METRICS: tuple[str, ...] = (

@@ -179,7 +179,8 @@ CAMPAIGN_KEYS: dict[str, tuple[str, str, str]] = {
 CAMPAIGN_CONTROLLER_KEYS: dict[str, tuple[str, str, str]] = {
     "name": ("string without ``|``", "the preset", "Name of the controller in the rows; unique."),
     "preset": ("string", "required (``mpc`` with ``settings``)",
-               "``mpc``, ``pi``, ``pi-scheduled``, ``linear-mpc``, ``nmpc`` or ``open-loop``, "
+               "``mpc``, ``pi``, ``pi-scheduled``, ``pi-table``, ``linear-mpc``, ``nmpc`` or "
+               "``open-loop``, "
                "each built as the tracking benchmark builds it."),
     "settings": ("string (file)", "none (defaults from the model)",
                  "MPC settings file (:doc:`settings_file`) for ``mpc``, ``linear-mpc`` and "
