@@ -34,3 +34,9 @@ POLICY_FIT_POLE_RTOL = 0.005
 #: ... its static gain within this (measured 1.8 %); d1 and b2 alone are ill-determined
 #: (correlated, std error of d1 8 %: they trade off, their product does not).
 POLICY_FIT_GAIN_RTOL = 0.05
+#: PID tuning (czmpc.pid): the issue's bound on margins against MATLAB's documented example
+#: and python-control's stability_margins on the same loop.
+MARGIN_REFERENCE_RTOL = 0.01
+#: A unit conversion and its inverse (x -> 100/x -> 100/(100/x), x/60*60, ...): two
+#: roundings of IEEE double arithmetic, at most 2 ulp apart.
+CONVERSION_ROUND_TRIP_RTOL = 4.5e-16
