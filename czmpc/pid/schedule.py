@@ -1,9 +1,12 @@
 """The gain schedule: breakpoints over the TRIAC range, one tuned row each, checked between.
 
-`tune_schedule` linearises the model at each breakpoint (`czmpc.pid.plant.local_plant`),
-tunes the row (`czmpc.pid.design.tune_local`), computes its margins on the sampled loop
-and ``worst_ms_to_next``: the largest Ms of the row's controller on the local plants from
-its breakpoint to the next (the row holds there, `czmpc.pid.controller.TableSchedule`).
+`tune_schedule` linearises the model over each row's interval, from its breakpoint to the
+next (`czmpc.pid.plant.local_plant`; the row holds there,
+`czmpc.pid.controller.TableSchedule`), tunes the row (`czmpc.pid.design.tune_local`) on the
+plant of the interval with the largest gain ``f'`` (only the gain moves, so that plant has
+the smallest margins: a bound met there holds over the whole interval), computes the
+margins at the breakpoint on the sampled loop and ``worst_ms_to_next``: the largest Ms of
+the row's controller on the local plants of its interval.
 
 The schedule *holds* between two breakpoints when, for the row's controller on every
 plant between them,
@@ -54,9 +57,12 @@ class ScheduleRow:
     ----------
     plant :
         The local plant at the breakpoint.
+    tuned_at_pct :
+        The TRIAC input of the plant the row was tuned on: that of the largest ``f'`` from
+        the breakpoint to the next [%].
     rule_plant :
-        Its first-order-plus-dead-time reduction (None when the model has no such
-        reduction and the ``ms`` rule tuned on the sampled model alone).
+        The first-order-plus-dead-time reduction of that plant (None when the model has
+        no such reduction and the ``ms`` rule tuned on the sampled model alone).
     tuning :
         The tuned PID (ideal ISA form).
     margins :
@@ -68,6 +74,7 @@ class ScheduleRow:
     """
 
     plant: LocalPlant
+    tuned_at_pct: float
     rule_plant: RulePlant | None
     tuning: PIDTuning
     margins: LoopMargins
@@ -182,18 +189,24 @@ def tune_schedule(
     given = set(points)
     tunings: dict[float, PIDTuning] = {}
 
-    def tuning_at(s: float) -> PIDTuning:
-        if s not in tunings:
-            tunings[s] = tune_local(local_plant(model, s), spec)
-        return tunings[s]
+    def highest_gain_input(s: float, nxt: float) -> float:
+        grid = np.linspace(s, nxt, CHECK_POINTS if nxt > s else 1)
+        return float(grid[int(np.argmax([local_plant(model, float(v)).gain_kw_per_pct
+                                         for v in grid]))])
+
+    def tuning_for(s: float, nxt: float) -> PIDTuning:
+        at = highest_gain_input(s, nxt)
+        if at not in tunings:
+            tunings[at] = tune_local(local_plant(model, at), spec)
+        return tunings[at]
 
     warnings: list[str] = []
     i = 0
     while i < len(points):
         s = points[i]
         nxt = points[i + 1] if i + 1 < len(points) else (hi if s < hi else s)
-        tuning = tuning_at(s)
-        own = sampled_margins(tuning, local_plant(model, s)).ms
+        tuning = tuning_for(s, nxt)
+        own = sampled_margins(tuning, local_plant(model, highest_gain_input(s, nxt))).ms
         bound = spec.ms_bound if spec.ms_bound is not None else own * (1.0 + MS_SLACK)
         worst_ms, change = _interval_check(model, tuning, s, nxt)
         holds = worst_ms <= bound and change <= MAX_GAIN_CHANGE
@@ -209,14 +222,16 @@ def tune_schedule(
     rows = []
     for i, s in enumerate(points):
         plant = local_plant(model, s)
-        tuning = tuning_at(s)
-        margins = sampled_margins(tuning, plant)
         nxt = points[i + 1] if i + 1 < len(points) else (hi if s < hi else s)
+        tuning = tuning_for(s, nxt)
+        tuned_at = highest_gain_input(s, nxt)
+        margins = sampled_margins(tuning, plant)
         worst_ms, change = _interval_check(model, tuning, s, nxt)
         if margins.ms > MS_WARNING:
             warnings.append(f"row at {s:g} %: Ms {margins.ms:.3f} exceeds {MS_WARNING:g}; the "
                             "loop is fragile")
-        rows.append(ScheduleRow(plant=plant, rule_plant=_reduced(plant), tuning=tuning,
+        rows.append(ScheduleRow(plant=plant, tuned_at_pct=tuned_at,
+                                rule_plant=_reduced(local_plant(model, tuned_at)), tuning=tuning,
                                 margins=margins, worst_ms_to_next=worst_ms,
                                 worst_gain_change=change))
     return PIDSchedule(rows=tuple(rows), spec=spec, ts_s=model.ts_s, triac_range_pct=(lo, hi),
