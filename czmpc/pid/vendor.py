@@ -151,12 +151,12 @@ class VendorTable:
     notes: tuple[str, ...]
 
 
-def _weight_note(block: str, b: float) -> str | None:
-    if b in (0.0, 1.0):
-        return None
-    return (f"{block}: setpoint weight b = {b:g} has no setting here; the table gives b = 1 "
+def _weight_notes(block: str, schedule: PIDSchedule) -> list[str]:
+    """Notes for setpoint weights strictly between 0 and 1, which ``block`` cannot hold."""
+    weights = sorted({r.tuning.setpoint_weight for r in schedule.rows} - {0.0, 1.0})
+    return [f"{block}: setpoint weight b = {b:g} has no setting here; the table gives b = 1 "
             "(proportional on error). The margins are unchanged; the setpoint response "
-            "overshoots more than tuned.")
+            "overshoots more than tuned." for b in weights]
 
 
 def _siemens(schedule: PIDSchedule, spans: Spans) -> VendorTable:
@@ -227,11 +227,9 @@ def _honeywell(schedule: PIDSchedule, spans: Spans) -> VendorTable:
     for r in schedule.rows:
         t = r.tuning
         k = spans.dimensionless_gain(t.kc_pct_per_kw)
-        note = _weight_note("Experion", t.setpoint_weight)
-        if note and note not in notes:
-            notes.append(note)
         rows.append((r.triac_pct, k, seconds_to_minutes(t.ti_s), seconds_to_minutes(t.td_s),
                      "C" if t.setpoint_weight == 0.0 else "B", gain_to_band_pct(k)))
+    notes += _weight_notes("Experion", schedule)
     return VendorTable(form="honeywell", block="Honeywell Experion PID",
                        header=("from_triac_pct [%]", "K [%/%]", "T1 [min]", "T2 [min]",
                                "CTLEQN", "PB [%]"),
@@ -252,11 +250,9 @@ def _rockwell(schedule: PIDSchedule, spans: Spans) -> VendorTable:
         k = spans.dimensionless_gain(t.kc_pct_per_kw)
         ti_min, td_min = seconds_to_minutes(t.ti_s), seconds_to_minutes(t.td_s)
         kp, ki, kd = dependent_to_independent(k, ti_min, td_min)
-        note = _weight_note("PIDE", t.setpoint_weight)
-        if note and note not in notes:
-            notes.append(note)
         rows.append((r.triac_pct, k, ti_min, td_min, kp, ki, kd,
                      1.0 if t.setpoint_weight == 0.0 else 0.0, gain_to_band_pct(k)))
+    notes += _weight_notes("PIDE", schedule)
     return VendorTable(
         form="rockwell", block="Rockwell Logix PIDE",
         header=("from_triac_pct [%]", "dependent PGain [-]", "dependent IGain [min/repeat]",
