@@ -6,6 +6,14 @@ STAMP := $(VENV)/.installed
 
 .PHONY: demo test docs dist lint bench clean
 
+# The interop tests' OPC UA server on node-opcua (another stack than asyncua), pinned by
+# its lockfile and installed with npm ci; test-only, never part of the package.
+PLC_SERVER := tests/czmpc/runtime/plc_server
+PLC_STAMP := $(PLC_SERVER)/node_modules/.package-lock.json
+
+$(PLC_STAMP): $(PLC_SERVER)/package-lock.json
+	cd $(PLC_SERVER) && npm ci --no-audit --no-fund --loglevel=error
+
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
@@ -19,7 +27,7 @@ demo: $(STAMP)
 # tools/run_suite.sh: the suite on two workers (pytest-xdist) and then the docs build at
 # nice 10, while the wall-clock loops against a served plant (marker realtime) run at
 # normal priority, so that the workers never delay a loop period.
-test: $(STAMP)
+test: $(STAMP) $(PLC_STAMP)
 	$(VENV)/bin/ruff check sysid sim czmpc tests docs
 	$(VENV)/bin/mypy sysid sim czmpc
 	bash tools/run_suite.sh $(PY)
@@ -46,4 +54,4 @@ bench: $(STAMP)
 	$(VENV)/bin/czmpc campaign bench campaign_montecarlo.toml --controllers mpc --samples 5000 --time-scale 0.01 --workers 2 --record-benchmarks
 
 clean:
-	rm -rf $(VENV) out dist docs/_build docs/api/generated docs/auto_examples
+	rm -rf $(VENV) out dist docs/_build docs/api/generated docs/auto_examples $(PLC_SERVER)/node_modules

@@ -12,6 +12,7 @@ documented for tests and experts but not re-exported.
 
 from __future__ import annotations
 
+import logging
 from typing import TYPE_CHECKING
 
 from sysid._lazy import lazy_exports
@@ -24,6 +25,8 @@ _EXPORTS = {
     **dict.fromkeys(["load_settings", "settings_to_toml"], "czmpc.settings_file"),
 }
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
+# A library logs and lets the application decide where records go (the CLI: stderr).
+logging.getLogger(__name__).addHandler(logging.NullHandler())
 __all__ = sorted(_EXPORTS)
 
 if TYPE_CHECKING:

@@ -48,8 +48,31 @@ dither would reach the TRIAC only through the controller's filtering. The log is
 closed-loop data: 'czmpc identify' says so. The [test] limits guard this run too (a
 plain MPC run without --test or --dither-pct ignores [test]).
 
-Exit codes: 0 done or stopped by a signal; 2 bad config, model or settings; 1 the
-plant could not be reached at the start, or a test was aborted.
+Typed nodes (the servers plants run: S7-1500, CODESYS, TwinCAT, open62541). Once per
+session czmpc reads each node's DataType, ValueRank and access, and writes a value of
+the node's own type: Float (an S7 REAL), Double, the integer types (rounded and
+range-checked), Boolean. A raw integer tag can carry a scaled value, both ways:
+  triac_pct = { id = 'ns=3;s="DB_Heater"."TriacRaw"', raw = [0, 27648], value = [0.0, 100.0] }
+The heartbeat continues from the value the node holds and wraps to 0 past its type's
+top (a Boolean heartbeat toggles). --check connects with the configured security,
+prints one table (each node: exists, type, rank, access, timestamps, verdict) and
+exits 0 or 2; a run performs the same check before its first write.
+
+A refused write is not a lost link. A code that will not clear by itself
+(BadTypeMismatch, BadNotWritable, BadUserAccessDenied, BadNodeIdUnknown, BadOutOfRange,
+...) stops the run at once (exit 2), naming the node, the code and the fix. Other codes
+are counted and logged; [plant] max_refused_writes (default 5) refused commands in a
+row stop the run through the safe action (exit 1). Every OPC UA call has a hard
+deadline ([plant] connect_timeout_s); a server that stops answering mid-call is cut
+off, so no step lasts longer than one period plus that timeout.
+
+Events (start, link lost and restored, refused writes, aborts, alarms) are logged to
+stderr, one line each with its UTC time, terminal or not, and in the log's event column.
+
+Exit codes: 0 done or stopped by a signal; 2 bad config, model or settings, or a node
+the server will not accept as configured; 1 the plant could not be reached at the
+start, a test or run was aborted, or the controller meant to write and the plant
+accepted none of its commands.
 """
 
 from __future__ import annotations
@@ -58,8 +81,15 @@ import argparse
 import asyncio
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from czmpc.cli import _argtypes
+from czmpc.cli._logging import log_to_stderr
+
+if TYPE_CHECKING:
+    from czmpc.runtime.config import RunConfig
+    from czmpc.runtime.link import CheckReport
+    from czmpc.runtime.loop import RunSummary
 
 NAME = "run"
 HELP = "run the MPC in real time against a plant's OPC UA server (config file)"
@@ -86,6 +116,10 @@ def register(parser: argparse.ArgumentParser) -> None:
                            "(0 < A <= 10)")
     parser.add_argument("--dither-seed", metavar="N", type=_argtypes.integer(0), default=0,
                         help="seed of the dither's switching (default: 0)")
+    parser.add_argument("--check", action="store_true",
+                        help="pre-flight check only: connect with the configured security, check "
+                             "every node (exists, type carries its value after scaling, access, "
+                             "timestamps), print one table; exit 0 (all usable) or 2")
     parser.add_argument("--force", action="store_true",
                         help="switch ON even with a model 'czmpc check-model' judged not ready "
                              "(said on stderr at the start and in the run summary)")
@@ -130,7 +164,10 @@ def run(args: argparse.Namespace) -> int:
     if args.log is not None:
         changes["log_path"] = args.log
     config = dataclasses.replace(config, **changes)  # type: ignore[arg-type]
+    log_to_stderr()
     print(f"czmpc run: plant link {config.endpoint}: {config.security.describe()}", file=sys.stderr)
+    if args.check:
+        return _check(config)
     forced = False
     if args.test is not None:
         from czmpc.commissioning.test_run import load_input_schedule, make_test_loop
@@ -190,10 +227,7 @@ def run(args: argparse.Namespace) -> int:
         return 1
     if sys.stderr.isatty():
         sys.stderr.write("\n")
-    print(f"run: {summary.n_steps} steps, {summary.n_writes} writes, {summary.n_missing} missing "
-          f"samples ({summary.n_repeated} read twice), {summary.n_overruns} overruns, "
-          f"{summary.n_reconnects} reconnects; "
-          f"stopped by {summary.stopped_by}; log {config.log_path}")
+    print(f"run: {summary.closing_line()}; log {config.log_path}")
     if forced:
         print("run: forced (--force): the model was judged not ready by check-model")
     if summary.stale_alarm_at_s is not None:
@@ -205,8 +239,43 @@ def run(args: argparse.Namespace) -> int:
               "active model"
               + ("" if summary.candidate_stale_alarm_at_s is None else
                  f"; its stale alarm at {summary.candidate_stale_alarm_at_s:g} s"))
-    if summary.abort_reason is not None:
-        print(f"czmpc: error: test aborted: {summary.abort_reason}; the TRIAC was moved to "
-              f"{config.safe_triac_pct:g} %; see the log's event column", file=sys.stderr)
+    is_test = args.test is not None or args.dither_pct is not None
+    return _verdict(summary, loop.check, config, "test" if is_test else "run")
+
+
+def _check(config: RunConfig) -> int:
+    """``--check``: the node table on stdout; 0 when every node is usable, else 2."""
+    from czmpc.runtime.link import preflight
+
+    try:
+        report = asyncio.run(preflight(config))
+    except ConnectionError as exc:
+        print(f"czmpc: error: {exc}", file=sys.stderr)
         return 1
-    return 0
+    print(report.table())
+    if report.ok:
+        print(f"check: every node of {config.endpoint} is usable as configured")
+        return 0
+    for c in report.problems:
+        print(f"czmpc: error: [nodes] {c.key} ({c.node}): {c.problem}", file=sys.stderr)
+    return 2
+
+
+def _verdict(summary: RunSummary, check: CheckReport | None, config: RunConfig,
+             what: str) -> int:
+    """Say why a run (or a ``what = "test"``) failed, on stderr; its exit code."""
+    if summary.configuration_error is not None:
+        if check is not None and not check.ok:
+            print(check.table(), file=sys.stderr)
+        print(f"czmpc: error: {summary.configuration_error}; nothing more was written",
+              file=sys.stderr)
+    elif summary.abort_reason is not None:
+        print(f"czmpc: error: {what} aborted: {summary.abort_reason}; the safe action "
+              f"(TRIAC to {config.safe_triac_pct if config.safe_triac_pct is not None else 'hold'}"
+              f"{'' if config.safe_triac_pct is None else ' %'}) was taken where the plant "
+              "accepted it; see the log's event column", file=sys.stderr)
+    elif summary.moved_nothing:
+        print(f"czmpc: error: the controller meant to write {summary.n_commands_meant} commands "
+              "and the plant accepted none of them: see the refused writes and link losses "
+              "above and the log's event column", file=sys.stderr)
+    return summary.exit_code

@@ -11,7 +11,8 @@ Layout (every key checked; an unknown key, a wrong type or a value out of range 
     connect_timeout_s = 2.0     # optional
     align_to_plant = true       # optional: read just after the plant publishes (loop.py)
     reject_repeated_samples = true  # optional: a sample read twice is a missing sample
-    [nodes]
+    max_refused_writes = 5      # optional: refused commands in a row that stop the run (exit 1)
+    [nodes]                     # a node id string, or { id = "...", raw = [LO, HI], value = [LO, HI] }
     power_kw = "ns=2;s=Heater.Power"                 # read
     triac_pct = "ns=2;s=Heater.TriacCommand"         # write
     applied_triac_pct = "ns=2;s=Heater.TriacApplied" # read, optional
@@ -34,6 +35,12 @@ Layout (every key checked; an unknown key, a wrong type or a value out of range 
     power_band_kw = [30.0, 60.0]  # measured power must stay inside [kW]
     max_bad_quality_s = 10.0    # longest tolerated stretch of missing samples [plant s]
 
+Each node is written as a Variant of its own DataType (Float, Int16, UInt16, ...;
+`czmpc.runtime.node_types`); a table form scales a raw tag both ways, for example a
+command of 0..27648 raw for 0..100 %::
+
+    triac_pct = { id = 'ns=3;s="DB_Heater"."TriacRaw"', raw = [0, 27648], value = [0.0, 100.0] }
+
 Relative paths are taken relative to the config file's directory.
 """
 
@@ -43,11 +50,13 @@ import csv
 import dataclasses
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from czmpc.errors import CzmpcError
+from czmpc.runtime.node_types import LinearScale, NodeSpec, NodeValueError, parse_node_spec
 from czmpc.runtime.security import INSECURE_LOOPBACK, SecuritySettings, parse_security
 
 
@@ -55,11 +64,14 @@ class RunConfigError(CzmpcError, ValueError):
     """A run configuration or recipe file that cannot be used."""
 
 
+#: The ``[nodes]`` keys, in the order of `NodeIds`.
+NODE_KEYS = ("power_kw", "triac_pct", "applied_triac_pct", "setpoint_kw", "heartbeat", "mode",
+             "model_health")
+
 _TABLES: dict[str, tuple[str, ...]] = {
     "plant": ("endpoint", "ts_s", "time_scale", "max_sample_age_s", "connect_timeout_s",
-              "align_to_plant", "reject_repeated_samples", "security"),
-    "nodes": ("power_kw", "triac_pct", "applied_triac_pct", "setpoint_kw", "heartbeat", "mode",
-              "model_health"),
+              "align_to_plant", "reject_repeated_samples", "max_refused_writes", "security"),
+    "nodes": NODE_KEYS,
     "controller": ("model", "settings", "candidate"),
     "run": ("duration_s", "setpoint_kw", "schedule", "log"),
     "safety": ("action", "safe_triac_pct"),
@@ -69,11 +81,17 @@ _TABLES: dict[str, tuple[str, ...]] = {
 #: Default of ``[test] max_bad_quality_s`` [plant s]: five samples at Ts = 2 s; longer
 #: blind stretches during an open-loop test leave the heater unwatched.
 DEFAULT_MAX_BAD_QUALITY_S = 10.0
+#: Default of ``[plant] max_refused_writes``: five samples of refused commands in a row
+#: (10 s at Ts = 2 s, as long as the default test's blind stretch) stop the run.
+DEFAULT_MAX_REFUSED_WRITES = 5
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class NodeIds:
-    """OPC UA node ids (strings such as ``"ns=2;s=Heater.Power"``); None: not used."""
+    """OPC UA node ids (strings such as ``"ns=2;s=Heater.Power"``); None: not used.
+
+    ``scales`` holds the optional raw/value scaling of a node, by its key.
+    """
 
     power_kw: str
     triac_pct: str
@@ -82,6 +100,12 @@ class NodeIds:
     heartbeat: str | None = None
     mode: str | None = None
     model_health: str | None = None
+    scales: Mapping[str, LinearScale] = dataclasses.field(default_factory=dict)
+
+    def specs(self) -> dict[str, NodeSpec]:
+        """The configured nodes by key, with their scaling (unused keys left out)."""
+        return {key: NodeSpec(node_id, self.scales.get(key))
+                for key in NODE_KEYS if (node_id := getattr(self, key)) is not None}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -166,6 +190,7 @@ class RunConfig:
     candidate_path: Path | None = None
     align_to_plant: bool = True
     reject_repeated_samples: bool = True
+    max_refused_writes: int = DEFAULT_MAX_REFUSED_WRITES
 
     @property
     def period_s(self) -> float:
@@ -270,15 +295,12 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
     conn_to = _num(plant, "connect_timeout_s", "plant", default=2.0, positive=True)
     align = _bool(plant, "align_to_plant", "plant", default=True)
     reject_repeated = _bool(plant, "reject_repeated_samples", "plant", default=True)
-    node_ids = NodeIds(
-        power_kw=_str(nodes, "power_kw", "nodes", required=True) or "",
-        triac_pct=_str(nodes, "triac_pct", "nodes", required=True) or "",
-        applied_triac_pct=_str(nodes, "applied_triac_pct", "nodes"),
-        setpoint_kw=_str(nodes, "setpoint_kw", "nodes"),
-        heartbeat=_str(nodes, "heartbeat", "nodes"),
-        mode=_str(nodes, "mode", "nodes"),
-        model_health=_str(nodes, "model_health", "nodes"),
-    )
+    max_refused = _num(plant, "max_refused_writes", "plant",
+                       default=DEFAULT_MAX_REFUSED_WRITES, minimum=1.0)
+    if max_refused is not None and max_refused != int(max_refused):
+        raise RunConfigError(f"plant.max_refused_writes: expected a whole number >= 1; "
+                             f"got {max_refused:g}")
+    node_ids = _node_ids(nodes)
     # [controller] may be absent (an open-loop test needs no model); if given, it names one.
     model = _str(ctrl, "model", "controller", required="controller" in doc)
     settings = _str(ctrl, "settings", "controller")
@@ -319,7 +341,25 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
         test_limits=limits,
         candidate_path=None if candidate is None else base_dir / candidate,
         align_to_plant=align, reject_repeated_samples=reject_repeated,
+        max_refused_writes=int(max_refused or DEFAULT_MAX_REFUSED_WRITES),
     )
+
+
+def _node_ids(table: dict[str, Any]) -> NodeIds:
+    """``[nodes]``: each a node id string or a table with the id and its scaling."""
+    for key in ("power_kw", "triac_pct"):
+        if key not in table:
+            raise RunConfigError(f"nodes.{key}: missing (required)")
+    specs: dict[str, NodeSpec] = {}
+    for key, value in table.items():
+        try:
+            specs[key] = parse_node_spec(value, f"nodes.{key}")
+        except NodeValueError as exc:
+            raise RunConfigError(str(exc)) from None
+    ids = {key: spec.node_id for key, spec in specs.items()}
+    scales = {key: spec.scale for key, spec in specs.items() if spec.scale is not None}
+    return NodeIds(power_kw=ids.pop("power_kw"), triac_pct=ids.pop("triac_pct"), scales=scales,
+                   **ids)
 
 
 def _test_limits(table: dict[str, Any]) -> ExperimentLimits:
@@ -352,6 +392,6 @@ def load_run_config(path: Path) -> RunConfig:
     return dataclasses.replace(config, source_path=path.resolve())
 
 
-__all__ = ["DEFAULT_MAX_BAD_QUALITY_S", "ExperimentLimits", "NodeIds", "RunConfig",
-           "RunConfigError", "Schedule", "load_run_config", "load_schedule",
-           "run_config_from_dict"]
+__all__ = ["DEFAULT_MAX_BAD_QUALITY_S", "DEFAULT_MAX_REFUSED_WRITES", "NODE_KEYS",
+           "ExperimentLimits", "NodeIds", "RunConfig", "RunConfigError", "Schedule",
+           "load_run_config", "load_schedule", "run_config_from_dict"]

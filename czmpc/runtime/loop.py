@@ -50,6 +50,7 @@ import csv
 import datetime as dt
 import hashlib
 import json
+import logging
 import math
 import signal
 import sys
@@ -62,12 +63,17 @@ from typing import IO, Any, Protocol
 from czmpc.controller import OffsetFreeMPC
 from czmpc.health import RUNTIME_HEALTH, HealthSettings, ModelHealth, ModelHealthMonitor
 from czmpc.modes import Mode
-from czmpc.runtime import alignment
-from czmpc.runtime._opcua import asyncua
+from czmpc.runtime import alignment, refusals
 from czmpc.runtime.config import RunConfig
+from czmpc.runtime.link import HEALTH_TOP, CheckReport, LinkLostError, PlantLink
+from czmpc.runtime.measurement import age_s, measurement, sample_time
+from czmpc.runtime.node_types import NodeValueError, decode
 from czmpc.runtime.secure_client import SecurityRejectedError
-from czmpc.runtime.secure_client import connect as secure_connect
 from sysid.modelfile import load_model
+
+#: The run's events (link lost and restored, refused writes, aborts, alarms): the CLI
+#: sends them to stderr with UTC times; they also go into the log's event column.
+_log = logging.getLogger("czmpc.runtime.loop")
 
 #: Longest wait between reconnect attempts [s wall] (also at most `MAX_BACKOFF_PERIODS`
 #: loop periods; the first wait is one period).
@@ -76,6 +82,9 @@ MAX_BACKOFF_S = 5.0
 MAX_BACKOFF_PERIODS = 25
 #: How long the start waits for the server [s wall] before giving up (exit 1).
 STARTUP_WAIT_S = 15.0
+#: Deadline of a connection attempt outside a step (the start, the safe action), in
+#: connect timeouts: discovery and the session each get up to two (`secure_client`).
+STARTUP_CONNECT_FACTOR = 4.0
 #: Log columns, in order.
 LOG_COLUMNS = ("k", "time_s", "wall_time_s", "power_kw", "quality", "setpoint_kw",
                "triac_pct", "applied_triac_pct", "status", "verdict", "mode", "connected",
@@ -178,14 +187,24 @@ class RunSummary:
     """What a run did (numbers for the report and the tests)."""
 
     n_steps: int = 0
+    #: Commands the plant accepted (loop steps and the safe ramp).
     n_writes: int = 0
     n_overruns: int = 0
     n_skipped: int = 0
+    #: Links lost (a transport fault, a missed deadline or a session code) and links
+    #: restored after one; a link that never came back has more losses than reconnects.
+    n_link_losses: int = 0
     n_reconnects: int = 0
     n_missing: int = 0
-    #: Reads of a sample already read (source timestamp not later than the previous
+    #: Reads of a sample already read (sample time not later than the previous
     #: read's: the plant's step was late); also counted in `n_missing`.
     n_repeated: int = 0
+    #: Steps in which the controller meant to write a command (mode ON), and how many of
+    #: those commands the plant accepted: a run that meant to and moved nothing failed.
+    n_commands_meant: int = 0
+    n_commands_accepted: int = 0
+    #: Refused writes by status code name (every node), e.g. ``{"BadResourceUnavailable": 5}``.
+    refused_writes: dict[str, int] = field(default_factory=dict)
     lateness_s: list[float] = field(default_factory=list)
     latency_s: list[float] = field(default_factory=list)
     stopped_by: str = "duration"
@@ -197,97 +216,52 @@ class RunSummary:
     active_rms_kw: float = math.nan
     candidate_rms_kw: float = math.nan
     candidate_stale_alarm_at_s: float | None = None
-    #: Why the run was aborted (a test limit or the controller); None: it was not.
+    #: Why the run was aborted (a test limit, refused commands, the controller); None: it
+    #: was not (exit 1).
     abort_reason: str | None = None
+    #: A node the server will not accept as configured (its check failed, or a write came
+    #: back with a code that does not clear by itself): the node, the code and the fix
+    #: (exit 2).
+    configuration_error: str | None = None
     #: Read phases estimated (`czmpc.runtime.alignment.read_phase`) and the delays
     #: [wall s] the schedule took to read just after the plant publishes.
     read_phases: list[float] = field(default_factory=list)
     alignment_delays_s: list[float] = field(default_factory=list)
 
     @property
+    def moved_nothing(self) -> bool:
+        """True when the controller meant to write and the plant accepted none of it."""
+        return self.n_commands_meant > 0 and self.n_commands_accepted == 0
+
+    @property
     def failed(self) -> bool:
-        """True when the run was aborted (the CLI then exits 1)."""
-        return self.abort_reason is not None
+        """True when the run was aborted, refused as configured, or moved nothing."""
+        return (self.abort_reason is not None or self.configuration_error is not None
+                or self.moved_nothing)
 
+    @property
+    def exit_code(self) -> int:
+        """2 for a configuration error, 1 for another failure, 0 for a run that did its job."""
+        if self.configuration_error is not None:
+            return 2
+        return 1 if self.failed else 0
 
-class _Link:
-    """One client connection with the node handles of the config."""
-
-    def __init__(self, config: RunConfig) -> None:
-        self.config = config
-        self.client: Any = None
-        self.nodes: dict[str, Any] = {}
-        self.connected = False
-
-    async def connect(self) -> None:
-        client = await secure_connect(self.config.endpoint, self.config.security,
-                                      timeout_s=self.config.connect_timeout_s)
-        self.client = client
-        ids = self.config.nodes
-        self.nodes = {name: client.get_node(getattr(ids, name))
-                      for name in ("power_kw", "triac_pct", "applied_triac_pct", "setpoint_kw",
-                                   "heartbeat", "mode", "model_health")
-                      if getattr(ids, name) is not None}
-        self.connected = True
-
-    async def close(self) -> None:
-        client, self.client, self.connected = self.client, None, False
-        if client is not None:
-            try:
-                await asyncio.wait_for(client.disconnect(), 1.0)
-            except Exception:  # noqa: BLE001 - the link is gone either way
-                pass
-
-    async def read(self, name: str) -> Any:
-        return await asyncio.wait_for(self.nodes[name].read_data_value(raise_on_bad_status=False),
-                                      self.config.connect_timeout_s)
-
-    async def write(self, name: str, value: Any, vtype: Any) -> None:
-        ua = asyncua().ua
-        dv = ua.DataValue(ua.Variant(value, vtype))
-        await asyncio.wait_for(self.nodes[name].write_value(dv), self.config.connect_timeout_s)
-
-
-def _source_time(dv: Any) -> dt.datetime | None:
-    """A DataValue's source timestamp in UTC (None without one)."""
-    ts: dt.datetime | None = dv.SourceTimestamp
-    if ts is None:
-        return None
-    return ts.replace(tzinfo=dt.UTC) if ts.tzinfo is None else ts
-
-
-def _age_s(dv: Any) -> float | None:
-    """Age of a DataValue [wall s]: now minus its source timestamp (None without one)."""
-    ts = _source_time(dv)
-    return None if ts is None else float((dt.datetime.now(dt.UTC) - ts).total_seconds())
-
-
-def _measurement(dv: Any, max_age_s: float,
-                 previous_source: dt.datetime | None = None) -> tuple[float, str]:
-    """Power [kW] and a quality word from a DataValue; NaN unless ``"good"``.
-
-    ``"bad"`` and ``"uncertain"`` come from the status code, ``"stale"`` from a source
-    timestamp older than `max_age_s`, and ``"repeated"`` from one that is not later than
-    `previous_source` (the source timestamp of the previous read): the plant has not
-    published since, so the value is the previous sample's read again.
-    """
-    status = dv.StatusCode
-    if status is not None and not status.is_good():
-        return math.nan, "uncertain" if status.is_uncertain() else "bad"
-    age = _age_s(dv)
-    if age is not None and age > max_age_s:
-        return math.nan, "stale"
-    source = _source_time(dv)
-    if source is not None and previous_source is not None and source <= previous_source:
-        return math.nan, "repeated"
-    try:
-        value = float(dv.Value.Value)
-    except (TypeError, ValueError, AttributeError):
-        return math.nan, "bad"
-    return value, "good"
+    def closing_line(self) -> str:
+        """The run's last line: steps, accepted and refused writes, losses, reconnects."""
+        refused = sum(self.refused_writes.values())
+        codes = ", ".join(f"{n} {code}" for code, n in sorted(self.refused_writes.items()))
+        return (f"{self.n_steps} steps, {self.n_writes} writes accepted, {refused} refused"
+                f"{f' ({codes})' if codes else ''}, {self.n_missing} missing samples "
+                f"({self.n_repeated} read twice), {self.n_overruns} overruns, "
+                f"{self.n_link_losses} link losses, {self.n_reconnects} reconnects; "
+                f"stopped by {self.stopped_by}")
 
 
 def _mode_of(value: Any) -> Mode | None:
+    """The operator's mode from the mode node: text, an integer 0/1/2 (OFF/PREDICT/ON) or a
+    bool (True: ON, False: OFF, a PLC's enable bit); None for anything else."""
+    if isinstance(value, bool):
+        return Mode.ON if value else Mode.OFF
     if isinstance(value, str) and value.strip().upper() in Mode.__members__:
         return Mode[value.strip().upper()]
     if isinstance(value, int) and not isinstance(value, bool):
@@ -370,19 +344,28 @@ class ControlLoop:
                                      else controller)
         self._provenance = dict(provenance or {})
         self._bad_run = 0
-        self.link = _Link(config)
+        self.link = PlantLink(config)
+        #: The last pre-flight check of the nodes (`PlantLink.connect`), None before.
+        self.check: CheckReport | None = None
         self.summary = RunSummary()
         self._status = status
         self._delay = dict(step_delay_s or {})
         self._stop = asyncio.Event()
-        self._heartbeat = 0
+        self._heartbeat_value: Any = None   # what the heartbeat node holds (our last write)
+        self._events: list[str] = []          # events of this step, for the log's event column
+        self._refused_in_row = 0              # command writes refused in a row
+        self._lost_at: float | None = None    # monotonic time the link was lost (None: up)
+        self._said_timestamps = False
+        #: Longest a step may spend on I/O [wall s]: the connect timeout and half a period,
+        #: so that no step lasts longer than one period plus the connect timeout.
+        self._step_budget_s = config.connect_timeout_s + 0.5 * config.period_s
         self._last_cmd = math.nan
         self._applied = math.nan
         self._backoff_s = config.period_s
         self._max_backoff_s = min(MAX_BACKOFF_S, MAX_BACKOFF_PERIODS * config.period_s)
         self._next_try = 0.0
         self._ages_s: list[float] = []   # good samples' ages since the last phase estimate
-        self._last_source: dt.datetime | None = None   # the power's last source timestamp
+        self._last_time: dt.datetime | None = None   # the power's last sample time
         # The MPC inside the controller (a test schedule has none: no health monitor).
         self._mpc: OffsetFreeMPC | None = getattr(self.ctrl, "mpc", None)
         self.health = (None if self._mpc is None
@@ -406,35 +389,62 @@ class ControlLoop:
         self.summary.stopped_by = reason
         self._stop.set()
 
-    async def _try_connect(self, now: float) -> bool:
+    def _event(self, text: str, level: int = logging.WARNING) -> None:
+        """A link or run event: a log record now (stderr, UTC time) and the log's event column."""
+        _log.log(level, text)
+        self._events.append(text)
+
+    def _take_events(self) -> str:
+        text, self._events = "; ".join(self._events), []
+        return text
+
+    def _configuration_error(self, text: str) -> None:
+        """A node the server will not accept as configured: stop now (exit 2)."""
+        if self.summary.configuration_error is None:
+            self.summary.configuration_error = text
+            self._event(f"CONFIGURATION ERROR: {text}", logging.ERROR)
+        self.request_stop("configuration error")
+
+    async def _try_connect(self, now: float, deadline_s: float) -> bool:
+        """Open a session and check the nodes; False (retry later) on a network fault.
+
+        A failed check is a configuration error: nothing is written, the run stops.
+        """
         if now < self._next_try:
             return False
         try:
-            await self.link.connect()
+            report = await self.link.connect(deadline_s)
         except SecurityRejectedError:
             raise   # a configuration error: never retried, never downgraded (exit 2)
-        except (TimeoutError, OSError, ConnectionError) as exc:
+        except LinkLostError as exc:
             self._next_try = now + self._backoff_s
             self._backoff_s = min(self._max_backoff_s, 2 * self._backoff_s)
-            self._say(f"connect failed ({type(exc).__name__}); retry in {self._backoff_s:g} s")
+            self._say(f"connect failed ({exc}); retry in {self._backoff_s:g} s")
             return False
-        except Exception as exc:  # noqa: BLE001 - asyncua raises its own types
-            self._next_try = now + self._backoff_s
-            self._backoff_s = min(self._max_backoff_s, 2 * self._backoff_s)
-            self._say(f"connect failed ({type(exc).__name__}: {exc}); retrying")
+        self.check = report
+        if not report.ok:
+            self._configuration_error("; ".join(
+                f"[nodes] {c.key} ({c.node}): {c.problem}" for c in report.problems))
             return False
         self._backoff_s = self.config.period_s
+        if not self._said_timestamps and "power_kw" in self.link.types:
+            note = next((c.note for c in report.checks if c.key == "power_kw"), "")
+            if note:
+                self._event(f"power_kw: {note}")
+                self._said_timestamps = True
+        self._heartbeat_value = self.link.initial.get("heartbeat")
         # bumpless: start from the input the plant applies now
-        applied = await self._read_applied()
-        if math.isfinite(applied):
-            self._applied = applied
+        key = "applied_triac_pct" if "applied_triac_pct" in self.link.specs else "triac_pct"
+        try:
+            self._applied = decode(self.link.initial.get(key), self.link.specs[key].scale)
+        except NodeValueError:
+            self._applied = math.nan
+        if self._lost_at is not None:
+            self.summary.n_reconnects += 1
+            self._event(f"link restored after {time.monotonic() - self._lost_at:.1f} s",
+                        logging.INFO)
+            self._lost_at = None
         return True
-
-    async def _read_applied(self) -> float:
-        name = "applied_triac_pct" if "applied_triac_pct" in self.link.nodes else "triac_pct"
-        dv = await self.link.read(name)
-        value, quality = _measurement(dv, math.inf)
-        return value if quality == "good" else math.nan
 
     def _say(self, text: str) -> None:
         if self._status is not None:
@@ -460,17 +470,22 @@ class ControlLoop:
         log = RunLog(cfg.log_path, meta)
         try:
             give_up = time.monotonic() + STARTUP_WAIT_S
-            while not await self._try_connect(time.monotonic()):
-                if time.monotonic() > give_up or self._stop.is_set():
+            while not await self._try_connect(time.monotonic(),
+                                              STARTUP_CONNECT_FACTOR * cfg.connect_timeout_s):
+                if self._stop.is_set():
+                    break
+                if time.monotonic() > give_up:
                     raise ConnectionError(
                         f"cannot connect to {cfg.endpoint} within {STARTUP_WAIT_S:g} s; is the "
                         "server running and plant.endpoint right?")
                 await asyncio.sleep(max(0.05, self._next_try - time.monotonic()))
-            await self._loop(log)
+            if self.summary.configuration_error is None:
+                _log.info("connected to %s; every node checked; running", cfg.endpoint)
+                await self._loop(log)
             await self._safe_action(log)
         finally:
             log.close()
-            await self.link.close()
+            await self.link.close(cfg.connect_timeout_s)
             for sig in (signal.SIGINT, signal.SIGTERM):
                 try:
                     loop.remove_signal_handler(sig)
@@ -535,9 +550,8 @@ class ControlLoop:
         if delay is None:
             return 0.0
         self.summary.alignment_delays_s.append(delay)
-        if not row["event"]:
-            row["event"] = (f"reads moved to {alignment.TARGET_PHASE:.2f} of the period after the "
-                            f"plant publishes (were at {phase:.2f}; delay {delay * 1e3:.1f} ms)")
+        self._add_event(row, f"reads moved to {alignment.TARGET_PHASE:.2f} of the period after the "
+                             f"plant publishes (were at {phase:.2f}; delay {delay * 1e3:.1f} ms)")
         return delay
 
     def _check_limits(self, row: dict[str, object], n_periods: int) -> None:
@@ -549,57 +563,29 @@ class ControlLoop:
             power = float(row["power_kw"])  # type: ignore[arg-type]
             self._bad_run = 0 if quality == "good" else self._bad_run + n_periods
             reason = limits.violation(power, quality, self._bad_run * self.config.ts_s)
-        if reason is not None:
-            row["event"] = f"ABORT: {reason}"
+        if reason is not None and self.summary.abort_reason is None:
+            self._add_event(row, f"ABORT: {reason}")
+            _log.error("ABORT: %s", reason)
             self.summary.abort_reason = reason
             self.request_stop("abort")
-            self._say(f"aborting: {reason}")
             return
         done = self.ctrl.finished()
         if done is not None:
-            row["event"] = done
+            self._add_event(row, done)
+            _log.info("%s", done)
             self.request_stop(done)
 
+    @staticmethod
+    def _add_event(row: dict[str, object], text: str) -> None:
+        row["event"] = f"{row['event']}; {text}" if row["event"] else text
+
     async def _one_step(self, k: int, lateness: float) -> dict[str, object]:
+        """Read, decide, write and record one sample; never longer than `_step_budget_s`."""
         cfg = self.config
-        ua = asyncua().ua
-        power, quality = math.nan, "disconnected"
+        end = time.monotonic() + self._step_budget_s
         if not self.link.connected:
-            await self._try_connect(time.monotonic())
-        reported_applied: float | None = None
-        if self.link.connected:
-            try:
-                dv = await self.link.read("power_kw")
-                power, quality = _measurement(
-                    dv, cfg.max_sample_age_s,
-                    self._last_source if cfg.reject_repeated_samples else None)
-                self._last_source = _source_time(dv) or self._last_source
-                if quality == "repeated":
-                    self.summary.n_repeated += 1
-                age = _age_s(dv)
-                if quality == "good" and age is not None:
-                    self._ages_s.append(age)
-                if "setpoint_kw" in self.link.nodes:
-                    sp, q = _measurement(await self.link.read("setpoint_kw"), math.inf)
-                    if q == "good":
-                        self._setpoint = sp
-                if "mode" in self.link.nodes:
-                    dv = await self.link.read("mode")
-                    mode = _mode_of(dv.Value.Value if dv.Value is not None else None)
-                    if mode is Mode.ON and not self.allow_on:
-                        mode = None   # a 'not ready' model stays in PREDICT (czmpc run --force)
-                    if mode is not None and mode is not self.ctrl.mode:
-                        self.ctrl.request_mode(mode)
-                if "applied_triac_pct" in self.link.nodes:
-                    applied = await self._read_applied()
-                    if math.isfinite(applied):
-                        reported_applied = applied
-                if math.isfinite(self._applied):  # fresh from a (re)connect
-                    reported_applied = self._applied
-                    self._applied = math.nan
-            except Exception as exc:  # noqa: BLE001 - any link failure: predict on
-                await self._lost(exc)
-                power, quality = math.nan, "disconnected"
+            await self._try_connect(time.monotonic(), end - time.monotonic())
+        power, quality, reported_applied = await self._read(end)
         if cfg.schedule is not None:
             self._setpoint = cfg.schedule.setpoint_at(k * cfg.ts_s)
         if not math.isfinite(power):
@@ -612,21 +598,10 @@ class ControlLoop:
         command = self.ctrl.step(power, self._setpoint, applied_triac_pct=reported_applied)
         status_word, verdict_word = self.ctrl.status_words()
         health = self._health(k, power, applied_before)
-        written = False
-        if self.link.connected:
-            try:
-                if self.ctrl.mode is Mode.ON and math.isfinite(command):
-                    await self.link.write("triac_pct", float(command), ua.VariantType.Double)
-                    written = True
-                    self.summary.n_writes += 1
-                    self._last_cmd = float(command)
-                if "heartbeat" in self.link.nodes:
-                    self._heartbeat += 1
-                    await self.link.write("heartbeat", self._heartbeat, ua.VariantType.Int64)
-                if "model_health" in self.link.nodes and health is not None:
-                    await self.link.write("model_health", health.health, ua.VariantType.Double)
-            except Exception as exc:  # noqa: BLE001 - any link failure: predict on
-                await self._lost(exc)
+        meant = self.ctrl.mode is Mode.ON and math.isfinite(command)
+        if meant:
+            self.summary.n_commands_meant += 1
+        written = await self._write(command if meant else None, health, end)
         if self.ctrl.mode is not Mode.ON:
             self._last_cmd = float(command)
         row: dict[str, object] = {
@@ -638,7 +613,8 @@ class ControlLoop:
             "written": int(written), "lateness_s": lateness, "step_latency_s": 0.0,
             "skipped": 0, "predicted_kw": math.nan if health is None else health.predicted_kw,
             "health": math.nan if health is None else health.health,
-            "stale_alarm": "" if health is None else int(health.stale_alarm), "event": "",
+            "stale_alarm": "" if health is None else int(health.stale_alarm),
+            "event": self._take_events(),
             **self._shadow_columns(k, power, applied_before, health),
         }
         self._say(f"k={k} t={k * cfg.ts_s:.0f}s P={power:.2f}kW ({quality}) "
@@ -646,6 +622,118 @@ class ControlLoop:
                   f"{self.ctrl.mode.name} late={lateness * 1e3:.1f}ms "
                   f"{'' if health is None else health.status()}")
         return row
+
+    async def _read(self, end: float) -> tuple[float, str, float | None]:
+        """One Read of the power and the optional nodes: (power [kW], quality, applied [%]).
+
+        Updates the setpoint and the mode from their nodes; NaN and ``"disconnected"``
+        without a link.
+        """
+        cfg = self.config
+        if not self.link.connected:
+            return math.nan, "disconnected", None
+        keys = tuple(k for k in ("power_kw", "setpoint_kw", "mode", "applied_triac_pct")
+                     if k in self.link.specs)
+        try:
+            dvs = await self.link.read(keys, end - time.monotonic())
+        except LinkLostError as exc:
+            self._lost(exc)
+            return math.nan, "disconnected", None
+        specs = self.link.specs
+        dv = dvs["power_kw"]
+        power, quality = measurement(
+            dv, cfg.max_sample_age_s,
+            self._last_time if cfg.reject_repeated_samples else None, specs["power_kw"].scale)
+        self._last_time = sample_time(dv)[0] or self._last_time
+        if quality == "repeated":
+            self.summary.n_repeated += 1
+        age = age_s(dv)
+        if quality == "good" and age is not None:
+            self._ages_s.append(age)
+        if "setpoint_kw" in dvs:
+            sp, q = measurement(dvs["setpoint_kw"], math.inf, None, specs["setpoint_kw"].scale)
+            if q == "good":
+                self._setpoint = sp
+        if "mode" in dvs:
+            dv = dvs["mode"]
+            mode = _mode_of(dv.Value.Value if dv.Value is not None else None)
+            if mode is Mode.ON and not self.allow_on:
+                mode = None   # a 'not ready' model stays in PREDICT (czmpc run --force)
+            if mode is not None and mode is not self.ctrl.mode:
+                self.ctrl.request_mode(mode)
+        reported_applied: float | None = None
+        if "applied_triac_pct" in dvs:
+            applied, q = measurement(dvs["applied_triac_pct"], math.inf, None,
+                                     specs["applied_triac_pct"].scale)
+            if q == "good":
+                reported_applied = applied
+        if math.isfinite(self._applied):  # fresh from a (re)connect
+            reported_applied = self._applied
+            self._applied = math.nan
+        return power, quality, reported_applied
+
+    async def _write(self, command: float | None, health: ModelHealth | None,
+                     end: float) -> bool:
+        """One Write of the command (None: none meant), heartbeat and model health.
+
+        Returns True when the plant accepted the command. A refusal is counted and said
+        with its code; a code that does not clear by itself is a configuration error
+        (`czmpc.runtime.refusals`), ``max_refused_writes`` refused commands in a row abort
+        the run.
+        """
+        if not self.link.connected:
+            return False
+        values: dict[str, Any] = {}
+        try:
+            if command is not None:
+                values["triac_pct"] = self.link.variant("triac_pct", float(command))
+            if "heartbeat" in self.link.specs:
+                values["heartbeat"] = self.link.next_heartbeat(self._heartbeat_value)
+            if "model_health" in self.link.specs and health is not None:
+                values["model_health"] = self.link.variant(
+                    "model_health", min(HEALTH_TOP, max(0.0, health.health)))
+        except NodeValueError as exc:
+            self._configuration_error(f"a value cannot be written: {exc}")
+            return False
+        try:
+            results = await self.link.write(values, end - time.monotonic())
+        except LinkLostError as exc:
+            self._lost(exc)
+            return False
+        for key, code in results.items():
+            if code is None:
+                continue
+            self.summary.refused_writes[code] = self.summary.refused_writes.get(code, 0) + 1
+            spec = self.link.specs[key]
+            if refusals.kind_of(code) == "configuration":
+                info = self.link.types.get(key)
+                self._configuration_error(
+                    f"[nodes] {key} ({spec.describe()}): write refused with {code}: "
+                    + refusals.fix_for(code, key=key, node=spec.describe(), user=self.link.user,
+                                       type_name=None if info is None else info.type_name))
+            else:
+                self._event(f"write refused: [nodes] {key} ({spec.node_id}) {code}")
+        if "heartbeat" in values and results.get("heartbeat") is None:
+            self._heartbeat_value = values["heartbeat"].Value
+        if command is None:
+            return False
+        code = results.get("triac_pct")
+        if code is None:
+            self.summary.n_writes += 1
+            self.summary.n_commands_accepted += 1
+            self._last_cmd = float(command)
+            self._refused_in_row = 0
+            return True
+        self._refused_in_row += 1
+        if (self._refused_in_row >= self.config.max_refused_writes
+                and self.summary.abort_reason is None
+                and self.summary.configuration_error is None):
+            self.summary.abort_reason = (
+                f"{self._refused_in_row} command writes in a row refused (last {code}; "
+                f"[plant] max_refused_writes = {self.config.max_refused_writes})")
+            self._event(f"ABORT: {self.summary.abort_reason}", logging.ERROR)
+            self.request_stop("abort")
+        return False
 
     def _health(self, k: int, power: float, applied_before: float) -> ModelHealth | None:
         """Feed the model-health monitor; say the stale alarm once when it comes."""
@@ -657,7 +745,7 @@ class ControlLoop:
         if health.stale_alarm and self.summary.stale_alarm_at_s is None:
             self.summary.stale_alarm_at_s = k * self.config.ts_s
             self.summary.stale_alarm_reason = health.alarm_reason
-            self._say(f"STALE-MODEL ALARM at t={k * self.config.ts_s:.0f}s: {health.alarm_reason}")
+            self._event(f"STALE-MODEL ALARM at t={k * self.config.ts_s:.0f}s: {health.alarm_reason}")
         return health
 
     def _monitors_skipped(self, n_periods: int) -> None:
@@ -690,49 +778,66 @@ class ControlLoop:
             self.summary.candidate_rms_kw = math.sqrt(self._sq_candidate_kw2 / self._n_compared)
         if cand.stale_alarm and self.summary.candidate_stale_alarm_at_s is None:
             self.summary.candidate_stale_alarm_at_s = k * self.config.ts_s
-            self._say(f"candidate model: stale alarm at t={k * self.config.ts_s:.0f}s: "
-                      f"{cand.alarm_reason}")
+            self._event(f"candidate model: stale alarm at t={k * self.config.ts_s:.0f}s: "
+                        f"{cand.alarm_reason}")
         return {"candidate_predicted_kw": cand.predicted_kw, "candidate_health": cand.health,
                 "candidate_stale_alarm": int(cand.stale_alarm)}
 
-    async def _lost(self, exc: BaseException) -> None:
-        self._say(f"link lost ({type(exc).__name__}); predicting, reconnecting")
-        await self.link.close()
-        self.summary.n_reconnects += 1
+    def _lost(self, exc: BaseException) -> None:
+        """The link failed (already closed by `PlantLink`): predict on, reconnect with backoff."""
+        self.link.abort()
         self._next_try = time.monotonic() + self._backoff_s
+        if self._lost_at is None:
+            self._lost_at = time.monotonic()
+            self.summary.n_link_losses += 1
+            self._event(f"link lost ({exc}); predicting, reconnecting")
 
     async def _safe_action(self, log: RunLog) -> None:
         cfg = self.config
-        ramp = cfg.safe_action == "ramp" or self.summary.failed
+        ramp = cfg.safe_action == "ramp" or self.summary.abort_reason is not None
         if not ramp or cfg.safe_triac_pct is None:
-            self._say(f"stopped ({self.summary.stopped_by}): holding the last command")
+            _log.info("stopped (%s): holding the last command", self.summary.stopped_by)
             return
-        ua = asyncua().ua
         rate = self.ctrl.rate_limit_pct_per_step
         step = math.inf if rate is None else float(rate)
         u = self._last_cmd
         target = cfg.safe_triac_pct
-        if not self.link.connected:
-            await self._try_connect(0.0)
+        if not self.link.connected and self.summary.configuration_error is None:
+            await self._try_connect(0.0, STARTUP_CONNECT_FACTOR * cfg.connect_timeout_s)
+        if "triac_pct" not in self.link.types:
+            _log.error("stopped (%s): the safe ramp cannot be written (no usable link to %s)",
+                       self.summary.stopped_by, cfg.nodes.triac_pct)
+            return
         if not math.isfinite(u):
             u = target
         while self.link.connected:
             u = u + max(-step, min(step, target - u))
+            end = time.monotonic() + self._step_budget_s
+            values: dict[str, Any] = {"triac_pct": self.link.variant("triac_pct", u)}
+            if "heartbeat" in self.link.types:  # the plant's watchdog still sees us
+                values["heartbeat"] = self.link.next_heartbeat(self._heartbeat_value)
             try:
-                await self.link.write("triac_pct", u, ua.VariantType.Double)
-                if "heartbeat" in self.link.nodes:  # the plant's watchdog still sees us
-                    self._heartbeat += 1
-                    await self.link.write("heartbeat", self._heartbeat, ua.VariantType.Int64)
-            except Exception:  # noqa: BLE001 - nothing more can be done without a link
+                results = await self.link.write(values, end - time.monotonic())
+            except LinkLostError as exc:
+                self._lost(exc)
+                break
+            if results.get("heartbeat") is None and "heartbeat" in values:
+                self._heartbeat_value = values["heartbeat"].Value
+            code = results["triac_pct"]
+            if code is not None:
+                self.summary.refused_writes[code] = self.summary.refused_writes.get(code, 0) + 1
+                _log.error("safe ramp: command write refused with %s; the TRIAC stays where the "
+                           "plant holds it", code)
                 break
             self.summary.n_writes += 1
             self._last_cmd = u
             log.row({c: "" for c in LOG_COLUMNS} | {"triac_pct": u, "status": "SAFE_RAMP",
-                                                   "written": 1, "wall_time_s": time.time()})
+                                                   "written": 1, "wall_time_s": time.time(),
+                                                   "event": self._take_events()})
             if u == target:
                 break
             await asyncio.sleep(cfg.period_s)
-        self._say(f"stopped ({self.summary.stopped_by}): TRIAC ramped to {u:g} %")
+        _log.info("stopped (%s): TRIAC ramped to %g %%", self.summary.stopped_by, u)
 
 
 def tty_status() -> Callable[[str], None] | None:

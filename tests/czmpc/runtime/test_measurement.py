@@ -1,4 +1,4 @@
-"""What the loop makes of one read of the power node (czmpc.runtime.loop._measurement)."""
+"""What the loop makes of one read of the power node (czmpc.runtime.measurement.measurement)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 asyncua = pytest.importorskip("asyncua")
 ua = asyncua.ua
 
-from czmpc.runtime.loop import _measurement  # noqa: E402
+from czmpc.runtime.measurement import measurement as _measurement  # noqa: E402
 
 #: Long enough that no sample here is too old, however slowly the suite runs [s].
 NO_AGE_LIMIT_S = math.inf

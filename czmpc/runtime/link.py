@@ -1,0 +1,479 @@
+"""The client side of the plant link: one OPC UA session, its typed nodes, hard deadlines.
+
+Once per session (`PlantLink.connect`) the link reads every configured node's
+``DataType``, ``ValueRank``, ``AccessLevel``, ``UserAccessLevel`` and value in one Read
+request and checks it against what czmpc does with it (`ROLES`): the node exists, it
+is a scalar, its type can carry its value after scaling, this user may read it and,
+where czmpc writes, write it. The result is a `CheckReport` (the table of ``czmpc run
+--check``); a run writes nothing until that check has passed.
+
+Each step then makes one Read request (power, setpoint, mode, applied input) and one
+Write request (command, heartbeat, model health), each Variant of the node's own type
+(`czmpc.runtime.node_types`) and without timestamps (a PLC's server may refuse written
+timestamps). A write's result is one status per node: a Bad one is a refusal (the
+session stands; `czmpc.runtime.refusals` says what it means), never a lost link.
+
+Every call has a hard deadline (`within`): a call that misses it is abandoned, not
+awaited, and the session's socket is closed at once (`PlantLink.abort`). Closing at the
+end of a run is bounded the same way, so a server that stops answering mid-call can
+never hold the loop longer than the deadline it was given.
+
+Timestamps: the check says for each node whether the server sends source
+timestamps; the loop falls back to server timestamps where it does not
+(`czmpc.runtime.measurement.sample_time`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Awaitable, Mapping
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from czmpc.errors import CzmpcError
+from czmpc.runtime import refusals
+from czmpc.runtime._opcua import asyncua
+from czmpc.runtime.config import RunConfig
+from czmpc.runtime.node_types import (
+    INTEGER_RANGES,
+    NUMERIC_TYPES,
+    NodeSpec,
+    NodeType,
+    NodeValueError,
+    builtin_type_name,
+    encode,
+    next_heartbeat,
+)
+from czmpc.runtime.secure_client import connect as secure_connect
+
+T = TypeVar("T")
+
+#: Largest model-health figure written (the alarm is at >= 1; a larger figure only says
+#: "far over the limit", and an integer tag must still carry it).
+HEALTH_TOP = 100.0
+
+
+@dataclass(frozen=True, slots=True)
+class NodeRole:
+    """What czmpc does with a configured node.
+
+    ``kind``: ``"number"`` (read or written as a number in czmpc's units), ``"counter"``
+    (the heartbeat) or ``"mode"`` (OFF/PREDICT/ON as text, an integer 0/1/2 or a bool).
+    ``carries``: values a written number must be able to take (after scaling).
+    """
+
+    reads: bool
+    writes: bool
+    kind: str = "number"
+    carries: tuple[float, ...] = ()
+    what: str = ""
+
+
+#: The run config's ``[nodes]`` keys and their roles.
+ROLES: dict[str, NodeRole] = {
+    "power_kw": NodeRole(reads=True, writes=False, what="measured power [kW]"),
+    "triac_pct": NodeRole(reads=False, writes=True, carries=(0.0, 100.0),
+                          what="TRIAC command 0..100 [%]"),
+    "applied_triac_pct": NodeRole(reads=True, writes=False, what="applied TRIAC input [%]"),
+    "setpoint_kw": NodeRole(reads=True, writes=False, what="power setpoint [kW]"),
+    "heartbeat": NodeRole(reads=False, writes=True, kind="counter", what="watchdog counter"),
+    "mode": NodeRole(reads=True, writes=False, kind="mode", what="operator's mode"),
+    "model_health": NodeRole(reads=False, writes=True, carries=(0.0, HEALTH_TOP),
+                             what="model-health figure 0..100 [-]"),
+}
+
+
+class CallDeadlineError(TimeoutError):
+    """An OPC UA call missed its deadline; it was abandoned and the socket closed."""
+
+
+class LinkLostError(CzmpcError, ConnectionError):
+    """The session or its transport failed (not a refusal): reconnect with backoff."""
+
+
+async def within(awaitable: Awaitable[T], deadline_s: float, what: str) -> T:
+    """Await ``awaitable`` for at most ``deadline_s`` [wall s]; abandon it after that.
+
+    Unlike `asyncio.wait_for`, the call is not awaited after its cancellation: a
+    library that swallows the cancellation (asyncua's session close does) cannot
+    extend the deadline.
+
+    Raises
+    ------
+    CallDeadlineError
+        The deadline passed (the call is cancelled and left to end by itself).
+    """
+    task = asyncio.ensure_future(awaitable)
+    done, _ = await asyncio.wait({task}, timeout=max(0.0, deadline_s))
+    if not done:
+        task.cancel()
+        task.add_done_callback(_swallow)
+        raise CallDeadlineError(f"{what}: no answer within {deadline_s:.3g} s")
+    return task.result()
+
+
+def _swallow(task: asyncio.Future[Any]) -> None:
+    if not task.cancelled():
+        task.exception()
+
+
+@dataclass(frozen=True, slots=True)
+class NodeCheck:
+    """One configured node as the server has it, and whether czmpc can use it.
+
+    ``problem`` is None for a usable node; otherwise it names the code or the type
+    and what to change. ``code`` is the OPC UA status the problem amounts to.
+    """
+
+    key: str
+    node: str
+    type_name: str = "-"
+    value_rank: str = "-"
+    access: str = "-"
+    timestamps: str = "-"
+    problem: str | None = None
+    code: str | None = None
+    note: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class CheckReport:
+    """The pre-flight check of every configured node (`PlantLink.connect`)."""
+
+    endpoint: str
+    checks: tuple[NodeCheck, ...]
+
+    @property
+    def ok(self) -> bool:
+        """True when every node can be used."""
+        return all(c.problem is None for c in self.checks)
+
+    @property
+    def problems(self) -> tuple[NodeCheck, ...]:
+        """The nodes that cannot be used."""
+        return tuple(c for c in self.checks if c.problem is not None)
+
+    def table(self) -> str:
+        """The check as a plain-text table, one row per node, then the problems' fixes."""
+        head = ("node", "node id", "DataType", "rank", "access", "timestamps", "verdict")
+        rows = [head] + [(c.key, c.node, c.type_name, c.value_rank, c.access, c.timestamps,
+                          "ok" if c.problem is None else f"FAIL {c.code or ''}".strip())
+                         for c in self.checks]
+        widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
+        lines = ["  ".join(v.ljust(w) for v, w in zip(r, widths, strict=True)).rstrip()
+                 for r in rows]
+        lines.insert(1, "  ".join("-" * w for w in widths))
+        for c in self.checks:
+            if c.problem is not None:
+                lines.append(f"{c.key}: {c.problem}")
+            elif c.note:
+                lines.append(f"{c.key}: note: {c.note}")
+        return "\n".join(lines)
+
+
+def _access_words(readable: bool, writable: bool) -> str:
+    return ("r" if readable else "-") + ("w" if writable else "-")
+
+
+def _timestamps(dv: Any) -> str:
+    if dv.SourceTimestamp is not None:
+        return "source"
+    return "server only" if dv.ServerTimestamp is not None else "none"
+
+
+def check_node(key: str, spec: NodeSpec, values: Mapping[str, Any], *,
+               user: str | None, command_readable_needed: bool = False) -> tuple[NodeCheck,
+                                                                                NodeType | None]:
+    """Judge one node from its read attributes (``values``: attribute name -> DataValue).
+
+    Pure: the attributes come from one Read request (`PlantLink.connect`).
+    """
+    ua = asyncua().ua
+    role = ROLES[key]
+    node = spec.describe()
+    value_dv = values["Value"]
+    status = value_dv.StatusCode
+    if status is not None and status.name in ("BadNodeIdUnknown", "BadNodeIdInvalid"):
+        return NodeCheck(key, node, problem=f"{status.name}: " + refusals.fix_for(
+            status.name, key=key, node=node), code=status.name), None
+    dtype_dv = values["DataType"]
+    dtype = dtype_dv.Value.Value if dtype_dv.Value is not None else None
+    type_name = None if dtype is None else builtin_type_name(dtype.NamespaceIndex, dtype.Identifier)
+    held = value_dv.Value.VariantType.name if value_dv.Value is not None else None
+    note = ""
+    if type_name is None and held in NUMERIC_TYPES | {"Boolean", "String"}:
+        note = f"DataType {dtype.to_string() if dtype is not None else '?'}: written as {held}, " \
+               "the type of the value it holds"
+        type_name = held
+    type_name = type_name or (dtype.to_string() if dtype is not None else "unknown")
+    rank_dv = values["ValueRank"]
+    rank = int(rank_dv.Value.Value) if rank_dv.Value is not None and rank_dv.Value.Value is not None \
+        else -1
+    bits = {name: int(values[name].Value.Value or 0) if values[name].Value is not None else 0
+            for name in ("AccessLevel", "UserAccessLevel")}
+    read_bit, write_bit = 1 << ua.AccessLevel.CurrentRead, 1 << ua.AccessLevel.CurrentWrite
+    node_writable = bool(bits["AccessLevel"] & write_bit)
+    readable = bool(bits["UserAccessLevel"] & read_bit)
+    writable = bool(bits["UserAccessLevel"] & write_bit)
+    info = NodeType(type_name, rank, readable, writable)
+    common = {"key": key, "node": node, "type_name": type_name, "value_rank": str(rank),
+              "access": _access_words(readable, writable), "timestamps": _timestamps(value_dv)}
+
+    def fail(code: str | None, text: str) -> tuple[NodeCheck, NodeType | None]:
+        return NodeCheck(**common, problem=text, code=code, note=note), info
+
+    if not info.scalar:
+        return fail("BadTypeMismatch", f"{node} is an array (ValueRank {rank}): point {key} at a "
+                                       "scalar tag")
+    if role.writes and not node_writable:
+        return fail("BadNotWritable", "BadNotWritable: " + refusals.fix_for(
+            "BadNotWritable", key=key, node=node))
+    if role.writes and not writable:
+        return fail("BadUserAccessDenied", "BadUserAccessDenied: " + refusals.fix_for(
+            "BadUserAccessDenied", key=key, node=node, user=user))
+    if (role.reads or command_readable_needed) and not readable:
+        return fail("BadNotReadable", "BadNotReadable: " + refusals.fix_for(
+            "BadNotReadable", key=key, node=node, user=user))
+    reason = _carry_problem(role, info, spec)
+    if reason is not None:
+        return fail("BadTypeMismatch", f"{type_name} cannot carry the {role.what}: {reason}")
+    if key == "power_kw" and value_dv.SourceTimestamp is None:
+        note = ("no source timestamp: sample times fall back to the server timestamp"
+                if value_dv.ServerTimestamp is not None else
+                "no timestamps at all: stale and repeated samples cannot be detected")
+    return NodeCheck(**common, note=note), info
+
+
+def _carry_problem(role: NodeRole, info: NodeType, spec: NodeSpec) -> str | None:
+    """Why a node of this type cannot carry the role's values, or None."""
+    if role.kind == "counter":
+        if spec.scale is not None:
+            return "a heartbeat takes no scaling: remove raw/value"
+        try:
+            next_heartbeat(0, info.type_name)
+        except NodeValueError as exc:
+            return f"{exc}; point heartbeat at an integer or BOOL tag"
+        return None
+    if role.kind == "mode":
+        if info.type_name in ("String", "Boolean") or info.type_name in INTEGER_RANGES:
+            return None
+        return "a mode is text (OFF/PREDICT/ON), an integer 0/1/2 or a bool"
+    if not info.numeric:
+        return ("a number is needed; point it at a REAL/INT tag"
+                + (" (a Boolean cannot carry 0..100 %)" if info.type_name == "Boolean" else ""))
+    for value in role.carries:
+        try:
+            encode(value, info.type_name, spec.scale)
+        except NodeValueError as exc:
+            fix = ("add raw = [LO, HI], value = [LO, HI] scaling" if spec.scale is None
+                   else "correct its raw/value scaling")
+            return f"{value:g} does not fit: {exc}; {fix}"
+    return None
+
+
+class PlantLink:
+    """One client session with the configured nodes, their types, and hard deadlines.
+
+    Parameters
+    ----------
+    config :
+        The run configuration (endpoint, security, ``[nodes]``, timeouts).
+    """
+
+    _ATTRIBUTES = ("Value", "DataType", "ValueRank", "AccessLevel", "UserAccessLevel")
+
+    def __init__(self, config: RunConfig) -> None:
+        self.config = config
+        self.specs: dict[str, NodeSpec] = config.nodes.specs()
+        self.client: Any = None
+        self.types: dict[str, NodeType] = {}
+        #: The values the nodes held when the session opened (heartbeat, applied input).
+        self.initial: dict[str, Any] = {}
+        self._ids: dict[str, Any] = {}
+
+    @property
+    def connected(self) -> bool:
+        """True while a session is open."""
+        return self.client is not None
+
+    @property
+    def user(self) -> str | None:
+        """The session's user name (None: anonymous)."""
+        return self.config.security.username
+
+    async def connect(self, deadline_s: float) -> CheckReport:
+        """Open a session and check every node (module docstring) within ``deadline_s``.
+
+        The session stays open even when the check fails (``--check`` and the run decide).
+
+        Raises
+        ------
+        SecurityRejectedError
+            The server refused the security (a configuration error).
+        LinkLostError
+            No session within the deadline, or the server is unreachable.
+        """
+        cfg = self.config
+        try:
+            self.client = await within(
+                secure_connect(cfg.endpoint, cfg.security, timeout_s=cfg.connect_timeout_s),
+                deadline_s, f"connect to {cfg.endpoint}")
+        except CallDeadlineError as exc:
+            raise LinkLostError(str(exc)) from None
+        except ConnectionError as exc:
+            raise LinkLostError(str(exc)) from None
+        ua = asyncua().ua
+        try:
+            self._ids = {key: ua.NodeId.from_string(spec.node_id) for key, spec in self.specs.items()}
+        except Exception as exc:  # noqa: BLE001 - asyncua raises several types for bad ids
+            self.abort()
+            raise NodeValueError(f"[nodes]: a node id cannot be parsed: {exc}") from None
+        params = ua.ReadParameters()
+        params.TimestampsToReturn = ua.TimestampsToReturn.Both
+        for key in self.specs:
+            for attr in self._ATTRIBUTES:
+                rv = ua.ReadValueId()
+                rv.NodeId = self._ids[key]
+                rv.AttributeId = getattr(ua.AttributeIds, attr)
+                params.NodesToRead.append(rv)
+        results = await self._call(self.client.uaclient.read(params), "read the nodes' attributes",
+                                   deadline_s)
+        checks: list[NodeCheck] = []
+        self.types, self.initial = {}, {}
+        n = len(self._ATTRIBUTES)
+        needs_command_read = "applied_triac_pct" not in self.specs
+        for i, (key, spec) in enumerate(self.specs.items()):
+            values = dict(zip(self._ATTRIBUTES, results[i * n:(i + 1) * n], strict=True))
+            check, info = check_node(key, spec, values, user=self.user,
+                                     command_readable_needed=key == "triac_pct" and needs_command_read)
+            checks.append(check)
+            if info is not None:
+                self.types[key] = info
+            value_dv = values["Value"]
+            if value_dv.StatusCode is None or value_dv.StatusCode.is_good():
+                self.initial[key] = value_dv.Value.Value if value_dv.Value is not None else None
+        return CheckReport(cfg.endpoint, tuple(checks))
+
+    async def _call(self, awaitable: Awaitable[T], what: str, deadline_s: float) -> T:
+        """One call under a deadline; a missed deadline or a transport fault loses the link."""
+        ua = asyncua().ua
+        try:
+            return await within(awaitable, deadline_s, what)
+        except ua.UaStatusCodeError as exc:
+            name = type(exc).__name__
+            if refusals.kind_of(name) == "link":
+                self.abort()
+                raise LinkLostError(f"{what}: {name}") from None
+            raise
+        except (CallDeadlineError, OSError, ConnectionError, asyncio.IncompleteReadError) as exc:
+            self.abort()
+            raise LinkLostError(f"{what}: {type(exc).__name__}: {exc}") from None
+
+    async def read(self, keys: tuple[str, ...], deadline_s: float) -> dict[str, Any]:
+        """One Read request of the nodes' values (with both timestamps); key -> DataValue."""
+        ua = asyncua().ua
+        params = ua.ReadParameters()
+        params.TimestampsToReturn = ua.TimestampsToReturn.Both
+        for key in keys:
+            rv = ua.ReadValueId()
+            rv.NodeId = self._ids[key]
+            rv.AttributeId = ua.AttributeIds.Value
+            params.NodesToRead.append(rv)
+        try:
+            results = await self._call(self.client.uaclient.read(params), "read", deadline_s)
+        except ua.UaStatusCodeError as exc:   # a service-level refusal of the whole read
+            raise LinkLostError(f"read: {type(exc).__name__}") from None
+        return dict(zip(keys, results, strict=True))
+
+    def variant(self, key: str, value: float | bool | str) -> Any:
+        """The Variant of node ``key``'s own type that carries ``value`` (after scaling).
+
+        Raises
+        ------
+        NodeValueError
+            The node's type cannot carry the value.
+        """
+        ua = asyncua().ua
+        type_name = self.types[key].type_name
+        return ua.Variant(encode(value, type_name, self.specs[key].scale),
+                          getattr(ua.VariantType, type_name))
+
+    async def write(self, values: Mapping[str, Any], deadline_s: float) -> dict[str, str | None]:
+        """One Write request: key -> Variant; returns key -> None (accepted) or a Bad code name.
+
+        A Bad status on the whole request (the service result) counts for every node.
+
+        Raises
+        ------
+        LinkLostError
+            A transport fault, a missed deadline, or a link code (`refusals.LINK_CODES`).
+        """
+        if not values:
+            return {}
+        ua = asyncua().ua
+        params = ua.WriteParameters()
+        for key, variant in values.items():
+            wv = ua.WriteValue()
+            wv.NodeId = self._ids[key]
+            wv.AttributeId = ua.AttributeIds.Value
+            # the value alone: no status code and no timestamps (S7 servers refuse those)
+            wv.Value = ua.DataValue(variant, StatusCode=None)
+            params.NodesToWrite.append(wv)
+        try:
+            codes = await self._call(self.client.uaclient.write(params), "write", deadline_s)
+        except ua.UaStatusCodeError as exc:
+            return dict.fromkeys(values, type(exc).__name__)
+        return {key: (None if code.is_good() else code.name)
+                for key, code in zip(values, codes, strict=True)}
+
+    def next_heartbeat(self, current: Any) -> Any:
+        """The heartbeat Variant after ``current`` in the node's own type."""
+        ua = asyncua().ua
+        type_name = self.types["heartbeat"].type_name
+        return ua.Variant(next_heartbeat(current, type_name), getattr(ua.VariantType, type_name))
+
+    def abort(self) -> None:
+        """Close the session's socket at once and stop the client's tasks (no goodbye)."""
+        client, self.client = self.client, None
+        if client is None:
+            return
+        for name in ("_stale_watchdog_task", "_supervisor_task", "_renew_channel_task"):
+            task = getattr(client, name, None)
+            if isinstance(task, asyncio.Task) and not task.done():
+                task.cancel()
+        try:
+            client.disconnect_socket()
+        except Exception:  # noqa: BLE001 - the socket is gone either way
+            pass
+
+    async def close(self, deadline_s: float) -> None:
+        """Close the session politely within ``deadline_s``, else abort it."""
+        client = self.client
+        if client is None:
+            return
+        try:
+            await within(client.disconnect(), deadline_s, "disconnect")
+            self.client = None
+        except Exception:  # noqa: BLE001 - a missed deadline or a dead link: abort
+            self.abort()
+
+
+async def preflight(config: RunConfig) -> CheckReport:
+    """Connect with the configured security, check every node, close (``czmpc run --check``).
+
+    Raises
+    ------
+    SecurityRejectedError
+        The server refused the security (exit 2).
+    LinkLostError
+        The server could not be reached within four connect timeouts.
+    """
+    link = PlantLink(config)
+    try:
+        return await link.connect(4.0 * config.connect_timeout_s)
+    finally:
+        await link.close(config.connect_timeout_s)
+
+
+__all__ = ["HEALTH_TOP", "ROLES", "CallDeadlineError", "CheckReport", "LinkLostError",
+           "NodeCheck", "NodeRole", "PlantLink", "check_node", "preflight", "within"]
