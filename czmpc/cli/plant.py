@@ -10,6 +10,13 @@ Heater.TriacApplied [%], Heater.PowerSetpoint [kW] (the scenario's, or writable)
 Heater.Heartbeat (write, counter), Heater.Mode (OFF/PREDICT/ON), Heater.WatchdogTripped,
 Heater.PlantTime_s [s].
 
+--node-types plc serves the nodes typed as a PLC types them, to rehearse a link to a
+real puller's server before it exists: Float (an S7 REAL) power, command, applied
+input, setpoint, plant time and model health, a UInt16 (WORD) heartbeat and an Int16
+mode (0 OFF, 1 PREDICT, 2 ON). A write of another type is refused (BadTypeMismatch),
+as a PLC's server refuses it. The default, --node-types czmpc, serves Double, an Int64
+heartbeat and a String mode.
+
 Watchdog: when the heartbeat has not changed for --watchdog-s of plant time, the TRIAC
 goes to --safe-triac-pct and the server says so (stderr and Heater.WatchdogTripped).
 
@@ -93,6 +100,10 @@ def register(parser: argparse.ArgumentParser) -> None:
                    default=None, help="stop after this plant time [s] (default: run until Ctrl-C)")
     p.add_argument("--setpoint-kw", metavar="KW", type=_argtypes.number(unit="kW"),
                    default=45.0, help="initial value of Heater.PowerSetpoint [kW] (default: 45)")
+    p.add_argument("--node-types", choices=("czmpc", "plc"), default="czmpc",
+                   help="data types of the nodes: 'czmpc' (Double, Int64 heartbeat, String "
+                        "mode) or 'plc' (Float, UInt16 heartbeat, Int16 mode), as a PLC's "
+                        "server types them (default: czmpc)")
     p.add_argument("--log", metavar="PLANT.csv", type=Path, default=None,
                    help="write the plant log: one row per sample with the true power beside "
                         "the published one, the applied input and the wall time (columns "
@@ -129,7 +140,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Check the security, build the plant and serve it until the duration or Ctrl-C."""
     from czmpc.runtime.security import check_serve_address, parse_server_security
-    from czmpc.runtime.served import ServedPlant, ServeOptions
+    from czmpc.runtime.served import NODE_TYPES, ServedPlant, ServeOptions
     from czmpc.shipped import shipped_path
     from sim.drift import vary_heater, vary_model_plant
     from sim.heater import HeaterParams, VirtualHeater
@@ -176,11 +187,12 @@ def run(args: argparse.Namespace) -> int:
     options = ServeOptions(endpoint=args.endpoint, time_scale=args.time_scale,
                            watchdog_s=args.watchdog_s, safe_triac_pct=args.safe_triac_pct,
                            duration_s=args.duration_s, setpoint_kw=args.setpoint_kw,
-                           security=security, log_path=args.log)
+                           security=security, log_path=args.log, node_types=args.node_types)
     served = ServedPlant(plant, initial_triac_pct=initial, options=options, scenario=scenario,
                          seed=args.seed, log=lambda m: print(m, file=sys.stderr, flush=True))
     print(f"serving the {args.plant} plant on {args.endpoint} (Ts {plant.ts_s:g} s, time scale "
-          f"{args.time_scale:g}; {variation.describe()}); security: "
+          f"{args.time_scale:g}; {variation.describe()}; {args.node_types} node types: "
+          f"{', '.join(f'{n} {t}' for n, t in NODE_TYPES[args.node_types].items())}); security: "
           f"{'none (policy None, anonymous)' if security is None else security.describe()}; "
           f"Ctrl-C stops", file=sys.stderr, flush=True)
     try:

@@ -237,6 +237,10 @@ def check_node(key: str, spec: NodeSpec, values: Mapping[str, Any], *,
     reason = _carry_problem(role, info, spec)
     if reason is not None:
         return fail("BadTypeMismatch", f"{type_name} cannot carry the {role.what}: {reason}")
+    if role.writes and role.kind == "number" and info.type_name in INTEGER_RANGES \
+            and spec.scale is None:
+        note = (f"an integer tag without scaling carries whole units (steps of 1 in "
+                f"{role.what}): add raw = [LO, HI], value = [LO, HI] for a finer step")
     if key == "power_kw" and value_dv.SourceTimestamp is None:
         note = ("no source timestamp: sample times fall back to the server timestamp"
                 if value_dv.ServerTimestamp is not None else

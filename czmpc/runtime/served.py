@@ -17,6 +17,12 @@ server)::
     Heater.ModelHealth      Double  write   the controller's model-health figure [-]
                                             (`czmpc.health`; >= 1: stale-model alarm)
 
+With ``ServeOptions.node_types = "plc"`` (``czmpc plant serve --node-types plc``) the
+nodes are typed as a PLC types them, to rehearse against a real puller's server:
+Power, TriacCommand, TriacApplied, PowerSetpoint, PlantTime_s and ModelHealth are
+``Float`` (an S7 ``REAL``), Heartbeat is ``UInt16`` (a ``WORD``) and Mode is ``Int16``
+(0 OFF, 1 PREDICT, 2 ON). `NODE_TYPES` lists both profiles.
+
 Watchdog (as a PLC has one): when the heartbeat has not changed for ``watchdog_s``
 [plant s], the applied input moves to ``safe_triac_pct`` and ``WatchdogTripped`` turns
 True (and a line is printed). It arms at the first heartbeat; a new heartbeat and a new command re-arm it.
@@ -61,6 +67,7 @@ from typing import IO, Any
 
 import numpy as np
 
+from czmpc.modes import Mode
 from czmpc.runtime._opcua import asyncua
 from czmpc.runtime.security import ServerSecurity
 from sim.disturbances import exogenous_at, fault_profile
@@ -78,6 +85,15 @@ SERVED_NODE_IDS = {
     "heartbeat": "ns=2;s=Heater.Heartbeat",
     "mode": "ns=2;s=Heater.Mode",
     "model_health": "ns=2;s=Heater.ModelHealth",
+}
+#: The OPC UA data type of each node, by profile: ``"czmpc"`` (the default) and ``"plc"``.
+NODE_TYPES: dict[str, dict[str, str]] = {
+    "czmpc": {"Power": "Double", "TriacCommand": "Double", "TriacApplied": "Double",
+              "PowerSetpoint": "Double", "Heartbeat": "Int64", "Mode": "String",
+              "WatchdogTripped": "Boolean", "PlantTime_s": "Double", "ModelHealth": "Double"},
+    "plc": {"Power": "Float", "TriacCommand": "Float", "TriacApplied": "Float",
+            "PowerSetpoint": "Float", "Heartbeat": "UInt16", "Mode": "Int16",
+            "WatchdogTripped": "Boolean", "PlantTime_s": "Float", "ModelHealth": "Float"},
 }
 #: Columns of the plant log: plant time [s], wall-clock time of the sample [s since the
 #: epoch, as a run log's ``wall_time_s``], TRIAC input applied over the sample [%], true
@@ -108,6 +124,8 @@ class ServeOptions:
         Policy, certificates and users (module docstring); None: no security.
     log_path :
         Plant log (CSV, `PLANT_LOG_COLUMNS`, one row per sample); None: none.
+    node_types :
+        ``"czmpc"`` (Double, Int64, String) or ``"plc"`` (Float, UInt16, Int16): `NODE_TYPES`.
     """
 
     endpoint: str
@@ -118,6 +136,12 @@ class ServeOptions:
     setpoint_kw: float = 45.0
     security: ServerSecurity | None = None
     log_path: Path | None = None
+    node_types: str = "czmpc"
+
+    def __post_init__(self) -> None:
+        if self.node_types not in NODE_TYPES:
+            raise ValueError(f"node_types: expected one of {sorted(NODE_TYPES)}; "
+                             f"got {self.node_types!r}")
 
 
 def _utcnow() -> dt.datetime:
@@ -166,17 +190,24 @@ class ServedPlant:
         self._server: Any = None
         self.ready = asyncio.Event()
 
-    async def _add(self, folder: Any, idx: int, name: str, value: Any, vtype: Any,
-                   writable: bool) -> None:
+    def _vtype(self, name: str) -> Any:
         ua = asyncua().ua
+        return getattr(ua.VariantType, NODE_TYPES[self.options.node_types][name])
+
+    async def _add(self, folder: Any, idx: int, name: str, value: Any, writable: bool) -> None:
+        ua = asyncua().ua
+        vtype = self._vtype(name)
+        if vtype == ua.VariantType.Int16 and isinstance(value, str):
+            value = list(Mode).index(Mode[value])        # an INT mode: 0 OFF, 1 PREDICT, 2 ON
         node = await folder.add_variable(ua.NodeId(f"Heater.{name}", idx), name,
-                                         ua.Variant(value, vtype))
+                                         ua.Variant(value, vtype), datatype=ua.NodeId(vtype.value, 0))
         if writable:
             await node.set_writable()
         self._nodes[name] = node
 
-    async def _publish(self, name: str, value: Any, vtype: Any, *, good: bool = True) -> None:
+    async def _publish(self, name: str, value: Any, *, good: bool = True) -> None:
         ua = asyncua().ua
+        vtype = self._vtype(name)
         status = ua.StatusCode(ua.StatusCodes.Good if good else ua.StatusCodes.BadSensorFailure)
         dv = ua.DataValue(ua.Variant(value, vtype), StatusCode=status,
                           SourceTimestamp=_utcnow(), ServerTimestamp=_utcnow())
@@ -208,16 +239,15 @@ class ServedPlant:
         folder = await server.nodes.objects.add_object(ua.NodeId("Heater", idx), "Heater")
         power0 = float(self.plant.true_power_kw)
         sp0 = float(self._setpoints[0]) if self.scenario is not None else self.options.setpoint_kw
-        D, B = ua.VariantType.Double, ua.VariantType.Boolean
-        await self._add(folder, idx, "Power", power0, D, False)
-        await self._add(folder, idx, "TriacCommand", self._triac_pct, D, True)
-        await self._add(folder, idx, "TriacApplied", self._triac_pct, D, False)
-        await self._add(folder, idx, "PowerSetpoint", sp0, D, True)
-        await self._add(folder, idx, "Heartbeat", 0, ua.VariantType.Int64, True)
-        await self._add(folder, idx, "Mode", "ON", ua.VariantType.String, True)
-        await self._add(folder, idx, "WatchdogTripped", False, B, False)
-        await self._add(folder, idx, "PlantTime_s", 0.0, D, False)
-        await self._add(folder, idx, "ModelHealth", 0.0, D, True)
+        await self._add(folder, idx, "Power", power0, False)
+        await self._add(folder, idx, "TriacCommand", self._triac_pct, True)
+        await self._add(folder, idx, "TriacApplied", self._triac_pct, False)
+        await self._add(folder, idx, "PowerSetpoint", sp0, True)
+        await self._add(folder, idx, "Heartbeat", 0, True)
+        await self._add(folder, idx, "Mode", "ON", True)
+        await self._add(folder, idx, "WatchdogTripped", False, False)
+        await self._add(folder, idx, "PlantTime_s", 0.0, False)
+        await self._add(folder, idx, "ModelHealth", 0.0, True)
         self._server = server
         log_file: IO[str] | None = None
         if self.options.log_path is not None:
@@ -233,12 +263,10 @@ class ServedPlant:
                 log_file.close()
 
     async def _run_clock(self, log: Any, log_file: IO[str] | None) -> None:
-        ua = asyncua().ua
         if log is not None and log_file is not None:
             log.writerow(PLANT_LOG_COLUMNS)
             log.writerow(self._log_row(float(self.plant.true_power_kw), good=True))
             log_file.flush()
-        D = ua.VariantType.Double
         period = self.ts_s / self.options.time_scale
         wd_samples = (None if self.options.watchdog_s is None
                       else max(1, math.ceil(self.options.watchdog_s / self.ts_s)))
@@ -280,11 +308,11 @@ class ServedPlant:
             if self._faults is not None and self.k < len(self._faults.missing):
                 good = good and not bool(self._faults.missing[self.k])
                 measured += float(self._faults.spike_kw[self.k])
-                await self._publish("PowerSetpoint", float(self._setpoints[self.k]), D)
-            await self._publish("Power", measured if good else 0.0, D, good=good)
-            await self._publish("TriacApplied", self._triac_pct, D)
-            await self._publish("WatchdogTripped", self.watchdog_tripped, ua.VariantType.Boolean)
-            await self._publish("PlantTime_s", self.k * self.ts_s, D)
+                await self._publish("PowerSetpoint", float(self._setpoints[self.k]))
+            await self._publish("Power", measured if good else 0.0, good=good)
+            await self._publish("TriacApplied", self._triac_pct)
+            await self._publish("WatchdogTripped", self.watchdog_tripped)
+            await self._publish("PlantTime_s", self.k * self.ts_s)
             if log is not None and log_file is not None:
                 log.writerow(self._log_row(measured, good=good))
                 log_file.flush()
@@ -427,4 +455,4 @@ async def _secure(server: Any, security: ServerSecurity, idx: int,
     server.set_certificate_validator(validate)
 
 
-__all__ = ["NAMESPACE_URI", "ServeOptions", "ServedPlant"]
+__all__ = ["NAMESPACE_URI", "NODE_TYPES", "ServeOptions", "ServedPlant"]

@@ -18,9 +18,11 @@ NO_AGE_LIMIT_S = math.inf
 NOW = dt.datetime(2026, 11, 24, 9, 0, tzinfo=dt.UTC)
 
 
-def _dv(value: float, source: dt.datetime | None, *, status: int = 0) -> object:
+def _dv(value: float, source: dt.datetime | None, *, status: int = 0,
+        server: dt.datetime | None = None) -> object:
     return ua.DataValue(ua.Variant(value, ua.VariantType.Double),
-                        StatusCode=ua.StatusCode(status), SourceTimestamp=source)
+                        StatusCode=ua.StatusCode(status), SourceTimestamp=source,
+                        ServerTimestamp=server)
 
 
 def test_a_fresh_sample_is_good() -> None:
@@ -47,3 +49,15 @@ def test_the_status_and_the_age_come_before_the_repeat() -> None:
     old = dt.datetime.now(dt.UTC) - dt.timedelta(seconds=5.0)
     stale = _measurement(_dv(41.5, old), 1.0, old)
     assert math.isnan(stale[0]) and stale[1] == "stale"
+
+
+def test_without_a_source_timestamp_the_server_timestamp_still_finds_repeats() -> None:
+    # a server that stamps only its own time: a sample read twice keeps that time
+    value, quality = _measurement(_dv(41.5, None, server=NOW), NO_AGE_LIMIT_S, NOW)
+    assert math.isnan(value) and quality == "repeated"
+    later = NOW + dt.timedelta(seconds=0.04)
+    assert _measurement(_dv(41.5, None, server=later), NO_AGE_LIMIT_S, NOW) == (41.5, "good")
+    old = dt.datetime.now(dt.UTC) - dt.timedelta(seconds=5.0)
+    assert _measurement(_dv(41.5, None, server=old), 1.0, None)[1] == "stale"
+    # the source timestamp wins where there is one
+    assert _measurement(_dv(41.5, later, server=NOW), NO_AGE_LIMIT_S, NOW) == (41.5, "good")

@@ -115,11 +115,15 @@ def test_run_tracks_an_independent_server_offset_free(tmp_path: Path) -> None:
     assert summary.n_writes == summary.n_steps - summary.n_skipped   # skipped periods write nothing
 
 
-def test_served_steps_track_and_start_bumplessly(tmp_path: Path) -> None:
+@pytest.mark.parametrize("node_types", ["czmpc", "plc"])
+def test_served_steps_track_and_start_bumplessly(tmp_path: Path, node_types: str) -> None:
+    """Also with the served plant's PLC types (Float, UInt16 heartbeat, Int16 mode), which
+    refuse a write of another type as a PLC's server does."""
     model, plant = _model_plant()
     port = free_port()
     served = ServedPlant(plant, initial_triac_pct=plant.initial_triac_pct, options=ServeOptions(
-        endpoint=f"opc.tcp://127.0.0.1:{port}/czmpc/", time_scale=TIME_SCALE, watchdog_s=None))
+        endpoint=f"opc.tcp://127.0.0.1:{port}/czmpc/", time_scale=TIME_SCALE, watchdog_s=None,
+        node_types=node_types))
     (tmp_path / "recipe.csv").write_text("time_s,setpoint_kw\n0,31\n100,30.5\n",
                                          encoding="utf-8")
     nodes = {k: v for k, v in served_nodes().items() if k != "setpoint_kw"}
@@ -139,6 +143,8 @@ def test_served_steps_track_and_start_bumplessly(tmp_path: Path) -> None:
     assert len(tail) > 20
     assert abs(sum(tail) / len(tail) - 30.5) < TRACKING_ATOL_KW
     assert summary.n_writes == summary.n_steps - summary.n_skipped   # skipped periods write nothing
+    assert summary.refused_writes == {} and not summary.failed
+    assert summary.n_commands_accepted == summary.n_commands_meant == summary.n_writes
 
 
 def _served_model(port: int, *, scenario: Any = None, watchdog_s: float | None = None,
