@@ -69,6 +69,7 @@ from sysid.preprocess import (
     interpolate_spike,
 )
 from sysid.result import IdentificationResult
+from sysid.scale import check_representable
 from sysid.steps import InputStep, detect_steps
 from sysid.structure import StructureChoice, select_structure
 
@@ -726,8 +727,9 @@ def run_paper_pipeline(
     Raises
     ------
     IdentificationError
-        Malformed options (a bad `level_shift`, orders), or data that support no model
-        at all (for example a constant input).
+        Malformed options (a bad `level_shift`, orders), data that support no model
+        at all (for example a constant input), or signals whose span cannot be
+        represented (`sysid.scale.check_representable`).
 
     Warns
     -----
@@ -756,6 +758,7 @@ def run_paper_pipeline(
             "run_paper_pipeline: the input is constant over the whole record; expected a "
             "record in which the input changes (steps or noise)"
         )
+    check_representable(data, where="run_paper_pipeline")
     skipped: list[str] = []
     clock = _Clock(progress)
     with warnings.catch_warnings(record=True) as caught:

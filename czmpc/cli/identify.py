@@ -278,6 +278,8 @@ def identify_to_directory(
         assess_model,
         structure_before_fit,
     )
+    from sysid.scale import check_representable
+    check_representable(data, where=f"identify {data.source or 'data'}")
     degree, nb, n_par, what = structure_before_fit(orders)
     before = assess_data(data, degree=degree, nb=nb, n_parameters=n_par, what=what)
     if before.refusals and not accept_unidentifiable:
