@@ -263,8 +263,7 @@ def _carry_problem(role: NodeRole, info: NodeType, spec: NodeSpec) -> str | None
             return None
         return "a mode is text (OFF/PREDICT/ON), an integer 0/1/2 or a bool"
     if not info.numeric:
-        return ("a number is needed; point it at a REAL/INT tag"
-                + (" (a Boolean cannot carry 0..100 %)" if info.type_name == "Boolean" else ""))
+        return "a number is needed: point it at a REAL (Float) or INT tag"
     for value in role.carries:
         try:
             encode(value, info.type_name, spec.scale)

@@ -83,10 +83,13 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
                          "(``czmpc plant serve --time-scale``). The loop period is "
                          "``ts_s / time_scale``."),
     "plant.max_sample_age_s": ("number > 0", "2 ts_s", "s",
-                               "A power sample whose source timestamp is older than this is "
-                               "a missing sample."),
+                               "A power sample whose source timestamp (or, from a server that "
+                               "sends none, server timestamp) is older than this is a missing "
+                               "sample."),
     "plant.connect_timeout_s": ("number > 0", "2", "s",
-                                "Time allowed for each connection attempt."),
+                                "Deadline of each OPC UA call, disconnect included: a call that "
+                                "misses it is abandoned and its socket closed, so no step lasts "
+                                "longer than one period plus this."),
     "plant.align_to_plant": ("true or false", "true", "-",
                              "Keep the reads just after the plant publishes its sample (from "
                              "the power's source timestamps, on a clock synchronised with "
@@ -99,20 +102,34 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
                                       "so the previous sample was read again) is a missing "
                                       "sample. Set false for a server that refreshes the "
                                       "source timestamp only when the value changes."),
+    "plant.max_refused_writes": ("whole number >= 1", "5", "samples",
+                                 "Command writes refused in a row (a Bad code that may clear, "
+                                 "e.g. ``BadResourceUnavailable``) that stop the run through "
+                                 "the safe action, exit 1. A code that cannot clear by itself "
+                                 "(``BadTypeMismatch``, ``BadNotWritable``, "
+                                 "``BadUserAccessDenied``, ...) stops it at once, exit 2."),
     "plant.security": ("table", "none (loopback only)", "-",
                        "Channel security: see :doc:`plant_security`."),
-    "nodes.power_kw": ("string", "required", "kW", "Node id of the measured heater power (read)."),
-    "nodes.triac_pct": ("string", "required", "%", "Node id of the TRIAC command (written)."),
-    "nodes.applied_triac_pct": ("string", "none", "%",
+    "nodes.power_kw": ("node", "required", "kW", "Node id of the measured heater power (read; "
+                       "any numeric type)."),
+    "nodes.triac_pct": ("node", "required", "%",
+                        "Node id of the TRIAC command (written as the node's own type: Float, "
+                        "Double or an integer, rounded and range-checked). A table "
+                        "``{ id = '...', raw = [0, 27648], value = [0.0, 100.0] }`` scales a "
+                        "raw integer tag both ways; so may every numeric node."),
+    "nodes.applied_triac_pct": ("node", "none", "%",
                                 "Node id of the input the plant applies (read; the bumpless start "
                                 "begins from it)."),
-    "nodes.setpoint_kw": ("string", "none", "kW",
+    "nodes.setpoint_kw": ("node", "none", "kW",
                           "Node id of a setpoint set at the plant (read every step)."),
     "nodes.heartbeat": ("string", "none", "-",
-                        "Node id of a counter written every step (the plant's watchdog)."),
+                        "Node id of a counter written every step (the plant's watchdog): it "
+                        "goes on from the value the node holds and wraps to 0 past its "
+                        "integer type's top; a Boolean heartbeat toggles."),
     "nodes.mode": ("string", "none", "-",
-                   "Node id of the plant's mode ``OFF``/``PREDICT``/``ON`` (read)."),
-    "nodes.model_health": ("string", "none", "-",
+                   "Node id of the plant's mode (read): text ``OFF``/``PREDICT``/``ON``, an "
+                   "integer 0/1/2, or a Boolean (true: ON)."),
+    "nodes.model_health": ("node", "none", "-",
                            "Node id to which the model-health score (`czmpc.health`) is "
                            "written every step."),
     "controller.model": ("string (file)", "required", "-",
