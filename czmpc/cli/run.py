@@ -84,7 +84,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from czmpc.cli import _argtypes
-from czmpc.cli._logging import log_to_stderr
+from czmpc.cli._logging import add_logging_options, configure_logging, log_to_syslog
 
 if TYPE_CHECKING:
     from czmpc.runtime.config import RunConfig
@@ -116,6 +116,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                            "(0 < A <= 10)")
     parser.add_argument("--dither-seed", metavar="N", type=_argtypes.integer(0), default=0,
                         help="seed of the dither's switching (default: 0)")
+    add_logging_options(parser)
     parser.add_argument("--check", action="store_true",
                         help="pre-flight check only: connect with the configured security, check "
                              "every node (exists, type carries its value after scaling, access, "
@@ -164,7 +165,9 @@ def run(args: argparse.Namespace) -> int:
     if args.log is not None:
         changes["log_path"] = args.log
     config = dataclasses.replace(config, **changes)  # type: ignore[arg-type]
-    log_to_stderr()
+    configure_logging(args.log_level, args.log_format)
+    if config.syslog is not None:
+        log_to_syslog(config.syslog, config.syslog_facility)
     print(f"czmpc run: plant link {config.endpoint}: {config.security.describe()}", file=sys.stderr)
     if args.check:
         return _check(config)

@@ -31,6 +31,9 @@ Layout (every key checked; an unknown key, a wrong type or a value out of range 
     [safety]                    # optional
     action = "hold"             # or "ramp" (to safe_triac_pct at the rate limit)
     safe_triac_pct = 20.0
+    [logging]                   # optional
+    syslog = "/dev/log"         # also send the run's log lines to syslog ("/dev/log" or "HOST:PORT", UDP)
+    facility = "daemon"         # its syslog facility
     [test]                      # required by `czmpc run --test`: the test's safety limits
     power_band_kw = [30.0, 60.0]  # measured power must stay inside [kW]
     max_bad_quality_s = 10.0    # longest tolerated stretch of missing samples [plant s]
@@ -76,6 +79,7 @@ _TABLES: dict[str, tuple[str, ...]] = {
     "run": ("duration_s", "setpoint_kw", "schedule", "log"),
     "safety": ("action", "safe_triac_pct"),
     "test": ("power_band_kw", "max_bad_quality_s"),
+    "logging": ("syslog", "facility"),
 }
 
 #: Default of ``[test] max_bad_quality_s`` [plant s]: five samples at Ts = 2 s; longer
@@ -191,6 +195,8 @@ class RunConfig:
     align_to_plant: bool = True
     reject_repeated_samples: bool = True
     max_refused_writes: int = DEFAULT_MAX_REFUSED_WRITES
+    syslog: str | None = None
+    syslog_facility: str = "daemon"
 
     @property
     def period_s(self) -> float:
@@ -282,7 +288,8 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
                 raise RunConfigError(
                     f"{name}.{key}: unknown key; expected one of {', '.join(keys)}")
         tables[name] = table
-    plant, nodes, ctrl, run, safety, test = (tables[n] for n in _TABLES)
+    plant, nodes, ctrl, run, safety, test, logging_table = (tables[n] for n in _TABLES)
+    syslog, facility = _syslog(logging_table)
     endpoint = _str(plant, "endpoint", "plant", required=True)
     assert_endpoint = endpoint or ""
     if not assert_endpoint.startswith("opc.tcp://"):
@@ -342,7 +349,28 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
         candidate_path=None if candidate is None else base_dir / candidate,
         align_to_plant=align, reject_repeated_samples=reject_repeated,
         max_refused_writes=int(max_refused or DEFAULT_MAX_REFUSED_WRITES),
+        syslog=syslog, syslog_facility=facility,
     )
+
+
+#: Syslog facilities ``[logging] facility`` accepts.
+SYSLOG_FACILITIES = ("user", "daemon", "local0", "local1", "local2", "local3", "local4", "local5",
+                     "local6", "local7")
+
+
+def _syslog(table: dict[str, Any]) -> tuple[str | None, str]:
+    """``[logging]``: the syslog address (a socket path or HOST:PORT) and facility."""
+    address = _str(table, "syslog", "logging")
+    if address is not None and not address.startswith("/"):
+        host, _, port = address.rpartition(":")
+        if not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise RunConfigError(f"logging.syslog: expected a socket path such as /dev/log or "
+                                 f"HOST:PORT (UDP); got {address!r}")
+    facility = _str(table, "facility", "logging") or "daemon"
+    if facility not in SYSLOG_FACILITIES:
+        raise RunConfigError(f"logging.facility: expected one of {', '.join(SYSLOG_FACILITIES)}; "
+                             f"got {facility!r}")
+    return address, facility
 
 
 def _node_ids(table: dict[str, Any]) -> NodeIds:

@@ -85,6 +85,8 @@ STARTUP_WAIT_S = 15.0
 #: Deadline of a connection attempt outside a step (the start, the safe action), in
 #: connect timeouts: discovery and the session each get up to two (`secure_client`).
 STARTUP_CONNECT_FACTOR = 4.0
+#: Overruns are summarised on stderr at most once per this long [wall s].
+OVERRUN_REPORT_S = 60.0
 #: Log columns, in order.
 LOG_COLUMNS = ("k", "time_s", "wall_time_s", "power_kw", "quality", "setpoint_kw",
                "triac_pct", "applied_triac_pct", "status", "verdict", "mode", "connected",
@@ -355,6 +357,9 @@ class ControlLoop:
         self._events: list[str] = []          # events of this step, for the log's event column
         self._refused_in_row = 0              # command writes refused in a row
         self._lost_at: float | None = None    # monotonic time the link was lost (None: up)
+        self._shed_at_k: int | None = None    # sample the controller began shedding (None: not)
+        self._mode_seen: Mode | None = None   # the mode of the previous step
+        self._overruns_said = (0, 0, time.monotonic())   # overruns, skipped, when last said
         self._said_timestamps = False
         #: Longest a step may spend on I/O [wall s]: the connect timeout and half a period,
         #: so that no step lasts longer than one period plus the connect timeout.
@@ -486,6 +491,8 @@ class ControlLoop:
         finally:
             log.close()
             await self.link.close(cfg.connect_timeout_s)
+            _log.log(logging.ERROR if self.summary.failed else logging.INFO, "run ended: %s",
+                     self.summary.closing_line())
             for sig in (signal.SIGINT, signal.SIGTERM):
                 try:
                     loop.remove_signal_handler(sig)
@@ -520,6 +527,7 @@ class ControlLoop:
                 next_k = math.floor((end - t0) / period) + 1
                 self.summary.n_overruns += 1
                 self.summary.n_skipped += next_k - k - 1
+            self._say_overruns()
             row["skipped"] = next_k - k - 1
             if next_k - k - 1 > 0:
                 self.ctrl.skipped(next_k - k - 1)
@@ -575,6 +583,35 @@ class ControlLoop:
             _log.info("%s", done)
             self.request_stop(done)
 
+    def _transitions(self, k: int, status_word: str) -> None:
+        """Say when the controller starts or stops shedding and when its mode changes."""
+        t = k * self.config.ts_s
+        if status_word == "SHED" and self._shed_at_k is None:
+            self._shed_at_k = k
+            self._event(f"shedding at t={t:.0f}s: no usable measurement for too long; the "
+                        "controller holds its input")
+        elif status_word not in ("SHED", "") and self._shed_at_k is not None:
+            shed_s = (k - self._shed_at_k) * self.config.ts_s
+            self._shed_at_k = None
+            self._event(f"resumed at t={t:.0f}s after {shed_s:.0f} s shed", logging.INFO)
+        mode = self.ctrl.mode
+        if self._mode_seen is not None and mode is not self._mode_seen:
+            self._event(f"mode {self._mode_seen.name} -> {mode.name} at t={t:.0f}s", logging.INFO)
+        self._mode_seen = mode
+
+    def _say_overruns(self) -> None:
+        """Once a minute of wall time at most: how many periods overran since it was last said."""
+        n_said, skipped_said, when = self._overruns_said
+        now = time.monotonic()
+        if now - when < OVERRUN_REPORT_S or self.summary.n_overruns == n_said:
+            return
+        longest_ms = 1e3 * max(self.summary.latency_s[-200:], default=0.0)
+        _log.warning("%d overruns in the last %.0f s (%d periods skipped; longest recent step "
+                     "%.0f ms, period %.0f ms)", self.summary.n_overruns - n_said, now - when,
+                     self.summary.n_skipped - skipped_said, longest_ms,
+                     1e3 * self.config.period_s)
+        self._overruns_said = (self.summary.n_overruns, self.summary.n_skipped, now)
+
     @staticmethod
     def _add_event(row: dict[str, object], text: str) -> None:
         row["event"] = f"{row['event']}; {text}" if row["event"] else text
@@ -597,6 +634,7 @@ class ControlLoop:
         applied_before = reported_applied if reported_applied is not None else self._last_cmd
         command = self.ctrl.step(power, self._setpoint, applied_triac_pct=reported_applied)
         status_word, verdict_word = self.ctrl.status_words()
+        self._transitions(k, status_word)
         health = self._health(k, power, applied_before)
         meant = self.ctrl.mode is Mode.ON and math.isfinite(command)
         if meant:

@@ -132,6 +132,11 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
     "nodes.model_health": ("node", "none", "-",
                            "Node id to which the model-health score (`czmpc.health`) is "
                            "written every step."),
+    "logging.syslog": ("string", "none", "-",
+                       "Also send the run's log lines to syslog: a socket path (``/dev/log``) "
+                       "or ``HOST:PORT`` (UDP)."),
+    "logging.facility": ("string", "daemon", "-",
+                         "Syslog facility: ``user``, ``daemon`` or ``local0`` .. ``local7``."),
     "controller.model": ("string (file)", "required", "-",
                          "Model file (:doc:`model_file`) the controller is built from. An "
                          "open-loop test (``czmpc run --test``) may leave out the whole "

@@ -1,0 +1,101 @@
+"""`czmpc run` as a plant runs it: under a service manager, stderr to a file, for months.
+
+The plant is `czmpc plant serve` in its own process (stopped half-way where a test says
+so), the controller the real command line; both on 127.0.0.1, bounded in time, killed
+in a ``finally`` if a test fails.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as dt
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from plant_rig import TIME_SCALE, free_port, served_nodes
+
+from czmpc.shipped import shipped_path
+
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]
+
+CLI = [sys.executable, "-m", "czmpc.cli"]
+PERIOD_S = 2.0 / TIME_SCALE
+
+
+@pytest.fixture
+def procs() -> Iterator[list[subprocess.Popen[str]]]:
+    started: list[subprocess.Popen[str]] = []
+    yield started
+    for p in started:
+        if p.poll() is None:
+            p.kill()
+        p.wait(10)
+        for pipe in (p.stdout, p.stderr):
+            if pipe is not None:
+                pipe.close()
+
+
+def _serve(procs: list[subprocess.Popen[str]], tmp_path: Path, port: int, duration_s: float,
+           name: str = "plant") -> Path:
+    """Serve the noise-free model plant; wait until it listens; return its plant log."""
+    log = tmp_path / f"{name}.csv"
+    p = subprocess.Popen(
+        [*CLI, "plant", "serve", "--plant", "model", "--no-noise",
+         "--endpoint", f"opc.tcp://127.0.0.1:{port}/czmpc/", "--time-scale", str(TIME_SCALE),
+         "--duration-s", str(duration_s), "--watchdog-s", "1000", "--log", str(log)],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    procs.append(p)
+    assert p.stderr is not None
+    deadline = time.monotonic() + 60.0
+    while time.monotonic() < deadline:
+        line = p.stderr.readline()
+        if line.startswith("serving") or not line:
+            break
+    return log
+
+
+def _config(tmp_path: Path, port: int, *, log: str = "run.csv", duration_s: float = 200.0,
+            extra: str = "") -> Path:
+    nodes = "\n".join(f'{k} = "{v}"' for k, v in served_nodes().items() if k != "setpoint_kw")
+    path = tmp_path / "run.toml"
+    path.write_text(
+        f'[plant]\nendpoint = "opc.tcp://127.0.0.1:{port}/czmpc/"\nts_s = 2.0\n'
+        f"time_scale = {TIME_SCALE}\nmax_sample_age_s = 1.0\nconnect_timeout_s = 1.0\n"
+        f"[nodes]\n{nodes}\n"
+        f'[controller]\nmodel = "{shipped_path("cz_heater_model.json")}"\n'
+        f'[run]\nduration_s = {duration_s}\nsetpoint_kw = 31.0\nlog = "{log}"\n{extra}\n',
+        encoding="utf-8")
+    return path
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_stderr_to_a_file_tells_when_the_plant_stopped(procs: list[subprocess.Popen[str]],
+                                                       tmp_path: Path) -> None:
+    port = free_port()
+    plant_log = _serve(procs, tmp_path, port, duration_s=120.0)
+    config = _config(tmp_path, port, duration_s=300.0)
+    with open(tmp_path / "stderr.jsonl", "w", encoding="utf-8") as err:
+        run = subprocess.run([*CLI, "run", str(config), "--log-format", "json"], stderr=err,
+                             stdout=subprocess.PIPE, text=True, timeout=120)
+    lines = (tmp_path / "stderr.jsonl").read_text(encoding="utf-8").splitlines()
+    records = [json.loads(line) for line in lines if line.startswith("{")]
+    # every line czmpc's logging wrote is JSON; the two start-up lines are plain
+    assert len(records) == len(lines) - sum(line.startswith("czmpc run:") for line in lines)
+    messages = [r["message"] for r in records]
+    lost = [r for r in records if r["message"].startswith("link lost")]
+    assert len(lost) == 1 and lost[0]["level"] == "WARNING"
+    stopped_at = float(_rows(plant_log)[-1]["wall_time_s"])   # the plant's last sample
+    lost_at = dt.datetime.fromisoformat(lost[0]["time"]).timestamp()
+    assert 0.0 <= lost_at - stopped_at <= 2 * PERIOD_S, lost_at - stopped_at
+    assert any(m.startswith("shedding at") for m in messages)
+    assert messages[-1].startswith("run ended: ") and "1 link losses, 0 reconnects" in messages[-1]
+    assert run.returncode == 0, run.stdout
