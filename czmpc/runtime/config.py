@@ -20,6 +20,7 @@ Layout (every key checked; an unknown key, a wrong type or a value out of range 
     heartbeat = "ns=2;s=Heater.Heartbeat"            # write, optional
     mode = "ns=2;s=Heater.Mode"                      # read, optional
     model_health = "ns=2;s=Heater.ModelHealth"       # write, optional (czmpc.health)
+    owner = "ns=2;s=Heater.Owner"                    # String, read/write, optional: czmpc's lease
     [controller]                # optional for an open-loop test (`czmpc run --test`)
     model = "model.json"
     settings = "settings.toml"  # optional
@@ -69,7 +70,7 @@ class RunConfigError(CzmpcError, ValueError):
 
 #: The ``[nodes]`` keys, in the order of `NodeIds`.
 NODE_KEYS = ("power_kw", "triac_pct", "applied_triac_pct", "setpoint_kw", "heartbeat", "mode",
-             "model_health")
+             "model_health", "owner")
 
 _TABLES: dict[str, tuple[str, ...]] = {
     "plant": ("endpoint", "ts_s", "time_scale", "max_sample_age_s", "connect_timeout_s",
@@ -104,6 +105,7 @@ class NodeIds:
     heartbeat: str | None = None
     mode: str | None = None
     model_health: str | None = None
+    owner: str | None = None
     scales: Mapping[str, LinearScale] = dataclasses.field(default_factory=dict)
 
     def specs(self) -> dict[str, NodeSpec]:

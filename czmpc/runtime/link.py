@@ -58,7 +58,8 @@ class NodeRole:
     """What czmpc does with a configured node.
 
     ``kind``: ``"number"`` (read or written as a number in czmpc's units), ``"counter"``
-    (the heartbeat) or ``"mode"`` (OFF/PREDICT/ON as text, an integer 0/1/2 or a bool).
+    (the heartbeat), ``"mode"`` (OFF/PREDICT/ON as text, an integer 0/1/2 or a bool) or
+    ``"text"`` (a String).
     ``carries``: values a written number must be able to take (after scaling).
     """
 
@@ -80,6 +81,8 @@ ROLES: dict[str, NodeRole] = {
     "mode": NodeRole(reads=True, writes=False, kind="mode", what="operator's mode"),
     "model_health": NodeRole(reads=False, writes=True, carries=(0.0, HEALTH_TOP),
                              what="model-health figure 0..100 [-]"),
+    "owner": NodeRole(reads=True, writes=True, kind="text",
+                      what="controller's identity (the writer's lease)"),
 }
 
 
@@ -258,6 +261,8 @@ def _carry_problem(role: NodeRole, info: NodeType, spec: NodeSpec) -> str | None
         except NodeValueError as exc:
             return f"{exc}; point heartbeat at an integer or BOOL tag"
         return None
+    if role.kind == "text":
+        return None if info.type_name == "String" else "a STRING tag is needed"
     if role.kind == "mode":
         if info.type_name in ("String", "Boolean") or info.type_name in INTEGER_RANGES:
             return None

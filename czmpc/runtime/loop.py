@@ -68,6 +68,7 @@ from czmpc.runtime.config import RunConfig
 from czmpc.runtime.link import HEALTH_TOP, CheckReport, LinkLostError, PlantLink
 from czmpc.runtime.measurement import age_s, measurement, sample_time
 from czmpc.runtime.node_types import NodeValueError, decode
+from czmpc.runtime.ownership import PlantBusyError, PlantLock, WriterWatch, identity, moved
 from czmpc.runtime.secure_client import SecurityRejectedError
 from sysid.modelfile import load_model
 
@@ -85,6 +86,8 @@ STARTUP_WAIT_S = 15.0
 #: Deadline of a connection attempt outside a step (the start, the safe action), in
 #: connect timeouts: discovery and the session each get up to two (`secure_client`).
 STARTUP_CONNECT_FACTOR = 4.0
+#: An owner lease renewed within this many loop periods is held (`_check_not_driven`).
+LEASE_PERIODS = 3.0
 #: Overruns are summarised on stderr at most once per this long [wall s].
 OVERRUN_REPORT_S = 60.0
 #: Log columns, in order.
@@ -358,6 +361,10 @@ class ControlLoop:
         self._refused_in_row = 0              # command writes refused in a row
         self._lost_at: float | None = None    # monotonic time the link was lost (None: up)
         self._shed_at_k: int | None = None    # sample the controller began shedding (None: not)
+        #: One writer per plant (`czmpc.runtime.ownership`): what czmpc wrote, read back.
+        self.watch = WriterWatch()
+        self.identity = identity(config.log_path)
+        self._other_writer = False            # another writer seen: czmpc writes nothing more
         self._mode_seen: Mode | None = None   # the mode of the previous step
         self._overruns_said = (0, 0, time.monotonic())   # overruns, skipped, when last said
         self._said_timestamps = False
@@ -438,6 +445,7 @@ class ControlLoop:
                 self._event(f"power_kw: {note}")
                 self._said_timestamps = True
         self._heartbeat_value = self.link.initial.get("heartbeat")
+        self.watch.reset()      # a new session: watch from czmpc's next writes on
         # bumpless: start from the input the plant applies now
         key = "applied_triac_pct" if "applied_triac_pct" in self.link.specs else "triac_pct"
         try:
@@ -464,15 +472,9 @@ class ControlLoop:
                 loop.add_signal_handler(sig, self.request_stop, sig.name)
             except (NotImplementedError, RuntimeError, ValueError):
                 pass
-        meta: dict[str, object] = {
-            "config": None if cfg.source_path is None else str(cfg.source_path),
-            "config_sha256": _sha256(cfg.source_path),
-            "endpoint": cfg.endpoint, "ts_s": cfg.ts_s, "time_scale": cfg.time_scale,
-            "start_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-            "model": None if cfg.model_path is None else str(cfg.model_path),
-            **self._provenance,
-        }
-        log = RunLog(cfg.log_path, meta)
+        lock = PlantLock(cfg.endpoint, cfg.nodes.triac_pct, self.identity)
+        lock.acquire()     # a second controller for this plant on this machine stops here
+        log: RunLog | None = None
         try:
             give_up = time.monotonic() + STARTUP_WAIT_S
             while not await self._try_connect(time.monotonic(),
@@ -484,13 +486,19 @@ class ControlLoop:
                         f"cannot connect to {cfg.endpoint} within {STARTUP_WAIT_S:g} s; is the "
                         "server running and plant.endpoint right?")
                 await asyncio.sleep(max(0.05, self._next_try - time.monotonic()))
+            if self.summary.configuration_error is None and self.link.connected:
+                await self._check_not_driven()
+            log = RunLog(cfg.log_path, self._meta())
             if self.summary.configuration_error is None:
-                _log.info("connected to %s; every node checked; running", cfg.endpoint)
+                _log.info("connected to %s; every node checked; running (log %s)", cfg.endpoint,
+                          log.path)
                 await self._loop(log)
             await self._safe_action(log)
         finally:
-            log.close()
+            if log is not None:
+                log.close()
             await self.link.close(cfg.connect_timeout_s)
+            lock.release()
             _log.log(logging.ERROR if self.summary.failed else logging.INFO, "run ended: %s",
                      self.summary.closing_line())
             for sig in (signal.SIGINT, signal.SIGTERM):
@@ -499,6 +507,65 @@ class ControlLoop:
                 except (NotImplementedError, RuntimeError, ValueError):
                     pass
         return self.summary
+
+    def _meta(self) -> dict[str, object]:
+        """The run's provenance for ``<log>.meta.json``."""
+        cfg = self.config
+        return {
+            "config": None if cfg.source_path is None else str(cfg.source_path),
+            "config_sha256": _sha256(cfg.source_path),
+            "endpoint": cfg.endpoint, "ts_s": cfg.ts_s, "time_scale": cfg.time_scale,
+            "start_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+            "model": None if cfg.model_path is None else str(cfg.model_path),
+            "controller": self.identity,
+            **self._provenance,
+        }
+
+    def _watched(self) -> tuple[str, ...]:
+        """The nodes czmpc writes and can read back (command, heartbeat, owner lease)."""
+        return tuple(key for key in ("triac_pct", "heartbeat", "owner")
+                     if key in self.link.types and self.link.types[key].user_readable)
+
+    async def _check_not_driven(self) -> None:
+        """Before the first write: refuse a plant whose watched nodes move (exit 2).
+
+        Reads the command, heartbeat and owner lease, waits one period, reads them again;
+        any change, or a lease of another controller newer than `LEASE_PERIODS` periods,
+        means another writer (`PlantBusyError`).
+        """
+        keys = self._watched()
+        if not keys:
+            return
+        deadline = STARTUP_CONNECT_FACTOR * self.config.connect_timeout_s
+        try:
+            first = await self.link.read(keys, deadline)
+            await asyncio.sleep(self.config.period_s)
+            second = await self.link.read(keys, deadline)
+        except LinkLostError:
+            return      # the loop reconnects; the read-back watch still guards every step
+        values = [{k: dv.Value.Value for k, dv in reads.items()
+                   if dv.Value is not None and (dv.StatusCode is None or dv.StatusCode.is_good())}
+                  for reads in (first, second)]
+        reason = moved(values[0], values[1])
+        lease = values[1].get("owner")
+        if reason is None and isinstance(lease, str) and lease and lease != self.identity:
+            age = age_s(second["owner"])
+            if age is None or age < LEASE_PERIODS * self.config.period_s:
+                reason = (f"[nodes] owner holds the lease of {lease!r}, renewed "
+                          f"{'recently' if age is None else f'{age:.1f} s ago'}: another "
+                          "controller drives the plant; stop it first")
+        if reason is not None:
+            raise PlantBusyError(reason)
+
+    def _another_writer(self, reason: str) -> None:
+        """Another writer at the plant: write nothing more, raise the alarm, stop (exit 1)."""
+        if self._other_writer:
+            return
+        self._other_writer = True
+        if self.summary.abort_reason is None:
+            self.summary.abort_reason = reason
+        self._event(f"ANOTHER WRITER: {reason}; czmpc writes nothing more", logging.ERROR)
+        self.request_stop("another writer")
 
     async def _loop(self, log: RunLog) -> None:
         cfg = self.config
@@ -672,11 +739,18 @@ class ControlLoop:
             return math.nan, "disconnected", None
         keys = tuple(k for k in ("power_kw", "setpoint_kw", "mode", "applied_triac_pct")
                      if k in self.link.specs)
+        watched = tuple(k for k in self._watched() if k not in keys)
         try:
-            dvs = await self.link.read(keys, end - time.monotonic())
+            dvs = await self.link.read(keys + watched, end - time.monotonic())
         except LinkLostError as exc:
             self._lost(exc)
             return math.nan, "disconnected", None
+        reason = self.watch.other_writer(
+            {k: dvs[k].Value.Value for k in watched
+             if dvs[k].Value is not None and (dvs[k].StatusCode is None
+                                              or dvs[k].StatusCode.is_good())})
+        if reason is not None:
+            self._another_writer(reason)
         specs = self.link.specs
         dv = dvs["power_kw"]
         power, quality = measurement(
@@ -719,10 +793,12 @@ class ControlLoop:
         (`czmpc.runtime.refusals`), ``max_refused_writes`` refused commands in a row abort
         the run.
         """
-        if not self.link.connected:
+        if not self.link.connected or self._other_writer:
             return False
         values: dict[str, Any] = {}
         try:
+            if "owner" in self.link.types:
+                values["owner"] = self.link.variant("owner", self.identity)
             if command is not None:
                 values["triac_pct"] = self.link.variant("triac_pct", float(command))
             if "heartbeat" in self.link.specs:
@@ -751,9 +827,13 @@ class ControlLoop:
                                        type_name=None if info is None else info.type_name))
             else:
                 self._event(f"write refused: [nodes] {key} ({spec.node_id}) {code}")
+        for key, variant in values.items():
+            if results.get(key) is None and key in ("triac_pct", "heartbeat", "owner"):
+                self.watch.wrote(key, variant.Value, self.link.types[key].type_name)
         if "heartbeat" in values and results.get("heartbeat") is None:
             self._heartbeat_value = values["heartbeat"].Value
         if command is None:
+            self.watch.forget("triac_pct")   # the operator may drive the TRIAC outside ON
             return False
         code = results.get("triac_pct")
         if code is None:
@@ -830,8 +910,12 @@ class ControlLoop:
             self.summary.n_link_losses += 1
             self._event(f"link lost ({exc}); predicting, reconnecting")
 
-    async def _safe_action(self, log: RunLog) -> None:
+    async def _safe_action(self, log: RunLog | None) -> None:
         cfg = self.config
+        if self._other_writer:
+            _log.error("stopped (%s): no safe action: another writer drives the plant",
+                       self.summary.stopped_by)
+            return
         ramp = cfg.safe_action == "ramp" or self.summary.abort_reason is not None
         if not ramp or cfg.safe_triac_pct is None:
             _log.info("stopped (%s): holding the last command", self.summary.stopped_by)
@@ -869,9 +953,10 @@ class ControlLoop:
                 break
             self.summary.n_writes += 1
             self._last_cmd = u
-            log.row({c: "" for c in LOG_COLUMNS} | {"triac_pct": u, "status": "SAFE_RAMP",
-                                                   "written": 1, "wall_time_s": time.time(),
-                                                   "event": self._take_events()})
+            if log is not None:
+                log.row({c: "" for c in LOG_COLUMNS} | {"triac_pct": u, "status": "SAFE_RAMP",
+                                                       "written": 1, "wall_time_s": time.time(),
+                                                       "event": self._take_events()})
             if u == target:
                 break
             await asyncio.sleep(cfg.period_s)

@@ -137,6 +137,11 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
                        "or ``HOST:PORT`` (UDP)."),
     "logging.facility": ("string", "daemon", "-",
                          "Syslog facility: ``user``, ``daemon`` or ``local0`` .. ``local7``."),
+    "nodes.owner": ("string", "none", "-",
+                    "Node id of a String tag where czmpc writes its identity every step (a "
+                    "lease) and reads it back: a run refuses to start (exit 2) while another "
+                    "controller's lease is fresh, and stops writing (exit 1) when another "
+                    "writer overwrites it."),
     "controller.model": ("string (file)", "required", "-",
                          "Model file (:doc:`model_file`) the controller is built from. An "
                          "open-loop test (``czmpc run --test``) may leave out the whole "

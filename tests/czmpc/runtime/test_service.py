@@ -7,6 +7,7 @@ in a ``finally`` if a test fails.
 
 from __future__ import annotations
 
+import asyncio
 import csv
 import datetime as dt
 import json
@@ -99,3 +100,104 @@ def test_stderr_to_a_file_tells_when_the_plant_stopped(procs: list[subprocess.Po
     assert any(m.startswith("shedding at") for m in messages)
     assert messages[-1].startswith("run ended: ") and "1 link losses, 0 reconnects" in messages[-1]
     assert run.returncode == 0, run.stdout
+
+
+def _write_node(endpoint: str, node_id: str, value: object, vtype: str) -> None:
+    """Another writer, bypassing czmpc: one write with a plain asyncua client."""
+    from asyncua import Client, ua
+    from opcua_rig import run_async
+
+    async def write() -> None:
+        async with Client(endpoint, timeout=5.0) as client:
+            await client.get_node(node_id).write_value(
+                ua.DataValue(ua.Variant(value, getattr(ua.VariantType, vtype)), StatusCode=None))
+
+    run_async(write())
+
+
+def _wait_rows(path: Path, n: int, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if path.exists() and len(_rows(path)) >= n:
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"{path} has fewer than {n} rows after {timeout_s:g} s")
+
+
+def test_one_writer_per_plant(procs: list[subprocess.Popen[str]], tmp_path: Path) -> None:
+    port = free_port()
+    endpoint = f"opc.tcp://127.0.0.1:{port}/czmpc/"
+    _serve(procs, tmp_path, port, duration_s=600.0)
+    config = _config(tmp_path, port, duration_s=500.0, log="first.csv")
+    first = subprocess.Popen([*CLI, "run", str(config)], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    procs.append(first)
+    _wait_rows(tmp_path / "first.csv", 20, 60.0)
+    # a second controller for the same plant on this machine: refused at once, exit 2
+    t0 = time.monotonic()
+    second = subprocess.run([*CLI, "run", str(config), "--log", str(tmp_path / "second.csv")],
+                            capture_output=True, text=True, timeout=30)
+    assert second.returncode == 2 and time.monotonic() - t0 < 10.0
+    assert "another controller already drives ns=2;s=Heater.TriacCommand" in second.stderr
+    assert f"pid {first.pid}" in second.stderr
+    assert not (tmp_path / "second.csv").exists()
+    n_before = len(_rows(tmp_path / "first.csv"))
+    time.sleep(10 * PERIOD_S)
+    assert first.poll() is None and len(_rows(tmp_path / "first.csv")) > n_before + 5
+    # a writer that bypasses the lock: seen within three samples, czmpc stops writing, exit 1
+    rogue_at = time.time()
+    _write_node(endpoint, served_nodes()["triac_pct"], 40.0, "Double")
+    _, err = first.communicate(timeout=60)
+    assert first.returncode == 1, err
+    rows = _rows(tmp_path / "first.csv")
+    seen = next(i for i, r in enumerate(rows) if "ANOTHER WRITER" in r["event"])
+    assert float(rows[seen]["wall_time_s"]) - rogue_at <= 3 * PERIOD_S
+    assert all(r["written"] in ("0", "") for r in rows[seen:])    # nothing written after it
+    assert "SAFE_RAMP" not in {r["status"] for r in rows}
+    assert "ANOTHER WRITER" in err
+
+
+def test_a_plant_already_driven_is_refused_before_any_write(
+        procs: list[subprocess.Popen[str]], tmp_path: Path) -> None:
+    import threading
+
+    port = free_port()
+    endpoint = f"opc.tcp://127.0.0.1:{port}/czmpc/"
+    _serve(procs, tmp_path, port, duration_s=600.0)
+    stop = threading.Event()
+
+    async def drive() -> None:   # another controller, without czmpc's lock: a heartbeat
+        from asyncua import Client, ua
+
+        client = Client(endpoint, timeout=5.0)
+        for _ in range(100):      # the plant binds a moment after it says 'serving'
+            try:
+                await client.connect()
+                break
+            except OSError:
+                await asyncio.sleep(0.1)
+        node = client.get_node(served_nodes()["heartbeat"])
+        beat = 0
+        while not stop.is_set():
+            beat += 1
+            await node.write_value(ua.DataValue(ua.Variant(beat, ua.VariantType.Int64),
+                                                StatusCode=None))
+            started.set()
+            await asyncio.sleep(PERIOD_S / 2)
+        await client.disconnect()
+
+    started = threading.Event()
+    driver = threading.Thread(target=lambda: asyncio.run(drive()), daemon=True)
+    driver.start()
+    assert started.wait(30.0)
+    try:
+        config = _config(tmp_path, port, duration_s=100.0)
+        run = subprocess.run([*CLI, "run", str(config)], capture_output=True, text=True,
+                             timeout=60)
+    finally:
+        stop.set()
+        driver.join(10)
+    assert run.returncode == 2, run.stderr
+    assert "already driven" in run.stderr and "Heater.Heartbeat" not in run.stdout
+    assert "heartbeat changed from" in run.stderr
+    assert not (tmp_path / "run.csv").exists()
