@@ -17,6 +17,11 @@ mode (0 OFF, 1 PREDICT, 2 ON). A write of another type is refused (BadTypeMismat
 as a PLC's server refuses it. The default, --node-types czmpc, serves Double, an Int64
 heartbeat and a String mode.
 
+History: --historize keeps the history of Heater.Power and Heater.TriacApplied (every
+change of value or status) in memory, --historize FILE.sqlite in a SQLite file kept
+across restarts; OPC UA clients read it with HistoryRead ('czmpc history'), in pages of
+--history-page-values values joined by continuation points.
+
 Watchdog: when the heartbeat has not changed for --watchdog-s of plant time, the TRIAC
 goes to --safe-triac-pct and the server says so (stderr and Heater.WatchdogTripped).
 
@@ -109,6 +114,13 @@ def register(parser: argparse.ArgumentParser) -> None:
                         "the published one, the applied input and the wall time (columns "
                         "plant_time_s, wall_time_s, triac_applied_pct, power_true_kw, "
                         "power_measured_kw, quality, watchdog_tripped)")
+    p.add_argument("--historize", metavar="SQLITE_FILE", nargs="?", type=Path,
+                   const=True, default=None,
+                   help="historize Heater.Power and Heater.TriacApplied for OPC UA HistoryRead "
+                        "('czmpc history'): in memory, or in SQLITE_FILE when given")
+    p.add_argument("--history-page-values", metavar="N", type=_argtypes.integer(1),
+                   default=10000, help="most values one HistoryRead returns before a "
+                                       "continuation point (default: 10000)")
     sec = p.add_argument_group("security (see above)")
     sec.add_argument("--policy", choices=("None", *SECURE_POLICIES), default="None",
                      help="security policy of the only endpoint offered (default: None, allowed "
@@ -187,7 +199,11 @@ def run(args: argparse.Namespace) -> int:
     options = ServeOptions(endpoint=args.endpoint, time_scale=args.time_scale,
                            watchdog_s=args.watchdog_s, safe_triac_pct=args.safe_triac_pct,
                            duration_s=args.duration_s, setpoint_kw=args.setpoint_kw,
-                           security=security, log_path=args.log, node_types=args.node_types)
+                           security=security, log_path=args.log, node_types=args.node_types,
+                           historize=args.historize is not None,
+                           history_path=(args.historize if isinstance(args.historize, Path)
+                                         else None),
+                           history_page_values=args.history_page_values)
     served = ServedPlant(plant, initial_triac_pct=initial, options=options, scenario=scenario,
                          seed=args.seed, log=lambda m: print(m, file=sys.stderr, flush=True))
     print(f"serving the {args.plant} plant on {args.endpoint} (Ts {plant.ts_s:g} s, time scale "

@@ -48,6 +48,12 @@ with what no controller can see: the *true* power next to the published one
 in-process simulations compute them) are taken from it; the wall time of each sample
 lines it up with a controller's run log.
 
+History (``ServeOptions.historize``, ``czmpc plant serve --historize [SQLITE_FILE]``):
+the server historizes Power and TriacApplied (asyncua's ``historize_node_data_change``:
+every change of value or status, kept without limit), in memory or in a SQLite file,
+and answers OPC UA HistoryRead on them (`czmpc history`) with a continuation point
+after ``history_page_values`` values, as a plant historian pages a long read.
+
 Without security the server offers policy None with anonymous access; the command
 line allows that only on loopback or with ``--insecure``.
 """
@@ -100,6 +106,8 @@ NODE_TYPES: dict[str, dict[str, str]] = {
 #: and published power [kW], ``good`` or ``bad`` quality, and the watchdog's state (0/1).
 PLANT_LOG_COLUMNS = ("plant_time_s", "wall_time_s", "triac_applied_pct", "power_true_kw",
                      "power_measured_kw", "quality", "watchdog_tripped")
+#: The nodes ``ServeOptions.historize`` historizes.
+HISTORIZED_NODES = ("Power", "TriacApplied")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -126,6 +134,13 @@ class ServeOptions:
         Plant log (CSV, `PLANT_LOG_COLUMNS`, one row per sample); None: none.
     node_types :
         ``"czmpc"`` (Double, Int64, String) or ``"plc"`` (Float, UInt16, Int16): `NODE_TYPES`.
+    historize :
+        Historize `HISTORIZED_NODES` for OPC UA HistoryRead (module docstring).
+    history_path :
+        With ``historize``: the SQLite file of the history (kept across restarts); None:
+        in memory.
+    history_page_values :
+        Most values one HistoryRead returns before a continuation point (>= 1).
     """
 
     endpoint: str
@@ -137,11 +152,17 @@ class ServeOptions:
     security: ServerSecurity | None = None
     log_path: Path | None = None
     node_types: str = "czmpc"
+    historize: bool = False
+    history_path: Path | None = None
+    history_page_values: int = 10000
 
     def __post_init__(self) -> None:
         if self.node_types not in NODE_TYPES:
             raise ValueError(f"node_types: expected one of {sorted(NODE_TYPES)}; "
                              f"got {self.node_types!r}")
+        if self.history_page_values < 1:
+            raise ValueError(f"history_page_values: expected an integer >= 1; "
+                             f"got {self.history_page_values!r}")
 
 
 def _utcnow() -> dt.datetime:
@@ -228,6 +249,8 @@ class ServedPlant:
         security = self.options.security
         server = aua.Server() if security is None else aua.Server(
             user_manager=_UserManager(security, self._log))
+        if self.options.historize:
+            server.iserver.history_manager.set_storage(_history_storage(self.options))
         await server.init()
         server.set_endpoint(self.options.endpoint)
         server.set_server_name("czmpc served plant")
@@ -255,6 +278,9 @@ class ServedPlant:
             log_file = open(self.options.log_path, "w", newline="", encoding="utf-8")  # noqa: SIM115
         try:
             async with server:
+                if self.options.historize:
+                    await server.historize_node_data_change(
+                        [self._nodes[name] for name in HISTORIZED_NODES], period=None, count=0)
                 self.ready.set()
                 await self._run_clock(None if log_file is None else csv.writer(log_file),
                                       log_file)
@@ -323,6 +349,19 @@ class ServedPlant:
         return (f"{self.k * self.ts_s:.6g}", f"{time.time():.6f}", f"{self._triac_pct:.6g}",
                 f"{float(self.plant.true_power_kw):.9g}", f"{measured_kw:.9g}",
                 "good" if good else "bad", int(self.watchdog_tripped))
+
+
+def _history_storage(options: ServeOptions) -> Any:
+    """asyncua's history storage for ``options``: a SQLite file, or memory."""
+    page = options.history_page_values
+    if options.history_path is None:
+        from asyncua.server.history import HistoryDict
+
+        return HistoryDict(max_history_data_response_size=page)
+    from asyncua.server.history_sql import HistorySQLite
+
+    options.history_path.parent.mkdir(parents=True, exist_ok=True)
+    return HistorySQLite(str(options.history_path), max_history_data_response_size=page)
 
 
 def _application_uri(certificate_der: bytes) -> str | None:
@@ -455,4 +494,4 @@ async def _secure(server: Any, security: ServerSecurity, idx: int,
     server.set_certificate_validator(validate)
 
 
-__all__ = ["NAMESPACE_URI", "NODE_TYPES", "ServeOptions", "ServedPlant"]
+__all__ = ["HISTORIZED_NODES", "NAMESPACE_URI", "NODE_TYPES", "ServeOptions", "ServedPlant"]
