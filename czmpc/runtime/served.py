@@ -360,8 +360,17 @@ def _history_storage(options: ServeOptions) -> Any:
         return HistoryDict(max_history_data_response_size=page)
     from asyncua.server.history_sql import HistorySQLite
 
+    base: Any = HistorySQLite   # asyncua's storages are untyped
+
+    class SQLiteHistory(base):  # type: ignore[misc]
+        """One table per node, named ``2_Heater.Power``: asyncua 2.1 names it by the
+        repr of a string id (``2_'Heater.Power'``), which its own table-name check refuses."""
+
+        def _get_table_name(self, node_id: Any) -> str:
+            return f"{node_id.NamespaceIndex}_{node_id.Identifier}"
+
     options.history_path.parent.mkdir(parents=True, exist_ok=True)
-    return HistorySQLite(str(options.history_path), max_history_data_response_size=page)
+    return SQLiteHistory(str(options.history_path), max_history_data_response_size=page)
 
 
 def _application_uri(certificate_der: bytes) -> str | None:

@@ -1,7 +1,7 @@
 """`czmpc history` against czmpc's served plant historizing on loopback, and its grid rules.
 
-The loopback test serves the model plant (`czmpc plant serve --historize`, its own
-process, time scale 50) with a sensor fault in the middle, drives its command node
+The loopback test serves the model plant (`czmpc plant serve --historize FILE.sqlite`,
+its own process, time scale 50) with a sensor fault in the middle, drives its command node
 with a seeded generalized binary noise, then runs the real command and compares its
 log sample for sample with (a) the server's history read independently with asyncua's
 own `read_raw_history` and (b) the plant log, which records every published sample.
@@ -20,13 +20,20 @@ import asyncua
 import numpy as np
 import pytest
 from asyncua import ua
-from plant_rig import TIME_SCALE
+from plant_rig import TIME_SCALE, free_port
 
 from czmpc.cli import main
-from czmpc.runtime.history import NodeHistory, align_history, grid_slots
+from czmpc.cli.history import utc_time
+from czmpc.runtime.history import NodeHistory, align_history, grid_slots, read_node_history
+from czmpc.runtime.node_types import NodeSpec
 from czmpc.runtime.runlog import read_run_log
+from czmpc.runtime.secure_client import connect
+from czmpc.runtime.security import INSECURE_LOOPBACK
 from czmpc.runtime.serve_process import serving
-from czmpc.runtime.served import SERVED_NODE_IDS
+from czmpc.runtime.served import SERVED_NODE_IDS, ServedPlant, ServeOptions
+from czmpc.shipped import shipped_path
+from sim.model_plant import ModelPlant
+from sysid.modelfile import load_model
 
 TS_S = 2.0
 PERIOD_S = TS_S / TIME_SCALE
@@ -97,7 +104,8 @@ def test_history_returns_what_the_plant_historized_and_identify_reads_it(
     plant_log = tmp_path / "plant.csv"
     steps = _gbn_commands(np.random.default_rng(11))
     with serving("--plant", "model", "--seed", "3", "--scenario", str(scenario),
-                 "--log", str(plant_log), "--historize", "--history-page-values", "64",
+                 "--log", str(plant_log), "--historize", str(tmp_path / "history.sqlite"),
+                 "--history-page-values", "64",
                  output=tmp_path / "serve.out", time_scale=TIME_SCALE) as endpoint:
         start = dt.datetime.now(dt.UTC)
         asyncio.run(_drive(endpoint, steps))
@@ -212,3 +220,75 @@ def test_align_marks_missing_and_bad_slots_as_gaps_and_holds_the_inputs() -> Non
     command = _history("triac_pct", [t0 + 1.5], [50.0])
     aligned = align_history(power, command=command, period_s=1.0)
     np.testing.assert_array_equal(aligned.triac_pct, [np.nan, 50.0, 50.0, 50.0, 50.0])
+
+
+@pytest.mark.slow
+@pytest.mark.realtime
+def test_history_in_memory_pages_by_continuation_points_and_by_resumed_requests() -> None:
+    plant = ModelPlant(load_model(shipped_path("cz_heater_model.json")), noise=True)
+    plant.reset(5)
+    endpoint = f"opc.tcp://127.0.0.1:{free_port()}/czmpc/"
+    served = ServedPlant(plant, initial_triac_pct=45.0, options=ServeOptions(
+        endpoint=endpoint, time_scale=TIME_SCALE, watchdog_s=None, historize=True,
+        history_page_values=10))
+    power = NodeSpec(SERVED_NODE_IDS["power_kw"])
+
+    async def body() -> None:
+        start = dt.datetime.now(dt.UTC)
+        await asyncio.sleep(40 * PERIOD_S)
+        end = dt.datetime.now(dt.UTC)
+        client = await connect(endpoint, INSECURE_LOOPBACK, timeout_s=5.0)
+        try:
+            node = client.get_node(power.node_id)
+            reference = [(_stamp(dv), dv.Value.Value)
+                         for dv in await node.read_raw_history(start, end)]
+            # the server's page (10) is below the client's: continuation points
+            paged = await read_node_history(client, "power_kw", power, start=start, end=end,
+                                            page_values=100, deadline_s=5.0)
+            # the client's page (4) is below the server's: full pages without one, resumed
+            resumed = await read_node_history(client, "power_kw", power, start=start, end=end,
+                                              page_values=4, deadline_s=5.0)
+        finally:
+            await client.disconnect()
+        assert len(reference) >= 30
+        for history in (paged, resumed):
+            assert list(zip(history.epoch_s, history.values, strict=True)) == reference
+        assert paged.n_continuations == (len(reference) - 1) // 10 and paged.n_resumed == 0
+        assert resumed.n_resumed >= len(reference) // 4 - 1 and resumed.n_continuations == 0
+
+    asyncio.run(_with_served(served, body()))
+
+
+async def _with_served(served: ServedPlant, body: object) -> None:
+    task = asyncio.create_task(served.serve())
+    try:
+        await asyncio.wait_for(served.ready.wait(), 20.0)
+        await body   # type: ignore[misc]
+    finally:
+        task.cancel()
+        try:
+            await task
+        except asyncio.CancelledError:
+            pass
+
+
+def test_history_refuses_a_bad_range_and_says_when_the_plant_is_unreachable(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert utc_time("2026-11-26T06:00:00") == dt.datetime(2026, 11, 26, 6, tzinfo=dt.UTC)
+    assert utc_time("2026-11-26T08:00:00+02:00") == dt.datetime(2026, 11, 26, 6, tzinfo=dt.UTC)
+    config = _write_config(tmp_path / "run.toml", f"opc.tcp://127.0.0.1:{free_port()}/czmpc/",
+                           SERVED_NODE_IDS["power_kw"])
+    out = str(tmp_path / "h.csv")
+    assert main(["history", str(config), "--from", "2026-11-26T07:00:00Z", "--to",
+                 "2026-11-26T06:00:00Z", "--out", out]) == 2
+    assert "--from must be before --to" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as usage:
+        main(["history", str(config), "--from", "yesterday", "--to", "2026-11-26T06:00:00Z",
+              "--out", out])
+    assert usage.value.code == 2
+    assert "expected an ISO 8601 time in UTC" in capsys.readouterr().err
+    # nobody listens on that port: a network fault, exit 1, and nothing written
+    assert main(["history", str(config), "--from", "2026-11-26T05:00:00Z", "--to",
+                 "2026-11-26T06:00:00Z", "--out", out]) == 1
+    assert "czmpc: error:" in capsys.readouterr().err
+    assert not (tmp_path / "h.csv").exists()
