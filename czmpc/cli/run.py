@@ -121,6 +121,12 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="pre-flight check only: connect with the configured security, check "
                              "every node (exists, type carries its value after scaling, access, "
                              "timestamps), print one table; exit 0 (all usable) or 2")
+    logs = parser.add_mutually_exclusive_group()
+    logs.add_argument("--append", action="store_true",
+                      help="the log file exists: continue it (its meta file keeps every run's "
+                           "provenance); without this or --replace-log a start refuses")
+    logs.add_argument("--replace-log", action="store_true",
+                      help="the log file exists: replace it (the earlier run's evidence is lost)")
     parser.add_argument("--force", action="store_true",
                         help="switch ON even with a model 'czmpc check-model' judged not ready "
                              "(said on stderr at the start and in the run summary)")
@@ -223,6 +229,7 @@ def run(args: argparse.Namespace) -> int:
                   "closed-loop data", file=sys.stderr)
         loop = ControlLoop(config, controller, status=tty_status(), provenance=provenance)
         loop.allow_on = allow_on
+    loop.log_policy = "append" if args.append else "force" if args.replace_log else "new"
     try:
         summary = asyncio.run(loop.run())
     except ConnectionError as exc:

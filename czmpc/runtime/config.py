@@ -28,7 +28,10 @@ Layout (every key checked; an unknown key, a wrong type or a value out of range 
     [run]
     duration_s = 3600           # optional: run until stopped
     setpoint_kw = 45.0          # or schedule = "recipe.csv"
-    log = "run.csv"
+    log = "run.csv"             # a file (a start never overwrites it: --append, --replace-log)
+                                # or a directory "logs/" (one timestamped file per run)
+    rotate = "daily"            # optional: a new part at midnight UTC ("none": never)
+    rotate_mb = 100             # optional: a new part at this size [MB]
     [safety]                    # optional
     action = "hold"             # or "ramp" (to safe_triac_pct at the rate limit)
     safe_triac_pct = 20.0
@@ -77,7 +80,7 @@ _TABLES: dict[str, tuple[str, ...]] = {
               "align_to_plant", "reject_repeated_samples", "max_refused_writes", "security"),
     "nodes": NODE_KEYS,
     "controller": ("model", "settings", "candidate"),
-    "run": ("duration_s", "setpoint_kw", "schedule", "log"),
+    "run": ("duration_s", "setpoint_kw", "schedule", "log", "rotate", "rotate_mb"),
     "safety": ("action", "safe_triac_pct"),
     "test": ("power_band_kw", "max_bad_quality_s"),
     "logging": ("syslog", "facility"),
@@ -199,6 +202,10 @@ class RunConfig:
     max_refused_writes: int = DEFAULT_MAX_REFUSED_WRITES
     syslog: str | None = None
     syslog_facility: str = "daemon"
+    rotate: str = "none"
+    rotate_bytes: int | None = None
+    #: ``log_path`` is a directory: each run writes its own timestamped file there.
+    log_per_run: bool = False
 
     @property
     def period_s(self) -> float:
@@ -324,6 +331,10 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
         raise RunConfigError(
             "run.setpoint_kw: missing; give nodes.setpoint_kw, run.setpoint_kw or run.schedule")
     log = _str(run, "log", "run") or "run.csv"
+    rotate = _str(run, "rotate", "run") or "none"
+    if rotate not in ("none", "daily"):
+        raise RunConfigError(f"run.rotate: expected 'none' or 'daily'; got {rotate!r}")
+    rotate_mb = _num(run, "rotate_mb", "run", positive=True)
     action = _str(safety, "action", "safety") or "hold"
     if action not in ("hold", "ramp"):
         raise RunConfigError(f"safety.action: expected 'hold' or 'ramp'; got {action!r}")
@@ -346,12 +357,15 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
         settings_path=None if settings is None else base_dir / settings,
         duration_s=duration, setpoint_kw=setpoint,
         schedule=None if schedule_name is None else load_schedule(base_dir / schedule_name),
-        log_path=base_dir / log, safe_action=action, safe_triac_pct=safe, security=security,
+        log_path=base_dir / log,
+        log_per_run=log.endswith(("/", "\\")) or (base_dir / log).is_dir(),
+        safe_action=action, safe_triac_pct=safe, security=security,
         test_limits=limits,
         candidate_path=None if candidate is None else base_dir / candidate,
         align_to_plant=align, reject_repeated_samples=reject_repeated,
         max_refused_writes=int(max_refused or DEFAULT_MAX_REFUSED_WRITES),
-        syslog=syslog, syslog_facility=facility,
+        syslog=syslog, syslog_facility=facility, rotate=rotate,
+        rotate_bytes=None if rotate_mb is None else max(1, round(rotate_mb * 1e6)),
     )
 
 

@@ -46,10 +46,8 @@ from (config file and its SHA-256, start time, what drove the input).
 from __future__ import annotations
 
 import asyncio
-import csv
 import datetime as dt
 import hashlib
-import json
 import logging
 import math
 import signal
@@ -58,7 +56,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any, Protocol
+from typing import Any, Protocol
 
 from czmpc.controller import OffsetFreeMPC
 from czmpc.health import RUNTIME_HEALTH, HealthSettings, ModelHealth, ModelHealthMonitor
@@ -66,6 +64,14 @@ from czmpc.modes import Mode
 from czmpc.runtime import alignment, refusals
 from czmpc.runtime.config import RunConfig
 from czmpc.runtime.link import HEALTH_TOP, CheckReport, LinkLostError, PlantLink
+from czmpc.runtime.logfiles import (
+    LOG_COLUMNS,
+    RUN_META_FORMAT,
+    RunLog,
+    meta_path,
+    open_run_log,
+    refuse_overwrite,
+)
 from czmpc.runtime.measurement import age_s, measurement, sample_time
 from czmpc.runtime.node_types import NodeValueError, decode
 from czmpc.runtime.ownership import PlantBusyError, PlantLock, WriterWatch, identity, moved
@@ -90,16 +96,6 @@ STARTUP_CONNECT_FACTOR = 4.0
 LEASE_PERIODS = 3.0
 #: Overruns are summarised on stderr at most once per this long [wall s].
 OVERRUN_REPORT_S = 60.0
-#: Log columns, in order.
-LOG_COLUMNS = ("k", "time_s", "wall_time_s", "power_kw", "quality", "setpoint_kw",
-               "triac_pct", "applied_triac_pct", "status", "verdict", "mode", "connected",
-               "written", "lateness_s", "step_latency_s", "skipped", "predicted_kw", "health",
-               "stale_alarm", "event", "candidate_predicted_kw", "candidate_health",
-               "candidate_stale_alarm")
-#: Format tag of the run log's provenance file ``<log>.meta.json``.
-RUN_META_FORMAT = "czmpc-runlog/1"
-
-
 class LoopController(Protocol):
     """What the loop drives: the MPC, an open-loop test schedule, a dithered MPC."""
 
@@ -171,11 +167,6 @@ class MPCDriver:
     def abort_reason(self) -> str | None:
         """Never."""
         return None
-
-
-def meta_path(log_path: Path) -> Path:
-    """The provenance file beside a run log: ``run.csv`` -> ``run.meta.json``."""
-    return log_path.with_suffix(".meta.json")
 
 
 def _sha256(path: Path | None) -> str | None:
@@ -276,45 +267,6 @@ def _mode_of(value: Any) -> Mode | None:
     return None
 
 
-class RunLog:
-    """CSV log of every step, flushed per row (readable after a crash).
-
-    Parameters
-    ----------
-    path :
-        The CSV file (columns `LOG_COLUMNS`).
-    meta :
-        Provenance written to `meta_path` ``(path)`` as JSON (format `RUN_META_FORMAT`),
-        or None for no provenance file.
-    """
-
-    def __init__(self, path: Path, meta: Mapping[str, object] | None = None) -> None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.path = path
-        if meta is not None:
-            doc = {"format": RUN_META_FORMAT, **meta}
-            meta_path(path).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-        self._fh: IO[str] = open(path, "w", newline="", encoding="utf-8")  # noqa: SIM115
-        self._w = csv.writer(self._fh)
-        self._w.writerow(LOG_COLUMNS)
-        self._fh.flush()
-
-    def row(self, values: dict[str, object]) -> None:
-        self._w.writerow([_fmt(values[c]) for c in LOG_COLUMNS])
-        self._fh.flush()
-
-    def close(self) -> None:
-        self._fh.close()
-
-
-def _fmt(value: object) -> object:
-    if isinstance(value, float) and abs(value) >= 1e6:
-        return f"{value:.3f}"
-    if isinstance(value, float):
-        return "nan" if math.isnan(value) else f"{value:.6g}"
-    return value
-
-
 class ControlLoop:
     """The runtime (module docstring).
 
@@ -392,6 +344,9 @@ class ControlLoop:
         self._n_compared = 0
         #: False: the model was judged not ready (check-model); requests for ON are refused.
         self.allow_on = True
+        #: How a start treats an existing log file (`czmpc.runtime.logfiles.open_run_log`):
+        #: ``"new"`` refuses, ``"append"`` continues it, ``"force"`` replaces it.
+        self.log_policy = "new"
         self._setpoint = config.setpoint_kw if config.setpoint_kw is not None else math.nan
         if config.schedule is not None:
             self._setpoint = config.schedule.setpoints_kw[0]
@@ -472,6 +427,7 @@ class ControlLoop:
                 loop.add_signal_handler(sig, self.request_stop, sig.name)
             except (NotImplementedError, RuntimeError, ValueError):
                 pass
+        refuse_overwrite(cfg.log_path, self.log_policy, per_run=cfg.log_per_run)  # first of all
         lock = PlantLock(cfg.endpoint, cfg.nodes.triac_pct, self.identity)
         lock.acquire()     # a second controller for this plant on this machine stops here
         log: RunLog | None = None
@@ -488,7 +444,9 @@ class ControlLoop:
                 await asyncio.sleep(max(0.05, self._next_try - time.monotonic()))
             if self.summary.configuration_error is None and self.link.connected:
                 await self._check_not_driven()
-            log = RunLog(cfg.log_path, self._meta())
+            log = open_run_log(cfg.log_path, self._meta(), per_run=cfg.log_per_run,
+                               policy=self.log_policy, rotate=cfg.rotate,
+                               rotate_bytes=cfg.rotate_bytes)
             if self.summary.configuration_error is None:
                 _log.info("connected to %s; every node checked; running (log %s)", cfg.endpoint,
                           log.path)

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from czmpc.runtime.config import RunConfigError
-from czmpc.runtime.loop import LOG_COLUMNS, RUN_META_FORMAT, meta_path
+from czmpc.runtime.logfiles import LOG_COLUMNS, RUN_META_FORMAT, log_parts, meta_path
 from sysid.data import Dataset
 
 #: Shortest segment kept between gaps [samples]: shorter ones carry too little to fit
@@ -43,13 +43,17 @@ _SIGNATURE = LOG_COLUMNS[:4]
 
 
 def is_run_log(path: str | Path) -> bool:
-    """True if the file's header is the one of a `czmpc run` log."""
-    try:
-        with open(path, newline="", encoding="utf-8-sig") as fh:
-            header = next(csv.reader(fh), [])
-    except (OSError, UnicodeDecodeError):
-        return False
-    return tuple(h.strip() for h in header[:len(_SIGNATURE)]) == _SIGNATURE
+    """True if the file's header is the one of a `czmpc run` log, or a directory or glob
+    names such files (a rotated log, several runs: `czmpc.runtime.logfiles.log_parts`)."""
+    for part in log_parts(path):
+        try:
+            with open(part, newline="", encoding="utf-8-sig") as fh:
+                header = next(csv.reader(fh), [])
+        except (OSError, UnicodeDecodeError):
+            continue
+        if tuple(h.strip() for h in header[:len(_SIGNATURE)]) == _SIGNATURE:
+            return True
+    return False
 
 
 def read_run_meta(log_path: str | Path) -> dict[str, Any]:
@@ -82,20 +86,17 @@ def read_run_log(path: str | Path) -> Dataset:
         Not a run log, missing columns, or fewer than `MIN_SEGMENT_SAMPLES` usable
         samples in a row anywhere.
     """
-    path = Path(path)
-    raw = path.read_bytes()
-    rows = list(csv.DictReader(raw.decode("utf-8-sig").splitlines()))
-    missing = [c for c in ("k", "time_s", "power_kw", "quality", "triac_pct", "applied_triac_pct")
-               if rows and c not in rows[0]]
-    if not rows or missing:
-        raise RunConfigError(f"{path}: not a czmpc run log with data (missing columns {missing})")
-    rows = [r for r in rows if r["k"].strip() != ""]
-    meta = read_run_meta(path)
-    ks = np.array([int(_float(r["k"])) for r in rows])
-    if ks.size < MIN_SEGMENT_SAMPLES or (np.diff(ks) <= 0).any():
-        raise RunConfigError(f"{path}: expected at least {MIN_SEGMENT_SAMPLES} rows with an "
-                             "increasing sample index k")
-    ts_s = float(meta.get("ts_s") or _float(rows[1]["time_s"]) / max(1, int(ks[1])))
+    parts = log_parts(path)
+    if not parts:
+        raise RunConfigError(f"{path}: no czmpc run log there (a file, a directory or a glob "
+                             "of run logs)")
+    rows, slots, meta, digest = _joined_rows(parts)
+    if len(rows) < MIN_SEGMENT_SAMPLES:
+        raise RunConfigError(f"{path}: expected at least {MIN_SEGMENT_SAMPLES} rows with a "
+                             "sample index k")
+    ks = np.asarray(slots)
+    ts_s = float(meta["ts_s"]) if meta.get("ts_s") else _float(rows[1]["time_s"]) / max(
+        1, int(_float(rows[1]["k"])))
     # one slot per sample period k, also for the periods the loop skipped after an overrun
     n = int(ks[-1] - ks[0]) + 1
     slot = ks - ks[0]
@@ -155,10 +156,66 @@ def read_run_log(path: str | Path) -> Dataset:
         "segments": len(kept),
         "segment_time_s": [[float(time_s[a]), float(time_s[b - 1])] for a, b in kept],
     }
+    if len(parts) > 1:
+        provenance["parts"] = [str(p) for p in parts]
     return Dataset(
         time_s=time_s[index], triac_pct=triac[index], power_kw=power[index], ts_s=ts_s,
-        source=str(path), sha256=hashlib.sha256(raw).hexdigest(),
+        source=str(path), sha256=digest,
         preprocessing=(provenance, split), segment_starts=seg_starts)
+
+
+def _joined_rows(parts: list[Path]) -> tuple[list[dict[str, str]], list[int], dict[str, Any], str]:
+    """The step rows of the parts as one log: (rows, slot of each row, first meta, SHA-256).
+
+    A row's slot is its sample period on one axis. The parts of one run (meta ``part`` >
+    1) continue its sample index; a new run (a part without ``part``, or the index
+    starting again within a file appended to) begins after a gap of at least one empty
+    slot, as long as the wall time between the runs at the run's period.
+    """
+    rows: list[dict[str, str]] = []
+    slots: list[int] = []
+    digest = hashlib.sha256()
+    first_meta: dict[str, Any] = {}
+    offset = 0          # slot of sample index 0 of the current run
+    last_k: int | None = None
+    last_wall = math.nan
+    period_wall = math.nan
+    for i, part in enumerate(parts):
+        try:
+            raw = part.read_bytes()
+        except OSError as exc:
+            raise RunConfigError(f"{part}: cannot read: {exc.strerror}") from exc
+        digest.update(raw)
+        part_rows = list(csv.DictReader(raw.decode("utf-8-sig").splitlines()))
+        missing = [c for c in ("k", "time_s", "power_kw", "quality", "triac_pct",
+                               "applied_triac_pct") if part_rows and c not in part_rows[0]]
+        if missing:
+            raise RunConfigError(f"{part}: not a czmpc run log with data (missing columns "
+                                 f"{missing})")
+        meta = read_run_meta(part)
+        if i == 0:
+            first_meta = meta
+        elif meta.get("ts_s") and first_meta.get("ts_s") and meta["ts_s"] != first_meta["ts_s"]:
+            raise RunConfigError(f"{part}: Ts {meta['ts_s']} s differs from {parts[0]}'s "
+                                 f"{first_meta['ts_s']} s; read them separately")
+        if meta.get("ts_s"):
+            period_wall = float(meta["ts_s"]) / float(meta.get("time_scale") or 1.0)
+        new_run_part = i > 0 and int(meta.get("part", 1)) <= 1
+        for row in part_rows:
+            if row["k"].strip() == "":
+                continue
+            k = int(_float(row["k"]))
+            wall = _float(row.get("wall_time_s", "") or "nan")
+            if last_k is not None and (new_run_part or k <= last_k):
+                gap = (wall - last_wall) / period_wall if period_wall > 0 else math.nan
+                next_free = offset + last_k + 2    # at least one empty slot: a gap
+                offset = max(next_free, offset + last_k + 1 + round(gap)
+                             if math.isfinite(gap) else next_free) - k
+                new_run_part = False
+            rows.append(row)
+            slots.append(offset + k)
+            last_k, last_wall = k, wall
+    return rows, slots, first_meta, digest.hexdigest()
 
 
 def describe_run_data(data: Dataset) -> str:

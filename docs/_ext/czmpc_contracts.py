@@ -163,8 +163,16 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
     "run.schedule": ("string (file)", "none", "-",
                      "Recipe CSV with header ``time_s,setpoint_kw`` [s, kW], increasing times: "
                      "the setpoint from each time of the run on."),
-    "run.log": ("string (file)", "run.csv", "-",
-                "Step log, one CSV row per step, flushed per row (``--log`` overrides it)."),
+    "run.log": ("string (file or directory/)", "run.csv", "-",
+                "Step log, one CSV row per step, flushed per row (``--log`` overrides it). A "
+                "start never overwrites an earlier run's log: it refuses unless ``--append`` "
+                "or ``--replace-log``. A directory (``\"logs/\"``) gets one timestamped file "
+                "per run, which a service that restarts needs."),
+    "run.rotate": ("string", "none", "-",
+                   "``daily``: a new part of the log at midnight UTC, each part with its meta "
+                   "file; readers take the parts as one log."),
+    "run.rotate_mb": ("number > 0", "none", "MB",
+                      "A new part of the log when the current one reaches this size."),
     "safety.action": ('``"hold"`` or ``"ramp"``', "hold", "-",
                       "On SIGINT/SIGTERM: hold the last command, or ramp to "
                       "``safety.safe_triac_pct`` at the rate limit."),

@@ -14,7 +14,7 @@ from czmpc.reports.run_report import plot_run, read_run_log, summary_markdown
 
 pytest.importorskip("asyncua")
 
-from czmpc.runtime.loop import LOG_COLUMNS, RunLog  # noqa: E402
+from czmpc.runtime.logfiles import LOG_COLUMNS, RunLog  # noqa: E402
 
 
 def _synthetic_log(path: Path) -> None:

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 from plant_rig import TIME_SCALE, free_port, served_nodes
 
-from czmpc.runtime.loop import LOG_COLUMNS
+from czmpc.runtime.logfiles import LOG_COLUMNS
 from czmpc.shipped import shipped_path
 
 pytestmark = [pytest.mark.slow, pytest.mark.realtime]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from czmpc.runtime.config import RunConfigError
-from czmpc.runtime.loop import LOG_COLUMNS, RunLog, meta_path
+from czmpc.runtime.logfiles import LOG_COLUMNS, RunLog, meta_path
 from czmpc.runtime.runlog import (
     MIN_SEGMENT_SAMPLES,
     describe_run_data,

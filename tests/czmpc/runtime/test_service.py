@@ -201,3 +201,52 @@ def test_a_plant_already_driven_is_refused_before_any_write(
     assert "already driven" in run.stderr and "Heater.Heartbeat" not in run.stdout
     assert "heartbeat changed from" in run.stderr
     assert not (tmp_path / "run.csv").exists()
+
+
+def test_a_restart_keeps_every_run_and_identify_reads_them_as_one(
+        procs: list[subprocess.Popen[str]], tmp_path: Path) -> None:
+    from czmpc.runtime.runlog import read_run_log
+
+    port = free_port()
+    _serve(procs, tmp_path, port, duration_s=2000.0)
+    (tmp_path / "recipe.csv").write_text("time_s,setpoint_kw\n0,31\n60,36\n160,28\n",
+                                         encoding="utf-8")
+    # a directory: one file per run, as a service that restarts needs
+    config = _config(tmp_path, port, log="logs/", duration_s=260.0,
+                     extra='schedule = "recipe.csv"').read_text(encoding="utf-8")
+    config = config.replace("setpoint_kw = 31.0\n", "")
+    (tmp_path / "run.toml").write_text(config, encoding="utf-8")
+    for _ in range(2):    # the same config twice: a restart
+        run = subprocess.run([*CLI, "run", str(tmp_path / "run.toml")], capture_output=True,
+                             text=True, timeout=120)
+        assert run.returncode == 0, run.stderr
+        time.sleep(1.0)   # the file names carry the start second
+    logs = sorted((tmp_path / "logs").glob("run-*.csv"))
+    metas = sorted((tmp_path / "logs").glob("run-*.meta.json"))
+    assert len(logs) == 2 and len(metas) == 2
+    assert all(len(_rows(p)) >= 130 for p in logs)
+    data = read_run_log(tmp_path / "logs")
+    assert data.n_samples > len(_rows(logs[0])) + 40     # the first run whole and part of the second
+    # one log: the first run whole, then a gap as long as the restart took (at least the
+    # startup check's period and a second of wall time: 1 s x 25 = 25 s of plant time)
+    split = next(p for p in data.preprocessing if p.get("what") == "split at unusable samples")
+    (start0, end0), (start1, _) = split["segment_time_s"][:2]
+    assert (start0, end0) == (0.0, 2.0 * (len(_rows(logs[0])) - 1))
+    assert start1 - end0 > 25.0
+    ident = subprocess.run([*CLI, "identify", str(tmp_path / "logs"), "--out",
+                            str(tmp_path / "ident")], capture_output=True, text=True, timeout=300)
+    assert ident.returncode == 0, ident.stderr
+    assert (tmp_path / "ident" / "model.json").is_file()
+
+
+def test_a_start_never_overwrites_an_earlier_log(tmp_path: Path) -> None:
+    log = tmp_path / "run.csv"
+    log.write_text("k,time_s,wall_time_s,power_kw\n0,0,1,31\n", encoding="utf-8")
+    meta = tmp_path / "run.meta.json"
+    meta.write_text('{"format": "czmpc-runlog/1"}\n', encoding="utf-8")
+    before = (log.read_bytes(), meta.read_bytes())
+    config = _config(tmp_path, free_port())     # nothing listens: the refusal comes first
+    run = subprocess.run([*CLI, "run", str(config)], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2
+    assert "holds an earlier run's log" in run.stderr and "--append" in run.stderr
+    assert (log.read_bytes(), meta.read_bytes()) == before
