@@ -1,4 +1,4 @@
-"""Readers for three public real-rig logs (DaISy heater, TCLab, cascaded tanks) into `Dataset`.
+"""Readers for four public real-rig logs (DaISy heater and exchanger, TCLab, tanks) into `Dataset`.
 
 These logs come from rigs other than the CZ puller, in other formats, units and
 sampling (see ``data/real/README.md`` in the repository for provenance). Each reader keeps every
@@ -37,6 +37,12 @@ DAISY_TS_S = 2.0
 
 #: DaISy 99-001 column names used in error messages (the file has no header).
 DAISY_COLUMNS: tuple[str, str, str] = ("time_s", "lamp_voltage_v", "plate_temperature_degc")
+
+#: DaISy 97-002 sampling time [s] (its description: "Sampling time: 1 s").
+EXCHANGER_TS_S = 1.0
+
+#: DaISy 97-002 column names used in error messages (the file has no header).
+EXCHANGER_COLUMNS: tuple[str, str, str] = ("sample", "liquid_flow", "outlet_temperature_degc")
 
 #: TCLab nominal sampling time [s] (a Python loop with ``time.sleep``).
 TCLAB_TS_S = 1.0
@@ -115,28 +121,71 @@ def read_daisy_heating(path: str | os.PathLike[str]) -> Dataset:
     OSError
         The file cannot be opened.
     """
-    path = Path(path)
+    values, digest = _read_columns(Path(path), DAISY_COLUMNS, "time [s], voltage [V], "
+                                   "temperature [degC]")
+    time_s = values[:, 0]
+    _check_uniform(time_s, DAISY_TS_S, DEFAULT_SAMPLING_RTOL, path=Path(path), first_line=1,
+                   column=DAISY_COLUMNS[0])
+    return Dataset(time_s=time_s, triac_pct=values[:, 1], power_kw=values[:, 2],
+                   ts_s=DAISY_TS_S, input_unit="V", output_unit="degC", source=str(path),
+                   sha256=digest)
+
+
+def read_daisy_exchanger(path: str | os.PathLike[str]) -> Dataset:
+    """Read DaISy data set 97-002 (steam heat exchanger, Bittanti & Piroddi 1996).
+
+    Parameters
+    ----------
+    path :
+        The ``.dat`` file: whitespace-separated, no header, three columns: sample index
+        (1, 2, ...), liquid flow rate (normalised), outlet liquid temperature; one row
+        per 1 s sample.
+
+    Returns
+    -------
+    Dataset
+        ``ts_s = 1.0``, ``time_s = (index - 1) * 1 s``; input ``"-"`` (the normalised flow
+        rate, DaISy states no unit), output ``"degC"`` (the outlet temperature; DaISy
+        states no unit, the values 92.8..101.4 are degrees Celsius of water near boiling);
+        4000 samples for the published file.
+
+    Raises
+    ------
+    DataFileError
+        An empty file; a blank line inside the data; a row without exactly three
+        fields; a non-numeric or non-finite field; a sample index that does not count
+        up by one; fewer than 3 samples. Lines and columns are named.
+    OSError
+        The file cannot be opened.
+    """
+    values, digest = _read_columns(Path(path), EXCHANGER_COLUMNS, "sample index, flow, "
+                                   "temperature")
+    index = values[:, 0]
+    _check_uniform(index, 1.0, DEFAULT_SAMPLING_RTOL, path=Path(path), first_line=1,
+                   column=EXCHANGER_COLUMNS[0])
+    return Dataset(time_s=(index - index[0]) * EXCHANGER_TS_S, triac_pct=values[:, 1],
+                   power_kw=values[:, 2], ts_s=EXCHANGER_TS_S, input_unit="-",
+                   output_unit="degC", source=str(path), sha256=digest)
+
+
+def _read_columns(path: Path, columns: tuple[str, str, str],
+                  what: str) -> tuple[FloatArray, str]:
+    """Rows of three whitespace-separated numbers (DaISy's format) and the file's SHA-256."""
     text, digest = _read_text(path)
     rows: list[list[float]] = []
     for line_no, line in enumerate(_without_trailing_blank(text.splitlines()), start=1):
         fields = line.split()
         if not fields:
             raise DataFileError("blank line; expected three numbers", path=path, line=line_no)
-        if len(fields) != len(DAISY_COLUMNS):
+        if len(fields) != len(columns):
             raise DataFileError(
-                f"expected {len(DAISY_COLUMNS)} whitespace-separated fields (time [s], "
-                f"voltage [V], temperature [degC]); got {len(fields)}", path=path, line=line_no,
+                f"expected {len(columns)} whitespace-separated fields ({what}); got "
+                f"{len(fields)}", path=path, line=line_no,
             )
         rows.append([_number(cell, path=path, line=line_no, column=name)
-                     for cell, name in zip(fields, DAISY_COLUMNS, strict=True)])
+                     for cell, name in zip(fields, columns, strict=True)])
     _check_count(len(rows), path)
-    values = np.asarray(rows)
-    time_s = values[:, 0]
-    _check_uniform(time_s, DAISY_TS_S, DEFAULT_SAMPLING_RTOL, path=path, first_line=1,
-                   column=DAISY_COLUMNS[0])
-    return Dataset(time_s=time_s, triac_pct=values[:, 1], power_kw=values[:, 2],
-                   ts_s=DAISY_TS_S, input_unit="V", output_unit="degC", source=str(path),
-                   sha256=digest)
+    return np.asarray(rows), digest
 
 
 def _check_uniform(time_s: FloatArray, ts_s: float, rtol: float, *, path: Path,
@@ -279,11 +328,14 @@ def read_cascaded_tanks(
 __all__ = [
     "DAISY_COLUMNS",
     "DAISY_TS_S",
+    "EXCHANGER_COLUMNS",
+    "EXCHANGER_TS_S",
     "TANKS_HEADER",
     "TCLAB_SAMPLING_RTOL",
     "TCLAB_TS_S",
     "TanksRecord",
     "read_cascaded_tanks",
+    "read_daisy_exchanger",
     "read_daisy_heating",
     "read_tclab",
 ]

@@ -361,17 +361,24 @@ def model_kind_notes(result: Any) -> list[str]:
     """Sentences for the terminal and the report when model.json is not the Hammerstein.
 
     The pipeline writes the noise-model Hammerstein (eq. 30); if that was not fitted it
-    falls back to the OE Hammerstein, then to the best linear model on W. Each
-    fallback is said with the reasons the pipeline recorded.
+    falls back to the OE Hammerstein, then to the best linear model on W; with orders
+    "auto" the OE simulated from rest replaces it when it simulates much better from
+    rest (`sysid.pipeline.REST_V_RATIO`). Each fallback is said with the reasons the
+    pipeline recorded.
     """
     final = result.final
     if final is None or final.name == "hammerstein_armax":
         return []
     reasons = [s for s in result.skipped if "Hammerstein" in s or "hammerstein" in s
                or "eq. 21" in s or "input polynomial" in s]
+    if final.name == "hammerstein_oe":
+        kind = "the OE Hammerstein (eq. 27, no noise model)"
+    elif final.name == "oe_rest":
+        kind = f"the linear model {final.label} (the best simulation from rest)"
+        reasons = [s for s in result.skipped if "not used as the final model" in s] or reasons
+    else:
+        kind = f"the linear model {final.label} (best W)"
     why = "; ".join(reasons) if reasons else "the noise-model Hammerstein was not fitted"
-    kind = "the OE Hammerstein (eq. 27, no noise model)" if final.name == "hammerstein_oe" \
-        else f"the linear model {final.label} (best W)"
     return [f"model.json holds {kind} instead of the Hammerstein with a noise model "
             f"(eq. 30): {why}"]
 

@@ -1,0 +1,466 @@
+"""Linear OE models simulated from rest: multistart search over orders and delay.
+
+A log nobody here has seen rarely starts at rest, and its slow modes may be longer than
+the record: a fit that estimates the initial state can then trade a pole near ``z = 1``
+against that state and still match the record, yet simulate badly from any other start
+(its static gain is not determined). This module fits the plain output-error model that
+a user compares against first (MATLAB's ``oe`` scored by ``compare`` from rest): the
+simulation from rest at the first sample, with the first part of the record a burn-in
+in which the unknown initial state decays.
+
+Notation
+--------
+``y`` output, ``u`` input, both as logged (any units); ``(u0, y0)`` the rest point: the
+first samples, or the operating point the user gave as the rest before the record. The
+model (paper eq. 7 with ``f(ds) = b1 ds``)::
+
+    yhat_k = y0 + [B(q) / F(q)] (u_k - u0),   zero initial state,
+    B(q) = q^-nk (b_nk + b_{nk+1} q^-1 + ... ),   F(q) = 1 + f1 q^-1 + ... + f_nf q^-nf
+
+and ``V_rest = mean_{k >= n_burn} (y_k - yhat_k)^2`` [output unit^2] (eq. 9 with the
+first ``n_burn`` samples left out). The search normalises ``y - y0`` and ``u - u0`` by
+their root mean squares, so the answer does not depend on the data's units.
+
+Starts of each fit (the OE criterion is not convex): the ARX least squares; a
+simplified refined instrumental-variable estimate (SRIV: prefiltered by the current
+``1/F``, instruments from the noise-free simulated output, the classical remedy for
+the bias of ARX on OE problems; Young 1976, Ljung 1999 sec. 7.6); and ``F`` fixed at
+repeated poles spread over the plausible time constants with ``B`` by least squares
+(`sysid.hammerstein.route.fixed_pole_starts`). The best by ``V_rest`` is kept.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import lfilter
+
+from sysid._arrays import readonly_array
+from sysid._typing import FloatArray
+from sysid.data import Dataset
+from sysid.errors import IdentificationError
+from sysid.hammerstein.route import fixed_pole_starts, pole_start_time_constants
+from sysid.linear import _linear_model, arx_regressor
+from sysid.model import HammersteinModel, OperatingPoint
+from sysid.optimize import levenberg_marquardt
+from sysid.polynomials import max_root_modulus, reflect_unstable_roots
+
+#: Share of the record at its start that is a burn-in: not scored, so that the unknown
+#: initial state (a log that does not start at rest) decays before the criterion counts.
+BURN_IN_SHARE = 0.2
+#: Orders searched: nb 1..4 B coefficients, nf 1..3 poles.
+NB_MAX = 4
+NF_MAX = 3
+#: Delays searched [samples].
+NK_VALUES: tuple[int, ...] = (0, 1, 2, 3)
+#: Fixed-pole starts per structure, for the structures refined from every start.
+N_POLE_STARTS = 4
+#: The structures with the lowest V_rest from the ARX and SRIV starts that are also
+#: refined from the fixed-pole starts.
+N_REFINED = 4
+#: Of the structures within this share of the lowest V_rest, the one with the fewest
+#: parameters is chosen (a record cannot tell them apart; fewer parameters extrapolate
+#: more safely).
+PARSIMONY_RTOL = 0.02
+#: SRIV iterations from the ARX estimate.
+SRIV_ITERATIONS = 4
+#: LM tolerances of the grid (structures ranked at the 1e-3 level of V_rest) and of the
+#: refined structures' fits.
+_GRID_TOL = 1e-8
+_FINAL_TOL = 1e-10
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class RestOEFit:
+    """One linear OE model fitted by simulation from rest.
+
+    Parameters
+    ----------
+    nb, nf, nk :
+        Number of ``B`` coefficients, poles, delay [samples].
+    b :
+        ``B(q)`` in the data's units (output per input), ascending powers of ``q^-1``,
+        ``nk`` leading zeros.
+    f :
+        ``F(q)``, monic and stable.
+    v_rest :
+        ``V_rest`` [output unit^2]: mean squared simulation error from rest after the
+        burn-in.
+    burn_in_steps :
+        Samples left out of ``V_rest`` at the start.
+    start :
+        Which start won: ``"arx"``, ``"sriv"`` or ``"poles"``.
+    n_iterations :
+        Levenberg-Marquardt iterations of the winning search.
+    converged :
+        Whether that search met a convergence test.
+    """
+
+    nb: int
+    nf: int
+    nk: int
+    b: FloatArray = field(repr=False)
+    f: FloatArray = field(repr=False)
+    v_rest: float
+    burn_in_steps: int
+    start: str
+    n_iterations: int
+    converged: bool
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "b", readonly_array(self.b))
+        object.__setattr__(self, "f", readonly_array(self.f))
+
+    @property
+    def n_parameters(self) -> int:
+        """``nb + nf``."""
+        return self.nb + self.nf
+
+    @property
+    def static_gain(self) -> float:
+        """``B(1) / F(1)`` [output unit per input unit]."""
+        return float(np.sum(self.b) / np.sum(self.f))
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class RestOESearch:
+    """The chosen model of `search_oe_from_rest` and every structure it scored.
+
+    Parameters
+    ----------
+    chosen :
+        The fewest-parameter structure within `PARSIMONY_RTOL` of the lowest ``V_rest``.
+    candidates :
+        The best fit of every structure that gave a stable model, lowest ``V_rest`` first.
+    """
+
+    chosen: RestOEFit
+    candidates: tuple[RestOEFit, ...] = field(repr=False)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RestPoint:
+    """Where a simulation from rest starts: input and output held before the record.
+
+    Parameters
+    ----------
+    input :
+        Input at rest [input unit].
+    output :
+        Output at rest [output unit].
+    """
+
+    input: float
+    output: float
+
+    @classmethod
+    def first_sample(cls, u: FloatArray, y: FloatArray) -> RestPoint:
+        """The record's first sample taken as rest (the held-past rule of `sysid.simulate`)."""
+        return cls(input=float(u[0]), output=float(y[0]))
+
+
+def simulate_from_rest(b: FloatArray, f: FloatArray, u: FloatArray,
+                       rest: RestPoint) -> FloatArray:
+    """``y0 + [B/F] (u - u0)`` from a zero state: the model at rest at `rest` before the record.
+
+    Parameters
+    ----------
+    b, f :
+        ``B(q)`` and ``F(q)``, ascending powers of ``q^-1``.
+    u :
+        Input (or ``f(ds)`` for a Hammerstein model), shape ``(N,)``.
+    rest :
+        ``(u0, y0)``: input and output at rest [their units].
+
+    Returns
+    -------
+    FloatArray
+        Simulated output, shape ``(N,)``.
+    """
+    out: FloatArray = rest.output + lfilter(b, f, u - rest.input)
+    return out
+
+
+def rest_mse(model: HammersteinModel, data: Dataset, *, burn_in_steps: int,
+             rest: RestPoint) -> float:
+    """``V_rest`` of any model: its simulation from `rest`, after a burn-in.
+
+    Parameters
+    ----------
+    model :
+        A Hammerstein or linear model; its input path ``B/A f(ds)`` is simulated.
+    data :
+        The log (absolute units).
+    burn_in_steps :
+        Samples left out at the start.
+    rest :
+        Input and output at rest before the record.
+
+    Returns
+    -------
+    float
+        ``mean_{k >= burn} (y_k - y0 - [B/A] (w_k - w_0))^2`` with ``w = f(s - s_nom)``,
+        ``w_0 = f(u0 - s_nom)`` [output unit^2]; inf if the simulation overflows.
+    """
+    op_input = model.operating_point.triac_pct
+    w = model.input_nonlinearity(data.triac_pct - op_input)
+    w0 = float(model.input_nonlinearity(rest.input - op_input))
+    with np.errstate(over="ignore", invalid="ignore"):
+        sim = simulate_from_rest(model.b, model.a, w, RestPoint(input=w0, output=rest.output))
+        err = data.power_kw[burn_in_steps:] - sim[burn_in_steps:]
+        v = float(np.mean(err * err))
+    return v if np.isfinite(v) else float("inf")
+
+
+def rest_oe_model(fit: RestOEFit, data: Dataset, *, operating_triac_pct: float,
+                  rest: RestPoint) -> HammersteinModel:
+    """The fit as a linear OE model file about the input `operating_triac_pct`.
+
+    Parameters
+    ----------
+    fit :
+        A `search_oe_from_rest` fit on `data`.
+    data :
+        The log it was fitted on.
+    operating_triac_pct :
+        Input of the operating point [input unit]; its output is the model's rest line
+        there, ``y0 + B(1)/F(1) (s_nom - u0)``, so the model at rest reproduces the fit.
+    rest :
+        The rest point the fit simulated from.
+
+    Returns
+    -------
+    HammersteinModel
+        ``kind = "linear"``, ``linear_block = "oe"``, ``C = A = F``, the noise standard
+        deviation from the errors after the burn-in, V and W on `data`.
+    """
+    u, y = data.triac_pct, data.power_kw
+    rest_kw = rest.output + fit.static_gain * (operating_triac_pct - rest.input)
+    sim = simulate_from_rest(fit.b, fit.f, u, rest)
+    return _linear_model(
+        data, OperatingPoint(triac_pct=operating_triac_pct, power_kw=rest_kw), block="oe",
+        a=fit.f, b=fit.b, c=fit.f, residuals=(y - sim)[fit.burn_in_steps:],
+        n_parameters=fit.n_parameters, method=f"sysid.rest_oe.search_oe_from_rest (start "
+        f"{fit.start}, burn-in {fit.burn_in_steps} samples)", where="rest_oe_model")
+
+
+def _shifted(x: FloatArray, lag: int) -> FloatArray:
+    out = np.zeros_like(x)
+    out[lag:] = x[: x.size - lag]
+    return out
+
+
+class _Problem:
+    """Residuals and exact Jacobian of one structure on normalised data (module notes)."""
+
+    def __init__(self, y: FloatArray, u: FloatArray, nb: int, nf: int, nk: int,
+                 burn: int) -> None:
+        self.y, self.u, self.nb, self.nf, self.nk, self.burn = y, u, nb, nf, nk, burn
+
+    def polys(self, theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+        b = np.concatenate([np.zeros(self.nk), theta[: self.nb]])
+        f = np.concatenate([[1.0], theta[self.nb:]])
+        return b, f
+
+    def __call__(self, theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+        b, f = self.polys(theta)
+        v = lfilter([1.0], f, self.u)                      # u / F
+        sim = lfilter(b, [1.0], v)                         # B u / F
+        w = lfilter([1.0], f, sim)                         # B u / F^2
+        cols = [_shifted(v, self.nk + j) for j in range(self.nb)]
+        cols += [-_shifted(w, i) for i in range(1, self.nf + 1)]
+        jac = -np.column_stack(cols)[self.burn:]
+        return self.y[self.burn:] - sim[self.burn:], jac
+
+    def project(self, theta: FloatArray) -> FloatArray:
+        f = reflect_unstable_roots(np.concatenate([[1.0], theta[self.nb:]]))
+        return np.concatenate([theta[: self.nb], f[1:]])
+
+    def b_given_f(self, f: FloatArray) -> FloatArray:
+        """Least-squares ``B`` with ``F`` fixed (linear in ``B``)."""
+        v = lfilter([1.0], f, self.u)
+        phi = np.column_stack([_shifted(v, self.nk + j) for j in range(self.nb)])
+        b, *_ = np.linalg.lstsq(phi[self.burn:], self.y[self.burn:], rcond=None)
+        return np.asarray(b, dtype=float)
+
+
+def _arx(y: FloatArray, u: FloatArray, nb: int, nf: int, nk: int) -> FloatArray | None:
+    phi, target, _ = arx_regressor(y, u, na=nf, nb=nb, nk=nk)
+    theta, *_ = np.linalg.lstsq(phi, target, rcond=None)
+    return _as_start(np.asarray(theta, dtype=float), nb, nf)
+
+
+def _as_start(theta: FloatArray, nb: int, nf: int) -> FloatArray | None:
+    """``[a1..a_nf, b..]`` of a regression as an OE start ``[b.., f1..]``, or None."""
+    if not np.all(np.isfinite(theta)):
+        return None
+    f = reflect_unstable_roots(np.concatenate([[1.0], theta[:nf]]))
+    return np.concatenate([theta[nf:], f[1:]])
+
+
+def _sriv(y: FloatArray, u: FloatArray, nb: int, nf: int, nk: int,
+          start: FloatArray) -> FloatArray | None:
+    """Simplified refined IV from `start` (module notes)."""
+    theta = start
+    for _ in range(SRIV_ITERATIONS):
+        b = np.concatenate([np.zeros(nk), theta[:nb]])
+        f = np.concatenate([[1.0], theta[nb:]])
+        x = lfilter(b, f, u)                               # noise-free output: instruments
+        yf, uf, xf = (lfilter([1.0], f, s) for s in (y, u, x))
+        phi, target, _ = arx_regressor(yf, uf, na=nf, nb=nb, nk=nk)
+        zeta, _, _ = arx_regressor(xf, uf, na=nf, nb=nb, nk=nk)
+        try:
+            est = np.linalg.solve(zeta.T @ phi, zeta.T @ target)
+        except np.linalg.LinAlgError:
+            return None
+        nxt = _as_start(np.asarray(est, dtype=float), nb, nf)
+        if nxt is None:
+            return None
+        theta = nxt
+    return theta
+
+
+def _refine(problem: _Problem, theta0: FloatArray,
+            tol: float) -> tuple[FloatArray, float, int, bool] | None:
+    if max_root_modulus(np.concatenate([[1.0], theta0[problem.nb:]])) >= 1.0:
+        return None
+    try:
+        lm = levenberg_marquardt(problem, theta0, project=problem.project, xtol=tol,
+                                 ftol=tol)
+    except IdentificationError:
+        return None
+    return lm.theta, lm.cost, lm.n_iterations, lm.converged
+
+
+def _fit(problem: _Problem, starts: Sequence[tuple[str, FloatArray | None]],
+         y_rms: float, u_rms: float, tol: float) -> RestOEFit | None:
+    best: RestOEFit | None = None
+    for name, theta0 in starts:
+        if theta0 is None:
+            continue
+        out = _refine(problem, theta0, tol)
+        if out is None:
+            continue
+        theta, cost, n_it, converged = out
+        if best is not None and cost * y_rms**2 >= best.v_rest:
+            continue
+        b, f = problem.polys(theta)
+        best = RestOEFit(nb=problem.nb, nf=problem.nf, nk=problem.nk, b=b * (y_rms / u_rms),
+                         f=f, v_rest=cost * y_rms**2, burn_in_steps=problem.burn, start=name,
+                         n_iterations=n_it, converged=converged)
+    return best
+
+
+def _pole_starts(problem: _Problem) -> list[tuple[str, FloatArray | None]]:
+    out: list[tuple[str, FloatArray | None]] = []
+    taus = pole_start_time_constants(problem.y.size, N_POLE_STARTS)
+    for start in fixed_pole_starts(problem.y, problem.u, nb=problem.nb, nf=problem.nf,
+                                   nk=problem.nk, time_constants_samples=taus):
+        f = np.array([1.0] + [start[f"f{i}"] for i in range(1, problem.nf + 1)])
+        out.append(("poles", np.concatenate([problem.b_given_f(f), f[1:]])))
+    return out
+
+
+def search_oe_from_rest(
+    y: FloatArray,
+    u: FloatArray,
+    *,
+    burn_in_steps: int | None = None,
+    nk_values: Sequence[int] = NK_VALUES,
+    rest: RestPoint | None = None,
+) -> RestOESearch:
+    """Best linear OE over nb 1..`NB_MAX`, nf 1..`NF_MAX` and `nk_values`, from rest.
+
+    Parameters
+    ----------
+    y, u :
+        Output and input as logged, shape ``(N,)``, finite (any units).
+    burn_in_steps :
+        Samples left out of ``V_rest`` at the start; default `BURN_IN_SHARE` of the
+        record.
+    nk_values :
+        Delays to search [samples], each >= 0.
+    rest :
+        Input and output at rest before the record; default the first sample.
+
+    Returns
+    -------
+    RestOESearch
+        The chosen model (the fewest parameters within `PARSIMONY_RTOL` of the lowest
+        ``V_rest``) and every structure's best fit.
+
+    Raises
+    ------
+    IdentificationError
+        Arrays of different lengths, non-finite values, a constant input or output, a
+        burn-in that leaves fewer than 10 samples per parameter of the largest
+        structure, a negative delay, or no structure with a stable fit.
+    """
+    where = "search_oe_from_rest"
+    y_arr = np.asarray(y, dtype=float)
+    u_arr = np.asarray(u, dtype=float)
+    if y_arr.ndim != 1 or y_arr.shape != u_arr.shape:
+        raise IdentificationError(f"{where}: y and u must be 1-D of one length; got shapes "
+                                  f"{y_arr.shape} and {u_arr.shape}")
+    if not (np.all(np.isfinite(y_arr)) and np.all(np.isfinite(u_arr))):
+        raise IdentificationError(f"{where}: y and u must be finite")
+    n = y_arr.size
+    burn = int(BURN_IN_SHARE * n) if burn_in_steps is None else int(burn_in_steps)
+    n_max = NB_MAX + NF_MAX
+    if burn < 0 or n - burn < 10 * n_max:
+        raise IdentificationError(
+            f"{where}: the {n - burn} samples after a burn-in of {burn} are fewer than 10 per "
+            f"parameter of the largest structure ({n_max}); expected at least {10 * n_max}")
+    if any(int(k) < 0 for k in nk_values):
+        raise IdentificationError(f"{where}: delays must be >= 0; got {list(nk_values)}")
+    at = RestPoint.first_sample(u_arr, y_arr) if rest is None else rest
+    dy, du = y_arr - at.output, u_arr - at.input
+    y_rms, u_rms = (float(np.sqrt(np.mean(x**2))) for x in (dy, du))
+    if y_rms == 0.0 or u_rms == 0.0:
+        raise IdentificationError(f"{where}: the output or the input never leaves its first "
+                                  "value; nothing to identify")
+    yn, un = dy / y_rms, du / u_rms
+    fits: list[RestOEFit] = []
+    problems = {}
+    for nb, nf, nk in itertools.product(range(1, NB_MAX + 1), range(1, NF_MAX + 1),
+                                        (int(k) for k in nk_values)):
+        problem = _Problem(yn, un, nb, nf, nk, burn)
+        arx = _arx(yn, un, nb, nf, nk)
+        sriv = None if arx is None else _sriv(yn, un, nb, nf, nk, arx)
+        fit = _fit(problem, [("arx", arx), ("sriv", sriv)], y_rms, u_rms, _GRID_TOL)
+        if fit is not None:
+            fits.append(fit)
+            problems[(nb, nf, nk)] = problem
+    if not fits:
+        raise IdentificationError(f"{where}: no structure gave a stable model")
+    fits.sort(key=lambda fit: fit.v_rest)
+    for i, fit in enumerate(fits[:N_REFINED]):
+        problem = problems[(fit.nb, fit.nf, fit.nk)]
+        own = np.concatenate([fit.b[fit.nk:] * (u_rms / y_rms), fit.f[1:]])
+        better = _fit(problem, [(fit.start, own), *_pole_starts(problem)], y_rms, u_rms,
+                      _FINAL_TOL)
+        if better is not None and better.v_rest < fit.v_rest:
+            fits[i] = better
+    fits.sort(key=lambda fit: fit.v_rest)
+    lowest = fits[0].v_rest
+    near = [fit for fit in fits if fit.v_rest <= (1.0 + PARSIMONY_RTOL) * lowest]
+    chosen = min(near, key=lambda fit: (fit.n_parameters, fit.v_rest))
+    return RestOESearch(chosen=chosen, candidates=tuple(fits))
+
+
+__all__ = [
+    "BURN_IN_SHARE",
+    "NB_MAX",
+    "NF_MAX",
+    "NK_VALUES",
+    "RestOEFit",
+    "RestOESearch",
+    "RestPoint",
+    "rest_mse",
+    "rest_oe_model",
+    "search_oe_from_rest",
+    "simulate_from_rest",
+]
