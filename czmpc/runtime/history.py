@@ -219,6 +219,8 @@ async def read_node_history(client: Any, key: str, spec: NodeSpec, *, start: dt.
         The node has no readable history, or the server refused a request.
     CallDeadlineError
         A call missed its deadline.
+    ValueError
+        ``page_values`` below 1.
     """
     if page_values < 1:
         raise ValueError(f"page_values must be >= 1; got {page_values}")
