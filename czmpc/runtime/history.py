@@ -34,7 +34,7 @@ The inputs, as a `czmpc run` log has them (`czmpc.runtime.runlog`):
   last command written before power sample ``j + 1``, which the plant applied from
   sample ``j`` to ``j + 1``.
 
-Writing (`write_history_log`): the run-log columns (`czmpc.runtime.loop.LOG_COLUMNS`;
+Writing (`write_history_log`): the run-log columns (`czmpc.runtime.logfiles.LOG_COLUMNS`;
 NaN or empty where the history does not say), full float precision, and
 ``<log>.meta.json`` with ``"kind": "history"`` and the provenance.
 """
@@ -58,7 +58,7 @@ import numpy.typing as npt
 from czmpc.errors import CzmpcError
 from czmpc.runtime._opcua import asyncua
 from czmpc.runtime.link import within
-from czmpc.runtime.loop import LOG_COLUMNS, RUN_META_FORMAT, meta_path
+from czmpc.runtime.logfiles import LOG_COLUMNS, RUN_META_FORMAT, RunLogExistsError, meta_path
 from czmpc.runtime.measurement import measurement, sample_time
 from czmpc.runtime.node_types import NodeSpec
 from sysid.atomic import atomic_write_text
@@ -467,12 +467,12 @@ def refuse_existing(path: Path) -> None:
 
     Raises
     ------
-    FileExistsError
+    RunLogExistsError
         ``path`` or its ``.meta.json`` exists; the message names the way out (``--force``).
     """
     for existing in (path, meta_path(path)):
         if existing.exists():
-            raise FileExistsError(f"{existing} exists: give another --out, or --force to "
+            raise RunLogExistsError(f"{existing} exists: give another --out, or --force to "
                                   f"replace it")
 
 
@@ -482,7 +482,7 @@ def write_history_log(path: Path, aligned: AlignedHistory, *, ts_s: float,
 
     Raises
     ------
-    FileExistsError
+    RunLogExistsError
         The log or its meta file exists and ``overwrite`` is False.
     """
     meta_file = meta_path(path)
