@@ -62,9 +62,13 @@ import asyncio
 import dataclasses
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from czmpc.cli import _argtypes, _variation
 from czmpc.runtime.security import MODES, SECURE_POLICIES
+
+if TYPE_CHECKING:
+    from czmpc.runtime.served import ServeOptions
 
 NAME = "plant"
 HELP = "serve the virtual CZ heater or a model plant as an OPC UA server (plant serve)"
@@ -210,10 +214,20 @@ def run(args: argparse.Namespace) -> int:
           f"{args.time_scale:g}; {variation.describe()}; {args.node_types} node types: "
           f"{', '.join(f'{n} {t}' for n, t in NODE_TYPES[args.node_types].items())}); security: "
           f"{'none (policy None, anonymous)' if security is None else security.describe()}; "
-          f"Ctrl-C stops", file=sys.stderr, flush=True)
+          f"{_history_words(options)}Ctrl-C stops", file=sys.stderr, flush=True)
     try:
         asyncio.run(served.serve())
     except KeyboardInterrupt:
         print("plant: stopped", file=sys.stderr)
     return 0
 
+
+def _history_words(options: ServeOptions) -> str:
+    """What the start line says of the history: where it is kept, or nothing."""
+    from czmpc.runtime.served import HISTORIZED_NODES
+
+    if not options.historize:
+        return ""
+    where = "in memory" if options.history_path is None else f"in {options.history_path}"
+    return (f"history of {', '.join(HISTORIZED_NODES)} {where} (HistoryRead pages of "
+            f"{options.history_page_values} values); ")
