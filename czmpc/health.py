@@ -322,6 +322,28 @@ class ModelHealthMonitor:
             out = (out + coef) * ds
         return out
 
+    def _y_hat(self, w_newest: float) -> float:
+        """One-step prediction [kW, deviation] of the next sample with ``w_newest`` acting.
+
+        C e = A y - B w:  y_hat = -sum a_i y_{k-i} + sum b_j w_{k-j} + sum c_i e_{k-i}.
+        """
+        a, b, c = self._a_t, self._b_t, self._c_t
+        y_hat = 0.0
+        for i in range(1, len(a)):
+            y_hat -= a[i] * self._y[i - 1]
+        for j in range(1, len(b)):
+            y_hat += b[j] * (w_newest if j == 1 else self._w[j - 2])
+        for i in range(1, len(c)):
+            y_hat += c[i] * self._e[i - 1]
+        return y_hat
+
+    def predict_next_kw(self, input_triac_pct: float) -> float:
+        """The power [kW] the model predicts for the next sample if ``input_triac_pct``
+        acts until then (NaN before the first measured sample)."""
+        if not self._started or not math.isfinite(input_triac_pct):
+            return math.nan
+        return self._p_nom + self._y_hat(self._f_of(input_triac_pct))
+
     def update(self, power_kw: float, input_triac_pct: float,
                disturbance_kw: float = math.nan) -> ModelHealth:
         """Take the sample ``y_k`` and the input applied before it; test when due.
@@ -358,16 +380,9 @@ class ModelHealthMonitor:
             self._started = True
             self._since_gap = 0
             return self._view(math.nan, math.nan)
+        y_hat = self._y_hat(w_prev)
         self._w.appendleft(w_prev)
-        # C e = A y - B w:  y_hat = -sum a_i y_{k-i} + sum b_j w_{k-j} + sum c_i e_{k-i}
-        a, b, c = self._a_t, self._b_t, self._c_t
-        y_hat = 0.0
-        for i in range(1, len(a)):
-            y_hat -= a[i] * self._y[i - 1]
-        for j in range(1, len(b)):
-            y_hat += b[j] * self._w[j - 1]
-        for i in range(1, len(c)):
-            y_hat += c[i] * self._e[i - 1]
+        c = self._c_t
         psi = tuple(self._e[i] for i in range(self.settings.residual_lags)) + tuple(
             self._fy[i] for i in range(self._na)) + tuple(self._fw[j] for j in range(self._nw))
         if measured:

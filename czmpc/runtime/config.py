@@ -21,6 +21,12 @@ Layout (every key checked; an unknown key, a wrong type or a value out of range 
     mode = "ns=2;s=Heater.Mode"                      # read, optional
     model_health = "ns=2;s=Heater.ModelHealth"       # write, optional (czmpc.health)
     owner = "ns=2;s=Heater.Owner"                    # String, read/write, optional: czmpc's lease
+    status = "ns=2;s=Heater.MPCStatus"               # write, optional: GOOD/PREDICTED/.../SHED
+    mode_in_effect = "ns=2;s=Heater.MPCMode"         # write, optional: OFF/PREDICT/ON
+    stale_alarm = "ns=2;s=Heater.StaleAlarm"         # write, optional: the stale-model alarm
+    predicted_power_kw = "ns=2;s=Heater.Predicted"   # write, optional: power predicted next [kW]
+    target_triac_pct = "ns=2;s=Heater.TargetTriac"   # write, optional: the target input [%]
+    watchdog = "ns=2;s=Heater.MPCWatchdog"           # write, optional: czmpc's own counter
     [controller]                # optional for an open-loop test (`czmpc run --test`)
     model = "model.json"
     settings = "settings.toml"  # optional
@@ -73,7 +79,8 @@ class RunConfigError(CzmpcError, ValueError):
 
 #: The ``[nodes]`` keys, in the order of `NodeIds`.
 NODE_KEYS = ("power_kw", "triac_pct", "applied_triac_pct", "setpoint_kw", "heartbeat", "mode",
-             "model_health", "owner")
+             "model_health", "owner", "status", "mode_in_effect", "stale_alarm",
+             "predicted_power_kw", "target_triac_pct", "watchdog")
 
 _TABLES: dict[str, tuple[str, ...]] = {
     "plant": ("endpoint", "ts_s", "time_scale", "max_sample_age_s", "connect_timeout_s",
@@ -109,6 +116,12 @@ class NodeIds:
     mode: str | None = None
     model_health: str | None = None
     owner: str | None = None
+    status: str | None = None
+    mode_in_effect: str | None = None
+    stale_alarm: str | None = None
+    predicted_power_kw: str | None = None
+    target_triac_pct: str | None = None
+    watchdog: str | None = None
     scales: Mapping[str, LinearScale] = dataclasses.field(default_factory=dict)
 
     def specs(self) -> dict[str, NodeSpec]:

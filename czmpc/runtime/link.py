@@ -59,7 +59,8 @@ class NodeRole:
 
     ``kind``: ``"number"`` (read or written as a number in czmpc's units), ``"counter"``
     (the heartbeat), ``"mode"`` (OFF/PREDICT/ON as text, an integer 0/1/2 or a bool) or
-    ``"text"`` (a String).
+    ``"text"`` (a String), ``"word"`` (an enumeration: its name as text, or its index as an
+    integer) or ``"flag"`` (a bool, or 0/1 as an integer).
     ``carries``: values a written number must be able to take (after scaling).
     """
 
@@ -83,6 +84,19 @@ ROLES: dict[str, NodeRole] = {
                              what="model-health figure 0..100 [-]"),
     "owner": NodeRole(reads=True, writes=True, kind="text",
                       what="controller's identity (the writer's lease)"),
+    # the controller's state, published for the HMI and the historian
+    "status": NodeRole(reads=False, writes=True, kind="word",
+                       what="controller status (text, or 0 GOOD .. 4 SHED)"),
+    "mode_in_effect": NodeRole(reads=False, writes=True, kind="word",
+                               what="mode in effect (text, or 0 OFF, 1 PREDICT, 2 ON)"),
+    "stale_alarm": NodeRole(reads=False, writes=True, kind="flag",
+                            what="stale-model alarm (bool or 0/1)"),
+    "predicted_power_kw": NodeRole(reads=False, writes=True, carries=(0.0,),
+                                   what="power predicted for the next sample [kW]"),
+    "target_triac_pct": NodeRole(reads=False, writes=True, carries=(0.0, 100.0),
+                                 what="target TRIAC input 0..100 [%]"),
+    "watchdog": NodeRole(reads=False, writes=True, kind="counter",
+                         what="czmpc's own watchdog counter"),
 }
 
 
@@ -263,6 +277,14 @@ def _carry_problem(role: NodeRole, info: NodeType, spec: NodeSpec) -> str | None
         return None
     if role.kind == "text":
         return None if info.type_name == "String" else "a STRING tag is needed"
+    if role.kind in ("word", "flag"):
+        if info.type_name in ("String", "Boolean") and (role.kind == "flag"
+                                                        or info.type_name == "String"):
+            return None
+        if info.type_name in INTEGER_RANGES:
+            return None
+        return ("a STRING or INT tag is needed" if role.kind == "word"
+                else "a BOOL or INT tag is needed")
     if role.kind == "mode":
         if info.type_name in ("String", "Boolean") or info.type_name in INTEGER_RANGES:
             return None
@@ -434,11 +456,21 @@ class PlantLink:
         return {key: (None if code.is_good() else code.name)
                 for key, code in zip(values, codes, strict=True)}
 
-    def next_heartbeat(self, current: Any) -> Any:
-        """The heartbeat Variant after ``current`` in the node's own type."""
+    def next_count(self, key: str, current: Any) -> Any:
+        """The Variant of counter ``key`` (heartbeat, watchdog) after ``current``, in its type."""
         ua = asyncua().ua
-        type_name = self.types["heartbeat"].type_name
+        type_name = self.types[key].type_name
         return ua.Variant(next_heartbeat(current, type_name), getattr(ua.VariantType, type_name))
+
+    def word(self, key: str, name: str, codes: Mapping[str, int]) -> Any:
+        """The Variant of an enumeration node ``key``: ``name`` on a String node, else its code
+        (``codes``, -1 for a name not in it) in the node's integer type, or a bool."""
+        ua = asyncua().ua
+        type_name = self.types[key].type_name
+        value: float | bool | str = name if type_name == "String" else codes.get(name, -1)
+        if type_name == "Boolean":
+            value = bool(codes.get(name, 0))
+        return ua.Variant(encode(value, type_name), getattr(ua.VariantType, type_name))
 
     def abort(self) -> None:
         """Close the session's socket at once and stop the client's tasks (no goodbye)."""

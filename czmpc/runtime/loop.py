@@ -92,6 +92,10 @@ STARTUP_WAIT_S = 15.0
 #: Deadline of a connection attempt outside a step (the start, the safe action), in
 #: connect timeouts: discovery and the session each get up to two (`secure_client`).
 STARTUP_CONNECT_FACTOR = 4.0
+#: Integer codes of the ``status`` and ``mode_in_effect`` nodes when they are INT tags.
+STATUS_CODES = {"GOOD": 0, "PREDICTED": 1, "CLAMPED": 2, "HELD": 3, "SHED": 4, "LEAD_IN": 5,
+                "TEST": 6, "OFF": 7}
+MODE_CODES = {mode.name: i for i, mode in enumerate(Mode)}
 #: An owner lease renewed within this many loop periods is held (`_check_not_driven`).
 LEASE_PERIODS = 3.0
 #: Overruns are summarised on stderr at most once per this long [wall s].
@@ -309,6 +313,7 @@ class ControlLoop:
         self._delay = dict(step_delay_s or {})
         self._stop = asyncio.Event()
         self._heartbeat_value: Any = None   # what the heartbeat node holds (our last write)
+        self._watchdog_value: Any = None    # the same for czmpc's own watchdog counter
         self._events: list[str] = []          # events of this step, for the log's event column
         self._refused_in_row = 0              # command writes refused in a row
         self._lost_at: float | None = None    # monotonic time the link was lost (None: up)
@@ -400,6 +405,7 @@ class ControlLoop:
                 self._event(f"power_kw: {note}")
                 self._said_timestamps = True
         self._heartbeat_value = self.link.initial.get("heartbeat")
+        self._watchdog_value = self.link.initial.get("watchdog")
         self.watch.reset()      # a new session: watch from czmpc's next writes on
         # bumpless: start from the input the plant applies now
         key = "applied_triac_pct" if "applied_triac_pct" in self.link.specs else "triac_pct"
@@ -686,6 +692,37 @@ class ControlLoop:
                   f"{'' if health is None else health.status()}")
         return row
 
+    def _state_values(self, command: float | None, health: ModelHealth | None) -> dict[str, Any]:
+        """The controller's state for the optional state nodes (HMI, historian), as Variants.
+
+        ``status`` and ``mode_in_effect`` are text on a String node and `STATUS_CODES` /
+        `MODE_CODES` on an integer one; ``predicted_power_kw`` is the model's prediction
+        of the next sample with this step's input acting; ``target_triac_pct`` the MPC's
+        steady-state target input.
+        """
+        link, out = self.link, {}
+        present = link.types
+        if "status" in present:
+            out["status"] = link.word("status", self.ctrl.status_words()[0] or "OFF", STATUS_CODES)
+        if "mode_in_effect" in present:
+            out["mode_in_effect"] = link.word("mode_in_effect", self.ctrl.mode.name, MODE_CODES)
+        if "stale_alarm" in present:
+            alarm = health is not None and health.stale_alarm
+            out["stale_alarm"] = link.word("stale_alarm", "ON" if alarm else "OFF",
+                                           {"OFF": 0, "ON": 1})
+        acting = command if command is not None else self._last_cmd
+        if "predicted_power_kw" in present and self.health is not None:
+            predicted = self.health.predict_next_kw(acting)
+            if math.isfinite(predicted):
+                out["predicted_power_kw"] = link.variant("predicted_power_kw", max(0.0, predicted))
+        diag = None if self._mpc is None else self._mpc.last_step
+        target = math.nan if diag is None else float(diag.target_triac_pct)
+        if "target_triac_pct" in present and math.isfinite(target):
+            out["target_triac_pct"] = link.variant("target_triac_pct", target)
+        if "watchdog" in present:
+            out["watchdog"] = link.next_count("watchdog", self._watchdog_value)
+        return out
+
     async def _read(self, end: float) -> tuple[float, str, float | None]:
         """One Read of the power and the optional nodes: (power [kW], quality, applied [%]).
 
@@ -760,10 +797,11 @@ class ControlLoop:
             if command is not None:
                 values["triac_pct"] = self.link.variant("triac_pct", float(command))
             if "heartbeat" in self.link.specs:
-                values["heartbeat"] = self.link.next_heartbeat(self._heartbeat_value)
+                values["heartbeat"] = self.link.next_count("heartbeat", self._heartbeat_value)
             if "model_health" in self.link.specs and health is not None:
                 values["model_health"] = self.link.variant(
                     "model_health", min(HEALTH_TOP, max(0.0, health.health)))
+            values |= self._state_values(command, health)
         except NodeValueError as exc:
             self._configuration_error(f"a value cannot be written: {exc}")
             return False
@@ -790,6 +828,8 @@ class ControlLoop:
                 self.watch.wrote(key, variant.Value, self.link.types[key].type_name)
         if "heartbeat" in values and results.get("heartbeat") is None:
             self._heartbeat_value = values["heartbeat"].Value
+        if "watchdog" in values and results.get("watchdog") is None:
+            self._watchdog_value = values["watchdog"].Value
         if command is None:
             self.watch.forget("triac_pct")   # the operator may drive the TRIAC outside ON
             return False
@@ -895,7 +935,7 @@ class ControlLoop:
             end = time.monotonic() + self._step_budget_s
             values: dict[str, Any] = {"triac_pct": self.link.variant("triac_pct", u)}
             if "heartbeat" in self.link.types:  # the plant's watchdog still sees us
-                values["heartbeat"] = self.link.next_heartbeat(self._heartbeat_value)
+                values["heartbeat"] = self.link.next_count("heartbeat", self._heartbeat_value)
             try:
                 results = await self.link.write(values, end - time.monotonic())
             except LinkLostError as exc:

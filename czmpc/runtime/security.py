@@ -270,7 +270,8 @@ def parse_security(table: Mapping[str, object] | None, *, endpoint: str, base_di
 # --- The served plant's side (``czmpc plant serve``) ------------------------------------
 
 #: Nodes of the served plant that only the controller's user may write.
-CONTROLLER_NODES = ("TriacCommand", "Heartbeat")
+CONTROLLER_NODES = ("TriacCommand", "Heartbeat", "ModelHealth", "Owner", "MPCStatus", "MPCMode",
+                    "StaleAlarm", "Predicted", "TargetTriac", "MPCWatchdog")
 #: Nodes of the served plant that an operator user may write (setpoint, manual mode).
 OPERATOR_NODES = ("PowerSetpoint", "Mode")
 

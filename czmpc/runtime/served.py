@@ -16,6 +16,13 @@ server)::
     Heater.PlantTime_s      Double  read    plant time [s]
     Heater.ModelHealth      Double  write   the controller's model-health figure [-]
                                             (`czmpc.health`; >= 1: stale-model alarm)
+    Heater.Owner            String  r/w     the controller's lease (its identity)
+    Heater.MPCStatus        String  write   controller status GOOD/PREDICTED/.../SHED
+    Heater.MPCMode          String  write   mode in effect OFF/PREDICT/ON
+    Heater.StaleAlarm       Boolean write   the stale-model alarm
+    Heater.Predicted        Double  write   power predicted for the next sample [kW]
+    Heater.TargetTriac      Double  write   the MPC's target input [%]
+    Heater.MPCWatchdog      Int64   write   czmpc's own watchdog counter
 
 With ``ServeOptions.node_types = "plc"`` (``czmpc plant serve --node-types plc``) the
 nodes are typed as a PLC types them, to rehearse against a real puller's server:
@@ -91,15 +98,27 @@ SERVED_NODE_IDS = {
     "heartbeat": "ns=2;s=Heater.Heartbeat",
     "mode": "ns=2;s=Heater.Mode",
     "model_health": "ns=2;s=Heater.ModelHealth",
+    "owner": "ns=2;s=Heater.Owner",
+    "status": "ns=2;s=Heater.MPCStatus",
+    "mode_in_effect": "ns=2;s=Heater.MPCMode",
+    "stale_alarm": "ns=2;s=Heater.StaleAlarm",
+    "predicted_power_kw": "ns=2;s=Heater.Predicted",
+    "target_triac_pct": "ns=2;s=Heater.TargetTriac",
+    "watchdog": "ns=2;s=Heater.MPCWatchdog",
 }
 #: The OPC UA data type of each node, by profile: ``"czmpc"`` (the default) and ``"plc"``.
 NODE_TYPES: dict[str, dict[str, str]] = {
     "czmpc": {"Power": "Double", "TriacCommand": "Double", "TriacApplied": "Double",
               "PowerSetpoint": "Double", "Heartbeat": "Int64", "Mode": "String",
-              "WatchdogTripped": "Boolean", "PlantTime_s": "Double", "ModelHealth": "Double"},
+              "WatchdogTripped": "Boolean", "PlantTime_s": "Double", "ModelHealth": "Double",
+              "Owner": "String", "MPCStatus": "String", "MPCMode": "String",
+              "StaleAlarm": "Boolean", "Predicted": "Double", "TargetTriac": "Double",
+              "MPCWatchdog": "Int64"},
     "plc": {"Power": "Float", "TriacCommand": "Float", "TriacApplied": "Float",
             "PowerSetpoint": "Float", "Heartbeat": "UInt16", "Mode": "Int16",
-            "WatchdogTripped": "Boolean", "PlantTime_s": "Float", "ModelHealth": "Float"},
+            "WatchdogTripped": "Boolean", "PlantTime_s": "Float", "ModelHealth": "Float",
+            "Owner": "String", "MPCStatus": "Int16", "MPCMode": "Int16", "StaleAlarm": "Boolean",
+            "Predicted": "Float", "TargetTriac": "Float", "MPCWatchdog": "UInt16"},
 }
 #: Columns of the plant log: plant time [s], wall-clock time of the sample [s since the
 #: epoch, as a run log's ``wall_time_s``], TRIAC input applied over the sample [%], true
@@ -271,6 +290,15 @@ class ServedPlant:
         await self._add(folder, idx, "WatchdogTripped", False, False)
         await self._add(folder, idx, "PlantTime_s", 0.0, False)
         await self._add(folder, idx, "ModelHealth", 0.0, True)
+        # the controller's state, written by czmpc run for the HMI (its [nodes] state keys)
+        plc = self.options.node_types == "plc"
+        await self._add(folder, idx, "Owner", "", True)
+        await self._add(folder, idx, "MPCStatus", 7 if plc else "", True)
+        await self._add(folder, idx, "MPCMode", "OFF", True)
+        await self._add(folder, idx, "StaleAlarm", False, True)
+        await self._add(folder, idx, "Predicted", 0.0, True)
+        await self._add(folder, idx, "TargetTriac", 0.0, True)
+        await self._add(folder, idx, "MPCWatchdog", 0, True)
         self._server = server
         log_file: IO[str] | None = None
         if self.options.log_path is not None:

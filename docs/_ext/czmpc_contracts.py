@@ -142,6 +142,26 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
                     "lease) and reads it back: a run refuses to start (exit 2) while another "
                     "controller's lease is fresh, and stops writing (exit 1) when another "
                     "writer overwrites it."),
+    "nodes.status": ("string", "none", "-",
+                     "Node id where the controller status is written every step, for the "
+                     "HMI: text ``GOOD``/``PREDICTED``/``CLAMPED``/``HELD``/``SHED`` (and "
+                     "``LEAD_IN``/``TEST`` in a test), or on an INT tag 0..4 (5, 6 in a test)."),
+    "nodes.mode_in_effect": ("string", "none", "-",
+                             "Node id where the mode in effect is written every step: text "
+                             "``OFF``/``PREDICT``/``ON``, or 0/1/2 on an INT tag."),
+    "nodes.stale_alarm": ("string", "none", "-",
+                          "Node id where the stale-model alarm is written every step (BOOL, "
+                          "or 0/1 on an INT tag); an HMI alarm can trigger on it."),
+    "nodes.predicted_power_kw": ("node", "none", "kW",
+                                 "Node id where the model's prediction of the next sample's "
+                                 "power is written every step (trend it beside the measured)."),
+    "nodes.target_triac_pct": ("node", "none", "%",
+                               "Node id where the MPC's steady-state target input is written "
+                               "every step."),
+    "nodes.watchdog": ("string", "none", "-",
+                       "Node id of czmpc's own counter, written every step like the heartbeat "
+                       "(goes on from the node's value, wraps within its type), for an HMI "
+                       "that shows whether the controller is alive."),
     "controller.model": ("string (file)", "required", "-",
                          "Model file (:doc:`model_file`) the controller is built from. An "
                          "open-loop test (``czmpc run --test``) may leave out the whole "

@@ -74,9 +74,16 @@ def test_the_guides_run_configs_pass_the_validator(tmp_path: Path) -> None:
     from czmpc.runtime.config import run_config_from_dict
 
     configs = [doc for _, doc in _toml_blocks() if "nodes" in doc]
-    assert len(configs) == 1
+    assert len(configs) == 2
     config = run_config_from_dict(configs[0], base_dir=tmp_path)
     assert config.time_scale == 20.0 and config.duration_s == 900.0
+    # the PLC's nodes (plant_link.rst, "A PLC's own OPC UA server"): Siemens-style ids and
+    # a raw Int16 command scaled 0..27648 = 0..100 %
+    plc = run_config_from_dict({**configs[0], "nodes": configs[1]["nodes"],
+                                "run": {**configs[0]["run"], "setpoint_kw": 45.0}},
+                               base_dir=tmp_path)
+    assert plc.nodes.triac_pct == 'ns=3;s="DB_Heater"."TriacRaw"'
+    assert plc.nodes.scales["triac_pct"].to_raw(100.0) == 27648.0
     # the secured example: everything but the files it names (which the reader must make)
     secured = [doc for _, doc in _toml_blocks() if "security" in doc.get("plant", {})]
     assert len(secured) == 1

@@ -17,9 +17,15 @@ pytest.importorskip("asyncua")
 TIME_SCALE = 50.0
 
 
+#: The served plant's nodes of the controller's state and lease (`STATE_NODES` tests).
+STATE_KEYS = ("owner", "status", "mode_in_effect", "stale_alarm", "predicted_power_kw",
+              "target_triac_pct", "watchdog")
+
+
 def served_nodes() -> dict[str, str]:
-    """Node ids of czmpc's served plant (without the model-health node)."""
-    return {k: v for k, v in SERVED_NODE_IDS.items() if k != "model_health"}
+    """Node ids of czmpc's served plant: the signals (no model health, state or lease)."""
+    return {k: v for k, v in SERVED_NODE_IDS.items()
+            if k != "model_health" and k not in STATE_KEYS}
 
 
 def make_config(tmp_path: Path, port: int, *, nodes: dict[str, str] | None = None,

@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import csv
 import math
+import os
 from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
@@ -377,3 +378,59 @@ def test_a_candidate_model_runs_in_shadow_and_is_compared(tmp_path: Path) -> Non
     # it never drove: the written commands are the active MPC's (tracked offset-free)
     tail = [float(r["power_kw"]) for r in rows[-10:] if r["quality"] == "good"]
     assert abs(sum(tail) / len(tail) - 31.0) < 0.05
+
+
+@pytest.mark.parametrize("node_types", ["czmpc", "plc"])
+def test_the_controller_state_is_published_every_sample(tmp_path: Path, node_types: str) -> None:
+    """[nodes] status, mode_in_effect, stale_alarm, predicted_power_kw, target_triac_pct,
+    watchdog and the owner lease, on the served plant as text and as PLC integers."""
+    from plant_rig import STATE_KEYS
+
+    from czmpc.runtime.loop import STATUS_CODES
+    from czmpc.runtime.served import SERVED_NODE_IDS
+
+    model, plant = _model_plant()
+    port = free_port()
+    served = ServedPlant(plant, initial_triac_pct=plant.initial_triac_pct, options=ServeOptions(
+        endpoint=f"opc.tcp://127.0.0.1:{port}/czmpc/", time_scale=TIME_SCALE, watchdog_s=None,
+        node_types=node_types))
+    nodes = {**{k: v for k, v in served_nodes().items() if k != "setpoint_kw"},
+             **{k: SERVED_NODE_IDS[k] for k in STATE_KEYS}}
+    cfg = make_config(tmp_path, port, duration_s=160.0, run={"setpoint_kw": 33.0}, nodes=nodes)
+    loop = ControlLoop(cfg, OffsetFreeMPC(model, MPCSettings.default_for(model)))
+    seen: list[tuple[Any, ...]] = []
+
+    async def body() -> Any:
+        async def sample() -> None:      # what an HMI trend would record, every 20 ms
+            names = ("MPCWatchdog", "MPCStatus", "MPCMode", "Predicted", "TargetTriac", "Owner")
+            while True:
+                seen.append(tuple([await served._nodes[n].read_value() for n in names]))
+                await asyncio.sleep(0.02)
+
+        sampler = asyncio.create_task(sample())
+        try:
+            result = await loop.run()
+        finally:
+            sampler.cancel()
+        return result, await served._nodes["MPCWatchdog"].read_value()
+
+    summary, last_watchdog = asyncio.run(_with_served(served, body()))
+    rows = _rows(cfg.log_path)
+    assert summary.refused_writes == {} and not summary.failed
+    watchdogs = [s[0] for s in seen]
+    # czmpc's watchdog went up by one a sample: as many increments as steps written, and an
+    # HMI polling twice a period saw it move at (nearly) every sample
+    assert last_watchdog == summary.n_writes == len(rows)
+    assert all(b >= a for a, b in zip(watchdogs, watchdogs[1:], strict=False))
+    assert len(set(watchdogs)) >= 0.8 * len(rows)
+    status, mode, predicted, target, owner = seen[-1][1:]
+    if node_types == "plc":      # PLC integers: STATUS_CODES and 0 OFF, 1 PREDICT, 2 ON
+        assert (status, mode) == (STATUS_CODES[rows[-1]["status"]], 2)
+    else:
+        assert (status, mode) == (rows[-1]["status"], "ON")
+    last_power = float(rows[-1]["power_kw"])
+    assert abs(predicted - last_power) < 0.05
+    diag = loop._mpc.last_step if loop._mpc is not None else None
+    assert diag is not None
+    assert target == pytest.approx(diag.target_triac_pct, rel=1e-6)   # Float: 7 digits
+    assert owner == loop.identity and f"pid {os.getpid()}" in owner
