@@ -4,11 +4,17 @@ Writes into DIR:
 
   run.png    five panels on the plant-time axis [s]: power [kW] (measured, the model's
              one-step prediction, setpoint); TRIAC input [%] (command, applied, the
-             samples written); quality and mode (samples not good, OFF/PREDICT/ON);
+             samples written); status and link (GOOD/PREDICTED/CLAMPED/HELD/SHED, samples
+             not good, the stretches without a link shaded on every panel);
              timing [ms wall] (lateness, step latency, overruns); model health [-]
              (the stale-model test's figure, alarm limit 1, and the alarm)
   report.md  steps, modes, bad samples, writes, overruns, timing, tracking error,
-             largest health figure and the stale-model alarm, with the figure
+             largest health figure and the stale-model alarm, link losses and
+             reconnections counted apart, and a table of what happened (link lost, shed,
+             mode changes, refused writes, aborts) with times and durations
+
+RUN.csv may be a directory or a quoted glob: the parts of a rotated log, or the runs of
+a log directory ([run] log = "logs/"), are drawn as one record, run after run.
 
 Logs of older versions without the health columns draw without that panel's curve.
 
@@ -28,7 +34,9 @@ ORDER = 82
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
-    parser.add_argument("log", metavar="RUN.csv", type=Path, help="the run log 'czmpc run' wrote")
+    parser.add_argument("log", metavar="RUN.csv",
+                        help="the run log 'czmpc run' wrote, or a directory or quoted glob of "
+                             "its parts")
     parser.add_argument("--out", metavar="DIR", type=Path, required=True,
                         help="output directory for run.png and report.md (created; files of "
                              "those names are replaced)")
@@ -37,7 +45,14 @@ def register(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Read the log, draw it, write the summary."""
     from czmpc.reports.run_report import write_run_report
+    from czmpc.runtime.logfiles import log_parts
 
-    files = write_run_report(args.log, args.out)
+    parts = log_parts(args.log)
+    if not parts:
+        from czmpc.reports.run_report import RunLogError
+
+        raise RunLogError(f"{args.log}: no czmpc run log there (a file, a directory or a "
+                          "quoted glob of run logs)")
+    files = write_run_report(parts, args.out)
     print(f"wrote {', '.join(str(f) for f in files)}")
     return 0

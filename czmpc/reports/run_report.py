@@ -1,6 +1,6 @@
 """A run log of `czmpc run` drawn for an operator: power, input, quality, timing, model health.
 
-`read_run_log` reads the CSV the runtime writes (`czmpc.runtime.loop.LOG_COLUMNS`; the
+`read_run_log` reads the CSV the runtime writes (`czmpc.runtime.logfiles.LOG_COLUMNS`; the
 columns ``predicted_kw``, ``health`` and ``stale_alarm`` of newer logs are optional, so
 older logs draw too), `plot_run` draws one figure of five panels on the plant-time
 axis, and `write_run_report` writes it with a short Markdown summary:
@@ -8,15 +8,20 @@ axis, and `write_run_report` writes it with a short Markdown summary:
 1. power [kW]: measured (good samples), the model's one-step prediction, setpoint;
 2. TRIAC input [%]: the command and the input the plant reports applied, with the
    samples written to the plant marked;
-3. quality and mode: samples that were not good (bad, uncertain, stale, disconnected)
-   and the controller mode (OFF / PREDICT / ON) over time;
+3. status and link: the controller status (GOOD / PREDICTED / CLAMPED / HELD / SHED),
+   the samples that were not good (bad, uncertain, stale, repeated, disconnected), and
+   the stretches without a link shaded on every panel;
 4. timing [ms]: lateness of each step's start against its deadline and the step's
    latency, with overruns (skipped periods) marked;
 5. model health [-]: the stale-model test's figure (``czmpc.health``; the alarm limit is
    1) and the moment the alarm was raised.
 
 Rows written by the safe action after a stop (no time, status ``SAFE_RAMP``) are
-counted in the summary and left out of the time panels.
+counted in the summary and left out of the time panels. The summary lists what happened
+(`incidents`): link losses and shed periods with their start and duration, mode
+changes, refused writes, aborts and configuration errors, from the log's ``connected``,
+``status`` and ``event`` columns. Several files (the parts of a rotated log, or runs
+after a restart) are read as one record, each run after the previous one.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from __future__ import annotations
 import csv
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,8 +50,10 @@ REQUIRED_COLUMNS = ("k", "time_s", "power_kw", "quality", "setpoint_kw", "triac_
                     "skipped")
 #: Size of the five-panel figure [inch].
 RUN_FIGSIZE_IN = (10.0, 11.0)
-#: Modes in the order they are drawn on the mode axis.
+#: Modes, for the summary's counts.
 MODES = ("OFF", "PREDICT", "ON")
+#: Controller statuses in the order they are drawn on the status axis.
+STATUSES = ("GOOD", "PREDICTED", "CLAMPED", "HELD", "SHED")
 
 
 class RunLogError(CzmpcError, ValueError):
@@ -84,6 +92,12 @@ class RunRecord:
         True from the stale alarm on.
     n_safe_rows :
         Rows of the safe action after the stop.
+    status :
+        Controller status per step (empty in logs without the column).
+    connected :
+        True where the link was up at the step (all True in logs without the column).
+    event :
+        The event column per step (what the loop said: link lost, refused write, ...).
     """
 
     source: str
@@ -103,6 +117,9 @@ class RunRecord:
     stale_alarm: np.ndarray = field(repr=False)
     candidate_predicted_kw: FloatArray = field(repr=False)
     n_safe_rows: int = 0
+    status: tuple[str, ...] = field(default=(), repr=False)
+    connected: np.ndarray = field(default_factory=lambda: np.ones(0, dtype=bool), repr=False)
+    event: tuple[str, ...] = field(default=(), repr=False)
 
     @property
     def n_steps(self) -> int:
@@ -126,13 +143,14 @@ def _number(text: str, *, path: str, line: int, column: str) -> float:
                           f"got {text!r}") from None
 
 
-def read_run_log(path: str | os.PathLike[str]) -> RunRecord:
-    """Read a `czmpc run` log.
+def read_run_log(path: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]) -> RunRecord:
+    """Read a `czmpc run` log, or several files as one (module docstring).
 
     Parameters
     ----------
     path :
-        The CSV file.
+        The CSV file, or the files in the order they were written (a later run's plant
+        time, which starts again at 0, is put after the previous file's last step).
 
     Returns
     -------
@@ -143,46 +161,109 @@ def read_run_log(path: str | os.PathLike[str]) -> RunRecord:
     RunLogError
         A missing column, a field that is not a number, or no step at all.
     OSError
-        The file cannot be read.
+        A file cannot be read.
     """
-    name = os.fspath(path)
-    with open(path, newline="", encoding="utf-8") as fh:
-        reader = csv.DictReader(fh)
-        header = reader.fieldnames or []
-        missing = [c for c in REQUIRED_COLUMNS if c not in header]
-        if missing:
-            raise RunLogError(f"{name}, line 1: expected the run-log columns of czmpc run; "
-                              f"missing {missing}")
-        cols: dict[str, list[float]] = {c: [] for c in (
-            "time_s", "power_kw", "setpoint_kw", "triac_pct", "applied_triac_pct",
-            "predicted_kw", "lateness_s", "step_latency_s", "skipped", "health", "written",
-            "stale_alarm", "candidate_predicted_kw")}
-        quality: list[bool] = []
-        modes: list[str] = []
-        n_safe = 0
-        for line, row in enumerate(reader, start=2):
-            if row.get("status") == "SAFE_RAMP" or row["time_s"] == "":
-                n_safe += 1
-                continue
-            for c in cols:
-                cols[c].append(_number(row.get(c) or "", path=name, line=line, column=c))
-            quality.append(row["quality"] == "good")
-            modes.append(row["mode"])
-    if not quality:
-        raise RunLogError(f"{name}: expected at least one step row; got none")
+    paths = [path] if isinstance(path, str | os.PathLike) else list(path)
+    if not paths:
+        raise RunLogError("read_run_log: expected at least one run-log file; got none")
+    cols: dict[str, list[float]] = {c: [] for c in (
+        "time_s", "power_kw", "setpoint_kw", "triac_pct", "applied_triac_pct",
+        "predicted_kw", "lateness_s", "step_latency_s", "skipped", "health", "written",
+        "stale_alarm", "candidate_predicted_kw")}
+    words: dict[str, list[str]] = {"quality": [], "mode": [], "status": [], "event": [],
+                                   "connected": []}
+    n_safe = 0
+    offset_s = 0.0
+    for one in paths:
+        name = os.fspath(one)
+        with open(one, newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            header = reader.fieldnames or []
+            missing = [c for c in REQUIRED_COLUMNS if c not in header]
+            if missing:
+                raise RunLogError(f"{name}, line 1: expected the run-log columns of czmpc run; "
+                                  f"missing {missing}")
+            first = True
+            for line, row in enumerate(reader, start=2):
+                if row.get("status") == "SAFE_RAMP" or row["time_s"] == "":
+                    n_safe += 1
+                    continue
+                t = _number(row["time_s"], path=name, line=line, column="time_s")
+                if first and cols["time_s"] and t + offset_s <= cols["time_s"][-1]:
+                    # another run: its plant time starts again; put it after this one
+                    step = cols["time_s"][-1] - cols["time_s"][-2] if len(cols["time_s"]) > 1 \
+                        else 1.0
+                    offset_s = cols["time_s"][-1] + 2.0 * step - t
+                first = False
+                for c in cols:
+                    cols[c].append(_number(row.get(c) or "", path=name, line=line, column=c))
+                cols["time_s"][-1] = t + offset_s
+                for c in words:
+                    words[c].append(row.get(c) or "")
+    if not words["quality"]:
+        raise RunLogError(f"{', '.join(os.fspath(p) for p in paths)}: expected at least one "
+                          "step row; got none")
 
     def arr(c: str) -> FloatArray:
         return np.asarray(cols[c], dtype=float)
 
     return RunRecord(
-        source=name, time_s=arr("time_s"), power_kw=arr("power_kw"),
+        source=", ".join(os.fspath(p) for p in paths), time_s=arr("time_s"),
+        power_kw=arr("power_kw"),
         setpoint_kw=arr("setpoint_kw"), triac_pct=arr("triac_pct"),
         applied_triac_pct=arr("applied_triac_pct"), predicted_kw=arr("predicted_kw"),
-        good=np.asarray(quality, dtype=bool), mode=tuple(modes),
+        good=np.asarray([q == "good" for q in words["quality"]], dtype=bool),
+        mode=tuple(words["mode"]),
         written=np.nan_to_num(arr("written")) > 0, lateness_s=arr("lateness_s"),
         latency_s=arr("step_latency_s"), skipped=np.nan_to_num(arr("skipped")).astype(int),
         health=arr("health"), stale_alarm=np.nan_to_num(arr("stale_alarm")) > 0,
-        candidate_predicted_kw=arr("candidate_predicted_kw"), n_safe_rows=n_safe)
+        candidate_predicted_kw=arr("candidate_predicted_kw"), n_safe_rows=n_safe,
+        status=tuple(words["status"]),
+        connected=np.asarray([c != "0" for c in words["connected"]], dtype=bool),
+        event=tuple(words["event"]))
+
+
+@dataclass(frozen=True, slots=True)
+class Incident:
+    """One thing that happened in a run: what, from when [plant s], for how long [s]."""
+
+    what: str
+    time_s: float
+    duration_s: float | None = None
+    detail: str = ""
+
+
+def _stretches(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last + 1) index pairs of the runs of True in ``mask``."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int), [0]])))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def incidents(record: RunRecord) -> list[Incident]:
+    """Link losses and shed periods (with durations), mode changes, refused writes, aborts
+    and configuration errors, in time order."""
+    t = record.time_s
+    out: list[Incident] = []
+
+    def span(a: int, b: int) -> float | None:
+        return None if b >= t.size else float(t[b] - t[a])   # None: to the end of the run
+
+    for a, b in _stretches(~record.connected):
+        out.append(Incident("link lost", float(t[a]), span(a, b),
+                            "never restored" if b >= t.size else "restored"))
+    shed = np.array([s == "SHED" for s in record.status], dtype=bool)
+    for a, b in _stretches(shed):
+        out.append(Incident("shed", float(t[a]), span(a, b)))
+    for i in range(1, len(record.mode)):
+        if record.mode[i] != record.mode[i - 1] and record.mode[i] and record.mode[i - 1]:
+            out.append(Incident("mode", float(t[i]), None,
+                                f"{record.mode[i - 1]} -> {record.mode[i]}"))
+    for i, text in enumerate(record.event):
+        for part in (p.strip() for p in text.split(";")):
+            if part.startswith(("write refused", "ABORT", "CONFIGURATION ERROR",
+                                "ANOTHER WRITER")):
+                out.append(Incident(part.split(":")[0], float(t[i]), None, part))
+    return sorted(out, key=lambda x: x.time_s)
 
 
 def plot_run(record: RunRecord, path: str | os.PathLike[str]) -> Figure:
@@ -227,15 +308,22 @@ def plot_run(record: RunRecord, path: str | os.PathLike[str]) -> Figure:
                   marker="|", markersize=3, color="tab:green", alpha=0.4, label="written")
     ax_u.set_ylabel("TRIAC input [%]")
     _legend_above(ax_u)
-    mode_level = np.array([MODES.index(m) if m in MODES else np.nan for m in record.mode])
-    ax_q.plot(t, mode_level, color="tab:purple", drawstyle="steps-post", label="mode")
+    if record.status:
+        level = np.array([STATUSES.index(s) if s in STATUSES else np.nan for s in record.status])
+        ax_q.plot(t, level, color="tab:purple", drawstyle="steps-post", label="status")
     bad = ~record.good
     if np.any(bad):
-        ax_q.plot(t[bad], np.full(int(bad.sum()), -0.5), linestyle="none", marker="|",
+        ax_q.plot(t[bad], np.full(int(bad.sum()), -0.7), linestyle="none", marker="|",
                   color="tab:red", label="sample not good")
-    ax_q.set_yticks([-0.5, 0, 1, 2], ["not good", *MODES])
-    ax_q.set_ylim(-1.0, 2.5)
-    ax_q.set_ylabel("quality, mode [-]")
+    down = _stretches(~record.connected) if record.connected.size else []
+    for i, (a, b) in enumerate(down):
+        end = t[b] if b < t.size else t[-1]
+        for ax in axes:
+            ax.axvspan(t[a], end, color="tab:red", alpha=0.12, linewidth=0,
+                       label="link down" if ax is ax_q and i == 0 else None)
+    ax_q.set_yticks([-0.7, *range(len(STATUSES))], ["not good", *STATUSES])
+    ax_q.set_ylim(-1.2, len(STATUSES) - 0.5)
+    ax_q.set_ylabel("status, quality [-]")
     _legend_above(ax_q)
     ax_t.plot(t, 1e3 * record.lateness_s, color="tab:orange", linewidth=0.8, label="lateness")
     ax_t.plot(t, 1e3 * record.latency_s, color="tab:brown", linewidth=0.8,
@@ -264,6 +352,12 @@ def plot_run(record: RunRecord, path: str | os.PathLike[str]) -> Figure:
     return _save(fig, path)
 
 
+def _duration_words(incident: Incident) -> str:
+    if incident.duration_s is not None:
+        return f"{incident.duration_s:g}"
+    return "to the end" if incident.what in ("link lost", "shed") else ""
+
+
 def summary_markdown(record: RunRecord, figure_name: str) -> str:
     """A short Markdown summary of the run, with the figure."""
     good = record.good
@@ -273,7 +367,7 @@ def summary_markdown(record: RunRecord, figure_name: str) -> str:
     alarm = record.alarm_time_s
     modes = {m: record.mode.count(m) for m in MODES if m in record.mode}
     lines = [
-        f"# Run report: {Path(record.source).name}",
+        f"# Run report: {', '.join(Path(p).name for p in record.source.split(', '))}",
         "",
         f"- steps: {record.n_steps} over {record.time_s[-1] - record.time_s[0]:g} s of plant "
         f"time; modes: " + ", ".join(f"{m} {n}" for m, n in modes.items()),
@@ -301,12 +395,23 @@ def summary_markdown(record: RunRecord, figure_name: str) -> str:
                      f"model {rms[0]:.4g} kW, candidate model (shadow) {rms[1]:.4g} kW")
     if record.n_safe_rows:
         lines.append(f"- safe action after the stop: {record.n_safe_rows} rows")
+    found = incidents(record)
+    losses = [x for x in found if x.what == "link lost"]
+    restored = [x for x in losses if x.detail == "restored"]
+    lines.append(f"- link losses: {len(losses)}; reconnections: {len(restored)}"
+                 + ("; **the link was down at the end**" if len(restored) < len(losses) else ""))
+    if found:
+        lines += ["", "## What happened", "", "| plant time [s] | what | for [s] | detail |",
+                  "|---:|---|---:|---|"]
+        lines += [f"| {x.time_s:g} | {x.what} | {_duration_words(x)} | "
+                  f"{x.detail.replace('|', '/')} |" for x in found]
     lines += ["", f"![run]({figure_name})", ""]
     return "\n".join(lines)
 
 
-def write_run_report(log_path: str | os.PathLike[str], out_dir: str | os.PathLike[str]) -> list[Path]:
-    """Read a run log; write ``run.png`` and ``report.md`` into ``out_dir``; return the paths."""
+def write_run_report(log_path: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+                     out_dir: str | os.PathLike[str]) -> list[Path]:
+    """Read a run log (or its parts); write ``run.png`` and ``report.md``; return the paths."""
     from sysid.atomic import atomic_write_text
 
     record = read_run_log(log_path)
@@ -319,5 +424,5 @@ def write_run_report(log_path: str | os.PathLike[str], out_dir: str | os.PathLik
     return [figure, report]
 
 
-__all__ = ["REQUIRED_COLUMNS", "RunLogError", "RunRecord", "plot_run", "read_run_log",
-           "summary_markdown", "write_run_report"]
+__all__ = ["REQUIRED_COLUMNS", "STATUSES", "Incident", "RunLogError", "RunRecord", "incidents",
+           "plot_run", "read_run_log", "summary_markdown", "write_run_report"]

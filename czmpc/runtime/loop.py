@@ -64,14 +64,7 @@ from czmpc.modes import Mode
 from czmpc.runtime import alignment, refusals
 from czmpc.runtime.config import RunConfig
 from czmpc.runtime.link import HEALTH_TOP, CheckReport, LinkLostError, PlantLink
-from czmpc.runtime.logfiles import (
-    LOG_COLUMNS,
-    RUN_META_FORMAT,
-    RunLog,
-    meta_path,
-    open_run_log,
-    refuse_overwrite,
-)
+from czmpc.runtime.logfiles import LOG_COLUMNS, RunLog, open_run_log, refuse_overwrite
 from czmpc.runtime.measurement import age_s, measurement, sample_time
 from czmpc.runtime.node_types import NodeValueError, decode
 from czmpc.runtime.ownership import PlantBusyError, PlantLock, WriterWatch, identity, moved
@@ -973,5 +966,5 @@ def tty_status() -> Callable[[str], None] | None:
     return show
 
 
-__all__ = ["LOG_COLUMNS", "RUN_META_FORMAT", "ControlLoop", "LoopController", "MPCDriver",
-           "RunLog", "RunSummary", "meta_path", "tty_status"]
+__all__ = ["MODE_CODES", "STATUS_CODES", "ControlLoop", "LoopController", "MPCDriver",
+           "RunSummary", "tty_status"]

@@ -209,7 +209,7 @@ def _joined_rows(parts: list[Path]) -> tuple[list[dict[str, str]], list[int], di
             if last_k is not None and (new_run_part or k <= last_k):
                 gap = (wall - last_wall) / period_wall if period_wall > 0 else math.nan
                 next_free = offset + last_k + 2    # at least one empty slot: a gap
-                offset = max(next_free, offset + last_k + 1 + round(gap)
+                offset = max(next_free, offset + last_k + round(gap)
                              if math.isfinite(gap) else next_free) - k
                 new_run_part = False
             rows.append(row)

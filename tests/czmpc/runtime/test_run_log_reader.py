@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import datetime as dt
+import json
 import math
 from pathlib import Path
 
@@ -80,3 +82,38 @@ def test_meta_file_sits_beside_the_log(tmp_path: Path) -> None:
     plain = tmp_path / "plain.csv"
     plain.write_text("time_s,triac_pct,power_kw\n0,1,2\n", encoding="utf-8")
     assert not is_run_log(plain)
+
+
+def test_a_rotated_log_is_read_as_one_and_each_part_has_its_meta(tmp_path: Path) -> None:
+    """Parts written by size rotation join up without a gap; a restart leaves one."""
+    from czmpc.runtime.logfiles import log_parts, open_run_log
+    from czmpc.runtime.runlog import read_run_log as read_dataset
+
+    def rows(log: RunLog, n: int, start_wall: float) -> None:
+        for k in range(n):
+            log.row({c: "" for c in LOG_COLUMNS} | {
+                "k": k, "time_s": 2.0 * k, "wall_time_s": start_wall + 2.0 * k,
+                "power_kw": 30.0 + 0.01 * k, "quality": "good", "triac_pct": 40.0 + 0.1 * (k % 7),
+                "applied_triac_pct": 40.0 + 0.1 * ((k - 1) % 7), "status": "GOOD"})
+
+    meta = {"ts_s": 2.0, "time_scale": 1.0}
+    log = open_run_log(tmp_path / "logs", meta, per_run=True, rotate_bytes=2000)
+    rows(log, 120, 1000.0)
+    log.close()
+    parts = log_parts(tmp_path / "logs")
+    assert len(parts) >= 3                                 # rotated by size
+    metas = [json.loads(meta_path(p).read_text(encoding="utf-8")) for p in parts]
+    assert [m.get("part", 1) for m in metas] == list(range(1, len(parts) + 1))
+    assert all(m["ts_s"] == 2.0 for m in metas)
+    one = read_dataset(tmp_path / "logs")
+    assert one.n_samples == 120 and one.n_segments == 1
+    # a restart 100 s later: its own file; read together, a gap of the wall time between
+    later = open_run_log(tmp_path / "logs", meta, per_run=True,
+                         now=dt.datetime(2031, 1, 1, tzinfo=dt.UTC))
+    rows(later, 30, 1000.0 + 2.0 * 119 + 100.0)     # 100 s after the first run's last row
+    later.close()
+    both = read_dataset(tmp_path / "logs")
+    assert both.n_segments == 2 and both.n_samples == 120 + 30
+    split = next(p for p in both.preprocessing if p.get("what") == "split at unusable samples")
+    (_, end0), (start1, _) = split["segment_time_s"]
+    assert start1 - end0 == pytest.approx(100.0)    # the wall time between them, time scale 1

@@ -11,6 +11,7 @@ import asyncio
 import csv
 import datetime as dt
 import json
+import re
 import subprocess
 import sys
 import time
@@ -100,6 +101,15 @@ def test_stderr_to_a_file_tells_when_the_plant_stopped(procs: list[subprocess.Po
     assert any(m.startswith("shedding at") for m in messages)
     assert messages[-1].startswith("run ended: ") and "1 link losses, 0 reconnects" in messages[-1]
     assert run.returncode == 0, run.stdout
+    # the operator's report tells the outage: shed to the end, the link never restored
+    report = subprocess.run([*CLI, "run-report", str(tmp_path / "run.csv"), "--out",
+                             str(tmp_path / "report")], capture_output=True, text=True,
+                            timeout=120)
+    assert report.returncode == 0, report.stderr
+    text = (tmp_path / "report" / "report.md").read_text(encoding="utf-8")
+    assert "link losses: 1; reconnections: 0; **the link was down at the end**" in text
+    assert re.search(r"\| [0-9.]+ \| link lost \| to the end \| never restored \|", text)
+    assert re.search(r"\| [0-9.]+ \| shed \| to the end \| +\|", text)
 
 
 def _write_node(endpoint: str, node_id: str, value: object, vtype: str) -> None:
