@@ -430,6 +430,7 @@ class ControlLoop:
         lock = PlantLock(cfg.endpoint, cfg.nodes.triac_pct, self.identity)
         lock.acquire()     # a second controller for this plant on this machine stops here
         log: RunLog | None = None
+        safe_done = False
         try:
             give_up = time.monotonic() + STARTUP_WAIT_S
             while not await self._try_connect(time.monotonic(),
@@ -451,6 +452,15 @@ class ControlLoop:
                           log.path)
                 await self._loop(log)
             await self._safe_action(log)
+            safe_done = True
+        except (asyncio.CancelledError, KeyboardInterrupt):
+            # No signal handler could be installed (Windows) or the caller cancelled the
+            # run: the safe action still runs, from here, before the cancellation goes on.
+            self.summary.stopped_by = "cancelled"
+            if log is not None and not safe_done:
+                safe_done = True
+                await self._safe_action(log)
+            raise
         finally:
             if log is not None:
                 log.close()

@@ -434,3 +434,42 @@ def test_the_controller_state_is_published_every_sample(tmp_path: Path, node_typ
     assert diag is not None
     assert target == pytest.approx(diag.target_triac_pct, rel=1e-6)   # Float: 7 digits
     assert owner == loop.identity and f"pid {os.getpid()}" in owner
+
+
+@pytest.mark.parametrize("signal_handlers", [True, False], ids=["posix", "no-signal-handlers"])
+def test_a_cancelled_run_still_takes_the_safe_action(tmp_path: Path, signal_handlers: bool,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """Where no signal handler can be installed (Windows), Ctrl-C cancels the run's task:
+    the safe ramp runs from the cancellation path, then the cancellation goes on."""
+    model, plant = _model_plant()
+    port = free_port()
+    served = ServedPlant(plant, initial_triac_pct=plant.initial_triac_pct, options=ServeOptions(
+        endpoint=f"opc.tcp://127.0.0.1:{port}/czmpc/", time_scale=TIME_SCALE, watchdog_s=None))
+    nodes = {k: v for k, v in served_nodes().items() if k != "setpoint_kw"}
+    cfg = make_config(tmp_path, port, duration_s=2000.0, run={"setpoint_kw": 40.0}, nodes=nodes,
+                      safety={"action": "ramp", "safe_triac_pct": 33.0})
+    loop = ControlLoop(cfg, OffsetFreeMPC(model, MPCSettings.default_for(model)))
+
+    def refuse(*_args: object) -> None:
+        raise NotImplementedError("no signal handlers on this platform")
+
+    async def body() -> tuple[bool, float]:
+        if not signal_handlers:
+            monkeypatch.setattr(asyncio.get_running_loop(), "add_signal_handler", refuse)
+        task = asyncio.create_task(loop.run())
+        while not cfg.log_path.exists() or len(_rows(cfg.log_path)) < 20:
+            await asyncio.sleep(0.05)
+        task.cancel()
+        try:
+            await task
+            cancelled = False
+        except asyncio.CancelledError:
+            cancelled = True
+        return cancelled, float(await served._nodes["TriacCommand"].read_value())
+
+    cancelled, command = asyncio.run(_with_served(served, body()))
+    assert cancelled                                  # the cancellation went on
+    rows = _rows(cfg.log_path)
+    ramp = [float(r["triac_pct"]) for r in rows if r["status"] == "SAFE_RAMP"]
+    assert ramp and ramp[-1] == 33.0 and command == pytest.approx(33.0)
+    assert loop.summary.stopped_by == "cancelled"
