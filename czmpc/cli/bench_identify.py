@@ -13,6 +13,11 @@ With --with-sippy it also fits SIPPY's ARX(1,2), ARMAX(1,2,1) and OE(2,1)
 ratios and both criteria (V, eq. 9; W, eq. 10) beside ours; if SIPPY is missing or
 fails, the output says so.
 
+With --real-logs DIR it also runs the pipeline as 'czmpc identify' does by default
+(orders auto) on each real log of another rig found in DIR (data/real/ of the
+repository) and prints model.json's simulation error from rest beside the best linear
+OE of a multistart search (issue 29's goal: within 1.10 on every log).
+
 Exit codes: 0 done (goal met or not, unless --strict); 1 goal missed with --strict;
 2 bad input.
 """
@@ -63,6 +68,11 @@ def register(parser: argparse.ArgumentParser) -> None:
         help="also fit SIPPY's ARX/ARMAX/OE on the same data and compare times and V, W",
     )
     parser.add_argument(
+        "--real-logs", metavar="DIR", type=Path, default=None,
+        help="also tabulate identify's model.json against a multistart OE reference on each "
+             "real log in DIR (data/real/ of the repository)",
+    )
+    parser.add_argument(
         "--strict", action="store_true",
         help="exit 1 if the whole pipeline's median time misses the 2 s goal",
     )
@@ -77,6 +87,8 @@ def _command_line(args: argparse.Namespace) -> str:
         words += ["--out", str(args.out)]
     if args.with_sippy:
         words.append("--with-sippy")
+    if args.real_logs is not None:
+        words += ["--real-logs", str(args.real_logs)]
     return " ".join(shlex.quote(w) for w in words)
 
 
@@ -104,6 +116,9 @@ def run(args: argparse.Namespace) -> int:
     result = run_benchmark(data, repeats=args.repeats, with_sippy=args.with_sippy,
                            command=_command_line(args), progress=progress)
     text = format_report(result)
+    if args.real_logs is not None:
+        from czmpc.campaigns.bench_reallogs import format_real_logs, run_real_logs
+        text += "\n" + format_real_logs(run_real_logs(args.real_logs, progress=progress))
     print(text, end="")
     target = args.benchmarks_md if args.benchmarks_md is not None else _argtypes.default_benchmarks_md()
     write_benchmarks_section(target, text)

@@ -14,7 +14,12 @@ from sysid.errors import DataFileError, IdentificationError
 from sysid.linear import arx_least_squares, fit_arx
 from sysid.model import OperatingPoint
 from sysid.preprocess import find_operating_point, find_outlier_candidates, to_deviation
-from sysid.reallogs import read_cascaded_tanks, read_daisy_heating, read_tclab
+from sysid.reallogs import (
+    read_cascaded_tanks,
+    read_daisy_exchanger,
+    read_daisy_heating,
+    read_tclab,
+)
 from sysid.residuals import autocorrelation
 from sysid.simulate import simulate
 
@@ -23,8 +28,10 @@ REAL = REPO / "data" / "real"
 DAISY = REAL / "daisy_heating_system.dat"
 TCLAB = REAL / "tclab_mimo_steps_data.txt"
 TANKS = REAL / "cascaded_tanks_dataBenchmark.csv"
+EXCHANGER = REAL / "daisy_exchanger.dat"
 #: data/real/README.md: the first 16 hex digits of each file's SHA-256.
 SHA256_PREFIX = {DAISY: "928866ebcfadf998", TCLAB: "10278caee2b095cc",
+                 EXCHANGER: "cfb5a447fb573f87",
                  TANKS: "7416cb2aeb97c077"}
 #: DaISy's description: the steady input before the experiment; y0 = y[0].
 DAISY_U0_V, DAISY_Y0_DEGC = 6.0, 129.32
@@ -304,3 +311,29 @@ def test_read_cascaded_tanks_accepts_a_repeated_ts_and_trailing_blank_lines(
     np.testing.assert_array_equal(data.triac_pct, [2.0, 6.0, 10.0])
     np.testing.assert_array_equal(data.power_kw, [4.0, 8.0, 12.0])
     np.testing.assert_array_equal(data.time_s, [0.0, 4.0, 8.0])
+
+
+def test_exchanger_loads_4000_samples_at_1_s_starting_held_at_flow_0_3() -> None:
+    data = read_daisy_exchanger(EXCHANGER)
+    assert data.n_samples == 4000 and data.ts_s == 1.0
+    np.testing.assert_array_equal(data.time_s, np.arange(4000.0))
+    assert (data.input_unit, data.output_unit) == ("-", "degC")
+    # data/real/README.md: flow 0.10 .. 0.70, held at 0.3 at first; temperature 92.8 .. 101.4
+    # (rounded: 92.8154 .. 101.441)
+    assert data.triac_pct[0] == 0.3 and data.power_kw[0] == 98.6281
+    assert 0.10 <= data.triac_pct.min() < 0.11 and 0.69 < data.triac_pct.max() <= 0.70
+    assert (data.power_kw.min(), data.power_kw.max()) == (92.8154, 101.441)
+    assert data.sha256 is not None and data.sha256.startswith(SHA256_PREFIX[EXCHANGER])
+
+
+@pytest.mark.parametrize(("text", "pattern"), [
+    ("1 0.3 98.6\n2 0.3\n3 0.3 98.6\n", r"line 2: expected 3 whitespace-separated fields"),
+    ("1 0.3 98.6\n2 0.3 98.6\n4 0.3 98.6\n", r"line 3, column 'sample'"),
+    ("1 0.3 98.6\n2 x 98.6\n3 0.3 98.6\n", r"line 2, column 'liquid_flow'"),
+], ids=["fields", "skipped-index", "number"])
+def test_read_daisy_exchanger_names_line_and_column(tmp_path: Path, text: str,
+                                                    pattern: str) -> None:
+    path = tmp_path / "exchanger.dat"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(DataFileError, match=pattern):
+        read_daisy_exchanger(path)

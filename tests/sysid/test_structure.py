@@ -2,21 +2,16 @@
 
 from __future__ import annotations
 
-import itertools
 import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
-from sysid.criteria import ballistic_mse
 from sysid.data import read_csv
 from sysid.errors import IdentificationError
-from sysid.model import OperatingPoint
-from sysid.pipeline import PipelineResult, run_paper_pipeline
-from sysid.reallogs import read_cascaded_tanks, read_daisy_heating, read_tclab
+from sysid.pipeline import run_paper_pipeline
 from sysid.structure import (
     MIN_POLE_ZERO_SHARE,
     PAPER_ORDERS,
@@ -31,10 +26,7 @@ from tests.sysid.test_pipeline import (
 )
 
 REPO = Path(__file__).resolve().parents[2]
-REAL = REPO / "data" / "real"
 
-#: The issue's bar: the best model czmpc writes within 10 % of the best linear OE's V.
-DONE_WHEN_V_RATIO = 1.10
 #: Nested fits: the higher order starts exactly at the lower optimum and LM never
 #: increases the cost; what is left is the LM tolerances (1e-10 relative) and rounding.
 NESTED_COST_RTOL = 1e-8
@@ -148,78 +140,6 @@ def test_the_refinement_bases_put_the_fewest_parameters_first_among_near_equals(
 
 
 # ---------------------------------------------------------------- the done-when
-def _best_linear_oe_v(y: np.ndarray, u: np.ndarray) -> float:
-    """Best V of OE(nb 1..4, nf 1..3, nk 1..3) by multistart scipy least_squares.
-
-    Independent of sysid: the initial transient ``h`` (n = max(nf, nk + nb - 1)
-    samples into ``F yhat = B u + h``) is a decision variable, derivatives by finite
-    differences; starts from ARX least squares and from two fixed pole positions.
-    """
-    best = np.inf
-    for nb, nf, nk in itertools.product(range(1, 5), range(1, 4), range(1, 4)):
-        n = max(nf, nk + nb - 1)
-
-        def resid(theta: np.ndarray, nb: int = nb, nf: int = nf, nk: int = nk,
-                  n: int = n) -> np.ndarray:
-            b = np.concatenate([np.zeros(nk), theta[:nb]])
-            f = np.concatenate([[1.0], theta[nb:nb + nf]])
-            if np.max(np.abs(np.roots(f)), initial=0.0) >= 1.0:
-                return np.full(y.size, 1e3)
-            src = lfilter(b, [1.0], u)
-            src[:n] += theta[nb + nf:]
-            return y - lfilter([1.0], f, src)
-
-        m = max(nf, nk + nb - 1)
-        phi = np.column_stack([-np.roll(y, i) for i in range(1, nf + 1)]
-                              + [np.roll(u, j) for j in range(nk, nk + nb)])[m:]
-        arx = np.linalg.lstsq(phi, y[m:], rcond=None)[0]
-        starts = [np.concatenate([arx[nf:], arx[:nf]])]
-        for pole in (0.9, 0.99):
-            f0 = np.poly(np.full(nf, pole))[1:]
-            gain = float(np.sum(arx[nf:]) or 1.0)
-            starts.append(np.concatenate([np.full(nb, gain * (1 - pole) / nb), f0]))
-        for start in starts:
-            if np.max(np.abs(np.roots(np.concatenate([[1.0], start[nb:]]))), initial=0.0) >= 1:
-                continue
-            x0 = np.concatenate([start, np.zeros(n)])
-            sol = least_squares(resid, x0, method="lm", max_nfev=4000)
-            best = min(best, float(np.mean(sol.fun**2)))
-    return best
-
-
-def _auto(name: str) -> PipelineResult:
-    if name == "daisy":
-        data = read_daisy_heating(REAL / "daisy_heating_system.dat")
-        op: OperatingPoint | None = OperatingPoint(triac_pct=6.0, power_kw=129.32)
-    elif name == "tclab":
-        data, op = read_tclab(REAL / "tclab_mimo_steps_data.txt"), None
-    else:
-        data, op = read_cascaded_tanks(REAL / "cascaded_tanks_dataBenchmark.csv"), None
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")          # non-convergence is reported in the result
-        return run_paper_pipeline(data, operating_point=op, orders="auto")
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("name", [
-    "daisy",
-    "tclab",
-    # the tanks met the bar once the chosen structure was refined from fixed-pole starts
-    # (sysid.hammerstein.route.fixed_pole_starts): V 0.535 -> 0.480 against 0.462
-    "tanks",
-])
-def test_auto_orders_model_is_within_ten_percent_of_the_best_linear_oe(name: str) -> None:
-    result = _auto(name)
-    op = result.operating_point.operating_point
-    y = result.data.power_kw - op.power_kw
-    u = result.data.triac_pct - op.triac_pct
-    reference = _best_linear_oe_v(y, u)
-    written = min(ballistic_mse(m.model, result.data, initial_state="estimate")
-                  for m in result.models)
-    assert result.structure is not None
-    assert written <= DONE_WHEN_V_RATIO * reference, (written, reference)
-
-
 @pytest.mark.slow
 def test_shipped_experiment_keeps_the_papers_structure_and_findings() -> None:
     with warnings.catch_warnings():

@@ -1,27 +1,140 @@
-"""The paper's pipeline on real logs of other rigs (data/real/), not ours.
+"""The paper's pipeline and ``czmpc identify`` on real logs of other rigs (data/real/), not ours.
 
 With ``d2 = 0`` the Hammerstein-OE(nb=2, nf=1) of eq. 27 is exactly the linear OE(2,1),
 so its ballistic V can never be worse: a property of the nesting that holds on any
 data, checked here on three real rigs.
+
+Issue 29's bar, on every real log: ``czmpc identify`` with its default options exits 0,
+and the best model it writes (model.json first) simulates within 1.10 of the best linear
+OE a multistart search finds. The reference is computed here, independently of sysid:
+random stable starts refined by scipy's Levenberg-Marquardt over nb 1..4, nf 1..3 and
+delays 0..3, every model simulated from rest at the first sample and scored after a
+burn-in of a fifth of the record.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
+import itertools
+import json
 import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.optimize import least_squares
+from scipy.signal import lfilter
 
 from czmpc.cli import main
+from sysid.data import Dataset, write_csv
 from sysid.model import OperatingPoint
 from sysid.modelfile import load_model
 from sysid.pipeline import run_paper_pipeline
-from sysid.reallogs import read_cascaded_tanks, read_daisy_heating, read_tclab
+from sysid.reallogs import (
+    read_cascaded_tanks,
+    read_daisy_exchanger,
+    read_daisy_heating,
+    read_tclab,
+)
 
 REAL = Path(__file__).resolve().parents[3] / "data" / "real"
 #: Both fits stop at LM tolerances of about 1e-10 relative in cost; 1e-6 is far above.
 NESTED_V_RTOL = 1e-6
+#: Issue 29: the best model identify writes is within this of the multistart OE reference.
+REFERENCE_V_RATIO = 1.10
+#: Random stable starts per structure of the reference (the issue's own search used 24 on
+#: a short log; 6 find the same optimum on these four, measured against 24).
+N_REFERENCE_STARTS = 6
+#: Share of each record at its start that is not scored (the unknown initial state).
+BURN_IN_SHARE = 0.2
+
+READERS = {
+    "lamp": lambda: read_daisy_heating(REAL / "daisy_heating_system.dat"),
+    "tclab": lambda: read_tclab(REAL / "tclab_mimo_steps_data.txt"),
+    "tanks": lambda: read_cascaded_tanks(REAL / "cascaded_tanks_dataBenchmark.csv"),
+    "exchanger": lambda: read_daisy_exchanger(REAL / "daisy_exchanger.dat"),
+}
+
+
+def _from_rest(b: np.ndarray, f: np.ndarray, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``y0 + B/F (u - u0)``, zero state: the model at rest at the first sample."""
+    return y[0] + lfilter(b, f, u - u[0])
+
+
+def _reference_v(y: np.ndarray, u: np.ndarray, burn: int, seed: int) -> float:
+    """Lowest V from rest over OE(nb 1..4, nf 1..3, nk 0..3), multistart scipy LM."""
+    rng = np.random.default_rng(seed)
+    target = y[burn:] - y[0]
+    du = u - u[0]
+    best = np.inf
+    for nb, nf, nk in itertools.product(range(1, 5), range(1, 4), range(4)):
+        def simulated(theta: np.ndarray, nb: int = nb, nf: int = nf, nk: int = nk) -> np.ndarray:
+            b = np.concatenate([np.zeros(nk), theta[:nb]])
+            return lfilter(b, np.concatenate([[1.0], theta[nb:]]), du)[burn:]
+
+        for _ in range(N_REFERENCE_STARTS):
+            # poles with time constants log-uniform from half a sample to a fifth of the
+            # record, a complex pair half of the time; B by least squares for that F
+            poles = np.exp(-1.0 / np.exp(rng.uniform(np.log(0.5), np.log(y.size / 5), nf)))
+            poles = poles.astype(complex)
+            if nf >= 2 and rng.random() < 0.5:
+                poles[:2] = poles[0] * np.exp(np.array([1j, -1j]) * rng.uniform(0, np.pi / 2))
+            f = np.real(np.poly(poles))
+            v = lfilter([1.0], f, du)
+            lags = np.column_stack([np.concatenate([np.zeros(nk + j), v[:v.size - nk - j]])
+                                    for j in range(nb)])[burn:]
+            b = np.linalg.lstsq(lags, target, rcond=None)[0]
+            sol = least_squares(lambda th: target - simulated(th),
+                                np.concatenate([b, f[1:]]), method="lm", xtol=1e-8,
+                                ftol=1e-8, max_nfev=50 * (nb + nf))
+            if np.max(np.abs(np.roots(np.concatenate([[1.0], sol.x[nb:]])))) < 1.0:
+                best = min(best, float(np.mean(sol.fun**2)))
+    return best
+
+
+def _written_v(path: Path, data: Dataset, burn: int) -> float:
+    """V from rest after the burn-in of a written model file, read as plain JSON."""
+    obj = json.loads(path.read_text(encoding="utf-8"))
+    ds = data.triac_pct - obj["operating_point"]["triac_pct"]
+    w = sum(c * ds ** (i + 1) for i, c in enumerate(obj["input_poly"]))
+    with np.errstate(all="ignore"):
+        err = data.power_kw - _from_rest(np.asarray(obj["B"]), np.asarray(obj["A"]), w,
+                                         data.power_kw)
+        v = float(np.mean(err[burn:] ** 2))
+    return v if np.isfinite(v) else np.inf
+
+
+@pytest.fixture(scope="module")
+def identified(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[int, str, Path]]:
+    """``czmpc identify LOG --out DIR`` with default options on each real log."""
+    out = {}
+    for name, read in READERS.items():
+        folder = tmp_path_factory.mktemp(name)
+        write_csv(read(), folder / "log.csv")
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err):
+            code = main(["identify", str(folder / "log.csv"), "--out", str(folder / "id")])
+        out[name] = (code, err.getvalue(), folder / "id")
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(READERS))
+def test_identify_with_default_options_exits_0_within_ten_percent_of_the_multistart_oe(
+    name: str, identified: dict[str, tuple[int, str, Path]],
+) -> None:
+    code, err, out = identified[name]
+    assert code == 0, err
+    assert "czmpc: error" not in err
+    data = READERS[name]()
+    burn = int(BURN_IN_SHARE * data.n_samples)
+    reference = _reference_v(data.power_kw, data.triac_pct, burn, seed=29)
+    v_model_json = _written_v(out / "model.json", data, burn)
+    v_best = min([v_model_json] + [_written_v(p, data, burn)
+                                   for p in sorted((out / "models").glob("*.json"))])
+    assert v_model_json <= REFERENCE_V_RATIO * reference, (v_model_json, reference)
+    assert v_best <= v_model_json
 
 
 def _pipeline(name: str):  # type: ignore[no-untyped-def]
