@@ -27,7 +27,6 @@ null. An unknown key, a value of the wrong type or out of range raises
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
 import re
 import tomllib
@@ -38,6 +37,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any, TypeVar, get_args
 
+from czmpc.config_text import unknown_key
 from czmpc.errors import SettingsError
 from czmpc.settings import MPCSettings, OSQPOptions, PresetName, ReliabilitySettings
 from sysid.model import HammersteinModel
@@ -121,9 +121,7 @@ def _convert(where: str, cls: type[Any], name: str, value: object) -> object:
 
 
 def _unknown_key(where: str, key: str, valid: list[str]) -> SettingsError:
-    close = difflib.get_close_matches(key, valid, n=1)
-    hint = f" (did you mean {close[0]!r}?)" if close else ""
-    return SettingsError(f"{where}unknown key {key!r}{hint}; valid keys: {', '.join(valid)}")
+    return SettingsError(unknown_key(where, key, valid))
 
 
 def _table_changes(where: str, cls: type[Any], table: Mapping[str, object]) -> dict[str, object]:

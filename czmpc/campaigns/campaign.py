@@ -79,6 +79,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from czmpc.config_text import choices, shown
 from czmpc.errors import CzmpcError
 
 PresetName = Literal["mpc", "pi", "pi-scheduled", "pi-table", "linear-mpc", "nmpc", "open-loop"]
@@ -262,7 +263,7 @@ def _number_list(table: Mapping[str, Any], key: str, default: list[float], where
     values = table.get(key, default)
     if (not isinstance(values, list) or not values
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)):
-        raise CampaignError(f"{where}: expected '{key}' a non-empty list of numbers; got {values!r}")
+        raise CampaignError(f"{where}: expected '{key}' a non-empty list of numbers; got {shown(values)}")
     return [float(v) for v in values]
 
 
@@ -274,13 +275,13 @@ def _plants(doc: Any, where: str) -> list[PlantSpec]:
         here = f"{where} [[plants]] #{i + 1}"
         kind = table.get("kind")
         if kind not in PLANT_KINDS:
-            raise CampaignError(f"{here}: expected kind one of {list(PLANT_KINDS)}; got {kind!r}")
+            raise CampaignError(f"{here}: expected kind one of {choices(PLANT_KINDS)}; got {shown(kind)}")
         if kind == "sampled":
             _check_keys(table, ["kind", "n", "first"], here)
             n, first = table.get("n"), table.get("first", 0)
             for key, value, low in (("n", n, 1), ("first", first, 0)):
                 if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                    raise CampaignError(f"{here}: expected '{key}' an integer >= {low}; got {value!r}")
+                    raise CampaignError(f"{here}: expected '{key}' an integer >= {low}; got {shown(value)}")
             out += [PlantSpec(kind="sampled", sample_index=k) for k in range(first, first + n)]
             continue
         if kind != "perturbed":
@@ -324,7 +325,7 @@ def _settings(table: Mapping[str, Any], base: Path, model_path: Path,
     if text is None:
         return "", ""
     if not isinstance(text, str) or not text:
-        raise CampaignError(f"{here}: expected 'settings' a file name; got {text!r}")
+        raise CampaignError(f"{here}: expected 'settings' a file name; got {shown(text)}")
     path = Path(text) if Path(text).is_absolute() else base / text
     try:
         load_settings(path, _model(str(model_path)))
@@ -344,10 +345,10 @@ def _controllers(doc: Any, where: str, base: Path | None = None,
         _check_keys(table, ["name", "preset", "settings"], here)
         preset = table.get("preset", "mpc" if "settings" in table else None)
         if preset not in PRESETS:
-            raise CampaignError(f"{here}: expected preset one of {list(PRESETS)}; got {preset!r}")
+            raise CampaignError(f"{here}: expected preset one of {choices(PRESETS)}; got {shown(preset)}")
         name = table.get("name", preset)
         if not isinstance(name, str) or not name or "|" in name:
-            raise CampaignError(f"{here}: expected a non-empty name without '|'; got {name!r}")
+            raise CampaignError(f"{here}: expected a non-empty name without '|'; got {shown(name)}")
         settings_path, settings_sha256 = ("", "") if model_path is None else _settings(
             table, base or Path.cwd(), model_path, here)
         out.append(ControllerSpec(name=name, preset=preset, settings_path=settings_path,
@@ -383,42 +384,43 @@ def spec_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>",
     base = base_dir if base_dir is not None else Path.cwd()
     model = doc.get("model", HAMMERSTEIN_MODEL_JSON)
     if not isinstance(model, str):
-        raise CampaignError(f"{where}: expected 'model' a file name; got {model!r}")
+        raise CampaignError(f"{where}: expected 'model' a file name; got {shown(model)}")
     candidate = Path(model) if Path(model).is_absolute() else base / model
     try:
         model_path = candidate if candidate.is_file() else shipped_path(model)
     except FileNotFoundError:
-        raise CampaignError(f"{where}: model {model!r} is neither a file next to the spec nor "
+        raise CampaignError(f"{where}: model {shown(model)} is neither a file next to the spec nor "
                             f"a shipped model") from None
     from czmpc.shipped import ARMAX_MODEL_JSON
     linear = doc.get("linear_model", ARMAX_MODEL_JSON)
     if not isinstance(linear, str):
-        raise CampaignError(f"{where}: expected 'linear_model' a file name; got {linear!r}")
+        raise CampaignError(f"{where}: expected 'linear_model' a file name; got {shown(linear)}")
     candidate = Path(linear) if Path(linear).is_absolute() else base / linear
     try:
         linear_path = candidate if candidate.is_file() else shipped_path(linear)
     except FileNotFoundError:
-        raise CampaignError(f"{where}: linear_model {linear!r} is neither a file next to the "
+        raise CampaignError(f"{where}: linear_model {shown(linear)} is neither a file next to the "
                             f"spec nor a shipped model") from None
     fixed_seed = doc.get("seed")
     if fixed_seed is not None and (isinstance(fixed_seed, bool) or not isinstance(fixed_seed, int)
                                    or fixed_seed < 0):
-        raise CampaignError(f"{where}: expected 'seed' an integer >= 0; got {fixed_seed!r}")
+        raise CampaignError(f"{where}: expected 'seed' an integer >= 0; got {shown(fixed_seed)}")
     seeds, base_seed = doc.get("seeds", 1), doc.get("base_seed", 0)
     for key, value, low in (("seeds", seeds, 1), ("base_seed", base_seed, 0)):
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise CampaignError(f"{where}: expected '{key}' an integer >= {low}; got {value!r}")
+            raise CampaignError(f"{where}: expected '{key}' an integer >= {low}; got {shown(value)}")
     time_scale = doc.get("time_scale", 1.0)
     if (isinstance(time_scale, bool) or not isinstance(time_scale, (int, float))
             or not 0.0 < time_scale <= 1.0):
-        raise CampaignError(f"{where}: expected 'time_scale' in (0, 1]; got {time_scale!r}")
+        raise CampaignError(f"{where}: expected 'time_scale' in (0, 1]; got {shown(time_scale)}")
     noise = doc.get("noise", True)
     if not isinstance(noise, bool):
-        raise CampaignError(f"{where}: expected 'noise' true or false; got {noise!r}")
+        raise CampaignError(f"{where}: expected 'noise' true or false; got {shown(noise)}")
     scenarios = doc.get("scenarios")
     if (not isinstance(scenarios, list) or not scenarios
             or not all(isinstance(s, str) for s in scenarios)):
-        raise CampaignError(f"{where}: expected 'scenarios' a non-empty list of names; got {scenarios!r}")
+        raise CampaignError(f"{where}: expected 'scenarios' a non-empty list of names; "
+                            f"got {shown(scenarios)}")
     resolved = tuple(_resolve(s, base, ".toml") for s in scenarios)
     from sim.errors import SimError
     from sim.scenario import load_scenario
@@ -426,10 +428,10 @@ def spec_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>",
         try:
             load_scenario(s)
         except (SimError, OSError) as exc:
-            raise CampaignError(f"{where}: scenario {s!r}: {exc}") from None
+            raise CampaignError(f"{where}: scenario {shown(s)}: {exc}") from None
     name = doc.get("name", Path(source).stem)
     if not isinstance(name, str) or not name:
-        raise CampaignError(f"{where}: expected 'name' a non-empty string; got {name!r}")
+        raise CampaignError(f"{where}: expected 'name' a non-empty string; got {shown(name)}")
     plants = tuple(_plants(doc.get("plants"), where))
     warnings: list[str] = []
     if any(p.kind == "sampled" for p in plants):

@@ -68,6 +68,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from czmpc.config_text import did_you_mean, shown
 from czmpc.errors import CzmpcError
 from czmpc.runtime.node_types import LinearScale, NodeSpec, NodeValueError, parse_node_spec
 from czmpc.runtime.security import INSECURE_LOOPBACK, SecuritySettings, parse_security
@@ -229,7 +230,7 @@ class RunConfig:
 def _bool(table: dict[str, Any], key: str, where: str, *, default: bool) -> bool:
     value = table.get(key, default)
     if not isinstance(value, bool):
-        raise RunConfigError(f"{where}.{key}: expected true or false; got {value!r}")
+        raise RunConfigError(f"{where}.{key}: expected true or false; got {shown(value)}")
     return value
 
 
@@ -240,7 +241,7 @@ def _num(table: dict[str, Any], key: str, where: str, *, default: float | None =
         return default
     value = table[key]
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise RunConfigError(f"{where}.{key}: expected a finite number; got {value!r}")
+        raise RunConfigError(f"{where}.{key}: expected a finite number; got {shown(value)}")
     value = float(value)
     if positive and value <= 0.0:
         raise RunConfigError(f"{where}.{key}: expected a number > 0; got {value:g}")
@@ -258,7 +259,7 @@ def _str(table: dict[str, Any], key: str, where: str, *, required: bool = False)
         return None
     value = table[key]
     if not isinstance(value, str) or not value.strip():
-        raise RunConfigError(f"{where}.{key}: expected a non-empty string; got {value!r}")
+        raise RunConfigError(f"{where}.{key}: expected a non-empty string; got {shown(value)}")
     return value
 
 
@@ -283,7 +284,7 @@ def load_schedule(path: Path) -> Schedule:
         except (KeyError, TypeError, ValueError) as exc:
             raise RunConfigError(
                 f"run.schedule: {path} line {i}: expected columns time_s [s], setpoint_kw [kW] "
-                f"with numbers; got {row!r}") from exc
+                f"with numbers; got {shown(row)}") from exc
         if not (math.isfinite(t) and math.isfinite(sp)) or (times and t <= times[-1]):
             raise RunConfigError(
                 f"run.schedule: {path} line {i}: expected finite values and increasing time_s; "
@@ -299,23 +300,24 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
     """Check a parsed configuration; relative paths are resolved against ``base_dir``."""
     for name in doc:
         if name not in _TABLES:
-            raise RunConfigError(f"{name}: unknown table; expected one of {', '.join(_TABLES)}")
+            raise RunConfigError(f"{name}: unknown table{did_you_mean(name, _TABLES)}; "
+                                 f"expected one of {', '.join(_TABLES)}")
     tables: dict[str, dict[str, Any]] = {}
     for name, keys in _TABLES.items():
         table = doc.get(name, {})
         if not isinstance(table, dict):
-            raise RunConfigError(f"{name}: expected a table; got {table!r}")
+            raise RunConfigError(f"{name}: expected a table; got {shown(table)}")
         for key in table:
             if key not in keys:
-                raise RunConfigError(
-                    f"{name}.{key}: unknown key; expected one of {', '.join(keys)}")
+                raise RunConfigError(f"{name}.{key}: unknown key{did_you_mean(key, keys)}; "
+                                     f"expected one of {', '.join(keys)}")
         tables[name] = table
     plant, nodes, ctrl, run, safety, test, logging_table = (tables[n] for n in _TABLES)
     syslog, facility = _syslog(logging_table)
     endpoint = _str(plant, "endpoint", "plant", required=True)
     assert_endpoint = endpoint or ""
     if not assert_endpoint.startswith("opc.tcp://"):
-        raise RunConfigError(f"plant.endpoint: expected opc.tcp://HOST:PORT/...; got {endpoint!r}")
+        raise RunConfigError(f"plant.endpoint: expected opc.tcp://HOST:PORT/...; got {shown(endpoint)}")
     ts_s = _num(plant, "ts_s", "plant", positive=True)
     if ts_s is None:
         raise RunConfigError("plant.ts_s: missing (required)")
@@ -346,11 +348,11 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
     log = _str(run, "log", "run") or "run.csv"
     rotate = _str(run, "rotate", "run") or "none"
     if rotate not in ("none", "daily"):
-        raise RunConfigError(f"run.rotate: expected 'none' or 'daily'; got {rotate!r}")
+        raise RunConfigError(f"run.rotate: expected 'none' or 'daily'; got {shown(rotate)}")
     rotate_mb = _num(run, "rotate_mb", "run", positive=True)
     action = _str(safety, "action", "safety") or "hold"
     if action not in ("hold", "ramp"):
-        raise RunConfigError(f"safety.action: expected 'hold' or 'ramp'; got {action!r}")
+        raise RunConfigError(f"safety.action: expected 'hold' or 'ramp'; got {shown(action)}")
     safe = _num(safety, "safe_triac_pct", "safety", minimum=0.0, maximum=100.0)
     if action == "ramp" and safe is None:
         raise RunConfigError("safety.safe_triac_pct: required when safety.action = 'ramp'")
@@ -361,7 +363,7 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
     # Last, so that a plain key error is reported first.
     security_table = plant.get("security")
     if security_table is not None and not isinstance(security_table, dict):
-        raise RunConfigError(f"plant.security: expected a table; got {security_table!r}")
+        raise RunConfigError(f"plant.security: expected a table; got {shown(security_table)}")
     security = parse_security(security_table, endpoint=assert_endpoint, base_dir=base_dir)
     return RunConfig(
         endpoint=assert_endpoint, ts_s=ts_s, time_scale=float(time_scale or 1.0),
@@ -394,11 +396,11 @@ def _syslog(table: dict[str, Any]) -> tuple[str | None, str]:
         host, _, port = address.rpartition(":")
         if not host or not port.isdigit() or not 0 < int(port) < 65536:
             raise RunConfigError(f"logging.syslog: expected a socket path such as /dev/log or "
-                                 f"HOST:PORT (UDP); got {address!r}")
+                                 f"HOST:PORT (UDP); got {shown(address)}")
     facility = _str(table, "facility", "logging") or "daemon"
     if facility not in SYSLOG_FACILITIES:
         raise RunConfigError(f"logging.facility: expected one of {', '.join(SYSLOG_FACILITIES)}; "
-                             f"got {facility!r}")
+                             f"got {shown(facility)}")
     return address, facility
 
 
@@ -428,7 +430,7 @@ def _test_limits(table: dict[str, Any]) -> ExperimentLimits:
                        for v in band)
             or not band[0] < band[1]):
         raise RunConfigError(
-            f"test.power_band_kw: expected [LO, HI] in kW with finite LO < HI; got {band!r}")
+            f"test.power_band_kw: expected [LO, HI] in kW with finite LO < HI; got {shown(band)}")
     max_bad = _num(table, "max_bad_quality_s", "test", default=DEFAULT_MAX_BAD_QUALITY_S,
                    minimum=0.0)
     return ExperimentLimits(power_band_kw=(float(band[0]), float(band[1])),
@@ -445,7 +447,10 @@ def load_run_config(path: Path) -> RunConfig:
         raise RunConfigError(f"{path}: not valid TOML: {exc}") from exc
     except OSError as exc:
         raise RunConfigError(f"{path}: cannot read: {exc.strerror}") from exc
-    config = run_config_from_dict(doc, base_dir=path.resolve().parent)
+    try:
+        config = run_config_from_dict(doc, base_dir=path.resolve().parent)
+    except RunConfigError as exc:
+        raise RunConfigError(f"{path}: {exc}") from None
     return dataclasses.replace(config, source_path=path.resolve())
 
 

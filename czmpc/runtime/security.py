@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Literal
 from urllib.parse import urlsplit
 
+from czmpc.config_text import choices, shown
 from czmpc.errors import SettingsError
 
 #: Security policies accepted for a channel to a plant (OPC UA names without the URI
@@ -141,7 +142,7 @@ class SecuritySettings:
         """One line for logs and status: policy, mode, user; never the password."""
         if not self.secure:
             return "no security (policy None; loopback only)"
-        user = f"user {self.username!r}" if self.username else "anonymous"
+        user = f"user {shown(self.username)}" if self.username else "anonymous"
         return f"{self.policy} {self.mode}, pinned server certificate, {user}"
 
 
@@ -152,7 +153,7 @@ INSECURE_LOOPBACK = SecuritySettings(policy="None")
 def _file(table: Mapping[str, object], key: str, base_dir: Path, where: str) -> Path:
     value = table.get(key)
     if not isinstance(value, str) or not value:
-        raise SettingsError(f"{where}.{key} must name a file; got {value!r}")
+        raise SettingsError(f"{where}.{key} must name a file; got {shown(value)}")
     path = Path(value)
     path = path if path.is_absolute() else base_dir / path
     if not path.is_file():
@@ -213,7 +214,7 @@ def parse_security(table: Mapping[str, object] | None, *, endpoint: str, base_di
     if table is None:
         if not is_loopback_endpoint(endpoint):
             raise SettingsError(
-                f"plant.endpoint {endpoint!r} is not a loopback address and the config has no "
+                f"plant.endpoint {shown(endpoint)} is not a loopback address and the config has no "
                 f"[plant.security] table: czmpc connects without security only to 127.0.0.1; "
                 f"add [plant.security] with policy, mode, certificate, private_key and "
                 f"server_certificate (make them with 'czmpc pki create')")
@@ -224,38 +225,39 @@ def parse_security(table: Mapping[str, object] | None, *, endpoint: str, base_di
             f"set password_env = \"NAME\" and put the password into the environment variable NAME")
     unknown = sorted(set(table) - set(SECURITY_KEYS))
     if unknown:
-        raise SettingsError(f"{where}: unknown key(s) {unknown}; allowed: {list(SECURITY_KEYS)}")
+        raise SettingsError(f"{where}: unknown key(s) {unknown}; allowed: {choices(SECURITY_KEYS)}")
     policy = table.get("policy")
     if policy == "None":
         if not is_loopback_endpoint(endpoint):
             raise SettingsError(
                 f"{where}.policy = \"None\" is allowed only for a loopback endpoint; "
-                f"{endpoint!r} needs one of {list(SECURE_POLICIES)}")
+                f"{shown(endpoint)} needs one of {choices(SECURE_POLICIES)}")
         return INSECURE_LOOPBACK
     if policy not in SECURE_POLICIES:
-        raise SettingsError(f"{where}.policy must be one of {[*SECURE_POLICIES, 'None']}; got {policy!r}")
+        raise SettingsError(f"{where}.policy must be one of "
+                            f"{choices([*SECURE_POLICIES, 'None'])}; got {shown(policy)}")
     mode = table.get("mode", "SignAndEncrypt")
     if mode not in MODES:
-        raise SettingsError(f"{where}.mode must be one of {list(MODES)}; got {mode!r}")
+        raise SettingsError(f"{where}.mode must be one of {choices(MODES)}; got {shown(mode)}")
     certificate = _file(table, "certificate", base_dir, where)
     private_key = _file(table, "private_key", base_dir, where)
     check_private_key_permissions(private_key)
     server_certificate = _file(table, "server_certificate", base_dir, where)
     username = table.get("username")
     if username is not None and (not isinstance(username, str) or not username):
-        raise SettingsError(f"{where}.username must be a non-empty string; got {username!r}")
+        raise SettingsError(f"{where}.username must be a non-empty string; got {shown(username)}")
     password_env = table.get("password_env")
     password: Secret | None = None
     if username is not None:
         if not isinstance(password_env, str) or not password_env:
             raise SettingsError(
-                f"{where}: username {username!r} needs password_env = \"NAME\", the environment "
+                f"{where}: username {shown(username)} needs password_env = \"NAME\", the environment "
                 f"variable that holds the password")
         env = os.environ if environ is None else environ
         if password_env not in env:
             raise SettingsError(
                 f"{where}.password_env: the environment variable {password_env} is not set; "
-                f"export it with the password of user {username!r}")
+                f"export it with the password of user {shown(username)}")
         password = Secret(env[password_env])
     elif password_env is not None:
         raise SettingsError(f"{where}.password_env is set but username is not; add username")
@@ -339,17 +341,17 @@ class ServerSecurity:
         operators = [u.name for u in self.users if not u.controller]
         extra = f", operator(s) {operators} (setpoint, mode)" if operators else ""
         return (f"{self.policy} {self.mode}, {len(self.trusted_clients)} trusted client "
-                f"certificate(s), controller user {self.controller_user.name!r} (command, "
+                f"certificate(s), controller user {shown(self.controller_user.name)} (command, "
                 f"heartbeat){extra}, anonymous refused")
 
 
 def _password(name: str, env_name: str, env: Mapping[str, str], option: str) -> Secret:
     if not env_name or not env_name.replace("_", "").isalnum():
-        raise SettingsError(f"{option}: expected the name of an environment variable; got {env_name!r}")
+        raise SettingsError(f"{option}: expected the name of an environment variable; got {shown(env_name)}")
     value = env.get(env_name)
     if not value:
         raise SettingsError(f"{option}: the environment variable {env_name} is not set (or empty); "
-                            f"export it with the password of user {name!r}")
+                            f"export it with the password of user {shown(name)}")
     return Secret(value)
 
 
@@ -421,9 +423,10 @@ def parse_server_security(
                                 f"{SECURE_POLICIES[0]} (a password never travels unencrypted)")
         return None
     if policy not in SECURE_POLICIES:
-        raise SettingsError(f"--policy must be one of {[*SECURE_POLICIES, 'None']}; got {policy!r}")
+        raise SettingsError(f"--policy must be one of {choices([*SECURE_POLICIES, 'None'])}; "
+                            f"got {shown(policy)}")
     if mode not in MODES:
-        raise SettingsError(f"--mode must be one of {list(MODES)}; got {mode!r}")
+        raise SettingsError(f"--mode must be one of {choices(MODES)}; got {shown(mode)}")
     if certificate is None or private_key is None:
         raise SettingsError(f"--policy {policy} needs the server's --certificate and --private-key "
                             f"(make them with 'czmpc pki create --role server')")
@@ -441,9 +444,9 @@ def parse_server_security(
     for spec in operators:
         name, sep, var = spec.partition("=")
         if not sep or not name or not var:
-            raise SettingsError(f"--operator: expected NAME=ENV_VAR; got {spec!r}")
+            raise SettingsError(f"--operator: expected NAME=ENV_VAR; got {shown(spec)}")
         if any(u.name == name for u in users):
-            raise SettingsError(f"--operator: user {name!r} is given twice")
+            raise SettingsError(f"--operator: user {shown(name)} is given twice")
         users.append(PlantUser(name=name, password=_password(name, var, env, "--operator"),
                                password_env=var, controller=False))
     return ServerSecurity(policy=policy,  # type: ignore[arg-type]
@@ -484,7 +487,7 @@ def check_serve_address(endpoint: str, security: ServerSecurity | None, *, insec
                 f"users): anyone who can reach this address can write the heater's TRIAC command")
     if security is None and not is_loopback_endpoint(endpoint):
         raise SettingsError(
-            f"--endpoint {endpoint!r} is not a loopback address: a plant served on another "
+            f"--endpoint {shown(endpoint)} is not a loopback address: a plant served on another "
             f"interface needs --policy {SECURE_POLICIES[0]} with --certificate, --private-key, "
             f"--trusted-client and --user/--password-env (or, on an isolated test network only, "
             f"--insecure)")

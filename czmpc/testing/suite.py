@@ -49,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from czmpc.campaigns.campaign import CampaignError, PlantSpec, perturbed_plants
+from czmpc.config_text import choices, shown
 from czmpc.errors import CzmpcError
 
 #: Controller kinds (the names of `czmpc.campaigns.bench.CONTROLLERS` and ``pi_table``, the
@@ -221,7 +222,7 @@ def _file(value: object, key: str, base: Path, where: str, *, shipped_ok: bool) 
     from czmpc.shipped import shipped_path
 
     if not isinstance(value, str) or not value:
-        raise RegressError(f"{where}: expected '{key}' a file name; got {value!r}")
+        raise RegressError(f"{where}: expected '{key}' a file name; got {shown(value)}")
     candidate = Path(value) if Path(value).is_absolute() else base / value
     if candidate.is_file():
         return str(candidate.resolve())
@@ -230,7 +231,7 @@ def _file(value: object, key: str, base: Path, where: str, *, shipped_ok: bool) 
             return str(shipped_path(value))
         except FileNotFoundError:
             pass
-    raise RegressError(f"{where}: '{key} = {value!r}': no such file ({candidate})"
+    raise RegressError(f"{where}: '{key} = {shown(value)}': no such file ({candidate})"
                        + (" and no shipped file of that name" if shipped_ok else ""))
 
 
@@ -245,12 +246,13 @@ def _controllers(doc: object, base: Path, where: str) -> tuple[ControllerEntry, 
         _check_keys(table, ["name", "kind", "model", "settings", "linear_model"], here)
         kind = table.get("kind", "mpc")
         if kind not in CONTROLLER_KINDS:
-            raise RegressError(f"{here}: expected kind one of {list(CONTROLLER_KINDS)}; got {kind!r}")
+            raise RegressError(f"{here}: expected kind one of {choices(CONTROLLER_KINDS)}; got {shown(kind)}")
         name = table.get("name", kind)
         if not isinstance(name, str) or not name or "/" in name:
-            raise RegressError(f"{here}: expected a non-empty name without '/'; got {name!r}")
+            raise RegressError(f"{here}: expected a non-empty name without '/'; got {shown(name)}")
         if "linear_model" in table and kind != "linear_mpc":
-            raise RegressError(f"{here}: 'linear_model' is for kind 'linear_mpc' only; got kind {kind!r}")
+            raise RegressError(f"{here}: 'linear_model' is for kind 'linear_mpc' only; "
+                               f"got kind {shown(kind)}")
         settings = table.get("settings")
         out.append(ControllerEntry(
             name=name, kind=kind,
@@ -274,7 +276,7 @@ def _plants(doc: object, where: str) -> tuple[PlantSpec, ...]:
         here = f"{where} [[plants]] #{i}"
         kind = table.get("kind")
         if kind not in PLANT_KINDS:
-            raise RegressError(f"{here}: expected kind one of {list(PLANT_KINDS)}; got {kind!r}")
+            raise RegressError(f"{here}: expected kind one of {choices(PLANT_KINDS)}; got {shown(kind)}")
         if kind != "perturbed":
             _check_keys(table, ["kind"], here)
             out.append(PlantSpec(kind=kind))
@@ -295,7 +297,7 @@ def _scenarios(doc: object, base: Path, where: str) -> tuple[str, ...]:
 
     if not isinstance(doc, list) or not doc or not all(isinstance(s, str) for s in doc):
         raise RegressError(f"{where}: expected 'scenarios' a non-empty list of shipped names or "
-                           f".toml files; got {doc!r}")
+                           f".toml files; got {shown(doc)}")
     out = []
     for name in doc:
         if name.endswith(".toml"):
@@ -303,12 +305,12 @@ def _scenarios(doc: object, base: Path, where: str) -> tuple[str, ...]:
         elif name in list_scenarios():
             resolved = name
         else:
-            raise RegressError(f"{where}: scenario {name!r} is not shipped (shipped: "
+            raise RegressError(f"{where}: scenario {shown(name)} is not shipped (shipped: "
                                f"{', '.join(list_scenarios())}) and not a .toml file")
         try:
             load_scenario(resolved)
         except (SimError, OSError) as exc:
-            raise RegressError(f"{where}: scenario {name!r}: {exc}") from None
+            raise RegressError(f"{where}: scenario {shown(name)}: {exc}") from None
         out.append(resolved)
     stems = [Path(s).stem for s in out]
     if len(set(stems)) != len(stems):
@@ -319,11 +321,11 @@ def _scenarios(doc: object, base: Path, where: str) -> tuple[str, ...]:
 def _tolerances(doc: object, metrics: Sequence[str], where: str) -> dict[str, Tolerance]:
     if not isinstance(doc, dict):
         raise RegressError(f"{where}: expected [tolerances] a table of metric = number or 'N%'; "
-                           f"got {doc!r}")
+                           f"got {shown(doc)}")
     out: dict[str, Tolerance] = {}
     for metric, value in doc.items():
         if metric not in metrics:
-            raise RegressError(f"{where}: [tolerances] {metric!r} is not a held metric; held: "
+            raise RegressError(f"{where}: [tolerances] {shown(metric)} is not a held metric; held: "
                                f"{list(metrics)}")
         if isinstance(value, str) and value.strip().endswith("%"):
             try:
@@ -337,7 +339,7 @@ def _tolerances(doc: object, metrics: Sequence[str], where: str) -> dict[str, To
             tol = Tolerance(value=-1.0, relative=False)
         if not tol.value >= 0.0 or tol.value == float("inf"):
             raise RegressError(f"{where}: [tolerances] {metric}: expected a number >= 0 (metric "
-                               f"unit) or a percentage such as '2%'; got {value!r}")
+                               f"unit) or a percentage such as '2%'; got {shown(value)}")
         out[metric] = tol
     return out
 
@@ -370,21 +372,21 @@ def suite_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>",
     description = doc.get("description", "")
     for key, value in (("name", name), ("description", description)):
         if not isinstance(value, str) or (key == "name" and not value):
-            raise RegressError(f"{where}: expected '{key}' a string; got {value!r}")
+            raise RegressError(f"{where}: expected '{key}' a string; got {shown(value)}")
     seeds = doc.get("seeds", list(DEFAULT_SEEDS))
     if (not isinstance(seeds, list) or not seeds or len(set(seeds)) != len(seeds)
             or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)):
-        raise RegressError(f"{where}: expected 'seeds' a list of different integers >= 0; got {seeds!r}")
+        raise RegressError(f"{where}: expected 'seeds' a list of different integers >= 0; got {shown(seeds)}")
     time_scale = doc.get("time_scale", 1.0)
     if (isinstance(time_scale, bool) or not isinstance(time_scale, (int, float))
             or not 0.0 < time_scale <= 1.0):
-        raise RegressError(f"{where}: expected 'time_scale' in (0, 1]; got {time_scale!r}")
+        raise RegressError(f"{where}: expected 'time_scale' in (0, 1]; got {shown(time_scale)}")
     metrics = doc.get("metrics", list(DEFAULT_METRICS))
     if (not isinstance(metrics, list) or not metrics
             or not all(isinstance(m, str) and m in METRICS for m in metrics)
             or len(set(metrics)) != len(metrics)):
         raise RegressError(f"{where}: expected 'metrics' a list of different names among "
-                           f"{list(METRICS)}; got {metrics!r}")
+                           f"{choices(METRICS)}; got {shown(metrics)}")
     return SuiteSpec(
         name=name, description=description, source=source,
         controllers=_controllers(doc.get("controllers"), base, where),

@@ -62,3 +62,30 @@ def test_the_shipped_example_config_reads() -> None:
     assert cfg.model_path.resolve() == (repo / "data" / "cz_heater_model.json").resolve()
     assert cfg.safe_action == "ramp" and cfg.safe_triac_pct == 33.0
     assert cfg.nodes.power_kw == "ns=2;s=Heater.Power"
+
+
+def test_errors_name_the_file_and_key_with_a_hint_and_no_python_reprs(tmp_path: Path) -> None:
+    from czmpc.runtime.config import RunConfigError, load_run_config
+
+    path = tmp_path / "run.toml"
+    base = ('[plant]\nendpoint = "opc.tcp://127.0.0.1:4840/"\nts_s = 2.0\n'
+            '[nodes]\npower_kw = "ns=2;s=P"\ntriac_pct = "ns=2;s=U"\n')
+    cases = [
+        (base + "[run]\nsetpoint = 45.0\n",
+         "run.setpoint: unknown key (did you mean 'setpoint_kw'?)"),
+        (base.replace("[plant]", "[plnat]"), "plnat: unknown table (did you mean 'plant'?)"),
+        (base + '[test]\npower_band_kw = [30.0, true]\n[safety]\nsafe_triac_pct = 30\n',
+         "got [30, true]"),
+        (base + "[plant.security]\npolicy = 'Basic256'\n", "got 'Basic256'"),
+        (base.replace('triac_pct = "ns=2;s=U"', 'triac_pct = { id = "ns=2;s=U", raw = [0] }'),
+         "nodes.triac_pct: give both raw = [LO, HI] and value = [LO, HI], or neither"),
+    ]
+    for text, expected in cases:
+        path.write_text(text, encoding="utf-8")
+        with pytest.raises(Exception) as info:
+            load_run_config(path)
+        message = str(info.value)
+        assert expected in message, message
+        assert "True" not in message and "PosixPath" not in message and "{'" not in message
+        if isinstance(info.value, RunConfigError):
+            assert message.startswith(f"{path}: ")
