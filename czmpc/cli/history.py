@@ -39,10 +39,9 @@ from __future__ import annotations
 import argparse
 import asyncio
 import datetime as dt
-import hashlib
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from czmpc.cli import _argtypes
 from czmpc.cli._exit import ExitCode
@@ -105,7 +104,7 @@ async def _read(config: RunConfig, *, start: dt.datetime, end: dt.datetime, page
                 deadline_s: float, progress: Progress) -> dict[str, NodeHistory]:
     """Connect with the configured security, read the power's and the input's history."""
     from czmpc.runtime.history import read_node_history
-    from czmpc.runtime.link import within
+    from czmpc.runtime.link import close_client, within
     from czmpc.runtime.secure_client import connect
 
     specs = config.nodes.specs()
@@ -119,28 +118,9 @@ async def _read(config: RunConfig, *, start: dt.datetime, end: dt.datetime, page
                                              bounds=key != "power_kw", progress=progress)
                 for key in ("power_kw", _input_key(config))}
     finally:
-        await _close(client, deadline_s)
+        await close_client(client, deadline_s)
 
 
-async def _close(client: Any, deadline_s: float) -> None:
-    from czmpc.runtime.link import within
-
-    try:
-        await within(client.disconnect(), deadline_s, "disconnect")
-    except Exception:  # noqa: BLE001 - a dead link or a missed deadline: drop the socket
-        try:
-            client.disconnect_socket()
-        except Exception:  # noqa: BLE001 - the socket is gone either way
-            pass
-
-
-def _sha256(path: Path | None) -> str | None:
-    if path is None:
-        return None
-    try:
-        return hashlib.sha256(path.read_bytes()).hexdigest()
-    except OSError:
-        return None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -154,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
         write_history_log,
     )
     from czmpc.runtime.link import CallDeadlineError
+    from czmpc.runtime.logfiles import sha256_or_none
     from czmpc.runtime.secure_client import PlantUnreachableError
 
     if not args.start < args.end:
@@ -186,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
     specs = config.nodes.specs()
     meta: dict[str, object] = {
         "closed_loop": bool(args.closed_loop),
-        "config": str(config.source_path), "config_sha256": _sha256(config.source_path),
+        "config": str(config.source_path), "config_sha256": sha256_or_none(config.source_path),
         "endpoint": config.endpoint, "security": config.security.describe(),
         "nodes": {k: specs[k].describe() for k in histories},
         "from_utc": args.start.isoformat(), "to_utc": args.end.isoformat(),

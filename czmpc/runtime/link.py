@@ -475,27 +475,34 @@ class PlantLink:
     def abort(self) -> None:
         """Close the session's socket at once and stop the client's tasks (no goodbye)."""
         client, self.client = self.client, None
-        if client is None:
-            return
-        for name in ("_stale_watchdog_task", "_supervisor_task", "_renew_channel_task"):
-            task = getattr(client, name, None)
-            if isinstance(task, asyncio.Task) and not task.done():
-                task.cancel()
-        try:
-            client.disconnect_socket()
-        except Exception:  # noqa: BLE001 - the socket is gone either way
-            pass
+        if client is not None:
+            abort_client(client)
 
     async def close(self, deadline_s: float) -> None:
         """Close the session politely within ``deadline_s``, else abort it."""
-        client = self.client
-        if client is None:
-            return
-        try:
-            await within(client.disconnect(), deadline_s, "disconnect")
-            self.client = None
-        except Exception:  # noqa: BLE001 - a missed deadline or a dead link: abort
-            self.abort()
+        client, self.client = self.client, None
+        if client is not None:
+            await close_client(client, deadline_s)
+
+
+def abort_client(client: Any) -> None:
+    """Close an asyncua client's socket at once and stop its tasks (no goodbye)."""
+    for name in ("_stale_watchdog_task", "_supervisor_task", "_renew_channel_task"):
+        task = getattr(client, name, None)
+        if isinstance(task, asyncio.Task) and not task.done():
+            task.cancel()
+    try:
+        client.disconnect_socket()
+    except Exception:  # noqa: BLE001 - the socket is gone either way
+        pass
+
+
+async def close_client(client: Any, deadline_s: float) -> None:
+    """Close an asyncua client's session politely within ``deadline_s``, else abort it."""
+    try:
+        await within(client.disconnect(), deadline_s, "disconnect")
+    except Exception:  # noqa: BLE001 - a missed deadline or a dead link: abort
+        abort_client(client)
 
 
 async def preflight(config: RunConfig) -> CheckReport:
@@ -516,4 +523,5 @@ async def preflight(config: RunConfig) -> CheckReport:
 
 
 __all__ = ["HEALTH_TOP", "ROLES", "CallDeadlineError", "CheckReport", "LinkLostError",
-           "NodeCheck", "NodeRole", "PlantLink", "check_node", "preflight", "within"]
+           "NodeCheck", "NodeRole", "PlantLink", "abort_client", "check_node", "close_client",
+           "preflight", "within"]

@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import asyncio
 import datetime as dt
-import hashlib
 import logging
 import math
 import signal
@@ -55,7 +54,6 @@ import sys
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Protocol
 
 from czmpc.controller import OffsetFreeMPC
@@ -64,7 +62,13 @@ from czmpc.modes import Mode
 from czmpc.runtime import alignment, refusals
 from czmpc.runtime.config import RunConfig
 from czmpc.runtime.link import HEALTH_TOP, CheckReport, LinkLostError, PlantLink
-from czmpc.runtime.logfiles import LOG_COLUMNS, RunLog, open_run_log, refuse_overwrite
+from czmpc.runtime.logfiles import (
+    LOG_COLUMNS,
+    RunLog,
+    open_run_log,
+    refuse_overwrite,
+    sha256_or_none,
+)
 from czmpc.runtime.measurement import age_s, measurement, sample_time
 from czmpc.runtime.node_types import NodeValueError, decode
 from czmpc.runtime.ownership import PlantBusyError, PlantLock, WriterWatch, identity, moved
@@ -166,13 +170,6 @@ class MPCDriver:
         return None
 
 
-def _sha256(path: Path | None) -> str | None:
-    if path is None:
-        return None
-    try:
-        return hashlib.sha256(path.read_bytes()).hexdigest()
-    except OSError:
-        return None
 
 
 @dataclass(slots=True)
@@ -480,7 +477,7 @@ class ControlLoop:
         cfg = self.config
         return {
             "config": None if cfg.source_path is None else str(cfg.source_path),
-            "config_sha256": _sha256(cfg.source_path),
+            "config_sha256": sha256_or_none(cfg.source_path),
             "endpoint": cfg.endpoint, "ts_s": cfg.ts_s, "time_scale": cfg.time_scale,
             "start_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
             "model": None if cfg.model_path is None else str(cfg.model_path),

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import asyncio
+from collections.abc import Awaitable
 from pathlib import Path
+from typing import Any, TypeVar
 
 import pytest
 
@@ -42,3 +45,36 @@ def make_config(tmp_path: Path, port: int, *, nodes: dict[str, str] | None = Non
     if safety is not None:
         doc["safety"] = safety
     return run_config_from_dict(doc, base_dir=tmp_path)
+
+
+T = TypeVar("T")
+
+
+async def with_served(served: Any, body: Awaitable[T]) -> T:
+    """Run `body` while `served` (anything with ``serve()`` and a ``ready`` event) serves."""
+    task = asyncio.create_task(served.serve())
+    try:
+        await asyncio.wait_for(served.ready.wait(), 20.0)
+        return await body
+    finally:
+        task.cancel()
+        try:
+            await task
+        except asyncio.CancelledError:
+            pass
+
+
+def write_run_toml(tmp_path: Path, port: int, *, duration_s: float, log: str = "run.csv",
+                   extra: str = "", connect_timeout_s: float | None = None) -> Path:
+    """``tmp_path/run.toml`` for `czmpc run` against czmpc's served plant on ``port``
+    (setpoint 31 kW; ``extra``: more TOML at the end, e.g. a [safety] table)."""
+    nodes = "\n".join(f'{k} = "{v}"' for k, v in served_nodes().items() if k != "setpoint_kw")
+    timeout = "" if connect_timeout_s is None else f"connect_timeout_s = {connect_timeout_s}\n"
+    path = tmp_path / "run.toml"
+    path.write_text(
+        f'[plant]\nendpoint = "opc.tcp://127.0.0.1:{port}/czmpc/"\nts_s = 2.0\n'
+        f"time_scale = {TIME_SCALE}\nmax_sample_age_s = 1.0\n{timeout}[nodes]\n{nodes}\n"
+        f'[controller]\nmodel = "{shipped_path("cz_heater_model.json")}"\n'
+        f'[run]\nduration_s = {duration_s}\nsetpoint_kw = 31.0\nlog = "{log}"\n{extra}\n',
+        encoding="utf-8")
+    return path

@@ -20,7 +20,7 @@ import asyncua
 import numpy as np
 import pytest
 from asyncua import ua
-from plant_rig import TIME_SCALE, free_port
+from plant_rig import TIME_SCALE, free_port, with_served
 
 from czmpc.cli import main
 from czmpc.cli.history import utc_time
@@ -256,20 +256,7 @@ def test_history_in_memory_pages_by_continuation_points_and_by_resumed_requests(
         assert paged.n_continuations == (len(reference) - 1) // 10 and paged.n_resumed == 0
         assert resumed.n_resumed >= len(reference) // 4 - 1 and resumed.n_continuations == 0
 
-    asyncio.run(_with_served(served, body()))
-
-
-async def _with_served(served: ServedPlant, body: object) -> None:
-    task = asyncio.create_task(served.serve())
-    try:
-        await asyncio.wait_for(served.ready.wait(), 20.0)
-        await body   # type: ignore[misc]
-    finally:
-        task.cancel()
-        try:
-            await task
-        except asyncio.CancelledError:
-            pass
+    asyncio.run(with_served(served, body()))
 
 
 def test_history_refuses_a_bad_range_and_says_when_the_plant_is_unreachable(

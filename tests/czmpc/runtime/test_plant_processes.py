@@ -16,10 +16,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from plant_rig import TIME_SCALE, free_port, served_nodes
+from plant_rig import TIME_SCALE, free_port, write_run_toml
 
 from czmpc.runtime.logfiles import LOG_COLUMNS
-from czmpc.shipped import shipped_path
 
 pytestmark = [pytest.mark.slow, pytest.mark.realtime]
 
@@ -37,15 +36,7 @@ def _serve(port: int, duration_s: float) -> subprocess.Popen[bytes]:
 
 
 def _config(tmp_path: Path, port: int, duration_s: float, safety: str) -> Path:
-    nodes = "\n".join(f'{k} = "{v}"' for k, v in served_nodes().items() if k != "setpoint_kw")
-    path = tmp_path / "run.toml"
-    path.write_text(
-        f'[plant]\nendpoint = "opc.tcp://127.0.0.1:{port}/czmpc/"\nts_s = 2.0\n'
-        f"time_scale = {TIME_SCALE}\nmax_sample_age_s = 1.0\n[nodes]\n{nodes}\n"
-        f'[controller]\nmodel = "{shipped_path("cz_heater_model.json")}"\n'
-        f'[run]\nduration_s = {duration_s}\nsetpoint_kw = 31.0\nlog = "run.csv"\n{safety}\n',
-        encoding="utf-8")
-    return path
+    return write_run_toml(tmp_path, port, duration_s=duration_s, extra=safety)
 
 
 def _rows(path: Path) -> list[dict[str, str]]:

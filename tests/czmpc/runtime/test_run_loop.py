@@ -18,7 +18,7 @@ from typing import Any
 import asyncua
 import pytest
 from asyncua import ua
-from plant_rig import TIME_SCALE, free_port, make_config, served_nodes
+from plant_rig import TIME_SCALE, free_port, make_config, served_nodes, with_served
 
 from czmpc.controller import OffsetFreeMPC
 from czmpc.runtime.loop import ControlLoop
@@ -48,20 +48,6 @@ def _model_plant() -> tuple[Any, ModelPlant]:
     plant = ModelPlant(model, noise=False)
     plant.reset(0)
     return model, plant
-
-
-async def _with_served(served: Any, body: Any) -> Any:
-    """Run `body` while `served` (anything with ``serve()`` and a ``ready`` event) serves."""
-    task = asyncio.create_task(served.serve())
-    try:
-        await asyncio.wait_for(served.ready.wait(), 20.0)
-        return await body
-    finally:
-        task.cancel()
-        try:
-            await task
-        except asyncio.CancelledError:
-            pass
 
 
 class _IndependentServer:
@@ -105,7 +91,7 @@ def test_run_tracks_an_independent_server_offset_free(tmp_path: Path) -> None:
     cfg = type(cfg)(**{**{f: getattr(cfg, f) for f in cfg.__dataclass_fields__},
                        "endpoint": other.endpoint})
     mpc = OffsetFreeMPC(load_model(cfg.model_path))
-    summary = asyncio.run(_with_served(other, ControlLoop(cfg, mpc).run()))
+    summary = asyncio.run(with_served(other, ControlLoop(cfg, mpc).run()))
     rows = _rows(cfg.log_path)
     assert summary.n_steps == 120
     # its sleep-based clock runs slower than the loop's grid: now and then the loop reads
@@ -134,7 +120,7 @@ def test_served_steps_track_and_start_bumplessly(tmp_path: Path, node_types: str
     rate = settings.max_move_pct_per_step
     assert rate is not None
     mpc = OffsetFreeMPC(model, settings)
-    summary = asyncio.run(_with_served(served, ControlLoop(cfg, mpc).run()))
+    summary = asyncio.run(with_served(served, ControlLoop(cfg, mpc).run()))
     rows = _rows(cfg.log_path)
     u = [float(r["triac_pct"]) for r in rows]
     # bumpless: the first command is within the rate limit of the plant's input
@@ -197,7 +183,7 @@ def test_a_sample_read_twice_is_a_missing_sample(tmp_path: Path, reject: bool) -
         "power_kw": "ns=2;i=1001", "triac_pct": "ns=2;i=1002"})
     cfg = replace(cfg, endpoint=server.endpoint, reject_repeated_samples=reject)
     mpc = OffsetFreeMPC(load_model(cfg.model_path))
-    summary = asyncio.run(_with_served(server, ControlLoop(cfg, mpc).run()))
+    summary = asyncio.run(with_served(server, ControlLoop(cfg, mpc).run()))
     rows = _rows(cfg.log_path)
     good = [float(r["power_kw"]) for r in rows if r["quality"] == "good"]
     read_again = sum(a == b for a, b in zip(good, good[1:], strict=False))
@@ -223,7 +209,7 @@ def test_bad_quality_is_a_missing_sample_then_shed(tmp_path: Path) -> None:
     model, _plant, served = _served_model(port, scenario=scenario)
     cfg = make_config(tmp_path, port, duration_s=240.0)
     mpc = OffsetFreeMPC(model, MPCSettings.default_for(model))
-    asyncio.run(_with_served(served, ControlLoop(cfg, mpc).run()))
+    asyncio.run(with_served(served, ControlLoop(cfg, mpc).run()))
     rows = _rows(cfg.log_path)
     bad = [r for r in rows if r["quality"] == "bad"]
     # 80 samples of sensor fault (160 s); the loop's phase may shift the window by one, and
@@ -257,7 +243,7 @@ def test_watchdog_moves_to_the_safe_input_when_the_controller_dies(tmp_path: Pat
         assert float(await node.read_value()) == 20.0
         assert await served._nodes["WatchdogTripped"].read_value() is True
 
-    asyncio.run(_with_served(served, body()))
+    asyncio.run(with_served(served, body()))
 
 
 def test_an_overrun_never_writes_twice_in_a_period(tmp_path: Path) -> None:
@@ -267,7 +253,7 @@ def test_an_overrun_never_writes_twice_in_a_period(tmp_path: Path) -> None:
     mpc = OffsetFreeMPC(model, MPCSettings.default_for(model))
     period = cfg.period_s
     loop = ControlLoop(cfg, mpc, step_delay_s={5: 2.5 * period})
-    summary = asyncio.run(_with_served(served, loop.run()))
+    summary = asyncio.run(with_served(served, loop.run()))
     rows = _rows(cfg.log_path)
     assert summary.n_overruns >= 1
     assert int(rows[5]["skipped"]) >= 2
@@ -304,7 +290,7 @@ def test_a_stale_model_is_logged_published_and_alarmed(tmp_path: Path) -> None:
         summary = await loop.run()
         return summary, float(await served._nodes["ModelHealth"].read_value())
 
-    summary, published = asyncio.run(_with_served(served, body()))
+    summary, published = asyncio.run(with_served(served, body()))
     rows = _rows(cfg.log_path)
     alarms = [int(r["stale_alarm"]) for r in rows if r["stale_alarm"] != ""]
     assert alarms[0] == 0 and alarms[-1] == 1
@@ -335,7 +321,7 @@ def test_a_model_not_allowed_on_stays_in_predict(tmp_path: Path) -> None:
         settings.reliability, initial_mode="predict"))
     loop = ControlLoop(cfg, OffsetFreeMPC(model, settings))
     loop.allow_on = False
-    summary = asyncio.run(_with_served(served, loop.run()))
+    summary = asyncio.run(with_served(served, loop.run()))
     rows = _rows(cfg.log_path)
     assert summary.n_writes == 0
     assert {r["mode"] for r in rows} == {"PREDICT"}
@@ -362,7 +348,7 @@ def test_a_candidate_model_runs_in_shadow_and_is_compared(tmp_path: Path) -> Non
     # an overrun while the input moves: both predictors are carried over the skipped periods
     # with the held command (scored one period ahead instead, the active error was 2e-3 kW)
     loop = ControlLoop(cfg, OffsetFreeMPC(model), step_delay_s={8: 2.5 * cfg.period_s})
-    summary = asyncio.run(_with_served(served, loop.run()))
+    summary = asyncio.run(with_served(served, loop.run()))
     assert summary.n_skipped >= 2
     rows = [r for r in _rows(cfg.log_path) if r["k"]]
     predicted = [float(r["candidate_predicted_kw"]) for r in rows]
@@ -414,7 +400,7 @@ def test_the_controller_state_is_published_every_sample(tmp_path: Path, node_typ
             sampler.cancel()
         return result, await served._nodes["MPCWatchdog"].read_value()
 
-    summary, last_watchdog = asyncio.run(_with_served(served, body()))
+    summary, last_watchdog = asyncio.run(with_served(served, body()))
     rows = _rows(cfg.log_path)
     assert summary.refused_writes == {} and not summary.failed
     watchdogs = [s[0] for s in seen]
@@ -467,7 +453,7 @@ def test_a_cancelled_run_still_takes_the_safe_action(tmp_path: Path, signal_hand
             cancelled = True
         return cancelled, float(await served._nodes["TriacCommand"].read_value())
 
-    cancelled, command = asyncio.run(_with_served(served, body()))
+    cancelled, command = asyncio.run(with_served(served, body()))
     assert cancelled                                  # the cancellation went on
     rows = _rows(cfg.log_path)
     ramp = [float(r["triac_pct"]) for r in rows if r["status"] == "SAFE_RAMP"]

@@ -19,9 +19,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from plant_rig import TIME_SCALE, free_port, served_nodes
-
-from czmpc.shipped import shipped_path
+from plant_rig import TIME_SCALE, free_port, served_nodes, write_run_toml
 
 pytestmark = [pytest.mark.slow, pytest.mark.realtime]
 
@@ -63,16 +61,8 @@ def _serve(procs: list[subprocess.Popen[str]], tmp_path: Path, port: int, durati
 
 def _config(tmp_path: Path, port: int, *, log: str = "run.csv", duration_s: float = 200.0,
             extra: str = "") -> Path:
-    nodes = "\n".join(f'{k} = "{v}"' for k, v in served_nodes().items() if k != "setpoint_kw")
-    path = tmp_path / "run.toml"
-    path.write_text(
-        f'[plant]\nendpoint = "opc.tcp://127.0.0.1:{port}/czmpc/"\nts_s = 2.0\n'
-        f"time_scale = {TIME_SCALE}\nmax_sample_age_s = 1.0\nconnect_timeout_s = 1.0\n"
-        f"[nodes]\n{nodes}\n"
-        f'[controller]\nmodel = "{shipped_path("cz_heater_model.json")}"\n'
-        f'[run]\nduration_s = {duration_s}\nsetpoint_kw = 31.0\nlog = "{log}"\n{extra}\n',
-        encoding="utf-8")
-    return path
+    return write_run_toml(tmp_path, port, duration_s=duration_s, log=log, extra=extra,
+                          connect_timeout_s=1.0)
 
 
 def _rows(path: Path) -> list[dict[str, str]]:
