@@ -66,8 +66,19 @@ row stop the run through the safe action (exit 1). Every OPC UA call has a hard
 deadline ([plant] connect_timeout_s); a server that stops answering mid-call is cut
 off, so no step lasts longer than one period plus that timeout.
 
-Events (start, link lost and restored, refused writes, aborts, alarms) are logged to
-stderr, one line each with its UTC time, terminal or not, and in the log's event column.
+Events (start, link lost and restored, shed and resumed, mode changes, refused writes,
+aborts, alarms, overruns once a minute, the end) are logged to stderr, one line each
+with its UTC time, terminal or not (--log-format json: one JSON object a line), and in
+the log's event column; [logging] syslog sends them to syslog too.
+
+Logs are never lost: a start refuses to overwrite [run] log unless --append or
+--replace-log; [run] log = "logs/" (a directory) gives each run its own timestamped
+file, and [run] rotate = "daily" / rotate_mb split long runs into parts, each with its
+meta file. One writer per plant: a second run for the same endpoint and command node on
+this machine refuses (exit 2); a command, heartbeat or [nodes] owner lease changed by
+someone else stops all writing (exit 1). Optional [nodes] status, mode_in_effect,
+stale_alarm, predicted_power_kw, target_triac_pct and watchdog publish the controller's
+state to the HMI every step. See docs/guides/service.rst.
 
 Exit codes: 0 done or stopped by a signal; 2 bad config, model or settings, or a node
 the server will not accept as configured; 1 the plant could not be reached at the
