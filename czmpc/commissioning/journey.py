@@ -315,6 +315,10 @@ def commission(config: RunConfig, plan: JourneyPlan, *,
     check_fn = checker or default_checker
     out = plan.out_dir
     out.mkdir(parents=True, exist_ok=True)
+    for earlier in (out / "test_run.csv", out / "run.csv"):
+        if earlier.exists():   # a run's log is its evidence: never written over
+            raise JourneyError(f"{earlier} holds an earlier commissioning's log; give another "
+                               "--out (or move that directory away)")
     if config.test_limits is None:
         raise ScheduleError("commission needs a [test] section in the run config: "
                             "power_band_kw = [LO, HI] (kW), max_bad_quality_s (s)")
