@@ -46,7 +46,7 @@ from sysid.hammerstein.route import fixed_pole_starts, pole_start_time_constants
 from sysid.linear import _linear_model, arx_regressor
 from sysid.model import HammersteinModel, OperatingPoint
 from sysid.optimize import levenberg_marquardt
-from sysid.polynomials import max_root_modulus, reflect_unstable_roots
+from sysid.polynomials import reflect_unstable_roots
 
 #: Share of the record at its start that is a burn-in: not scored, so that the unknown
 #: initial state (a log that does not start at rest) decays before the criterion counts.
@@ -247,6 +247,23 @@ def rest_oe_model(fit: RestOEFit, data: Dataset, *, operating_triac_pct: float,
         f"{fit.start}, burn-in {fit.burn_in_steps} samples)", where="rest_oe_model")
 
 
+def _schur_stable(f: FloatArray) -> bool:
+    """True if the monic ``F(q)`` has every root inside the unit circle (Schur-Cohn).
+
+    The step-down recursion: the last coefficient of each monic polynomial is a
+    reflection coefficient, all of which must have modulus below one (Astrom and
+    Wittenmark, Computer-Controlled Systems, sec. 3.3). A few scalar operations for the
+    orders searched here, where the roots cost an eigenvalue problem per trial step.
+    """
+    a = np.array(f, dtype=float)
+    for n in range(a.size - 1, 0, -1):
+        k = float(a[n])
+        if not abs(k) < 1.0:
+            return False
+        a = (a[:n] - k * a[n:0:-1]) / (1.0 - k * k)
+    return True
+
+
 def _shifted(x: FloatArray, lag: int) -> FloatArray:
     out = np.zeros_like(x)
     out[lag:] = x[: x.size - lag]
@@ -267,6 +284,9 @@ class _Problem:
 
     def __call__(self, theta: FloatArray) -> tuple[FloatArray, FloatArray]:
         b, f = self.polys(theta)
+        if not _schur_stable(f):          # the search rejects the trial and raises damping
+            m = self.y.size - self.burn
+            return np.full(m, np.inf), np.zeros((m, theta.size))
         v = lfilter([1.0], f, self.u)                      # u / F
         sim = lfilter(b, [1.0], v)                         # B u / F
         w = lfilter([1.0], f, sim)                         # B u / F^2
@@ -274,10 +294,6 @@ class _Problem:
         cols += [-_shifted(w, i) for i in range(1, self.nf + 1)]
         jac = -np.column_stack(cols)[self.burn:]
         return self.y[self.burn:] - sim[self.burn:], jac
-
-    def project(self, theta: FloatArray) -> FloatArray:
-        f = reflect_unstable_roots(np.concatenate([[1.0], theta[self.nb:]]))
-        return np.concatenate([theta[: self.nb], f[1:]])
 
     def b_given_f(self, f: FloatArray) -> FloatArray:
         """Least-squares ``B`` with ``F`` fixed (linear in ``B``)."""
@@ -325,11 +341,10 @@ def _sriv(y: FloatArray, u: FloatArray, nb: int, nf: int, nk: int,
 
 def _refine(problem: _Problem, theta0: FloatArray,
             tol: float) -> tuple[FloatArray, float, int, bool] | None:
-    if max_root_modulus(np.concatenate([[1.0], theta0[problem.nb:]])) >= 1.0:
+    if not _schur_stable(np.concatenate([[1.0], theta0[problem.nb:]])):
         return None
     try:
-        lm = levenberg_marquardt(problem, theta0, project=problem.project, xtol=tol,
-                                 ftol=tol)
+        lm = levenberg_marquardt(problem, theta0, xtol=tol, ftol=tol)
     except IdentificationError:
         return None
     return lm.theta, lm.cost, lm.n_iterations, lm.converged
