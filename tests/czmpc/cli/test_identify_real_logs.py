@@ -47,8 +47,9 @@ NESTED_V_RTOL = 1e-6
 #: Issue 29: the best model identify writes is within this of the multistart OE reference.
 REFERENCE_V_RATIO = 1.10
 #: Random stable starts per structure of the reference (the issue's own search used 24 on
-#: a short log; 6 find the same optimum on these four, measured against 24).
-N_REFERENCE_STARTS = 6
+#: one short log; here 48 structures x 12 starts per log: with 8 the TCLab optimum
+#: 0.1086 degC^2 is missed, 0.1141 found).
+N_REFERENCE_STARTS = 12
 #: Share of each record at its start that is not scored (the unknown initial state).
 BURN_IN_SHARE = 0.2
 
@@ -66,15 +67,35 @@ def _from_rest(b: np.ndarray, f: np.ndarray, u: np.ndarray, y: np.ndarray) -> np
 
 
 def _reference_v(y: np.ndarray, u: np.ndarray, burn: int, seed: int) -> float:
-    """Lowest V from rest over OE(nb 1..4, nf 1..3, nk 0..3), multistart scipy LM."""
+    """Lowest V from rest over OE(nb 1..4, nf 1..3, nk 0..3), multistart scipy LM.
+
+    ``yhat = B/F du`` with ``du = u - u0``; its derivatives are ``du/F`` delayed for each
+    ``b`` and ``-yhat/F`` delayed for each ``f`` (zero initial state throughout).
+    """
     rng = np.random.default_rng(seed)
     target = y[burn:] - y[0]
     du = u - u[0]
+
+    def delayed(x: np.ndarray, lag: int) -> np.ndarray:
+        return np.concatenate([np.zeros(lag), x[:x.size - lag]])
+
     best = np.inf
     for nb, nf, nk in itertools.product(range(1, 5), range(1, 4), range(4)):
-        def simulated(theta: np.ndarray, nb: int = nb, nf: int = nf, nk: int = nk) -> np.ndarray:
-            b = np.concatenate([np.zeros(nk), theta[:nb]])
-            return lfilter(b, np.concatenate([[1.0], theta[nb:]]), du)[burn:]
+        def parts(theta: np.ndarray, nb: int = nb, nk: int = nk) -> tuple[np.ndarray, ...]:
+            f = np.concatenate([[1.0], theta[nb:]])
+            v = lfilter([1.0], f, du)
+            sim = sum(theta[j] * delayed(v, nk + j) for j in range(nb))
+            return f, v, np.asarray(sim)
+
+        def errors(theta: np.ndarray) -> np.ndarray:
+            return target - parts(theta)[2][burn:]
+
+        def jacobian(theta: np.ndarray, nb: int = nb, nf: int = nf, nk: int = nk) -> np.ndarray:
+            f, v, sim = parts(theta)
+            w = lfilter([1.0], f, sim)
+            cols = [delayed(v, nk + j) for j in range(nb)]
+            cols += [-delayed(w, i) for i in range(1, nf + 1)]
+            return -np.column_stack(cols)[burn:]
 
         for _ in range(N_REFERENCE_STARTS):
             # poles with time constants log-uniform from half a sample to a fifth of the
@@ -85,13 +106,13 @@ def _reference_v(y: np.ndarray, u: np.ndarray, burn: int, seed: int) -> float:
                 poles[:2] = poles[0] * np.exp(np.array([1j, -1j]) * rng.uniform(0, np.pi / 2))
             f = np.real(np.poly(poles))
             v = lfilter([1.0], f, du)
-            lags = np.column_stack([np.concatenate([np.zeros(nk + j), v[:v.size - nk - j]])
-                                    for j in range(nb)])[burn:]
+            lags = np.column_stack([delayed(v, nk + j) for j in range(nb)])[burn:]
             b = np.linalg.lstsq(lags, target, rcond=None)[0]
-            sol = least_squares(lambda th: target - simulated(th),
-                                np.concatenate([b, f[1:]]), method="lm", xtol=1e-8,
-                                ftol=1e-8, max_nfev=50 * (nb + nf))
-            if np.max(np.abs(np.roots(np.concatenate([[1.0], sol.x[nb:]])))) < 1.0:
+            with np.errstate(all="ignore"):     # a trial step may leave the stable region
+                sol = least_squares(errors, np.concatenate([b, f[1:]]), jac=jacobian,
+                                    method="lm", xtol=1e-8, ftol=1e-8, max_nfev=50 * (nb + nf))
+            if np.all(np.isfinite(sol.fun)) and np.max(np.abs(np.roots(
+                    np.concatenate([[1.0], sol.x[nb:]])))) < 1.0:
                 best = min(best, float(np.mean(sol.fun**2)))
     return best
 
@@ -117,10 +138,19 @@ def identified(tmp_path_factory: pytest.TempPathFactory) -> Identified:
     @functools.cache
     def run(name: str) -> tuple[int, str, Path]:
         folder = tmp_path_factory.mktemp(name)
-        write_csv(READERS[name](), folder / "log.csv")
+        reading: list[str] = []
+        if name == "lamp":   # as logged, through a column mapping and the units (no fit option)
+            raw = np.loadtxt(REAL / "daisy_heating_system.dat")
+            lines = ["t,u_V,y_degC"] + [f"{t:g},{u:g},{y:g}" for t, u, y in raw.tolist()]
+            (folder / "log.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+            reading = ["--columns", "time_s=t,triac_pct=u_V,power_kw=y_degC",
+                       "--input-unit", "V", "--output-unit", "degC"]
+        else:
+            write_csv(READERS[name](), folder / "log.csv")
         err = io.StringIO()
         with contextlib.redirect_stderr(err):
-            code = main(["identify", str(folder / "log.csv"), "--out", str(folder / "id")])
+            code = main(["identify", str(folder / "log.csv"), "--out", str(folder / "id"),
+                         *reading])
         return code, err.getvalue(), folder / "id"
     return run
 
@@ -175,29 +205,19 @@ def test_cascaded_tanks_nonlinearity_is_captured_by_the_input_polynomial() -> No
 
 
 def test_identify_cli_reads_a_log_of_another_rig_through_a_column_mapping(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    identified: Identified, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    raw = np.loadtxt(REAL / "daisy_heating_system.dat")
-    csv_path = tmp_path / "lamp.csv"
-    lines = ["t,u_V,y_degC"] + [f"{t:g},{u:g},{y:g}" for t, u, y in raw.tolist()]
-    csv_path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    out = tmp_path / "id"
-    code = main(["identify", str(csv_path), "--out", str(out),
-                 "--columns", "time_s=t,triac_pct=u_V,power_kw=y_degC",
-                 "--input-unit", "V", "--output-unit", "degC",
-                 "--operating-point", "6", "129.32", "--allow-unconverged"])
-    assert code == 0, capsys.readouterr().err
+    code, err, out = identified("lamp")
+    assert code == 0, err
     model = load_model(out / "model.json")
-    assert model.operating_point == OperatingPoint(triac_pct=6.0, power_kw=129.32)
     assert model.ts_s == 2.0 and model.input_range_pct == (3.0, 9.0)
     assert "degC" in (out / "report.md").read_text(encoding="utf-8")
     assert model.units is not None
     assert (model.units.input, model.units.output) == ("V", "degC")
-    capsys.readouterr()
     assert main(["show-model", str(out / "model.json")]) == 0
     shown = capsys.readouterr().out
     assert "units: input V, output degC" in shown
-    assert "u_nom = 6 V, y_nom = 129.32 degC" in shown   # u, y: not the puller's s, P
+    assert re.search(r"u_nom = \S+ V, y_nom = \S+ degC", shown)   # u, y: not the puller's s, P
     assert " kW" not in shown and "[%]" not in shown
 
 
