@@ -398,9 +398,11 @@ def test_the_controller_state_is_published_every_sample(tmp_path: Path, node_typ
             result = await loop.run()
         finally:
             sampler.cancel()
-        return result, await served._nodes["MPCWatchdog"].read_value()
+        names = ("MPCWatchdog", "MPCStatus", "MPCMode", "Predicted", "TargetTriac", "Owner")
+        return result, [await served._nodes[n].read_value() for n in names]
 
-    summary, last_watchdog = asyncio.run(with_served(served, body()))
+    summary, final = asyncio.run(with_served(served, body()))
+    last_watchdog = final[0]
     rows = _rows(cfg.log_path)
     assert summary.refused_writes == {} and not summary.failed
     watchdogs = [s[0] for s in seen]
@@ -409,7 +411,7 @@ def test_the_controller_state_is_published_every_sample(tmp_path: Path, node_typ
     assert last_watchdog == summary.n_writes == len(rows)
     assert all(b >= a for a, b in zip(watchdogs, watchdogs[1:], strict=False))
     assert len(set(watchdogs)) >= 0.8 * len(rows)
-    status, mode, predicted, target, owner = seen[-1][1:]
+    status, mode, predicted, target, owner = final[1:]        # as the last step wrote them
     if node_types == "plc":      # PLC integers: STATUS_CODES and 0 OFF, 1 PREDICT, 2 ON
         assert (status, mode) == (STATUS_CODES[rows[-1]["status"]], 2)
     else:
