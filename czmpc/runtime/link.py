@@ -397,7 +397,9 @@ class PlantLink:
             raise
         except (CallDeadlineError, OSError, ConnectionError, asyncio.IncompleteReadError) as exc:
             self.abort()
-            raise LinkLostError(f"{what}: {type(exc).__name__}: {exc}") from None
+            text = str(exc) or ("no answer in time" if isinstance(exc, TimeoutError)
+                                else "the connection closed")
+            raise LinkLostError(f"{what}: {text} ({type(exc).__name__})") from None
 
     async def read(self, keys: tuple[str, ...], deadline_s: float) -> dict[str, Any]:
         """One Read request of the nodes' values (with both timestamps); key -> DataValue."""
