@@ -27,7 +27,7 @@ from czmpc.errors import CzmpcError
 #: Goal of issue 29: model.json's V from rest within this of the multistart OE's.
 REFERENCE_RATIO_GOAL = 1.10
 #: Random stable starts per structure of the reference.
-N_STARTS = 6
+N_STARTS = 12
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -116,13 +116,16 @@ def multistart_oe_v(y: np.ndarray, u: np.ndarray, *, burn_in_steps: int, seed: i
 
         for _ in range(N_STARTS):
             tau = np.exp(rng.uniform(np.log(0.5), np.log(y.size / 5), nf))
-            f = np.real(np.poly(np.exp(-1.0 / tau)))
+            poles = np.exp(-1.0 / tau).astype(complex)
+            if nf >= 2 and rng.random() < 0.5:          # a complex pair half of the time
+                poles[:2] = poles[0] * np.exp(np.array([1j, -1j]) * rng.uniform(0, np.pi / 2))
+            f = np.real(np.poly(poles))
             filtered = lfilter([1.0], f, du)
             cols = np.column_stack([np.roll(filtered, nk + j) * (np.arange(du.size) >= nk + j)
                                     for j in range(nb)])[burn_in_steps:]
             b0 = np.linalg.lstsq(cols, target, rcond=None)[0]
             sol = least_squares(errors, np.concatenate([b0, f[1:]]), method="lm", xtol=1e-8,
-                                ftol=1e-8, max_nfev=50 * (nb + nf))
+                                ftol=1e-8)     # MINPACK's evaluation budget: 100 p (p + 1)
             if np.all(np.abs(np.roots(np.concatenate([[1.0], sol.x[nb:]]))) < 1.0):
                 best = min(best, float(np.mean(sol.fun**2)))
     return float(best)
