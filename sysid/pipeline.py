@@ -84,6 +84,11 @@ from sysid.structure import StructureChoice, select_structure
 #: The final model gives way to the OE from rest (orders "auto") when its own simulation
 #: from rest has more than this times the OE's mean squared error (issue 29's bar).
 REST_V_RATIO = 1.1
+#: ... and only if its static gain is below this many times the output's recorded span
+#: over the input's: a larger gain is an extrapolation the record does not support (a log
+#: cut just after an input step: from rest at that sample the fit drifts like an
+#: integrator, gain -6e6 degC/% on the TCLab log without its first ten samples).
+REST_GAIN_SPAN_FACTOR = 10.0
 
 #: ``level_shift`` argument: ``"auto"`` (from the outlier candidates), ``"none"``, or
 #: ``(from_time_s, shift_kw)`` to subtract ``shift_kw`` from the output from that time.
@@ -970,8 +975,19 @@ def _better_from_rest(final: NamedModel, rest: NamedModel, data: Dataset,
     A model fitted with an estimated initial state can trade a pole near ``z = 1``
     against that state: it matches the record but simulates badly from rest (on the
     TCLab log 2,500 times the OE's error, its static gain not determined). The OE from
-    rest is then the better prediction model, and the reason is listed.
+    rest is then the better prediction model, and the reason is listed. Not when the OE's
+    own static gain exceeds `REST_GAIN_SPAN_FACTOR` times the recorded span ratio: then
+    the first sample was no rest, and the OE drifts instead.
     """
+    span_ratio = float(np.ptp(data.power_kw) / np.ptp(data.triac_pct))
+    gain = abs(rest.model.linear_static_gain * float(rest.model.input_poly[0]))
+    if not gain <= REST_GAIN_SPAN_FACTOR * span_ratio:
+        skipped.append(
+            f"{rest.name} not used as the final model: its static gain {gain:.4g} would move "
+            f"the output more than {REST_GAIN_SPAN_FACTOR:g} times its recorded span over the "
+            "recorded input span (the log does not start at rest, or does not show the "
+            "process settle)")
+        return final
     burn = int(BURN_IN_SHARE * data.n_samples)
     point = at or RestPoint.first_sample(data.triac_pct, data.power_kw)
     where = "at the given operating point" if at else "at the first sample"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.signal import lfilter
@@ -121,3 +123,31 @@ def test_the_step_down_stability_test_agrees_with_the_roots() -> None:
         f = np.r_[1.0, rng.uniform(-3.0, 3.0, int(rng.integers(1, 4)))]
         assert _schur_stable(f) == (np.max(np.abs(np.roots(f))) < 1.0), f
     assert _schur_stable(np.array([1.0])) and not _schur_stable(np.array([1.0, -1.0]))
+
+
+def test_an_oe_from_a_first_sample_that_is_no_rest_does_not_replace_the_final_model() -> None:
+    """The TCLab log without its first ten samples starts at the step 0 -> 100 %: from rest
+    there, the best OE drifts like an integrator (static gain about -6e6 degC/%, against a
+    recorded span ratio of 0.35), and the final model is kept, with the reason."""
+    from pathlib import Path
+
+    from sysid.pipeline import NamedModel, _better_from_rest
+    from sysid.reallogs import read_tclab
+
+    log = read_tclab(Path(__file__).resolve().parents[2] / "data" / "real"
+                     / "tclab_mimo_steps_data.txt")
+    cut = Dataset(time_s=log.time_s[10:] - log.time_s[10], triac_pct=log.triac_pct[10:],
+                  power_kw=log.power_kw[10:], ts_s=log.ts_s, sampling_rtol=log.sampling_rtol)
+    rest = RestPoint.first_sample(cut.triac_pct, cut.power_kw)
+    fit = search_oe_from_rest(cut.power_kw, cut.triac_pct).chosen
+    assert abs(fit.static_gain) > 1e3 * float(np.ptp(cut.power_kw) / np.ptp(cut.triac_pct))
+    oe = NamedModel(name="oe_rest", label="OE", n_parameters=fit.n_parameters, n_iterations=0,
+                    converged=True, model=rest_oe_model(fit, cut, operating_triac_pct=50.0,
+                                                        rest=rest))
+    # a final model that simulates from rest much worse than the OE: without the gain
+    # check the OE would replace it
+    final = dataclasses.replace(oe, name="hammerstein_armax", model=oe.model.with_updates(
+        input_poly=0.5 * oe.model.input_poly))
+    skipped: list[str] = []
+    assert _better_from_rest(final, oe, cut, None, skipped) is final
+    assert "oe_rest not used as the final model: its static gain" in skipped[0]
