@@ -54,9 +54,16 @@ def room_of_module(module: str) -> str | None:
     return parts[0]
 
 
+#: Modules that are entry points of the command line, whatever folder they sit in: they
+#: belong to the CLI's room (``python -m czmpc`` runs ``czmpc/__main__.py``).
+ENTRY_POINTS = {"czmpc.__main__": "czmpc.cli"}
+
+
 def room_of_path(path: Path) -> str:
     rel = path.relative_to(REPO).with_suffix("")
     module = ".".join(p for p in rel.parts if p != "__init__")
+    if module in ENTRY_POINTS:
+        return ENTRY_POINTS[module]
     room = room_of_module(module)
     if room is None:  # pragma: no cover - only our packages are walked
         raise AssertionError(path)
