@@ -17,7 +17,7 @@ def test_every_real_data_file_has_a_notice_row_with_source_licence_and_original(
     readme = (REAL / "README.md").read_text(encoding="utf-8")
     notices = readme.split("## Third-party notices", 1)[1].split("\n## ", 1)[0]
     rows = [line for line in notices.splitlines() if line.startswith("| `")]
-    assert len(_data_files()) == 4
+    assert len(_data_files()) == 5
     for name in _data_files():
         (row,) = [r for r in rows if f"`{name}`" in r]
         cells = [c.strip() for c in row.strip("|").split("|")]
@@ -30,10 +30,10 @@ def test_every_real_data_file_has_a_notice_row_with_source_licence_and_original(
 
 def test_the_licence_texts_are_the_named_licences() -> None:
     texts = {p.name: p.read_text(encoding="utf-8") for p in (REAL / "licenses").iterdir()}
-    assert len(texts) == 3
+    assert len(texts) == 4
     for name, text in texts.items():
         if ".MIT." in name:
-            assert text.startswith("MIT License") and "Copyright (c)" in text
+            assert text.startswith(("MIT License", "The MIT License")) and "Copyright (c)" in text
         else:
             assert "Apache License" in text and "Version 2.0, January 2004" in text
 
