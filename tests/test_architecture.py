@@ -121,3 +121,18 @@ def test_contract_catches_upward_and_forbidden_imports() -> None:
     assert violations("sysid", {"sim"})
     assert violations("czmpc.cli", {"czmpc.campaigns.bench", "sim.loop", "sysid.data", "numpy"}) == []
     assert violations("czmpc.campaigns", {"czmpc.campaigns.golden", "czmpc.peers.pi", "sim"}) == []
+
+
+def test_test_module_names_are_unique() -> None:
+    """pytest imports the test modules by basename (no __init__.py): a second
+    ``test_controller.py`` in another folder breaks the collection of a run that takes
+    both (the realtime run takes every folder)."""
+    names: dict[str, Path] = {}
+    clashes = []
+    for path in sorted((REPO / "tests").rglob("test_*.py")):
+        if "node_modules" in path.parts:
+            continue
+        if path.name in names:
+            clashes.append(f"{names[path.name].relative_to(REPO)} and {path.relative_to(REPO)}")
+        names.setdefault(path.name, path)
+    assert clashes == []
