@@ -90,6 +90,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import logging
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -101,6 +102,9 @@ if TYPE_CHECKING:
     from czmpc.runtime.config import RunConfig
     from czmpc.runtime.link import CheckReport
     from czmpc.runtime.loop import RunSummary
+
+#: The command's own records (start-up notes, the verdict); stderr via `configure_logging`.
+_log = logging.getLogger("czmpc.cli.run")
 
 NAME = "run"
 HELP = "run the MPC in real time against a plant's OPC UA server (config file)"
@@ -149,17 +153,16 @@ def _model_gate(model_path: Path, force: bool) -> tuple[bool, bool]:
 
     verdict, note = read_check(model_path)
     if verdict is None:
-        print(f"czmpc run: warning: {note}; run 'czmpc check-model' before switching on",
-              file=sys.stderr)
+        _log.warning("%s; run 'czmpc check-model' before switching on", note)
         return True, False
-    print(f"czmpc run: {note}", file=sys.stderr)
+    _log.info("%s", note)
     if verdict != "not ready":
         return True, False
     if force:
-        print("czmpc run: --force: switching ON with a model judged not ready", file=sys.stderr)
+        _log.warning("--force: switching ON with a model judged not ready")
         return True, True
-    print("czmpc run: the model is not ready: running in PREDICT only (nothing is written); "
-          "--force overrides", file=sys.stderr)
+    _log.warning("the model is not ready: running in PREDICT only (nothing is written); "
+                 "--force overrides")
     return False, False
 
 
@@ -185,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
     configure_logging(args.log_level, args.log_format)
     if config.syslog is not None:
         log_to_syslog(config.syslog, config.syslog_facility)
-    print(f"czmpc run: plant link {config.endpoint}: {config.security.describe()}", file=sys.stderr)
+    _log.info("plant link %s: %s", config.endpoint, config.security.describe())
     if args.check:
         return _check(config)
     forced = False
@@ -195,10 +198,11 @@ def run(args: argparse.Namespace) -> int:
         schedule = load_input_schedule(args.test)
         loop = make_test_loop(config, schedule, status=tty_status())
         limits = config.test_limits
-        print(f"czmpc run: open-loop test {args.test}: {schedule.duration_s:g} s of plant time, "
-              f"largest step {schedule.max_step_pct:g} %; band {limits.power_band_kw[0]:g}.."  # type: ignore[union-attr]
-              f"{limits.power_band_kw[1]:g} kW, at most {limits.max_bad_quality_s:g} s without "  # type: ignore[union-attr]
-              f"a usable sample; abort -> {config.safe_triac_pct:g} %", file=sys.stderr)
+        assert limits is not None    # load_input_schedule's loop needs [test]
+        _log.info("open-loop test %s: %g s of plant time, largest step %g %%; band %g..%g kW, "
+                  "at most %g s without a usable sample; abort -> %g %%", args.test,
+                  schedule.duration_s, schedule.max_step_pct, limits.power_band_kw[0],
+                  limits.power_band_kw[1], limits.max_bad_quality_s, config.safe_triac_pct)
     else:
         if config.model_path is None:
             raise RunConfigError("controller.model: missing; the MPC needs a model "
@@ -214,8 +218,8 @@ def run(args: argparse.Namespace) -> int:
                 raise SettingsError(f"controller.candidate: expected the sampling time "
                                     f"{config.ts_s:g} s; {config.candidate_path} has "
                                     f"{candidate.ts_s:g} s")
-            print(f"czmpc run: candidate model {config.candidate_path} in shadow (logged, "
-                  "compared, never driving)", file=sys.stderr)
+            _log.info("candidate model %s in shadow (logged, compared, never driving)",
+                      config.candidate_path)
         if config.settings_path is None:
             settings = MPCSettings.default_for(model)
         else:
@@ -235,9 +239,9 @@ def run(args: argparse.Namespace) -> int:
                                    switch_time_s=dominant_time_constant_s(model),
                                    rng=args.dither_seed)
             controller, provenance = dithered, dithered.provenance(args.dither_seed)
-            print(f"czmpc run: closed-loop test: +-{args.dither_pct:g} % GBN dither on the MPC's "
-                  f"input, mean switching time {dithered.switch_time_s:.0f} s; the log is "
-                  "closed-loop data", file=sys.stderr)
+            _log.info("closed-loop test: +-%g %% GBN dither on the MPC's input, mean switching "
+                      "time %.0f s; the log is closed-loop data", args.dither_pct,
+                      dithered.switch_time_s)
         loop = ControlLoop(config, controller, status=tty_status(), provenance=provenance)
         loop.allow_on = allow_on
     loop.log_policy = "append" if args.append else "force" if args.replace_log else "new"
@@ -284,19 +288,17 @@ def _check(config: RunConfig) -> int:
 
 def _verdict(summary: RunSummary, check: CheckReport | None, config: RunConfig,
              what: str) -> int:
-    """Say why a run (or a ``what = "test"``) failed, on stderr; its exit code."""
+    """Say why a run (or a ``what = "test"``) failed, as error records; its exit code."""
     if summary.configuration_error is not None:
         if check is not None and not check.ok:
-            print(check.table(), file=sys.stderr)
-        print(f"czmpc: error: {summary.configuration_error}; nothing more was written",
-              file=sys.stderr)
+            _log.error("the nodes as the server has them:\n%s", check.table())
+        _log.error("%s; nothing more was written", summary.configuration_error)
     elif summary.abort_reason is not None:
-        print(f"czmpc: error: {what} aborted: {summary.abort_reason}; the safe action "
-              f"(TRIAC to {config.safe_triac_pct if config.safe_triac_pct is not None else 'hold'}"
-              f"{'' if config.safe_triac_pct is None else ' %'}) was taken where the plant "
-              "accepted it; see the log's event column", file=sys.stderr)
+        safe = ("hold" if config.safe_triac_pct is None else f"TRIAC to {config.safe_triac_pct:g} %")
+        _log.error("%s aborted: %s; the safe action (%s) was taken where the plant accepted it; "
+                   "see the log's event column", what, summary.abort_reason, safe)
     elif summary.moved_nothing:
-        print(f"czmpc: error: the controller meant to write {summary.n_commands_meant} commands "
-              "and the plant accepted none of them: see the refused writes and link losses "
-              "above and the log's event column", file=sys.stderr)
+        _log.error("the controller meant to write %d commands and the plant accepted none of "
+                   "them: see the refused writes and link losses above and the log's event "
+                   "column", summary.n_commands_meant)
     return summary.exit_code

@@ -41,6 +41,9 @@ def test_a_not_ready_model_exits_1_with_every_reason_and_a_check_file(
 def test_run_refuses_on_for_a_not_ready_model_unless_forced(
     tmp_path: Path, capsys: pytest.CaptureFixture[str],
 ) -> None:
+    from czmpc.cli._logging import configure_logging
+
+    configure_logging()    # czmpc run's records go to stderr, as the command sets them up
     path = _wrong_delay_model(tmp_path)
     assert _model_gate(path, False) == (True, False)          # never checked: warned, runs
     assert "was never checked" in capsys.readouterr().err
