@@ -90,7 +90,8 @@ def configure_logging(level: str = "INFO", fmt: str = "text") -> None:
             logger.removeHandler(old)
         logger.addHandler(handler)
         logger.setLevel(name_level)
-        logger.propagate = False
+        # records still propagate: the command's root logger has no handler, and a host
+        # that has one (pytest's log capture, an embedding program) sees them too
 
 
 def log_to_syslog(address: str, facility: str = "daemon") -> logging.Handler:
