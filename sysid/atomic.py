@@ -25,6 +25,7 @@ plain ``open(path, "w")``, so the finished file gets the usual permissions.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import secrets
 from collections.abc import Iterator
@@ -143,4 +144,15 @@ def atomic_write_text(path: str | os.PathLike[str], text: str, *, encoding: str 
     atomic_write_bytes(path, text.encode(encoding))
 
 
-__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text"]
+def file_sha256(path: str | os.PathLike[str]) -> str:
+    """SHA-256 of a file's bytes, in hex: the provenance hash of models, configs and inputs.
+
+    Raises
+    ------
+    OSError
+        The file cannot be read.
+    """
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text", "file_sha256"]
