@@ -29,6 +29,7 @@ extensions = [
     "numpydoc",
     "sphinx_gallery.gen_gallery",
     "czmpc_contracts",
+    "czmpc_cli",
 ]
 
 templates_path = ["_templates"]
