@@ -52,7 +52,8 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Check, print every reason, write the verdict beside the model."""
-    from czmpc.commissioning.check import check_model, file_sha256, write_check
+    from czmpc.commissioning.check import check_model, write_check
+    from sysid.atomic import file_sha256
     from sysid.modelfile import load_model
 
     model = load_model(args.model)

@@ -113,8 +113,7 @@ def run(args: argparse.Namespace) -> int:
         return 1
     check = result.check
     if check is not None:
-        verdict = "none (no check made)" if check.verdict is None else check.verdict
-        print(f"verdict: {verdict}; held-out fit {result.fit_pct:.1f} %")
+        print(f"verdict: {check.verdict}; held-out fit {result.fit_pct:.1f} %")
         for reason in check.reasons:
             print(f"  - {reason}")
     if result.run_summary is not None:

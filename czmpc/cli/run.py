@@ -3,7 +3,7 @@
 CONFIG.toml names the server's endpoint, the node ids (any server's: they are strings
 such as "ns=2;s=Heater.Power"), the model, the setpoint (a node, a fixed value or a
 recipe CSV with columns time_s,setpoint_kw) and the log; see the example
-examples/plant_link/run.toml and the README section "Plant link".
+examples/plant_link/run.toml and the guide docs/guides/plant_link.rst.
 
 Every Ts (monotonic schedule, no drift) the loop reads the power, steps the controller
 and writes the TRIAC command and a heartbeat. Bad/Uncertain status codes and stale
@@ -147,36 +147,13 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "(said on stderr at the start and in the run summary)")
 
 
-def _model_gate(model_path: Path, force: bool) -> tuple[bool, bool]:
-    """Say the model's check-model verdict; (may switch ON, forced past 'not ready')."""
-    from czmpc.commissioning.check import read_check
-
-    verdict, note = read_check(model_path)
-    if verdict is None:
-        _log.warning("%s; run 'czmpc check-model' before switching on", note)
-        return True, False
-    _log.info("%s", note)
-    if verdict != "not ready":
-        return True, False
-    if force:
-        _log.warning("--force: switching ON with a model judged not ready")
-        return True, True
-    _log.warning("the model is not ready: running in PREDICT only (nothing is written); "
-                 "--force overrides")
-    return False, False
-
-
 def run(args: argparse.Namespace) -> int:
     """Load the config and the model, build the controller, run the loop."""
     import dataclasses
 
-    from czmpc.controller import OffsetFreeMPC
-    from czmpc.errors import SettingsError
-    from czmpc.runtime.config import RunConfigError, load_run_config
-    from czmpc.runtime.loop import ControlLoop, LoopController, tty_status
-    from czmpc.settings import MPCSettings
-    from czmpc.settings_file import load_settings
-    from sysid.modelfile import load_model
+    from czmpc.runtime.config import load_run_config
+    from czmpc.runtime.loop import tty_status
+    from czmpc.runtime.session import open_run
 
     config = load_run_config(args.config)
     changes: dict[str, object] = {}
@@ -184,6 +161,8 @@ def run(args: argparse.Namespace) -> int:
         changes["duration_s"] = float(args.duration_s)
     if args.log is not None:
         changes["log_path"] = args.log
+    if args.test is None and args.dither_pct is None:
+        changes["test_limits"] = None   # [test] limits guard tests only (--test, --dither-pct)
     config = dataclasses.replace(config, **changes)  # type: ignore[arg-type]
     configure_logging(args.log_level, args.log_format)
     if config.syslog is not None:
@@ -204,46 +183,22 @@ def run(args: argparse.Namespace) -> int:
                   schedule.duration_s, schedule.max_step_pct, limits.power_band_kw[0],
                   limits.power_band_kw[1], limits.max_bad_quality_s, config.safe_triac_pct)
     else:
-        if config.model_path is None:
-            raise RunConfigError("controller.model: missing; the MPC needs a model "
-                                 "(only an open-loop test, --test TEST.csv, runs without one)")
-        model = load_model(config.model_path)
-        if abs(model.ts_s - config.ts_s) > 1e-9 * config.ts_s:
-            raise SettingsError(f"plant.ts_s: expected the model's sampling time {model.ts_s:g} s; "
-                                f"got {config.ts_s:g} s")
-        allow_on, forced = _model_gate(config.model_path, args.force)
-        if config.candidate_path is not None:
-            candidate = load_model(config.candidate_path)   # checked before anything runs
-            if abs(candidate.ts_s - config.ts_s) > 1e-9 * config.ts_s:
-                raise SettingsError(f"controller.candidate: expected the sampling time "
-                                    f"{config.ts_s:g} s; {config.candidate_path} has "
-                                    f"{candidate.ts_s:g} s")
-            _log.info("candidate model %s in shadow (logged, compared, never driving)",
-                      config.candidate_path)
-        if config.settings_path is None:
-            settings = MPCSettings.default_for(model)
+        opened = open_run(config, force=args.force, log=_log)
+        forced = opened.switch_on.forced
+        if args.dither_pct is None:
+            loop = opened.loop(provenance={"kind": "MPC run", "closed_loop": True},
+                               status=tty_status())
         else:
-            settings = load_settings(config.settings_path, model)
-        if not allow_on:
-            settings = dataclasses.replace(settings, reliability=dataclasses.replace(
-                settings.reliability, initial_mode="predict"))
-        mpc = OffsetFreeMPC(model, settings)
-        if args.dither_pct is None:   # [test] limits guard tests only (--test, --dither-pct)
-            config = dataclasses.replace(config, test_limits=None)
-        controller: OffsetFreeMPC | LoopController = mpc
-        provenance: dict[str, object] = {"kind": "MPC run", "closed_loop": True}
-        if args.dither_pct is not None:
             from czmpc.commissioning.dither import DitheredMPC, dominant_time_constant_s
 
-            dithered = DitheredMPC(mpc, amplitude_pct=args.dither_pct,
-                                   switch_time_s=dominant_time_constant_s(model),
+            dithered = DitheredMPC(opened.mpc, amplitude_pct=args.dither_pct,
+                                   switch_time_s=dominant_time_constant_s(opened.model),
                                    rng=args.dither_seed)
-            controller, provenance = dithered, dithered.provenance(args.dither_seed)
             _log.info("closed-loop test: +-%g %% GBN dither on the MPC's input, mean switching "
                       "time %.0f s; the log is closed-loop data", args.dither_pct,
                       dithered.switch_time_s)
-        loop = ControlLoop(config, controller, status=tty_status(), provenance=provenance)
-        loop.allow_on = allow_on
+            loop = opened.loop(dithered, provenance=dithered.provenance(args.dither_seed),
+                               status=tty_status())
     loop.log_policy = "append" if args.append else "force" if args.replace_log else "new"
     try:
         summary = asyncio.run(loop.run())

@@ -48,14 +48,14 @@ non-pass check is a reason. The checks and their limits (constants below):
   plant. All good passes; at least `GOOD_MC_FRACTION` good is a condition; fewer fails.
 
 The verdict is stored beside the model as ``MODEL.check.json`` (`write_check`), with the
-SHA-256 of the model file, so `czmpc run` can tell a checked model from an unchecked or
-since-changed one (`read_check`). The model file itself is not touched.
+SHA-256 of the model file, so a run can tell a checked model from an unchecked or
+since-changed one (`czmpc.runtime.session.read_check`, for the switch-on rule). The
+model file itself is not touched.
 """
 
 from __future__ import annotations
 
 import datetime as dt
-import hashlib
 import json
 import math
 from dataclasses import dataclass
@@ -65,6 +65,7 @@ from typing import Any, Literal
 import numpy as np
 from scipy.signal import lfilter
 
+from czmpc.runtime.session import CHECK_FORMAT, Verdict, check_path
 from czmpc.settings import MPCSettings
 from sysid.data import Dataset
 from sysid.errors import ModelFileError
@@ -73,11 +74,8 @@ from sysid.polynomials import roots_z
 from sysid.structure import MAX_GAIN_RSD
 from sysid.uncertainty import ParameterError, model_with_parameters, parameter_distribution
 
-Verdict = Literal["ready", "ready with conditions", "not ready"]
 ItemStatus = Literal["pass", "condition", "fail", "skipped"]
 
-#: Format tag of the check file written beside a model.
-CHECK_FORMAT = "czmpc-model-check/1"
 #: Input range [%] narrower than this: the MPC could hardly move (fail).
 MIN_RANGE_PCT = 5.0
 #: Input range [%] narrower than this: a condition (the MPC is confined to it).
@@ -224,18 +222,6 @@ class ModelCheck:
         return "\n".join(lines) + "\n"
 
 
-def file_sha256(path: str | Path) -> str:
-    """SHA-256 of a file's bytes (hex)."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
-def check_path(model_path: str | Path) -> Path:
-    """``MODEL.check.json`` beside ``MODEL.json``."""
-    p = Path(model_path)
-    stem = p.name[:-5] if p.name.endswith(".json") else p.name
-    return p.with_name(stem + ".check.json")
-
-
 def write_check(check: ModelCheck, model_path: str | Path) -> Path:
     """Write ``check`` beside the model (`check_path`); return the path."""
     from sysid.atomic import atomic_write_text
@@ -243,36 +229,6 @@ def write_check(check: ModelCheck, model_path: str | Path) -> Path:
     target = check_path(model_path)
     atomic_write_text(target, json.dumps(check.to_dict(), indent=2) + "\n")
     return target
-
-
-def read_check(model_path: str | Path) -> tuple[Verdict | None, str]:
-    """The stored verdict of a model file, and a sentence about it.
-
-    Returns
-    -------
-    verdict, note
-        ``(None, why)`` when the model was never checked, or changed since (the SHA-256
-        differs), or the check file is unreadable; else the verdict and its reasons.
-    """
-    target = check_path(model_path)
-    if not target.is_file():
-        return None, f"{Path(model_path).name} was never checked (no {target.name})"
-    try:
-        doc = json.loads(target.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        return None, f"{target.name} cannot be read ({exc}); treating the model as unchecked"
-    if not isinstance(doc, dict) or doc.get("format") != CHECK_FORMAT:
-        return None, f"{target.name}: expected format {CHECK_FORMAT!r}; treating as unchecked"
-    if doc.get("model_sha256") != file_sha256(model_path):
-        return None, (f"{Path(model_path).name} changed since {target.name} was written; "
-                      "check it again")
-    verdict = doc.get("verdict")
-    if verdict not in ("ready", "ready with conditions", "not ready"):
-        return None, f"{target.name}: unknown verdict {verdict!r}; treating as unchecked"
-    reasons = doc.get("reasons") or []
-    note = f"check-model verdict: {verdict}" + (
-        "" if not reasons else " (" + "; ".join(str(r) for r in reasons) + ")")
-    return verdict, note
 
 
 # --- the checks ------------------------------------------------------------------------
@@ -637,7 +593,5 @@ def check_model(model: HammersteinModel, data: Dataset | None = None,
                       created_utc=dt.datetime.now(dt.UTC).replace(microsecond=0).isoformat())
 
 
-__all__ = ["CHECK_FORMAT", "CheckItem", "ItemStatus", "ModelCheck",
-           "MonteCarloSummary", "Verdict", "check_model", "check_path", "family_bound",
-           "file_sha256", "largest_move_response", "missed_response_pct",
-           "read_check", "write_check"]
+__all__ = ["CheckItem", "ItemStatus", "ModelCheck", "MonteCarloSummary", "check_model",
+           "family_bound", "largest_move_response", "missed_response_pct", "write_check"]

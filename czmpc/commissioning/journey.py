@@ -26,8 +26,6 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import datetime as dt
-import hashlib
-import importlib
 import math
 import warnings
 from collections.abc import Callable, Sequence
@@ -37,21 +35,22 @@ from typing import Any
 
 import numpy as np
 
+from czmpc.commissioning.check import ModelCheck, check_model, write_check
 from czmpc.commissioning.test_run import (
     InputSchedule,
     ScheduleDriver,
     ScheduleError,
     make_test_loop,
 )
-from czmpc.controller import OffsetFreeMPC
 from czmpc.errors import CzmpcError, DesignError
 from czmpc.reports import commissioning as figures
 from czmpc.runtime.config import RunConfig
-from czmpc.runtime.loop import ControlLoop, RunSummary
+from czmpc.runtime.loop import RunSummary
 from czmpc.runtime.runlog import read_run_log
+from czmpc.runtime.session import open_run
 from czmpc.settings import MPCSettings
 from czmpc.settings_file import load_settings
-from sysid.atomic import atomic_write_text
+from sysid.atomic import atomic_write_text, file_sha256
 from sysid.criteria import errors_with_fitted_state, fit_percent
 from sysid.data import Dataset
 from sysid.design import (
@@ -117,33 +116,6 @@ class JourneyPlan:
     mc_runs: int = 20
 
 
-@dataclass(frozen=True, kw_only=True)
-class CheckOutcome:
-    """The check-model verdict as the journey uses it.
-
-    Parameters
-    ----------
-    verdict :
-        ``"ready"``, ``"ready with conditions"``, ``"not ready"``, or None when no
-        check could be made.
-    reasons :
-        Every reason given.
-    items :
-        ``(name, status, detail)`` of each check.
-    iae_ratios :
-        The Monte Carlo's IAE ratios (empty if none).
-    """
-
-    verdict: str | None
-    reasons: tuple[str, ...]
-    items: tuple[tuple[str, str, str], ...] = ()
-    iae_ratios: tuple[float, ...] = ()
-
-
-#: ``checker(model, validation, settings, model_path, mc_runs) -> CheckOutcome``.
-Checker = Callable[[HammersteinModel, Dataset, MPCSettings, Path, int], CheckOutcome]
-
-
 @dataclass(frozen=True, kw_only=True, eq=False)
 class JourneyResult:
     """What the journey did; ``stage`` says where it ended.
@@ -157,7 +129,7 @@ class JourneyResult:
     report_path: Path
     test_summary: RunSummary
     model_path: Path | None = None
-    check: CheckOutcome | None = None
+    check: ModelCheck | None = None
     fit_pct: float | None = None
     run_summary: RunSummary | None = None
     messages: tuple[str, ...] = field(default=())
@@ -170,24 +142,6 @@ class JourneyResult:
         if self.check.verdict != "ready":
             return False
         return self.run_summary is None or not self.run_summary.failed
-
-
-def default_checker(model: HammersteinModel, validation: Dataset, settings: MPCSettings,
-                    model_path: Path, mc_runs: int) -> CheckOutcome:
-    """`czmpc.commissioning.check.check_model`, its verdict stored beside the model."""
-    try:
-        check_mod: Any = importlib.import_module("czmpc.commissioning.check")
-    except ModuleNotFoundError:
-        return CheckOutcome(verdict=None, reasons=(
-            "czmpc check-model is not part of this installation; no verdict, no switch-on",))
-    sha = hashlib.sha256(model_path.read_bytes()).hexdigest()
-    check = check_mod.check_model(model, validation, settings, mc_runs=mc_runs, model_sha256=sha)
-    check_mod.write_check(check, model_path)
-    mc = check.monte_carlo
-    return CheckOutcome(
-        verdict=str(check.verdict), reasons=tuple(str(r) for r in check.reasons),
-        items=tuple((str(i.name), str(i.status), str(i.detail)) for i in check.items),
-        iae_ratios=tuple(float(v) for v in mc.iae_ratios) if mc is not None else ())
 
 
 def design_spec(plan: JourneyPlan, ts_s: float) -> ExcitationSpec:
@@ -286,7 +240,7 @@ def identify_test(data: Dataset, *,
 
 def commission(config: RunConfig, plan: JourneyPlan, *,
                progress: Callable[[str], None] | None = None,
-               checker: Checker | None = None, command: str | None = None,
+               command: str | None = None,
                run_status: Callable[[str], None] | None = None) -> JourneyResult:
     """Run the whole journey (module docstring); return what it did.
 
@@ -299,8 +253,6 @@ def commission(config: RunConfig, plan: JourneyPlan, *,
         The options.
     progress :
         Called with a line per stage.
-    checker :
-        The check-model step (default: `default_checker`).
     command :
         The command line, recorded in the report.
     run_status :
@@ -312,7 +264,6 @@ def commission(config: RunConfig, plan: JourneyPlan, *,
         Options or config that do not fit (before anything is applied to the plant).
     """
     say = progress or (lambda _m: None)
-    check_fn = checker or default_checker
     out = plan.out_dir
     out.mkdir(parents=True, exist_ok=True)
     for earlier in (out / "test_run.csv", out / "run.csv"):
@@ -334,9 +285,8 @@ def commission(config: RunConfig, plan: JourneyPlan, *,
     rows = "".join(f"{t:.6g},{u:.6g}\n" for t, u in zip(signal.time_s, signal.triac_pct,
                                                        strict=True))
     atomic_write_text(test_csv, "time_s,triac_pct\n" + rows)
-    raw = test_csv.read_bytes()
     schedule = InputSchedule(time_s=signal.time_s, triac_pct=signal.triac_pct,
-                             source=str(test_csv), sha256=hashlib.sha256(raw).hexdigest())
+                             source=str(test_csv), sha256=file_sha256(test_csv))
     say(f"1/5 designed the test: {spec.kind}, {schedule.duration_s:g} s of plant time, "
         f"{spec.lo_pct:g}..{spec.hi_pct:g} % -> {test_csv}")
     # 2. run the test
@@ -372,30 +322,32 @@ def commission(config: RunConfig, plan: JourneyPlan, *,
     settings = (MPCSettings.default_for(model) if config.settings_path is None
                 else load_settings(config.settings_path, model))
     say(f"4/5 checking the model (held-out fit {fit:.1f} %, closed-loop Monte Carlo)")
-    check = check_fn(model, val, settings, model_path, plan.mc_runs)
+    check = check_model(model, val, settings, mc_runs=plan.mc_runs,
+                        model_sha256=file_sha256(model_path))
+    write_check(check, model_path)   # the verdict beside the model: the switch-on rule reads it
     say(f"    verdict: {check.verdict}")
     # 5. report, 6. switch on
     run_summary: RunSummary | None = None
     stage = "checked"
-    mpc: OffsetFreeMPC | None = None
-    if plan.switch_on and check.verdict == "ready":
-        try:
-            mpc = OffsetFreeMPC(model, settings)
-        except DesignError as exc:   # a verdict that missed what the controller refuses
-            messages.append(f"not switched on: the controller refuses the model: {exc}")
-    if mpc is not None:
+    if plan.switch_on:
         run_cfg = dataclasses.replace(config, model_path=model_path, log_path=out / "run.csv",
                                       test_limits=None,
                                       duration_s=plan.run_duration_s or config.duration_s)
-        say(f"5/5 switching the MPC on with {model_path} (bumpless from the applied input); "
-            f"log {run_cfg.log_path}")
-        run_loop = ControlLoop(run_cfg, mpc, status=run_status, provenance={
-            "kind": "MPC run after commissioning", "closed_loop": True,
-            "commissioning": str(out)})
-        run_summary = asyncio.run(run_loop.run())
-        stage = "switched on"
-    elif plan.switch_on and check.verdict != "ready":
-        messages.append(f"not switched on: the verdict is {check.verdict!r}, not 'ready'")
+        try:
+            opened = open_run(run_cfg, unattended=True)
+        except DesignError as exc:   # a verdict that missed what the controller refuses
+            messages.append(f"not switched on: the controller refuses the model: {exc}")
+        else:
+            if opened.switch_on.allowed:
+                say(f"5/5 switching the MPC on with {model_path} (bumpless from the applied "
+                    f"input); log {run_cfg.log_path}")
+                run_loop = opened.loop(status=run_status, provenance={
+                    "kind": "MPC run after commissioning", "closed_loop": True,
+                    "commissioning": str(out)})
+                run_summary = asyncio.run(run_loop.run())
+                stage = "switched on"
+            else:
+                messages.append(f"not switched on: the verdict is {check.verdict!r}, not 'ready'")
     report = _write_report(out, config=config, plan=plan, signal=signal, schedule=schedule,
                            test_summary=test_summary, started=started, command=command,
                            lead_in_s=lead_in_s, data=data, val=val, simulated=simulated, fit=fit, model=model,
@@ -423,7 +375,7 @@ def _write_report(out: Path, *, config: RunConfig, plan: JourneyPlan, signal: Ex
                   command: str | None, lead_in_s: float = 0.0, data: Dataset | None = None,
                   val: Dataset | None = None,
                   simulated: np.ndarray | None = None, fit: float | None = None,
-                  model: HammersteinModel | None = None, check: CheckOutcome | None = None,
+                  model: HammersteinModel | None = None, check: ModelCheck | None = None,
                   settings: MPCSettings | None = None, n_est: int = 0,
                   stage: str = "test aborted", messages: Sequence[str] = ()) -> Path:
     fig_dir = out / "figures"
@@ -470,14 +422,13 @@ def _write_report(out: Path, *, config: RunConfig, plan: JourneyPlan, signal: Ex
                                  fit_pct=fit)
         lines += ["", f"![held-out fit](figures/{fig.name})"]
     if check is not None:
-        verdict = "none: no check was made" if check.verdict is None else check.verdict
-        lines += ["", "## 5. Check-model verdict", "", f"**{verdict}**", ""]
+        lines += ["", "## 5. Check-model verdict", "", f"**{check.verdict}**", ""]
         lines += [f"- {r}" for r in check.reasons] or ["- (no reasons given)"]
-        if check.items:
-            lines += ["", "| check | status | detail |", "| --- | --- | --- |"]
-            lines += [f"| {n} | {s} | {d} |" for n, s, d in check.items]
-        if check.iae_ratios:
-            fig = figures.monte_carlo_figure(fig_dir / "monte_carlo.png", check.iae_ratios)
+        lines += ["", "| check | status | detail |", "| --- | --- | --- |"]
+        lines += [f"| {i.name} | {i.status} | {i.detail} |" for i in check.items]
+        if check.monte_carlo is not None and check.monte_carlo.iae_ratios:
+            fig = figures.monte_carlo_figure(fig_dir / "monte_carlo.png",
+                                             check.monte_carlo.iae_ratios)
             lines += ["", f"![closed-loop Monte Carlo](figures/{fig.name})"]
     if settings is not None:
         lines += ["", "## 6. Controller settings chosen", "",
@@ -502,6 +453,6 @@ def _write_report(out: Path, *, config: RunConfig, plan: JourneyPlan, signal: Ex
     return path
 
 
-__all__ = ["DESIGN_DEGREE", "ESTIMATION_FRACTION", "CheckOutcome", "Checker", "JourneyError",
-           "JourneyPlan", "JourneyResult", "commission", "default_checker", "design_spec",
+__all__ = ["DESIGN_DEGREE", "ESTIMATION_FRACTION", "JourneyError",
+           "JourneyPlan", "JourneyResult", "commission", "design_spec",
            "fit_percent", "split_estimation_validation"]

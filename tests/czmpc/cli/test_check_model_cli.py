@@ -1,4 +1,4 @@
-"""``czmpc check-model``: exit codes, the printed reasons, the check file, and run's gate."""
+"""``czmpc check-model``: exit codes, the printed reasons, the check file (the gate: test_session)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from czmpc.cli import main
-from czmpc.cli.run import _model_gate
 from czmpc.shipped import shipped_path
 from sysid.modelfile import load_model, save_model
 
@@ -36,23 +35,6 @@ def test_a_not_ready_model_exits_1_with_every_reason_and_a_check_file(
     doc = json.loads((tmp_path / "late.check.json").read_text(encoding="utf-8"))
     assert doc["verdict"] == "not ready"
     assert doc["format"] == "czmpc-model-check/1"
-
-
-def test_run_refuses_on_for_a_not_ready_model_unless_forced(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str],
-) -> None:
-    from czmpc.cli._logging import configure_logging
-
-    configure_logging()    # czmpc run's records go to stderr, as the command sets them up
-    path = _wrong_delay_model(tmp_path)
-    assert _model_gate(path, False) == (True, False)          # never checked: warned, runs
-    assert "was never checked" in capsys.readouterr().err
-    assert main(["check-model", str(path), "--data", EXPERIMENT, "--mc-runs", "0"]) == 1
-    capsys.readouterr()
-    assert _model_gate(path, False) == (False, False)
-    assert "PREDICT only" in capsys.readouterr().err
-    assert _model_gate(path, True) == (True, True)
-    assert "--force: switching ON" in capsys.readouterr().err
 
 
 def test_missing_data_file_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -9,15 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from czmpc.commissioning.check import (
-    check_model,
-    check_path,
-    file_sha256,
-    read_check,
-    write_check,
-)
+from czmpc.commissioning.check import check_model, write_check
+from czmpc.runtime.session import check_path, read_check
 from czmpc.shipped import shipped_path
 from sim.heater import VirtualHeater
+from sysid.atomic import file_sha256
 from sysid.data import Dataset, read_csv
 from sysid.model import HammersteinModel
 from sysid.modelfile import load_model
