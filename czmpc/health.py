@@ -13,7 +13,7 @@ Notation
 input through the model's nonlinearity [kW-equivalent], ``s_k`` the TRIAC input applied
 over ``(t_k, t_{k+1}]`` [%]; ``A, B, C`` the model's polynomials in ``q^-1``.
 
-Residual (one-step prediction error of the model, DESIGN.md model form)::
+Residual (one-step prediction error of the model, docs/reference/model_file.rst)::
 
     C(q) e_k = A(q) y_k - B(q) w_k
 

@@ -11,12 +11,12 @@ monotone branch
     The largest open interval around ``ds = 0`` on which ``f'(ds) > 0``. For a quadratic
     with ``d2 < 0`` it ends at the vertex ``ds = -d1 / (2 d2)``; with ``d2 > 0`` it starts
     there. The MPC plans in ``w`` and maps back through ``f^-1`` on this branch, which
-    is exact only while the allowed input range stays on it (DESIGN.md item 5).
+    is exact only while the allowed input range stays on it (docs/theory.rst, C5).
 
 The quadratic inverse uses ``ds = 2 w / (d1 + sqrt(d1^2 + 4 d2 w))``, the root of
 ``d2 ds^2 + d1 ds - w = 0`` on the branch through 0 written without the cancellation of
 ``(-d1 + sqrt(...)) / (2 d2)`` when ``d2`` is small; it reduces to ``w / d1`` for
-``d2 = 0`` (DESIGN.md item 6).
+``d2 = 0`` (docs/theory.rst, C6).
 """
 
 from __future__ import annotations
@@ -121,9 +121,10 @@ def min_slope(coefficients: tuple[float, ...], ds_lo_pct: float, ds_hi_pct: floa
     """Smallest ``f'`` over the closed interval ``[ds_lo, ds_hi]`` [kW/%].
 
     Checks the ends and every critical point of ``f'`` (root of ``f''``) inside; exact
-    for any degree. Used for the conservative rate limits of later moves (DESIGN.md
-    item 5): a move of at most ``m * delta`` in ``w``, with ``m`` the smallest slope over
-    the inputs that can be reached, is a move of at most ``delta`` in ``ds``.
+    for any degree. Used for the conservative rate limits of later moves
+    (docs/theory.rst, C5): a move of at most ``m * delta`` in ``w``, with ``m`` the
+    smallest slope over the inputs that can be reached, is a move of at most ``delta``
+    in ``ds``.
 
     Parameters
     ----------

@@ -59,7 +59,7 @@ def monitored_noise_std_kw(model: HammersteinModel) -> float:
     Notes
     -----
     The Kalman gain of the innovations form does not depend on the noise level
-    (DESIGN.md, "The controller, precisely", item 1); only the monitors divide by it.
+    (docs/theory.rst, C1); only the monitors divide by it.
     """
     lo, hi = model.input_range_pct
     power_kw = model.steady_state_power_kw(np.linspace(lo, hi, 101))

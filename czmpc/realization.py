@@ -12,8 +12,9 @@ Notation
     State of the linear block (observer canonical form, below); ``d`` the integrating
     disturbance of the offset-free MPC.
 
-The polynomial model ``A(q) y = B(q) w + C(q) e`` (DESIGN.md model file; paper eqs. 27
-and 30) is realized in innovations form (DESIGN.md item 1)::
+The polynomial model ``A(q) y = B(q) w + C(q) e`` (the model file's form,
+docs/reference/model_file.rst; paper eqs. 27 and 30) is realized in innovations form
+(docs/theory.rst, C1)::
 
     x+ = A x + B w + K e,     y = C x + e
 
@@ -26,7 +27,7 @@ with the observer canonical form of order ``n = max(na, nb, nc)`` (``nb`` counti
 which gives ``y = (B(q)/A(q)) w + (C(q)/A(q)) e`` exactly. ``b0`` must be 0 (at least
 one sample of delay): the MPC measures ``y_k`` before it chooses ``w_k``.
 
-Augmentation (DESIGN.md item 2), state ``z = [x; d]``::
+Augmentation (docs/theory.rst, C2), state ``z = [x; d]``::
 
     input:   x+ = A x + B (w + d),   y = C x + e
     output:  x+ = A x + B w,         y = C x + d + e

@@ -6,7 +6,7 @@ input range on the monotone branch of ``f``? is the augmented pair detectable?) 
 when the controller is built and raise `czmpc.errors.DesignError`.
 
 Weights are on quantities in kW: the QP works in ``w = f(ds)`` [kW-equivalent], and the
-linear block's first ``B`` coefficient is normalized to 1 (DESIGN.md, model file), so one
+linear block's first ``B`` coefficient is normalized to 1 (docs/reference/model_file.rst), so one
 kW of ``w`` moves the power by one kW at once. That is why fixed numbers are sensible
 defaults for every model in this form.
 """
@@ -66,7 +66,7 @@ class OSQPOptions:
         (in kW-equivalent) to about 1e-4 kW, well below anything physical.
     max_iter :
         Iteration cap per solve; a solve that hits it counts as failed and the
-        controller falls back (DESIGN.md item 7). Warm-started solves take a median of
+        controller falls back (docs/theory.rst, C7). Warm-started solves take a median of
         5-10 iterations, but a large step through a tight rate limit takes thousands:
         a 15 kW step at 0.3 %/step on the shipped model needed up to 3,210, and with a
         cap of 1000, 14 of its 200 solves fell back (none at 4000, and the run was no
@@ -76,7 +76,7 @@ class OSQPOptions:
         about 1e-9 instead of about ``eps``, at the cost of one extra factorization.
     time_limit_s :
         Wall-clock cap per solve [s], or None for none. Setting it makes results depend
-        on machine speed (STYLE.md B.9), so it is off by default.
+        on machine speed, so it is off by default.
     check_termination :
         Check the termination criteria every this many iterations. Warm-started solves
         need few iterations, so checking often saves time.
@@ -252,7 +252,7 @@ class ReliabilitySettings:
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class MPCSettings:
-    """Tuning of the offset-free MPC (DESIGN.md, "The controller, precisely").
+    """Tuning of the offset-free MPC (docs/theory.rst, "Control", C1-C7).
 
     Parameters
     ----------
@@ -425,7 +425,7 @@ class MPCSettings:
         unconstrained case, so the horizon has to cover only the transient in which
         constraints bind (the instantaneous step and the first part of the sag); for the
         paper's model (``a1 = -0.99``, ``tau`` about 100 samples = 200 s) that gives
-        30 samples = 60 s, the horizon DESIGN.md names, at a third of the cost of a
+        30 samples = 60 s (docs/theory.rst, "Facts that bite"), at a third of the cost of a
         full-``tau`` horizon.
 
         The disturbance model is ``"output"``, chosen by measurement on both paper

@@ -4,7 +4,7 @@ Notation
 --------
 Deviation variables about the model's operating point ``(s_nom, P_nom)``:
 ``ds = s - s_nom`` [%], ``w = f(ds)`` [kW-equivalent], ``y = P - P_nom`` [kW]. The model
-(DESIGN.md "Model file"; paper eq. 30 for ARMAX, eq. 27 for OE with ``C = A``) is::
+(docs/reference/model_file.rst; paper eq. 30 for ARMAX, eq. 27 for OE with ``C = A``) is::
 
     A(q) y_k = B(q) w_k + C(q) e_k,        e_k ~ N(0, noise_std_kw^2) white
 
@@ -120,8 +120,8 @@ class ModelPlant:
 
     Notes
     -----
-    Implements ``A(q) dP = B(q) f(ds) + C(q) e`` (DESIGN.md; paper eq. 30, or eq. 27
-    with ``C = A``) per sample in plain floats; see the module docstring for the
+    Implements ``A(q) dP = B(q) f(ds) + C(q) e`` (docs/reference/model_file.rst;
+    paper eq. 30, or eq. 27 with ``C = A``) per sample in plain floats; see the module docstring for the
     exogenous inputs and the clamp at 0 kW.
 
     Examples

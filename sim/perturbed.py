@@ -21,7 +21,8 @@ in one controlled way:
     ``lambda = (B(1)/A(1) * A'(1) - 1) / (b_2 + ... + b_nb)`` (for ``nb = 2``, the
     paper's structure, ``b_2' = B(1)/A(1) * (1 + a1') - 1`` is the only choice);
   - ``C(q)`` and ``noise_std_kw`` of an ARX or ARMAX model (the noise model's own
-    zeros); an OE model keeps ``C = A'`` (DESIGN.md: OE is stored with ``C = A``).
+    zeros); an OE model keeps ``C = A'`` (docs/reference/model_file.rst: OE is stored with
+    ``C = A``).
 
   What moves: the speed of the sag after a step (paper Fig. 9), i.e. how long the
   power takes from its instantaneous jump to its steady state.

@@ -81,7 +81,7 @@ non_negative_float = number(at_least=0.0)
 shortening_factor = number(above=0.0, at_most=1.0)
 
 
-#: The data contract's column names (DESIGN.md, "Contracts").
+#: The data contract's column names (docs/reference/data_file.rst).
 CONTRACT_COLUMNS = ("time_s", "triac_pct", "power_kw")
 
 

@@ -40,7 +40,7 @@ refusal for an isolated test network and prints a warning on every start. With
 The server's own certificate and key come from 'czmpc pki create --role server'; the
 key file must be readable by its owner only (chmod 600).
 
-Example (see the README, "Secure plant link"):
+Example (see docs/guides/plant_link.rst, "Secure the link to a real plant"):
   export PLANT_MPC_PASSWORD=...
   czmpc plant serve --endpoint opc.tcp://0.0.0.0:4840/czmpc/ \
       --policy Basic256Sha256 --mode SignAndEncrypt \
