@@ -28,8 +28,8 @@ demo: $(STAMP)
 # nice 10, while the wall-clock loops against a served plant (marker realtime) run at
 # normal priority, so that the workers never delay a loop period.
 test: $(STAMP) $(PLC_STAMP)
-	$(VENV)/bin/ruff check sysid sim czmpc tests docs
-	$(VENV)/bin/mypy sysid sim czmpc
+	$(VENV)/bin/ruff check sysid sim czmpc benchmarks tests docs
+	$(VENV)/bin/mypy sysid sim czmpc benchmarks
 	bash tools/run_suite.sh $(PY)
 
 # The documentation site: warnings are errors, every gallery example is executed.
@@ -41,17 +41,18 @@ docs: $(STAMP)
 dist: $(STAMP)
 	$(PY) -m build --outdir dist .
 
-# Every benchmark; each rewrites its own section of BENCHMARKS.md with the command and
-# the machine. SIPPY (a benchmark-only peer) is installed from the 'bench' extra.
+# Every benchmark (benchmarks/, not part of the package); each rewrites its own section of
+# BENCHMARKS.md with the command and the machine. SIPPY (a benchmark-only peer) is
+# installed from the 'bench' extra.
 bench: $(STAMP)
 	$(PY) -m pip install --quiet -e ".[dev,bench]"
-	$(VENV)/bin/czmpc bench-identify --repeats 5 --with-sippy --out out/bench/identify
-	$(VENV)/bin/czmpc bench-mpc --repeats 5
-	$(VENV)/bin/czmpc bench --out out/bench/tracking
-	$(VENV)/bin/czmpc robustness --grid full --out out/bench/robustness
-	$(VENV)/bin/czmpc bench-health
-	$(VENV)/bin/czmpc bench-commission --record-benchmarks --out out/bench/commission
-	$(VENV)/bin/czmpc campaign bench campaign_montecarlo.toml --controllers mpc --samples 5000 --time-scale 0.01 --workers 2 --record-benchmarks
+	$(PY) -m benchmarks.identify --repeats 5 --with-sippy --out out/bench/identify
+	$(PY) -m benchmarks.mpc_step --repeats 5
+	$(PY) -m benchmarks.tracking --out out/bench/tracking
+	$(PY) -m benchmarks.robustness --grid full --out out/bench/robustness
+	$(PY) -m benchmarks.health
+	$(PY) -m benchmarks.commission_length --record-benchmarks --out out/bench/commission
+	$(PY) -m benchmarks.campaign_throughput campaign_montecarlo.toml --controllers mpc --samples 5000 --time-scale 0.01 --workers 2 --record-benchmarks
 
 clean:
 	rm -rf $(VENV) out dist docs/_build docs/api/generated docs/auto_examples $(PLC_SERVER)/node_modules

@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks._md import write_benchmarks_section as _write_section
 from czmpc.campaigns.simulation import controller_settings, heater_steady_state_triac_pct
 from czmpc.controller import OffsetFreeMPC
 from czmpc.errors import CzmpcError
@@ -47,7 +48,6 @@ from czmpc.peers.pi import PIController
 from czmpc.pid.controller import ScheduledPID
 from czmpc.pid.design import DesignSpec
 from czmpc.pid.schedule import tune_schedule
-from czmpc.reports.benchmarks_md import write_benchmarks_section as _write_section
 from czmpc.settings import MPCSettings
 from czmpc.settings_file import settings_from_dict
 from czmpc.shipped import ARMAX_MODEL_JSON, HAMMERSTEIN_MODEL_JSON, shipped_path

@@ -120,6 +120,7 @@ def _update_golden(args: argparse.Namespace, progress: Progress) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Run the benchmark (or, deprecated, record the project's golden set)."""
+    from benchmarks._md import machine_info
     from czmpc.campaigns.bench import (
         BenchModels,
         check_goals,
@@ -128,7 +129,6 @@ def run(args: argparse.Namespace) -> int:
         write_benchmarks_section,
         write_outputs,
     )
-    from czmpc.reports.benchmarks_md import machine_info
     from sim.scenario import list_scenarios, load_scenario
     from sysid.modelfile import load_model
 

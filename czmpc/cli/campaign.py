@@ -194,10 +194,10 @@ def _report(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace) -> int:
     import sys
 
+    from benchmarks._md import machine_info, write_benchmarks_section
     from czmpc.campaigns.bench_campaign import benchmark_executors, format_benchmark_markdown
     from czmpc.campaigns.campaign import load_spec
     from czmpc.cli._progress import Progress
-    from czmpc.reports.benchmarks_md import machine_info, write_benchmarks_section
 
     spec = load_spec(_spec_path(args.spec), samples=args.samples, time_scale=args.time_scale,
                      controllers=args.controllers)

@@ -72,27 +72,4 @@ def monte_carlo_figure(path: Path, iae_ratios: Sequence[float]) -> Path:
     return path
 
 
-def length_study_figure(path: Path, points: Sequence[tuple[str, float, float]], *,
-                        goal_ratio: float, max_test_s: float) -> Path:
-    """IAE ratio against test length, one marker per test kind.
-
-    ``points`` are ``(kind, test length [s], IAE / reference IAE [-])``; the goal is a
-    horizontal line, the longest test allowed a vertical one.
-    """
-    fig, (ax,) = _figure(1)
-    markers = {"multilevel": "o", "gbn": "s", "mixed": "D", "steps": "^", "paper": "*"}
-    for kind in dict.fromkeys(k for k, _, _ in points):
-        x = [t / 3600.0 for k, t, _ in points if k == kind]
-        y = [r for k, _, r in points if k == kind]
-        ax.plot(x, y, marker=markers.get(kind, "x"), ls="none", ms=8, label=kind)
-    ax.axhline(goal_ratio, color="tab:red", ls="--", lw=0.8, label=f"goal: IAE ratio {goal_ratio:.2f}")
-    ax.axvline(max_test_s / 3600.0, color="0.4", ls=":", lw=0.8,
-               label=f"longest test allowed ({max_test_s / 3600.0:g} h)")
-    ax.set_xlabel("test length [h of plant time]")
-    ax.set_ylabel("IAE / IAE with the paper's experiment [-]")
-    ax.legend(loc="best")
-    fig.savefig(path, dpi=110)
-    return path
-
-
-__all__ = ["experiment_figure", "fit_figure", "monte_carlo_figure", "length_study_figure"]
+__all__ = ["experiment_figure", "fit_figure", "monte_carlo_figure"]

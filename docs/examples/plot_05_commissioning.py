@@ -28,9 +28,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from czmpc.commissioning.journey import JourneyPlan, commission
-from czmpc.commissioning.link_study import write_link_config
 from czmpc.runtime.config import load_run_config
 from czmpc.runtime.serve_process import serving
+from czmpc.runtime.served import SERVED_NODE_IDS
 
 TIME_SCALE = 40.0
 work = Path(tempfile.mkdtemp(prefix="czmpc-commission-"))
@@ -43,8 +43,15 @@ plan = JourneyPlan(range_pct=(35.0, 60.0), tau_s=250.0, out_dir=work / "out", ki
 with serving("--plant", "heater", "--gain-factor", "0.8", "--seed", "3",
              "--log", str(work / "plant.csv"), "--watchdog-s", "600", "--safe-triac-pct", "45",
              output=work / "serve.log", time_scale=TIME_SCALE) as endpoint:
-    config = load_run_config(write_link_config(work / "run.toml", endpoint,
-                                               time_scale=TIME_SCALE, recipe=recipe))
+    # The run config: the served heater's nodes, the recipe, a safety band for the test.
+    nodes = "\n".join(f'{k} = "{SERVED_NODE_IDS[k]}"'
+                      for k in ("power_kw", "triac_pct", "applied_triac_pct", "heartbeat"))
+    (work / "run.toml").write_text(
+        f'[plant]\nendpoint = "{endpoint}"\nts_s = 2\ntime_scale = {TIME_SCALE:g}\n'
+        f'max_sample_age_s = 4\n[nodes]\n{nodes}\n[run]\nlog = "run.csv"\n'
+        f'schedule = "{recipe}"\n[safety]\nsafe_triac_pct = 45\n'
+        "[test]\npower_band_kw = [15, 80]\nmax_bad_quality_s = 60.0\n", encoding="utf-8")
+    config = load_run_config(work / "run.toml")
     result = commission(config, plan, progress=print)
 
 print(f"journey ended: {result.stage}; verdict {result.check.verdict if result.check else None}; "

@@ -1,18 +1,27 @@
-"""BENCHMARKS.md plumbing shared by every benchmark: the machine, and one section each.
+"""BENCHMARKS.md plumbing shared by every benchmark: the machine, one section each, the entry.
 
 Each benchmark owns one ``## `` section of BENCHMARKS.md and rewrites only that one,
-so benchmarks run at different times keep each other's numbers.
+so benchmarks run at different times keep each other's numbers. Each runs as
+``python -m benchmarks.<name>``; `run_main` gives them one way to report bad input.
 """
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import os
 import platform
+import shlex
+import sys
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from czmpc.cli._exit import BAD_INPUT_ERRORS, ExitCode
 from sysid.atomic import atomic_write_text
+
+#: BENCHMARKS.md of this repository (benchmarks/ is not installed: it lives beside it).
+BENCHMARKS_MD = Path(__file__).resolve().parents[1] / "BENCHMARKS.md"
 
 #: Libraries whose versions every benchmark records; optional ones only if installed.
 CORE_LIBRARIES = ("numpy", "scipy", "osqp", "casadi", "matplotlib")
@@ -111,5 +120,32 @@ def write_benchmarks_section(path: str | os.PathLike[str], body: str, *, heading
     atomic_write_text(path, new)
 
 
-__all__ = ["CORE_LIBRARIES", "OPTIONAL_LIBRARIES", "MachineInfo", "machine_info",
-           "write_benchmarks_section"]
+def run_main(parser: argparse.ArgumentParser, run: Callable[[argparse.Namespace], int],
+             argv: Sequence[str] | None) -> int:
+    """Parse ``argv``, call ``run``; bad input prints ``<prog>: error: ...`` and returns 2.
+
+    ``run`` finds the shell line that reruns it (``<prog> <argv>``, recorded with the
+    numbers) in ``args.command_line``.
+
+    Parameters
+    ----------
+    parser :
+        The benchmark's parser, ``prog`` set to ``python -m benchmarks.<name>`` (usage
+        errors exit 2, as argparse does).
+    run :
+        The benchmark; returns its exit code.
+    argv :
+        Arguments without the program name; None reads ``sys.argv``.
+    """
+    words = list(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(words)
+    args.command_line = " ".join([parser.prog, *(shlex.quote(w) for w in words)])
+    try:
+        return int(run(args))
+    except BAD_INPUT_ERRORS as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return int(ExitCode.BAD_INPUT)
+
+
+__all__ = ["BENCHMARKS_MD", "CORE_LIBRARIES", "OPTIONAL_LIBRARIES", "MachineInfo",
+           "machine_info", "run_main", "write_benchmarks_section"]

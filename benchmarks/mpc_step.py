@@ -1,5 +1,7 @@
 """Benchmark of the MPC in closed loop: controller step time (N = 50) and a 24 h simulation.
 
+``python -m benchmarks.mpc_step [--model MODEL.json] [--repeats N]`` (``--help``).
+
 Two measurements, each run through `czmpc.campaigns.simulation.run_simulation` (so the loop,
 plants and controller are exactly those of ``czmpc simulate``):
 
@@ -16,24 +18,34 @@ plants and controller are exactly those of ``czmpc simulate``):
 
 The numbers go to stdout and, with the machine they ran on, under
 `SECTION_HEADING` in BENCHMARKS.md (`write_benchmarks_section`; other sections are kept).
+
+Exit codes: 0 done (goals met or not, unless --strict); 1 a goal missed with
+--strict; 2 bad input (model file).
 """
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import os
+import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from benchmarks._md import BENCHMARKS_MD, MachineInfo, machine_info, run_main
+from benchmarks._md import write_benchmarks_section as _write_section
 from czmpc.campaigns.simulation import PLANT_DESCRIPTIONS, PlantKind, run_simulation
-from czmpc.reports.benchmarks_md import MachineInfo, machine_info
-from czmpc.reports.benchmarks_md import write_benchmarks_section as _write_section
+from czmpc.cli import _argtypes, _progress
 from czmpc.settings import MPCSettings
+from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
 from sim.disturbances import PowerShift, VoltageStep
 from sim.scenario import Scenario, SetpointStep, load_scenario
 from sysid.model import HammersteinModel
+from sysid.modelfile import load_model
 
 #: Heading of this benchmark's section in BENCHMARKS.md.
 SECTION_HEADING = "## Controller step time and 24 h simulation"
@@ -357,10 +369,67 @@ __all__ = [
     "DayRun",
     "MPCBenchmark",
     "StepTimeRun",
+    "build_parser",
     "day_scenario",
     "format_report",
+    "main",
     "measure_day_simulation",
     "measure_step_times",
     "run_benchmark",
     "write_benchmarks_section",
 ]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The options of ``python -m benchmarks.mpc_step``."""
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.mpc_step", description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument(
+        "--model", metavar="MODEL.json", type=Path, default=None,
+        help="identified model file for the controller and the model plant (default: the "
+             "shipped data/cz_heater_model.json)")
+    parser.add_argument(
+        "--repeats", metavar="N", type=_argtypes.positive_int, default=5,
+        help="step-time runs of the staircase (3,900 steps each) (default: 5)")
+    parser.add_argument(
+        "--benchmarks-md", metavar="FILE", type=Path, default=BENCHMARKS_MD,
+        help="Markdown file to put the section in (default: BENCHMARKS.md of this repository)")
+    parser.add_argument(
+        "--no-record", action="store_true",
+        help="only print the numbers; do not write them into BENCHMARKS.md")
+    parser.add_argument(
+        "--strict", action="store_true",
+        help="exit 1 if a goal (step median <= 0.3 ms and p99 <= 2 ms; 24 h under 30 s) "
+             "is missed")
+    return parser
+
+
+def _run(args: argparse.Namespace) -> int:
+    path = args.model if args.model is not None else shipped_path(HAMMERSTEIN_MODEL_JSON)
+    model = load_model(path)
+    label = str(path)
+    if args.model is None:
+        with contextlib.suppress(ValueError):  # show the shipped file relative to here if below
+            label = str(path.relative_to(Path.cwd()))
+    progress = _progress.Progress()
+    bench = run_benchmark(model, model_label=f"`{label}`", repeats=args.repeats,
+                          command=args.command_line, progress=progress)
+    text = format_report(bench)
+    print(text, end="")
+    if not args.no_record:
+        write_benchmarks_section(args.benchmarks_md, text)
+        progress(f"wrote the numbers to {args.benchmarks_md}")
+    if args.strict and not (bench.step_goal_met and bench.day_goal_met):
+        print("error: a benchmark goal was missed (see above)", file=sys.stderr)
+        return 1
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the benchmark, print it, record it in BENCHMARKS.md; return the exit code."""
+    return run_main(build_parser(), _run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,4 +1,6 @@
-"""Benchmark of the identification pipeline: wall time per stage, machine, optional SIPPY peer.
+"""Benchmark of the identification pipeline: wall time per stage, machine, SIPPY, real logs.
+
+``python -m benchmarks.identify [--with-sippy] [--real-logs data/real]`` (``--help``).
 
 Runs `sysid.pipeline.run_paper_pipeline` on one data set several times, takes the
 median wall time of every stage and of the whole run, records the machine (cores, CPU
@@ -9,27 +11,47 @@ times and criteria can be set side by side. The numbers go to stdout and into th
 
 SIPPY is imported inside `run_sippy_comparison` only; without it the comparison
 reports why it was skipped.
+
+The real-log table (``--real-logs DIR``): for each real log of another rig
+(``data/real/`` in the repository, issue 29) the pipeline runs as ``czmpc identify``
+runs it with default options (orders ``auto``); the model it writes as model.json is
+simulated from rest at the first sample and scored after a burn-in of a fifth of the
+record (`sysid.rest_oe.rest_mse`), beside the best linear OE that a multistart search
+finds on the same scoring: random stable starts (``N_STARTS`` per structure, seeded)
+refined by scipy's Levenberg-Marquardt over nb 1..4, nf 1..3 and delays 0..3. The goal:
+model.json within 1.10 of that reference on every log.
+
+Exit codes: 0 done (goal met or not, unless --strict); 1 goal missed with --strict;
+2 bad input.
 """
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import dataclasses
 import io
+import itertools
+import json
 import math
 import os
 import statistics
+import sys
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from benchmarks._md import BENCHMARKS_MD, MachineInfo, machine_info, run_main
+from benchmarks._md import write_benchmarks_section as _write_section
+from czmpc.cli import _argtypes
+from czmpc.cli._progress import Progress
 from czmpc.errors import CzmpcError
-from czmpc.reports.benchmarks_md import MachineInfo, machine_info
-from czmpc.reports.benchmarks_md import write_benchmarks_section as _write_section
+from czmpc.shipped import EXPERIMENT_CSV, shipped_path
 
 if TYPE_CHECKING:
     from sysid.data import Dataset
@@ -44,6 +66,10 @@ BARE_FIT_RATIO_GOAL = 15.0
 AUTO_SEARCH_GOAL_S = 10.0
 #: Heading of this benchmark's section in BENCHMARKS.md (other sections are kept).
 SECTION_HEADING = "## Identification pipeline"
+#: Goal of issue 29: model.json's V from rest within this of the multistart OE's.
+REFERENCE_RATIO_GOAL = 1.10
+#: Random stable starts per structure of the reference.
+N_STARTS = 12
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -584,21 +610,270 @@ def result_to_dict(result: BenchmarkResult) -> dict[str, Any]:
     out["goal_met"] = result.goal_met
     return out
 
+@dataclass(frozen=True, kw_only=True)
+class RealLogRow:
+    """One real log's line of the table.
+
+    Parameters
+    ----------
+    log :
+        File name.
+    n_samples :
+        Samples in the record.
+    pipeline_s :
+        Wall time of the pipeline (orders auto) [s].
+    final_name :
+        Name of the model written as model.json.
+    converged :
+        Whether model.json's own search converged (``czmpc identify`` exits 0 if so).
+    v_model_json :
+        model.json's V from rest after the burn-in [output unit^2].
+    v_reference :
+        The multistart OE's [output unit^2].
+    output_unit :
+        The log's output unit.
+    """
+
+    log: str
+    n_samples: int
+    pipeline_s: float
+    final_name: str
+    converged: bool
+    v_model_json: float
+    v_reference: float
+    output_unit: str
+
+    @property
+    def ratio(self) -> float:
+        """``v_model_json / v_reference``."""
+        return self.v_model_json / self.v_reference
+
+
+def _readers() -> dict[str, Callable[[Path], object]]:
+    from sysid.reallogs import (
+        read_cascaded_tanks,
+        read_daisy_exchanger,
+        read_daisy_heating,
+        read_tclab,
+    )
+    return {"daisy_heating_system.dat": read_daisy_heating,
+            "tclab_mimo_steps_data.txt": read_tclab,
+            "cascaded_tanks_dataBenchmark.csv": read_cascaded_tanks,
+            "daisy_exchanger.dat": read_daisy_exchanger}
+
+
+def multistart_oe_v(y: np.ndarray, u: np.ndarray, *, burn_in_steps: int, seed: int) -> float:
+    """Lowest V from rest of OE(nb 1..4, nf 1..3, nk 0..3) over `N_STARTS` random starts.
+
+    Parameters
+    ----------
+    y, u :
+        Output and input as logged, shape ``(N,)``.
+    burn_in_steps :
+        Samples not scored at the start.
+    seed :
+        Seed of the random starts.
+
+    Returns
+    -------
+    float
+        ``min mean_{k >= burn} (y_k - y_0 - [B/F](u - u_0)_k)^2`` over the stable fits.
+    """
+    from scipy.optimize import least_squares
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng(seed)
+    target = y[burn_in_steps:] - y[0]
+    du = u - u[0]
+    best = np.inf
+    for nb, nf, nk in itertools.product(range(1, 5), range(1, 4), range(4)):
+        pad = np.zeros(nk)
+
+        def errors(theta: np.ndarray, nb: int = nb, pad: np.ndarray = pad) -> np.ndarray:
+            sim = lfilter(np.concatenate([pad, theta[:nb]]),
+                          np.concatenate([[1.0], theta[nb:]]), du)
+            return np.asarray(target - sim[burn_in_steps:])
+
+        for _ in range(N_STARTS):
+            tau = np.exp(rng.uniform(np.log(0.5), np.log(y.size / 5), nf))
+            poles = np.exp(-1.0 / tau).astype(complex)
+            if nf >= 2 and rng.random() < 0.5:          # a complex pair half of the time
+                poles[:2] = poles[0] * np.exp(np.array([1j, -1j]) * rng.uniform(0, np.pi / 2))
+            f = np.real(np.poly(poles))
+            filtered = lfilter([1.0], f, du)
+            cols = np.column_stack([np.roll(filtered, nk + j) * (np.arange(du.size) >= nk + j)
+                                    for j in range(nb)])[burn_in_steps:]
+            b0 = np.linalg.lstsq(cols, target, rcond=None)[0]
+            sol = least_squares(errors, np.concatenate([b0, f[1:]]), method="lm", xtol=1e-8,
+                                ftol=1e-8)     # MINPACK's evaluation budget: 100 p (p + 1)
+            if np.all(np.abs(np.roots(np.concatenate([[1.0], sol.x[nb:]]))) < 1.0):
+                best = min(best, float(np.mean(sol.fun**2)))
+    return float(best)
+
+
+def run_real_logs(directory: str | os.PathLike[str], *,
+                  progress: Callable[[str], None] | None = None) -> tuple[RealLogRow, ...]:
+    """The table's rows for every known real log found in `directory`.
+
+    Parameters
+    ----------
+    directory :
+        A folder holding the real logs (``data/real`` of the repository).
+    progress :
+        Called with the log's name before each.
+
+    Returns
+    -------
+    tuple of RealLogRow
+        One per known log present, in the order of the readers.
+    """
+    from sysid.pipeline import run_paper_pipeline
+    from sysid.rest_oe import BURN_IN_SHARE, RestPoint, rest_mse
+
+    rows = []
+    for name, read in _readers().items():
+        path = Path(directory) / name
+        if not path.is_file():
+            continue
+        if progress is not None:
+            progress(f"real log {name}")
+        data = read(path)
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # non-convergence is reported in the result
+            result = run_paper_pipeline(data, orders="auto")  # type: ignore[arg-type]
+        elapsed = time.perf_counter() - t0
+        final = result.final
+        y, u = result.raw_data.power_kw, result.raw_data.triac_pct
+        burn = int(BURN_IN_SHARE * y.size)
+        if final is None:  # pragma: no cover - the pipeline raises instead
+            raise CzmpcError(f"run_real_logs: {name}: the pipeline wrote no model")
+        rows.append(RealLogRow(
+            log=name, n_samples=int(y.size), pipeline_s=elapsed, final_name=final.name,
+            converged=final.converged,
+            v_model_json=rest_mse(final.model, result.raw_data, burn_in_steps=burn,
+                                  rest=RestPoint.first_sample(u, y)),
+            v_reference=multistart_oe_v(y, u, burn_in_steps=burn, seed=29),
+            output_unit=result.raw_data.output_unit))
+    return tuple(rows)
+
+
+def format_real_logs(rows: tuple[RealLogRow, ...]) -> str:
+    """The table as Markdown, with the goal's verdict."""
+    lines = [
+        "### Real logs of other rigs (issue 29)",
+        "",
+        "The pipeline as `czmpc identify` runs it with default options (orders auto) on each "
+        "real log in `data/real/`; model.json simulated from rest at the first sample, scored "
+        "after a burn-in of a fifth of the record, against the best linear OE of a multistart "
+        f"search ({N_STARTS} random stable starts per structure, scipy LM, nb 1..4, nf 1..3, "
+        "nk 0..3) on the same scoring.",
+        "",
+        "| log | samples | pipeline [s] | model.json | converged | V model.json | V reference "
+        "| ratio |",
+        "|---|---:|---:|---|---|---:|---:|---:|",
+    ]
+    for r in rows:
+        lines.append(f"| `{r.log}` | {r.n_samples} | {r.pipeline_s:.2f} | {r.final_name} | "
+                     f"{'yes' if r.converged else 'no'} | {r.v_model_json:.4g} "
+                     f"{r.output_unit}^2 | {r.v_reference:.4g} | {r.ratio:.3f} |")
+    met = all(r.ratio <= REFERENCE_RATIO_GOAL and r.converged for r in rows)
+    lines += ["", f"Goal: every model.json converged and within {REFERENCE_RATIO_GOAL:g} of the "
+              "reference: " + ("**met**" if met and rows else "**not met**") + "."]
+    return "\n".join(lines) + "\n"
+
+
 __all__ = [
     "AUTO_SEARCH_GOAL_S",
     "BARE_FIT_RATIO_GOAL",
+    "N_STARTS",
     "PIPELINE_GOAL_S",
+    "REFERENCE_RATIO_GOAL",
     "SECTION_HEADING",
     "BenchmarkResult",
-    "MachineInfo",
+    "RealLogRow",
     "SippyComparison",
     "SippyRow",
     "StageTiming",
+    "build_parser",
+    "format_real_logs",
     "format_report",
-    "machine_info",
+    "main",
+    "multistart_oe_v",
     "result_to_dict",
     "run_benchmark",
+    "run_real_logs",
     "run_sippy_comparison",
     "summarize_timings",
     "write_benchmarks_section",
 ]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The options of ``python -m benchmarks.identify``."""
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.identify", description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument(
+        "--data", metavar="FILE", type=Path, default=None,
+        help=f"logged data CSV (time_s [s], triac_pct [%%], power_kw [kW]); default: the "
+             f"shipped experiment {EXPERIMENT_CSV}")
+    parser.add_argument(
+        "--repeats", metavar="N", type=_argtypes.positive_int, default=5,
+        help="whole-pipeline runs to take the median over (default: 5)")
+    parser.add_argument(
+        "--out", metavar="DIR", type=Path, default=None,
+        help="also write the numbers to DIR/bench_identify.json and DIR/bench_identify.md")
+    parser.add_argument(
+        "--benchmarks-md", metavar="FILE", type=Path, default=BENCHMARKS_MD,
+        help="Markdown file to put the '## Identification pipeline' section in (default: "
+             "BENCHMARKS.md of this repository)")
+    parser.add_argument(
+        "--with-sippy", action="store_true",
+        help="also fit SIPPY's ARX/ARMAX/OE on the same data and compare times and V, W")
+    parser.add_argument(
+        "--real-logs", metavar="DIR", type=Path, default=None,
+        help="also tabulate identify's model.json against a multistart OE reference on each "
+             "real log in DIR (data/real/ of the repository)")
+    parser.add_argument(
+        "--strict", action="store_true",
+        help="exit 1 if the whole pipeline's median time misses the 2 s goal")
+    return parser
+
+
+def _run(args: argparse.Namespace) -> int:
+    from sysid.atomic import atomic_write_text
+
+    data = args.data if args.data is not None else shipped_path(EXPERIMENT_CSV)
+    if args.data is None:
+        with contextlib.suppress(ValueError):  # show the shipped file relative to here if below
+            data = data.relative_to(Path.cwd())
+    progress = Progress()
+    result = run_benchmark(data, repeats=args.repeats, with_sippy=args.with_sippy,
+                           command=args.command_line, progress=progress)
+    text = format_report(result)
+    if args.real_logs is not None:
+        text += "\n" + format_real_logs(run_real_logs(args.real_logs, progress=progress))
+    print(text, end="")
+    write_benchmarks_section(args.benchmarks_md, text)
+    progress(f"wrote the numbers to {args.benchmarks_md}")
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(args.out / "bench_identify.md", text)
+        atomic_write_text(args.out / "bench_identify.json",
+                          json.dumps(result_to_dict(result), indent=2) + "\n")
+        progress(f"wrote {args.out / 'bench_identify.json'} and bench_identify.md")
+    if args.strict and not result.goal_met:
+        print(f"error: the whole pipeline took {result.total.median_s:.3f} s (median), "
+              f"above the {PIPELINE_GOAL_S:g} s goal", file=sys.stderr)
+        return 1
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the benchmark, print it, record it in BENCHMARKS.md; return the exit code."""
+    return run_main(build_parser(), _run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

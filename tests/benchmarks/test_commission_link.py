@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from czmpc.commissioning.length_study import commissioning_staircase
-from czmpc.commissioning.link_study import (
+from benchmarks.commission_length import (
     LinkRun,
     LinkStudyError,
     Tracking,
+    commissioning_staircase,
     format_link_study,
     tracking_from_logs,
     write_staircase_recipe,
@@ -71,7 +71,7 @@ def test_the_table_gives_the_ratio_and_says_whether_the_goal_is_met() -> None:
                     orders=(2, 2, 1, 3), fit_pct=95.0, commissioned=good, reference=ref,
                     n_overruns=1, wall_s=900.0)]
     assert runs[0].iae_ratio == pytest.approx(230.0 / 240.0)
-    text = format_link_study(runs, command="czmpc bench-commission --plant-link", machine="m",
+    text = format_link_study(runs, command="python -m benchmarks.commission_length --plant-link", machine="m",
                              time_scale=20.0)
     assert "| 0 | 7200 | ready | (2, 2, 1, 3) | 95.0 | 230.0 | 240.0 | 0.958 | yes | yes | 1 |" \
         in text

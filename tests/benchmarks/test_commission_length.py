@@ -1,4 +1,4 @@
-"""Test length against tracking (`czmpc bench-commission`): the issue's 2 h test on a heater
+"""Test length against tracking (`python -m benchmarks.commission_length`): the issue's 2 h test on a heater
 unlike the shipped model, against the paper-length reference."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from czmpc.cli import main
-from czmpc.commissioning.length_study import (
+from benchmarks.commission_length import (
     ISSUE_VARIATION,
     apply_open_loop,
+    main,
     segment_tail_errors_kw,
 )
 from sim.drift import vary_heater
@@ -46,10 +46,10 @@ def test_open_loop_log_responds_to_the_previous_input_as_the_runtime_logs() -> N
 
 
 @pytest.mark.slow
-def test_bench_commission_records_the_table_and_the_goal(tmp_path: Path,
+def test_commission_length_records_the_table_and_the_goal(tmp_path: Path,
                                                          capsys: pytest.CaptureFixture[str]) -> None:
     md = tmp_path / "BENCH.md"
-    code = main(["bench-commission", "--case", "multilevel:7200", "--case", "paper", "--seeds",
+    code = main(["--case", "multilevel:7200", "--case", "paper", "--seeds",
                  "1", "--out", str(tmp_path / "out"), "--record-benchmarks", "--benchmarks-md",
                  str(md)])
     assert code == 0
@@ -73,9 +73,9 @@ def test_bench_commission_records_the_table_and_the_goal(tmp_path: Path,
     assert "| paper experiment | 0 |" in capsys.readouterr().out
 
 
-def test_bench_commission_refuses_an_unknown_kind(capsys: pytest.CaptureFixture[str]) -> None:
+def test_commission_length_refuses_an_unknown_kind(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as exc:
-        main(["bench-commission", "--case", "prbs:100"])
+        main(["--case", "prbs:100"])
     assert exc.value.code == 2
     assert "expected KIND:SECONDS or KIND with KIND one of steps, gbn, mixed, multilevel" in \
         capsys.readouterr().err

@@ -1,4 +1,8 @@
-"""Stale-model trials: the model-health monitor on plants that stay or drift away from the model.
+"""Benchmark of the model-health monitor: false alarms on the unchanged plant, detection delays.
+
+``python -m benchmarks.health [--days-open N] [--days-closed N] [--seeds N]`` (``--help``)
+prints the table and writes it under `BENCHMARK_HEADING` in BENCHMARKS.md. Seeds are
+fixed (1..N): the same command gives the same numbers.
 
 A trial runs the offset-free MPC of a model in closed loop on the model's own plant
 (`sim.drift.vary_model_plant`), optionally drifting at a plant time, through an
@@ -11,25 +15,46 @@ staircase of the same kind (43,200 samples in seconds rather than the closed loo
 minute), which is honest for the false-alarm figure: the monitor sees only the input and
 the measured power, and its residuals under a correct model are white whatever the
 input (regressors are past data, as in closed loop).
+
+1. False alarms: the unchanged model plant (the model's own equation, noise on) for
+   24 h of plant time (43,200 samples at Ts = 2 s), --days-open times open loop through
+   an input staircase and --days-closed times in closed loop with the MPC through a
+   setpoint staircase; counts alarms and the largest health figure.
+2. Detection: closed loop with the MPC on the model plant whose gain drops by 25 % or
+   whose slow time constant doubles at 1800 s of plant time, --seeds runs each;
+   prints how many alarms came within 30 min, the median and largest delay [s].
+3. Which reference: 2 x 4 h closed loop on the unchanged virtual heater (which the
+   model describes only approximately) with the test against the model and against a
+   baseline (what czmpc run uses), and the drifts of 2. with the baseline test.
+
+Exit codes: 0 done; 2 bad input (model file).
 """
 
 from __future__ import annotations
 
+import argparse
 import math
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
+from benchmarks._md import BENCHMARKS_MD, machine_info, run_main, write_benchmarks_section
 from czmpc.campaigns.simulation import controller_settings
+from czmpc.cli import _argtypes
+from czmpc.cli._progress import Progress
 from czmpc.controller import OffsetFreeMPC
 from czmpc.health import RUNTIME_HEALTH, HealthSettings, ModelHealthMonitor
+from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
 from sim.drift import DriftEvent, PlantVariation, vary_model_plant
 from sim.loop import run_closed_loop
 from sim.model_plant import steady_state_triac_pct
 from sim.scenario import Scenario, SetpointStep
 from sysid._typing import FloatArray
 from sysid.model import HammersteinModel
+from sysid.modelfile import load_model
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -488,7 +513,54 @@ def format_health_report(bench: HealthBenchmark, *, ts_s: float) -> str:
     return "\n".join(lines) + "\n"
 
 
+def build_parser() -> argparse.ArgumentParser:
+    """The options of ``python -m benchmarks.health``."""
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.health", description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--model", metavar="MODEL.json", type=Path, default=None,
+                        help="model of the controller, the monitor and the plant (default: the "
+                             "shipped data/cz_heater_model.json)")
+    parser.add_argument("--days-open", metavar="N", type=_argtypes.integer(0), default=3,
+                        help="24 h open-loop trials of the unchanged plant (default: 3)")
+    parser.add_argument("--days-closed", metavar="N", type=_argtypes.integer(0), default=1,
+                        help="24 h closed-loop trials of the unchanged plant (about 1 min "
+                             "each) (default: 1)")
+    parser.add_argument("--seeds", metavar="N", type=_argtypes.positive_int, default=10,
+                        help="closed-loop trials per drift (default: 10)")
+    parser.add_argument("--benchmarks-md", metavar="FILE", type=Path, default=BENCHMARKS_MD,
+                        help="Markdown file to put the section in (default: BENCHMARKS.md of "
+                             "this repository)")
+    parser.add_argument("--no-record", action="store_true",
+                        help="only print the numbers; do not write them into BENCHMARKS.md")
+    return parser
+
+
+def _run(args: argparse.Namespace) -> int:
+    model = load_model(args.model or shipped_path(HAMMERSTEIN_MODEL_JSON))
+    progress = Progress()
+    bench = run_health_benchmark(model, command=args.command_line,
+                                 machine=machine_info().describe(), n_days_open=args.days_open,
+                                 n_days_closed=args.days_closed, n_drift_seeds=args.seeds,
+                                 progress=progress)
+    text = format_health_report(bench, ts_s=model.ts_s)
+    print(text, end="")
+    if not args.no_record:
+        write_benchmarks_section(args.benchmarks_md, text, heading=BENCHMARK_HEADING)
+        progress(f"wrote the numbers to {args.benchmarks_md}")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the trials, print the table, record it in BENCHMARKS.md; return the exit code."""
+    return run_main(build_parser(), _run, argv)
+
+
 __all__ = ["BENCHMARK_HEADING", "HealthBenchmark", "HealthTrial", "OperatingProfile",
-           "closed_loop_trial", "false_alarm_trial", "format_health_report", "heater_trials",
-           "monitor_record",
-           "run_health_benchmark", "slow_time_constant_s"]
+           "build_parser", "closed_loop_trial", "false_alarm_trial", "format_health_report",
+           "heater_trials", "main", "monitor_record", "run_health_benchmark",
+           "slow_time_constant_s"]
+
+
+if __name__ == "__main__":
+    sys.exit(main())
