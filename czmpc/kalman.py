@@ -1,4 +1,4 @@
-"""Measurement/time updates and steady-state gain (DARE).
+"""Steady-state Kalman gains (DARE) and the one estimator object every controller uses.
 
 Notation
 --------
@@ -27,7 +27,10 @@ and ``L = K``: the model's own innovations form is its Kalman filter.
 
 from __future__ import annotations
 
+import math
+from collections import deque
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg
@@ -144,46 +147,6 @@ def design_estimator(model: AugmentedModel, disturbance_noise: float) -> SteadyS
     return steady_state_kalman(model.A, model.C, Q, R, S)
 
 
-def measurement_update(
-    z_pred: FloatArray, y: float, C: FloatArray, M: FloatArray
-) -> tuple[FloatArray, float]:
-    """Return ``(z_{k|k}, eps_k)`` from the prediction and a finite measurement.
-
-    Parameters
-    ----------
-    z_pred :
-        (n,) ``z_{k|k-1}``.
-    y :
-        Measured output deviation [kW]; must be finite (a missing sample skips this
-        update: ``z_{k|k} = z_{k|k-1}``, ``eps_k = 0``).
-    C :
-        (n,) output row.
-    M :
-        (n,) measurement-update gain.
-    """
-    eps = y - float(C @ z_pred)
-    return z_pred + M * eps, eps
-
-
-def time_update(
-    z_filt: FloatArray, w: float, eps: float, A: FloatArray, B: FloatArray, G: FloatArray
-) -> FloatArray:
-    """Return ``z_{k+1|k} = A z_{k|k} + B w + G eps`` with the ``w`` actually applied.
-
-    Parameters
-    ----------
-    z_filt :
-        (n,) ``z_{k|k}``.
-    w :
-        Applied nonlinearity output [kW-equivalent].
-    eps :
-        This sample's innovation [kW] (0 if the measurement was missing).
-    A, B, G :
-        State matrix, input vector, correlated-noise gain.
-    """
-    return A @ z_filt + B * w + G * eps
-
-
 def innovation_variance_after_gap(
     model: AugmentedModel, kf: SteadyStateKalman, disturbance_noise: float, max_gap: int
 ) -> FloatArray:
@@ -221,12 +184,156 @@ def innovation_variance_after_gap(
     return _readonly(out)
 
 
+#: A measurement whose innovation exceeds this [kW] is no heater power (CZ heaters run at
+#: tens to a few hundred kW): `Estimator.update` skips it, so absurd values such as 1e300
+#: cannot overflow the estimator.
+MAX_INNOVATION_KW = 1e6
+
+
+class _Trace(NamedTuple):
+    """One past sample as the estimator saw it, kept to roll back."""
+
+    z_post: FloatArray       # z_{j|j}
+    eps: float               # innovation used at j [kW] (0 if none)
+    w: float                 # w applied over sample j [kW-equivalent]
+
+
+class Estimator:
+    """The steady-state Kalman filter with its state: predict, update, roll back.
+
+    ``z`` is ``z_{k|k-1}`` until `update` makes it ``z_{k|k}``; `predict` then gives
+    ``z_{k+1|k}`` with the ``w`` actually applied (module notes). A short trace of past
+    samples lets `roll_back` undo updates with readings found invalid later.
+
+    Parameters
+    ----------
+    model :
+        The augmented model.
+    disturbance_noise :
+        ``rho`` > 0, see `noise_covariances`.
+    noise_std_kw :
+        ``sigma_e`` [kW]: scales `innovation_std_kw`.
+    max_gap :
+        Longest gap [samples] `innovation_std_kw` grows over (then it stays).
+    history_samples :
+        Past samples kept for `roll_back`.
+
+    Raises
+    ------
+    DesignError
+        If the DARE has no stabilizing solution.
+    """
+
+    def __init__(self, model: AugmentedModel, disturbance_noise: float, *, noise_std_kw: float,
+                 max_gap: int = 0, history_samples: int = 1) -> None:
+        self.model = model
+        self.gains = design_estimator(model, disturbance_noise)
+        var = innovation_variance_after_gap(model, self.gains, disturbance_noise, max_gap)
+        self._std_kw = [noise_std_kw * math.sqrt(v) for v in var.tolist()]
+        self._A, self._B, self._C = np.array(model.A), np.array(model.B), np.array(model.C)
+        self._M, self._G = np.array(self.gains.M), np.array(self.gains.G)
+        self._history: deque[_Trace] = deque(maxlen=history_samples)
+        self.restart(np.zeros(model.n_states))
+
+    def restart(self, z: FloatArray) -> None:
+        """Start again from state ``z`` with no gap and no trace."""
+        self._set(np.array(z, dtype=float))
+        self.eps = 0.0
+        self.gap = 0
+        self._history.clear()
+
+    def _set(self, z: FloatArray) -> None:
+        z.flags.writeable = False  # handed out in diagnostics
+        self._z = z
+        self._y_pred = float(self._C @ z)
+
+    @property
+    def z(self) -> FloatArray:
+        """(n,) the state now (read-only): ``z_{k|k-1}``, or ``z_{k|k}`` after `update`."""
+        return self._z
+
+    @property
+    def predicted_output(self) -> float:
+        """``C z_{k|k-1}`` [kW deviation] (before `update`)."""
+        return self._y_pred
+
+    @property
+    def innovation_std_kw(self) -> float:
+        """Predicted std [kW] of this sample's innovation after `gap` samples without update."""
+        return self._std_kw[min(self.gap, len(self._std_kw) - 1)]
+
+    @property
+    def sigma_kw(self) -> float:
+        """Stationary innovation std [kW] (no gap)."""
+        return self._std_kw[0]
+
+    def update(self, y: float) -> bool:
+        """Measurement update with ``y_k`` [kW deviation]; False (skipped) if absurd.
+
+        A sample whose innovation is not finite or exceeds `MAX_INNOVATION_KW` is
+        skipped as `skip` does.
+        """
+        eps = y - self._y_pred
+        if not abs(eps) <= MAX_INNOVATION_KW:
+            self.gap += 1
+            return False
+        z = self._z + self._M * eps
+        z.flags.writeable = False
+        self._z = z
+        self.eps = eps
+        self.gap = 0
+        return True
+
+    def skip(self) -> None:
+        """No measurement this sample: ``z_{k|k} = z_{k|k-1}``, ``eps = 0``."""
+        self.gap += 1
+
+    def predict(self, w: float) -> None:
+        """Time update ``z+ = A z + B w + G eps`` with the ``w`` applied (a non-finite result keeps ``z``)."""
+        z = self._z
+        self._history.append(_Trace(z_post=z, eps=self.eps, w=w))
+        z_next = self._A @ z + self._B * w + self._G * self.eps
+        self._set(z_next if np.isfinite(z_next).all() else z.copy())
+        self.eps = 0.0
+
+    def correct_input(self, w_assumed: float, w_applied: float) -> None:
+        """The last `predict` assumed ``w_assumed``; ``w_applied`` was applied (linear in ``w``)."""
+        z = self._z + self._B * (w_applied - w_assumed)
+        if np.isfinite(z).all():
+            self._set(z)
+            if self._history:
+                self._history[-1] = self._history[-1]._replace(w=w_applied)
+
+    def roll_back(self, samples: int) -> int:
+        """Undo the last ``samples`` measurement updates: predict from the sample before them.
+
+        The estimator restarts from ``z_{j|j}`` of the last sample it trusts and predicts
+        with the inputs applied since, as if those samples had been skipped. Returns the
+        number of samples undone (0 if the trace is too short or the result not finite).
+        """
+        steps_back = min(samples + 1, len(self._history))
+        if steps_back < 1:
+            return 0
+        traces = list(self._history)[-steps_back:]
+        live = traces[0]
+        z = self._A @ live.z_post + self._B * live.w + self._G * live.eps
+        for trace in traces[1:]:
+            z = self._A @ z + self._B * trace.w
+        if not np.isfinite(z).all():
+            return 0
+        self._set(z)
+        frozen = steps_back - 1
+        self.gap = max(self.gap, frozen)
+        return frozen
+
+
+
 __all__ = [
+    "MAX_INNOVATION_KW",
+    "Estimator",
     "SteadyStateKalman",
     "design_estimator",
     "innovation_variance_after_gap",
-    "measurement_update",
     "noise_covariances",
     "steady_state_kalman",
-    "time_update",
 ]

@@ -1,12 +1,12 @@
 """NonlinearMPC: the Hammerstein MPC solved by CasADi + IPOPT without inverting f.
 
-The reference for "does the inversion lose anything": the same model, estimator,
-disturbance model, target, cost and constraints as `czmpc.controller.OffsetFreeMPC`,
-but the decision variables are the TRIAC deviations ``ds_j`` themselves and
+The reference for "does the inversion lose anything": the same model, estimator
+(`czmpc.kalman.Estimator`), disturbance model, target, cost and constraints as
+`czmpc.controller.OffsetFreeMPC`, but the decision variables are the TRIAC deviations ``ds_j`` themselves and
 ``w_j = f(ds_j)`` sits inside the predicted dynamics (a nonlinear program).
 
 Notation as in `czmpc.qp`: ``dx_j = x_j - x_s``, ``h = A (x_{k|k} - x_s) + G_x eps_k``,
-``w_{-1} = f(ds_prev)``. The NLP (DESIGN.md item 5 with ``w_j = f(ds_j)``)::
+``w_{-1} = f(ds_prev)``. The NLP (``docs/theory.rst``, C5, with ``w_j = f(ds_j)``)::
 
     min_ds  sum_{j=1}^{N-1} q_y (C dx_j)^2
           + sum_{j=0}^{N-1} [ q_u (f(ds_j) - w_s)^2 + q_dw (f(ds_j) - f(ds_{j-1}))^2 ]
@@ -38,12 +38,11 @@ from typing import Any, Literal
 import casadi as ca
 import numpy as np
 
-from czmpc.controller import MAX_INNOVATION_KW
 from czmpc.errors import DesignError, SettingsError
 from czmpc.inversion import InputMap, build_input_map
-from czmpc.kalman import SteadyStateKalman, design_estimator, measurement_update, time_update
+from czmpc.kalman import Estimator
 from czmpc.qp import terminal_cost
-from czmpc.realization import AugmentedModel, augment, innovations_form
+from czmpc.realization import augment, innovations_form
 from czmpc.settings import MPCSettings
 from czmpc.target import SteadyStateMap, compute_target, steady_state_map
 from sysid._typing import FloatArray
@@ -165,8 +164,8 @@ class NonlinearMPC:
             validity_margin_pct=settings.validity_margin_pct,
         )
         base = innovations_form(model)
-        self._aug: AugmentedModel = augment(base, settings.disturbance_model)
-        self._kf: SteadyStateKalman = design_estimator(self._aug, settings.disturbance_noise)
+        self._est = Estimator(augment(base, settings.disturbance_model),
+                              settings.disturbance_noise, noise_std_kw=model.noise_std_kw)
         self._ssm: SteadyStateMap = steady_state_map(base, settings.disturbance_model)
         s_init = self._s_nom if settings.initial_triac_pct is None else settings.initial_triac_pct
         im = self._input_map
@@ -179,7 +178,7 @@ class NonlinearMPC:
         self._ds_init = s_init - self._s_nom
         self._n_x = base.n_states
         self._A = np.array(base.A)
-        self._Gx = np.array(self._kf.G[: self._n_x])
+        self._Gx = np.array(self._est.gains.G[: self._n_x])
         self._soft_min_rel = (None if settings.soft_power_min_kw is None
                               else settings.soft_power_min_kw - self._p_nom)
         self._soft_max_rel = (None if settings.soft_power_max_kw is None
@@ -273,7 +272,7 @@ class NonlinearMPC:
         w0 = im.f(self._ds_init)
         z = np.zeros(self._n_x + 1)
         z[: self._n_x] = self._ssm.xw * w0
-        self._z = z
+        self._est.restart(z)
         self._ds_prev = self._ds_init
         self._setpoint_kw = self._p_nom + self._ssm.static_gain * w0
         self._k = 0
@@ -303,16 +302,13 @@ class NonlinearMPC:
         im = self._input_map
         st = self.settings
         N = st.horizon_steps
-        aug = self._aug
 
         # 1. measurement update (skipped for a missing or absurd sample)
-        z = self._z
-        eps = 0.0
-        used = False
-        if math.isfinite(power):
-            z_new, innovation = measurement_update(z, power - self._p_nom, aug.C, self._kf.M)
-            if abs(innovation) <= MAX_INNOVATION_KW:
-                z, eps, used = z_new, innovation, True
+        est = self._est
+        used = math.isfinite(power) and est.update(power - self._p_nom)
+        if not math.isfinite(power):
+            est.skip()
+        z, eps = est.z, est.eps
         n = self._n_x
         x = z[:n]
         d = float(z[n])
@@ -380,8 +376,7 @@ class NonlinearMPC:
         w_applied = im.f(ds)
 
         # 5. time update with the w actually applied
-        z_next = time_update(z, w_applied, eps, aug.A, aug.B, self._kf.G)
-        self._z = z_next if np.isfinite(z_next).all() else z.copy()
+        est.predict(w_applied)
         self._ds_prev = ds
         triac = self._s_nom + ds
         planned_pct = planned + self._s_nom

@@ -1,4 +1,4 @@
-"""Steady-state Kalman estimator: DARE gains, and updates against a reference filter."""
+"""Steady-state Kalman estimator: DARE gains, and the Estimator against a reference filter."""
 
 from __future__ import annotations
 
@@ -8,13 +8,13 @@ import scipy.linalg
 
 from czmpc.errors import DesignError
 from czmpc.kalman import (
+    MAX_INNOVATION_KW,
+    Estimator,
     design_estimator,
-    measurement_update,
     noise_covariances,
     steady_state_kalman,
-    time_update,
 )
-from czmpc.realization import augment, innovations_form
+from czmpc.realization import AugmentedModel, augment, innovations_form
 from sysid.model import HammersteinModel
 
 #: Two DARE solutions (scipy's Schur method vs our call of it, or vs 5000 Riccati
@@ -69,20 +69,101 @@ def test_augmented_gains_are_the_limit_of_the_riccati_recursion(
     assert kf.M[-1] > 0.0  # the disturbance is corrected by every innovation
 
 
-def test_measurement_and_time_updates_equal_the_one_step_predictor(
+def _reference_gains(aug: AugmentedModel, rho: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(M, L)`` written out from scipy's DARE with the cross term (independent of kalman.py)."""
+    n = aug.n_states
+    K = aug.K
+    Q = np.outer(K, K)
+    Q[n - 1, n - 1] += rho
+    P = scipy.linalg.solve_discrete_are(aug.A.T, aug.C.reshape(n, 1), Q, np.array([[1.0]]),
+                                        s=K.reshape(n, 1))
+    re = aug.C @ P @ aug.C + 1.0
+    return P @ aug.C / re, (aug.A @ P @ aug.C + K) / re
+
+
+@pytest.mark.parametrize("disturbance_model", ["input", "output"])
+def test_estimator_equals_a_hand_written_kalman_recursion_with_missing_samples(
+    disturbance_model: str, paper_armax_model: HammersteinModel, rng: np.random.Generator
+) -> None:
+    aug = augment(innovations_form(paper_armax_model), disturbance_model)  # type: ignore[arg-type]
+    M, L = _reference_gains(aug, 0.1)
+    est = Estimator(aug, 0.1, noise_std_kw=1.0)
+    A, B, C = aug.A, aug.B, aug.C
+    z_ref = np.zeros(aug.n_states)  # z_{k|k-1}
+    for k in range(200):
+        y, w = float(rng.normal()), float(rng.normal())
+        missing = k % 9 == 4
+        assert est.predicted_output == pytest.approx(C @ z_ref, abs=FILTER_ATOL_KW)
+        if missing:
+            est.skip()
+            eps = 0.0
+        else:
+            assert est.update(y)
+            eps = y - C @ z_ref
+        np.testing.assert_allclose(est.z, z_ref + M * eps, rtol=0.0, atol=FILTER_ATOL_KW)
+        assert est.eps == pytest.approx(eps, abs=FILTER_ATOL_KW)
+        assert est.gap == (1 if missing else 0)
+        est.predict(w)
+        z_ref = A @ z_ref + B * w + L * eps  # textbook one-step predictor
+        np.testing.assert_allclose(est.z, z_ref, rtol=0.0, atol=FILTER_ATOL_KW)
+
+
+def test_roll_back_predicts_as_if_the_undone_samples_were_skipped(
     paper_armax_model: HammersteinModel, rng: np.random.Generator
 ) -> None:
+    aug = augment(innovations_form(paper_armax_model), "input")
+    est = Estimator(aug, 0.1, noise_std_kw=1.0, history_samples=20)
+    ref = Estimator(aug, 0.1, noise_std_kw=1.0, history_samples=20)
+    ys, ws = rng.normal(size=15), rng.normal(size=15)
+    for k in range(15):
+        est.update(float(ys[k]))
+        if k < 10:  # the reference never sees the last 5 readings
+            ref.update(float(ys[k]))
+        else:
+            ref.skip()
+        est.predict(float(ws[k]))
+        ref.predict(float(ws[k]))
+    assert est.roll_back(5) == 5
+    np.testing.assert_allclose(est.z, ref.z, rtol=0.0, atol=FILTER_ATOL_KW)
+    assert est.gap == 5 and est.predicted_output == pytest.approx(float(aug.C @ ref.z), abs=1e-12)
+    assert est.roll_back(100) == 15 - 1  # as far as the trace reaches: before its first update
+
+
+def test_correct_input_moves_the_prediction_by_b_times_the_difference(
+    paper_oe_model: HammersteinModel
+) -> None:
+    aug = augment(innovations_form(paper_oe_model), "input")
+    est = Estimator(aug, 0.1, noise_std_kw=1.0)
+    est.update(0.3)
+    est.predict(1.0)
+    z_assumed = est.z.copy()
+    est.correct_input(1.0, 2.5)
+    np.testing.assert_allclose(est.z, z_assumed + aug.B * 1.5, rtol=0.0, atol=FILTER_ATOL_KW)
+    assert est.predicted_output == pytest.approx(float(aug.C @ est.z), abs=1e-12)
+
+
+def test_absurd_innovation_is_skipped_and_innovation_std_grows_with_the_gap(
+    paper_armax_model: HammersteinModel
+) -> None:
     aug = augment(innovations_form(paper_armax_model), "output")
-    kf = design_estimator(aug, 0.1)
-    A, B, C = aug.A, aug.B, aug.C
-    z = np.zeros(aug.n_states)
-    z_ref = np.zeros(aug.n_states)
-    for _ in range(200):
-        y, w = float(rng.normal()), float(rng.normal())
-        z_filt, eps = measurement_update(z, y, C, kf.M)
-        z = time_update(z_filt, w, eps, A, B, kf.G)
-        z_ref = A @ z_ref + B * w + kf.L * (y - C @ z_ref)  # textbook predictor form
-        np.testing.assert_allclose(z, z_ref, rtol=0.0, atol=FILTER_ATOL_KW)
+    sigma = 0.02
+    est = Estimator(aug, 0.1, noise_std_kw=sigma, max_gap=3)
+    kf = est.gains
+    z0 = est.z.copy()
+    assert not est.update(2 * MAX_INNOVATION_KW) and not est.update(float("nan"))
+    np.testing.assert_array_equal(est.z, z0)
+    assert est.gap == 2 and est.eps == 0.0
+    # Reference: P_m = A P_{m-1} A^T + Q from the stationary P; std = sigma sqrt(C P_m C + R).
+    Q, R, _ = noise_covariances(aug, 0.1)
+    P = kf.P @ np.eye(aug.n_states)
+    for _ in range(2):
+        P = aug.A @ P @ aug.A.T + Q
+    assert est.innovation_std_kw == pytest.approx(sigma * np.sqrt(aug.C @ P @ aug.C + R), rel=1e-12)
+    assert est.sigma_kw == pytest.approx(sigma * np.sqrt(kf.innovation_variance), rel=1e-12)
+    for _ in range(5):
+        est.skip()
+    P = aug.A @ P @ aug.A.T + Q  # gap 3 is the last tabulated
+    assert est.innovation_std_kw == pytest.approx(sigma * np.sqrt(aug.C @ P @ aug.C + R), rel=1e-12)
 
 
 def test_dare_without_stabilizing_solution_is_a_design_error() -> None:

@@ -7,10 +7,11 @@ import math
 
 import pytest
 
-from czmpc.controller import MAX_SETPOINT_KW, OffsetFreeMPC
+from czmpc.controller import OffsetFreeMPC
 from czmpc.errors import DesignError
 from czmpc.modes import Status
 from czmpc.settings import MPCSettings, ReliabilitySettings
+from czmpc.supervision import MAX_SETPOINT_KW
 from sim.model_plant import ModelPlant
 from sysid.model import HammersteinModel
 
