@@ -4,7 +4,7 @@ Notation
 --------
 ``z`` the (augmented) state, ``y`` [kW] the measured power deviation, ``w``
 [kW-equivalent] the applied nonlinearity output, ``eps`` [kW] the innovation
-``y - C z_{k|k-1}``. The noise model (DESIGN.md items 1-2)::
+``y - C z_{k|k-1}``. The noise model (``docs/theory.rst``, C1-C3)::
 
     z+ = A z + B w + v,    y = C z + e,
     cov(v) = Q,  cov(e) = R,  cov(v, e) = S

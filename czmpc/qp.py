@@ -15,7 +15,7 @@ Notation
 ``delta`` [%/step]
     The TRIAC rate limit.
 
-The QP (DESIGN.md item 5), condensed in ``w`` (the states are eliminated)::
+The QP (``docs/theory.rst``, C5), condensed in ``w`` (the states are eliminated)::
 
     min   sum_{j=1}^{N-1} q_y (C dx_j)^2
         + sum_{j=0}^{N-1} [ q_u (w_j - w_s)^2 + q_dw (w_j - w_{j-1})^2 ]

@@ -7,7 +7,7 @@ Notation
 ``xw = (I - A)^-1 B`` the steady state per unit of constant input, ``g = C xw`` the
 static gain ``B(1)/A(1)``.
 
-DESIGN.md item 4: the steady state with ``y_s = r`` for the current ``d``::
+``docs/theory.rst``, C4: the steady state with ``y_s = r`` for the current ``d``::
 
     input disturbance:   x_s = xw (w_s + d),  y_s = g (w_s + d) = r  ->  w_s = r/g - d
     output disturbance:  x_s = xw w_s,        y_s = g w_s + d = r    ->  w_s = (r - d)/g
