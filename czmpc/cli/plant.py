@@ -1,4 +1,7 @@
-r"""Serve a simulated plant over OPC UA: `czmpc plant serve`.
+r"""The plant link's tools: `czmpc plant serve` (a simulated plant) and `czmpc plant history`.
+
+`czmpc plant history` reads a plant server's history into a run log ('czmpc plant
+history --help'). `czmpc plant serve` serves a simulated plant over OPC UA:
 
 'heater' serves the virtual CZ heater (grey-box physics), 'model' the plant built from
 a model file (the model's own equation). The plant advances on its own clock, one
@@ -19,7 +22,7 @@ heartbeat and a String mode.
 
 History: --historize keeps the history of Heater.Power and Heater.TriacApplied (every
 change of value or status) in memory, --historize FILE.sqlite in a SQLite file kept
-across restarts; OPC UA clients read it with HistoryRead ('czmpc history'), in pages of
+across restarts; OPC UA clients read it with HistoryRead ('czmpc plant history'), in pages of
 --history-page-values values joined by continuation points.
 
 Watchdog: when the heartbeat has not changed for --watchdog-s of plant time, the TRIAC
@@ -64,21 +67,25 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from czmpc.cli import _argtypes, _variation
+from czmpc.cli import _argtypes, _plant_history, _variation
 from czmpc.runtime.security import MODES, SECURE_POLICIES
 
 if TYPE_CHECKING:
     from czmpc.runtime.served import ServeOptions
 
 NAME = "plant"
-HELP = "serve the virtual CZ heater or a model plant as an OPC UA server (plant serve)"
+HELP = ("serve the virtual CZ heater or a model plant over OPC UA (plant serve); read a "
+        "plant server's history into a run log (plant history)")
 ORDER = 81
 
 
 def register(parser: argparse.ArgumentParser) -> None:
-    """Add the 'serve' action and its options."""
+    """Add the actions 'serve' and 'history' and their options."""
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    _plant_history.register(sub.add_parser(
+        "history", help="read the power and applied-input history from the plant's OPC UA "
+                        "server into a run log", description=_plant_history.__doc__))
     p = sub.add_parser("serve", help="serve a plant on an OPC UA endpoint",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--plant", choices=("heater", "model"), default="heater",
@@ -121,7 +128,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--historize", metavar="SQLITE_FILE", nargs="?", type=Path,
                    const=True, default=None,
                    help="historize Heater.Power and Heater.TriacApplied for OPC UA HistoryRead "
-                        "('czmpc history'): in memory, or in SQLITE_FILE when given")
+                        "('czmpc plant history'): in memory, or in SQLITE_FILE when given")
     p.add_argument("--history-page-values", metavar="N", type=_argtypes.integer(1),
                    default=10000, help="most values one HistoryRead returns before a "
                                        "continuation point (default: 10000)")
@@ -154,6 +161,13 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the action: read the history, or serve the plant."""
+    if args.action == "history":
+        return _plant_history.run(args)
+    return _serve(args)
+
+
+def _serve(args: argparse.Namespace) -> int:
     """Check the security, build the plant and serve it until the duration or Ctrl-C."""
     from czmpc.runtime.security import check_serve_address, parse_server_security
     from czmpc.runtime.served import NODE_TYPES, ServedPlant, ServeOptions

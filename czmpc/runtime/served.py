@@ -58,7 +58,7 @@ lines it up with a controller's run log.
 History (``ServeOptions.historize``, ``czmpc plant serve --historize [SQLITE_FILE]``):
 the server historizes Power and TriacApplied (asyncua's ``historize_node_data_change``:
 every change of value or status, kept without limit), in memory or in a SQLite file,
-and answers OPC UA HistoryRead on them (`czmpc history`) with a continuation point
+and answers OPC UA HistoryRead on them (`czmpc plant history`) with a continuation point
 after ``history_page_values`` values, as a plant historian pages a long read.
 
 Without security the server offers policy None with anonymous access; the command

@@ -256,7 +256,7 @@ def test_dare_by_doubling_matches_scipy_where_scipy_solves() -> None:
 
 
 def test_terminal_cost_survives_a_dare_that_scipy_cannot_reorder() -> None:
-    # identified on a heater with a 3-sample delay (czmpc bench-commission, seed 0): a
+    # identified on a heater with a 3-sample delay (benchmarks.commission_length, seed 0): a
     # double pole at 0.998 over a nearly cancelling double zero, next to the delay
     # states' poles at 0; scipy's QZ reordering fails on it
     from czmpc.qp import terminal_cost

@@ -1,4 +1,4 @@
-"""`czmpc history` against czmpc's served plant historizing on loopback, and its grid rules.
+"""`czmpc plant history` against czmpc's served plant historizing on loopback, and its grid rules.
 
 The loopback test serves the model plant (`czmpc plant serve --historize FILE.sqlite`,
 its own process, time scale 50) with a sensor fault in the middle, drives its command node
@@ -23,7 +23,7 @@ from asyncua import ua
 from plant_rig import TIME_SCALE, free_port, with_served
 
 from czmpc.cli import main
-from czmpc.cli.history import utc_time
+from czmpc.cli._plant_history import utc_time
 from czmpc.runtime.history import NodeHistory, align_history, grid_slots, read_node_history
 from czmpc.runtime.node_types import NodeSpec
 from czmpc.runtime.runlog import read_run_log
@@ -113,19 +113,19 @@ def test_history_returns_what_the_plant_historized_and_identify_reads_it(
         config = _write_config(tmp_path / "run.toml", endpoint, SERVED_NODE_IDS["power_kw"])
         out = tmp_path / "history.csv"
         window = ["--from", start.isoformat(), "--to", end.isoformat().replace("+00:00", "Z")]
-        assert main(["history", str(config), *window, "--out", str(out),
+        assert main(["plant", "history", str(config), *window, "--out", str(out),
                      "--page-values", "100"]) == 0
         # a client page below the server's: asyncua ends a full page without a
         # continuation point, and the read resumes from the last time stamp
         out_small = tmp_path / "history_small_pages.csv"
-        assert main(["history", str(config), *window, "--out", str(out_small),
+        assert main(["plant", "history", str(config), *window, "--out", str(out_small),
                      "--page-values", "30"]) == 0
         # never over an earlier output, unless --force
-        assert main(["history", str(config), *window, "--out", str(out)]) == 2
+        assert main(["plant", "history", str(config), *window, "--out", str(out)]) == 2
         assert "exists: give another --out, or --force" in capsys.readouterr().err
         # a node the server does not historize: exit 2 naming the node and the fix
         unhistorized = _write_config(tmp_path / "bad.toml", endpoint, "ns=2;s=Heater.PlantTime_s")
-        assert main(["history", str(unhistorized), *window, "--out",
+        assert main(["plant", "history", str(unhistorized), *window, "--out",
                      str(tmp_path / "none.csv")]) == 2
         err = capsys.readouterr().err
         assert "Heater.PlantTime_s" in err and "enable historizing for that tag" in err
@@ -266,16 +266,16 @@ def test_history_refuses_a_bad_range_and_says_when_the_plant_is_unreachable(
     config = _write_config(tmp_path / "run.toml", f"opc.tcp://127.0.0.1:{free_port()}/czmpc/",
                            SERVED_NODE_IDS["power_kw"])
     out = str(tmp_path / "h.csv")
-    assert main(["history", str(config), "--from", "2026-11-26T07:00:00Z", "--to",
+    assert main(["plant", "history", str(config), "--from", "2026-11-26T07:00:00Z", "--to",
                  "2026-11-26T06:00:00Z", "--out", out]) == 2
     assert "--from must be before --to" in capsys.readouterr().err
     with pytest.raises(SystemExit) as usage:
-        main(["history", str(config), "--from", "yesterday", "--to", "2026-11-26T06:00:00Z",
+        main(["plant", "history", str(config), "--from", "yesterday", "--to", "2026-11-26T06:00:00Z",
               "--out", out])
     assert usage.value.code == 2
     assert "expected an ISO 8601 time in UTC" in capsys.readouterr().err
     # nobody listens on that port: a network fault, exit 1, and nothing written
-    assert main(["history", str(config), "--from", "2026-11-26T05:00:00Z", "--to",
+    assert main(["plant", "history", str(config), "--from", "2026-11-26T05:00:00Z", "--to",
                  "2026-11-26T06:00:00Z", "--out", out]) == 1
     assert "czmpc: error:" in capsys.readouterr().err
     assert not (tmp_path / "h.csv").exists()

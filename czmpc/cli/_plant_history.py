@@ -1,4 +1,4 @@
-"""Read the power and applied-input history from the plant's OPC UA server into a run log.
+"""`czmpc plant history`: read the plant server's power and applied-input history into a run log.
 
 CONFIG.toml is the run configuration of 'czmpc run': [plant] endpoint, ts_s,
 time_scale, connect_timeout_s and [plant.security]; [nodes] power_kw and
@@ -52,11 +52,6 @@ if TYPE_CHECKING:
     from czmpc.runtime.config import RunConfig
     from czmpc.runtime.history import NodeHistory
 
-NAME = "history"
-HELP = "read the power and applied-input history from the plant's OPC UA server into a run log"
-ORDER = 82
-
-
 class HistoryRangeError(CzmpcError, ValueError):
     """A --from/--to time that cannot be read, or a range that is empty."""
 
@@ -73,7 +68,7 @@ def utc_time(text: str) -> dt.datetime:
 
 
 def register(parser: argparse.ArgumentParser) -> None:
-    """Add this command's options."""
+    """Add the options of ``czmpc plant history``."""
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("config", metavar="CONFIG.toml", type=Path,
                         help="run configuration ([plant], [nodes]; the rest is not used)")
@@ -121,8 +116,6 @@ async def _read(config: RunConfig, *, start: dt.datetime, end: dt.datetime, page
         await close_client(client, deadline_s)
 
 
-
-
 def run(args: argparse.Namespace) -> int:
     """Read the history, put it on the Ts grid, write the run log and its provenance."""
     from czmpc.cli._progress import Progress
@@ -134,8 +127,8 @@ def run(args: argparse.Namespace) -> int:
         write_history_log,
     )
     from czmpc.runtime.link import CallDeadlineError
-    from czmpc.runtime.logfiles import sha256_or_none
     from czmpc.runtime.secure_client import PlantUnreachableError
+    from sysid.atomic import file_sha256
 
     if not args.start < args.end:
         raise HistoryRangeError(f"--from must be before --to; got --from {args.start.isoformat()} "
@@ -167,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
     specs = config.nodes.specs()
     meta: dict[str, object] = {
         "closed_loop": bool(args.closed_loop),
-        "config": str(config.source_path), "config_sha256": sha256_or_none(config.source_path),
+        "config": str(config.source_path), "config_sha256": file_sha256(args.config),
         "endpoint": config.endpoint, "security": config.security.describe(),
         "nodes": {k: specs[k].describe() for k in histories},
         "from_utc": args.start.isoformat(), "to_utc": args.end.isoformat(),
@@ -181,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
         "continuation_points": {k: h.n_continuations for k, h in histories.items()},
         "resumed_requests": {k: h.n_resumed for k, h in histories.items()},
         "page_values": page_values,
-        "command": (f"czmpc history {args.config} --from {args.start.isoformat()} --to "
+        "command": (f"czmpc plant history {args.config} --from {args.start.isoformat()} --to "
                     f"{args.end.isoformat()} --out {args.out} --page-values {page_values}"),
     }
     meta_file = write_history_log(args.out, aligned, ts_s=config.ts_s, meta=meta,
