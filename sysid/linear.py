@@ -46,7 +46,7 @@ from sysid.optimize import (
     parameter_std_errors,
     sum_of_squares,
 )
-from sysid.polynomials import max_root_modulus, reflect_unstable_roots
+from sysid.polynomials import is_stable, reflect_unstable_roots
 from sysid.result import CriterionName, IdentificationResult
 from sysid.simulate import equation_errors, simulate_arrays
 
@@ -385,7 +385,7 @@ def _stabilizer(blocks: tuple[slice, ...]) -> Callable[[FloatArray], FloatArray]
         out = np.array(theta, dtype=float, copy=True)
         for blk in blocks:
             poly = np.concatenate([[1.0], out[blk]])
-            if poly.size > 1 and max_root_modulus(poly) >= 1.0:
+            if not is_stable(poly):
                 out[blk] = reflect_unstable_roots(poly)[1:]
         return out
 

@@ -22,6 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import lapack
 
 from sysid._typing import FloatArray
 from sysid.errors import IdentificationError
@@ -67,6 +68,30 @@ class LMResult:
 def sum_of_squares(x: FloatArray) -> float:
     """``sum x^2`` of a 1-D array, without BLAS (whose threads stall on a loaded machine)."""
     return float(np.einsum("i,i->", x, x))
+
+
+def triangular_factor(jac: FloatArray, free: FloatArray | None = None,
+                      last: FloatArray | None = None) -> FloatArray:
+    """``R`` of the QR factorization of ``[J[:, free], last]`` (Householder, LAPACK geqrf).
+
+    The columns are copied once into a column-major block and factored in place:
+    ``numpy.linalg.qr`` on the row-major Jacobian costs four times more, most of it in a
+    transposing copy (12,000 x 9: 1.2 ms against 0.3 ms).
+    """
+    cols = np.flatnonzero(np.ones(jac.shape[1], bool) if free is None else free)
+    block = np.empty((jac.shape[0], cols.size + (last is not None)), order="F")
+    if cols.size == jac.shape[1]:
+        block[:, : cols.size] = jac
+    else:
+        for i, j in enumerate(cols):
+            block[:, i] = jac[:, j]
+    if last is not None:
+        block[:, -1] = last
+    qr, _, _, info = lapack.dgeqrf(block, overwrite_a=True)
+    if info != 0:  # pragma: no cover - geqrf fails only on an illegal argument
+        raise IdentificationError(f"triangular_factor: LAPACK dgeqrf returned info = {info}")
+    k = min(block.shape)
+    return np.triu(qr[:k])
 
 
 def _evaluate(
@@ -240,7 +265,7 @@ def levenberg_marquardt(
             converged, message = True, "the sum of squared residuals is zero"
             break
         grad = np.einsum("ij,i->j", jac, r)
-        col_norms = np.linalg.norm(jac, axis=0)
+        col_norms = np.sqrt(np.einsum("ij,ij->j", jac, jac))
         at_lo = (theta <= lo) & (grad > 0)
         at_hi = (theta >= hi) & (grad < 0)
         free = ~(at_lo | at_hi) & (col_norms > 0)
@@ -254,7 +279,7 @@ def levenberg_marquardt(
         scale = np.maximum(scale, col_norms)
         d = np.where(scale[free] > 0, scale[free], 1.0)
         # R of the QR factorization of [J_free, r]: its last column holds Q'r.
-        r_aug = np.asarray(np.linalg.qr(np.column_stack([jac[:, free], r]), mode="r"))
+        r_aug = triangular_factor(jac, free, r)
         n_free = int(np.count_nonzero(free))
         r_mat = r_aug[:n_free, :n_free]
         qtr = r_aug[:n_free, n_free]
@@ -362,7 +387,7 @@ def parameter_std_errors(jacobian: FloatArray, residuals: FloatArray) -> FloatAr
         return np.full(p, np.inf)
     s2 = sum_of_squares(r) / (n - p)
     # J = Q R, so J and the small R share singular values and right singular vectors.
-    _, sing, vt = np.linalg.svd(np.linalg.qr(jac, mode="r"))
+    _, sing, vt = np.linalg.svd(triangular_factor(jac))
     tol = max(n, p) * np.finfo(float).eps * (float(sing[0]) if sing.size else 0.0)
     good = sing > tol
     if not np.any(good):

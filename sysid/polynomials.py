@@ -42,9 +42,25 @@ def slowest_time_constant_samples(poly: FloatArray) -> float:
     return 0.0 if radius == 0.0 else -1.0 / float(np.log(radius))
 
 
-def is_stable(poly: FloatArray, *, margin: float = 0.0) -> bool:
-    """True if every root of ``poly`` lies strictly inside the circle |z| < 1 - margin."""
-    return max_root_modulus(poly) < 1.0 - margin
+def is_stable(poly: FloatArray) -> bool:
+    """True if every root of the q^-1 polynomial ``poly`` lies strictly inside |z| < 1.
+
+    The Schur-Cohn step-down recursion: the last coefficient of each monic polynomial
+    is a reflection coefficient, all of which must have modulus below one (Astrom and
+    Wittenmark, Computer-Controlled Systems, sec. 3.3). A few scalar operations for the
+    low orders identified here, where the roots cost an eigenvalue problem: the
+    prediction-error searches test every trial point with it.
+    """
+    a = np.trim_zeros(np.asarray(poly, dtype=float), trim="b")
+    if a.size == 0 or a[0] == 0.0:
+        return False
+    a = a / a[0]
+    for n in range(a.size - 1, 0, -1):
+        k = float(a[n])
+        if not abs(k) < 1.0:
+            return False
+        a = (a[:n] - k * a[n:0:-1]) / (1.0 - k * k)
+    return True
 
 
 def reflect_unstable_roots(poly: FloatArray) -> FloatArray:
@@ -55,6 +71,8 @@ def reflect_unstable_roots(poly: FloatArray) -> FloatArray:
     Ljung (1999, sec. 10.1).
     """
     p = np.asarray(poly, dtype=float)
+    if is_stable(p):
+        return p.copy()
     r = roots_z(p)
     if r.size == 0:
         return p.copy()

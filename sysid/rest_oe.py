@@ -46,7 +46,7 @@ from sysid.hammerstein.route import fixed_pole_starts, pole_start_time_constants
 from sysid.linear import _linear_model, arx_regressor
 from sysid.model import HammersteinModel, OperatingPoint
 from sysid.optimize import levenberg_marquardt
-from sysid.polynomials import reflect_unstable_roots
+from sysid.polynomials import is_stable, reflect_unstable_roots
 
 #: Share of the record at its start that is a burn-in: not scored, so that the unknown
 #: initial state (a log that does not start at rest) decays before the criterion counts.
@@ -247,23 +247,6 @@ def rest_oe_model(fit: RestOEFit, data: Dataset, *, operating_triac_pct: float,
         f"{fit.start}, burn-in {fit.burn_in_steps} samples)", where="rest_oe_model")
 
 
-def _schur_stable(f: FloatArray) -> bool:
-    """True if the monic ``F(q)`` has every root inside the unit circle (Schur-Cohn).
-
-    The step-down recursion: the last coefficient of each monic polynomial is a
-    reflection coefficient, all of which must have modulus below one (Astrom and
-    Wittenmark, Computer-Controlled Systems, sec. 3.3). A few scalar operations for the
-    orders searched here, where the roots cost an eigenvalue problem per trial step.
-    """
-    a = np.array(f, dtype=float)
-    for n in range(a.size - 1, 0, -1):
-        k = float(a[n])
-        if not abs(k) < 1.0:
-            return False
-        a = (a[:n] - k * a[n:0:-1]) / (1.0 - k * k)
-    return True
-
-
 def _shifted(x: FloatArray, lag: int) -> FloatArray:
     out = np.zeros_like(x)
     out[lag:] = x[: x.size - lag]
@@ -284,7 +267,7 @@ class _Problem:
 
     def __call__(self, theta: FloatArray) -> tuple[FloatArray, FloatArray]:
         b, f = self.polys(theta)
-        if not _schur_stable(f):          # the search rejects the trial and raises damping
+        if not is_stable(f):          # the search rejects the trial and raises damping
             m = self.y.size - self.burn
             return np.full(m, np.inf), np.zeros((m, theta.size))
         v = lfilter([1.0], f, self.u)                      # u / F
@@ -341,7 +324,7 @@ def _sriv(y: FloatArray, u: FloatArray, nb: int, nf: int, nk: int,
 
 def _refine(problem: _Problem, theta0: FloatArray,
             tol: float) -> tuple[FloatArray, float, int, bool] | None:
-    if not _schur_stable(np.concatenate([[1.0], theta0[problem.nb:]])):
+    if not is_stable(np.concatenate([[1.0], theta0[problem.nb:]])):
         return None
     try:
         lm = levenberg_marquardt(problem, theta0, xtol=tol, ftol=tol)

@@ -300,7 +300,7 @@ def segment_residuals(
     estimate = initial_state == "estimate"
     n_total = sum(seg[0].size for seg in segments)
     r = np.empty(n_total)
-    jac = np.zeros((n_total, theta.size)) if jacobian else None
+    jac = np.zeros((n_total, theta.size), order="F") if jacobian else None
     row = 0
     for s, (y, ds) in enumerate(segments):
         free = theta[p_model + s * n : p_model + (s + 1) * n] if estimate else None

@@ -115,16 +115,6 @@ def test_search_refuses_bad_input_by_name(y: np.ndarray, u: np.ndarray,
         search_oe_from_rest(y, u, **kwargs)  # type: ignore[arg-type]
 
 
-def test_the_step_down_stability_test_agrees_with_the_roots() -> None:
-    from sysid.rest_oe import _schur_stable
-
-    rng = np.random.default_rng(7)
-    for _ in range(2000):
-        f = np.r_[1.0, rng.uniform(-3.0, 3.0, int(rng.integers(1, 4)))]
-        assert _schur_stable(f) == (np.max(np.abs(np.roots(f))) < 1.0), f
-    assert _schur_stable(np.array([1.0])) and not _schur_stable(np.array([1.0, -1.0]))
-
-
 def test_an_oe_from_a_first_sample_that_is_no_rest_does_not_replace_the_final_model() -> None:
     """The TCLab log without its first ten samples starts at the step 0 -> 100 %: from rest
     there, the best OE drifts like an integrator (static gain about -6e6 degC/%, against a
