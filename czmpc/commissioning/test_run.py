@@ -1,7 +1,7 @@
 """An open-loop identification test through the plant link (`czmpc run --test`).
 
 `InputSchedule` is a designed TRIAC schedule (``time_s,triac_pct``, as written by
-`czmpc design-test`); `ScheduleDriver` plays it as a `czmpc.runtime.loop.LoopController`,
+`czmpc design-test`); `ScheduleDriver` plays it as a `czmpc.runtime.step.LoopController`,
 so the test runs in the same loop as the MPC: same timing, heartbeat, quality
 handling, plant watchdog and SIGTERM safe action, and the ``[test]`` limits of the
 config abort it (`czmpc.runtime.config.ExperimentLimits`).

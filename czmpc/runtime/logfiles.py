@@ -22,7 +22,6 @@ from __future__ import annotations
 import csv
 import datetime as dt
 import glob
-import hashlib
 import json
 import math
 from collections.abc import Mapping
@@ -184,16 +183,6 @@ def refuse_overwrite(configured: Path, policy: str, *, per_run: bool = False) ->
             f"\"{configured.parent / 'logs'}/\" for one file per run")
 
 
-def sha256_or_none(path: Path | None) -> str | None:
-    """SHA-256 of a file for a run's provenance (the config, a schedule), or None."""
-    if path is None:
-        return None
-    try:
-        return hashlib.sha256(path.read_bytes()).hexdigest()
-    except OSError:
-        return None
-
-
 def _first_wall_time(path: Path) -> float:
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:
@@ -236,4 +225,4 @@ def log_parts(spec: str | Path) -> list[Path]:
 
 __all__ = ["LOG_COLUMNS", "LOG_POLICIES", "ROTATIONS", "RUN_META_FORMAT", "RunLog",
            "RunLogExistsError", "log_parts", "meta_path", "open_run_log",
-           "part_path", "refuse_overwrite", "run_file_name", "sha256_or_none"]
+           "part_path", "refuse_overwrite", "run_file_name"]

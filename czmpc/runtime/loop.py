@@ -3,15 +3,16 @@
 Each period (``ts_s / time_scale`` wall seconds, on a monotonic-clock schedule
 ``t0 + k * period``, so no drift accumulates):
 
-1. read the measured power (with its status code and source timestamp), and the
-   optional setpoint, mode and applied-input nodes;
-2. step the controller; a Bad or Uncertain status, a source timestamp older than
-   ``max_sample_age_s``, one not later than the previous read's (``repeated``: the
-   plant's step was late and the previous sample was read again; ``[plant]
-   reject_repeated_samples``), or no connection is a missing sample (NaN): the
-   controller predicts (soft sensor), then sheds, as in simulation;
+1. read (I/O only) the measured power (with its status code and source timestamp), and
+   the optional setpoint, mode and applied-input nodes;
+2. decide, without I/O (`czmpc.runtime.step`): a Bad or Uncertain status, a source
+   timestamp older than ``max_sample_age_s``, one not later than the previous read's
+   (``repeated``: the plant's step was late and the previous sample was read again;
+   ``[plant] reject_repeated_samples``), or no connection is a missing sample (NaN):
+   the controller predicts (soft sensor), then sheds, as in simulation;
 3. write the command (mode ON only: in OFF/PREDICT the operator drives the TRIAC) and
-   the heartbeat; record the row in the log (flushed per row).
+   the heartbeat;
+4. record the row in the log (flushed per row).
 
 Model health (`czmpc.health`): every sample also goes to the model-health monitor (the
 model's own one-step residual and the stale-model test); its figure is logged
@@ -40,7 +41,8 @@ reason goes into the log (column ``event``) and the summary, and the input moves
 ``safe_triac_pct`` at the controller's rate limit whatever ``[safety] action`` says.
 A controller may also end the run itself (`LoopController.finished`, e.g. at the end
 of a test schedule). Beside the log, ``<log>.meta.json`` records where the run came
-from (config file and its SHA-256, start time, what drove the input).
+from (the czmpc version, the config and the model files with their SHA-256, start
+time, what drove the input).
 """
 
 from __future__ import annotations
@@ -52,9 +54,10 @@ import math
 import signal
 import sys
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 from czmpc.controller import OffsetFreeMPC
 from czmpc.health import RUNTIME_HEALTH, HealthSettings, ModelHealth, ModelHealthMonitor
@@ -67,12 +70,23 @@ from czmpc.runtime.logfiles import (
     RunLog,
     open_run_log,
     refuse_overwrite,
-    sha256_or_none,
 )
-from czmpc.runtime.measurement import age_s, measurement, sample_time
+from czmpc.runtime.measurement import age_s
 from czmpc.runtime.node_types import NodeValueError, decode
 from czmpc.runtime.ownership import PlantBusyError, PlantLock, WriterWatch, identity, moved
 from czmpc.runtime.secure_client import SecurityRejectedError
+from czmpc.runtime.step import (
+    Decision,
+    LoopController,
+    Sample,
+    Transitions,
+    decide,
+    judge,
+    refused_in_row,
+    transitions,
+)
+from sysid._version import __version__
+from sysid.atomic import file_sha256
 from sysid.modelfile import load_model
 
 #: The run's events (link lost and restored, refused writes, aborts, alarms): the CLI
@@ -97,37 +111,10 @@ MODE_CODES = {mode.name: i for i, mode in enumerate(Mode)}
 LEASE_PERIODS = 3.0
 #: Overruns are summarised on stderr at most once per this long [wall s].
 OVERRUN_REPORT_S = 60.0
-class LoopController(Protocol):
-    """What the loop drives: the MPC, an open-loop test schedule, a dithered MPC."""
-
-    @property
-    def mode(self) -> Mode:
-        """OFF / PREDICT / ON; the loop writes the command in ON only."""
-
-    def request_mode(self, mode: Mode) -> object:
-        """The operator asks for another mode (the plant's mode node)."""
-
-    def step(self, power_kw: float, setpoint_kw: float, *,
-             applied_triac_pct: float | None = None) -> float:
-        """Return the TRIAC input [%] to apply now (see `OffsetFreeMPC.step`)."""
-
-    def status_words(self) -> tuple[str, str]:
-        """``(status, verdict)`` of the last step, for the log."""
-
-    @property
-    def rate_limit_pct_per_step(self) -> float | None:
-        """Largest move per sample [%] (the safe ramp's rate); None: no limit."""
-
-    def skipped(self, n_periods: int) -> None:
-        """The loop skipped ``n_periods`` sample periods after an overrun (plant time went on)."""
-
-    def finished(self) -> str | None:
-        """Why the run is complete (it then stops with the safe action, not failed), or None."""
-
-    def abort_reason(self) -> str | None:
-        """Why the run must stop as failed (exit 1), or None."""
-
-
+#: Steps whose latency the overrun note's "longest recent step" looks back over.
+RECENT_STEPS = 200
+#: Read-phase estimates a run keeps (one per `alignment.WINDOW` good samples).
+RECENT_PHASES = 1000
 class MPCDriver:
     """The offset-free MPC as a `LoopController` (it never finishes or aborts by itself)."""
 
@@ -173,6 +160,36 @@ class MPCDriver:
 
 
 @dataclass(slots=True)
+class StepTimes:
+    """A per-step time [wall s] over a run of any length, in fixed memory.
+
+    Attributes
+    ----------
+    count :
+        Steps seen.
+    max_s :
+        The longest [s] (0 before the first step).
+    recent_s :
+        The last `RECENT_STEPS` values, oldest first.
+    """
+
+    count: int = 0
+    max_s: float = 0.0
+    recent_s: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT_STEPS))
+
+    def add(self, value_s: float) -> None:
+        """Count one step's time [s]."""
+        self.count += 1
+        self.max_s = max(self.max_s, value_s)
+        self.recent_s.append(value_s)
+
+    @property
+    def recent_max_s(self) -> float:
+        """The longest of the last `RECENT_STEPS` steps [s] (0 before the first)."""
+        return max(self.recent_s, default=0.0)
+
+
+@dataclass(slots=True)
 class RunSummary:
     """What a run did (numbers for the report and the tests)."""
 
@@ -195,8 +212,9 @@ class RunSummary:
     n_commands_accepted: int = 0
     #: Refused writes by status code name (every node), e.g. ``{"BadResourceUnavailable": 5}``.
     refused_writes: dict[str, int] = field(default_factory=dict)
-    lateness_s: list[float] = field(default_factory=list)
-    latency_s: list[float] = field(default_factory=list)
+    #: How late each step woke after its deadline, and how long it took [wall s].
+    lateness_s: StepTimes = field(default_factory=StepTimes)
+    latency_s: StepTimes = field(default_factory=StepTimes)
     stopped_by: str = "duration"
     stale_alarm_at_s: float | None = None
     stale_alarm_reason: str = ""
@@ -213,9 +231,10 @@ class RunSummary:
     #: back with a code that does not clear by itself): the node, the code and the fix
     #: (exit 2).
     configuration_error: str | None = None
-    #: Read phases estimated (`czmpc.runtime.alignment.read_phase`) and the delays
-    #: [wall s] the schedule took to read just after the plant publishes.
-    read_phases: list[float] = field(default_factory=list)
+    #: Read phases estimated (`czmpc.runtime.alignment.read_phase`; the last
+    #: `RECENT_PHASES`) and the delays [wall s] the schedule took to read just after the
+    #: plant publishes.
+    read_phases: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT_PHASES))
     alignment_delays_s: list[float] = field(default_factory=list)
 
     @property
@@ -247,20 +266,6 @@ class RunSummary:
                 f"stopped by {self.stopped_by}")
 
 
-def _mode_of(value: Any) -> Mode | None:
-    """The operator's mode from the mode node: text, an integer 0/1/2 (OFF/PREDICT/ON) or a
-    bool (True: ON, False: OFF, a PLC's enable bit); None for anything else."""
-    if isinstance(value, bool):
-        return Mode.ON if value else Mode.OFF
-    if isinstance(value, str) and value.strip().upper() in Mode.__members__:
-        return Mode[value.strip().upper()]
-    if isinstance(value, int) and not isinstance(value, bool):
-        modes = list(Mode)
-        if 0 <= value < len(modes):
-            return modes[value]
-    return None
-
-
 class ControlLoop:
     """The runtime (module docstring).
 
@@ -281,8 +286,8 @@ class ControlLoop:
         `czmpc.health.RUNTIME_HEALTH`, the change test against the run's first 30 min).
     provenance :
         What drives the input and where it came from (for example the test schedule
-        and its SHA-256), written with the config's path, its SHA-256 and the start
-        time into ``<log>.meta.json``.
+        and its SHA-256), written with the czmpc version, the config's and the model's
+        paths and SHA-256 and the start time into ``<log>.meta.json``.
     """
 
     def __init__(self, config: RunConfig, controller: OffsetFreeMPC | LoopController, *,
@@ -307,12 +312,11 @@ class ControlLoop:
         self._events: list[str] = []          # events of this step, for the log's event column
         self._refused_in_row = 0              # command writes refused in a row
         self._lost_at: float | None = None    # monotonic time the link was lost (None: up)
-        self._shed_at_k: int | None = None    # sample the controller began shedding (None: not)
+        self._transitions = Transitions()     # shedding and mode as of the last step
         #: One writer per plant (`czmpc.runtime.ownership`): what czmpc wrote, read back.
         self.watch = WriterWatch()
         self.identity = identity(config.log_path)
         self._other_writer = False            # another writer seen: czmpc writes nothing more
-        self._mode_seen: Mode | None = None   # the mode of the previous step
         self._overruns_said = (0, 0, time.monotonic())   # overruns, skipped, when last said
         self._said_timestamps = False
         #: Longest a step may spend on I/O [wall s]: the connect timeout and half a period,
@@ -476,11 +480,13 @@ class ControlLoop:
         """The run's provenance for ``<log>.meta.json``."""
         cfg = self.config
         return {
+            "czmpc_version": __version__,
             "config": None if cfg.source_path is None else str(cfg.source_path),
-            "config_sha256": sha256_or_none(cfg.source_path),
+            "config_sha256": None if cfg.source_path is None else file_sha256(cfg.source_path),
             "endpoint": cfg.endpoint, "ts_s": cfg.ts_s, "time_scale": cfg.time_scale,
             "start_utc": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
             "model": None if cfg.model_path is None else str(cfg.model_path),
+            "model_sha256": None if cfg.model_path is None else file_sha256(cfg.model_path),
             "controller": self.identity,
             **self._provenance,
         }
@@ -550,8 +556,8 @@ class ControlLoop:
             lateness = woke - deadline
             row = await self._one_step(k, lateness)
             end = time.monotonic()
-            self.summary.lateness_s.append(lateness)
-            self.summary.latency_s.append(end - woke)
+            self.summary.lateness_s.add(lateness)
+            self.summary.latency_s.add(end - woke)
             # overrun: skip every period whose start has passed (never catch up)
             next_k = k + 1
             if end > t0 + next_k * period:
@@ -614,29 +620,13 @@ class ControlLoop:
             _log.info("%s", done)
             self.request_stop(done)
 
-    def _transitions(self, k: int, status_word: str) -> None:
-        """Say when the controller starts or stops shedding and when its mode changes."""
-        t = k * self.config.ts_s
-        if status_word == "SHED" and self._shed_at_k is None:
-            self._shed_at_k = k
-            self._event(f"shedding at t={t:.0f}s: no usable measurement for too long; the "
-                        "controller holds its input")
-        elif status_word not in ("SHED", "") and self._shed_at_k is not None:
-            shed_s = (k - self._shed_at_k) * self.config.ts_s
-            self._shed_at_k = None
-            self._event(f"resumed at t={t:.0f}s after {shed_s:.0f} s shed", logging.INFO)
-        mode = self.ctrl.mode
-        if self._mode_seen is not None and mode is not self._mode_seen:
-            self._event(f"mode {self._mode_seen.name} -> {mode.name} at t={t:.0f}s", logging.INFO)
-        self._mode_seen = mode
-
     def _say_overruns(self) -> None:
         """Once a minute of wall time at most: how many periods overran since it was last said."""
         n_said, skipped_said, when = self._overruns_said
         now = time.monotonic()
         if now - when < OVERRUN_REPORT_S or self.summary.n_overruns == n_said:
             return
-        longest_ms = 1e3 * max(self.summary.latency_s[-200:], default=0.0)
+        longest_ms = 1e3 * self.summary.latency_s.recent_max_s
         _log.warning("%d overruns in the last %.0f s (%d periods skipped; longest recent step "
                      "%.0f ms, period %.0f ms)", self.summary.n_overruns - n_said, now - when,
                      self.summary.n_skipped - skipped_said, longest_ms,
@@ -649,46 +639,74 @@ class ControlLoop:
 
     async def _one_step(self, k: int, lateness: float) -> dict[str, object]:
         """Read, decide, write and record one sample; never longer than `_step_budget_s`."""
-        cfg = self.config
         end = time.monotonic() + self._step_budget_s
         if not self.link.connected:
             await self._try_connect(time.monotonic(), end - time.monotonic())
-        power, quality, reported_applied = await self._read(end)
+        values = await self._read(end)
+        if k in self._delay:     # the testing hook: an overrun
+            await asyncio.sleep(self._delay[k])
+        sample, decision, health = self._decide(k, values)
+        written = await self._write(decision.command_pct if decision.write else None, health, end)
+        if decision.mode is not Mode.ON:
+            self._last_cmd = decision.command_pct
+        return self._record(k, lateness, sample, decision, health, written)
+
+    def _decide(self, k: int, values: dict[str, Any] | None,
+                ) -> tuple[Sample, Decision, ModelHealth | None]:
+        """Judge the read, step the controller and the monitors (no I/O; `czmpc.runtime.step`)."""
+        cfg = self.config
+        if values is not None:
+            watched = self._watched()
+            reason = self.watch.other_writer(
+                {key: dv.Value.Value for key, dv in values.items() if key in watched
+                 and dv.Value is not None and (dv.StatusCode is None or dv.StatusCode.is_good())})
+            if reason is not None:
+                self._another_writer(reason)
+        sample = judge(values, self.link.specs, max_age_s=cfg.max_sample_age_s,
+                       previous_time=self._last_time,
+                       reject_repeated=cfg.reject_repeated_samples,
+                       connect_applied_pct=self._applied)
+        if values is not None:
+            self._applied = math.nan     # the input read at the (re)connect is used
+        self._last_time = sample.time
+        self.summary.n_repeated += sample.quality == "repeated"
+        self.summary.n_missing += not math.isfinite(sample.power_kw)
+        if sample.age_s is not None:
+            self._ages_s.append(sample.age_s)
+        if sample.setpoint_kw is not None:
+            self._setpoint = sample.setpoint_kw
         if cfg.schedule is not None:
             self._setpoint = cfg.schedule.setpoint_at(k * cfg.ts_s)
-        if not math.isfinite(power):
-            self.summary.n_missing += 1
-        if k in self._delay:
-            await asyncio.sleep(self._delay[k])
-        if self.ctrl.mode is not Mode.ON and reported_applied is None:
-            reported_applied = self._last_cmd if math.isfinite(self._last_cmd) else None
-        applied_before = reported_applied if reported_applied is not None else self._last_cmd
-        command = self.ctrl.step(power, self._setpoint, applied_triac_pct=reported_applied)
-        status_word, verdict_word = self.ctrl.status_words()
-        self._transitions(k, status_word)
-        health = self._health(k, power, applied_before)
-        meant = self.ctrl.mode is Mode.ON and math.isfinite(command)
-        if meant:
-            self.summary.n_commands_meant += 1
-        written = await self._write(command if meant else None, health, end)
-        if self.ctrl.mode is not Mode.ON:
-            self._last_cmd = float(command)
+        decision = decide(self.ctrl, sample, setpoint_kw=self._setpoint,
+                          last_command_pct=self._last_cmd, allow_on=self.allow_on)
+        self._transitions, events = transitions(self._transitions, k, cfg.ts_s, decision)
+        for level, text in events:
+            self._event(text, level)
+        self.summary.n_commands_meant += decision.write
+        return sample, decision, self._health(k, sample.power_kw, decision.applied_before_pct)
+
+    def _record(self, k: int, lateness: float, sample: Sample, decision: Decision,
+                health: ModelHealth | None, written: bool) -> dict[str, object]:
+        """The step's log row (its timing columns filled in by `_loop`) and the status line."""
+        cfg = self.config
+        applied = decision.applied_triac_pct
         row: dict[str, object] = {
-            "k": k, "time_s": k * cfg.ts_s, "wall_time_s": time.time(), "power_kw": power,
-            "quality": quality, "setpoint_kw": self._setpoint, "triac_pct": float(command),
-            "applied_triac_pct": math.nan if reported_applied is None else reported_applied,
-            "status": status_word, "verdict": verdict_word,
-            "mode": self.ctrl.mode.name, "connected": int(self.link.connected),
+            "k": k, "time_s": k * cfg.ts_s, "wall_time_s": time.time(),
+            "power_kw": sample.power_kw, "quality": sample.quality,
+            "setpoint_kw": self._setpoint, "triac_pct": decision.command_pct,
+            "applied_triac_pct": math.nan if applied is None else applied,
+            "status": decision.status, "verdict": decision.verdict,
+            "mode": decision.mode.name, "connected": int(self.link.connected),
             "written": int(written), "lateness_s": lateness, "step_latency_s": 0.0,
             "skipped": 0, "predicted_kw": math.nan if health is None else health.predicted_kw,
             "health": math.nan if health is None else health.health,
             "stale_alarm": "" if health is None else int(health.stale_alarm),
             "event": self._take_events(),
-            **self._shadow_columns(k, power, applied_before, health),
+            **self._shadow_columns(k, sample.power_kw, decision.applied_before_pct, health),
         }
-        self._say(f"k={k} t={k * cfg.ts_s:.0f}s P={power:.2f}kW ({quality}) "
-                  f"SP={self._setpoint:.2f}kW u={command:.2f}% {row['status']} "
-                  f"{self.ctrl.mode.name} late={lateness * 1e3:.1f}ms "
+        self._say(f"k={k} t={k * cfg.ts_s:.0f}s P={sample.power_kw:.2f}kW ({sample.quality}) "
+                  f"SP={self._setpoint:.2f}kW u={decision.command_pct:.2f}% {decision.status} "
+                  f"{decision.mode.name} late={lateness * 1e3:.1f}ms "
                   f"{'' if health is None else health.status()}")
         return row
 
@@ -723,61 +741,19 @@ class ControlLoop:
             out["watchdog"] = link.next_count("watchdog", self._watchdog_value)
         return out
 
-    async def _read(self, end: float) -> tuple[float, str, float | None]:
-        """One Read of the power and the optional nodes: (power [kW], quality, applied [%]).
-
-        Updates the setpoint and the mode from their nodes; NaN and ``"disconnected"``
-        without a link.
-        """
-        cfg = self.config
+    async def _read(self, end: float) -> dict[str, Any] | None:
+        """One Read (I/O only): DataValues of the power, the optional setpoint, mode and
+        applied-input nodes and the watched nodes; None without a link."""
         if not self.link.connected:
-            return math.nan, "disconnected", None
-        keys = tuple(k for k in ("power_kw", "setpoint_kw", "mode", "applied_triac_pct")
-                     if k in self.link.specs)
-        watched = tuple(k for k in self._watched() if k not in keys)
+            return None
+        signals = ("power_kw", "setpoint_kw", "mode", "applied_triac_pct")
+        keys = tuple(k for k in signals if k in self.link.specs)
+        keys += tuple(k for k in self._watched() if k not in signals)
         try:
-            dvs = await self.link.read(keys + watched, end - time.monotonic())
+            return await self.link.read(keys, end - time.monotonic())
         except LinkLostError as exc:
             self._lost(exc)
-            return math.nan, "disconnected", None
-        reason = self.watch.other_writer(
-            {k: dvs[k].Value.Value for k in watched
-             if dvs[k].Value is not None and (dvs[k].StatusCode is None
-                                              or dvs[k].StatusCode.is_good())})
-        if reason is not None:
-            self._another_writer(reason)
-        specs = self.link.specs
-        dv = dvs["power_kw"]
-        power, quality = measurement(
-            dv, cfg.max_sample_age_s,
-            self._last_time if cfg.reject_repeated_samples else None, specs["power_kw"].scale)
-        self._last_time = sample_time(dv)[0] or self._last_time
-        if quality == "repeated":
-            self.summary.n_repeated += 1
-        age = age_s(dv)
-        if quality == "good" and age is not None:
-            self._ages_s.append(age)
-        if "setpoint_kw" in dvs:
-            sp, q = measurement(dvs["setpoint_kw"], math.inf, None, specs["setpoint_kw"].scale)
-            if q == "good":
-                self._setpoint = sp
-        if "mode" in dvs:
-            dv = dvs["mode"]
-            mode = _mode_of(dv.Value.Value if dv.Value is not None else None)
-            if mode is Mode.ON and not self.allow_on:
-                mode = None   # a 'not ready' model stays in PREDICT (czmpc run --force)
-            if mode is not None and mode is not self.ctrl.mode:
-                self.ctrl.request_mode(mode)
-        reported_applied: float | None = None
-        if "applied_triac_pct" in dvs:
-            applied, q = measurement(dvs["applied_triac_pct"], math.inf, None,
-                                     specs["applied_triac_pct"].scale)
-            if q == "good":
-                reported_applied = applied
-        if math.isfinite(self._applied):  # fresh from a (re)connect
-            reported_applied = self._applied
-            self._applied = math.nan
-        return power, quality, reported_applied
+            return None
 
     async def _write(self, command: float | None, health: ModelHealth | None,
                      end: float) -> bool:
@@ -834,20 +810,17 @@ class ControlLoop:
             self.watch.forget("triac_pct")   # the operator may drive the TRIAC outside ON
             return False
         code = results.get("triac_pct")
+        self._refused_in_row, abort = refused_in_row(code, self._refused_in_row,
+                                                     self.config.max_refused_writes)
         if code is None:
             self.summary.n_writes += 1
             self.summary.n_commands_accepted += 1
             self._last_cmd = float(command)
-            self._refused_in_row = 0
             return True
-        self._refused_in_row += 1
-        if (self._refused_in_row >= self.config.max_refused_writes
-                and self.summary.abort_reason is None
+        if (abort is not None and self.summary.abort_reason is None
                 and self.summary.configuration_error is None):
-            self.summary.abort_reason = (
-                f"{self._refused_in_row} command writes in a row refused (last {code}; "
-                f"[plant] max_refused_writes = {self.config.max_refused_writes})")
-            self._event(f"ABORT: {self.summary.abort_reason}", logging.ERROR)
+            self.summary.abort_reason = abort
+            self._event(f"ABORT: {abort}", logging.ERROR)
             self.request_stop("abort")
         return False
 
@@ -973,5 +946,5 @@ def tty_status() -> Callable[[str], None] | None:
     return show
 
 
-__all__ = ["MODE_CODES", "STATUS_CODES", "ControlLoop", "LoopController", "MPCDriver",
-           "RunSummary", "tty_status"]
+__all__ = ["MODE_CODES", "RECENT_PHASES", "RECENT_STEPS", "STATUS_CODES", "ControlLoop",
+           "MPCDriver", "RunSummary", "StepTimes", "tty_status"]

@@ -33,7 +33,8 @@ from typing import Literal
 from czmpc.controller import OffsetFreeMPC
 from czmpc.errors import SettingsError
 from czmpc.runtime.config import RunConfig, RunConfigError
-from czmpc.runtime.loop import ControlLoop, LoopController
+from czmpc.runtime.loop import ControlLoop
+from czmpc.runtime.step import LoopController
 from czmpc.settings import MPCSettings
 from czmpc.settings_file import load_settings
 from sysid.atomic import file_sha256
