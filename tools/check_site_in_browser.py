@@ -10,7 +10,10 @@ Checks, each printed with what was found:
    getting-started page, every guide, the references, the API and the gallery;
 2. every navigation link of the landing page leads to a file that exists;
 3. the search page, given ``?q=hammerstein``, lists results once its JavaScript has
-   loaded the search index (Sphinx fills ``#search-results`` in the browser).
+   loaded the search index (Sphinx fills ``#search-results`` in the browser);
+4. an API page: `czmpc.OffsetFreeMPC.step` has a page of its own, the class page links
+   to it, and its Parameters section lists each parameter of the method with a
+   description that gives its unit, and a Returns section.
 
 Exit 0 when all hold, 1 otherwise.
 """
@@ -23,6 +26,12 @@ import subprocess
 import sys
 from html.parser import HTMLParser
 from pathlib import Path
+
+#: The API page the check opens, the class page that must link to it, and what its
+#: Parameters section must list (each with its unit in the description).
+API_PAGE = "api/generated/czmpc.OffsetFreeMPC.step.html"
+API_CLASS_PAGE = "api/generated/czmpc.OffsetFreeMPC.html"
+API_PARAMETERS = {"power_kw": "[kW]", "setpoint_kw": "[kW]", "applied_triac_pct": "[%]"}
 
 #: Pages the landing page must link to (paths relative to the site root).
 REQUIRED_LINKS = ("getting_started.html", "guides/identify.html", "guides/commission.html",
@@ -53,6 +62,38 @@ def rendered_dom(browser: str, url: str) -> str:
     return proc.stdout
 
 
+def rendered_parameters(dom: str) -> dict[str, str]:
+    """The Parameters field of a rendered API page: each parameter with its description."""
+    # from the Parameters field's title to the next field's (Returns) or the list's end
+    field = re.search(r'<dt class="field-\w+">Parameters.*?</dt>(.*?)(?:<dt class="field-|\Z)', dom, re.S)
+    if field is None:
+        return {}
+    entries = re.findall(r"<dt><strong>(\w+)</strong>.*?</dt>\s*<dd>(.*?)</dd>", field.group(1), re.S)
+    return {name: re.sub(r"<[^>]+>", "", text) for name, text in entries}
+
+
+def parameters_without_unit(params: dict[str, str]) -> list[str]:
+    """The parameters of `API_PARAMETERS` missing from ``params`` or described without their unit."""
+    return [name for name, unit in API_PARAMETERS.items() if unit not in params.get(name, "")]
+
+
+def check_api_page(browser: str, site: Path) -> bool:
+    """Check 4: the method page of `czmpc.OffsetFreeMPC.step`, as a browser renders it."""
+    page = site / API_PAGE
+    if not page.is_file():
+        print(f"API page {API_PAGE}: missing")
+        return False
+    dom = rendered_dom(browser, page.as_uri())
+    params = rendered_parameters(dom)
+    wrong = parameters_without_unit(params)
+    has_returns = re.search(r'<dt class="field-\w+">Returns', dom) is not None
+    class_dom = rendered_dom(browser, (site / API_CLASS_PAGE).as_uri())
+    linked = Path(API_PAGE).name in class_dom
+    print(f"API page {API_PAGE}: parameters {sorted(params)}; missing or without unit: {wrong}; "
+          f"Returns section: {has_returns}; linked from the class page: {linked}")
+    return not wrong and has_returns and linked
+
+
 def main(argv: list[str]) -> int:
     site = Path(argv[0] if argv else "docs/_build/html").resolve()
     browser = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -77,6 +118,7 @@ def main(argv: list[str]) -> int:
     hits = re.findall(r'<li[^>]*>\s*<a[^>]+href="([^"]+)"', search.split('id="search-results"', 1)[-1])
     print(f"search 'hammerstein': {len(hits)} results, first {hits[:3]}")
     ok &= len(hits) > 0
+    ok &= check_api_page(browser, site)
     print("site check:", "OK" if ok else "FAILED")
     return 0 if ok else 1
 
