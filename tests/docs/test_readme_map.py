@@ -122,9 +122,19 @@ def test_the_command_table_lists_exactly_the_console_script_commands(text: str) 
     for name in (n for n in named if len(n.split()) == 3):
         parent = " ".join(name.split()[:2])
         assert name in _sub_commands(subparsers[parent], parent), f"{name} is not a sub-command"
-    tasks = [row[0] for row in rows]
-    assert tasks == sorted(tasks, key=["identify", "control", "plant", "demo"].index), (
-        "rows are grouped by task: identify, control, plant, demo")
+
+
+def test_the_command_table_groups_the_commands_as_the_help_does(text: str) -> None:
+    from czmpc.cli import COMMAND_GROUPS
+
+    # the task column names a group of `czmpc --help` by its first words ('identify' for
+    # 'identify: from a logged data set to a checked model')
+    expected = [(title.split(":")[0], f"czmpc {name}")
+                for title, names in COMMAND_GROUPS.items() for name in names]
+    rows = _table_rows(_section(text, "Commands"))
+    listed = [(row[0], " ".join(code.split()[:2]))
+              for row in rows for code in re.findall(r"`(czmpc [a-z][a-z-]*)", row[1])[:1]]
+    assert listed == expected
 
 
 def test_the_library_example_runs(text: str, monkeypatch: pytest.MonkeyPatch) -> None:
