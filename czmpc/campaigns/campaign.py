@@ -1,34 +1,39 @@
 """Campaigns: a TOML spec of controllers x plants x scenarios x seeds, expanded to runs.
 
-A *run* (`RunSpec`) is a pure function of its spec: `execute_run` builds the plant and
-the controller inside the calling process (so OSQP/CasADi objects never cross a process
-boundary), runs the closed loop and returns one row of metrics (`ROW_COLUMNS`). Its seed
-comes from `numpy.random.SeedSequence` keyed by the run's identity (`run_seed`), never by
-its position or by the worker that ran it, so every executor gives the same rows.
+The one spec parser: a regression suite (`czmpc.campaigns.regression`) is a campaign
+spec plus the metrics it holds and their tolerances. A *run* (`RunSpec`) is a pure
+function of its spec: `execute_run` builds the plant and the controller inside the
+calling process (`czmpc.campaigns.build`, so OSQP/CasADi objects never cross a process
+boundary), runs the closed loop and returns one row (`ROW_COLUMNS`). A keyed seed comes
+from `numpy.random.SeedSequence` keyed by the run's identity (`run_seed`), never by its
+position or by the worker that ran it, so every executor gives the same rows.
 
 Spec (TOML)::
 
-    name = "smoke"
+    name = "smoke"                   # default: the file's stem
+    description = "..."              # optional
     model = "cz_heater_model.json"   # shipped name or path (relative to the spec file)
-    seeds = 2                        # seed indices 0..seeds-1 per (controller, plant, scenario)
-    base_seed = 2026                 # entropy of every run's SeedSequence
-    noise = true                     # plant noise on
+    linear_model = "cz_heater_armax_model.json"   # model of "linear_mpc"
+    seeds = 2                        # seeds keyed by the run, indices 0..seeds-1; or a list of
+                                     # seeds used as they are, e.g. [7]
+    base_seed = 2026                 # entropy of the keyed seeds
+    noise = true                     # plant noise on (and as each scenario says)
     time_scale = 0.1                 # optional: Scenario.shortened(time_scale)
-    scenarios = ["staircase", "voltage_sag"]   # shipped names or TOML paths
-
-    # seed = 7                       # optional: this one seed for every run (as `czmpc
-                                     # bench` and `czmpc robustness` run), not keyed
-    # linear_model = "cz_heater_armax_model.json"   # model of the "linear-mpc" preset
+    scenarios = ["staircase", "recipes/recipe_a.toml"]   # shipped names or .toml paths
+    metrics = ["iae_kw_s"]           # a regression suite's held metrics (`METRIC_COLUMNS`)
+    [tolerances]                     # a suite's tolerances: absolute, or "2%" of the value
+    iae_kw_s = 0.5
 
     [[controllers]]
-    name = "mpc"
-    preset = "mpc"                   # "mpc", "pi", "pi-scheduled", "pi-table", "linear-mpc",
-                                     # "nmpc", "open-loop" (as `czmpc bench` builds them)
-    # settings = "file.toml"         # optional MPC settings file (`czmpc.settings_file`,
-                                     # as `czmpc bench --settings`); preset default "mpc"
+    name = "mpc"                     # default: the kind
+    kind = "mpc"                     # mpc, nmpc, linear_mpc, pi_gs, pi, pi_table, open_loop
+                                     # (or preset = "pi-scheduled", "linear-mpc", ...)
+    # settings = "file.toml"         # MPC settings file (`czmpc.settings_file`)
+    # model = "puller7.json"         # this controller's model (and its plants'), default: model
+    # linear_model = "armax.json"    # linear_mpc only
 
     [[plants]]
-    kind = "model"                   # "model", "heater" or "perturbed"
+    kind = "model"                   # "model", "heater", "perturbed" or "sampled"
     [[plants]]
     kind = "perturbed"               # the Cartesian product of the three lists
     gain_factors = [0.8, 1.0, 1.2]
@@ -39,33 +44,17 @@ Spec (TOML)::
     n = 200                          # covariance (`czmpc.campaigns.sampling`)
     # first = 0                      # numbers first .. first+n-1 (extend a study later)
 
-Presets: ``mpc`` is `OffsetFreeMPC` on the campaign's model; ``pi`` / ``pi-scheduled``
-the `PIController` tuned on it; ``pi-table`` the PI schedule `czmpc.pid` tunes on it
-(``czmpc tune-pid --ms 1.4``: bench's ``pi_table``); ``linear-mpc`` the `OffsetFreeMPC` on the linear ARMAX
-model ``linear_model`` (no static nonlinearity: the linear MPC of `czmpc bench`),
-``nmpc`` the CasADi/IPOPT NMPC and ``open-loop`` the steady-state inversion. Every
-preset is built as `czmpc.campaigns.bench.build_controller` builds it: every controller
-gets the Hammerstein MPC's allowed input range (the identified range widened by the
-validity margin, inside the scenario's limits), the scenario's rate limit and the
-plant's start input, so a comparison is fair.
-
-Besides the metrics of `sim.metrics.compute_metrics` (errors against the setpoint over
-the whole run), every row has the robustness campaign's measures
-(`czmpc.campaigns.robustness`): errors against the *reachable setpoint* (the setpoint
-clipped to the powers that plant holds inside the controllers' allowed input range)
-over the setpoint-change segments, ``offset_free`` (every change ends with |mean
-measured error over the last quarter of its segment| < `OFFSET_FREE_THRESHOLD_KW`),
-the number of unreachable changes and the samples outside the allowed range or rate
-limit.
-
-Row columns whose values depend on the machine (``wall_time_s`` and the controller step
-times, `TIMING_COLUMNS`) differ between executions; every other column is identical bit
-for bit whatever the executor (`DETERMINISTIC_COLUMNS`).
+The plants of a controller are built from that controller's model. Besides
+`czmpc.campaigns.measure.metric_row` every row has the robustness measures of
+`czmpc.campaigns.measure.reachable_row`. Row columns whose values depend on the machine
+(`TIMING_COLUMNS`) differ between executions; every other column is identical bit for
+bit whatever the executor (`DETERMINISTIC_COLUMNS`).
 """
 
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
 import os
 import time
@@ -73,44 +62,33 @@ import tomllib
 import traceback
 import zlib
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
+from czmpc.campaigns.build import CONTROLLERS, PRESET_ALIASES
+from czmpc.campaigns.measure import METRIC_COLUMNS, REACHABLE_COLUMNS, TIMING_COLUMNS
 from czmpc.config_text import choices, shown
 from czmpc.errors import CzmpcError
 
-PresetName = Literal["mpc", "pi", "pi-scheduled", "pi-table", "linear-mpc", "nmpc", "open-loop"]
-PRESETS: tuple[str, ...] = ("mpc", "pi", "pi-scheduled", "pi-table", "linear-mpc", "nmpc",
-                            "open-loop")
-#: Preset -> the name `czmpc.campaigns.bench.build_controller` builds it by.
-_BENCH_NAMES = {"mpc": "mpc", "pi": "pi", "pi-scheduled": "pi_gs", "pi-table": "pi_table",
-                "linear-mpc": "linear_mpc",
-                "nmpc": "nmpc", "open-loop": "open_loop"}
 PlantKindName = Literal["model", "heater", "perturbed", "sampled"]
 PLANT_KINDS: tuple[str, ...] = ("model", "heater", "perturbed", "sampled")
-#: Offset-free threshold on |steady-state error| [kW]: the robustness campaign's.
-OFFSET_FREE_THRESHOLD_KW = 0.05
-
-#: Columns of machine-dependent timings (excluded from the bit-for-bit comparison).
-TIMING_COLUMNS: tuple[str, ...] = (
-    "wall_time_s", "step_time_median_ms", "step_time_p95_ms", "step_time_max_ms")
+#: Controller kinds and their campaign spellings.
+PRESETS: tuple[str, ...] = (*CONTROLLERS, *PRESET_ALIASES)
 #: Columns that identify a run.
 KEY_COLUMNS: tuple[str, ...] = (
-    "run_id", "controller", "preset", "plant", "gain_factor", "time_constant_factor",
+    "run_id", "controller", "kind", "plant", "gain_factor", "time_constant_factor",
     "extra_delay_steps", "scenario", "seed_index", "seed", "sample_index")
-#: Columns of metrics that are a pure function of the run.
-METRIC_COLUMNS: tuple[str, ...] = (
-    "status", "error", "n_steps", "iae_kw_s", "ise_kw2_s", "max_overshoot_kw",
-    "max_abs_steady_state_error_kw", "input_total_variation_pct", "n_limit_violations",
-    "n_rate_violations", "n_fallbacks", "n_rejected_draws", "plant_parameter_source",
-    "plant_static_gain_kw_per_pct", "offset_free", "max_abs_steady_state_error_reachable_kw",
-    "n_unreachable_changes", "iae_changes_reachable_kw_s", "max_overshoot_reachable_kw",
-    "max_overshoot_reachable_pct", "n_allowed_range_violations")
-ROW_COLUMNS: tuple[str, ...] = KEY_COLUMNS + METRIC_COLUMNS + TIMING_COLUMNS
-DETERMINISTIC_COLUMNS: tuple[str, ...] = KEY_COLUMNS + METRIC_COLUMNS
+#: Columns of what a run gave, a pure function of the run.
+RESULT_COLUMNS: tuple[str, ...] = (
+    "status", "error", *METRIC_COLUMNS, "n_rejected_draws", "plant_parameter_source",
+    "plant_static_gain_kw_per_pct", *REACHABLE_COLUMNS)
+ROW_COLUMNS: tuple[str, ...] = KEY_COLUMNS + RESULT_COLUMNS + TIMING_COLUMNS
+DETERMINISTIC_COLUMNS: tuple[str, ...] = KEY_COLUMNS + RESULT_COLUMNS
+_TOP_KEYS = ("name", "description", "model", "linear_model", "seeds", "base_seed", "noise",
+             "time_scale", "scenarios", "controllers", "plants", "metrics", "tolerances")
 
 
 class CampaignError(CzmpcError, ValueError):
@@ -119,24 +97,27 @@ class CampaignError(CzmpcError, ValueError):
 
 @dataclass(frozen=True, kw_only=True)
 class ControllerSpec:
-    """One controller of a campaign: a preset, named in the rows by ``name``.
+    """One controller: a kind, named in the rows by ``name``, with its files.
 
     Parameters
     ----------
     name :
         Its name in the rows.
-    preset :
-        One of `PRESETS`.
-    settings_path :
-        A settings file (`czmpc.settings_file`) applied to each model's defaults, as
-        ``czmpc bench --settings`` does; "" for the defaults.
-    settings_sha256 :
-        SHA-256 of that file when the spec was read (so a resumed campaign whose settings
-        file changed is refused as another spec); "" without one.
+    kind :
+        A key of `czmpc.campaigns.build.CONTROLLERS`.
+    model_path, linear_model_path :
+        Its Hammerstein model (also the model of its plants) and the linear model of
+        ``linear_mpc``.
+    settings_path, settings_sha256 :
+        A settings file applied to each model's defaults and its SHA-256 when the spec
+        was read (a resumed campaign whose settings changed is another spec); "" for the
+        defaults.
     """
 
     name: str
-    preset: PresetName
+    kind: str
+    model_path: str
+    linear_model_path: str
     settings_path: str = ""
     settings_sha256: str = ""
 
@@ -175,20 +156,54 @@ class PlantSpec:
 
 
 @dataclass(frozen=True, kw_only=True)
+class Tolerance:
+    """A tolerance a suite sets for one metric.
+
+    Parameters
+    ----------
+    value :
+        Absolute (metric unit) or, with ``relative``, a fraction of the recorded value.
+    relative :
+        Whether ``value`` is a fraction of the recorded value (``"2%"`` gives 0.02).
+    """
+
+    value: float
+    relative: bool
+
+    def of(self, recorded: float) -> float:
+        """The allowed deviation around ``recorded``."""
+        return self.value * abs(recorded) if self.relative else self.value
+
+    def describe(self) -> str:
+        """``"2%"`` or ``"0.5"``, as written in the suite."""
+        return f"{self.value * 100:g}%" if self.relative else f"{self.value:g}"
+
+
+@dataclass(frozen=True, kw_only=True)
 class RunSpec:
-    """Everything one run depends on (picklable; the run is a pure function of it)."""
+    """Everything one run depends on (picklable; the run is a pure function of it).
+
+    ``seed`` is the run's seed, or None for one keyed by ``base_seed`` (`run_seed`);
+    ``tight`` and ``mutation`` are a regression suite's reference re-run and audit
+    (`czmpc.campaigns.build.build_controller`).
+    """
 
     run_id: str
     controller: ControllerSpec
     plant: PlantSpec
     scenario: str
     seed_index: int
+    seed: int | None
     base_seed: int
-    model_path: str
     noise: bool
     time_scale: float
-    fixed_seed: int | None = None
-    linear_model_path: str = ""
+    tight: bool = False
+    mutation: str | None = None
+
+    @property
+    def case_id(self) -> str:
+        """The run as a regression case: ``<controller>/<plant>/<scenario>/s<seed>``."""
+        return f"{self.controller.name}/{self.plant.label}/{Path(self.scenario).stem}/s{run_seed(self)}"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -197,59 +212,68 @@ class CampaignSpec:
 
     Parameters
     ----------
-    name :
-        Campaign name.
+    name, description :
+        Names of the campaign.
     source :
         The spec file, or ``"<memory>"``.
-    model_path :
-        Resolved path of the model every controller (and the model plants) use.
+    model_path, linear_model_path :
+        The spec's models (``model``, ``linear_model``): those of every controller that
+        names none.
     controllers, plants, scenarios :
-        The axes of the campaign; scenarios are shipped names or resolved paths.
+        The axes; scenarios are shipped names or resolved paths.
     seeds :
-        Seeds per (controller, plant, scenario), >= 1.
+        Seeds keyed by the run (their number) or the seeds themselves (a tuple).
     base_seed :
-        Entropy of every run's `numpy.random.SeedSequence`, >= 0.
+        Entropy of keyed seeds, >= 0.
     noise :
         Plant noise on or off.
     time_scale :
         ``Scenario.shortened`` factor in (0, 1]; 1 runs the scenarios as written.
-    fixed_seed :
-        One seed for every run (the ``seed`` key), or None: seeds keyed by the run.
-    linear_model_path :
-        Resolved path of the ``linear-mpc`` preset's linear model.
+    metrics, tolerances :
+        A regression suite's held metrics (empty: not given) and tolerances.
     warnings :
         What the user must know about how the spec runs (e.g. sampled plants falling
         back to standard errors); the CLI prints them.
     """
 
     name: str
+    description: str = ""
     source: str
     model_path: str
+    linear_model_path: str
     controllers: tuple[ControllerSpec, ...]
     plants: tuple[PlantSpec, ...]
     scenarios: tuple[str, ...]
-    seeds: int
+    seeds: int | tuple[int, ...]
     base_seed: int
     noise: bool
     time_scale: float
-    fixed_seed: int | None = None
-    linear_model_path: str = ""
+    metrics: tuple[str, ...] = ()
+    tolerances: Mapping[str, Tolerance] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
 
     def expand(self) -> tuple[RunSpec, ...]:
-        """All runs: controllers x plants x scenarios x seed indices, in that nesting."""
-        runs = []
+        """All runs: controllers x plants x scenarios x seeds, in that nesting."""
+        seeds: Sequence[int | None] = ([None] * self.seeds if isinstance(self.seeds, int)
+                                       else self.seeds)
+        return tuple(
+            RunSpec(run_id=f"{c.name}|{p.label}|{Path(s).stem}|{k}", controller=c, plant=p,
+                    scenario=s, seed_index=k, seed=seed, base_seed=self.base_seed,
+                    noise=self.noise, time_scale=self.time_scale)
+            for c in self.controllers for p in self.plants for s in self.scenarios
+            for k, seed in enumerate(seeds))
+
+    def input_files(self) -> tuple[str, ...]:
+        """Every file the runs read (not shipped scenario names): models, settings, scenarios."""
+        paths: list[str] = []
         for c in self.controllers:
-            for p in self.plants:
-                for s in self.scenarios:
-                    for k in range(self.seeds):
-                        runs.append(RunSpec(
-                            run_id=f"{c.name}|{p.label}|{Path(s).stem}|{k}", controller=c,
-                            plant=p, scenario=s, seed_index=k, base_seed=self.base_seed,
-                            model_path=self.model_path, noise=self.noise,
-                            time_scale=self.time_scale, fixed_seed=self.fixed_seed,
-                            linear_model_path=self.linear_model_path))
-        return tuple(runs)
+            paths.append(c.model_path)
+            if c.kind == "linear_mpc":
+                paths.append(c.linear_model_path)
+            if c.settings_path:
+                paths.append(c.settings_path)
+        paths += [s for s in self.scenarios if s.endswith(".toml")]
+        return tuple(dict.fromkeys(paths))
 
 
 # --- spec parsing ---------------------------------------------------------------------------
@@ -259,20 +283,38 @@ def _check_keys(table: Mapping[str, Any], allowed: Sequence[str], where: str) ->
         raise CampaignError(f"{where}: unknown key(s) {unknown}; expected some of {sorted(allowed)}")
 
 
-def _number_list(table: Mapping[str, Any], key: str, default: list[float], where: str) -> list[float]:
-    values = table.get(key, default)
+def _file(value: object, key: str, base: Path, where: str, *, shipped_ok: bool) -> str:
+    """Absolute path of a file named in the spec (or of a shipped data file)."""
+    from czmpc.shipped import shipped_path
+
+    if not isinstance(value, str) or not value:
+        raise CampaignError(f"{where}: expected '{key}' a file name; got {shown(value)}")
+    candidate = Path(value) if Path(value).is_absolute() else base / value
+    if candidate.is_file():
+        return str(candidate.resolve())
+    if shipped_ok:
+        try:
+            return str(shipped_path(value))
+        except FileNotFoundError:
+            pass
+    raise CampaignError(f"{where}: '{key} = {shown(value)}': no such file ({candidate})"
+                        + (" and no shipped file of that name" if shipped_ok else ""))
+
+
+def _number_list(table: Mapping[str, Any], key: str, where: str) -> list[float]:
+    values = table.get(key, [0] if key == "extra_delays_steps" else [1.0])
     if (not isinstance(values, list) or not values
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)):
         raise CampaignError(f"{where}: expected '{key}' a non-empty list of numbers; got {shown(values)}")
     return [float(v) for v in values]
 
 
-def _plants(doc: Any, where: str) -> list[PlantSpec]:
-    if not isinstance(doc, list) or not doc:
+def _plants(doc: Any, where: str) -> tuple[PlantSpec, ...]:
+    if not isinstance(doc, list) or not doc or not all(isinstance(t, dict) for t in doc):
         raise CampaignError(f"{where}: expected at least one [[plants]] table")
     out: list[PlantSpec] = []
-    for i, table in enumerate(doc):
-        here = f"{where} [[plants]] #{i + 1}"
+    for i, table in enumerate(doc, start=1):
+        here = f"{where} [[plants]] #{i}"
         kind = table.get("kind")
         if kind not in PLANT_KINDS:
             raise CampaignError(f"{here}: expected kind one of {choices(PLANT_KINDS)}; got {shown(kind)}")
@@ -283,132 +325,180 @@ def _plants(doc: Any, where: str) -> list[PlantSpec]:
                 if isinstance(value, bool) or not isinstance(value, int) or value < low:
                     raise CampaignError(f"{here}: expected '{key}' an integer >= {low}; got {shown(value)}")
             out += [PlantSpec(kind="sampled", sample_index=k) for k in range(first, first + n)]
-            continue
-        if kind != "perturbed":
+        elif kind == "perturbed":
+            _check_keys(table, ["kind", "gain_factors", "time_constant_factors",
+                                "extra_delays_steps"], here)
+            gains, taus, delays = (_number_list(table, key, here) for key in (
+                "gain_factors", "time_constant_factors", "extra_delays_steps"))
+            if not all(v > 0 for v in gains + taus) or not all(d >= 0 and d == int(d) for d in delays):
+                raise CampaignError(f"{here}: expected factors > 0 and whole delays >= 0; got gains "
+                                    f"{gains}, time constants {taus}, delays {delays}")
+            out += [PlantSpec(kind="perturbed", gain_factor=g, time_constant_factor=m,
+                              extra_delay_steps=int(d)) for d in delays for m in taus for g in gains]
+        else:
             _check_keys(table, ["kind"], here)
             out.append(PlantSpec(kind=kind))
-            continue
-        out += perturbed_plants(table, here)
-    return out
+    labels = [p.label for p in out]
+    if len(set(labels)) != len(labels):
+        raise CampaignError(f"{where}: plants must differ; got {labels}")
+    return tuple(out)
 
 
-def perturbed_plants(table: Mapping[str, Any], where: str) -> list[PlantSpec]:
-    """The grid of a ``kind = "perturbed"`` plant table: one plant per combination.
-
-    Raises
-    ------
-    CampaignError
-        An unknown key, a factor <= 0 or a delay that is not a whole number >= 0.
-    """
-    _check_keys(table, ["kind", "gain_factors", "time_constant_factors", "extra_delays_steps"],
-                where)
-    gains = _number_list(table, "gain_factors", [1.0], where)
-    taus = _number_list(table, "time_constant_factors", [1.0], where)
-    delays = _number_list(table, "extra_delays_steps", [0], where)
-    if not all(v > 0 for v in gains + taus) or not all(d >= 0 and d == int(d) for d in delays):
-        raise CampaignError(f"{where}: expected factors > 0 and whole delays >= 0; got gains "
-                            f"{gains}, time constants {taus}, delays {delays}")
-    return [PlantSpec(kind="perturbed", gain_factor=g, time_constant_factor=m,
-                      extra_delay_steps=int(d))
-            for d in delays for m in taus for g in gains]
-
-
-def _settings(table: Mapping[str, Any], base: Path, model_path: Path,
-              here: str) -> tuple[str, str]:
-    """A controller's settings file: resolved path and SHA-256, checked against the model."""
-    import hashlib
-
+def _controllers(doc: Any, base: Path, where: str, model: str, linear: str
+                 ) -> tuple[ControllerSpec, ...]:
     from czmpc.errors import SettingsError
     from czmpc.settings_file import load_settings
+    from sysid.errors import SysidError
 
-    text = table.get("settings")
-    if text is None:
-        return "", ""
-    if not isinstance(text, str) or not text:
-        raise CampaignError(f"{here}: expected 'settings' a file name; got {shown(text)}")
-    path = Path(text) if Path(text).is_absolute() else base / text
-    try:
-        load_settings(path, _model(str(model_path)))
-        digest = hashlib.sha256(path.read_bytes()).hexdigest()
-    except (SettingsError, OSError) as exc:
-        raise CampaignError(f"{here}: settings: {exc}") from None
-    return str(path), digest
-
-
-def _controllers(doc: Any, where: str, base: Path | None = None,
-                 model_path: Path | None = None) -> list[ControllerSpec]:
-    if not isinstance(doc, list) or not doc:
+    if not isinstance(doc, list) or not doc or not all(isinstance(t, dict) for t in doc):
         raise CampaignError(f"{where}: expected at least one [[controllers]] table")
-    out = []
-    for i, table in enumerate(doc):
-        here = f"{where} [[controllers]] #{i + 1}"
-        _check_keys(table, ["name", "preset", "settings"], here)
-        preset = table.get("preset", "mpc" if "settings" in table else None)
-        if preset not in PRESETS:
-            raise CampaignError(f"{here}: expected preset one of {choices(PRESETS)}; got {shown(preset)}")
-        name = table.get("name", preset)
-        if not isinstance(name, str) or not name or "|" in name:
-            raise CampaignError(f"{here}: expected a non-empty name without '|'; got {shown(name)}")
-        settings_path, settings_sha256 = ("", "") if model_path is None else _settings(
-            table, base or Path.cwd(), model_path, here)
-        out.append(ControllerSpec(name=name, preset=preset, settings_path=settings_path,
-                                  settings_sha256=settings_sha256))
+    out: list[ControllerSpec] = []
+    for i, table in enumerate(doc, start=1):
+        here = f"{where} [[controllers]] #{i}"
+        _check_keys(table, ["name", "kind", "preset", "model", "settings", "linear_model"], here)
+        written = table.get("kind", table.get("preset", "mpc"))
+        kind = PRESET_ALIASES.get(written, written) if isinstance(written, str) else written
+        if kind not in CONTROLLERS:
+            raise CampaignError(f"{here}: expected kind one of {choices(PRESETS)}; got {shown(written)}")
+        name = table.get("name", written)
+        if not isinstance(name, str) or not name or "/" in name or "|" in name:
+            raise CampaignError(f"{here}: expected a non-empty name without '/' or '|'; got {shown(name)}")
+        if "linear_model" in table and kind != "linear_mpc":
+            raise CampaignError(f"{here}: 'linear_model' is for kind 'linear_mpc' only; "
+                                f"got kind {shown(kind)}")
+        model_path = (_file(table["model"], "model", base, here, shipped_ok=True)
+                      if "model" in table else model)
+        linear_path = (_file(table["linear_model"], "linear_model", base, here, shipped_ok=True)
+                       if "linear_model" in table else linear)
+        settings, digest = "", ""
+        if "settings" in table:
+            text = table["settings"]
+            if not isinstance(text, str) or not text:
+                raise CampaignError(f"{here}: expected 'settings' a file name; got {shown(text)}")
+            settings = str((Path(text) if Path(text).is_absolute() else base / text).resolve())
+            try:
+                load_settings(settings, load_model_cached(model_path))
+            except (SettingsError, SysidError, OSError) as exc:
+                raise CampaignError(f"{here}: settings: {exc}") from None
+            digest = _sha256(settings)
+        out.append(ControllerSpec(name=name, kind=kind, model_path=model_path,
+                                  linear_model_path=linear_path, settings_path=settings,
+                                  settings_sha256=digest))
     names = [c.name for c in out]
     if len(set(names)) != len(names):
         raise CampaignError(f"{where}: controller names must differ; got {names}")
-    return out
+    return tuple(out)
 
 
-def _resolve(name: str, base: Path, suffix: str) -> str:
-    """A shipped name stays a name; anything with the suffix is a path relative to ``base``."""
-    if name.endswith(suffix):
-        path = Path(name) if Path(name).is_absolute() else base / name
-        return str(path)
-    return name
+def _scenarios(doc: object, base: Path, where: str) -> tuple[str, ...]:
+    from sim.errors import SimError
+    from sim.scenario import list_scenarios, load_scenario
+
+    if not isinstance(doc, list) or not doc or not all(isinstance(s, str) for s in doc):
+        raise CampaignError(f"{where}: expected 'scenarios' a non-empty list of shipped names or "
+                            f".toml files; got {shown(doc)}")
+    out = []
+    for name in doc:
+        if name.endswith(".toml"):
+            resolved = _file(name, "scenarios", base, where, shipped_ok=False)
+        elif name in list_scenarios():
+            resolved = name
+        else:
+            raise CampaignError(f"{where}: scenario {shown(name)} is not shipped (shipped: "
+                                f"{', '.join(list_scenarios())}) and not a .toml file")
+        try:
+            load_scenario(resolved)
+        except (SimError, OSError) as exc:
+            raise CampaignError(f"{where}: scenario {shown(name)}: {exc}") from None
+        out.append(resolved)
+    stems = [Path(s).stem for s in out]
+    if len(set(stems)) != len(stems):
+        raise CampaignError(f"{where}: scenario names (file stems) must differ; got {stems}")
+    return tuple(out)
+
+
+def _seeds(value: object, where: str) -> int | tuple[int, ...]:
+    def whole(v: object, low: int) -> bool:
+        return isinstance(v, int) and not isinstance(v, bool) and v >= low
+
+    if isinstance(value, int) and whole(value, 1):
+        return value
+    if (isinstance(value, list) and value and len(set(value)) == len(value)
+            and all(whole(v, 0) for v in value)):
+        return tuple(value)
+    raise CampaignError(f"{where}: expected 'seeds' an integer >= 1 (seeds keyed by the run) or "
+                        f"a list of different integers >= 0; got {shown(value)}")
+
+
+def _metrics(doc: Mapping[str, Any], where: str) -> tuple[tuple[str, ...], dict[str, Tolerance]]:
+    metrics = doc.get("metrics", [])
+    if (not isinstance(metrics, list) or ("metrics" in doc and not metrics)
+            or not all(isinstance(m, str) and m in METRIC_COLUMNS for m in metrics)
+            or len(set(metrics)) != len(metrics)):
+        raise CampaignError(f"{where}: expected 'metrics' a list of different names among "
+                            f"{choices(METRIC_COLUMNS)}; got {shown(metrics)}")
+    table = doc.get("tolerances", {})
+    if not isinstance(table, dict):
+        raise CampaignError(f"{where}: expected [tolerances] a table of metric = number or 'N%'; "
+                            f"got {shown(table)}")
+    tolerances: dict[str, Tolerance] = {}
+    for metric, value in table.items():
+        if metric not in metrics:
+            raise CampaignError(f"{where}: [tolerances] {shown(metric)} is not a held metric; "
+                                f"held: {list(metrics)}")
+        relative = isinstance(value, str) and value.strip().endswith("%")
+        try:
+            number = float(value.strip()[:-1]) / 100.0 if relative else (
+                -1.0 if isinstance(value, (bool, str)) else float(value))
+        except (TypeError, ValueError):
+            number = -1.0
+        if not 0.0 <= number < math.inf:
+            raise CampaignError(f"{where}: [tolerances] {metric}: expected a number >= 0 (metric "
+                                f"unit) or a percentage such as '2%'; got {shown(value)}")
+        tolerances[metric] = Tolerance(value=number, relative=relative)
+    return tuple(metrics), tolerances
 
 
 def spec_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>",
-                   base_dir: Path | None = None) -> CampaignSpec:
+                   base_dir: Path | None = None, what: str = "campaign spec",
+                   default_name: str | None = None) -> CampaignSpec:
     """Parse and check a campaign spec given as a mapping (see the module docstring).
+
+    Parameters
+    ----------
+    doc :
+        The parsed TOML.
+    source :
+        Name of the spec in messages.
+    base_dir :
+        Folder relative paths are taken from (default: the current directory).
+    what :
+        What the spec is called in messages (``"suite"`` for a regression suite).
+    default_name :
+        Name of a spec without ``name`` (default: the stem of ``source``).
 
     Raises
     ------
     CampaignError
-        A missing, unknown or invalid key (the message names it and the bad value).
+        A missing, unknown or invalid key, or a file that does not exist (the message
+        names the key and the bad value).
     """
-    from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
+    from czmpc.shipped import ARMAX_MODEL_JSON, HAMMERSTEIN_MODEL_JSON
 
-    where = f"campaign spec {source}"
-    _check_keys(doc, ["name", "model", "seeds", "base_seed", "noise", "time_scale", "scenarios",
-                      "controllers", "plants", "seed", "linear_model"], where)
+    where = f"{what} {source}"
+    _check_keys(doc, _TOP_KEYS, where)
     base = base_dir if base_dir is not None else Path.cwd()
-    model = doc.get("model", HAMMERSTEIN_MODEL_JSON)
-    if not isinstance(model, str):
-        raise CampaignError(f"{where}: expected 'model' a file name; got {shown(model)}")
-    candidate = Path(model) if Path(model).is_absolute() else base / model
-    try:
-        model_path = candidate if candidate.is_file() else shipped_path(model)
-    except FileNotFoundError:
-        raise CampaignError(f"{where}: model {shown(model)} is neither a file next to the spec nor "
-                            f"a shipped model") from None
-    from czmpc.shipped import ARMAX_MODEL_JSON
-    linear = doc.get("linear_model", ARMAX_MODEL_JSON)
-    if not isinstance(linear, str):
-        raise CampaignError(f"{where}: expected 'linear_model' a file name; got {shown(linear)}")
-    candidate = Path(linear) if Path(linear).is_absolute() else base / linear
-    try:
-        linear_path = candidate if candidate.is_file() else shipped_path(linear)
-    except FileNotFoundError:
-        raise CampaignError(f"{where}: linear_model {shown(linear)} is neither a file next to the "
-                            f"spec nor a shipped model") from None
-    fixed_seed = doc.get("seed")
-    if fixed_seed is not None and (isinstance(fixed_seed, bool) or not isinstance(fixed_seed, int)
-                                   or fixed_seed < 0):
-        raise CampaignError(f"{where}: expected 'seed' an integer >= 0; got {shown(fixed_seed)}")
-    seeds, base_seed = doc.get("seeds", 1), doc.get("base_seed", 0)
-    for key, value, low in (("seeds", seeds, 1), ("base_seed", base_seed, 0)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise CampaignError(f"{where}: expected '{key}' an integer >= {low}; got {shown(value)}")
+    name = doc.get("name", default_name if default_name is not None else Path(source).stem)
+    description = doc.get("description", "")
+    for key, value in (("name", name), ("description", description)):
+        if not isinstance(value, str) or (key == "name" and not value):
+            raise CampaignError(f"{where}: expected '{key}' a string; got {shown(value)}")
+    model = _file(doc.get("model", HAMMERSTEIN_MODEL_JSON), "model", base, where, shipped_ok=True)
+    linear = _file(doc.get("linear_model", ARMAX_MODEL_JSON), "linear_model", base, where,
+                   shipped_ok=True)
+    base_seed = doc.get("base_seed", 0)
+    if isinstance(base_seed, bool) or not isinstance(base_seed, int) or base_seed < 0:
+        raise CampaignError(f"{where}: expected 'base_seed' an integer >= 0; got {shown(base_seed)}")
     time_scale = doc.get("time_scale", 1.0)
     if (isinstance(time_scale, bool) or not isinstance(time_scale, (int, float))
             or not 0.0 < time_scale <= 1.0):
@@ -416,38 +506,26 @@ def spec_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>",
     noise = doc.get("noise", True)
     if not isinstance(noise, bool):
         raise CampaignError(f"{where}: expected 'noise' true or false; got {shown(noise)}")
-    scenarios = doc.get("scenarios")
-    if (not isinstance(scenarios, list) or not scenarios
-            or not all(isinstance(s, str) for s in scenarios)):
-        raise CampaignError(f"{where}: expected 'scenarios' a non-empty list of names; "
-                            f"got {shown(scenarios)}")
-    resolved = tuple(_resolve(s, base, ".toml") for s in scenarios)
-    from sim.errors import SimError
-    from sim.scenario import load_scenario
-    for s in resolved:
-        try:
-            load_scenario(s)
-        except (SimError, OSError) as exc:
-            raise CampaignError(f"{where}: scenario {shown(s)}: {exc}") from None
-    name = doc.get("name", Path(source).stem)
-    if not isinstance(name, str) or not name:
-        raise CampaignError(f"{where}: expected 'name' a non-empty string; got {shown(name)}")
-    plants = tuple(_plants(doc.get("plants"), where))
+    metrics, tolerances = _metrics(doc, where)
+    controllers = _controllers(doc.get("controllers"), base, where, model, linear)
+    plants = _plants(doc.get("plants"), where)
     warnings: list[str] = []
     if any(p.kind == "sampled" for p in plants):
         from czmpc.campaigns.sampling import SamplingError, parameter_distribution
-        try:
-            dist = parameter_distribution(_model(str(model_path)))
-        except (SamplingError, OSError, ValueError) as exc:
-            raise CampaignError(f"{where}: sampled plants of model {model}: {exc}") from None
-        if dist.warning:
-            warnings.append(f"sampled plants of {Path(model_path).name}: {dist.warning}")
+        for path in dict.fromkeys(c.model_path for c in controllers):
+            try:
+                dist = parameter_distribution(load_model_cached(path))
+            except (SamplingError, OSError, ValueError) as exc:
+                raise CampaignError(f"{where}: sampled plants of model {path}: {exc}") from None
+            if dist.warning:
+                warnings.append(f"sampled plants of {Path(path).name}: {dist.warning}")
     return CampaignSpec(
-        name=name, source=source, model_path=str(model_path),
-        controllers=tuple(_controllers(doc.get("controllers"), where, base, model_path)),
-        plants=plants, scenarios=resolved, seeds=seeds,
-        base_seed=base_seed, noise=noise, time_scale=float(time_scale),
-        fixed_seed=fixed_seed, linear_model_path=str(linear_path), warnings=tuple(warnings))
+        name=name, description=description, source=source, model_path=model,
+        linear_model_path=linear, controllers=controllers,
+        plants=plants, scenarios=_scenarios(doc.get("scenarios"), base, where),
+        seeds=_seeds(doc.get("seeds", 1), where), base_seed=base_seed, noise=noise,
+        time_scale=float(time_scale), metrics=metrics, tolerances=tolerances,
+        warnings=tuple(warnings))
 
 
 def load_spec(path: str | os.PathLike[str], *, samples: int | None = None,
@@ -491,49 +569,73 @@ def load_spec(path: str | os.PathLike[str], *, samples: int | None = None,
         doc["time_scale"] = time_scale
     if controllers is not None:
         tables = doc.get("controllers", [])
-        names = [t.get("name", t.get("preset")) for t in tables if isinstance(t, dict)]
+        names = [t.get("name", t.get("kind", t.get("preset", "mpc"))) for t in tables
+                 if isinstance(t, dict)]
         missing = [c for c in controllers if c not in names]
         if missing:
             raise CampaignError(f"campaign spec {p}: no controller named {missing}; the spec "
                                 f"has {names}")
-        doc["controllers"] = [t for t in tables if t.get("name", t.get("preset")) in controllers]
-    return spec_from_dict(doc, source=str(p), base_dir=p.parent)
+        doc["controllers"] = [t for t, n in zip(tables, names, strict=True) if n in controllers]
+    return spec_from_dict(doc, source=str(p), base_dir=p.resolve().parent)
 
 
 # --- one run --------------------------------------------------------------------------------
 def run_seed(run: RunSpec) -> int:
-    """The run's seed: `SeedSequence` of ``base_seed`` spawned by a digest of its identity.
+    """The run's seed: its own, or `SeedSequence` of ``base_seed`` keyed by its identity.
 
-    The key is the CRC-32 of the run id (controller, plant, scenario, seed index), so a
-    run gets the same seed whatever its position in the campaign or the worker.
-    Controllers compared on the same plant, scenario and seed index share a seed (the
-    same noise), since the controller name is left out of the key. A spec with a fixed
-    ``seed`` gives every run that seed.
+    The key is the CRC-32 of the plant, scenario and seed index, so a run gets the same
+    seed whatever its position in the campaign or the worker. Controllers compared on
+    the same plant, scenario and seed index share a seed (the same noise), since the
+    controller name is left out of the key.
     """
-    if run.fixed_seed is not None:
-        return run.fixed_seed
+    if run.seed is not None:
+        return run.seed
     key = f"{run.plant.label}|{Path(run.scenario).stem}|{run.seed_index}"
     seq = np.random.SeedSequence(run.base_seed, spawn_key=(zlib.crc32(key.encode("utf-8")),))
     return int(seq.generate_state(1, dtype=np.uint32)[0])
 
 
+def _sha256(path: str) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def load_model_cached(path: str) -> Any:
+    """`sysid.modelfile.load_model`, cached by the file's content (a changed file is re-read)."""
+    return _model(path, _sha256(path))
+
+
 @functools.lru_cache(maxsize=8)
-def _model(path: str) -> Any:
+def _model(path: str, sha256: str) -> Any:
     from sysid.modelfile import load_model
     return load_model(path)
 
 
 @functools.lru_cache(maxsize=32)
-def _scenario(name: str, time_scale: float) -> Any:
+def _scenario(name: str, time_scale: float, sha256: str) -> Any:
     from sim.scenario import load_scenario
     scenario = load_scenario(name)
     return scenario if time_scale == 1.0 else scenario.shortened(time_scale)
 
 
+def run_scenario(run: RunSpec) -> Any:
+    """The run's scenario (shortened by its time scale)."""
+    return _scenario(run.scenario, run.time_scale,
+                     _sha256(run.scenario) if run.scenario.endswith(".toml") else "")
+
+
+@functools.lru_cache(maxsize=8)
+def _settings_doc(path: str, sha256: str) -> dict[str, Any] | None:
+    """The parsed settings file of a controller (None: the defaults)."""
+    if not path:
+        return None
+    from czmpc.settings_file import load_settings_doc
+    return load_settings_doc(path)
+
+
 @functools.lru_cache(maxsize=4)
-def _sampled(path: str, base_seed: int, sample_index: int) -> Any:
+def _sampled(path: str, sha256: str, base_seed: int, sample_index: int) -> Any:
     from czmpc.campaigns.sampling import sample_plant
-    return sample_plant(_model(path), base_seed, sample_index)
+    return sample_plant(_model(path, sha256), base_seed, sample_index)
 
 
 def _plant_model(run: RunSpec, model: Any) -> tuple[Any, int, str]:
@@ -542,7 +644,8 @@ def _plant_model(run: RunSpec, model: Any) -> tuple[Any, int, str]:
     from sim.perturbed import perturb_model
 
     if run.plant.kind == "sampled":
-        drawn = _sampled(run.model_path, run.base_seed, run.plant.sample_index)
+        path = run.controller.model_path
+        drawn = _sampled(path, _sha256(path), run.base_seed, run.plant.sample_index)
         return drawn.model, drawn.n_rejected, drawn.source
     if run.plant.kind == "perturbed":
         return perturb_model(model, gain_factor=run.plant.gain_factor,
@@ -551,137 +654,91 @@ def _plant_model(run: RunSpec, model: Any) -> tuple[Any, int, str]:
     return model, 0, ""
 
 
-def _plant(run: RunSpec, model: Any, scenario: Any) -> tuple[Any, float]:
-    """The plant of a run and the input [%] it starts in steady state at."""
+@dataclass(frozen=True, eq=False, kw_only=True)
+class SimulatedRun:
+    """A finished closed loop and what measuring it against its plant needs.
 
-    from czmpc.campaigns.simulation import heater_steady_state_triac_pct
-    from sim.heater import HeaterParams, VirtualHeater
-    from sim.model_plant import ModelPlant, steady_state_triac_pct
+    Parameters
+    ----------
+    result :
+        The `sim.loop.ClosedLoopResult`.
+    power_at :
+        The plant's steady-state power [kW] at an input [%].
+    allowed_triac_range_pct, max_move_pct_per_step :
+        The Hammerstein MPC's allowed input range [%] and rate limit [%/sample], which
+        every controller gets.
+    n_rejected_draws, plant_parameter_source, plant_static_gain_kw_per_pct :
+        Of a sampled plant (0, "" otherwise; the gain NaN for the heater).
+    """
 
-    if run.plant.kind == "heater":
-        params = HeaterParams(ts_s=scenario.ts_s)
-        if not run.noise:
-            params = replace(params, sensor_noise_std_kw=0.0, grid_wander_std=0.0)
-        s0 = heater_steady_state_triac_pct(scenario.initial_setpoint_kw, params)
-        return VirtualHeater(replace(params, initial_triac_pct=s0)), s0
-    if run.plant.kind == "model":  # as `czmpc simulate` builds it
-        built = ModelPlant.for_scenario(model, scenario)
-        if built.noise != (run.noise and scenario.plant_noise):
-            built = ModelPlant(model, noise=run.noise and scenario.plant_noise,
-                               initial_triac_pct=built.initial_triac_pct)
-        return built, built.initial_triac_pct
-    plant_model = _plant_model(run, model)[0]
-    s0 = steady_state_triac_pct(plant_model, scenario.initial_setpoint_kw,
-                                triac_limits_pct=scenario.triac_limits_pct)
-    return ModelPlant(plant_model, noise=run.noise and scenario.plant_noise, initial_triac_pct=s0), s0
-
-
-def _controller(run: RunSpec, model: Any, scenario: Any, s0: float) -> Any:
-    """The run's controller, built as `czmpc.campaigns.bench.build_controller` builds it
-    (every controller gets the Hammerstein MPC's allowed input range, the scenario's rate
-    limit and the plant's start input)."""
-    from czmpc.campaigns.bench import BenchModels, build_controller
-
-    linear = _model(run.linear_model_path) if run.linear_model_path else model
-    models = BenchModels(hammerstein=model, linear=linear)
-    return build_controller(_BENCH_NAMES[run.controller.preset], models, scenario,
-                            initial_triac_pct=s0,
-                            settings_doc=_settings_doc(run.controller.settings_path))
+    result: Any
+    power_at: Any
+    allowed_triac_range_pct: tuple[float, float]
+    max_move_pct_per_step: float | None
+    n_rejected_draws: int
+    plant_parameter_source: str
+    plant_static_gain_kw_per_pct: float
 
 
-@functools.lru_cache(maxsize=8)
-def _settings_doc(path: str) -> dict[str, Any] | None:
-    """The parsed settings file of a controller (None: the defaults)."""
-    if not path:
-        return None
-    from czmpc.settings_file import load_settings_doc
-    return load_settings_doc(path)
+def simulate_run(run: RunSpec) -> SimulatedRun:
+    """Build the run's plant and controller (`czmpc.campaigns.build`) and run the loop.
 
-
-def simulate_run(run: RunSpec) -> Any:
-    """Run the closed loop of one run; returns its `sim.loop.ClosedLoopResult`."""
-    from sim.loop import run_closed_loop
-
-    model = _model(run.model_path)
-    scenario = _scenario(run.scenario, run.time_scale)
-    plant, s0 = _plant(run, model, scenario)
-    controller = _controller(run, model, scenario, s0)
-    return run_closed_loop(plant, controller, scenario, rng=run_seed(run))
-
-
-@functools.lru_cache(maxsize=32)
-def _allowed_range(model_path: str, scenario_name: str, time_scale: float, settings_path: str
-                   ) -> tuple[tuple[float, float], float | None]:
-    """The Hammerstein MPC's allowed input range [%] and rate limit [%/sample] of a scenario
-    (every controller gets them, `czmpc.campaigns.bench.build_controller`)."""
+    Raises
+    ------
+    czmpc.campaigns.build.MutationNotApplicable
+        The run's mutation does not change its controller.
+    """
+    from czmpc.campaigns.build import build_controller, build_plant
+    from czmpc.campaigns.sampling import static_gain_kw_per_pct
     from czmpc.campaigns.simulation import controller_settings
     from czmpc.inversion import allowed_triac_range
+    from czmpc.settings import MPCSettings
     from czmpc.settings_file import settings_from_dict
+    from sim.loop import run_closed_loop
 
-    model = _model(model_path)
-    scenario = _scenario(scenario_name, time_scale)
-    doc = _settings_doc(settings_path)
-    base = None if doc is None else settings_from_dict(doc, model, source=settings_path)
-    settings = controller_settings(model, scenario, initial_triac_pct=model.operating_point.triac_pct,
-                                   settings=base)
-    allowed = allowed_triac_range(model, triac_min_pct=settings.triac_min_pct,
-                                  triac_max_pct=settings.triac_max_pct,
-                                  validity_margin_pct=settings.validity_margin_pct)
-    return (float(allowed[0]), float(allowed[1])), settings.max_move_pct_per_step
-
-
-def _reachable_row(run: RunSpec, result: Any) -> dict[str, Any]:
-    """The robustness measures and the sampled-plant columns of a finished run."""
-    from czmpc.campaigns.robustness import reachable_measures
-    from czmpc.campaigns.sampling import static_gain_kw_per_pct
-    from sim.heater import HeaterParams
-    from sim.heater import steady_state as heater_steady_state
-
-    model = _model(run.model_path)
-    scenario = _scenario(run.scenario, run.time_scale)
-    allowed, max_move = _allowed_range(run.model_path, run.scenario, run.time_scale,
-                                       run.controller.settings_path)
-    if run.plant.kind == "heater":
-        params = HeaterParams(ts_s=scenario.ts_s)
-        if not run.noise:
-            params = replace(params, sensor_noise_std_kw=0.0, grid_wander_std=0.0)
-
-        def power_at(s: float) -> float:
-            return float(heater_steady_state(s, params)[0])
-        n_rejected, source, gain = 0, "", math.nan
-    else:
-        plant_model, n_rejected, source = _plant_model(run, model)
-
-        def power_at(s: float) -> float:
-            return max(0.0, float(plant_model.steady_state_power_kw(s)))
-        gain = float(static_gain_kw_per_pct(plant_model, np.array(model.operating_point.triac_pct)))
-    m = reachable_measures(result, scenario, power_at, allowed, max_move)
-    return {
-        "n_rejected_draws": n_rejected, "plant_parameter_source": source,
-        "plant_static_gain_kw_per_pct": gain,
-        "offset_free": m.offset_free(OFFSET_FREE_THRESHOLD_KW),
-        "max_abs_steady_state_error_reachable_kw": m.max_abs_steady_state_error_kw,
-        "n_unreachable_changes": sum(not ok for ok in m.reachable),
-        "iae_changes_reachable_kw_s": m.iae_kw_s, "max_overshoot_reachable_kw": m.max_overshoot_kw,
-        "max_overshoot_reachable_pct": m.max_overshoot_pct,
-        "n_allowed_range_violations": m.n_input_violations,
-    }
+    c = run.controller
+    model = load_model_cached(c.model_path)
+    scenario = run_scenario(run)
+    plant_model, n_rejected, source = _plant_model(run, model)
+    plant, s0, power_at = build_plant(run.plant.kind, plant_model, scenario,
+                                      noise=run.noise and scenario.plant_noise)
+    doc = _settings_doc(c.settings_path, c.settings_sha256)
+    controller = build_controller(
+        c.kind, model, scenario, initial_triac_pct=s0, settings_doc=doc, tight=run.tight,
+        linear_model=load_model_cached(c.linear_model_path) if c.kind == "linear_mpc" else None,
+        mutation=run.mutation)
+    result = run_closed_loop(plant, controller, scenario, rng=run_seed(run))
+    base = MPCSettings.default_for(model) if doc is None else settings_from_dict(doc, model)
+    used = controller_settings(model, scenario, initial_triac_pct=s0, settings=base)
+    allowed = allowed_triac_range(model, triac_min_pct=used.triac_min_pct,
+                                  triac_max_pct=used.triac_max_pct,
+                                  validity_margin_pct=used.validity_margin_pct)
+    gain = (math.nan if run.plant.kind == "heater" else float(
+        static_gain_kw_per_pct(plant_model, np.array(model.operating_point.triac_pct))))
+    return SimulatedRun(result=result, power_at=power_at,
+                        allowed_triac_range_pct=(float(allowed[0]), float(allowed[1])),
+                        max_move_pct_per_step=used.max_move_pct_per_step,
+                        n_rejected_draws=n_rejected, plant_parameter_source=source,
+                        plant_static_gain_kw_per_pct=gain)
 
 
-def _nan_if_none(value: float | None) -> float:
-    return math.nan if value is None else float(value)
+def error_text(exc: BaseException) -> str:
+    """An exception's type, message and the place it was raised (a crashed run's ``error``)."""
+    last = traceback.extract_tb(exc.__traceback__)[-1:]
+    where = f" at {Path(last[0].filename).name}:{last[0].lineno}" if last else ""
+    return f"{type(exc).__name__}: {exc}{where}"
 
 
 def execute_run(run: RunSpec) -> dict[str, Any]:
     """Run one campaign run and return its row (`ROW_COLUMNS`).
 
     A run that raises is recorded, not propagated: ``status = "error"`` and ``error``
-    holds the exception's type and message; the metric columns are NaN / -1.
+    holds the exception's type, message and place; the numbers are NaN, the counts -1.
     """
-    from sim.metrics import compute_metrics
+    from czmpc.campaigns.measure import COUNT_COLUMNS, metric_row, reachable_row
 
     row: dict[str, Any] = {
-        "run_id": run.run_id, "controller": run.controller.name, "preset": run.controller.preset,
+        "run_id": run.run_id, "controller": run.controller.name, "kind": run.controller.kind,
         "plant": run.plant.label, "gain_factor": run.plant.gain_factor,
         "time_constant_factor": run.plant.time_constant_factor,
         "extra_delay_steps": run.plant.extra_delay_steps, "scenario": Path(run.scenario).stem,
@@ -689,57 +746,42 @@ def execute_run(run: RunSpec) -> dict[str, Any]:
     }
     t0 = time.perf_counter()
     try:
-        result = simulate_run(run)
-        m = compute_metrics(result)
-        extra = _reachable_row(run, result)
+        sim = simulate_run(run)
+        row.update(status="ok", error="", **metric_row(sim.result),
+                   n_rejected_draws=sim.n_rejected_draws,
+                   plant_parameter_source=sim.plant_parameter_source,
+                   plant_static_gain_kw_per_pct=sim.plant_static_gain_kw_per_pct,
+                   **reachable_row(sim.result, run_scenario(run), sim.power_at,
+                                   sim.allowed_triac_range_pct, sim.max_move_pct_per_step))
     except Exception as exc:  # noqa: BLE001 - a crashed run is a result of the campaign
-        last = traceback.extract_tb(exc.__traceback__)[-1:]
-        where = f" at {Path(last[0].filename).name}:{last[0].lineno}" if last else ""
-        row.update(status="error", error=f"{type(exc).__name__}: {exc}{where}", n_steps=-1,
-                   **dict.fromkeys(("iae_kw_s", "ise_kw2_s", "max_overshoot_kw",
-                                    "max_abs_steady_state_error_kw", "input_total_variation_pct"),
-                                   math.nan),
-                   **dict.fromkeys(("n_limit_violations", "n_rate_violations", "n_fallbacks"), -1),
-                   **dict.fromkeys(TIMING_COLUMNS, math.nan),
-                   **dict.fromkeys(("plant_static_gain_kw_per_pct",
-                                    "max_abs_steady_state_error_reachable_kw",
-                                    "iae_changes_reachable_kw_s", "max_overshoot_reachable_kw",
-                                    "max_overshoot_reachable_pct"), math.nan),
-                   **dict.fromkeys(("n_rejected_draws", "n_unreachable_changes",
-                                    "n_allowed_range_violations"), -1),
-                   plant_parameter_source="", offset_free=False)
-        row["wall_time_s"] = time.perf_counter() - t0
-        return row
-    row.update(
-        status="ok", error="", n_steps=int(result.n_steps), iae_kw_s=m.iae_kw_s,
-        ise_kw2_s=m.ise_kw2_s,
-        max_overshoot_kw=max((c.overshoot_kw for c in m.changes), default=0.0),
-        max_abs_steady_state_error_kw=_nan_if_none(m.max_abs_steady_state_error_kw),
-        input_total_variation_pct=m.input_total_variation_pct,
-        n_limit_violations=int(m.n_limit_violations), n_rate_violations=int(m.n_rate_violations),
-        n_fallbacks=-1 if m.n_solver_failures is None else int(m.n_solver_failures),
-        wall_time_s=time.perf_counter() - t0, step_time_median_ms=m.step_time_median_ms,
-        step_time_p95_ms=m.step_time_p95_ms, step_time_max_ms=m.step_time_max_ms, **extra,
-    )
+        row.update({k: -1 if k in COUNT_COLUMNS or k == "n_rejected_draws" else math.nan
+                    for k in (*METRIC_COLUMNS, *REACHABLE_COLUMNS, *TIMING_COLUMNS,
+                              "n_rejected_draws", "plant_static_gain_kw_per_pct")})
+        row.update(status="error", error=error_text(exc), plant_parameter_source="",
+                   offset_free=False)
+    row["wall_time_s"] = time.perf_counter() - t0
     return row
 
 
 __all__ = [
     "DETERMINISTIC_COLUMNS",
     "KEY_COLUMNS",
-    "METRIC_COLUMNS",
-    "OFFSET_FREE_THRESHOLD_KW",
     "PLANT_KINDS",
     "PRESETS",
+    "RESULT_COLUMNS",
     "ROW_COLUMNS",
-    "TIMING_COLUMNS",
     "CampaignError",
     "CampaignSpec",
     "ControllerSpec",
     "PlantSpec",
     "RunSpec",
+    "SimulatedRun",
+    "Tolerance",
+    "error_text",
     "execute_run",
+    "load_model_cached",
     "load_spec",
+    "run_scenario",
     "run_seed",
     "simulate_run",
     "spec_from_dict",

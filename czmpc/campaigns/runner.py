@@ -32,7 +32,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 
@@ -52,6 +52,8 @@ ROWS_FILE = "rows.jsonl"
 RESULTS_FILE = "results.parquet"
 TRAJECTORY_DIR = "trajectories"
 _BLAS_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+_T = TypeVar("_T")
+_R = TypeVar("_R")
 #: ``progress(done, total)`` after each finished run.
 ProgressCallback = Callable[[int, int], None]
 
@@ -132,21 +134,53 @@ def _prepare_dir(spec: CampaignSpec, out_dir: Path) -> None:
     path.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
 
 
-def _iter_serial(runs: Sequence[RunSpec]) -> Iterator[dict[str, Any]]:
-    for run in runs:
-        yield execute_run(run)
+def map_runs(fn: Callable[[_T], _R], items: Sequence[_T], *, executor: str = "serial",
+             workers: int = 1, dask_address: str = "local") -> Iterator[tuple[int, _R]]:
+    """``(i, fn(items[i]))`` for every item, as each finishes: the one executor map.
 
+    Parameters
+    ----------
+    fn :
+        A module-level function (it is pickled to the workers); each call is pure.
+    items :
+        Its arguments (picklable).
+    executor :
+        ``"serial"`` (this process), ``"processes"`` (spawned workers) or ``"dask"``.
+    workers :
+        Worker processes of ``processes`` and of a local Dask cluster, >= 1.
+    dask_address :
+        ``"local"`` or a scheduler address such as ``"tcp://10.0.0.5:8786"``.
 
-def _iter_processes(runs: Sequence[RunSpec], workers: int) -> Iterator[dict[str, Any]]:
-    pin_blas_threads()
-    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-        futures = [pool.submit(execute_run, run) for run in runs]
-        try:
-            for future in as_completed(futures):
-                yield future.result()
-        finally:
-            for future in futures:
-                future.cancel()
+    Raises
+    ------
+    CampaignError
+        Unknown executor, bad worker count, Dask missing.
+    """
+    if executor not in EXECUTORS:
+        raise CampaignError(f"expected executor one of {list(EXECUTORS)}; got {executor!r}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise CampaignError(f"expected workers an integer >= 1; got {workers!r}")
+    if executor == "serial" or not items:
+        for i, item in enumerate(items):
+            yield i, fn(item)
+    elif executor == "processes":
+        pin_blas_threads()
+        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+            futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
+            try:
+                for future in as_completed(futures):
+                    yield futures[future], future.result()
+            finally:
+                for future in futures:
+                    future.cancel()
+    else:
+        batches = dask_batches(list(range(len(items))), workers)
+        with dask_client(workers, dask_address) as (distributed, client):
+            futures = client.map(execute_batch, [fn] * len(batches),
+                                 [[items[i] for i in b] for b in batches], pure=False)
+            index = {f.key: b for f, b in zip(futures, batches, strict=True)}
+            for future in distributed.as_completed(futures):
+                yield from zip(index[future.key], future.result(), strict=True)
 
 
 @contextmanager
@@ -195,22 +229,15 @@ def dask_client(workers: int, address: str) -> Iterator[tuple[Any, Any]]:
 DASK_BATCH_MAX = 25
 
 
-def execute_batch(runs: Sequence[RunSpec]) -> list[dict[str, Any]]:
-    """`execute_run` for each run of a batch, in order (a Dask task)."""
-    return [execute_run(run) for run in runs]
+def execute_batch(fn: Callable[[_T], _R], items: Sequence[_T]) -> list[_R]:
+    """``fn`` of each item of a batch, in order (a Dask task)."""
+    return [fn(item) for item in items]
 
 
-def dask_batches(runs: Sequence[RunSpec], workers: int) -> list[list[RunSpec]]:
-    """Runs cut into batches of at most `DASK_BATCH_MAX`, at least 20 per worker."""
-    size = max(1, min(DASK_BATCH_MAX, len(runs) // (20 * max(1, workers))))
-    return [list(runs[i:i + size]) for i in range(0, len(runs), size)]
-
-
-def _iter_dask(runs: Sequence[RunSpec], workers: int, address: str) -> Iterator[dict[str, Any]]:
-    with dask_client(workers, address) as (distributed, client):
-        futures = client.map(execute_batch, dask_batches(runs, workers), pure=False)
-        for future in distributed.as_completed(futures):
-            yield from future.result()
+def dask_batches(items: Sequence[_T], workers: int) -> list[list[_T]]:
+    """Items cut into batches of at most `DASK_BATCH_MAX`, at least 20 per worker."""
+    size = max(1, min(DASK_BATCH_MAX, len(items) // (20 * max(1, workers))))
+    return [list(items[i:i + size]) for i in range(0, len(items), size)]
 
 
 def write_parquet(rows: Sequence[dict[str, Any]], path: Path) -> None:
@@ -245,7 +272,7 @@ def save_trajectories(runs: Sequence[RunSpec], out_dir: Path) -> list[Path]:
     folder.mkdir(parents=True, exist_ok=True)
     paths = []
     for run in runs:
-        result = simulate_run(run)
+        result = simulate_run(run).result
         name = hashlib.sha256(run.run_id.encode("utf-8")).hexdigest()[:16] + ".npz"
         path = folder / name
         arrays: dict[str, Any] = {
@@ -305,10 +332,6 @@ def run_campaign(
     CampaignError
         Unknown executor, bad worker count, a directory of another spec, Dask missing.
     """
-    if executor not in EXECUTORS:
-        raise CampaignError(f"run_campaign: expected executor one of {list(EXECUTORS)}; got {executor!r}")
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise CampaignError(f"run_campaign: expected workers an integer >= 1; got {workers!r}")
     out = Path(out_dir)
     _prepare_dir(spec, out)
     runs = spec.expand()
@@ -319,15 +342,11 @@ def run_campaign(
     n_skipped = len(runs) - len(todo)
     if max_runs is not None:
         todo = todo[:max_runs]
-    if executor == "serial":
-        stream = _iter_serial(todo)
-    elif executor == "processes":
-        stream = _iter_processes(todo, workers)
-    else:
-        stream = _iter_dask(todo, workers, dask_address)
+    stream = map_runs(execute_run, todo, executor=executor, workers=workers,
+                      dask_address=dask_address)
     n_run = 0
     with rows_path.open("a", encoding="utf-8") as fh:
-        for row in stream:
+        for _, row in stream:
             fh.write(json.dumps(row, allow_nan=True) + "\n")
             fh.flush()
             os.fsync(fh.fileno())
@@ -345,12 +364,16 @@ def run_campaign(
 
 __all__ = [
     "CAMPAIGN_FILE",
-    "dask_client",
+    "DASK_BATCH_MAX",
     "EXECUTORS",
     "RESULTS_FILE",
     "ROWS_FILE",
     "TRAJECTORY_DIR",
     "CampaignOutcome",
+    "dask_batches",
+    "dask_client",
+    "execute_batch",
+    "map_runs",
     "pin_blas_threads",
     "read_results",
     "run_campaign",

@@ -26,7 +26,7 @@ import os
 import shutil
 import tempfile
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Literal, get_args
 
@@ -43,7 +43,6 @@ from sim.errors import PlantError, SimError
 from sim.heater import HeaterParams, VirtualHeater, steady_state
 from sim.loop import ClosedLoopResult, ProgressCallback, run_closed_loop
 from sim.metrics import ClosedLoopMetrics, compute_metrics
-from sim.model_plant import ModelPlant
 from sim.protocols import Controller, Plant
 from sim.scenario import Scenario
 from sysid.atomic import atomic_write_text
@@ -243,19 +242,12 @@ def heater_steady_state_triac_pct(power_kw: float, params: HeaterParams | None =
 def _build_plant(model: HammersteinModel, scenario: Scenario, plant: PlantKind,
                  noise: bool, variation: PlantVariation | None = None) -> tuple[Plant, float]:
     """The plant and the TRIAC input [%] it starts in steady state at."""
+    from czmpc.campaigns.build import build_plant
+
     if variation is not None and not variation.is_nominal:
         return _varied_plant(model, scenario, plant, noise, variation)
-    if plant == "model":
-        built = ModelPlant.for_scenario(model, scenario)
-        if built.noise != noise:
-            built = ModelPlant(model, noise=noise, initial_triac_pct=built.initial_triac_pct)
-        return built, built.initial_triac_pct
-    params = HeaterParams(ts_s=scenario.ts_s)
-    if not noise:
-        params = replace(params, sensor_noise_std_kw=0.0, grid_wander_std=0.0)
-    s0 = heater_steady_state_triac_pct(scenario.initial_setpoint_kw, params)
-    params = replace(params, initial_triac_pct=s0)
-    return VirtualHeater(params), s0
+    built, s0, _ = build_plant(plant, model, scenario, noise=noise)
+    return built, s0
 
 
 def _varied_plant(model: HammersteinModel, scenario: Scenario, plant: PlantKind, noise: bool,

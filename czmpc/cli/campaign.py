@@ -4,23 +4,24 @@
                      [--dask local|ADDRESS] [--worst N] [--samples N] [--time-scale X]
                      [--controllers A,B]
   czmpc campaign report DIR
-  czmpc campaign bench SPEC.toml [--workers N] [--samples N] [--time-scale X]
-                       [--controllers A,B] [--record-benchmarks]
 
 `run` writes DIR/results.parquet (one row of metrics per run: IAE [kW s], ISE
-[kW^2 s], overshoot [kW], steady error [kW], input total variation [%], limit and
-rate violations, solver fallbacks, controller step times [ms], status). An interrupted
-campaign resumes where it stopped when run again with the same SPEC and DIR. Shipped
-specs (package data) can be named without a path: campaign_smoke.toml,
+[kW^2 s], overshoot [kW], settling time [s], steady error [kW], input total variation
+[%], limit and rate violations, solver failures, controller step times [ms], status,
+and the robustness measures against the reachable setpoint). An interrupted campaign
+resumes where it stopped when run again with the same SPEC and DIR. Shipped specs
+(package data) can be named without a path: campaign_smoke.toml,
 campaign_montecarlo.toml (MPC, gain-scheduled PI and linear MPC on plants sampled from
-the model's parameter covariance), campaign_robustness.toml (`czmpc robustness`'s quick
-grid), campaign_bench.toml (`czmpc bench`'s six controllers, the NMPC included),
+the model's parameter covariance), campaign_robustness.toml (the MPC on the model
+perturbed in gain, time constant and delay, and on the virtual heater),
+campaign_bench.toml (the six controllers of the tracking benchmark, the NMPC included),
 campaign_throughput.toml. --samples, --time-scale and --controllers change a spec for
 one run (e.g. a quick look at the Monte Carlo: --samples 5 --time-scale 0.05).
 
 `report` writes DIR/report.md, DIR/iae_distribution.png, DIR/iae_heatmap.png (perturbed
-plants), DIR/montecarlo_iae.png (sampled plants: offset-free and within-limits shares
-per controller in the report) and, with trajectories saved by `run --worst N`,
+plants: IAE ratio to the nominal plant per gain, time constant and delay, offset-free
+failures marked), DIR/montecarlo_iae.png (sampled plants: offset-free and within-limits
+shares per controller in the report) and, with trajectories saved by `run --worst N`,
 DIR/worst_runs.png.
 
 Exit codes: 0 done; 1 some run crashed or violated an input limit; 2 bad input.
@@ -78,7 +79,7 @@ def _add_overrides(parser: argparse.ArgumentParser) -> None:
 def register(parser: argparse.ArgumentParser) -> None:
     """Add the ``run`` and ``report`` sub-commands."""
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
-    sub = parser.add_subparsers(dest="campaign_command", metavar="{run,report,bench}", required=True)
+    sub = parser.add_subparsers(dest="campaign_command", metavar="{run,report}", required=True)
     run_p = sub.add_parser("run", help="run (or resume) a campaign into DIR",
                            description="Run the runs of SPEC not yet in DIR; write DIR/results.parquet.")
     run_p.add_argument("spec", metavar="SPEC.toml",
@@ -96,18 +97,6 @@ def register(parser: argparse.ArgumentParser) -> None:
                        help="save the trajectories of the N highest-IAE runs of each controller, "
                             "N >= 1 (re-run at the end; default: none)")
     _add_overrides(run_p)
-    bench_p = sub.add_parser(
-        "bench", help="runs/s of one spec on serial, processes xN and Dask LocalCluster xN",
-        description="Run SPEC on the three executors in one session; print runs/s, scaling "
-                    "efficiency, overhead per run [ms] and worker memory [MiB].")
-    bench_p.add_argument("spec", metavar="SPEC.toml", help="campaign spec file or shipped spec name")
-    bench_p.add_argument("--workers", metavar="N", type=_workers, default=2,
-                         help="workers of the parallel executors (default: 2)")
-    _add_overrides(bench_p)
-    bench_p.add_argument("--record-benchmarks", action="store_true",
-                         help="write the table into BENCHMARKS.md (current directory), section "
-                              "'Campaign executors' (the throughput spec) or 'Campaign "
-                              "executors: spec NAME'")
     rep_p = sub.add_parser("report", help="summary Markdown and figures of a finished campaign",
                            description="Write DIR/report.md and figures from DIR/results.parquet.")
     rep_p.add_argument("dir", metavar="DIR", type=Path, help="a finished campaign directory")
@@ -154,7 +143,7 @@ def _report(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from czmpc.campaigns.montecarlo import format_montecarlo_markdown, is_sampled, plot_iae_ecdf
+    from czmpc.campaigns.measure import OFFSET_FREE_THRESHOLD_KW
     from czmpc.campaigns.runner import CAMPAIGN_FILE, TRAJECTORY_DIR, read_results
     from czmpc.reports.campaign_report import (
         format_summary_markdown,
@@ -162,6 +151,7 @@ def _report(args: argparse.Namespace) -> int:
         plot_perturbation_heatmaps,
         plot_trajectories,
     )
+    from czmpc.reports.montecarlo_report import format_montecarlo_markdown, is_sampled, plot_iae_ecdf
 
     rows = read_results(args.dir)
     record = json.loads((args.dir / CAMPAIGN_FILE).read_text(encoding="utf-8"))
@@ -183,36 +173,13 @@ def _report(args: argparse.Namespace) -> int:
     if any(is_sampled(r) for r in rows):
         plot_iae_ecdf(rows, args.dir / "montecarlo_iae.png")
         figures.append("montecarlo_iae.png")
-        text += "\n" + format_montecarlo_markdown(rows, figure="montecarlo_iae.png",
-                                                  warnings=record.get("warnings", []))
+        text += "\n" + format_montecarlo_markdown(
+            rows, offset_free_threshold_kw=OFFSET_FREE_THRESHOLD_KW, figure="montecarlo_iae.png",
+            warnings=record.get("warnings", []))
     report = args.dir / "report.md"
     report.write_text(text, encoding="utf-8")
     print(f"wrote {report} and {', '.join(figures)}")
     return 0
-
-
-def _bench(args: argparse.Namespace) -> int:
-    import sys
-
-    from benchmarks._md import machine_info, write_benchmarks_section
-    from czmpc.campaigns.bench_campaign import benchmark_executors, format_benchmark_markdown
-    from czmpc.campaigns.campaign import load_spec
-    from czmpc.cli._progress import Progress
-
-    spec = load_spec(_spec_path(args.spec), samples=args.samples, time_scale=args.time_scale,
-                     controllers=args.controllers)
-    for message in spec.warnings:
-        print(f"czmpc: warning: {message}", file=sys.stderr)
-    machine = machine_info().describe()
-    timings = benchmark_executors(spec, workers=args.workers, progress=Progress())
-    body = format_benchmark_markdown(timings, spec=spec, command=["czmpc", *sys.argv[1:]],
-                                     machine=machine)
-    print(body)
-    if args.record_benchmarks:
-        # the throughput spec keeps the section it always had; others get their own
-        suffix = "" if spec.name == "throughput" else f": spec '{spec.name}'"
-        write_benchmarks_section("BENCHMARKS.md", body, heading=f"## Campaign executors{suffix}")
-    return 1 if any(t.n_errors for t in timings) else 0
 
 
 #: BLAS/OpenMP thread variables set to 1 for this process (unless the user set them).
@@ -220,7 +187,7 @@ _BLAS_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def run(args: argparse.Namespace) -> int:
-    """Dispatch to ``run``, ``report`` or ``bench``.
+    """Dispatch to ``run`` or ``report``.
 
     The serial executor runs in this process: its BLAS gets one thread, like every
     worker's, before numpy is first imported (small matrices; more threads only
@@ -234,6 +201,4 @@ def run(args: argparse.Namespace) -> int:
             os.environ.setdefault(var, "1")
     if args.campaign_command == "run":
         return _run(args)
-    if args.campaign_command == "bench":
-        return _bench(args)
     return _report(args)

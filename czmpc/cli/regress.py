@@ -6,7 +6,7 @@
 
 A suite (TOML) names your model files, MPC settings files, scenarios (shipped names or
 your own scenario files, e.g. a recipe's setpoint schedule), plants (model, heater,
-perturbed), seeds and the metrics to hold. A minimal suite (paths relative to it):
+perturbed, sampled), seeds and the metrics to hold. A minimal suite (paths relative to it):
 
     scenarios = ["recipe_a.toml", "staircase"]   # your scenario files or shipped names
     seeds = [3]
@@ -20,7 +20,7 @@ perturbed), seeds and the metrics to hold. A minimal suite (paths relative to it
 Optional keys: name, time_scale (shortens scenarios), metrics = [...] (default: IAE,
 ISE, overshoot, steady-state error, input total variation, violation counts, solver
 failures) and a [tolerances] table (metric = absolute value or "2%"); every key is
-described in the module czmpc.testing.suite. The project's own golden set is the
+described in the module czmpc.campaigns.regression. The project's own golden set is the
 shipped suite regress_project_golden.toml.
 
 `record` runs every case twice (default and tight solver tolerances) and writes
@@ -114,9 +114,8 @@ def _suite_path(text: str) -> Path:
 
 
 def _record(args: argparse.Namespace) -> int:
+    from czmpc.campaigns.regression import RegressRunError, load_suite, record_suite
     from czmpc.cli._progress import Progress
-    from czmpc.testing.regress import RegressRunError, record_suite
-    from czmpc.testing.suite import load_suite
 
     path = _suite_path(args.suite)
     suite = load_suite(path)
@@ -136,9 +135,9 @@ def _record(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
+    from czmpc.campaigns.regression import check_golden
+    from czmpc.campaigns.regression_report import format_table, junit_xml, write_report
     from czmpc.cli._progress import Progress
-    from czmpc.testing.regress import check_golden
-    from czmpc.testing.report import format_table, junit_xml, write_report
     from sysid.atomic import atomic_write_text
 
     progress = Progress()
@@ -157,9 +156,9 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _audit(args: argparse.Namespace) -> int:
+    from czmpc.campaigns.regression import audit_golden
+    from czmpc.campaigns.regression_report import audit_table
     from czmpc.cli._progress import Progress
-    from czmpc.testing.regress import audit_golden
-    from czmpc.testing.report import audit_table
 
     progress = Progress()
     report = audit_golden(args.golden, mutations=args.mutation, suite_dir=args.suite_dir,

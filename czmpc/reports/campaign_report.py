@@ -46,7 +46,7 @@ def controller_summary(rows: Sequence[Row]) -> list[dict[str, Any]]:
             "iae_max_kw_s": float(iae.max()) if ok else math.nan,
             "within_limits": len(clean) / len(ok) if ok else math.nan,
             "offset_free": float(np.mean(np.nan_to_num(sse, nan=np.inf) < 0.05)) if ok else math.nan,
-            "n_fallbacks": int(sum(max(0, int(r["n_fallbacks"])) for r in ok)),
+            "n_solver_failures": int(sum(max(0, int(r["n_solver_failures"])) for r in ok)),
         })
     return out
 
@@ -59,7 +59,7 @@ def format_summary_markdown(rows: Sequence[Row], *, title: str, figures: Sequenc
          "within limits [%]", "offset-free [%]", "solver fallbacks"],
         [[s["controller"], str(s["n_runs"]), str(s["n_errors"]), f"{s['iae_median_kw_s']:.2f}",
           f"{s['iae_p95_kw_s']:.2f}", f"{s['iae_max_kw_s']:.2f}", f"{100 * s['within_limits']:.1f}",
-          f"{100 * s['offset_free']:.1f}", str(s["n_fallbacks"])] for s in summary],
+          f"{100 * s['offset_free']:.1f}", str(s["n_solver_failures"])] for s in summary],
         markdown=True)
     lines = [f"# Campaign {title}", "", f"{len(rows)} runs. IAE of the true power against the "
              "setpoint; offset-free: largest |steady error| < 0.05 kW; within limits: no input "
@@ -103,36 +103,70 @@ def plot_iae_distribution(rows: Sequence[Row], path: str | os.PathLike[str] | No
 
 def plot_perturbation_heatmaps(rows: Sequence[Row], path: str | os.PathLike[str] | None = None
                                ) -> Figure | None:
-    """Median IAE [kW s] over gain factor x time-constant factor of the perturbed plants.
+    """IAE ratio over gain x time-constant factor of the perturbed plants (robustness map).
 
-    One panel per controller (extra delay 0 only; None when no perturbed plant ran).
+    One row of panels per controller, one panel per extra delay. A cell is the median
+    over scenarios and seeds of the IAE against the reachable setpoint
+    (``iae_changes_reachable_kw_s``) over that of the nominal plant (gain 1, time
+    constant 1, no extra delay) of the same controller, scenario and seed; each cell is
+    annotated with its ratio, a red x marks a plant not tracked offset-free in some run,
+    ``*`` one with setpoint changes out of its reach. None when no perturbed plant ran.
     """
+    from matplotlib.colors import LogNorm
     from matplotlib.figure import Figure
 
-    pert = [r for r in rows if str(r["plant"]).startswith("perturbed") and r["status"] == "ok"
-            and int(r["extra_delay_steps"]) == 0]
+    pert = [r for r in rows if str(r["plant"]).startswith("perturbed") and r["status"] == "ok"]
     if not pert:
         return None
+    nominal = {(r["controller"], r["scenario"], r["seed"]): float(r["iae_changes_reachable_kw_s"])
+               for r in pert if (r["gain_factor"], r["time_constant_factor"],
+                                 r["extra_delay_steps"]) == (1.0, 1.0, 0)}
     names = [n for n in _controllers(rows) if any(r["controller"] == n for r in pert)]
-    gains = sorted({float(r["gain_factor"]) for r in pert})
-    taus = sorted({float(r["time_constant_factor"]) for r in pert})
-    fig = Figure(figsize=(4.5 * len(names), 3.8), layout="constrained")
+    gains, taus, delays = (sorted({r[k] for r in pert}) for k in (
+        "gain_factor", "time_constant_factor", "extra_delay_steps"))
+    cells: dict[tuple[str, int, int, int], tuple[float, bool, bool]] = {}
+    for name in names:
+        for d, n in enumerate(delays):
+            for t, m in enumerate(taus):
+                for k, g in enumerate(gains):
+                    mine = [r for r in pert if r["controller"] == name and (
+                        r["gain_factor"], r["time_constant_factor"], r["extra_delay_steps"]) == (g, m, n)]
+                    ratios = [float(r["iae_changes_reachable_kw_s"])
+                              / nominal.get((name, r["scenario"], r["seed"]), math.nan) for r in mine]
+                    cells[name, d, t, k] = (
+                        float(np.median(ratios)) if ratios else math.nan,
+                        any(not r["offset_free"] for r in mine),
+                        any(int(r["n_unreachable_changes"]) > 0 for r in mine))
+    values = np.array([v for v, _, _ in cells.values()])
+    finite = values[np.isfinite(values) & (values > 0)]
+    norm = LogNorm(vmin=min(1.0, float(finite.min())) if finite.size else 0.5,
+                   vmax=max(1.0 + 1e-9, float(finite.max())) if finite.size else 2.0)
+    fig = Figure(figsize=((0.62 * len(gains) + 1.8) * len(delays) + 1.2,
+                          (0.42 * len(taus) + 1.8) * len(names)), layout="constrained")
+    axes = fig.subplots(len(names), len(delays), squeeze=False)
+    image = None
     for i, name in enumerate(names):
-        ax = fig.add_subplot(1, len(names), i + 1)
-        grid = np.full((len(taus), len(gains)), np.nan)
-        for a, m in enumerate(taus):
-            for b, g in enumerate(gains):
-                vals = [float(r["iae_kw_s"]) for r in pert if r["controller"] == name
-                        and r["gain_factor"] == g and r["time_constant_factor"] == m]
-                if vals:
-                    grid[a, b] = float(np.median(vals))
-        image = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis")
-        ax.set_xticks(range(len(gains)), [f"{g:g}" for g in gains])
-        ax.set_yticks(range(len(taus)), [f"{m:g}" for m in taus])
-        ax.set_xlabel("plant gain factor [-]")
-        ax.set_ylabel("slow time-constant factor [-]")
-        ax.set_title(f"{name}: median IAE")
-        fig.colorbar(image, ax=ax, label="IAE [kW s]")
+        for d, n in enumerate(delays):
+            ax = axes[i, d]
+            grid = np.array([[cells[name, d, t, k][0] for k in range(len(gains))]
+                             for t in range(len(taus))])
+            image = ax.imshow(grid, origin="lower", cmap="viridis", norm=norm, aspect="auto")
+            for t in range(len(taus)):
+                for k in range(len(gains)):
+                    value, fails, unreachable = cells[name, d, t, k]
+                    if fails:
+                        ax.plot(k, t, marker="x", color="red", markersize=16, markeredgewidth=2.5)
+                    ax.text(k, t, f"{value:.2f}{'*' if unreachable else ''}", ha="center",
+                            va="center", fontsize=7,
+                            color="white" if np.isfinite(value) and norm(value) < 0.6 else "black")
+            ax.set_xticks(range(len(gains)), [f"{g:g}" for g in gains])
+            ax.set_yticks(range(len(taus)), [f"{m:g}" for m in taus])
+            ax.set_xlabel("plant gain factor [-]")
+            ax.set_ylabel("slow time-constant factor [-]")
+            ax.set_title(f"{name}, extra delay +{n} sample{'s' if n != 1 else ''}", fontsize="medium")
+    if image is not None:
+        fig.colorbar(image, ax=axes.ravel().tolist(), shrink=0.9,
+                     label="IAE (reachable setpoint) / nominal plant's [-]")
     if path is not None:
         fig.savefig(path, dpi=110)
     return fig

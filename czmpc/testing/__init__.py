@@ -1,11 +1,7 @@
-"""Regression suites for the user's own controller (layer 4).
+"""The pytest plugin of czmpc (layer 4): users' regression suites checked inside pytest.
 
-A suite (`czmpc.testing.suite`) names models, settings files, scenarios, plants, seeds
-and the metrics to hold; `czmpc.testing.regress` records its golden results, checks a
-controller against them and audits whether the suite would catch a changed controller;
-`czmpc.testing.report` writes the terminal table, Markdown, figures and JUnit XML;
-`czmpc.testing.plugin` is the pytest plugin (fixture ``czmpc_regress``).
-
-This package imports nothing heavy on import, since pytest loads the plugin in every
-session of an environment where czmpc is installed.
+`czmpc.testing.plugin` (entry point ``pytest11: czmpc``) gives the fixture
+``czmpc_regress``; the suites, golden directories and checks are the campaign engine's
+(`czmpc.campaigns.regression`). This package imports nothing heavy on import, since
+pytest loads the plugin in every session of an environment where czmpc is installed.
 """

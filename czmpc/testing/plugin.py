@@ -5,8 +5,8 @@ With czmpc installed, every pytest session has the fixture ``czmpc_regress``::
     def test_my_controller_did_not_change(czmpc_regress):
         czmpc_regress.check("golden/")
 
-``check`` re-runs the golden directory's cases (`czmpc.testing.regress.check_golden`) and
-fails the test with the same table as ``czmpc regress check``: per failing case the
+``check`` re-runs the golden directory's cases (`czmpc.campaigns.regression.check_golden`)
+and fails the test with the same table as ``czmpc regress check``: per failing case the
 metric, golden value, tolerance, new value, the first divergence from the golden
 trajectory, and a changed model or settings file as the likely cause. A relative
 directory is taken from the folder of the test file. ``--czmpc-regress-report DIR``
@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 import pytest
 
 if TYPE_CHECKING:
-    from czmpc.testing.regress import CheckReport
+    from czmpc.campaigns.regression import CheckReport
 
 _REPORT_OPTION = "--czmpc-regress-report"
 
@@ -62,7 +62,7 @@ class RegressChecker:
         executor, workers :
             ``"serial"``, ``"processes"`` or ``"dask"`` and its worker count.
         suite_dir :
-            See `czmpc.testing.regress.load_golden_dir`.
+            See `czmpc.campaigns.regression.load_golden_dir`.
         cases :
             Case ids to check; None: all.
 
@@ -71,8 +71,8 @@ class RegressChecker:
         CheckReport
             The report of a passing check.
         """
-        from czmpc.testing.regress import check_golden
-        from czmpc.testing.report import failure_lines, format_table, write_report
+        from czmpc.campaigns.regression import check_golden
+        from czmpc.campaigns.regression_report import failure_lines, format_table, write_report
 
         path = Path(golden_dir)
         if not path.is_absolute():

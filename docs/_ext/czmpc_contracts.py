@@ -210,33 +210,42 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
 # Each set must equal the one the validator accepts (`czmpc.campaigns.campaign`).
 CAMPAIGN_KEYS: dict[str, tuple[str, str, str]] = {
     "name": ("string", "the file's stem", "Name of the campaign."),
+    "description": ("string", "empty", "What the campaign or suite is for."),
     "model": ("string (file)", "cz_heater_model.json",
-              "Model of every controller and of the model plants: a file next to the spec "
-              "or the name of a shipped model."),
-    "seeds": ("integer >= 1", "1", "Seed indices ``0..seeds-1`` per (controller, plant, scenario)."),
+              "Model of every controller that names none (and of its plants): a file next "
+              "to the spec or the name of a shipped model."),
+    "seeds": ("integer >= 1, or list of integers >= 0", "1",
+              "Seed indices ``0..seeds-1`` per (controller, plant, scenario), keyed by the "
+              "run; or a list of seeds used as they are (``[7]``: one seed for every run)."),
     "base_seed": ("integer >= 0", "0",
                   "Entropy of every run's `numpy.random.SeedSequence`; a run's seed depends "
                   "on it and on the run's identity only."),
     "noise": ("boolean", "true", "Plant noise on or off."),
     "time_scale": ("number in (0, 1]", "1", "Shortens every scenario to this fraction of its "
                    "length (``Scenario.shortened``)."),
-    "seed": ("integer >= 0", "none (seeds keyed by the run)",
-             "One seed for every run, as ``czmpc bench`` and ``czmpc robustness`` use; "
-             "replaces ``seeds`` and ``base_seed``."),
     "linear_model": ("string (file)", "cz_heater_armax_model.json",
                      "Model of the ``linear-mpc`` preset (a linear ARMAX model: the linear "
-                     "MPC of ``czmpc bench``)."),
+                     "MPC of the tracking benchmark)."),
+    "metrics": ("list of strings", "none (a suite: the default metrics)",
+                "A regression suite's held metrics (``czmpc regress``): row columns such as "
+                "``iae_kw_s``."),
+    "tolerances": ("table", "none (derived)",
+                   "A regression suite's tolerances: metric = absolute value or ``\"2%\"``."),
     "scenarios": ("list of strings", "required",
                   "Scenarios: shipped names (``staircase``, ``voltage_sag``, ...) or TOML files."),
     "controllers": ("array of tables", "required", "``[[controllers]]``: keys below."),
     "plants": ("array of tables", "required", "``[[plants]]``: keys below."),
 }
 CAMPAIGN_CONTROLLER_KEYS: dict[str, tuple[str, str, str]] = {
-    "name": ("string without ``|``", "the preset", "Name of the controller in the rows; unique."),
-    "preset": ("string", "required (``mpc`` with ``settings``)",
+    "name": ("string without ``|`` or ``/``", "the preset",
+             "Name of the controller in the rows; unique."),
+    "preset": ("string", "``mpc``",
                "``mpc``, ``pi``, ``pi-scheduled``, ``pi-table``, ``linear-mpc``, ``nmpc`` or "
-               "``open-loop``, "
-               "each built as the tracking benchmark builds it."),
+               "``open-loop`` (or ``pi_gs``, ``pi_table``, ``linear_mpc``, ``open_loop``), "
+               "each built by the one controller builder of the campaign engine."),
+    "kind": ("string", "``mpc``", "The same as ``preset`` (the word regression suites use)."),
+    "model": ("string (file)", "the spec's ``model``", "This controller's model (and its plants')."),
+    "linear_model": ("string (file)", "the spec's ``linear_model``", "``linear-mpc`` only."),
     "settings": ("string (file)", "none (defaults from the model)",
                  "MPC settings file (:doc:`settings_file`) for ``mpc``, ``linear-mpc`` and "
                  "``nmpc``; its SHA-256 is part of the spec's identity."),

@@ -102,7 +102,7 @@ def test_the_guides_campaign_spec_passes_the_validator(tmp_path: Path) -> None:
 
 
 def test_the_guides_regression_suite_passes_the_validator(tmp_path: Path) -> None:
-    from czmpc.testing.suite import suite_from_dict
+    from czmpc.campaigns.regression import suite_from_dict
 
     (doc,) = [doc for _, doc in _toml_blocks() if "controllers" in doc and "model" not in doc]
     for entry in doc["controllers"]:       # the reader's own files, made here

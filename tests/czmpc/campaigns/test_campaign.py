@@ -42,12 +42,15 @@ def test_expand_counts_every_axis_and_grid_product() -> None:
 @pytest.mark.parametrize(("change", "match"), [
     ({"colour": 1}, "unknown key"),
     ({"seeds": 0}, "'seeds' an integer >= 1"),
+    ({"seeds": [3, 3]}, "a list of different integers"),
+    ({"controllers": [{"preset": "mpc"}, {"kind": "mpc"}]}, "controller names must differ"),
     ({"time_scale": 1.5}, "time_scale"),
     ({"scenarios": ["no_such_scenario"]}, "no_such_scenario"),
     ({"controllers": [{"preset": "lqr"}]}, "'lqr'"),
     ({"controllers": [{"preset": "mpc", "settings": "x.toml"}]}, "x.toml: cannot read"),
     ({"plants": [{"kind": "perturbed", "gain_factors": [-1.0]}]}, "factors > 0"),
     ({"model": "missing.json"}, "missing.json"),
+    ({"metrics": ["iae"]}, "expected 'metrics' a list of different names"),
 ])
 def test_bad_specs_are_refused_naming_the_value(change: dict[str, object], match: str) -> None:
     with pytest.raises(CampaignError, match=match):
@@ -88,13 +91,14 @@ def test_row_matches_an_independent_simulation(tmp_path: Path) -> None:
 
 
 def test_a_crashing_run_is_recorded_not_raised(monkeypatch: pytest.MonkeyPatch) -> None:
-    import czmpc.campaigns.campaign as campaign
+    import czmpc.campaigns.build as build
 
-    def boom(run: object) -> None:
+    def boom(*args: object, **kwargs: object) -> None:
         raise RuntimeError("solver exploded")
 
-    monkeypatch.setattr(campaign, "simulate_run", boom)
+    monkeypatch.setattr(build, "build_controller", boom)
     row = execute_run(spec_from_dict(BASE).expand()[0])
     assert row["status"] == "error"
     assert "RuntimeError: solver exploded" in row["error"]
-    assert row["n_steps"] == -1
+    assert row["n_steps"] == -1 and row["n_limit_violations"] == -1
+    assert row["iae_kw_s"] != row["iae_kw_s"]  # NaN

@@ -9,9 +9,9 @@ from typing import Any
 import pytest
 
 from czmpc.campaigns.campaign import load_spec
-from czmpc.campaigns.montecarlo import montecarlo_summary, rejection_summary, within_limits
 from czmpc.campaigns.runner import read_results
 from czmpc.cli import main
+from czmpc.reports.montecarlo_report import montecarlo_summary, rejection_summary, within_limits
 from czmpc.shipped import shipped_path
 
 
@@ -47,7 +47,7 @@ def test_rejections_are_counted_once_per_plant() -> None:
 
 def test_shipped_spec_is_the_issue_s_study() -> None:
     spec = load_spec(shipped_path("campaign_montecarlo.toml"))
-    assert [c.preset for c in spec.controllers] == ["mpc", "pi-scheduled", "linear-mpc"]
+    assert [c.kind for c in spec.controllers] == ["mpc", "pi_gs", "linear_mpc"]
     assert [Path(s).stem for s in spec.scenarios] == ["staircase", "voltage_sag"]
     assert len(spec.expand()) == 3 * 200 * 2
     small = load_spec(shipped_path("campaign_montecarlo.toml"), samples=3, time_scale=0.1,

@@ -125,24 +125,6 @@ def test_env_pins_blas_in_workers() -> None:
     assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
 
 
-@pytest.mark.slow
-def test_benchmark_reports_every_executor_and_consistent_rates() -> None:
-    pytest.importorskip("dask.distributed")
-    from czmpc.campaigns.bench_campaign import benchmark_executors, format_benchmark_markdown
-
-    spec = spec_from_dict({**SPEC, "seeds": 1})
-    timings = benchmark_executors(spec, workers=2)
-    assert [(t.executor, t.workers, t.n_runs, t.n_errors) for t in timings] == [
-        ("serial", 1, 6, 0), ("processes", 2, 6, 0), ("dask", 2, 6, 0)]
-    for t in timings:
-        assert t.runs_per_s == pytest.approx(t.n_runs / t.wall_s)
-    assert timings[0].efficiency == pytest.approx(1.0)
-    text = format_benchmark_markdown(timings, spec=spec, command=["czmpc"], machine="m")
-    assert text.count("\n| ") == 5  # header, separator, three executors
-    assert all(t.load_average_start >= 0 and t.load_average_end >= 0 for t in timings)
-    assert f"{timings[0].load_average_start:.1f} / {timings[0].load_average_end:.1f}" in text
-
-
 def test_dask_batches_keep_every_run_once_in_order() -> None:
     from czmpc.campaigns.runner import DASK_BATCH_MAX, dask_batches
 

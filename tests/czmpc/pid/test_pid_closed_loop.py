@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from czmpc.campaigns.bench import BenchModels, build_controller
+from czmpc.campaigns.build import build_controller
 from czmpc.campaigns.pid_comparison import fixed_at_operating_point, table_pi_factory
 from czmpc.campaigns.simulation import SimulationOutcome, run_simulation
 from czmpc.pid.controller import ScheduledPID, TableSchedule
@@ -70,6 +70,7 @@ def test_schedule_beats_a_fixed_pi_tuned_at_the_operating_point_on_the_worst_ste
 
 def test_pi_table_is_a_controller_kind_of_campaigns_and_regress() -> None:
     scenario = load_scenario("staircase")
-    ctrl = build_controller("pi_table", BenchModels.shipped(), scenario, initial_triac_pct=45.0)
+    model = load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
+    ctrl = build_controller("pi_table", model, scenario, initial_triac_pct=45.0)
     assert isinstance(ctrl, ScheduledPID)
     assert ctrl.triac_limits_pct == (28.0, 70.0) and len(ctrl.schedule.tunings) >= 3  # type: ignore[attr-defined]

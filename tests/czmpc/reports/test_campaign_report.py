@@ -14,7 +14,7 @@ def _row(controller: str, iae: float, sse: float, limits: int = 0, status: str =
     return {"run_id": f"{controller}|{iae}", "controller": controller, "status": status,
             "error": "" if status == "ok" else "RuntimeError: x", "iae_kw_s": iae,
             "max_abs_steady_state_error_kw": sse, "n_limit_violations": limits,
-            "n_rate_violations": 0, "n_fallbacks": 1, "max_overshoot_kw": 0.1, "seed": 3}
+            "n_rate_violations": 0, "n_solver_failures": 1, "max_overshoot_kw": 0.1, "seed": 3}
 
 
 def test_summary_statistics() -> None:

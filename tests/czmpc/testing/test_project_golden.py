@@ -1,4 +1,4 @@
-"""The project's controller regression tests, run through czmpc.testing on tests/golden.
+"""The project's controller regression tests, run through the pytest plugin on tests/golden.
 
 tests/golden is the golden directory of the shipped suite regress_project_golden.toml
 (`czmpc regress record regress_project_golden.toml --out tests/golden --force`).
@@ -10,14 +10,14 @@ from pathlib import Path
 
 import pytest
 
-from czmpc.campaigns.bench import CONTROLLERS, PLANTS
-from czmpc.testing.cases import MUTATIONS
+from czmpc.campaigns.build import MUTATIONS
+from czmpc.campaigns.regression import DEFAULT_METRICS, audit_golden, check_golden, load_golden_dir
 from czmpc.testing.plugin import RegressChecker
-from czmpc.testing.regress import audit_golden, check_golden, load_golden_dir
-from czmpc.testing.suite import DEFAULT_METRICS
 from sim.scenario import list_scenarios
 
 GOLDEN = Path(__file__).resolve().parents[2] / "golden"
+CONTROLLERS = ("mpc", "nmpc", "linear_mpc", "pi_gs", "pi", "open_loop")
+PLANTS = ("model", "heater")
 
 
 def test_golden_set_covers_every_shipped_scenario_plant_and_controller() -> None:

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from czmpc.campaigns.build import MUTATIONS
+from czmpc.campaigns.regression import load_golden_dir
 from czmpc.cli import main
-from czmpc.testing.cases import MUTATIONS
-from czmpc.testing.regress import load_golden_dir
 
 
 def test_record_check_pass_then_a_doubled_weight_fails_naming_metric_and_divergence(
@@ -82,7 +82,7 @@ def test_bad_suite_and_missing_golden_directory_exit_2(
     suite.write_text('scenarios = ["staircase"]\n[[controllers]]\nkind = "mpc"\n'
                      'settings = "nope.toml"\n[[plants]]\nkind = "model"\n', encoding="utf-8")
     assert main(["regress", "record", str(suite), "--out", str(tmp_path / "g")]) == 2
-    assert "'settings = 'nope.toml'': no such file" in capsys.readouterr().err
+    assert "nope.toml: cannot read the settings file" in capsys.readouterr().err
     assert main(["regress", "check", str(tmp_path / "nothing")]) == 2
     assert "is not a golden directory" in capsys.readouterr().err
 
@@ -139,26 +139,22 @@ def test_audit_reports_caught_mutations_and_flags_a_suite_that_catches_none(
     assert "FLAGGED: the suite catches none of the mutations" in capsys.readouterr().out
 
 
-def test_bench_update_golden_is_deprecated_and_records_the_shipped_suite(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
-    import czmpc.testing.regress as regress
-
-    calls: list[tuple[Path, Path, bool]] = []
-
-    def fake_record(suite: Path, out: Path, *, force: bool, **_: object) -> Path:
-        calls.append((Path(suite), Path(out), force))
-        return Path(out) / "regress.json"
-
-    monkeypatch.setattr(regress, "record_suite", fake_record)
+def test_a_changed_recipe_step_is_named_with_its_old_and_new_power(
+        user_suite: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    recipe = user_suite.parent / "recipe_a.toml"
+    text = recipe.read_text(encoding="utf-8")
+    assert text.count("power_kw = 50.0") == 1
+    recipe.write_text(text.replace("power_kw = 50.0", "power_kw = 49.0"), encoding="utf-8")
     golden = tmp_path / "golden"
-    assert main(["bench", "--update-golden", "--golden-dir", str(golden)]) == 0
-    err = capsys.readouterr().err
-    assert "'czmpc bench --update-golden' is deprecated (since 0.2.0)" in err
-    assert "use: czmpc regress record regress_project_golden.toml" in err
-    assert [(s.name, o, f) for s, o, f in calls] == [("regress_project_golden.toml", golden, True)]
-    assert main(["bench", "--update-golden", "--golden-dir", str(golden),
-                 "--scenarios", "staircase"]) == 2
-    assert "--scenarios cannot be combined with --update-golden" in capsys.readouterr().err
+    assert main(["regress", "record", str(user_suite), "--out", str(golden)]) == 0
+    recipe.write_text(text, encoding="utf-8")  # the recipe's step: 49 -> 50 kW
+    report_dir = tmp_path / "report"
+    assert main(["regress", "check", str(golden), "--out", str(report_dir)]) == 1
+    out = capsys.readouterr().out
+    assert "input file changed: recipe_a.toml" in out
+    assert "setpoint[0].power_kw: 49.0 -> 50.0" in out
+    assert "setpoint[0].power_kw: 49.0 -> 50.0" in (report_dir / "report.md").read_text(
+        encoding="utf-8")
 
 
 def test_a_settings_file_that_became_invalid_is_bad_input_not_a_failed_case(

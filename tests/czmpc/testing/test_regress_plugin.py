@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from czmpc.testing.regress import record_suite
+from czmpc.campaigns.regression import record_suite
 
 pytest_plugins = ["pytester"]
 

@@ -1,5 +1,12 @@
 """Throughput of one campaign spec on the serial, process and Dask executors, one session.
 
+    python -m benchmarks.campaign_throughput [SPEC.toml] [--workers N] [--samples N]
+                                             [--time-scale X] [--controllers A,B] [--record]
+
+The spec defaults to the shipped campaign_throughput.toml; --record writes the table
+into BENCHMARKS.md, section 'Campaign executors' (that spec) or 'Campaign executors:
+spec NAME'.
+
 Per executor: runs per second (wall clock of the whole campaign, start-up of the pool
 or cluster included), scaling efficiency (runs/s over ``workers`` x the serial runs/s),
 scheduler overhead per run (``workers x wall - sum of the runs' own wall times``, over
@@ -12,9 +19,9 @@ cores the campaign had.
 
 from __future__ import annotations
 
+import argparse
 import os
 import resource
-import shlex
 import sys
 import tempfile
 import time
@@ -22,7 +29,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from czmpc.campaigns.campaign import CampaignSpec
+from benchmarks._md import BENCHMARKS_MD, machine_info, run_main, write_benchmarks_section
+from czmpc.campaigns.campaign import CampaignSpec, load_spec
 from czmpc.campaigns.runner import ExecutorName, run_campaign
 
 
@@ -79,7 +87,7 @@ def benchmark_executors(spec: CampaignSpec, *, workers: int = 2,
 
 
 def format_benchmark_markdown(timings: list[ExecutorTiming], *, spec: CampaignSpec,
-                              command: Sequence[str], machine: str) -> str:
+                              command: str, machine: str) -> str:
     """The BENCHMARKS.md section body: command, machine, one table row per executor."""
     from czmpc.reports.tables import format_table
 
@@ -92,7 +100,7 @@ def format_benchmark_markdown(timings: list[ExecutorTiming], *, spec: CampaignSp
           f"{t.load_average_start:.1f} / {t.load_average_end:.1f}"] for t in timings],
         markdown=True)
     return "\n".join([
-        f"Command: `{shlex.join(command)}`", "",
+        f"Command: `{command}`", "",
         f"Machine: {machine}", "",
         f"Spec `{spec.name}` ({spec.source}): {len(spec.expand())} runs, time scale "
         f"{spec.time_scale:g}. Efficiency: runs/s over workers x serial runs/s (goal >= 0.8). "
@@ -103,4 +111,51 @@ def format_benchmark_markdown(timings: list[ExecutorTiming], *, spec: CampaignSp
         "than the whole machine).", "", table])
 
 
-__all__ = ["ExecutorTiming", "benchmark_executors", "format_benchmark_markdown"]
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m benchmarks.campaign_throughput``."""
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.campaign_throughput",
+                                     description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("spec", metavar="SPEC.toml", nargs="?", default="campaign_throughput.toml",
+                        help="campaign spec file or shipped spec name (default: %(default)s)")
+    parser.add_argument("--workers", metavar="N", type=int, default=2,
+                        help="workers of the parallel executors (default: 2)")
+    parser.add_argument("--samples", metavar="N", type=int, default=None,
+                        help="override n of the spec's sampled plants")
+    parser.add_argument("--time-scale", metavar="X", type=float, default=None,
+                        help="override the spec's time_scale")
+    parser.add_argument("--controllers", metavar="A,B", default=None,
+                        help="run only these controllers of the spec")
+    parser.add_argument("--record", action="store_true",
+                        help="write the table into BENCHMARKS.md of this repository")
+    return parser
+
+
+def _run(args: argparse.Namespace) -> int:
+    from czmpc.cli._argtypes import file_or_shipped
+    from czmpc.cli._progress import Progress
+
+    names = None if args.controllers is None else [n.strip() for n in args.controllers.split(",")]
+    spec = load_spec(file_or_shipped(args.spec, "campaign spec"), samples=args.samples,
+                     time_scale=args.time_scale, controllers=names)
+    for message in spec.warnings:
+        print(f"warning: {message}", file=sys.stderr)
+    machine = machine_info().describe()
+    timings = benchmark_executors(spec, workers=args.workers, progress=Progress())
+    body = format_benchmark_markdown(timings, spec=spec, command=args.command_line,
+                                     machine=machine)
+    print(body)
+    if args.record:
+        suffix = "" if spec.name == "throughput" else f": spec '{spec.name}'"
+        write_benchmarks_section(BENCHMARKS_MD, body, heading=f"## Campaign executors{suffix}")
+    return 1 if any(t.n_errors for t in timings) else 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Measure, print, optionally record in BENCHMARKS.md; return the exit code."""
+    return run_main(build_parser(), _run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+

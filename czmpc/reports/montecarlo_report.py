@@ -1,12 +1,12 @@
 """Monte-Carlo summary of a campaign over sampled plants: offset-free and in-limits shares.
 
-Reads the rows of a campaign (`czmpc.campaigns.campaign.ROW_COLUMNS`) whose plants were
+Reads the rows of a campaign (`czmpc.campaigns.campaign.ROW_COLUMNS`, plain data) whose plants were
 drawn from the model's parameter uncertainty (``plant = "sampled k"``) and gives, per
 controller and scenario:
 
 * **offset-free**: the share of runs whose every setpoint change ends with |mean
-  measured error over the last quarter of its segment| < 0.05 kW, the error taken to
-  the reachable setpoint (`czmpc.campaigns.robustness`: the setpoint clipped to what that
+  measured error over the last quarter of its segment| below the campaign's threshold,
+  the error taken to the reachable setpoint (the row's ``offset_free``: the setpoint clipped to what that
   plant holds inside the allowed input range); a scenario without setpoint changes
   (the voltage sag) is judged over the last quarter of the whole run;
 * **within limits**: the share of runs with no sample outside the TRIAC limits, no move
@@ -25,7 +25,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from czmpc.campaigns.campaign import OFFSET_FREE_THRESHOLD_KW
 from czmpc.reports.tables import format_table
 
 if TYPE_CHECKING:
@@ -94,9 +93,12 @@ def rejection_summary(rows: Sequence[Row]) -> tuple[int, int, str]:
     return len(by_plant), rejected, ", ".join(s for s in sources if s) or "-"
 
 
-def format_montecarlo_markdown(rows: Sequence[Row], *, figure: str | None = None,
-                               warnings: Sequence[str] = ()) -> str:
-    """The Monte-Carlo section of a campaign report (empty when no plant was sampled)."""
+def format_montecarlo_markdown(rows: Sequence[Row], *, offset_free_threshold_kw: float,
+                               figure: str | None = None, warnings: Sequence[str] = ()) -> str:
+    """The Monte-Carlo section of a campaign report (empty when no plant was sampled).
+
+    ``offset_free_threshold_kw`` is the threshold the rows' ``offset_free`` was judged by.
+    """
     summary = montecarlo_summary(rows)
     if not summary:
         return ""
@@ -116,7 +118,7 @@ def format_montecarlo_markdown(rows: Sequence[Row], *, figure: str | None = None
         "model's anywhere in the identified input range) and drawn again.", "",
         *[f"**Warning:** {w}\n" for w in warnings],
         f"Offset-free: every setpoint change ends with |mean measured error over the last "
-        f"quarter of its segment| < {OFFSET_FREE_THRESHOLD_KW:g} kW, error to the reachable "
+        f"quarter of its segment| < {offset_free_threshold_kw:g} kW, error to the reachable "
         "setpoint (the setpoint clipped to what that plant holds in the allowed input "
         "range); a scenario without setpoint changes is judged over the last quarter of the "
         "run. Within limits: no sample outside the TRIAC limits or the allowed input range "

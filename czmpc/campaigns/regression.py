@@ -1,31 +1,39 @@
-"""Record a suite's golden results; check a controller against them; audit the suite.
+"""Regression suites: record a suite's golden results, check a controller, audit the suite.
 
-Golden directory (``GOLDEN_DIR``), written by `record_suite`:
+A suite is a campaign spec (`czmpc.campaigns.campaign`) plus the metrics it holds
+(``metrics``, default `DEFAULT_METRICS`) and their tolerances (``[tolerances]``); its
+seeds default to `DEFAULT_SEEDS`. Its runs are the campaign engine's
+(`czmpc.campaigns.campaign.simulate_run` on the executors of
+`czmpc.campaigns.runner.map_runs`), named as cases ``<controller>/<plant>/<scenario>/s<seed>``.
 
-* ``regress.json``: format `GOLDEN_FORMAT`; provenance (czmpc version, Python, platform,
-  time); the suite's name and where its folder is (relative to the golden directory, so
-  a repository checked out elsewhere still finds it); the SHA-256 of every input file
-  (models, settings files, scenario files); per case its metrics, each ``{"value", "tol",
+Golden directory, written by `record_suite` (format `GOLDEN_FORMAT`, a contract of
+users' recorded suites):
+
+* ``regress.json``: provenance (czmpc version, Python, platform, time); the suite's
+  name and where its folder is (relative to the golden directory, so a repository
+  checked out elsewhere still finds it); the SHA-256 of every input file (models,
+  settings files, scenario files); per case its metrics, each ``{"value", "tol",
   "source"}``, the trajectory band per signal and the trajectory file;
 * ``suite/suite.toml``: the suite as recorded (the check runs this copy, so an edited
   suite file cannot silently change what is checked);
-* ``inputs/``: copies of the input files as recorded (to say *what* changed in a settings
-  or model file when a check fails);
-* ``trajectories/NNNN.npz``: per case, float32 ``time_s``, ``setpoint_kw``,
-  ``power_true_kw``, ``triac_pct``.
+* ``inputs/``: copies of the input files as recorded (to say *what* changed in a settings,
+  model or scenario file when a check fails);
+* ``trajectories/NNNN.npz``: per case, float32 `TRAJECTORY_SIGNALS`.
 
-Tolerances are derived as the project's golden set derives them
-(`czmpc.campaigns.golden`): every case is run again at tight solver tolerances; a metric
-may move by ``SOLVER_SAFETY`` times the change that re-run caused, or by the platform's
-floating-point share ``FLOAT_RTOL`` x |value| (at least ``FLOAT_ATOL``), whichever is
-larger; counts must match exactly. A tolerance the suite sets replaces the derived one.
-The trajectory band of each signal is derived the same way from the largest difference
-over the run, plus the float32 rounding of the stored trajectory.
+The tolerance rule (`derived_tolerance`, one rule for every golden number): every case is
+run again at tight solver tolerances (`czmpc.campaigns.build.TIGHT_OSQP`,
+``TIGHT_IPOPT_TOL``); a metric may move by `SOLVER_SAFETY` times the change that re-run
+caused, or by the platform's floating-point share `FLOAT_RTOL` x |value| (at least
+`FLOAT_ATOL`: bit-level differences grow through a few hundred steps of a stable loop to
+far below 1e-9), whichever is larger; counts must match exactly. A tolerance the suite
+sets replaces the derived one. The trajectory band of each signal is derived the same way
+from the largest difference over the run, plus the float32 rounding of the stored
+trajectory.
 
 `check_golden` re-runs every case with the input files as they are now; a case fails when
 a metric leaves its tolerance or the run raises. For every case it also finds the first
 time the new trajectory leaves the golden band. `audit_golden` re-runs the cases with the
-controller mutated (`czmpc.testing.cases.MUTATIONS`) and says which mutations the suite
+controller mutated (`czmpc.campaigns.build.MUTATIONS`) and says which mutations the suite
 catches.
 """
 
@@ -40,33 +48,26 @@ import platform
 import shutil
 import sys
 import tomllib
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from czmpc.campaigns.golden import FLOAT_ATOL, FLOAT_RTOL, SOLVER_SAFETY, compare
+from czmpc.campaigns.build import MUTATED_KINDS, MUTATIONS, MutationNotApplicable
+from czmpc.campaigns.campaign import (
+    CampaignError,
+    CampaignSpec,
+    RunSpec,
+    error_text,
+    load_model_cached,
+    simulate_run,
+    spec_from_dict,
+)
+from czmpc.campaigns.measure import COUNT_COLUMNS, metric_row
+from czmpc.campaigns.runner import map_runs
 from czmpc.errors import CzmpcError
-from czmpc.testing.cases import (
-    BAND_SIGNALS,
-    MUTATED_KINDS,
-    MUTATIONS,
-    TRAJECTORY_SIGNALS,
-    CaseResult,
-    CaseTask,
-    base_settings,
-)
-from czmpc.testing.executors import TaskProgress, map_tasks
-from czmpc.testing.suite import (
-    COUNT_METRICS,
-    CaseSpec,
-    RegressError,
-    SuiteSpec,
-    load_suite,
-    parse_suite_text,
-)
 from sysid.atomic import atomic_write_text
 
 GOLDEN_FORMAT = "czmpc-regress/1"
@@ -74,23 +75,181 @@ GOLDEN_FILE = "regress.json"
 SUITE_COPY = "suite/suite.toml"
 INPUTS_DIR = "inputs"
 TRAJECTORY_DIR = "trajectories"
+#: Metrics held when the suite names none (the project's golden set holds these).
+DEFAULT_METRICS: tuple[str, ...] = (
+    "iae_kw_s", "ise_kw2_s", "max_overshoot_kw", "max_abs_steady_state_error_kw",
+    "input_total_variation_pct", "n_limit_violations", "n_rate_violations", "n_solver_failures",
+)
+#: Seeds of a suite that names none.
+DEFAULT_SEEDS: tuple[int, ...] = (7,)
+#: Signals of the compact trajectory, with their units in the names.
+TRAJECTORY_SIGNALS: tuple[str, ...] = ("time_s", "setpoint_kw", "power_true_kw", "triac_pct")
+#: Signals compared against the golden band (the first time one leaves it is reported).
+BAND_SIGNALS: tuple[str, ...] = ("power_true_kw", "triac_pct")
+#: Allowed multiple of the metric change caused by the solver tolerance.
+SOLVER_SAFETY = 10.0
+#: Platform floating-point allowance, relative to the value.
+FLOAT_RTOL = 1e-6
+#: Platform floating-point allowance, absolute, in the metric's unit.
+FLOAT_ATOL = 1e-9
 TOLERANCE_RULE = (f"max({SOLVER_SAFETY:g} x |metric(default solver) - metric(tight solver)|, "
                   f"{FLOAT_RTOL:g} x |metric|, {FLOAT_ATOL:g}); counts exact; a suite's "
                   f"[tolerances] replace the derived ones")
+#: ``progress(done, total)`` after each finished case.
+TaskProgress = Callable[[int, int], None]
+
+
+class RegressError(CampaignError):
+    """A suite or golden directory that cannot be used as written (the message says why)."""
 
 
 class RegressRunError(CzmpcError, RuntimeError):
     """A case that could not be run while recording (the golden directory is not written)."""
 
 
-def _version() -> str:
-    from sysid._version import __version__
-    return str(__version__)
+# --- suites and cases ------------------------------------------------------------------------
+def suite_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>",
+                    base_dir: Path | None = None, default_name: str | None = None) -> CampaignSpec:
+    """Parse a suite: a campaign spec with `DEFAULT_SEEDS` and `DEFAULT_METRICS` by default.
+
+    Raises
+    ------
+    RegressError
+        A missing, unknown or invalid key, or a file that does not exist.
+    """
+    full = {"seeds": list(DEFAULT_SEEDS), "metrics": list(DEFAULT_METRICS), **doc}
+    try:
+        return spec_from_dict(full, source=source, base_dir=base_dir, what="suite",
+                              default_name=default_name)
+    except CampaignError as exc:
+        raise RegressError(str(exc)) from None
+
+
+def parse_suite_text(text: str, *, source: str, base_dir: Path,
+                     default_name: str | None = None) -> CampaignSpec:
+    """Parse suite TOML text (relative paths from ``base_dir``; see `suite_from_dict`).
+
+    Raises
+    ------
+    RegressError
+        Bad TOML or an invalid suite.
+    """
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise RegressError(f"suite {source}: not valid TOML: {exc}") from None
+    return suite_from_dict(doc, source=source, base_dir=base_dir, default_name=default_name)
+
+
+def load_suite(path: str | Path) -> CampaignSpec:
+    """Read a suite file (relative paths in it are taken from its folder).
+
+    Raises
+    ------
+    RegressError
+        Unreadable file, bad TOML, or an invalid suite.
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise RegressError(f"suite {p}: cannot read it: {exc.strerror}") from None
+    return parse_suite_text(text, source=str(p), base_dir=p.resolve().parent)
+
+
+@dataclass(frozen=True, kw_only=True)
+class CaseResult:
+    """What one case run produced.
+
+    Parameters
+    ----------
+    case_id :
+        The case.
+    metrics :
+        The metric columns (`czmpc.campaigns.measure.metric_row`); empty on error.
+    trajectory :
+        `TRAJECTORY_SIGNALS` as float64 arrays; empty on error.
+    error :
+        ``""``, or the exception's type, message and place when the run raised.
+    applicable :
+        False when the run's mutation does not change this case (nothing was run).
+    """
+
+    case_id: str
+    metrics: Mapping[str, float] = field(default_factory=dict)
+    trajectory: Mapping[str, np.ndarray] = field(default_factory=dict, repr=False)
+    error: str = ""
+    applicable: bool = True
+
+
+def execute_case(run: RunSpec) -> CaseResult:
+    """Run one case; a run that raises is returned with ``error`` set, not raised."""
+    if run.mutation is not None and run.controller.kind not in MUTATED_KINDS:
+        return CaseResult(case_id=run.case_id, applicable=False)
+    try:
+        result = simulate_run(run).result
+    except MutationNotApplicable:
+        return CaseResult(case_id=run.case_id, applicable=False)
+    except Exception as exc:  # noqa: BLE001 - a crashed case is a result of the check
+        return CaseResult(case_id=run.case_id, error=error_text(exc))
+    metrics = {k: float(v) for k, v in metric_row(result).items()}
+    trajectory = {k: np.asarray(getattr(result, k), dtype=np.float64) for k in TRAJECTORY_SIGNALS}
+    return CaseResult(case_id=run.case_id, metrics=metrics, trajectory=trajectory)
+
+
+def run_cases(runs: Sequence[RunSpec], *, executor: str = "serial", workers: int = 2,
+              dask_address: str = "local", progress: TaskProgress | None = None
+              ) -> list[CaseResult]:
+    """`execute_case` of every run on an executor (`czmpc.campaigns.runner.map_runs`), in order.
+
+    Raises
+    ------
+    RegressError
+        Unknown executor, bad worker count, Dask missing.
+    """
+    results: list[CaseResult | None] = [None] * len(runs)
+    try:
+        for n_done, (i, result) in enumerate(map_runs(
+                execute_case, runs, executor=executor, workers=workers,
+                dask_address=dask_address), start=1):
+            results[i] = result
+            if progress is not None:
+                progress(n_done, len(runs))
+    except CampaignError as exc:
+        raise RegressError(str(exc)) from None
+    return [r for r in results if r is not None]
+
+
+# --- the tolerance rule ----------------------------------------------------------------------
+def derived_tolerance(metric: str, nominal: float, tight: float) -> float:
+    """Tolerance of one metric from its nominal and tight-solver values (module notes)."""
+    if metric in COUNT_COLUMNS:
+        return 0.0
+    if not math.isfinite(nominal):
+        return FLOAT_ATOL
+    solver = SOLVER_SAFETY * abs(nominal - tight) if math.isfinite(tight) else 0.0
+    return max(solver, FLOAT_RTOL * abs(nominal), FLOAT_ATOL)
+
+
+def trajectory_band(nominal: np.ndarray, tight: np.ndarray) -> float:
+    """Allowed deviation of one signal from its golden trajectory (module notes)."""
+    both = np.isfinite(nominal) & np.isfinite(tight)
+    solver = (SOLVER_SAFETY * float(np.max(np.abs(nominal[both] - tight[both])))
+              if nominal.shape == tight.shape and both.any() else 0.0)
+    scale = float(np.max(np.abs(nominal[np.isfinite(nominal)]), initial=0.0))
+    rounding = float(np.max(np.abs(nominal - nominal.astype(np.float32)), initial=0.0,
+                            where=np.isfinite(nominal)))
+    return max(solver, FLOAT_RTOL * scale, FLOAT_ATOL) + rounding
 
 
 def sha256_file(path: str | Path) -> str:
     """SHA-256 of a file's bytes (hex)."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _version() -> str:
+    from sysid._version import __version__
+    return str(__version__)
 
 
 def _input_key(path: str, base: Path) -> str:
@@ -110,13 +269,13 @@ def _input_key(path: str, base: Path) -> str:
     return p.as_posix()
 
 
-def _case_inputs(case: CaseSpec) -> dict[str, str]:
+def _case_inputs(case: RunSpec) -> dict[str, str]:
     """Role -> path of the files a case reads."""
     c = case.controller
     out = {"model": c.model_path}
     if c.kind == "linear_mpc":
         out["linear_model"] = c.linear_model_path
-    if c.settings_path is not None:
+    if c.settings_path:
         out["settings"] = c.settings_path
     if case.scenario.endswith(".toml"):
         out["scenario"] = case.scenario
@@ -127,25 +286,18 @@ def _finite(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
-def derived_tolerance(metric: str, nominal: float, tight: float) -> float:
-    """Tolerance of one metric from its nominal and tight-solver values (module notes)."""
-    if metric in COUNT_METRICS:
-        return 0.0
-    if not math.isfinite(nominal):
-        return FLOAT_ATOL
-    solver = SOLVER_SAFETY * abs(nominal - tight) if math.isfinite(tight) else 0.0
-    return max(solver, FLOAT_RTOL * abs(nominal), FLOAT_ATOL)
+def validate_inputs(suite: CampaignSpec) -> None:
+    """Read every controller's model once, before any case runs.
 
-
-def trajectory_band(nominal: np.ndarray, tight: np.ndarray) -> float:
-    """Allowed deviation of one signal from its golden trajectory (module notes)."""
-    both = np.isfinite(nominal) & np.isfinite(tight)
-    solver = (SOLVER_SAFETY * float(np.max(np.abs(nominal[both] - tight[both])))
-              if nominal.shape == tight.shape and both.any() else 0.0)
-    scale = float(np.max(np.abs(nominal[np.isfinite(nominal)]), initial=0.0))
-    rounding = float(np.max(np.abs(nominal - nominal.astype(np.float32)), initial=0.0,
-                            where=np.isfinite(nominal)))
-    return max(solver, FLOAT_RTOL * scale, FLOAT_ATOL) + rounding
+    Raises
+    ------
+    SysidError
+        A model file that cannot be used (bad input, not a failed case).
+    """
+    for entry in suite.controllers:
+        load_model_cached(entry.model_path)
+        if entry.kind == "linear_mpc":
+            load_model_cached(entry.linear_model_path)
 
 
 # --- record ----------------------------------------------------------------------------------
@@ -177,7 +329,7 @@ def record_suite(
     force :
         Replace an existing golden directory.
     executor, workers, dask_address, progress :
-        See `czmpc.testing.executors.map_tasks`.
+        See `run_cases`.
 
     Returns
     -------
@@ -197,8 +349,8 @@ def record_suite(
     _prepare_out(out, force)
     validate_inputs(suite)
     cases = suite.expand()
-    tasks = [CaseTask(case=c, tight=t) for c in cases for t in (False, True)]
-    results = map_tasks(tasks, executor=executor, workers=workers, dask_address=dask_address,
+    tasks = [replace(c, tight=t) for c in cases for t in (False, True)]
+    results = run_cases(tasks, executor=executor, workers=workers, dask_address=dask_address,
                         progress=progress)
     errors = [f"{r.case_id}{' (tight solver)' if i % 2 else ''}: {r.error}"
               for i, r in enumerate(results) if r.error]
@@ -232,7 +384,7 @@ def record_suite(
         arrays: dict[str, Any] = {s: nominal.trajectory[s].astype(np.float32)
                                   for s in TRAJECTORY_SIGNALS}
         np.savez_compressed(tmp / traj_name, **arrays)
-        doc_cases[case.case_id] = {
+        doc_cases[nominal.case_id] = {
             "controller": case.controller.name, "kind": case.controller.kind,
             "plant": case.plant.label, "scenario": Path(case.scenario).stem, "seed": case.seed,
             "inputs": {role: _input_key(p, base) for role, p in _case_inputs(case).items()},
@@ -282,7 +434,7 @@ class Golden:
 
     path: Path
     doc: Mapping[str, Any] = field(repr=False)
-    suite: SuiteSpec
+    suite: CampaignSpec
     suite_dir: Path
 
     def trajectory(self, case_id: str) -> dict[str, np.ndarray]:
@@ -493,19 +645,23 @@ def first_divergence(golden: Mapping[str, np.ndarray], new: Mapping[str, np.ndar
     return best
 
 
-def _flatten(doc: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+def _flatten(doc: object, name: str = "") -> dict[str, Any]:
+    """Leaf values by dotted key; list items by index (``setpoint[1].power_kw``)."""
+    items: Iterable[tuple[str, object]]
+    if isinstance(doc, Mapping):
+        items = ((f"{name}.{k}" if name else str(k), v) for k, v in doc.items())
+    elif isinstance(doc, list):
+        items = ((f"{name}[{i}]", v) for i, v in enumerate(doc))
+    else:
+        return {name: doc}
     out: dict[str, Any] = {}
-    for key, value in doc.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, Mapping):
-            out.update(_flatten(value, f"{name}."))
-        else:
-            out[name] = value
+    for key, value in items:
+        out.update(_flatten(value, key))
     return out
 
 
 def _describe_change(old: Path, new: Path) -> tuple[str, ...]:
-    """Changed keys of a TOML or JSON file, ``"key: old -> new"`` (at most 8)."""
+    """Changed values of a TOML or JSON file, ``"key: old -> new"`` (at most 8), in full."""
     def read(p: Path) -> dict[str, Any]:
         text = p.read_text(encoding="utf-8")
         doc = tomllib.loads(text) if p.suffix == ".toml" else json.loads(text)
@@ -518,8 +674,7 @@ def _describe_change(old: Path, new: Path) -> tuple[str, ...]:
     lines = []
     for key in sorted(set(a) | set(b)):
         if a.get(key, "<absent>") != b.get(key, "<absent>"):
-            show = [repr(v)[:60] for v in (a.get(key, "<absent>"), b.get(key, "<absent>"))]
-            lines.append(f"{key}: {show[0]} -> {show[1]}")
+            lines.append(f"{key}: {a.get(key, '<absent>')!r} -> {b.get(key, '<absent>')!r}")
     return tuple(lines[:8]) + ((f"... and {len(lines) - 8} more",) if len(lines) > 8 else ())
 
 
@@ -539,18 +694,19 @@ def input_changes(golden: Golden) -> tuple[InputChange, ...]:
     return tuple(out)
 
 
-def validate_inputs(suite: SuiteSpec) -> None:
-    """Read every controller's model and settings file once, before any case runs.
+def _outside(golden: Mapping[str, Mapping[str, float | None]], new: Mapping[str, float]
+             ) -> Iterable[MetricFailure]:
+    """Metrics of ``new`` outside ``golden`` (``{metric: {"value", "tol"}}``).
 
-    Raises
-    ------
-    SysidError, SettingsError
-        A model or settings file that cannot be used (bad input, not a failed case).
+    NaN matches NaN (stored as null: e.g. no overshoot in a run without a setpoint
+    change); a missing metric fails.
     """
-    from sysid.modelfile import load_model
-
-    for entry in suite.controllers:
-        base_settings(entry, load_model(entry.model_path))
+    for name, entry in golden.items():
+        value = math.nan if entry.get("value") is None else float(entry["value"])  # type: ignore[arg-type]
+        tol = float(entry.get("tol") or 0.0)
+        got = float(new.get(name, math.nan))
+        if not (abs(got - value) <= tol or (math.isnan(value) and math.isnan(got) and name in new)):
+            yield MetricFailure(metric=name, golden=value, tolerance=tol, new=got)
 
 
 def _judge(golden: Golden, case_id: str, result: CaseResult, changed: set[str]) -> CaseCheck:
@@ -559,9 +715,7 @@ def _judge(golden: Golden, case_id: str, result: CaseResult, changed: set[str]) 
     if result.error:
         return CaseCheck(case_id=case_id, failures=(), divergence=None, error=result.error,
                          changed_inputs=causes)
-    mismatches = compare(case_id, entry["metrics"], result.metrics)
-    failures = tuple(MetricFailure(metric=m.metric, golden=m.expected, tolerance=m.tolerance,
-                                   new=m.actual) for m in mismatches)
+    failures = tuple(_outside(entry["metrics"], result.metrics))
     divergence = first_divergence(golden.trajectory(case_id), result.trajectory, entry["band"])
     return CaseCheck(case_id=case_id, failures=failures, divergence=divergence, error="",
                      changed_inputs=causes,
@@ -582,11 +736,11 @@ def check_golden(
     suite_dir :
         See `load_golden_dir`.
     executor, workers, dask_address, progress :
-        See `czmpc.testing.executors.map_tasks`.
+        See `run_cases`.
     cases :
         Case ids to check; None: all.
     mutation :
-        Run the controller mutated (a key of `czmpc.testing.cases.MUTATIONS`); cases the
+        Run the controller mutated (a key of `czmpc.campaigns.build.MUTATIONS`); cases the
         mutation does not change are left out.
 
     Raises
@@ -608,7 +762,7 @@ def check_golden(
         chosen = [c for c in chosen if c.case_id in set(cases)]
     changes = input_changes(golden)
     validate_inputs(golden.suite)
-    results = map_tasks([CaseTask(case=c, mutation=mutation) for c in chosen], executor=executor,
+    results = run_cases([replace(c, mutation=mutation) for c in chosen], executor=executor,
                         workers=workers, dask_address=dask_address, progress=progress)
     changed = {c.name for c in changes}
     checks = tuple(_judge(golden, r.case_id, r, changed) for r in results if r.applicable)
@@ -625,7 +779,7 @@ class MutationResult:
     Parameters
     ----------
     mutation :
-        A key of `czmpc.testing.cases.MUTATIONS`.
+        A key of `czmpc.campaigns.build.MUTATIONS`.
     n_cases :
         Cases the mutation changes.
     caught :
@@ -673,7 +827,7 @@ def audit_golden(
 ) -> AuditReport:
     """Mutate the recorded controller and report which mutations the suite catches.
 
-    Only cases of the mutated kinds (`czmpc.testing.cases.MUTATED_KINDS`) are run: first
+    Only cases of the mutated kinds (`czmpc.campaigns.build.MUTATED_KINDS`) are run: first
     unchanged (a case that already fails is left out), then once per mutation.
 
     Raises
@@ -710,26 +864,40 @@ def audit_golden(
 
 
 __all__ = [
+    "BAND_SIGNALS",
+    "DEFAULT_METRICS",
+    "DEFAULT_SEEDS",
+    "FLOAT_ATOL",
+    "FLOAT_RTOL",
     "GOLDEN_FILE",
     "GOLDEN_FORMAT",
+    "SOLVER_SAFETY",
     "TOLERANCE_RULE",
+    "TRAJECTORY_SIGNALS",
     "AuditReport",
     "CaseCheck",
+    "CaseResult",
     "CheckReport",
     "Divergence",
     "Golden",
     "InputChange",
     "MetricFailure",
     "MutationResult",
+    "RegressError",
     "RegressRunError",
     "audit_golden",
     "check_golden",
     "derived_tolerance",
+    "execute_case",
     "first_divergence",
     "input_changes",
     "load_golden_dir",
+    "load_suite",
+    "parse_suite_text",
     "record_suite",
+    "run_cases",
     "sha256_file",
+    "suite_from_dict",
     "trajectory_band",
     "validate_inputs",
 ]

@@ -14,7 +14,7 @@ import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from czmpc.testing.regress import AuditReport, CaseCheck, CheckReport
+from czmpc.campaigns.regression import AuditReport, CaseCheck, CheckReport
 from sysid.atomic import atomic_path, atomic_write_text
 
 _SIGNAL_NAMES = {"power_true_kw": "true power [kW]", "triac_pct": "TRIAC input [%]"}

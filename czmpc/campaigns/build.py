@@ -1,0 +1,238 @@
+"""The one place that builds a run's plant and its controller.
+
+Plants (`build_plant`): ``model`` (`sim.model_plant.ModelPlant` of the model, started as
+`ModelPlant.for_scenario` starts it), ``heater`` (`sim.heater.VirtualHeater`, grey-box
+physics, started in steady state at the input whose heater power is the initial
+setpoint), ``perturbed`` (the model perturbed by `sim.perturbed.perturb_model`) and
+``sampled`` (the model with parameters drawn from its covariance,
+`czmpc.campaigns.sampling.sample_plant`). A perturbed or sampled plant starts at rest at
+its own steady-state input for the initial setpoint, so a plant with another gain does
+not start with an error.
+
+Controllers (`build_controller`, kinds `CONTROLLERS`). Fairness: every controller gets
+the Hammerstein MPC's allowed input range (the identified range widened by the validity
+margin, inside the scenario's TRIAC limits), the scenario's rate limit and the plant's
+start input (`czmpc.campaigns.simulation.controller_settings`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import replace
+from typing import Any
+
+from czmpc.campaigns.simulation import controller_settings, heater_steady_state_triac_pct
+from czmpc.errors import CzmpcError
+from czmpc.settings import MPCSettings, OSQPOptions
+from sim.heater import HeaterParams, VirtualHeater
+from sim.heater import steady_state as heater_steady_state
+from sim.model_plant import ModelPlant, steady_state_triac_pct
+from sim.protocols import Controller, Plant
+from sim.scenario import Scenario
+from sysid.model import HammersteinModel
+
+#: Controller kinds and what they are.
+CONTROLLERS: dict[str, str] = {
+    "mpc": "offset-free MPC, OSQP, inverted f (Hammerstein)",
+    "nmpc": "nonlinear MPC, CasADi + IPOPT, f inside the dynamics (Hammerstein)",
+    "linear_mpc": "offset-free MPC on the linear ARMAX(1,2,1)",
+    "pi_gs": "PI, anti-windup, gain scheduled on f'(ds)",
+    "pi": "PI, anti-windup, fixed gain",
+    "pi_table": "PI scheduled by a czmpc.pid table (SIMC, Ms <= 1.4 per row), velocity form",
+    "open_loop": "open-loop inversion of the steady state (no feedback)",
+}
+#: Campaign spellings of the kinds (``preset = "pi-scheduled"``) -> kind.
+PRESET_ALIASES: dict[str, str] = {"pi-scheduled": "pi_gs", "linear-mpc": "linear_mpc",
+                                  "pi-table": "pi_table", "open-loop": "open_loop"}
+#: Ms bound of the ``pi_table`` controller's rows [-].
+PI_TABLE_MS = 1.4
+#: Solver settings of the tight reference re-run of a regression suite: far tighter than
+#: the defaults (OSQP 1e-5, IPOPT 1e-8), so a metric's change measures what the default
+#: tolerance allows.
+TIGHT_OSQP = OSQPOptions(eps_abs=1e-9, eps_rel=1e-9, max_iter=100_000)
+TIGHT_IPOPT_TOL = 1e-11
+
+
+class BuildError(CzmpcError, ValueError):
+    """An unknown plant or controller kind."""
+
+
+class MutationNotApplicable(Exception):  # noqa: N818 - a signal, not an error
+    """The mutation does not change this controller (e.g. no rate limit to switch off)."""
+
+
+def _double_move_weight(s: MPCSettings) -> MPCSettings | None:
+    return s.with_updates(move_weight=2.0 * s.move_weight)
+
+
+def _shorter_horizon(s: MPCSettings) -> MPCSettings | None:
+    shorter = max(1, round(0.8 * s.horizon_steps))
+    return None if shorter == s.horizon_steps else s.with_updates(horizon_steps=shorter)
+
+
+def _no_rate_limit(s: MPCSettings) -> MPCSettings | None:
+    return None if s.max_move_pct_per_step is None else s.with_updates(max_move_pct_per_step=None)
+
+
+def _other_disturbance_model(s: MPCSettings) -> MPCSettings | None:
+    return s.with_updates(disturbance_model="input" if s.disturbance_model == "output" else "output")
+
+
+#: Mutations of an ``mpc`` controller's final settings (after the scenario's limits are
+#: merged in): name -> change, None where it does not apply.
+MUTATIONS: dict[str, Callable[[MPCSettings], MPCSettings | None]] = {
+    "move_weight x2": _double_move_weight,
+    "horizon -20%": _shorter_horizon,
+    "rate limit off": _no_rate_limit,
+    "disturbance model": _other_disturbance_model,
+}
+#: Controller kinds a mutation changes.
+MUTATED_KINDS: frozenset[str] = frozenset({"mpc"})
+
+
+def heater_params(scenario: Scenario, *, noise: bool) -> HeaterParams:
+    """The virtual heater's parameters for ``scenario``, noise-free unless ``noise``."""
+    params = HeaterParams(ts_s=scenario.ts_s)
+    return params if noise else replace(params, sensor_noise_std_kw=0.0, grid_wander_std=0.0)
+
+
+def build_plant(kind: str, model: HammersteinModel, scenario: Scenario, *, noise: bool
+                ) -> tuple[Plant, float, Callable[[float], float]]:
+    """The plant, the TRIAC input [%] it starts at, and its steady power [kW] at an input [%].
+
+    Parameters
+    ----------
+    kind :
+        ``"model"`` or ``"heater"``; a perturbed or sampled plant is a ``"model"`` plant
+        of the perturbed or sampled ``model`` (it starts at its own steady state).
+    model :
+        The plant's model (model plants).
+    scenario :
+        Supplies the sampling time and the initial setpoint or input.
+    noise :
+        Plant noise on (the model's ``C/A e``, the heater's sensor noise and grid wander).
+
+    Raises
+    ------
+    BuildError
+        An unknown kind.
+    """
+    if kind == "heater":
+        params = heater_params(scenario, noise=noise)
+        s0 = heater_steady_state_triac_pct(scenario.initial_setpoint_kw, params)
+        return (VirtualHeater(replace(params, initial_triac_pct=s0)), s0,
+                lambda s: float(heater_steady_state(s, params)[0]))
+    if kind in ("model", "perturbed", "sampled"):
+        if kind == "model":
+            s0 = ModelPlant.for_scenario(model, scenario).initial_triac_pct
+        else:
+            s0 = steady_state_triac_pct(model, scenario.initial_setpoint_kw,
+                                        triac_limits_pct=scenario.triac_limits_pct)
+        return (ModelPlant(model, noise=noise, initial_triac_pct=s0), s0,
+                lambda s: max(0.0, float(model.steady_state_power_kw(s))))
+    raise BuildError(f"build_plant: expected a plant among model, heater, perturbed, sampled; "
+                     f"got {kind!r}")
+
+
+def build_controller(
+    kind: str, model: HammersteinModel, scenario: Scenario, *, initial_triac_pct: float,
+    linear_model: HammersteinModel | None = None, settings_doc: Mapping[str, object] | None = None,
+    tight: bool = False, mutation: str | None = None,
+) -> Controller:
+    """Controller ``kind`` (a key of `CONTROLLERS`) set up for ``scenario``.
+
+    Parameters
+    ----------
+    kind :
+        The controller.
+    model :
+        The Hammerstein model (MPC, NMPC, PI tuning, open loop).
+    scenario :
+        Supplies the TRIAC and rate limits.
+    initial_triac_pct :
+        The plant's start input [%] (clipped to the allowed range).
+    linear_model :
+        The linear ARMAX model of ``linear_mpc``.
+    settings_doc :
+        A parsed settings file (`czmpc.settings_file`) applied to each model's own
+        defaults; None: `MPCSettings.default_for`.
+    tight :
+        Solve at `TIGHT_OSQP` / `TIGHT_IPOPT_TOL` (the reference re-run of a suite).
+    mutation :
+        A key of `MUTATIONS` applied to an ``mpc``'s final settings, or None.
+
+    Raises
+    ------
+    BuildError
+        An unknown kind, or ``linear_mpc`` without a linear model.
+    MutationNotApplicable
+        The mutation does not change this controller.
+    """
+    from czmpc.controller import OffsetFreeMPC
+    from czmpc.settings_file import settings_from_dict
+
+    def settings_of(m: HammersteinModel) -> MPCSettings:
+        base = (MPCSettings.default_for(m) if settings_doc is None
+                else settings_from_dict(settings_doc, m))
+        final = controller_settings(m, scenario, initial_triac_pct=initial_triac_pct, settings=base)
+        if mutation is not None:
+            mutated = MUTATIONS[mutation](final) if kind in MUTATED_KINDS else None
+            if mutated is None:
+                raise MutationNotApplicable(mutation)
+            final = mutated
+        return final.with_updates(osqp=TIGHT_OSQP) if tight else final
+
+    if kind not in CONTROLLERS:
+        raise BuildError(f"build_controller: expected a controller among {', '.join(CONTROLLERS)}; "
+                         f"got {kind!r}")
+    if kind == "linear_mpc":
+        if linear_model is None:
+            raise BuildError("build_controller: linear_mpc needs a linear model")
+        return OffsetFreeMPC(linear_model, settings_of(linear_model))
+    settings = settings_of(model)
+    if kind == "mpc":
+        return OffsetFreeMPC(model, settings)
+    if kind == "nmpc":
+        from czmpc.peers.nmpc import NonlinearMPC
+        if tight:
+            return NonlinearMPC(model, settings, ipopt_tol=TIGHT_IPOPT_TOL)
+        return NonlinearMPC(model, settings)
+    return _classic(kind, model, settings)
+
+
+def _classic(kind: str, model: HammersteinModel, settings: MPCSettings) -> Controller:
+    """The PIs and the open loop, on the Hammerstein MPC's allowed range and rate limit."""
+    from czmpc.controller import OffsetFreeMPC
+
+    lo, hi = OffsetFreeMPC(model, settings).allowed_triac_range_pct
+    s0, rate = settings.initial_triac_pct, settings.max_move_pct_per_step
+    common: dict[str, Any] = {"initial_triac_pct": s0, "triac_limits_pct": (lo, hi),
+                              "max_move_pct_per_step": rate}
+    if kind in ("pi", "pi_gs"):
+        from czmpc.peers.pi import PIController
+        return PIController.tuned_for(model, gain_scheduled=kind == "pi_gs",
+                                      validity_margin_pct=settings.validity_margin_pct, **common)
+    if kind == "pi_table":
+        from czmpc.pid.controller import ScheduledPID
+        from czmpc.pid.design import DesignSpec
+        from czmpc.pid.schedule import tune_schedule
+        schedule = tune_schedule(model, DesignSpec(ms=PI_TABLE_MS), triac_range_pct=(lo, hi))
+        return ScheduledPID(schedule=schedule.table_schedule(), ts_s=model.ts_s, **common)
+    from czmpc.peers.open_loop import OpenLoopInversion
+    return OpenLoopInversion(model, validity_margin_pct=settings.validity_margin_pct, **common)
+
+
+__all__ = [
+    "CONTROLLERS",
+    "MUTATED_KINDS",
+    "MUTATIONS",
+    "PI_TABLE_MS",
+    "PRESET_ALIASES",
+    "TIGHT_IPOPT_TOL",
+    "TIGHT_OSQP",
+    "BuildError",
+    "MutationNotApplicable",
+    "build_controller",
+    "build_plant",
+    "heater_params",
+]
