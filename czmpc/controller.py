@@ -37,7 +37,7 @@ from czmpc.inversion import InputMap, build_input_map, slope
 from czmpc.kalman import Estimator, SteadyStateKalman
 from czmpc.mismatch import InnovationMonitor, MismatchStats, monitored_noise_std_kw
 from czmpc.modes import Mode, ModeTransition, Status, transition
-from czmpc.qp import MPCQP, QPSolution, move_bounds
+from czmpc.qp import MPCQP, MoveBounds, QPSolution
 from czmpc.realization import AugmentedModel, augment, innovations_form
 from czmpc.settings import MPCSettings
 from czmpc.supervision import LimitRamp, SetpointShaper, ShapedSetpoint
@@ -297,6 +297,7 @@ class OffsetFreeMPC:
         self._soft_max_rel = (None if settings.soft_power_max_kw is None
                               else settings.soft_power_max_kw - self._p_nom)
         self._max_move = settings.max_move_pct_per_step
+        self._bounds = MoveBounds(self._max_move, settings.horizon_steps)
         self._checker = MeasurementChecker(
             power_min_kw=rel.power_min_kw, power_max_kw=rel.power_max_kw,
             max_change_kw=rel.max_change_kw_per_sample, stuck_samples=rel.stuck_samples,
@@ -638,7 +639,7 @@ class OffsetFreeMPC:
         ds_base = min(em.ds_max_pct, max(em.ds_min_pct, ds_prev))
         w_base = self._w_prev if ds_base == ds_prev else em.f(ds_base)
         h = self._A @ (x - tgt.x_s) + self._Gx * eps
-        w_lo, w_hi, rate = move_bounds(em, ds_base, self._max_move, self.settings.horizon_steps)
+        w_lo, w_hi, rate = self._bounds.compute(em, ds_base)
         sol: QPSolution = self._qp.solve(
             h=h, w_prev=w_base, w_target=tgt.w_s, y_target=tgt.y_s, w_lo=w_lo,
             w_hi=w_hi, rate=rate, soft_min_rel_kw=self._soft_min_rel,

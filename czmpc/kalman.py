@@ -232,6 +232,10 @@ class Estimator:
         self._std_kw = [noise_std_kw * math.sqrt(v) for v in var.tolist()]
         self._A, self._B, self._C = np.array(model.A), np.array(model.B), np.array(model.C)
         self._M, self._G = np.array(self.gains.M), np.array(self.gains.G)
+        # [z+; C z+] = [[A, B, G]; C [A, B, G]] [z; w; eps]: one product per step.
+        ABG = np.column_stack([self._A, self._B, self._G])
+        self._ABG_C = np.vstack([ABG, self._C @ ABG])
+        self._v = np.empty(model.n_states + 2)
         self._history: deque[_Trace] = deque(maxlen=history_samples)
         self.restart(np.zeros(model.n_states))
 
@@ -291,9 +295,19 @@ class Estimator:
     def predict(self, w: float) -> None:
         """Time update ``z+ = A z + B w + G eps`` with the ``w`` applied (a non-finite result keeps ``z``)."""
         z = self._z
-        self._history.append(_Trace(z_post=z, eps=self.eps, w=w))
-        z_next = self._A @ z + self._B * w + self._G * self.eps
-        self._set(z_next if np.isfinite(z_next).all() else z.copy())
+        self._history.append(_Trace(z, self.eps, w))
+        v = self._v
+        v[:-2] = z
+        v[-2] = w
+        v[-1] = self.eps
+        out = self._ABG_C @ v
+        if np.isfinite(out).all():
+            z_next = out[:-1]
+            z_next.flags.writeable = False
+            self._z = z_next
+            self._y_pred = float(out[-1])
+        else:
+            self._set(z.copy())
         self.eps = 0.0
 
     def correct_input(self, w_assumed: float, w_applied: float) -> None:

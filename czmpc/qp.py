@@ -56,7 +56,8 @@ import scipy.linalg
 import scipy.sparse as sp
 
 from czmpc.errors import DesignError
-from czmpc.inversion import InputMap, evaluate_array
+from czmpc.inversion import InputMap
+from czmpc.inversion import slope as slope_at
 from czmpc.settings import OSQPOptions
 from sysid._typing import FloatArray
 
@@ -225,43 +226,86 @@ def lq_problem(
     return Axi, Bxi, Qxi, Rxi, Sxi
 
 
-def move_bounds(
-    input_map: InputMap, ds_prev_pct: float, max_move_pct_per_step: float | None,
-    horizon_steps: int,
-) -> tuple[FloatArray, FloatArray, FloatArray | None]:
-    """Box and rate bounds on the planned ``w`` (module notes).
+class MoveBounds:
+    """Box and rate bounds on the planned ``w`` (module notes), into arrays kept for reuse.
 
     Parameters
     ----------
-    input_map :
-        ``f`` on the allowed range.
-    ds_prev_pct :
-        TRIAC deviation applied at the previous sample [%], inside the allowed range.
     max_move_pct_per_step :
         ``delta`` [%/step], or None for no rate limit.
     horizon_steps :
         ``N``.
-
-    Returns
-    -------
-    w_lo, w_hi :
-        (N,) bounds on ``w_j`` [kW-equivalent]; element 0 is the exact first-move
-        interval.
-    rate :
-        (N-1,) limits ``m_j delta`` on ``|w_j - w_{j-1}|``, ``j = 1..N-1``
-        [kW-equivalent], or None without a rate limit.
     """
-    n = horizon_steps
-    if max_move_pct_per_step is None:
-        return (np.full(n, input_map.w_min), np.full(n, input_map.w_max), None)
-    reach = max_move_pct_per_step * np.arange(1, n + 1, dtype=float)
-    ds_lo = np.maximum(input_map.ds_min_pct, ds_prev_pct - reach)
-    ds_hi = np.minimum(input_map.ds_max_pct, ds_prev_pct + reach)
-    c = input_map.coefficients
-    w_lo = evaluate_array(c, ds_lo)
-    w_hi = evaluate_array(c, ds_hi)
-    rate = input_map.min_slopes(ds_lo[1:], ds_hi[1:]) * max_move_pct_per_step
-    return w_lo, w_hi, rate
+
+    def __init__(self, max_move_pct_per_step: float | None, horizon_steps: int) -> None:
+        n = horizon_steps
+        self.max_move_pct_per_step = max_move_pct_per_step
+        self.horizon_steps = n
+        reach = (0.0 if max_move_pct_per_step is None else max_move_pct_per_step) * np.arange(1, n + 1)
+        self._reach = np.concatenate([-reach, reach])   # [lower; upper] reach after j + 1 moves
+        self._ds = np.empty(2 * n)
+        self._w = np.empty(2 * n)
+        self._slope = np.empty(2 * n)
+        self._rate = np.empty(n - 1)
+        # Views, taken once: [lower; upper] halves, and their moves j >= 1.
+        self._w_lo, self._w_hi = self._w[:n], self._w[n:]
+        self._ds_lo1, self._ds_hi1 = self._ds[1:n], self._ds[n + 1 :]
+        self._slope_lo1, self._slope_hi1 = self._slope[1:n], self._slope[n + 1 :]
+
+    def compute(self, input_map: InputMap, ds_prev_pct: float
+                ) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+        """Return ``(w_lo, w_hi, rate)`` for the input applied at the previous sample.
+
+        Parameters
+        ----------
+        input_map :
+            ``f`` on the allowed range.
+        ds_prev_pct :
+            TRIAC deviation applied at the previous sample [%], inside the allowed range.
+
+        Returns
+        -------
+        w_lo, w_hi :
+            (N,) bounds on ``w_j`` [kW-equivalent]; element 0 is the exact first-move
+            interval.
+        rate :
+            (N-1,) limits ``m_j delta`` on ``|w_j - w_{j-1}|``, ``j = 1..N-1``
+            [kW-equivalent], or None without a rate limit.
+
+        The arrays are overwritten by the next call; copy them to keep them.
+        """
+        w = self._w
+        delta = self.max_move_pct_per_step
+        if delta is None:
+            self._w_lo.fill(input_map.w_min)
+            self._w_hi.fill(input_map.w_max)
+            return self._w_lo, self._w_hi, None
+        ds = self._ds
+        np.add(self._reach, ds_prev_pct, out=ds)
+        np.maximum(ds, input_map.ds_min_pct, out=ds)
+        np.minimum(ds, input_map.ds_max_pct, out=ds)
+        c = input_map.coefficients
+        np.multiply(ds, c[-1], out=w)                 # f(ds) by Horner's rule
+        for coef in reversed(c[:-1]):
+            w += coef
+            w *= ds
+        deg = len(c)
+        slope = self._slope                            # f'(ds) by Horner's rule
+        if deg == 1:
+            slope.fill(c[0])
+        else:
+            np.multiply(ds, deg * c[-1], out=slope)
+            slope += (deg - 1) * c[-2]
+            for i in range(deg - 2, 0, -1):
+                slope *= ds
+                slope += i * c[i - 1]
+        rate = self._rate
+        np.minimum(self._slope_lo1, self._slope_hi1, out=rate)
+        for r in input_map.slope_critical_points_pct:  # an interior minimum of f'
+            inside = (self._ds_lo1 < r) & (r < self._ds_hi1)
+            rate[inside] = np.minimum(rate[inside], slope_at(c, r))
+        rate *= delta
+        return self._w_lo, self._w_hi, rate
 
 
 class MPCQP:
@@ -350,9 +394,9 @@ class MPCQP:
         f_p = np.zeros(N)
         f_p[0] = -move_weight
         # In absolute w: q/2 = F_h h + f_p w_prev - (f_p + H 1) w_s.
-        self._q_h = 2.0 * F_h
-        self._q_prev = 2.0 * f_p
-        self._q_target = -2.0 * (f_p + H.sum(axis=1))
+        # q[:N] = Q_p [h; w_prev; w_s]: one product per step.
+        self._q_params = np.column_stack([2.0 * F_h, 2.0 * f_p, -2.0 * (f_p + H.sum(axis=1))])
+        self._params = np.empty(n_x + 2)
         self._terminal_P: FloatArray = P_f
         self._Cgam_rowsum = Cgam.sum(axis=1)
         self._Cphi = Cphi
@@ -386,11 +430,15 @@ class MPCQP:
             P_full[N, N] = 2.0 * soft_limit_weight
         P_upper = sp.csc_matrix(np.triu(P_full))
 
-        self._q = np.zeros(n_var)
+        # q, l and u are views of one array: one finiteness check per step.
+        m = self.n_constraints
+        self._data = np.concatenate([np.zeros(n_var), np.full(m, -OSQP_INFINITY),
+                                     np.full(m, OSQP_INFINITY)])
+        self._q = self._data[:n_var]
+        self._l = self._data[n_var : n_var + m]
+        self._u = self._data[n_var + m :]
         if self.has_soft:
             self._q[N] = soft_limit_linear_weight
-        self._l = np.full(self.n_constraints, -OSQP_INFINITY)
-        self._u = np.full(self.n_constraints, OSQP_INFINITY)
         # Row offsets.
         self._row_rate = N
         self._row_soft = N + (N - 1 if has_rate_limit else 0)
@@ -414,6 +462,14 @@ class MPCQP:
                                **settings)
         except (osqp.OSQPException, ValueError) as exc:
             raise DesignError(f"MPC QP: OSQP set-up must succeed; got: {exc}") from exc
+        # The solver object behind osqp.OSQP (osqp 1.x): its update_data_vec and solve
+        # skip the wrapper's per-call work (constant look-ups through importlib, clipping
+        # copies of l and u, a namespace of every info field), which cost a third of a
+        # bare solve (BENCHMARKS.md, "MPC step against a bare OSQP solve").
+        self._ext = self._solver._solver
+        # Without polishing, the returned x and z are the ADMM iterates, z inside [l, u],
+        # so a primal residual |A x - z| below the tolerance bounds the violation.
+        self._residual_bounds_violation = not options.polishing
         self._needs_cold_start = False
         self._zero_x = np.zeros(n_var)
         self._zero_y = np.zeros(self.n_constraints)
@@ -482,15 +538,19 @@ class MPCQP:
         cold-start.
         """
         N = self.horizon_steps
+        params = self._params
+        params[:-2] = h
+        params[-2] = w_prev
+        params[-1] = w_target
         q = self._q
-        q[:N] = self._q_h @ h + self._q_prev * w_prev + self._q_target * w_target
+        np.dot(self._q_params, params, out=q[:N])
         lo = self._l
         up = self._u
         lo[:N] = w_lo
         up[:N] = w_hi
         if self.has_rate_limit and rate is not None:
             r0 = self._row_rate
-            lo[r0 : r0 + N - 1] = -rate
+            np.negative(rate, out=lo[r0 : r0 + N - 1])
             up[r0 : r0 + N - 1] = rate
         if self.has_soft:
             # C dx_j = Cphi_j h + Cgam_j w - (Cgam_j 1) w_s ; y_j = y_s + C dx_j.
@@ -501,30 +561,30 @@ class MPCQP:
                 r0 += N
             if self.has_soft_min and soft_min_rel_kw is not None:
                 lo[r0 : r0 + N] = soft_min_rel_kw - base
-        if not (np.isfinite(q).all() and np.isfinite(lo).all() and np.isfinite(up).all()):
+        if not np.isfinite(self._data).all():
             return self._failed("non-finite problem data")
-        solver = self._solver
+        ext = self._ext
         try:
-            solver.update(q=q, l=lo, u=up)
+            ext.update_data_vec(q=q, l=lo, u=up)
             if self._needs_cold_start:
-                solver.warm_start(x=self._zero_x, y=self._zero_y)
+                ext.warm_start(self._zero_x, self._zero_y)
                 self._needs_cold_start = False
-            result = solver.solve(raise_error=False)
+            ext.solve()
         except osqp.OSQPException as exc:
             return self._failed(f"osqp error: {exc}")
-        info = result.info
+        info = ext.info
         status_val = int(info.status_val)
-        x = result.x
-        status = str(info.status)
-        usable = status_val in (_SOLVED, _SOLVED_INACCURATE) and bool(np.all(np.isfinite(x)))
-        if usable:
+        x = ext.solution.x
+        status = info.status
+        usable = status_val in (_SOLVED, _SOLVED_INACCURATE) and bool(np.isfinite(x).all())
+        if usable and not (self._residual_bounds_violation and info.prim_res <= self.bound_tol_kw):
             violation = self._bound_violation(np.asarray(x[:N], dtype=float), w_lo, w_hi, rate)
             if violation > self.bound_tol_kw:
                 usable = False
                 status = f"{status}; outside bounds by {violation:.3g} kW"
         if usable:
-            plan = np.array(x[:N], dtype=float)
-            plan.setflags(write=False)
+            plan = x[:N]  # x is the solver's copy, ours alone
+            plan.flags.writeable = False
             slack = max(0.0, float(x[N])) if self.has_soft else 0.0  # >= 0 up to eps
         else:
             plan = self._nan_plan
@@ -547,8 +607,8 @@ __all__ = [
     "MPCQP",
     "OSQP_INFINITY",
     "QPSolution",
+    "MoveBounds",
     "dare_by_doubling",
     "lq_problem",
-    "move_bounds",
     "terminal_cost",
 ]

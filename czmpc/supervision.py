@@ -105,6 +105,8 @@ class LimitRamp:
     ----------
     lo, hi :
         Effective limits now [%, deviation].
+    triac_pct :
+        Effective ``(min, max)`` TRIAC limits now [%].
     map :
         ``input_map`` restricted to ``[lo, hi]`` (the same object when not restricted).
     """
@@ -117,15 +119,9 @@ class LimitRamp:
     def reset(self) -> None:
         """Back to the allowed range."""
         im = self._full
-        self.lo = self._lo_goal = im.ds_min_pct
-        self.hi = self._hi_goal = im.ds_max_pct
-        self.map = im
-
-    @property
-    def triac_pct(self) -> tuple[float, float]:
-        """Effective ``(min, max)`` TRIAC limits now [%]."""
-        s_nom = self._full.operating_triac_pct
-        return (self.lo + s_nom, self.hi + s_nom)
+        self._lo_goal = im.ds_min_pct
+        self._hi_goal = im.ds_max_pct
+        self._move(im.ds_min_pct, im.ds_max_pct)
 
     def set(self, triac_min_pct: float, triac_max_pct: float, *, ds_now_pct: float) -> None:
         """New limits [%], intersected with the allowed range; ``ds_now_pct`` the input now.
@@ -166,6 +162,7 @@ class LimitRamp:
     def _move(self, lo: float, hi: float) -> None:
         im = self._full
         self.lo, self.hi = lo, hi
+        self.triac_pct = (lo + im.operating_triac_pct, hi + im.operating_triac_pct)
         if lo == im.ds_min_pct and hi == im.ds_max_pct:
             self.map = im
         else:

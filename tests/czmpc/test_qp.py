@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from czmpc.inversion import InputMap, build_input_map
-from czmpc.qp import MPCQP, move_bounds
+from czmpc.qp import MPCQP, MoveBounds
 from czmpc.realization import InnovationsForm, innovations_form
 from czmpc.settings import OSQPOptions
 from sysid.model import HammersteinModel, OperatingPoint
@@ -93,7 +93,7 @@ def test_box_bounds_hold_to_solver_tolerance(
     ss = linear_block
     options = OSQPOptions()
     qp = MPCQP(A=ss.A, B=ss.B, C=ss.C, horizon_steps=30, options=options, **WEIGHTS)
-    w_lo, w_hi, _ = move_bounds(input_map, 0.0, None, 30)
+    w_lo, w_hi, _ = MoveBounds(None, 30).compute(input_map, 0.0)
     tol = _qp_tol(options, max(abs(input_map.w_min), abs(input_map.w_max)))
     for w_s in (input_map.w_max, input_map.w_min):  # targets on the bounds
         h = -2.0 * np.sign(w_s) * np.array([30.0, 0.0])  # far on the other side
@@ -112,7 +112,7 @@ def test_rate_limits_hold_and_translate_to_triac_moves(
     qp = MPCQP(A=ss.A, B=ss.B, C=ss.C, horizon_steps=30, has_rate_limit=True,
                options=options, **WEIGHTS)
     ds_prev = -20.0
-    w_lo, w_hi, rate = move_bounds(input_map, ds_prev, delta, 30)
+    w_lo, w_hi, rate = MoveBounds(delta, 30).compute(input_map, ds_prev)
     assert rate is not None
     sol = qp.solve(h=np.zeros(2), w_prev=input_map.f(ds_prev), w_target=input_map.w_max,
                    y_target=0.0, w_lo=w_lo, w_hi=w_hi, rate=rate)
@@ -127,9 +127,32 @@ def test_rate_limits_hold_and_translate_to_triac_moves(
     assert moves[0] >= delta - tol  # the rate limit binds on the first move
 
 
+@pytest.mark.parametrize("max_iter", [3, 10, 4000])
+def test_the_primal_residual_bounds_the_violation_of_box_and_rate_limits(
+    max_iter: int, linear_block: InnovationsForm, input_map: InputMap, rng: np.random.Generator
+) -> None:
+    """MPCQP skips its own bound check when OSQP's |A x - z| (z in [l, u]) is below the
+    tolerance: check that premise against the violation computed here, stopped early too."""
+    ss = linear_block
+    qp = MPCQP(A=ss.A, B=ss.B, C=ss.C, horizon_steps=30, has_rate_limit=True,
+               options=OSQPOptions(max_iter=max_iter, check_termination=1), **WEIGHTS)
+    bounds = MoveBounds(1.0, 30)
+    for _ in range(40):
+        ds_prev = float(rng.uniform(-30.0, 20.0))
+        w_lo, w_hi, rate = bounds.compute(input_map, ds_prev)
+        assert rate is not None
+        qp.solve(h=rng.normal(scale=5.0, size=2), w_prev=input_map.f(ds_prev),
+                 w_target=float(rng.uniform(input_map.w_min, input_map.w_max)), y_target=0.0,
+                 w_lo=w_lo, w_hi=w_hi, rate=rate)
+        x = qp._ext.solution.x
+        violation = max(float(np.max(w_lo - x)), float(np.max(x - w_hi)),
+                        float(np.max(np.abs(np.diff(x)) - rate)), 0.0)
+        assert violation <= qp._ext.info.prim_res + 1e-12  # reason: round-off of |A x - z|
+
+
 def test_first_move_bounds_are_exact_and_later_slopes_local(input_map: InputMap) -> None:
     delta, ds_prev = 2.0, -25.0
-    w_lo, w_hi, rate = move_bounds(input_map, ds_prev, delta, 30)
+    w_lo, w_hi, rate = MoveBounds(delta, 30).compute(input_map, ds_prev)
     assert rate is not None
     assert w_lo[0] == input_map.f(ds_prev - delta)
     assert w_hi[0] == input_map.f(ds_prev + delta)
@@ -141,6 +164,37 @@ def test_first_move_bounds_are_exact_and_later_slopes_local(input_map: InputMap)
     assert rate[0] > 1.2 * global_rate
 
 
+def _cubic_map() -> InputMap:
+    """f(ds) = ds + 1e-3 ds^3: f' has its minimum inside the range, at ds = 0."""
+    c = (1.0, 0.0, 1e-3)
+    return InputMap(coefficients=c, operating_triac_pct=45.0, ds_min_pct=-40.0, ds_max_pct=50.0,
+                    w_min=-40.0 - 64.0, w_max=50.0 + 125.0, slope_critical_points_pct=(0.0,))
+
+
+@pytest.mark.parametrize("which", ["quadratic", "cubic"])
+def test_move_bounds_match_a_dense_grid_reference(which: str, input_map: InputMap) -> None:
+    im = input_map if which == "quadratic" else _cubic_map()
+    delta, n = 1.5, 40
+    bounds = MoveBounds(delta, n)
+    for ds_prev in (im.ds_min_pct + 1.0, 0.3, im.ds_max_pct - 2.0):  # buffers reused
+        w_lo, w_hi, rate = bounds.compute(im, ds_prev)
+        assert rate is not None
+        for j in range(n):
+            lo = max(im.ds_min_pct, ds_prev - (j + 1) * delta)
+            hi = min(im.ds_max_pct, ds_prev + (j + 1) * delta)
+            assert w_lo[j] == pytest.approx(np.polyval([*im.coefficients[::-1], 0.0], lo),
+                                            rel=1e-12, abs=1e-12)
+            assert w_hi[j] == pytest.approx(np.polyval([*im.coefficients[::-1], 0.0], hi),
+                                            rel=1e-12, abs=1e-12)
+            if j >= 1:  # reference: f' on 20001 points of [lo, hi], and at 0 if inside
+                grid = np.append(np.linspace(lo, hi, 20001), [0.0] if lo < 0.0 < hi else [])
+                d_poly = np.polyder(np.array([*im.coefficients[::-1], 0.0]))
+                ref = delta * float(np.min(np.polyval(d_poly, grid)))
+                assert rate[j - 1] == pytest.approx(ref, rel=1e-12, abs=1e-12)
+    w_lo, w_hi, none = MoveBounds(None, 5).compute(im, 0.0)
+    assert none is None and np.all(w_lo == im.w_min) and np.all(w_hi == im.w_max)
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     ds_prev=st.floats(min_value=-30.0, max_value=30.0),
@@ -150,7 +204,7 @@ def test_first_move_bounds_are_exact_and_later_slopes_local(input_map: InputMap)
 def test_any_plan_inside_the_w_constraints_moves_the_triac_at_most_delta(
     ds_prev: float, delta: float, steps: list[float], input_map: InputMap
 ) -> None:
-    w_lo, w_hi, rate = move_bounds(input_map, ds_prev, delta, 20)
+    w_lo, w_hi, rate = MoveBounds(delta, 20).compute(input_map, ds_prev)
     assert rate is not None
     # Build a plan that satisfies every w-constraint: a random walk kept in the boxes
     # (each box contains the previous one, so clipping never lengthens a move).
@@ -169,7 +223,7 @@ def test_soft_power_limit_is_met_when_possible_and_slack_reports_violations(
     qp = MPCQP(A=ss.A, B=ss.B, C=ss.C, horizon_steps=30, has_soft_max=True,
                options=options, soft_limit_weight=1e3, soft_limit_linear_weight=1e2,
                **WEIGHTS)
-    w_lo, w_hi, _ = move_bounds(input_map, 0.0, None, 30)
+    w_lo, w_hi, _ = MoveBounds(None, 30).compute(input_map, 0.0)
     # Target at y_s = 2 kW with the soft maximum at 3 kW: no conflict, slack ~ 0.
     g = ss.static_gain
     free = qp.solve(h=np.zeros(2), w_prev=0.0, w_target=2.0 / g, y_target=2.0, w_lo=w_lo,
@@ -190,7 +244,7 @@ def test_warm_start_needs_few_iterations_and_failure_forces_a_cold_start(
     def make() -> MPCQP:
         return MPCQP(A=ss.A, B=ss.B, C=ss.C, horizon_steps=30, options=options, **WEIGHTS)
 
-    w_lo, w_hi, _ = move_bounds(input_map, 0.0, None, 30)
+    w_lo, w_hi, _ = MoveBounds(None, 30).compute(input_map, 0.0)
     args = {"h": np.array([-3.0, 0.5]), "w_prev": 1.0, "w_target": 4.0, "y_target": 3.6,
             "w_lo": w_lo, "w_hi": w_hi}
     qp = make()
@@ -211,7 +265,7 @@ def test_max_iter_one_reports_an_unusable_solution(
     ss = linear_block
     qp = MPCQP(A=ss.A, B=ss.B, C=ss.C, horizon_steps=30,
                options=OSQPOptions(max_iter=1), **WEIGHTS)
-    w_lo, w_hi, _ = move_bounds(input_map, 0.0, None, 30)
+    w_lo, w_hi, _ = MoveBounds(None, 30).compute(input_map, 0.0)
     sol = qp.solve(h=np.array([-3.0, 0.5]), w_prev=1.0, w_target=4.0, y_target=3.6,
                    w_lo=w_lo, w_hi=w_hi)
     assert sol.status == "maximum iterations reached"

@@ -210,12 +210,17 @@ def test_a_solution_outside_its_bounds_is_not_used(
     mpc.step(45.0, 47.0)
     n = mpc.settings.horizon_steps
 
-    def fake_solve(*, raise_error: bool) -> SimpleNamespace:
+    class FakeSolver:  # OSQP's solver object, reporting a point outside the bounds
         info = SimpleNamespace(status="solved" if status_val == 1 else "solved inaccurate",
-                               status_val=status_val, obj_val=0.0, iter=3, solve_time=1e-5)
-        return SimpleNamespace(x=np.full(n, x_value), info=info)
+                               status_val=status_val, obj_val=0.0, iter=3, solve_time=1e-5,
+                               prim_res=abs(x_value))
+        solution = SimpleNamespace(x=np.full(n, x_value))
 
-    monkeypatch.setattr(mpc.qp._solver, "solve", fake_solve)
+        def update_data_vec(self, **kwargs: object) -> None: ...
+        def warm_start(self, *args: object) -> None: ...
+        def solve(self) -> None: ...
+
+    monkeypatch.setattr(mpc.qp, "_ext", FakeSolver())
     s_prev = mpc.last_step.triac_pct  # type: ignore[union-attr]
     s = mpc.step(45.0, 47.0)
     last = mpc.last_step
