@@ -36,7 +36,8 @@ API_PARAMETERS = {"power_kw": "[kW]", "setpoint_kw": "[kW]", "applied_triac_pct"
 #: Pages the landing page must link to (paths relative to the site root).
 REQUIRED_LINKS = ("getting_started.html", "guides/identify.html", "guides/commission.html",
                   "guides/tune.html", "guides/plant_link.html", "guides/campaigns.html",
-                  "guides/regress.html", "api/index.html", "auto_examples/index.html")
+                  "guides/regress.html", "guides/controller_failures.html", "reference/cli.html",
+                  "api/index.html", "auto_examples/index.html", "development.html")
 
 
 class _Links(HTMLParser):
