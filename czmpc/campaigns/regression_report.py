@@ -15,7 +15,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from czmpc.campaigns.regression import AuditReport, CaseCheck, CheckReport
-from sysid.atomic import atomic_path, atomic_write_text
+from sysid.atomic import atomic_write_text
 
 _SIGNAL_NAMES = {"power_true_kw": "true power [kW]", "triac_pct": "TRIAC input [%]"}
 
@@ -98,14 +98,12 @@ def safe_name(case_id: str) -> str:
 
 def plot_case(report: CheckReport, case: CaseCheck, path: str | Path) -> None:
     """Golden trajectory with its band and the new one, power and TRIAC on shared time axes."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from czmpc.reports.figure_style import new_figure, save_figure
 
     golden = report.golden.trajectory(case.case_id)
     band = report.golden.doc["cases"][case.case_id]["band"]
     new = case.new_trajectory
-    fig = Figure(figsize=(8.0, 8.0), dpi=100, layout="constrained")
-    FigureCanvasAgg(fig)
+    fig = new_figure((8.0, 8.0))
     axes = fig.subplots(3, 1, sharex=True, height_ratios=(3, 3, 2))
     for ax, signal in zip(axes[:2], ("power_true_kw", "triac_pct"), strict=True):
         t, g = golden["time_s"], golden[signal]
@@ -136,9 +134,7 @@ def plot_case(report: CheckReport, case: CaseCheck, path: str | Path) -> None:
     axes[2].set_xlabel("time [s]")
     axes[0].set_title(case.case_id, fontsize="medium")
     axes[0].legend(loc="best", fontsize="small")
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
+    save_figure(fig, path)
 
 
 def markdown(report: CheckReport, figures: dict[str, str] | None = None) -> str:

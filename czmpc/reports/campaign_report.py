@@ -84,12 +84,12 @@ def format_summary_markdown(rows: Sequence[Row], *, title: str, figures: Sequenc
 
 def plot_iae_distribution(rows: Sequence[Row], path: str | os.PathLike[str] | None = None) -> Figure:
     """Box plot of the IAE [kW s] of the finished runs, one box per controller."""
-    from matplotlib.figure import Figure
+    from czmpc.reports.figure_style import new_figure, save_figure
 
     names = _controllers(rows)
     data = [[float(r["iae_kw_s"]) for r in rows if r["controller"] == n and r["status"] == "ok"]
             for n in names]
-    fig = Figure(figsize=(max(4.0, 1.6 * len(names) + 2), 4.0), layout="constrained")
+    fig = new_figure((max(4.0, 1.6 * len(names) + 2), 4.0))
     ax = fig.add_subplot()
     ax.boxplot([d if d else [math.nan] for d in data], tick_labels=names)
     ax.set_ylabel("IAE of the true power [kW s]")
@@ -97,7 +97,7 @@ def plot_iae_distribution(rows: Sequence[Row], path: str | os.PathLike[str] | No
     ax.set_title("IAE distribution per controller")
     ax.grid(True, axis="y", alpha=0.3)
     if path is not None:
-        fig.savefig(path, dpi=110)
+        save_figure(fig, path)
     return fig
 
 
@@ -113,7 +113,8 @@ def plot_perturbation_heatmaps(rows: Sequence[Row], path: str | os.PathLike[str]
     ``*`` one with setpoint changes out of its reach. None when no perturbed plant ran.
     """
     from matplotlib.colors import LogNorm
-    from matplotlib.figure import Figure
+
+    from czmpc.reports.figure_style import new_figure, save_figure
 
     pert = [r for r in rows if str(r["plant"]).startswith("perturbed") and r["status"] == "ok"]
     if not pert:
@@ -141,8 +142,8 @@ def plot_perturbation_heatmaps(rows: Sequence[Row], path: str | os.PathLike[str]
     finite = values[np.isfinite(values) & (values > 0)]
     norm = LogNorm(vmin=min(1.0, float(finite.min())) if finite.size else 0.5,
                    vmax=max(1.0 + 1e-9, float(finite.max())) if finite.size else 2.0)
-    fig = Figure(figsize=((0.62 * len(gains) + 1.8) * len(delays) + 1.2,
-                          (0.42 * len(taus) + 1.8) * len(names)), layout="constrained")
+    fig = new_figure(((0.62 * len(gains) + 1.8) * len(delays) + 1.2,
+                          (0.42 * len(taus) + 1.8) * len(names)))
     axes = fig.subplots(len(names), len(delays), squeeze=False)
     image = None
     for i, name in enumerate(names):
@@ -168,7 +169,7 @@ def plot_perturbation_heatmaps(rows: Sequence[Row], path: str | os.PathLike[str]
         fig.colorbar(image, ax=axes.ravel().tolist(), shrink=0.9,
                      label="IAE (reachable setpoint) / nominal plant's [-]")
     if path is not None:
-        fig.savefig(path, dpi=110)
+        save_figure(fig, path)
     return fig
 
 
@@ -179,9 +180,9 @@ def plot_trajectories(trajectories: Sequence[Mapping[str, Any]],
     Each mapping holds ``run_id``, ``time_s``, ``setpoint_kw``, ``power_true_kw``,
     ``triac_pct`` (as saved by `czmpc.campaigns.runner.save_trajectories`).
     """
-    from matplotlib.figure import Figure
+    from czmpc.reports.figure_style import new_figure, save_figure
 
-    fig = Figure(figsize=(9.0, 5.5), layout="constrained")
+    fig = new_figure((9.0, 5.5))
     ax_p, ax_u = fig.subplots(2, 1, sharex=True)
     for tr in trajectories:
         t_min = np.asarray(tr["time_s"], dtype=float) / 60.0
@@ -195,7 +196,7 @@ def plot_trajectories(trajectories: Sequence[Mapping[str, Any]],
     if trajectories:
         ax_p.legend(fontsize=7)
     if path is not None:
-        fig.savefig(path, dpi=110)
+        save_figure(fig, path)
     return fig
 
 

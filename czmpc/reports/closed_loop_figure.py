@@ -21,14 +21,8 @@ from collections.abc import Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
-from czmpc.reports.identification_figures import (
-    AXIS_LABELS,
-    FigureError,
-    _legend_above,
-    _new_figure,
-    _save,
-    _vector,
-)
+from czmpc.reports.figure_style import FigureError, legend_above, save_figure, stacked_axes, vector
+from czmpc.reports.identification_figures import AXIS_LABELS
 from sysid._typing import FloatArray
 
 #: Size of the three-panel figure [inch].
@@ -91,20 +85,20 @@ def plot_closed_loop(
     FigureError
         Arrays of different lengths, empty or not one-dimensional.
     """
-    t = _vector(time_s, "time_s")
+    t = vector(time_s, "time_s")
     n = t.size
-    setpoint = _drawable(_vector(setpoint_kw, "setpoint_kw", n))
-    measured = _drawable(_vector(power_measured_kw, "power_measured_kw", n))
-    true = _drawable(_vector(power_true_kw, "power_true_kw", n))
-    triac = _drawable(_vector(triac_pct, "triac_pct", n))
+    setpoint = _drawable(vector(setpoint_kw, "setpoint_kw", n))
+    measured = _drawable(vector(power_measured_kw, "power_measured_kw", n))
+    true = _drawable(vector(power_true_kw, "power_true_kw", n))
+    triac = _drawable(vector(triac_pct, "triac_pct", n))
     dist = (None if disturbance_kw is None
-            else _drawable(_vector(disturbance_kw, "disturbance_kw", n)))
+            else _drawable(vector(disturbance_kw, "disturbance_kw", n)))
     s_lo, s_hi = (float(v) for v in allowed_triac_range_pct)
     if not s_lo < s_hi:
         raise FigureError(f"allowed_triac_range_pct must be (min, max) with min < max; "
                           f"got {allowed_triac_range_pct!r}")
 
-    fig, (ax_p, ax_s, ax_d) = _new_figure(3)
+    fig, (ax_p, ax_s, ax_d) = stacked_axes(3)
     fig.set_size_inches(*CLOSED_LOOP_FIGSIZE_IN)
     fig.suptitle(title, fontsize="medium")
 
@@ -116,7 +110,7 @@ def plot_closed_loop(
             ax_p.axhline(value, color="tab:purple", linewidth=1.0, linestyle=":",
                          label=f"{name} {value:g} kW")
     ax_p.set_ylabel(AXIS_LABELS["power"])
-    _legend_above(ax_p)
+    legend_above(ax_p)
 
     ax_s.plot(t, triac, color="tab:blue", linewidth=1.0, label="TRIAC input")
     ax_s.axhline(s_lo, color="tab:gray", linewidth=1.0, linestyle="--",
@@ -128,20 +122,20 @@ def plot_closed_loop(
                      label=f"TRIAC limits {lim_lo:g}..{lim_hi:g} %")
         ax_s.axhline(lim_hi, color="tab:red", linewidth=1.0, linestyle=":")
     ax_s.set_ylabel(AXIS_LABELS["triac"])
-    _legend_above(ax_s)
+    legend_above(ax_s)
 
     if dist is not None:
         ax_d.plot(t, dist, color="tab:green", linewidth=1.0,
                   label="estimated disturbance (steady power change)")
         ax_d.axhline(0.0, color="black", linewidth=0.6)
-        _legend_above(ax_d)
+        legend_above(ax_d)
     else:
         ax_d.text(0.5, 0.5, "the controller reports no disturbance estimate",
                   transform=ax_d.transAxes, ha="center", va="center")
     ax_d.set_ylabel(DISTURBANCE_LABEL)
     ax_d.set_xlabel(AXIS_LABELS["time"])
     ax_d.set_xlim(float(t[0]), float(t[-1]))
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 __all__ = ["CLOSED_LOOP_FIGSIZE_IN", "DISTURBANCE_LABEL", "PLOT_LIMIT", "plot_closed_loop"]

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from czmpc.reports.figure_style import new_figure, save_figure
 from sysid._typing import FloatArray
 
 if TYPE_CHECKING:
@@ -20,9 +21,7 @@ if TYPE_CHECKING:
 
 
 def _figure(n_rows: int) -> tuple[Figure, list[Axes]]:
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(9.0, 2.6 * n_rows), layout="constrained")
+    fig = new_figure((9.0, 2.6 * n_rows))
     axes = [fig.add_subplot(n_rows, 1, i + 1) for i in range(n_rows)]
     return fig, axes
 
@@ -43,7 +42,7 @@ def experiment_figure(path: Path, time_s: FloatArray, triac_pct: FloatArray, pow
     ax_p.set_ylabel("power P [kW]")
     ax_p.set_xlabel("test time [s]")
     ax_p.legend(loc="best")
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
     return path
 
 
@@ -56,7 +55,7 @@ def fit_figure(path: Path, time_s: FloatArray, measured_kw: FloatArray, simulate
     ax.set_xlabel("test time [s]")
     ax.set_ylabel("power P [kW]")
     ax.legend(loc="best")
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
     return path
 
 
@@ -68,7 +67,7 @@ def monte_carlo_figure(path: Path, iae_ratios: Sequence[float]) -> Path:
     ax.axvline(1.0, color="0.3", ls="--", lw=0.8)
     ax.set_xlabel("IAE on a drawn plant / IAE on the model itself [-]")
     ax.set_ylabel("plants [count]")
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
     return path
 
 

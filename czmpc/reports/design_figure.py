@@ -17,10 +17,9 @@ from __future__ import annotations
 import os
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from czmpc.reports.identification_figures import _legend_above, _save
+from czmpc.reports.figure_style import legend_above, save_figure, stacked_axes
 from sysid.design import HOLD_TAUS, ExcitationSignal
 
 #: Size of the three-panel figure [inch].
@@ -31,11 +30,7 @@ def plot_test_signal(signal: ExcitationSignal, path: str | os.PathLike[str]) -> 
     """Draw the three panels (module docstring) and write them to ``path`` (PNG)."""
     spec = signal.spec
     tau = spec.tau_s
-    fig = Figure(figsize=DESIGN_FIGSIZE_IN, dpi=100, layout="constrained")
-    FigureCanvasAgg(fig)
-    ax_u, ax_h, ax_s = fig.subplots(3, 1)
-    for ax in (ax_u, ax_h, ax_s):
-        ax.grid(True, linewidth=0.5, alpha=0.6)
+    fig, (ax_u, ax_h, ax_s) = stacked_axes(3, sharex=False, figsize_in=DESIGN_FIGSIZE_IN)
     ax_u.plot(signal.time_s, signal.triac_pct, color="tab:blue", linewidth=0.9,
               drawstyle="steps-post", label="TRIAC input")
     for i, level in enumerate(signal.levels_pct):
@@ -43,7 +38,7 @@ def plot_test_signal(signal: ExcitationSignal, path: str | os.PathLike[str]) -> 
                      label="staircase levels" if i == 0 else None)
     ax_u.set_xlabel("time [s]")
     ax_u.set_ylabel("TRIAC input [%]")
-    _legend_above(ax_u)
+    legend_above(ax_u)
     change = np.flatnonzero(np.diff(signal.triac_pct) != 0.0) + 1
     starts = np.concatenate(([0], change))
     holds_tau = signal.hold_times_s() / tau
@@ -55,7 +50,7 @@ def plot_test_signal(signal: ExcitationSignal, path: str | os.PathLike[str]) -> 
     ax_h.set_yscale("log")
     ax_h.set_xlabel("level [%]")
     ax_h.set_ylabel(f"hold time [tau = {tau:g} s]")
-    _legend_above(ax_h)
+    legend_above(ax_h)
     omega, power = signal.spectrum()
     keep = (omega > 0) & (power > 0)
     ax_s.loglog(omega[keep], power[keep], color="tab:blue", linewidth=0.6, alpha=0.8,
@@ -66,8 +61,8 @@ def plot_test_signal(signal: ExcitationSignal, path: str | os.PathLike[str]) -> 
                  label="GBN corner 2/tau")
     ax_s.set_xlabel("angular frequency [rad/s]")
     ax_s.set_ylabel("power [%^2 s]")
-    _legend_above(ax_s)
-    return _save(fig, path)
+    legend_above(ax_s)
+    return save_figure(fig, path)
 
 
 __all__ = ["DESIGN_FIGSIZE_IN", "plot_test_signal"]

@@ -1,13 +1,9 @@
 """PNG figures of the identification report, one function per figure of the paper.
 
 Every function takes plain arrays and values (never a model or a pipeline result),
-draws one `matplotlib.figure.Figure` with the Agg canvas (no pyplot, no global
-figure registry, no display needed), writes it to ``path`` as a PNG and returns the
-figure, so that tests can inspect titles, labels and lines after the fact.
-
-Every axis is labelled with its unit in brackets, using the names of `AXIS_LABELS`.
-Figures are about 1000 x 500 px at `DPI` dots per inch: readable at a glance and a
-few tens of kB each.
+draws one figure as `czmpc.reports.figure_style` makes them, writes it to ``path``
+as a PNG and returns it. Every axis is labelled with its unit in brackets, using the
+names of `AXIS_LABELS`.
 
 Paper figures (Komperød et al.) and the function that draws each::
 
@@ -26,22 +22,18 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 
 import numpy as np
-from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from czmpc.errors import CzmpcError
-from sysid.atomic import atomic_path
-
-#: Resolution of every PNG [dots per inch].
-DPI = 110
-#: Default size of a one-panel figure [inch].
-WIDE_FIGSIZE_IN = (9.0, 4.2)
-#: Default size of a two-panel figure [inch].
-TALL_FIGSIZE_IN = (9.0, 6.0)
+from czmpc.reports.figure_style import (
+    PALETTE,
+    FigureError,
+    legend_above,
+    save_figure,
+    stacked_axes,
+    vector,
+)
 
 #: Axis labels with units, shared by all figures (and by the tests that check them).
 AXIS_LABELS: dict[str, str] = {
@@ -90,47 +82,6 @@ def _labels(labels: Mapping[str, str] | None) -> Mapping[str, str]:
 
 
 _MEASURED_STYLE = {"color": "black", "linewidth": 1.2, "label": "measured"}
-_PALETTE = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
-
-
-class FigureError(CzmpcError, ValueError):
-    """Arrays handed to a figure function that cannot be drawn (wrong shapes, empty)."""
-
-
-def _vector(values: object, name: str, length: int | None = None) -> np.ndarray:
-    arr = np.asarray(values, dtype=float)
-    if arr.ndim != 1 or arr.size == 0:
-        raise FigureError(f"figure input {name} must be a non-empty 1-D array; got shape {arr.shape}")
-    if length is not None and arr.size != length:
-        raise FigureError(f"figure input {name} must have {length} samples like time_s; got {arr.size}")
-    return arr
-
-
-def _new_figure(n_rows: int, *, sharex: bool = True) -> tuple[Figure, list[Axes]]:
-    fig = Figure(figsize=WIDE_FIGSIZE_IN if n_rows == 1 else TALL_FIGSIZE_IN, dpi=DPI,
-                 layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(n_rows, 1, sharex=sharex, squeeze=False)[:, 0]
-    for ax in axes:
-        ax.grid(True, linewidth=0.5, alpha=0.6)
-    return fig, list(axes)
-
-
-def _legend_above(ax: Axes) -> None:
-    """Legend above the panel, so it never hides data; long labels get fewer columns."""
-    labels = ax.get_legend_handles_labels()[1]
-    longest = max((len(label) for label in labels), default=0)
-    per_row = 3 if longest <= 28 else 2 if longest <= 48 else 1
-    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncols=max(1, min(len(labels), per_row)),
-              frameon=False, borderaxespad=0.2, fontsize="small")
-
-
-def _save(fig: Figure, path: str | os.PathLike[str]) -> Figure:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:     # a failed draw never leaves half a PNG
-        fig.savefig(tmp, format="png", dpi=DPI)
-    return fig
 
 
 def _rms(values: np.ndarray) -> float:
@@ -181,10 +132,10 @@ def plot_dataset(
     FigureError
         Arrays that are not 1-D, empty, or of different lengths.
     """
-    t = _vector(time_s, "time_s")
-    s = _vector(triac_pct, "triac_pct", t.size)
-    p = _vector(power_kw, "power_kw", t.size)
-    fig, (ax_p, ax_s) = _new_figure(2)
+    t = vector(time_s, "time_s")
+    s = vector(triac_pct, "triac_pct", t.size)
+    p = vector(power_kw, "power_kw", t.size)
+    fig, (ax_p, ax_s) = stacked_axes(2)
     ax_p.plot(t, p, color="tab:red", linewidth=1.0, label="dP" if deviation else "P")
     ax_p.set_ylabel(_labels(labels)["power_dev" if deviation else "power"])
     ax_s.plot(t, s, color="tab:blue", linewidth=1.0, drawstyle="steps-post",
@@ -195,9 +146,9 @@ def plot_dataset(
         for i, tm in enumerate(marked_time_s):
             ax.axvline(tm, color="tab:purple", linestyle=":", linewidth=1.0,
                        label=marked_label if i == 0 else None)
-        _legend_above(ax)
+        legend_above(ax)
     fig.suptitle(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_residuals(
@@ -239,17 +190,17 @@ def plot_residuals(
     FigureError
         No series, or arrays of the wrong shape.
     """
-    t = _vector(time_s, "time_s")
+    t = vector(time_s, "time_s")
     if not residuals_kw:
         raise FigureError("plot_residuals needs at least one residual series; got none")
-    series = {name: _vector(v, f"residuals_kw[{name!r}]", t.size) for name, v in residuals_kw.items()}
-    fig, axes = _new_figure(len(series))
+    series = {name: vector(v, f"residuals_kw[{name!r}]", t.size) for name, v in residuals_kw.items()}
+    fig, axes = stacked_axes(len(series))
     if len(series) > 1:
         for ax in axes[1:]:
             ax.sharey(axes[0])
     marks = np.asarray(list(marked_time_s), dtype=float)
     for i, (ax, (name, e)) in enumerate(zip(axes, series.items(), strict=True)):
-        ax.plot(t, e, color=_PALETTE[i % len(_PALETTE)], linewidth=0.8,
+        ax.plot(t, e, color=PALETTE[i % len(PALETTE)], linewidth=0.8,
                 label=f"{name} (RMS {_rms(e):.3g} {_labels(labels)['unit_out']})")
         if marks.size:
             idx = np.clip(np.searchsorted(t, marks), 0, t.size - 1)
@@ -257,10 +208,10 @@ def plot_residuals(
             ax.plot(t[idx], np.full(idx.size, 1.05 * top), linestyle="none", marker="v",
                     markersize=9, color="tab:purple", label=marked_label)
         ax.set_ylabel(_labels(labels)["residual"])
-        _legend_above(ax)
+        legend_above(ax)
     axes[-1].set_xlabel(_labels(labels)["time"])
     fig.suptitle(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_outlier_zoom(
@@ -302,16 +253,16 @@ def plot_outlier_zoom(
     FigureError
         Arrays of the wrong shape, or a window holding no sample.
     """
-    t = _vector(time_s, "time_s")
-    e = _vector(residual_kw, "residual_kw", t.size)
-    p = _vector(power_dev_kw, "power_dev_kw", t.size)
+    t = vector(time_s, "time_s")
+    e = vector(residual_kw, "residual_kw", t.size)
+    p = vector(power_dev_kw, "power_dev_kw", t.size)
     window = np.abs(t - center_time_s) <= half_width_s
     if not np.any(window):
         raise FigureError(
             f"plot_outlier_zoom: expected samples within {half_width_s:g} s of "
             f"{center_time_s:g} s; got none in {t[0]:g}..{t[-1]:g} s"
         )
-    fig, (ax_e, ax_p) = _new_figure(2)
+    fig, (ax_e, ax_p) = stacked_axes(2)
     ax_e.plot(t[window], e[window], marker=".", color="tab:blue", linewidth=0.8, label="e")
     ax_e.set_ylabel(_labels(labels)["residual"])
     ax_p.plot(t[window], p[window], marker=".", color="tab:red", linewidth=0.8, label="dP")
@@ -320,9 +271,9 @@ def plot_outlier_zoom(
     for ax in (ax_e, ax_p):
         ax.axvline(center_time_s, color="tab:purple", linestyle=":", linewidth=1.0,
                    label=f"candidate at {center_time_s:g} s")
-        _legend_above(ax)
+        legend_above(ax)
     fig.suptitle(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_simulations(
@@ -362,27 +313,27 @@ def plot_simulations(
     FigureError
         No simulation, or arrays of the wrong shape.
     """
-    t = _vector(time_s, "time_s")
-    y = _vector(measured_kw, "measured_kw", t.size)
+    t = vector(time_s, "time_s")
+    y = vector(measured_kw, "measured_kw", t.size)
     if not simulated_kw:
         raise FigureError("plot_simulations needs at least one simulated series; got none")
-    sims = {name: _vector(v, f"simulated_kw[{name!r}]", t.size) for name, v in simulated_kw.items()}
-    fig, axes = _new_figure(1 if input_pct is None else 2)
+    sims = {name: vector(v, f"simulated_kw[{name!r}]", t.size) for name, v in simulated_kw.items()}
+    fig, axes = stacked_axes(1 if input_pct is None else 2)
     ax = axes[0]
     ax.plot(t, y, **_MEASURED_STYLE)  # type: ignore[arg-type]
     for i, (name, sim) in enumerate(sims.items()):
-        ax.plot(t, sim, color=_PALETTE[i % len(_PALETTE)], linewidth=1.0,
+        ax.plot(t, sim, color=PALETTE[i % len(PALETTE)], linewidth=1.0,
                 linestyle=("--", "-.", ":", (0, (5, 1)))[i % 4], label=name)
     ax.set_ylabel(_labels(labels)["power_dev"])
-    _legend_above(ax)
+    legend_above(ax)
     if input_pct is not None:
-        u = _vector(input_pct, "input_pct", t.size)
+        u = vector(input_pct, "input_pct", t.size)
         axes[1].plot(t, u, color="tab:gray", linewidth=1.0, drawstyle="steps-post", label="ds")
         axes[1].set_ylabel(_labels(labels)["triac_dev"])
-        _legend_above(axes[1])
+        legend_above(axes[1])
     axes[-1].set_xlabel(_labels(labels)["time"])
     fig.suptitle(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_simulation_errors(
@@ -416,20 +367,20 @@ def plot_simulation_errors(
     FigureError
         No series, or arrays of the wrong shape.
     """
-    t = _vector(time_s, "time_s")
+    t = vector(time_s, "time_s")
     if not errors_kw:
         raise FigureError("plot_simulation_errors needs at least one error series; got none")
-    errs = {name: _vector(v, f"errors_kw[{name!r}]", t.size) for name, v in errors_kw.items()}
-    fig, (ax,) = _new_figure(1)
+    errs = {name: vector(v, f"errors_kw[{name!r}]", t.size) for name, v in errors_kw.items()}
+    fig, (ax,) = stacked_axes(1)
     ax.axhline(0.0, color="black", linewidth=0.8)
     for i, (name, eps) in enumerate(errs.items()):
-        ax.plot(t, eps, color=_PALETTE[i % len(_PALETTE)], linewidth=1.0,
+        ax.plot(t, eps, color=PALETTE[i % len(PALETTE)], linewidth=1.0,
                 label=f"{name} (V = {np.mean(eps ** 2):.3g} {_labels(labels)['unit_out']}^2)")
     ax.set_ylabel(_labels(labels)["sim_error"])
     ax.set_xlabel(_labels(labels)["time"])
-    _legend_above(ax)
+    legend_above(ax)
     fig.suptitle(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_correlations(
@@ -482,10 +433,10 @@ def plot_correlations(
     FigureError
         Arrays of the wrong shape or a negative or non-finite bound.
     """
-    lags = _vector(lags_steps, "lags_steps")
-    r_ee = _vector(autocorr, "autocorr", lags.size)
-    xlags = _vector(cross_lags_steps, "cross_lags_steps")
-    r_ue = _vector(crosscorr, "crosscorr", xlags.size)
+    lags = vector(lags_steps, "lags_steps")
+    r_ee = vector(autocorr, "autocorr", lags.size)
+    xlags = vector(cross_lags_steps, "cross_lags_steps")
+    r_ue = vector(crosscorr, "crosscorr", xlags.size)
     for name, bound in (("autocorr_bound", autocorr_bound), ("crosscorr_bound", crosscorr_bound)):
         if not (np.isfinite(bound) and bound >= 0):
             raise FigureError(f"plot_correlations: {name} must be finite and >= 0; got {bound!r}")
@@ -493,7 +444,7 @@ def plot_correlations(
     lags, r_ee = lags[keep], r_ee[keep]
     if lags.size == 0:
         raise FigureError("plot_correlations: autocorrelation needs a lag other than 0; got only lag 0")
-    fig, axes = _new_figure(2, sharex=False)
+    fig, axes = stacked_axes(2, sharex=False)
     panels = (
         (axes[0], lags, r_ee, autocorr_bound, "autocorr", "residual e"),
         (axes[1], xlags, r_ue, crosscorr_bound, "crosscorr", "input ds -> residual e"),
@@ -509,9 +460,9 @@ def plot_correlations(
         ax.axhline(0.0, color="black", linewidth=0.6)
         ax.set_ylabel(_labels(labels)[key])
         ax.set_xlabel(_labels(labels)["lag"])
-        _legend_above(ax)
+        legend_above(ax)
     fig.suptitle(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_gain_curve(
@@ -550,8 +501,8 @@ def plot_gain_curve(
     FigureError
         Arrays of the wrong shape.
     """
-    grid = _vector(ds_grid_pct, "ds_grid_pct")
-    curves = {name: _vector(v, f"gain_kw_per_pct[{name!r}]", grid.size)
+    grid = vector(ds_grid_pct, "ds_grid_pct")
+    curves = {name: vector(v, f"gain_kw_per_pct[{name!r}]", grid.size)
               for name, v in gain_kw_per_pct.items()}
     step_ds = np.asarray(step_ds_pct, dtype=float)
     step_r = np.asarray(step_gain_kw_per_pct, dtype=float)
@@ -560,9 +511,9 @@ def plot_gain_curve(
             "plot_gain_curve: step_ds_pct and step_gain_kw_per_pct must be 1-D of equal length; "
             f"got shapes {step_ds.shape} and {step_r.shape}"
         )
-    fig, (ax,) = _new_figure(1)
+    fig, (ax,) = stacked_axes(1)
     for i, (name, g) in enumerate(curves.items()):
-        ax.plot(grid, g, color=_PALETTE[i % len(_PALETTE)], linewidth=1.2, label=name)
+        ax.plot(grid, g, color=PALETTE[i % len(PALETTE)], linewidth=1.2, label=name)
     if step_ds.size:
         ax.plot(step_ds, step_r, linestyle="none", marker="o", color="black",
                 label="measured step gains r")
@@ -570,13 +521,11 @@ def plot_gain_curve(
     ax.set_ylabel(_labels(labels)["gain"])
     ax.legend(loc="upper right")
     fig.suptitle(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 __all__ = [
     "AXIS_LABELS",
-    "DPI",
-    "FigureError",
     "plot_correlations",
     "plot_dataset",
     "plot_gain_curve",

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from matplotlib.figure import Figure
 from scipy.signal import lfilter
 
+from czmpc.reports.figure_style import new_figure, save_figure
 from sysid.errors import ModelFileError
 from sysid.export import linearize
 from sysid.model import HammersteinModel
@@ -103,7 +103,7 @@ def step_figure(path: Path, model: HammersteinModel, levels_pct: Sequence[float]
     duration = duration_s if duration_s is not None else max(10 * model.ts_s, 5.0 * tau)
     n = int(duration / model.ts_s) + 1
     t = np.arange(n) * model.ts_s
-    fig = Figure(figsize=(9.0, 4.2), layout="constrained")
+    fig = new_figure((9.0, 4.2))
     ax = fig.add_subplot(1, 1, 1)
     for level in levels_pct:
         line, = ax.plot(t, _step_kw(model, level, step_pct, n),
@@ -116,7 +116,7 @@ def step_figure(path: Path, model: HammersteinModel, levels_pct: Sequence[float]
     ax.set_title(f"response to a {step_pct:g} {units.input} step of the input; {draws.note}",
                  fontsize=9)
     ax.legend(loc="best")
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
     return path
 
 
@@ -126,7 +126,7 @@ def bode_figure(path: Path, model: HammersteinModel, levels_pct: Sequence[float]
     units = model.effective_units
     nyquist = np.pi / model.ts_s
     omega = np.logspace(np.log10(nyquist) - 4.0, np.log10(nyquist), 400)
-    fig = Figure(figsize=(9.0, 6.0), layout="constrained")
+    fig = new_figure((9.0, 6.0))
     ax_m, ax_p = fig.add_subplot(2, 1, 1), fig.add_subplot(2, 1, 2, sharex=None)
     for level in levels_pct:
         g = linearize(model, level).frequency_response(omega)
@@ -144,7 +144,7 @@ def bode_figure(path: Path, model: HammersteinModel, levels_pct: Sequence[float]
     ax_m.legend(loc="best")
     ax_p.set_ylabel("phase [deg]")
     ax_p.set_xlabel("angular frequency [rad/s]")
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
     return path
 
 
@@ -154,7 +154,7 @@ def pole_zero_figure(path: Path, model: HammersteinModel, draws: ModelDraws) -> 
     The poles are the roots of ``A`` and, for each sample of delay, one at ``z = 0``;
     the zeros are the roots of ``B``.
     """
-    fig = Figure(figsize=(6.0, 6.0), layout="constrained")
+    fig = new_figure((6.0, 6.0))
     ax = fig.add_subplot(1, 1, 1)
     circle = np.exp(1j * np.linspace(0.0, 2.0 * np.pi, 361))
     ax.plot(circle.real, circle.imag, color="0.5", lw=0.8)
@@ -174,5 +174,5 @@ def pole_zero_figure(path: Path, model: HammersteinModel, draws: ModelDraws) -> 
     ax.set_ylabel("Im z")
     ax.set_title(draws.note, fontsize=8)
     ax.legend(loc="lower left", fontsize=8)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
     return path

@@ -137,14 +137,12 @@ def plot_iae_ecdf(rows: Sequence[Row], path: str | os.PathLike[str] | None = Non
     One panel per scenario; x: IAE [kW s] (log scale when it spans more than a decade),
     y: share of the plants with an IAE at most x [-].
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    from czmpc.reports.figure_style import new_figure, save_figure
 
     ok = [r for r in rows if is_sampled(r) and r["status"] == "ok"]
     scenarios = list(dict.fromkeys(str(r["scenario"]) for r in ok)) or ["(none)"]
     names = list(dict.fromkeys(str(r["controller"]) for r in ok))
-    fig = Figure(figsize=(5.0 * len(scenarios), 4.0), layout="constrained")
-    FigureCanvasAgg(fig)
+    fig = new_figure((5.0 * len(scenarios), 4.0))
     axes = fig.subplots(1, len(scenarios), squeeze=False)[0]
     for ax, scenario in zip(axes, scenarios, strict=True):
         values = []
@@ -171,7 +169,7 @@ def plot_iae_ecdf(rows: Sequence[Row], path: str | os.PathLike[str] | None = Non
     fig.suptitle("IAE distribution per controller over plants sampled from the model's "
                  "uncertainty", fontsize="medium")
     if path is not None:
-        fig.savefig(path, dpi=110)
+        save_figure(fig, path)
     return fig
 
 

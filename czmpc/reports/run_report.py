@@ -37,11 +37,9 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from czmpc.errors import CzmpcError
-from czmpc.reports.identification_figures import (
-    FigureError,
-    _legend_above,
-    _save,
-)
+from czmpc.reports.figure_style import FigureError
+from czmpc.reports.figure_style import legend_above as _legend_above
+from czmpc.reports.figure_style import save_figure as _save
 from sysid._typing import FloatArray
 
 #: Columns a run log must have to be drawn.

@@ -21,7 +21,7 @@ import czmpc.cli.simulate as simulate_cmd
 from czmpc.campaigns.simulation import run_simulation, write_outputs
 from czmpc.cli import SIGTERM_EXIT_CODE, build_parser, main
 from czmpc.reports.closed_loop_figure import DISTURBANCE_LABEL, PLOT_LIMIT, plot_closed_loop
-from czmpc.reports.identification_figures import FigureError
+from czmpc.reports.figure_style import FigureError
 from czmpc.settings import MPCSettings
 from sim.loop import CSV_COLUMNS
 from sim.scenario import (
