@@ -50,7 +50,7 @@ def dominant_time_constant_s(model: HammersteinModel) -> float:
     return max(taus)
 
 
-class DitheredMPC:
+class DitheredMPC(MPCDriver):
     """The MPC with a GBN dither of ``±amplitude_pct`` on its input (module docstring).
 
     Parameters
@@ -72,8 +72,7 @@ class DitheredMPC:
                                 f"got {amplitude_pct!r}")
         if not (math.isfinite(switch_time_s) and switch_time_s > 0.0):
             raise SettingsError(f"dither switching time: expected > 0 s; got {switch_time_s!r}")
-        self.driver = MPCDriver(mpc)
-        self.mpc = mpc
+        super().__init__(mpc)
         self.amplitude_pct = float(amplitude_pct)
         self.switch_time_s = float(switch_time_s)
         self.switch_probability = min(0.5, mpc.model.ts_s / self.switch_time_s)
@@ -82,20 +81,6 @@ class DitheredMPC:
         self._last = math.nan
         #: Dither actually added at the last step [%] (after the limits).
         self.last_dither_pct = 0.0
-
-    @property
-    def mode(self) -> Mode:
-        """The MPC's mode."""
-        return self.mpc.mode
-
-    def request_mode(self, mode: Mode) -> object:
-        """Pass the request to the MPC."""
-        return self.mpc.request_mode(mode)
-
-    @property
-    def rate_limit_pct_per_step(self) -> float | None:
-        """The MPC's rate limit."""
-        return self.driver.rate_limit_pct_per_step
 
     def step(self, power_kw: float, setpoint_kw: float, *,
              applied_triac_pct: float | None = None) -> float:
@@ -112,7 +97,7 @@ class DitheredMPC:
         if self._rng.random() < self.switch_probability:
             self._sign = -self._sign
         v = u + self._sign * self.amplitude_pct
-        rate = self.driver.rate_limit_pct_per_step
+        rate = self.rate_limit_pct_per_step
         ref = applied if applied is not None and math.isfinite(applied) else u
         if rate is not None:
             v = min(ref + rate, max(ref - rate, v))
@@ -121,21 +106,6 @@ class DitheredMPC:
         self.last_dither_pct = v - u
         self._last = v
         return v
-
-    def status_words(self) -> tuple[str, str]:
-        """The MPC's status and verdict."""
-        return self.driver.status_words()
-
-    def skipped(self, n_periods: int) -> None:
-        """Nothing (as the MPC)."""
-
-    def finished(self) -> str | None:
-        """Never."""
-        return None
-
-    def abort_reason(self) -> str | None:
-        """Never."""
-        return None
 
     def provenance(self, seed: int | None) -> dict[str, object]:
         """What the run log's ``<log>.meta.json`` records about the dither."""

@@ -40,8 +40,6 @@ LOG_COLUMNS = ("k", "time_s", "wall_time_s", "power_kw", "quality", "setpoint_kw
 RUN_META_FORMAT = "czmpc-runlog/1"
 #: How a start treats an existing log file: refuse, append to it, or replace it.
 LOG_POLICIES = ("new", "append", "force")
-#: ``[run] rotate`` values.
-ROTATIONS = ("none", "daily")
 
 
 class RunLogExistsError(CzmpcError):
@@ -223,6 +221,6 @@ def log_parts(spec: str | Path) -> list[Path]:
     return sorted(parts, key=lambda p: (_first_wall_time(p), p.name))
 
 
-__all__ = ["LOG_COLUMNS", "LOG_POLICIES", "ROTATIONS", "RUN_META_FORMAT", "RunLog",
+__all__ = ["LOG_COLUMNS", "LOG_POLICIES", "RUN_META_FORMAT", "RunLog",
            "RunLogExistsError", "log_parts", "meta_path", "open_run_log",
            "part_path", "refuse_overwrite", "run_file_name"]
