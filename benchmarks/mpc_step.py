@@ -11,6 +11,12 @@ plants and controller are exactly those of ``czmpc simulate``):
   default tuning at horizon ``N = 50``; median, p95, p99 and maximum over each run,
   repeated. Goal (issue 4): median <= 0.3 ms and p99 <= 2 ms on this machine, judged
   on the median over the repeats.
+* **step against a bare OSQP solve** (issue 30): the same closed loop, stepped here
+  with each step timed and the QP data it sent to OSQP (``q``, ``l``, ``u``) kept;
+  then, in the same process, the same QP set up afresh and the kept data replayed
+  through OSQP's own interface, ``update(q=..., l=..., u=...)`` then ``solve()``, each
+  call timed. The ratio of the medians is what the controller costs around its QP.
+  Goal: at most 1.25.
 * **24 h simulation**: `day_scenario` (43,200 samples of 2 s: a staircase up and down
   with a grid level shift and a voltage sag) with the MPC in the loop at its default
   tuning, on both plants; wall time of the whole `run_simulation` call (plant and
@@ -40,9 +46,11 @@ from benchmarks._md import BENCHMARKS_MD, MachineInfo, machine_info, run_main
 from benchmarks._md import write_benchmarks_section as _write_section
 from czmpc.campaigns.simulation import PLANT_DESCRIPTIONS, PlantKind, run_simulation
 from czmpc.cli import _argtypes, _progress
+from czmpc.controller import OffsetFreeMPC
 from czmpc.settings import MPCSettings
 from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
 from sim.disturbances import PowerShift, VoltageStep
+from sim.model_plant import ModelPlant
 from sim.scenario import Scenario, SetpointStep, load_scenario
 from sysid.model import HammersteinModel
 from sysid.modelfile import load_model
@@ -60,6 +68,8 @@ DAY_SIMULATION_GOAL_S = 30.0
 DAY_DURATION_S = 86_400.0
 #: Seed of every benchmark run (the numbers do not depend on it beyond noise).
 BENCH_SEED = 0
+#: Goal of issue 30: the step's median at most this times a bare OSQP update-and-solve's.
+STEP_OVER_QP_GOAL = 1.25
 
 Progress = Callable[[str], None]
 
@@ -87,6 +97,40 @@ class StepTimeRun:
     max_ms: float
     mean_iterations: float
     n_fallbacks: int
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OverheadRun:
+    """One closed loop timed step by step, then its QPs replayed on a bare OSQP [ms].
+
+    Parameters
+    ----------
+    n_steps :
+        Steps timed (and QPs replayed).
+    step_median_ms :
+        Median of `OffsetFreeMPC.step` [ms].
+    bare_median_ms :
+        Median of ``update(q=..., l=..., u=...)`` + ``solve()`` of ``osqp.OSQP`` on the
+        same QP data, in the same order [ms].
+    solver_median_ms :
+        The same through OSQP's solver object (``update_data_vec`` + ``solve``, what
+        `czmpc.qp.MPCQP` calls), without the interface's own work [ms].
+    same_iterations :
+        Fraction of steps whose replay took as many ADMM iterations as the
+        controller's solve (1.0: the replay solved the same problems from the same
+        warm starts).
+    """
+
+    n_steps: int
+    step_median_ms: float
+    bare_median_ms: float
+    solver_median_ms: float
+    same_iterations: float
+
+    @property
+    def ratio(self) -> float:
+        """Step median over the bare update-and-solve median."""
+        return self.step_median_ms / self.bare_median_ms
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -135,6 +179,8 @@ class MPCBenchmark:
         One `DayRun` per plant.
     command :
         The command line that produced the numbers.
+    overhead_runs :
+        One `OverheadRun` per repeat (empty: not measured).
     """
 
     machine: MachineInfo
@@ -142,6 +188,12 @@ class MPCBenchmark:
     step_runs: tuple[StepTimeRun, ...]
     day_runs: tuple[DayRun, ...]
     command: str
+    overhead_runs: tuple[OverheadRun, ...] = ()
+
+    @property
+    def step_over_qp(self) -> float:
+        """Median over the repeats of each run's step-to-bare-QP ratio."""
+        return float(np.median([r.ratio for r in self.overhead_runs]))
 
     @property
     def step_median_ms(self) -> float:
@@ -227,6 +279,76 @@ def measure_step_times(
     return tuple(runs)
 
 
+def measure_qp_overhead(
+    model: HammersteinModel, *, repeats: int, progress: Progress | None = None,
+) -> tuple[OverheadRun, ...]:
+    """Time the step and a bare OSQP update-and-solve of the same QPs, ``repeats`` times.
+
+    Each repeat steps the controller (``N = 50``, default tuning) through the shipped
+    staircase's setpoints against the noisy model plant (no disturbance events),
+    timing each `OffsetFreeMPC.step` and keeping the ``q``, ``l``, ``u`` it sent to
+    OSQP; then sets the same QP up afresh twice and replays the kept data through
+    ``osqp.OSQP.update`` + ``solve`` and through its solver object.
+
+    Parameters
+    ----------
+    model :
+        Controller model and plant.
+    repeats :
+        Closed loops (>= 1); each gives its own medians.
+    progress :
+        Called with a short message after each repeat.
+    """
+    scenario = load_scenario("staircase")
+    settings = MPCSettings.default_for(model).with_updates(
+        horizon_steps=BENCH_HORIZON_STEPS, initial_triac_pct=scenario.initial_triac_pct)
+    setpoints = [float(v) for v in scenario.setpoint_profile_kw()]
+    n = len(setpoints)
+    runs = []
+    for i in range(repeats):
+        mpc = OffsetFreeMPC(model, settings)
+        qp = mpc.qp
+        n_var, m = qp.n_variables, qp.n_constraints
+        sent = np.empty((n, n_var + 2 * m))
+        iterations = np.empty(n, dtype=int)
+        step_s = np.empty(n)
+        plant = ModelPlant.for_scenario(model, scenario)
+        power = plant.reset(np.random.default_rng(BENCH_SEED + i))
+        for k, setpoint in enumerate(setpoints):
+            t0 = time.perf_counter()
+            triac = mpc.step(power, setpoint)
+            step_s[k] = time.perf_counter() - t0
+            sent[k] = qp._data  # q, l, u as this step sent them (one array in MPCQP)
+            iterations[k] = mpc.last_step.n_iterations  # type: ignore[union-attr]
+            power = plant.step(triac)
+        problems = [(row[:n_var], row[n_var:n_var + m], row[n_var + m:]) for row in sent]
+        bare = OffsetFreeMPC(model, settings).qp._solver  # osqp.OSQP, the same QP afresh
+        bare_s = np.empty(n)
+        same = 0
+        for k, (q, lo, up) in enumerate(problems):
+            t0 = time.perf_counter()
+            bare.update(q=q, l=lo, u=up)
+            result = bare.solve(raise_error=False)
+            bare_s[k] = time.perf_counter() - t0
+            same += int(int(result.info.iter) == int(iterations[k]))
+        solver = OffsetFreeMPC(model, settings).qp._ext  # the solver object behind osqp.OSQP
+        solver_s = np.empty(n)
+        for k, (q, lo, up) in enumerate(problems):
+            t0 = time.perf_counter()
+            solver.update_data_vec(q=q, l=lo, u=up)
+            solver.solve()
+            solver_s[k] = time.perf_counter() - t0
+        runs.append(OverheadRun(
+            n_steps=n, step_median_ms=float(np.median(step_s)) * 1e3,
+            bare_median_ms=float(np.median(bare_s)) * 1e3,
+            solver_median_ms=float(np.median(solver_s)) * 1e3, same_iterations=same / n,
+        ))
+        if progress is not None:
+            progress(f"step against a bare OSQP solve, run {i + 1}/{repeats}: "
+                     f"{runs[-1].ratio:.2f}x")
+    return tuple(runs)
+
+
 def measure_day_simulation(
     model: HammersteinModel, plant: PlantKind, *, progress: Progress | None = None,
 ) -> DayRun:
@@ -277,10 +399,11 @@ def run_benchmark(
     """
     machine = machine_info()
     step_runs = measure_step_times(model, repeats=repeats, progress=progress)
+    overhead_runs = measure_qp_overhead(model, repeats=repeats, progress=progress)
     day_runs = tuple(measure_day_simulation(model, plant, progress=progress)
                      for plant in ("model", "heater"))
     return MPCBenchmark(machine=machine, model_label=model_label, step_runs=step_runs,
-                        day_runs=day_runs, command=command)
+                        day_runs=day_runs, command=command, overhead_runs=overhead_runs)
 
 
 def _met(ok: bool) -> str:
@@ -330,6 +453,7 @@ def format_report(bench: MPCBenchmark) -> str:
         f"(medians over the runs: {bench.step_median_ms:.3f} ms, {bench.step_p99_ms:.3f} ms): "
         f"{_met(bench.step_goal_met)}.",
         *_load_note(bench.machine),
+        *_overhead_lines(bench),
         "",
         "### 24 h closed-loop simulation",
         "",
@@ -353,6 +477,38 @@ def format_report(bench: MPCBenchmark) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _overhead_lines(bench: MPCBenchmark) -> list[str]:
+    """The step-against-bare-OSQP table (none if not measured)."""
+    if not bench.overhead_runs:
+        return []
+    lines = [
+        "",
+        f"### Step against a bare OSQP solve, N = {BENCH_HORIZON_STEPS}",
+        "",
+        "The staircase's setpoints against the model plant (noise on, no disturbance "
+        "events); each `OffsetFreeMPC.step` timed and the `q`, `l`, `u` it sent to OSQP "
+        "kept, then replayed in the same process on the same QP set up afresh: through "
+        "`osqp.OSQP` (`update(q=..., l=..., u=...)` + `solve()`, the bare solve) and "
+        "through its solver object (`update_data_vec` + `solve`, what `czmpc.qp.MPCQP` "
+        "calls). Medians over the steps, one row per run.",
+        "",
+        "| run | step [ms] | bare update + solve [ms] | solver object [ms] | step / bare | "
+        "step / solver object | same iterations |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for i, r in enumerate(bench.overhead_runs, start=1):
+        lines.append(f"| {i} | {r.step_median_ms:.4f} | {r.bare_median_ms:.4f} | "
+                     f"{r.solver_median_ms:.4f} | {r.ratio:.2f} | "
+                     f"{r.step_median_ms / r.solver_median_ms:.2f} | {r.same_iterations:.1%} |")
+    ratio = bench.step_over_qp
+    lines += [
+        "",
+        f"Goal: step at most {STEP_OVER_QP_GOAL:g} x the bare update-and-solve (median over "
+        f"the runs: {ratio:.2f} x): {_met(ratio <= STEP_OVER_QP_GOAL)}.",
+    ]
+    return lines
+
+
 def write_benchmarks_section(path: str | os.PathLike[str], body: str,
                              heading: str = SECTION_HEADING) -> None:
     """Put ``body`` under ``heading`` (default: this benchmark's) in a BENCHMARKS.md."""
@@ -365,15 +521,18 @@ __all__ = [
     "DAY_SIMULATION_GOAL_S",
     "SECTION_HEADING",
     "STEP_MEDIAN_GOAL_MS",
+    "STEP_OVER_QP_GOAL",
     "STEP_P99_GOAL_MS",
     "DayRun",
     "MPCBenchmark",
+    "OverheadRun",
     "StepTimeRun",
     "build_parser",
     "day_scenario",
     "format_report",
     "main",
     "measure_day_simulation",
+    "measure_qp_overhead",
     "measure_step_times",
     "run_benchmark",
     "write_benchmarks_section",

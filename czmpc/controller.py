@@ -289,8 +289,10 @@ class OffsetFreeMPC:
                 f"got {s_init:g}"
             )
         n = self._n_x = base.n_states
-        self._A = np.array(base.A)
-        self._Gx = np.array(self._est.gains.G[:n])
+        # h = A (x - x_s) + G_x eps (`czmpc.qp`) = [A, 0, -A, G_x] [z; x_s; eps]: one product.
+        self._h_mat = np.hstack([base.A, np.zeros((n, 1)), -base.A,
+                                 self._est.gains.G[:n].reshape(n, 1)])
+        self._h_in = np.empty(2 * n + 2)
         self._d_power_gain = self._aug.disturbance_power_gain
         self._soft_min_rel = (None if settings.soft_power_min_kw is None
                               else settings.soft_power_min_kw - self._p_nom)
@@ -543,7 +545,7 @@ class OffsetFreeMPC:
         tgt = compute_target(self._ssm, setpoint=sp.used_kw - self._p_nom, disturbance=d,
                              w_min=em.w_min, w_max=em.w_max)
         ds_prev = self._ds_prev
-        plan = self._solve_or_fall_back(z[: self._n_x], eps, tgt, em)
+        plan = self._solve_or_fall_back(z, eps, tgt, em)
         measurement_shed = est.gap > self._rel.max_predicted_samples
         ds, ds_raw = self._guard_input(plan.w0, ds_prev, measurement_shed, tgt, em)
 
@@ -633,12 +635,16 @@ class OffsetFreeMPC:
             self._n_rejected += 1
         return check, used, std_kw, rolled_back
 
-    def _solve_or_fall_back(self, x: FloatArray, eps: float, tgt: Target, em: InputMap) -> _Plan:
+    def _solve_or_fall_back(self, z: FloatArray, eps: float, tgt: Target, em: InputMap) -> _Plan:
         """Stage 3: the QP, checked; on failure the shifted previous plan, then the target."""
         ds_prev = self._ds_prev
         ds_base = min(em.ds_max_pct, max(em.ds_min_pct, ds_prev))
         w_base = self._w_prev if ds_base == ds_prev else em.f(ds_base)
-        h = self._A @ (x - tgt.x_s) + self._Gx * eps
+        h_in = self._h_in
+        h_in[: self._n_x + 1] = z
+        h_in[self._n_x + 1 : -1] = tgt.x_s
+        h_in[-1] = eps
+        h = self._h_mat @ h_in
         w_lo, w_hi, rate = self._bounds.compute(em, ds_base)
         sol: QPSolution = self._qp.solve(
             h=h, w_prev=w_base, w_target=tgt.w_s, y_target=tgt.y_s, w_lo=w_lo,

@@ -576,12 +576,16 @@ class MPCQP:
         status_val = int(info.status_val)
         x = ext.solution.x
         status = info.status
-        usable = status_val in (_SOLVED, _SOLVED_INACCURATE) and bool(np.isfinite(x).all())
+        usable = status_val in (_SOLVED, _SOLVED_INACCURATE)
+        # Every variable enters A x, so a residual below the tolerance also means x is finite.
         if usable and not (self._residual_bounds_violation and info.prim_res <= self.bound_tol_kw):
-            violation = self._bound_violation(np.asarray(x[:N], dtype=float), w_lo, w_hi, rate)
-            if violation > self.bound_tol_kw:
+            if not np.isfinite(x).all():
                 usable = False
-                status = f"{status}; outside bounds by {violation:.3g} kW"
+            else:
+                violation = self._bound_violation(x[:N], w_lo, w_hi, rate)
+                if violation > self.bound_tol_kw:
+                    usable = False
+                    status = f"{status}; outside bounds by {violation:.3g} kW"
         if usable:
             plan = x[:N]  # x is the solver's copy, ours alone
             plan.flags.writeable = False
