@@ -35,10 +35,15 @@ from sysid.atomic import atomic_write_text
 from sysid.errors import SamplingTimeError
 
 #: CSV columns written by `ClosedLoopResult.to_csv` (a disturbance estimate column
-#: ``disturbance_estimate_kw`` follows when the diagnostics carry one).
+#: ``disturbance_estimate_kw`` follows when the diagnostics carry one, then the
+#: `STATUS_COLUMNS` the diagnostics carry).
 CSV_COLUMNS = (
     "time_s", "setpoint_kw", "power_measured_kw", "power_true_kw", "triac_pct", "step_time_s",
 )
+#: Per-sample controller status written by `ClosedLoopResult.to_csv` where every step's
+#: diagnostics carry it (the offset-free MPC's: its mode in effect, what the step did,
+#: the QP solver's status and the fallback taken, as `czmpc.controller.StepDiagnostics`).
+STATUS_COLUMNS = ("mode", "status", "solver_status", "fallback")
 
 ProgressCallback = Callable[[int, int], None]
 
@@ -136,7 +141,8 @@ class ClosedLoopResult:
         return arr
 
     def to_csv(self, path: str | os.PathLike[str]) -> None:
-        """Write the run as CSV (columns `CSV_COLUMNS`, units in the names), atomically.
+        """Write the run as CSV (columns `CSV_COLUMNS`, units in the names, then the
+        controller's `STATUS_COLUMNS` as text), atomically.
 
         The file is written to a temporary name next to ``path`` and renamed
         (`sysid.atomic`), so a reader never sees half a file. NaN (missing samples) is written as ``nan``;
@@ -147,14 +153,19 @@ class ClosedLoopResult:
         path :
             Output file.
         """
-        columns: list[tuple[str, list[float]]] = [
+        columns: list[tuple[str, list[float] | list[str]]] = [
             (name, getattr(self, name).tolist()) for name in CSV_COLUMNS
         ]
         estimate = self.disturbance_estimate_kw
         if estimate is not None:
             columns.append(("disturbance_estimate_kw", estimate.tolist()))
+        diags = self.diagnostics
+        columns += [(name, [str(getattr(getattr(d, name), "value", getattr(d, name)))
+                            for d in diags])
+                    for name in STATUS_COLUMNS if diags and all(hasattr(d, name) for d in diags)]
         header = ",".join(name for name, _ in columns)
-        rows = (",".join(map(repr, row)) for row in zip(*(vals for _, vals in columns), strict=True))
+        rows = (",".join(v if isinstance(v, str) else repr(v) for v in row)
+                for row in zip(*(vals for _, vals in columns), strict=True))
         text = header + "\n" + "\n".join(rows) + "\n"
         atomic_write_text(path, text)
 
@@ -308,5 +319,5 @@ def run_closed_loop(
     )
 
 
-__all__ = ["CSV_COLUMNS", "ClosedLoopResult", "ProgressCallback", "run_closed_loop",
-           "spawn_streams"]
+__all__ = ["CSV_COLUMNS", "STATUS_COLUMNS", "ClosedLoopResult", "ProgressCallback",
+           "run_closed_loop", "spawn_streams"]

@@ -20,6 +20,7 @@ metrics check the controller against the limits it was told.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -120,11 +121,19 @@ class SimulationOutcome:
         """The scenario that was run."""
         return self.result.scenario
 
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready summary: the run's configuration and its metrics (metrics.json)."""
+    def to_dict(self, *, model_sha256: str | None = None) -> dict[str, Any]:
+        """JSON-ready summary: the run's configuration and its metrics (metrics.json).
+
+        ``model_sha256`` is the SHA-256 of the model file the controller was built from
+        (None: not from a file); the czmpc version is recorded beside it.
+        """
+        from sysid._version import __version__
+
         settings = asdict(self.settings)
         return {
             "format": "czmpc-simulation-metrics/1",
+            "czmpc_version": str(__version__),
+            "model_sha256": model_sha256,
             "scenario": self.scenario.name,
             "scenario_source": self.scenario.source,
             "plant": self.plant,
@@ -386,12 +395,14 @@ def run_simulation(
     )
 
 
-def write_outputs(outcome: SimulationOutcome, out_dir: str | os.PathLike[str]) -> tuple[Path, ...]:
+def write_outputs(outcome: SimulationOutcome, out_dir: str | os.PathLike[str], *,
+                  model_path: str | os.PathLike[str] | None = None) -> tuple[Path, ...]:
     """Write a run's trajectory, metrics and figure into ``out_dir`` (created if needed).
 
     Files: ``trajectory.csv`` (`ClosedLoopResult.to_csv`: one row per sample, units in
-    the column names), ``metrics.json`` (`SimulationOutcome.to_dict`) and
-    ``figure.png`` (`czmpc.reports.closed_loop_figure.plot_closed_loop`).
+    the column names, the controller's status per step), ``metrics.json``
+    (`SimulationOutcome.to_dict`) and ``figure.png``
+    (`czmpc.reports.closed_loop_figure.plot_closed_loop`).
 
     Parameters
     ----------
@@ -399,6 +410,9 @@ def write_outputs(outcome: SimulationOutcome, out_dir: str | os.PathLike[str]) -
         The run.
     out_dir :
         Output directory; existing files of the same names are replaced.
+    model_path :
+        The model file the controller was built from (its SHA-256 goes into
+        metrics.json), or None.
 
     Nothing in ``out_dir`` changes unless the whole run of writers succeeded: all three
     files are first written into a hidden scratch directory there, then renamed into
@@ -418,8 +432,9 @@ def write_outputs(outcome: SimulationOutcome, out_dir: str | os.PathLike[str]) -
     scratch = Path(tempfile.mkdtemp(prefix=".czmpc-simulate.", suffix=".tmp", dir=out))
     try:
         outcome.result.to_csv(scratch / TRAJECTORY_FILE)
-        atomic_write_text(scratch / METRICS_FILE,
-                          json.dumps(outcome.to_dict(), indent=2, allow_nan=False) + "\n")
+        digest = None if model_path is None else hashlib.sha256(Path(model_path).read_bytes()).hexdigest()
+        atomic_write_text(scratch / METRICS_FILE, json.dumps(
+            outcome.to_dict(model_sha256=digest), indent=2, allow_nan=False) + "\n")
         plot_outcome(outcome, scratch / FIGURE_FILE)
         for name in names:
             os.replace(scratch / name, out / name)

@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
             "virtual CZ heater (model mismatch)"
         stage(f"offset-free MPC, scenario '{scenario.name}', {label}")
         sim_outcome = run_simulation(model, scenario, plant=plant, seed=1)
-        files = write_outputs(sim_outcome, out / f"simulate-{plant}")
+        files = write_outputs(sim_outcome, out / f"simulate-{plant}", model_path=outcome.model_path)
         print(sim_outcome.metrics_table())
         print(f"wrote {', '.join(str(f) for f in files)}")
     print(f"\nall outputs under {out}/", file=sys.stderr)

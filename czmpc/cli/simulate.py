@@ -6,11 +6,16 @@ faults; a shipped name or a TOML file), and writes into DIR:
 
   trajectory.csv  one row per 2 s sample: time_s [s], setpoint_kw, power_measured_kw,
                   power_true_kw [kW], triac_pct [%], step_time_s [s] (controller wall
-                  time) and disturbance_estimate_kw (the controller's d)
-  metrics.json    the run's settings (scenario, plant, seed, controller tuning) and its
-                  metrics: per setpoint change IAE [kW s], overshoot [kW, %], 2 % settling
-                  time [s], steady-state error [kW]; overall IAE, ISE, input moves,
-                  limit/rate violations, solver fallbacks, step-time statistics [ms]
+                  time), disturbance_estimate_kw (the controller's d), and the MPC's
+                  status of the step: mode (on, predict, off), status (good; predicted:
+                  no usable measurement; clamped: the input on a limit; held; shed),
+                  solver_status (the QP's: solved, solved inaccurate, ..., or skipped)
+                  and fallback (none, shifted_plan, target)
+  metrics.json    the run's settings (scenario, plant, seed, controller tuning), the czmpc
+                  version and the model file's SHA-256, and its metrics: per setpoint
+                  change IAE [kW s], overshoot [kW, %], 2 % settling time [s],
+                  steady-state error [kW]; overall IAE, ISE, input moves, limit/rate
+                  violations, solver fallbacks, step-time statistics [ms]
   figure.png      power with setpoint (and soft limits) [kW], TRIAC input with its
                   allowed range [%], disturbance estimate [kW], on one time axis
 
@@ -132,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
                              variation=_variation.variation(args),
                              progress=partial(Progress(quiet_for_s=PROGRESS_AFTER_S).fraction,
                                               what="simulating"))
-    files = write_outputs(outcome, args.out)
+    files = write_outputs(outcome, args.out, model_path=args.model)
     print(outcome.metrics_table())
     print(f"wrote {', '.join(str(f) for f in files)}")
     return 0
@@ -154,7 +159,7 @@ def _compare(args: argparse.Namespace, model: HammersteinModel, scenario: Scenar
                                   seed=args.seed, noise=noise, settings=settings)
     files: list[Path] = []
     for s in summaries:
-        files += write_outputs(s.outcome, args.out / s.name)
+        files += write_outputs(s.outcome, args.out / s.name, model_path=args.model)
     args.out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(args.out / "comparison.csv", comparison_csv(summaries))
     files.append(args.out / "comparison.csv")

@@ -201,9 +201,10 @@ def test_to_csv_writes_every_sample_with_units_and_round_trips(
     result.to_csv(path)
     with open(path, newline="", encoding="utf-8") as fh:
         rows = list(csv.reader(fh))
-    assert tuple(rows[0]) == (*CSV_COLUMNS, "disturbance_estimate_kw")
+    assert tuple(rows[0]) == (*CSV_COLUMNS, "disturbance_estimate_kw", "fallback")
     assert len(rows) == 1 + result.n_steps
-    table = np.array(rows[1:], dtype=float)
+    assert [r[-1] for r in rows[1:5]] == ["none", "none", "none", "target"]  # status as text
+    table = np.array([r[:-1] for r in rows[1:]], dtype=float)
     for i, name in enumerate(CSV_COLUMNS):
         np.testing.assert_array_equal(table[:, i], getattr(result, name))   # repr round trip
     assert np.isnan(table[5, 2]) and np.isnan(table[6, 2])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import gc
+import hashlib
 import json
 import re
 import signal
@@ -23,7 +24,7 @@ from czmpc.cli import SIGTERM_EXIT_CODE, build_parser, main
 from czmpc.reports.closed_loop_figure import DISTURBANCE_LABEL, PLOT_LIMIT, plot_closed_loop
 from czmpc.reports.figure_style import FigureError
 from czmpc.settings import MPCSettings
-from sim.loop import CSV_COLUMNS
+from sim.loop import CSV_COLUMNS, STATUS_COLUMNS
 from sim.scenario import (
     BYTES_PER_STEP,
     MAX_N_STEPS,
@@ -32,6 +33,7 @@ from sim.scenario import (
     list_scenarios,
     load_scenario,
 )
+from sysid._version import __version__ as czmpc_version
 from sysid.modelfile import load_model
 
 REPO = Path(__file__).resolve().parents[3]
@@ -56,12 +58,20 @@ def test_simulate_writes_trajectory_metrics_and_figure(
     folder = tmp_path / "out"
     with open(folder / "trajectory.csv", encoding="utf-8") as fh:
         rows = list(csv.reader(fh))
-    assert tuple(rows[0]) == (*CSV_COLUMNS, "disturbance_estimate_kw")
+    assert tuple(rows[0]) == (*CSV_COLUMNS, "disturbance_estimate_kw", *STATUS_COLUMNS)
     scenario = load_scenario("missing_samples").shortened(0.2)
     assert len(rows) == 1 + scenario.n_steps
     measured = np.array([float(r[2]) for r in rows[1:]])
     assert np.isnan(measured).sum() > 0        # the outage is in the file as nan
+    status = {name: [r[rows[0].index(name)] for r in rows[1:]] for name in STATUS_COLUMNS}
+    assert set(status["mode"]) == {"on"} and set(status["fallback"]) == {"none"}
+    # no usable measurement: the step runs on the model's prediction, and says so
+    assert [s for s, p in zip(status["status"], measured, strict=True) if np.isnan(p)] == [
+        "predicted"] * int(np.isnan(measured).sum())
+    assert set(status["solver_status"]) <= {"solved", "solved inaccurate"}
     doc = json.loads((folder / "metrics.json").read_text(encoding="utf-8"))
+    assert doc["model_sha256"] == hashlib.sha256(SHIPPED_MODEL.read_bytes()).hexdigest()
+    assert doc["czmpc_version"] == czmpc_version
     assert doc["scenario"] == "missing_samples-short" and doc["plant"] == "heater"
     assert doc["seed"] == 4 and doc["noise"] is True
     assert doc["controller_settings"]["initial_triac_pct"] == pytest.approx(
