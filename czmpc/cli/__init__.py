@@ -19,10 +19,12 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse
 import importlib
 import pkgutil
+import shutil
 import signal
 import sys
+import textwrap
 import threading
-from collections.abc import Sequence
+from collections.abc import Generator, Sequence
 from types import FrameType, ModuleType
 
 from czmpc.cli._exit import BAD_INPUT_ERRORS, ExitCode
@@ -37,31 +39,100 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"czmpc: error: {message}\n")
 
 
-def _command_modules() -> list[ModuleType]:
-    names = sorted(m.name for m in pkgutil.iter_modules(__path__)
-                   if not m.name.startswith("_"))   # _argtypes etc. are helpers
-    modules = [importlib.import_module(f"czmpc.cli.{name}") for name in names]
-    return sorted(modules, key=lambda m: (getattr(m, "ORDER", 50), m.NAME))
+class _GroupedHelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """``czmpc --help``: no flat list of commands under COMMAND; the epilog groups them."""
+
+    def _iter_indented_subactions(
+            self, action: argparse.Action) -> Generator[argparse.Action, None, None]:
+        yield from ()
+
+
+#: The commands by task, in the order ``czmpc --help`` lists them. Every command module
+#: of `czmpc.cli` belongs to exactly one group (a test holds them equal).
+COMMAND_GROUPS: dict[str, tuple[str, ...]] = {
+    "start here": ("demo",),
+    "identify: from a logged data set to a checked model": (
+        "inspect", "design-test", "experiment", "identify", "show-model", "check-model"),
+    "control: tune, simulate and test the controller": (
+        "simulate", "settings", "tune-pid", "regress", "campaign"),
+    "plant: commission and run the MPC on a live plant": (
+        "commission", "run", "run-report", "plant", "pki"),
+}
+#: Heading of the commands no group names (none, when the map is complete).
+UNGROUPED = "other"
+
+
+def _command_modules() -> dict[str, ModuleType]:
+    """Every command module of `czmpc.cli` by command name (helpers start with ``_``)."""
+    names = sorted(m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_"))
+    modules = (importlib.import_module(f"czmpc.cli.{name}") for name in names)
+    return {m.NAME: m for m in modules}
+
+
+def command_groups(commands: Sequence[str]) -> dict[str, tuple[str, ...]]:
+    """``commands`` by group, in `COMMAND_GROUPS` order; those no group names under `UNGROUPED`."""
+    grouped = {title: tuple(c for c in names if c in commands)
+               for title, names in COMMAND_GROUPS.items()}
+    listed = {c for names in COMMAND_GROUPS.values() for c in names}
+    rest = tuple(sorted(c for c in commands if c not in listed))
+    return {title: names for title, names in {**grouped, UNGROUPED: rest}.items() if names}
+
+
+def _grouped_listing(helps: dict[str, str]) -> str:
+    """The commands of ``czmpc --help``: a block per group, one line (wrapped) per command."""
+    width = max(shutil.get_terminal_size().columns - 2, 60)
+    name_width = max(map(len, helps)) + 2
+    lines = ["commands, by task:"]
+    for title, names in command_groups(list(helps)).items():
+        lines.append(f"  {title}")
+        for name in names:
+            lines.append(textwrap.fill(helps[name], width, initial_indent=f"    {name:<{name_width}}",
+                                       subsequent_indent=" " * (4 + name_width)))
+    return "\n".join(lines)
+
+
+def _accept_debug(parser: argparse.ArgumentParser) -> None:
+    """Let ``--debug`` follow a command and its actions (``czmpc plant history ... --debug``).
+
+    Its default is SUPPRESS: absent after the command, it leaves the value given before it.
+    """
+    parser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                        help="show tracebacks on errors")
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in dict.fromkeys(action.choices.values()):   # aliases share a parser
+                _accept_debug(sub)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The full argument parser, one sub-parser per module in `czmpc.cli`."""
+    """The full argument parser, one sub-parser per module in `czmpc.cli`.
+
+    ``czmpc --help`` lists the commands by task (`COMMAND_GROUPS`); ``--debug`` is
+    accepted before and after the command.
+    """
     parser = _Parser(
         prog="czmpc",
         description=(
-            "Identify a Hammerstein model of a CZ puller's heater power from logged data "
+            "Identify a Hammerstein model of a CZ puller's heater power from logged data\n"
             "and control that power with an offset-free MPC."
         ),
-        epilog="Run 'czmpc COMMAND --help' for the options of one command.",
+        formatter_class=_GroupedHelpFormatter,
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}",
                         help="print the version of czmpc and exit")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for module in _command_modules():
-        p = sub.add_parser(module.NAME, help=module.HELP, description=module.__doc__)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser,
+                                help="one of the commands below")
+    modules = _command_modules()
+    order = [c for names in command_groups(list(modules)).values() for c in names]
+    for name in order:
+        module = modules[name]
+        p = sub.add_parser(name, help=module.HELP, description=module.__doc__)
         module.register(p)
+        _accept_debug(p)
         p.set_defaults(_run=module.run)
+    parser.epilog = (_grouped_listing({name: modules[name].HELP for name in order})
+                     + "\n\nRun 'czmpc COMMAND --help' for the options of one command.")
     return parser
 
 
