@@ -1,4 +1,4 @@
-"""OffsetFreeMPC and StepDiagnostics: composes estimator, target, QP, inversion, supervision.
+"""OffsetFreeMPC: composes estimator, target, QP, inversion and supervision into one step.
 
 Notation
 --------
@@ -27,15 +27,15 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
-from typing import Literal, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
+from czmpc.diagnostics import Fallback, StepDiagnostics
 from czmpc.errors import DesignError, SettingsError
 from czmpc.inversion import InputMap, build_input_map, slope
 from czmpc.kalman import Estimator, SteadyStateKalman
-from czmpc.mismatch import InnovationMonitor, MismatchStats, monitored_noise_std_kw
+from czmpc.mismatch import InnovationMonitor, monitored_noise_std_kw
 from czmpc.modes import Mode, ModeTransition, Status, transition
 from czmpc.qp import MPCQP, MoveBounds, QPSolution
 from czmpc.realization import AugmentedModel, augment, innovations_form
@@ -46,136 +46,10 @@ from czmpc.validation import MeasurementCheck, MeasurementChecker, Verdict
 from sysid._typing import FloatArray
 from sysid.model import HammersteinModel
 
-Fallback = Literal["none", "shifted_plan", "target"]
-
 #: Tolerance [% or kW-equivalent] for "the input sits on a bound" (status CLAMPED).
 CLAMP_TOL = 1e-6
 #: Tolerance [%] for "the applied input differs from the command".
 APPLIED_TOL_PCT = 1e-6
-
-
-@dataclass(frozen=True, eq=False, kw_only=True)
-class StepDiagnostics:
-    """What one call of `OffsetFreeMPC.step` saw, decided and did.
-
-    Parameters
-    ----------
-    k :
-        Sample index since construction or `OffsetFreeMPC.reset` (0-based).
-    power_kw :
-        Measured power as received [kW] (may be NaN or infinite).
-    setpoint_kw :
-        Setpoint as received [kW] (may be non-finite).
-    setpoint_used_kw :
-        Setpoint the step worked with [kW]: the received one (or the previous one
-        held when the received one was not finite) after the optional ramp and filter.
-    setpoint_held :
-        True if the received setpoint was rejected and the previous one was held.
-    setpoint_verdict :
-        Why a setpoint was rejected, or ``"valid"``: ``"missing"`` (None),
-        ``"not finite"``, ``"below power_min_kw"``, ``"beyond MAX_SETPOINT_KW"`` or
-        ``"above power_max_kw"``.
-    triac_pct :
-        What `OffsetFreeMPC.step` returned [%].
-    measurement_used :
-        False if the measurement update was skipped: a sample that failed a validity
-        check (`verdict`), one whose innovation exceeds
-        `czmpc.kalman.MAX_INNOVATION_KW`, or any sample in ``OFF``.
-    innovation_kw :
-        ``eps_k = y_k - C z_{k|k-1}`` [kW] (0 when the measurement was not used).
-    state_estimate :
-        (n+1,) filtered augmented state ``z_{k|k} = [x; d]``.
-    disturbance_estimate :
-        ``d`` [kW-equivalent for an input, kW for an output disturbance].
-    disturbance_power_kw :
-        Steady power change the estimated ``d`` causes [kW].
-    target_w :
-        Steady-state target input ``w_s`` [kW-equivalent].
-    target_triac_pct :
-        TRIAC input holding the target [%].
-    target_power_kw :
-        Steady power the target reaches [kW]; equals the setpoint when reachable.
-    setpoint_reachable :
-        False if no allowed input holds the setpoint (the target was clipped).
-    planned_w :
-        (N,) planned ``w`` [kW-equivalent] from this step's QP; NaN if it failed.
-    solver_status :
-        OSQP's status string, or a reason the QP was not solved.
-    solve_time_s :
-        OSQP solve time [s].
-    n_iterations :
-        OSQP iterations.
-    fallback :
-        ``"none"`` (QP plan used), ``"shifted_plan"`` or ``"target"``.
-    soft_limit_slack_kw :
-        Soft power limit violation planned by the QP [kW] (0 without soft limits).
-    mode :
-        The mode this step ran in (`czmpc.modes.Mode`).
-    status :
-        What the step did (`czmpc.modes.Status`; ``docs/guides/controller_failures.rst``).
-    verdict :
-        Measurement validity (`czmpc.validation.Verdict`).
-    level_change_accepted :
-        True if the measurement was accepted only because the rate/spike check
-        re-opened after repeated rejections.
-    innovation_std_kw :
-        Predicted innovation std the spike gate used [kW].
-    samples_without_measurement :
-        Consecutive samples (this one included) without a valid measurement.
-    bad_solves_in_row :
-        Consecutive QP solves (this one included) whose result was not used.
-    advised_triac_pct :
-        The input the controller would apply in ``ON`` [%] (equals ``triac_pct`` in
-        ``ON``; the shadow advice in ``PREDICT``; the held input in ``OFF``).
-    applied_triac_pct :
-        The input applied over the previous sample as the estimator used it [%].
-    triac_limits_pct :
-        Effective ``(min, max)`` TRIAC limits this step [%] (ramping after a change).
-    mismatch :
-        Model-mismatch statistics (`czmpc.mismatch.MismatchStats`).
-    transition :
-        The mode request handled since the previous step, or None.
-    rolled_back_samples :
-        Past samples whose measurement updates this step undid: a frozen sensor was
-        detected, so the readings it gave before detection are judged invalid too and
-        the estimator was rolled back to the last live sample (0 otherwise).
-    """
-
-    k: int
-    power_kw: float
-    setpoint_kw: float
-    setpoint_used_kw: float
-    setpoint_held: bool
-    triac_pct: float
-    measurement_used: bool
-    innovation_kw: float
-    state_estimate: FloatArray = field(repr=False)
-    disturbance_estimate: float
-    disturbance_power_kw: float
-    target_w: float
-    target_triac_pct: float
-    target_power_kw: float
-    setpoint_reachable: bool
-    planned_w: FloatArray = field(repr=False)
-    solver_status: str
-    solve_time_s: float
-    n_iterations: int
-    fallback: Fallback
-    soft_limit_slack_kw: float
-    mode: Mode = Mode.ON
-    status: Status = Status.GOOD
-    verdict: Verdict = Verdict.VALID
-    level_change_accepted: bool = False
-    innovation_std_kw: float = math.nan
-    samples_without_measurement: int = 0
-    bad_solves_in_row: int = 0
-    advised_triac_pct: float = math.nan
-    applied_triac_pct: float = math.nan
-    triac_limits_pct: tuple[float, float] = (math.nan, math.nan)
-    mismatch: MismatchStats | None = None
-    transition: ModeTransition | None = None
-    setpoint_verdict: str = "valid"
-    rolled_back_samples: int = 0
 
 
 class _Plan(NamedTuple):
@@ -353,10 +227,7 @@ class OffsetFreeMPC:
 
     @property
     def allowed_triac_range_pct(self) -> tuple[float, float]:
-        """``(s_min, s_max)`` the controller keeps its output in [%] (settings and model).
-
-        `set_triac_limits` narrows this further at run time (`triac_limits_pct`).
-        """
+        """``(s_min, s_max)`` the output stays in [%] (settings, model; `set_triac_limits` narrows it)."""
         return (self._input_map.ds_min_pct + self._s_nom,
                 self._input_map.ds_max_pct + self._s_nom)
 
@@ -401,7 +272,7 @@ class OffsetFreeMPC:
         self._plan: FloatArray | None = None
         self._plan_k = 0
         self._n_fallbacks = self._n_inaccurate = self._n_rejected = self._n_shed = 0
-        self._n_rolled_back = self._bad_in_row = 0
+        self._bad_in_row = 0
         self._mode = Mode(self._rel.initial_mode)
         self._warm = self._rel.warmup_samples if self._mode is Mode.ON else 0
         self._transitions: deque[ModeTransition] = deque(maxlen=self._rel.transition_log_size)
@@ -424,9 +295,9 @@ class OffsetFreeMPC:
     def request_mode(self, mode: Mode | str) -> ModeTransition:
         """Ask for a mode change; it applies from the next `step` (`czmpc.modes.transition`).
 
-        Entering ``OFF`` stops the estimator; leaving ``OFF`` restarts it at the steady
-        state of the applied input, so ``ON`` needs ``warmup_samples`` valid samples in
-        ``PREDICT`` first. Every request is logged (`drain_transitions`).
+        Leaving ``OFF`` restarts the estimator at the steady state of the applied input,
+        so ``ON`` needs ``warmup_samples`` valid samples in ``PREDICT`` first. Every
+        request is logged (`drain_transitions`).
 
         Parameters
         ----------
@@ -518,13 +389,6 @@ class OffsetFreeMPC:
             TRIAC input [%]. In ``ON``: finite, inside the effective limits and within
             ``max_move_pct_per_step`` of the previous input (module notes). In
             ``OFF``/``PREDICT``: the caller's input (the last one known).
-
-        Notes
-        -----
-        The stages, in the order of the module notes: `_take_applied_input`, the limit
-        ramp and setpoint shaper, `_measurement_update`, the target (`compute_target`),
-        `_solve_or_fall_back`, `_guard_input`, `_judge`, the time update, and the record
-        (`StepDiagnostics`).
         """
         power = math.nan if power_kw is None else float(power_kw)
         mode = self._mode
@@ -538,8 +402,7 @@ class OffsetFreeMPC:
 
         check, used, std_kw, rolled_back = self._measurement_update(power)
         est = self._est
-        z = est.z
-        eps = est.eps
+        z, eps = est.z, est.eps
         d = float(z[self._n_x])
         em = self._limits.map
         tgt = compute_target(self._ssm, setpoint=sp.used_kw - self._p_nom, disturbance=d,
@@ -584,12 +447,8 @@ class OffsetFreeMPC:
 
     # --- the stages of a step, in order ---------------------------------------------
     def _take_applied_input(self, applied_triac_pct: float, mode: Mode) -> bool:
-        """Stage 0: take the input actually applied over the last sample, if finite.
-
-        The estimator's prediction is corrected to it (the time update is linear in
-        ``w``) and the rate limit starts from it. Returns whether it differs from the
-        command.
-        """
+        """Stage 0: correct the estimator to the input applied over the last sample, and start
+        the rate limit from it (if finite). Returns whether it differs from the command."""
         applied = float(applied_triac_pct)
         if not math.isfinite(applied):
             return False
@@ -606,9 +465,8 @@ class OffsetFreeMPC:
     def _measurement_update(self, power: float) -> tuple[MeasurementCheck, bool, float, int]:
         """Stage 1: validity checks, then the measurement update with a valid sample only.
 
-        Returns the check, whether the update ran, the predicted innovation std the
-        gate used [kW] and the frozen samples rolled back at this step.
-        """
+        Returns the check, whether the update ran, the innovation std the gate used [kW]
+        and the frozen samples rolled back now."""
         est = self._est
         std_kw = est.innovation_std_kw
         check = self._checker.check(power, predicted_kw=self._p_nom + est.predicted_output,
@@ -622,7 +480,6 @@ class OffsetFreeMPC:
                 self._stuck_rolled = True
                 rolled_back = est.roll_back(check.stuck_run_samples - 2)
                 self._n_rejected += rolled_back
-                self._n_rolled_back += rolled_back
                 std_kw = est.innovation_std_kw
         else:
             self._stuck_rolled = False
@@ -672,20 +529,16 @@ class OffsetFreeMPC:
                 w0 = tgt.w_s
                 fallback = "target"
                 self._plan = None
-        return _Plan(solution=sol, w0=w0, fallback=fallback, w_lo0=float(w_lo[0]),
-                     w_hi0=float(w_hi[0]), solver_shed=self._bad_in_row >= self._rel.max_bad_solves)
+        return _Plan(sol, w0, fallback, float(w_lo[0]), float(w_hi[0]),
+                     self._bad_in_row >= self._rel.max_bad_solves)
 
     def _guard_input(self, w0: float, ds_prev: float, measurement_shed: bool, tgt: Target,
                      em: InputMap) -> tuple[float, float]:
         """Stage 4: invert ``w0`` (or take the safe input when shed), then the rate and limit guard.
 
-        Shed for want of measurements, the safe input is ``shed_triac_pct`` when set, else
-        the steady input that holds the setpoint by the last trusted estimate (the
-        target: the model's steady state with the disturbance last estimated from valid
-        data). Holding whatever input the last steps produced would keep the
-        transients of the soft-sensor period, or what bad readings taught the estimator.
-
-        Returns ``(ds, ds_raw)``: the guarded input and the one asked for [%, deviation].
+        The safe input is ``shed_triac_pct`` when set, else the target: the steady input
+        holding the setpoint by the last trusted estimate, not the transients of the
+        soft-sensor period. Returns the guarded input and the one asked for [%, deviation].
         """
         if self._max_move is not None:
             r_lo, r_hi = ds_prev - self._max_move, ds_prev + self._max_move
@@ -743,11 +596,8 @@ class OffsetFreeMPC:
 def _check_static_gain(model: HammersteinModel, gain: float, input_map: InputMap) -> None:
     """Refuse a model whose static gain over the allowed input range is not positive and finite.
 
-    The steady gain from the TRIAC input to the power is ``B(1)/A(1) f'(ds)``; ``f'`` is
-    positive on the allowed range (`build_input_map`), so the sign and finiteness of
-    ``B(1)/A(1)`` decide. A model fitted to uninformative or sign-wrong data can have
-    either wrong; an MPC on it would drive the heater the wrong way (identification may
-    model a negative gain, the controller refuses it).
+    The steady gain is ``B(1)/A(1) f'(ds)`` with ``f' > 0`` on the allowed range
+    (`build_input_map`): a wrong-signed ``B(1)/A(1)`` would drive the heater the wrong way.
     """
     lo, hi = input_map.ds_min_pct, input_map.ds_max_pct
     g_lo = gain * slope(input_map.coefficients, lo)
