@@ -235,7 +235,7 @@ class RunSummary:
     #: `RECENT_PHASES`) and the delays [wall s] the schedule took to read just after the
     #: plant publishes.
     read_phases: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT_PHASES))
-    alignment_delays_s: list[float] = field(default_factory=list)
+    alignment_delays_s: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT_PHASES))
 
     @property
     def moved_nothing(self) -> bool:

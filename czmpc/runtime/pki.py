@@ -149,4 +149,17 @@ def create_application_certificate(
                             sha1_thumbprint=cert.fingerprint(hashes.SHA1()).hex())
 
 
-__all__ = ["KEY_BITS", "VALIDITY_DAYS", "CertificateFiles", "create_application_certificate"]
+def application_uri(certificate_der: bytes) -> str | None:
+    """The application URI in a DER certificate's subject alternative names, or None."""
+    x509 = _crypto()[0]
+    cert = x509.load_der_x509_certificate(certificate_der)
+    try:
+        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    except x509.ExtensionNotFound:
+        return None
+    uris = san.get_values_for_type(x509.UniformResourceIdentifier)
+    return str(uris[0]) if uris else None
+
+
+__all__ = ["KEY_BITS", "VALIDITY_DAYS", "CertificateFiles", "application_uri",
+           "create_application_certificate"]

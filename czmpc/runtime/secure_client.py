@@ -22,10 +22,11 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
-from pathlib import Path
 from typing import Any
 
 from czmpc.errors import CzmpcError
+from czmpc.runtime._opcua import asyncua as load_asyncua
+from czmpc.runtime.pki import application_uri
 from czmpc.runtime.security import SecuritySettings
 
 #: asyncua's client (typed loosely: asyncua is an optional dependency).
@@ -53,26 +54,6 @@ class PlantUnreachableError(CzmpcError, ConnectionError):
 def thumbprint(der: bytes) -> str:
     """SHA-1 thumbprint of a DER certificate, hex, as OPC UA tools show it."""
     return hashlib.sha1(der, usedforsecurity=False).hexdigest()
-
-
-def _asyncua() -> Any:
-    try:
-        import asyncua
-    except ImportError as exc:  # pragma: no cover - installed with the opcua extra
-        raise CzmpcError("the OPC UA link needs asyncua: pip install 'czmpc[opcua]'") from exc
-    return asyncua
-
-
-def _application_uri(certificate: Path) -> str | None:
-    from cryptography import x509
-
-    cert = x509.load_der_x509_certificate(certificate.read_bytes())
-    try:
-        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
-    except x509.ExtensionNotFound:
-        return None
-    uris = san.get_values_for_type(x509.UniformResourceIdentifier)
-    return uris[0] if uris else None
 
 
 def _mode_name(mode: object) -> str:
@@ -117,7 +98,7 @@ async def check_endpoint(client: Client, settings: SecuritySettings) -> None:
         No matching endpoint, or another server certificate than the pinned one.
     """
     endpoints = await client.connect_and_get_server_endpoints()
-    ua = _asyncua().ua
+    ua = load_asyncua().ua
     wanted_mode = (getattr(ua.MessageSecurityMode, settings.mode) if settings.secure
                    else ua.MessageSecurityMode.None_)
     wanted_uri = POLICY_URIS[settings.policy]
@@ -163,7 +144,7 @@ async def connect(endpoint: str, settings: SecuritySettings, *,
     PlantUnreachableError
         The server did not answer or refused the TCP connection: retry with backoff.
     """
-    asyncua = _asyncua()
+    asyncua = load_asyncua()
     client = asyncua.Client(endpoint, timeout=timeout_s)
     checked = False   # the server answered the discovery request and is the pinned one
     if settings.secure and (settings.certificate is None or settings.private_key is None):
@@ -172,7 +153,7 @@ async def connect(endpoint: str, settings: SecuritySettings, *,
         await asyncio.wait_for(check_endpoint(client, settings), timeout_s * 2)
         checked = True
         if settings.secure and settings.certificate is not None:
-            uri = _application_uri(settings.certificate)
+            uri = application_uri(settings.certificate.read_bytes())
             if uri is not None:
                 client.application_uri = uri
             policy = getattr(asyncua.crypto.security_policies,

@@ -82,6 +82,7 @@ import numpy as np
 
 from czmpc.modes import Mode
 from czmpc.runtime._opcua import asyncua
+from czmpc.runtime.pki import application_uri
 from czmpc.runtime.security import ServerSecurity
 from sim.disturbances import exogenous_at, fault_profile
 from sim.protocols import NOMINAL, Exogenous, Plant
@@ -401,18 +402,6 @@ def _history_storage(options: ServeOptions) -> Any:
     return SQLiteHistory(str(options.history_path), max_history_data_response_size=page)
 
 
-def _application_uri(certificate_der: bytes) -> str | None:
-    from cryptography import x509
-
-    cert = x509.load_der_x509_certificate(certificate_der)
-    try:
-        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
-    except x509.ExtensionNotFound:
-        return None
-    uris = san.get_values_for_type(x509.UniformResourceIdentifier)
-    return str(uris[0]) if uris else None
-
-
 def _load_der(path: Any) -> bytes:
     from cryptography import x509
     from cryptography.hazmat.primitives.serialization import Encoding
@@ -503,7 +492,7 @@ async def _secure(server: Any, security: ServerSecurity, idx: int,
     server.set_security_policy([policy_type], permission_ruleset=_permission_rules(security, idx, log))
     server.set_identity_tokens([ua.UserNameIdentityToken])
     cert_der = _load_der(security.certificate)
-    uri = _application_uri(cert_der)
+    uri = application_uri(cert_der)
     if uri is not None:
         await server.set_application_uri(uri)
     await server.load_certificate(str(security.certificate))
