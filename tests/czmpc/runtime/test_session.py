@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 from pathlib import Path
 
 import pytest
@@ -50,7 +51,9 @@ def _checked(model_path: Path, verdict: Verdict) -> None:
                            model_sha256=file_sha256(model_path)), model_path)
 
 
-def test_a_not_ready_model_opens_in_predict_only_unless_forced(tmp_path: Path) -> None:
+def test_a_not_ready_model_opens_in_predict_only_unless_forced(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.INFO, logger="czmpc.runtime.session")
     model_path = tmp_path / "model.json"
     model_path.write_bytes(SHIPPED.read_bytes())
     assert switch_on_rule(*read_check(model_path)).allowed     # never checked: ON, warned
@@ -59,9 +62,12 @@ def test_a_not_ready_model_opens_in_predict_only_unless_forced(tmp_path: Path) -
     shadow = open_run(_config(tmp_path, model_path))
     assert not shadow.switch_on.allowed and shadow.mpc.mode is Mode.PREDICT
     assert shadow.loop().allow_on is False
+    assert "running in PREDICT only (nothing is written); --force overrides" in caplog.text
+    caplog.clear()
     forced = open_run(_config(tmp_path, model_path), force=True)
     assert forced.switch_on.forced and forced.mpc.mode is Mode.ON
     assert forced.loop().allow_on is True
+    assert "--force: switching ON with a model judged not ready" in caplog.text
     _checked(model_path, "ready with conditions")
     assert open_run(_config(tmp_path, model_path)).loop().allow_on is True
     assert open_run(_config(tmp_path, model_path), unattended=True).loop().allow_on is False
