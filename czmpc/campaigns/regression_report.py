@@ -15,6 +15,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from czmpc.campaigns.regression import AuditReport, CaseCheck, CheckReport
+from czmpc.reports import tables
 from sysid.atomic import atomic_write_text
 
 _SIGNAL_NAMES = {"power_true_kw": "true power [kW]", "triac_pct": "TRIAC input [%]"}
@@ -60,7 +61,7 @@ def cause_lines(report: CheckReport) -> list[str]:
     return lines
 
 
-def format_table(report: CheckReport) -> str:
+def check_table(report: CheckReport) -> str:
     """The terminal report: one row per case, then every failure in full and the causes."""
     rows = [("case", "result", "metric", "golden", "tolerance", "new", "first divergence")]
     for c in report.cases:
@@ -74,12 +75,8 @@ def format_table(report: CheckReport) -> str:
         else:
             rows.append((c.case_id, "ok", "", "", "", "",
                          "" if c.divergence is None else divergence_text(c)))
-    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
-    lines = ["  ".join(cell.ljust(w) for cell, w in zip(r, widths, strict=True)).rstrip()
-             for r in rows]
-    lines.insert(1, "  ".join("-" * w for w in widths))
+    lines = [tables.format_table(rows[0], rows[1:], align="l" * len(rows[0])), ""]
     n_fail = len(report.failed)
-    lines.append("")
     lines.append(f"{report.golden.suite.name}: {len(report.cases) - n_fail} of {len(report.cases)} "
                  f"case(s) hold{'' if n_fail == 0 else f'; {n_fail} FAILED'} "
                  f"({report.wall_time_s:.1f} s)")
@@ -234,10 +231,7 @@ def audit_table(report: AuditReport) -> str:
         first = f"{m.caught[0][0]} ({m.caught[0][1]})" if m.caught else "-"
         rows.append((m.mutation, str(m.n_cases),
                      f"{len(m.caught)} case(s)" if m.n_cases else "not applicable", first))
-    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
-    lines = ["  ".join(cell.ljust(w) for cell, w in zip(r, widths, strict=True)).rstrip()
-             for r in rows]
-    lines.insert(1, "  ".join("-" * w for w in widths))
+    lines = [tables.format_table(rows[0], rows[1:], align="l" * len(rows[0]))]
     if report.baseline_failures:
         lines.append(f"left out: {len(report.baseline_failures)} case(s) that fail unmutated: "
                      f"{', '.join(report.baseline_failures)}")
@@ -255,9 +249,9 @@ def audit_table(report: AuditReport) -> str:
 __all__ = [
     "audit_table",
     "cause_lines",
+    "check_table",
     "divergence_text",
     "failure_lines",
-    "format_table",
     "junit_xml",
     "markdown",
     "plot_case",

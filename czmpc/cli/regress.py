@@ -136,7 +136,7 @@ def _record(args: argparse.Namespace) -> int:
 
 def _check(args: argparse.Namespace) -> int:
     from czmpc.campaigns.regression import check_golden
-    from czmpc.campaigns.regression_report import format_table, junit_xml, write_report
+    from czmpc.campaigns.regression_report import check_table, junit_xml, write_report
     from czmpc.cli._progress import Progress
     from sysid.atomic import atomic_write_text
 
@@ -144,7 +144,7 @@ def _check(args: argparse.Namespace) -> int:
     report = check_golden(args.golden, suite_dir=args.suite_dir, executor=args.executor,
                           workers=args.workers, dask_address=args.dask,
                           progress=lambda d, t: progress.fraction(d, t, what="cases"))
-    print(format_table(report), end="")
+    print(check_table(report), end="")
     if args.junit is not None:
         args.junit.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_text(args.junit, junit_xml(report))

@@ -72,7 +72,7 @@ class RegressChecker:
             The report of a passing check.
         """
         from czmpc.campaigns.regression import check_golden
-        from czmpc.campaigns.regression_report import failure_lines, format_table, write_report
+        from czmpc.campaigns.regression_report import check_table, failure_lines, write_report
 
         path = Path(golden_dir)
         if not path.is_absolute():
@@ -83,7 +83,7 @@ class RegressChecker:
             write_report(report, self.report_root / path.resolve().name)
         if not report.passed:
             details = [line for case in report.failed for line in failure_lines(case)]
-            pytest.fail(f"czmpc regression check of {path} failed:\n" + format_table(report)
+            pytest.fail(f"czmpc regression check of {path} failed:\n" + check_table(report)
                         + "\n" + "\n".join(details), pytrace=False)
         return report
 
