@@ -30,6 +30,7 @@ extensions = [
     "sphinx_gallery.gen_gallery",
     "czmpc_contracts",
     "czmpc_cli",
+    "czmpc_fields",
 ]
 
 templates_path = ["_templates"]

@@ -1,7 +1,8 @@
 """Sphinx directive that writes the command-line reference from the console script's parser.
 
 ``.. czmpc-cli::`` calls `czmpc.cli.build_parser` at build time and renders what
-``czmpc --help`` prints, then one section per command (and per sub-command, such as
+``czmpc --help`` prints, then a section per group of commands (`czmpc.cli.command_groups`,
+as ``czmpc --help`` groups them) and in it one per command (and per sub-command, such as
 ``czmpc plant serve``): its one-line help, usage, description and every option with its
 help text. Nothing is written by hand, so a command added, removed or regrouped in
 ``czmpc/cli`` shows on the next build; ``tests/docs/test_cli_reference.py`` checks that
@@ -134,7 +135,7 @@ class CliReference(SphinxDirective):
     has_content = False
 
     def run(self) -> list[nodes.Node]:
-        from czmpc.cli import build_parser
+        from czmpc.cli import build_parser, command_groups
 
         # the text comes from czmpc/cli, which Sphinx does not watch: re-read every build
         self.env.note_reread()
@@ -145,8 +146,13 @@ class CliReference(SphinxDirective):
                 _paragraph("``czmpc --help`` prints:"),
                 nodes.literal_block(top, top),
             ]
-            for name, help_line, sub in subcommands(parser):
-                out.append(self._section(f"czmpc {name}", help_line, sub))
+            commands = {name: (help_line, sub) for name, help_line, sub in subcommands(parser)}
+            for title, names in command_groups(list(commands)).items():
+                group = nodes.section(ids=[nodes.make_id(f"cli group {title}")])
+                group.append(nodes.title(text=title[0].upper() + title[1:]))
+                for name in names:
+                    group.append(self._section(f"czmpc {name}", *commands[name]))
+                out.append(group)
         return out
 
     def _section(self, title: str, help_line: str, parser: argparse.ArgumentParser) -> nodes.section:

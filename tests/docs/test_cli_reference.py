@@ -94,14 +94,16 @@ def test_the_top_level_help_is_shown_as_the_console_script_prints_it(cli_page: s
                 assert choice.dest in cli_page
 
 
-def test_a_class_page_links_each_method_to_a_page_with_its_parameters(tmp_path: Path) -> None:
-    conf = (f"templates_path = [{str(DOCS / '_templates')!r}]\n"
-            "extensions = ['sphinx.ext.autodoc', 'sphinx.ext.autosummary', 'numpydoc']\n"
+def test_a_class_page_links_each_method_and_field_to_a_page_of_its_own(tmp_path: Path) -> None:
+    conf = (f"import sys\nsys.path.insert(0, {str(DOCS / '_ext')!r})\n"
+            f"templates_path = [{str(DOCS / '_templates')!r}]\n"
+            "extensions = ['sphinx.ext.autodoc', 'sphinx.ext.autosummary', 'numpydoc', "
+            "'czmpc_fields']\n"
             "autosummary_generate = True\nautodoc_typehints = 'none'\n"
             "numpydoc_show_class_members = False\nnumpydoc_class_members_toctree = False\n"
             "default_role = 'py:obj'\n")
     index = ("API\n===\n\n.. currentmodule:: czmpc\n\n.. autosummary::\n   :toctree: generated\n\n"
-             "   OffsetFreeMPC\n   CzmpcError\n")
+             "   OffsetFreeMPC\n   CzmpcError\n   StepDiagnostics\n")
     out = _build(tmp_path, conf, index)
     step = out / "generated" / "czmpc.OffsetFreeMPC.step.html"
     assert step.is_file()
@@ -112,3 +114,29 @@ def test_a_class_page_links_each_method_to_a_page_with_its_parameters(tmp_path: 
         encoding="utf-8")
     # an exception's inherited methods (with_traceback, add_note) stay on BaseException
     assert not list((out / "generated").glob("czmpc.CzmpcError.*.html"))
+    # a dataclass field's page carries the description the class docstring gives it
+    from numpydoc.docscrape import NumpyDocString
+
+    from czmpc import StepDiagnostics
+
+    doc = NumpyDocString(StepDiagnostics.__doc__ or "")
+    (entry,) = [p for p in [*doc["Attributes"], *doc["Parameters"]] if p.name == "triac_pct"]
+    described = " ".join(" ".join(entry.desc).replace("`", "").split()[:4])
+    field = " ".join(_text(out / "generated" / "czmpc.StepDiagnostics.triac_pct.html").split())
+    assert described and described in field and "[%]" in field
+
+
+def test_the_commands_stand_under_their_groups_in_the_help_order(cli_page: str) -> None:
+    from czmpc.cli import COMMAND_GROUPS
+
+    body = cli_page.split("options:", 1)[-1]          # past the literal `czmpc --help` text
+    position = 0
+    for title, names in COMMAND_GROUPS.items():
+        heading = title[0].upper() + title[1:]
+        assert heading in body, f"no section for the group {title!r}"
+        start = body.index(heading)
+        assert start >= position, f"group {title!r} out of the help's order"
+        for name in names:
+            assert body.index(f"czmpc {name}¶" if f"czmpc {name}¶" in body else f"czmpc {name}#",
+                              start) >= start
+        position = start
