@@ -27,7 +27,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from czmpc.errors import DesignError
-from sysid._typing import FloatArray
 from sysid.model import HammersteinModel
 
 #: Newton/bisection stops when the bracket is this small relative to its scale.
@@ -56,22 +55,6 @@ def evaluate(coefficients: tuple[float, ...], ds_pct: float) -> float:
 def slope(coefficients: tuple[float, ...], ds_pct: float) -> float:
     """Return ``f'(ds)`` for a scalar [kW/%]."""
     out = 0.0
-    for i in range(len(coefficients), 0, -1):
-        out = out * ds_pct + i * coefficients[i - 1]
-    return out
-
-
-def evaluate_array(coefficients: tuple[float, ...], ds_pct: FloatArray) -> FloatArray:
-    """Vectorized `evaluate` over an array of deviations [kW-equivalent]."""
-    out = np.zeros_like(ds_pct)
-    for coef in reversed(coefficients):
-        out = (out + coef) * ds_pct
-    return out
-
-
-def slope_array(coefficients: tuple[float, ...], ds_pct: FloatArray) -> FloatArray:
-    """Vectorized `slope` over an array of deviations [kW/%]."""
-    out = np.zeros_like(ds_pct)
     for i in range(len(coefficients), 0, -1):
         out = out * ds_pct + i * coefficients[i - 1]
     return out
@@ -235,15 +218,6 @@ class InputMap:
                 best = min(best, slope(self.coefficients, r))
         return best
 
-    def min_slopes(self, ds_lo_pct: FloatArray, ds_hi_pct: FloatArray) -> FloatArray:
-        """Vectorized `min_slope` over intervals ``[ds_lo[i], ds_hi[i]]`` [kW/%]."""
-        c = self.coefficients
-        best = np.minimum(slope_array(c, ds_lo_pct), slope_array(c, ds_hi_pct))
-        for r in self.slope_critical_points_pct:
-            inside = (ds_lo_pct < r) & (r < ds_hi_pct)
-            best = np.where(inside, np.minimum(best, slope(c, r)), best)
-        return best
-
 
 def allowed_triac_range(
     model: HammersteinModel, *, triac_min_pct: float, triac_max_pct: float,
@@ -330,9 +304,7 @@ __all__ = [
     "allowed_triac_range",
     "build_input_map",
     "evaluate",
-    "evaluate_array",
     "min_slope",
     "monotone_branch",
     "slope",
-    "slope_array",
 ]

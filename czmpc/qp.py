@@ -524,7 +524,7 @@ class MPCQP:
         y_target :
             ``y_s`` [kW deviation] (used by the soft limits only).
         w_lo, w_hi :
-            (N,) box bounds on ``w_j`` (see `move_bounds`).
+            (N,) box bounds on ``w_j`` (see `MoveBounds`).
         rate :
             (N-1,) move limits, required if built with ``has_rate_limit``.
         soft_min_rel_kw, soft_max_rel_kw :

@@ -18,7 +18,7 @@ Notation as in `czmpc.qp`: ``dx_j = x_j - x_s``, ``h = A (x_{k|k} - x_s) + G_x e
           P_min - v <= P_nom + y_s + C dx_j <= P_max + v, j = 1..N, v >= 0   (soft)
 
 The rate limit is exact on every move here; the QP bounds later moves conservatively
-(`czmpc.qp.move_bounds`). Everything else is the same optimization problem written in
+(`czmpc.qp.MoveBounds`). Everything else is the same optimization problem written in
 another variable, so without a rate limit the two controllers should agree to the
 solvers' tolerances.
 

@@ -162,12 +162,3 @@ def test_min_slope_finds_an_interior_minimum(cubic_model: HammersteinModel) -> N
     # Dense grid: the grid minimum is within (spacing/2)^2 |f'''|/2 (< 1e-10) of the true one.
     assert min_slope(c, -30.0, 30.0) == pytest.approx(reference, abs=1e-9)
     assert min_slope(c, -30.0, 30.0) < min(slope(c, -30.0), slope(c, 30.0))
-
-
-def test_vectorized_min_slopes_match_the_scalar_ones(cubic_model: HammersteinModel) -> None:
-    im = _paper_map(cubic_model)
-    lo = np.array([-30.0, -10.0, 0.0, 15.0])
-    hi = np.array([30.0, 5.0, 25.0, 16.0])
-    scalar = [im.min_slope(a, b) for a, b in zip(lo, hi, strict=True)]
-    np.testing.assert_allclose(im.min_slopes(lo, hi), scalar,
-                               rtol=IDENTITY_RTOL, atol=0.0)  # same arithmetic
