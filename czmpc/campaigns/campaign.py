@@ -54,7 +54,6 @@ bit whatever the executor (`DETERMINISTIC_COLUMNS`).
 from __future__ import annotations
 
 import functools
-import hashlib
 import math
 import os
 import time
@@ -72,6 +71,7 @@ from czmpc.campaigns.build import CONTROLLERS, PRESET_ALIASES
 from czmpc.campaigns.measure import METRIC_COLUMNS, REACHABLE_COLUMNS, TIMING_COLUMNS
 from czmpc.config_text import choices, shown
 from czmpc.errors import CzmpcError
+from sysid.atomic import file_sha256
 
 PlantKindName = Literal["model", "heater", "perturbed", "sampled"]
 PLANT_KINDS: tuple[str, ...] = ("model", "heater", "perturbed", "sampled")
@@ -380,7 +380,7 @@ def _controllers(doc: Any, base: Path, where: str, model: str, linear: str
                 load_settings(settings, load_model_cached(model_path))
             except (SettingsError, SysidError, OSError) as exc:
                 raise CampaignError(f"{here}: settings: {exc}") from None
-            digest = _sha256(settings)
+            digest = file_sha256(settings)
         out.append(ControllerSpec(name=name, kind=kind, model_path=model_path,
                                   linear_model_path=linear_path, settings_path=settings,
                                   settings_sha256=digest))
@@ -595,13 +595,9 @@ def run_seed(run: RunSpec) -> int:
     return int(seq.generate_state(1, dtype=np.uint32)[0])
 
 
-def _sha256(path: str) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
 def load_model_cached(path: str) -> Any:
     """`sysid.modelfile.load_model`, cached by the file's content (a changed file is re-read)."""
-    return _model(path, _sha256(path))
+    return _model(path, file_sha256(path))
 
 
 @functools.lru_cache(maxsize=8)
@@ -620,7 +616,7 @@ def _scenario(name: str, time_scale: float, sha256: str) -> Any:
 def run_scenario(run: RunSpec) -> Any:
     """The run's scenario (shortened by its time scale)."""
     return _scenario(run.scenario, run.time_scale,
-                     _sha256(run.scenario) if run.scenario.endswith(".toml") else "")
+                     file_sha256(run.scenario) if run.scenario.endswith(".toml") else "")
 
 
 @functools.lru_cache(maxsize=8)
@@ -645,7 +641,7 @@ def _plant_model(run: RunSpec, model: Any) -> tuple[Any, int, str]:
 
     if run.plant.kind == "sampled":
         path = run.controller.model_path
-        drawn = _sampled(path, _sha256(path), run.base_seed, run.plant.sample_index)
+        drawn = _sampled(path, file_sha256(path), run.base_seed, run.plant.sample_index)
         return drawn.model, drawn.n_rejected, drawn.source
     if run.plant.kind == "perturbed":
         return perturb_model(model, gain_factor=run.plant.gain_factor,

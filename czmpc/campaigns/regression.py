@@ -40,7 +40,6 @@ catches.
 from __future__ import annotations
 
 import datetime as _dt
-import hashlib
 import json
 import math
 import os
@@ -68,7 +67,7 @@ from czmpc.campaigns.campaign import (
 from czmpc.campaigns.measure import COUNT_COLUMNS, metric_row
 from czmpc.campaigns.runner import map_runs
 from czmpc.errors import CzmpcError
-from sysid.atomic import atomic_write_text
+from sysid.atomic import atomic_write_text, file_sha256
 
 GOLDEN_FORMAT = "czmpc-regress/1"
 GOLDEN_FILE = "regress.json"
@@ -242,11 +241,6 @@ def trajectory_band(nominal: np.ndarray, tight: np.ndarray) -> float:
     return max(solver, FLOAT_RTOL * scale, FLOAT_ATOL) + rounding
 
 
-def sha256_file(path: str | Path) -> str:
-    """SHA-256 of a file's bytes (hex)."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
 def _version() -> str:
     from sysid._version import __version__
     return str(__version__)
@@ -369,7 +363,7 @@ def record_suite(
         key = _input_key(path, base)
         copy = f"{INPUTS_DIR}/{i:02d}-{Path(path).name}"
         shutil.copyfile(path, tmp / copy)
-        inputs[key] = {"sha256": sha256_file(path), "copy": copy}
+        inputs[key] = {"sha256": file_sha256(path), "copy": copy}
     doc_cases: dict[str, Any] = {}
     for k, case in enumerate(cases):
         nominal, tight = results[2 * k], results[2 * k + 1]
@@ -685,7 +679,7 @@ def input_changes(golden: Golden) -> tuple[InputChange, ...]:
     out = []
     for name, entry in golden.doc["inputs"].items():
         path = current.get(name)
-        now = sha256_file(path) if path is not None and Path(path).is_file() else "missing"
+        now = file_sha256(path) if path is not None and Path(path).is_file() else "missing"
         if now != entry["sha256"]:
             details = (_describe_change(golden.path / entry["copy"], Path(path))
                        if path is not None and now != "missing" else ())
@@ -896,7 +890,6 @@ __all__ = [
     "parse_suite_text",
     "record_suite",
     "run_cases",
-    "sha256_file",
     "suite_from_dict",
     "trajectory_band",
     "validate_inputs",

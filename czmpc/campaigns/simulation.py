@@ -20,7 +20,6 @@ metrics check the controller against the limits it was told.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
@@ -46,7 +45,7 @@ from sim.loop import ClosedLoopResult, ProgressCallback, run_closed_loop
 from sim.metrics import ClosedLoopMetrics, compute_metrics
 from sim.protocols import Controller, Plant
 from sim.scenario import Scenario
-from sysid.atomic import atomic_write_text
+from sysid.atomic import atomic_write_text, file_sha256
 from sysid.model import HammersteinModel
 
 PlantKind = Literal["model", "heater"]
@@ -432,7 +431,7 @@ def write_outputs(outcome: SimulationOutcome, out_dir: str | os.PathLike[str], *
     scratch = Path(tempfile.mkdtemp(prefix=".czmpc-simulate.", suffix=".tmp", dir=out))
     try:
         outcome.result.to_csv(scratch / TRAJECTORY_FILE)
-        digest = None if model_path is None else hashlib.sha256(Path(model_path).read_bytes()).hexdigest()
+        digest = None if model_path is None else file_sha256(model_path)
         atomic_write_text(scratch / METRICS_FILE, json.dumps(
             outcome.to_dict(model_sha256=digest), indent=2, allow_nan=False) + "\n")
         plot_outcome(outcome, scratch / FIGURE_FILE)

@@ -7,7 +7,6 @@ import json
 import tomllib
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from czmpc.cli import main
@@ -154,13 +153,19 @@ def test_a_bad_settings_file_exits_2_naming_the_key(
                  ["simulate", "--model", str(shipped_path(HAMMERSTEIN_MODEL_JSON)),
                   "--scenario", "staircase", "--settings", str(path),
                   "--out", str(tmp_path / "sim")],
-                 ["bench", "--scenarios", "staircase", "--controllers", "mpc", "--plants",
-                  "model", "--settings", str(path), "--out", str(tmp_path / "bench"),
-                  "--no-record"]):
+                 ["campaign", "run", str(_write_spec(tmp_path, path)), "--out",
+                  str(tmp_path / "campaign")]):
         assert main(argv) == 2
         err = capsys.readouterr().err
         assert "unknown key 'move_wieght' (did you mean 'move_weight'?)" in err
-    assert not (tmp_path / "sim").exists() and not (tmp_path / "bench").exists()
+    assert not (tmp_path / "sim").exists() and not (tmp_path / "campaign").exists()
+
+
+def _write_spec(tmp_path: Path, settings: Path) -> Path:
+    spec = tmp_path / "spec.toml"
+    spec.write_text(f'scenarios = ["staircase"]\n[[controllers]]\nsettings = "{settings.name}"\n'
+                    '[[plants]]\nkind = "model"\n', encoding="utf-8")
+    return spec
 
 
 def test_settings_that_build_no_controller_exit_2(
@@ -168,25 +173,6 @@ def test_settings_that_build_no_controller_exit_2(
     path = _write(tmp_path, "triac_min_pct = 90\ntriac_max_pct = 95\n")
     assert main(["settings", "--settings", str(path)]) == 2
     assert "must overlap the TRIAC limits [90, 95] %" in capsys.readouterr().err
-
-
-def test_bench_applies_the_settings_file_to_the_mpc(tmp_path: Path) -> None:
-    """The same case with a doubled move weight gives a different, smoother input."""
-    def input_tv(settings_text: str | None, name: str) -> float:
-        argv = ["bench", "--scenarios", "staircase", "--controllers", "mpc", "--plants",
-                "model", "--short", "0.1", "--out", str(tmp_path / name), "--no-record"]
-        if settings_text is not None:
-            argv += ["--settings", str(_write(tmp_path, settings_text))]
-        assert main(argv) == 0
-        rows = (tmp_path / name / "bench.csv").read_text().splitlines()
-        header = rows[0].split(",")
-        return float(rows[1].split(",")[header.index("input_total_variation_pct")])
-
-    base = input_tv(None, "base")
-    same = input_tv("", "same")
-    heavy = input_tv("move_weight = 10.0\n", "heavy")
-    assert same == base
-    assert np.isfinite(heavy) and heavy != base
 
 
 def test_the_example_run_config_names_a_settings_file_that_loads(
