@@ -168,10 +168,9 @@ class OffsetFreeMPC:
                                  self._est.gains.G[:n].reshape(n, 1)])
         self._h_in = np.empty(2 * n + 2)
         self._d_power_gain = self._aug.disturbance_power_gain
-        self._soft_min_rel = (None if settings.soft_power_min_kw is None
-                              else settings.soft_power_min_kw - self._p_nom)
-        self._soft_max_rel = (None if settings.soft_power_max_kw is None
-                              else settings.soft_power_max_kw - self._p_nom)
+        self._soft_min_rel, self._soft_max_rel = (
+            None if kw is None else kw - self._p_nom
+            for kw in (settings.soft_power_min_kw, settings.soft_power_max_kw))
         self._max_move = settings.max_move_pct_per_step
         self._bounds = MoveBounds(self._max_move, settings.horizon_steps)
         self._checker = MeasurementChecker(
@@ -257,12 +256,8 @@ class OffsetFreeMPC:
         return self._qp
 
     def reset(self) -> None:
-        """Forget all state, as if newly constructed.
-
-        The estimator restarts at the steady state of the initial input
-        (``initial_triac_pct`` or the operating point) with ``d = 0``; mode, limits and
-        counters return to their initial values and the transition log is emptied.
-        """
+        """Forget all state, as if newly constructed: the estimator at the steady state of
+        the initial input with ``d = 0``; mode, limits, counters and transition log initial."""
         w0 = self._input_map.f(self._ds_init)
         self._restart_estimator(w0)
         self._ds_prev = self._ds_init
@@ -283,9 +278,7 @@ class OffsetFreeMPC:
 
     def _restart_estimator(self, w: float) -> None:
         """Estimator at the steady state of input ``w`` with ``d = 0``; checks reset."""
-        z = np.zeros(self._n_x + 1)
-        z[: self._n_x] = self._ssm.xw * w
-        self._est.restart(z)
+        self._est.restart(np.append(self._ssm.xw * w, 0.0))
         self._warm = 0
         self._stuck_rolled = False
         self._checker.reset()
