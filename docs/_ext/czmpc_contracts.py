@@ -560,14 +560,17 @@ def settings_file_rst() -> str:
     return "\n".join(lines)
 
 def commands_rst() -> str:
-    """One row per ``czmpc`` sub-command with its one-line help."""
-    from czmpc.cli import build_parser
+    """One row per ``czmpc`` sub-command with its task and one-line help, as ``czmpc --help``
+    groups them (`czmpc.cli.command_groups`)."""
+    from czmpc.cli import build_parser, command_groups
 
     parser = build_parser()
     (sub,) = [a for a in parser._actions if a.dest == "command"]
     choices: list[Any] = getattr(sub, "_choices_actions")  # noqa: B009 - argparse keeps no public list
-    rows = [(f"``czmpc {choice.dest}``", choice.help or "") for choice in choices]
-    return "\n".join(_table(("command", "what it does"), rows))
+    helps = {choice.dest: choice.help or "" for choice in choices}
+    rows = [(title.split(":")[0], f"``czmpc {name}``", helps[name])
+            for title, names in command_groups(list(helps)).items() for name in names]
+    return "\n".join(_table(("task", "command", "what it does"), rows))
 
 
 def _table(header: tuple[str, ...], rows: Iterable[tuple[str, ...]]) -> list[str]:

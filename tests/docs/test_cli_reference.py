@@ -140,3 +140,17 @@ def test_the_commands_stand_under_their_groups_in_the_help_order(cli_page: str) 
             assert body.index(f"czmpc {name}¶" if f"czmpc {name}¶" in body else f"czmpc {name}#",
                               start) >= start
         position = start
+
+
+def test_getting_started_lists_every_command_with_its_task() -> None:
+    from czmpc.cli import COMMAND_GROUPS
+
+    sys.path.insert(0, str(DOCS / "_ext"))
+    try:
+        import czmpc_contracts
+    finally:
+        sys.path.remove(str(DOCS / "_ext"))
+    cells = re.findall(r"   \* - (.*)\n     - ``(czmpc [\w-]+)``", czmpc_contracts.commands_rst())
+    expected = [(title.split(":")[0], f"czmpc {name}")
+                for title, names in COMMAND_GROUPS.items() for name in names]
+    assert cells == expected
