@@ -76,12 +76,13 @@ def description_nodes(text: str) -> list[nodes.Node]:
             continue
         indent = min(len(line) - len(line.lstrip()) for line in lines if line.strip())
         lines = [line[indent:] for line in lines]
-        if any(line.startswith((" ", "\t")) for line in lines[1:]):
-            head = lines[0]
-            if head.endswith(":") and not head.startswith((" ", "-")):
-                out.append(_paragraph(head))
-                lines = lines[1:]
-            body = "\n".join(lines)
+        indented = [i for i, line in enumerate(lines) if line.startswith((" ", "\t"))]
+        if indented:
+            # the prose before the first indented line stays prose; the rest keeps its layout
+            first = indented[0] - 1 if lines[indented[0] - 1].lstrip().startswith("- ") else indented[0]
+            if first > 0:
+                out.append(_paragraph(" ".join(line.strip() for line in lines[:first])))
+            body = "\n".join(lines[first:])
             out.append(nodes.literal_block(body, body))
         else:
             out.append(_paragraph(" ".join(line.strip() for line in lines)))

@@ -154,3 +154,21 @@ def test_getting_started_lists_every_command_with_its_task() -> None:
     expected = [(title.split(":")[0], f"czmpc {name}")
                 for title, names in COMMAND_GROUPS.items() for name in names]
     assert cells == expected
+
+
+def test_a_description_keeps_prose_as_prose_and_indented_lines_as_they_are() -> None:
+    sys.path.insert(0, str(DOCS / "_ext"))
+    try:
+        import czmpc_cli
+    finally:
+        sys.path.remove(str(DOCS / "_ext"))
+    text = ("Run it.\n\nWith --policy, the server\nadmits only:\n  - trusted clients;\n"
+            "  - known users.\n\nExample:\n  czmpc run x.toml\n")
+    found = [(type(node).__name__, node.astext()) for node in czmpc_cli.description_nodes(text)]
+    assert found == [
+        ("paragraph", "Run it."),
+        ("paragraph", "With --policy, the server admits only:"),
+        ("literal_block", "  - trusted clients;\n  - known users."),
+        ("paragraph", "Example:"),
+        ("literal_block", "  czmpc run x.toml"),
+    ]
