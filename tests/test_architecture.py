@@ -2,6 +2,7 @@
 
 Layers, lowest first; a module imports only from lower layers and from its own room::
 
+    6  benchmarks            (the project's own studies: not installed; may use anything)
     5  czmpc.cli
     4  czmpc.commissioning   czmpc.testing
     3  czmpc.runtime         czmpc.campaigns
@@ -26,7 +27,8 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 
 #: Layer of each room. A room is ``sysid``, ``sim``, ``czmpc`` (the core: the modules at
-#: the top of czmpc/) or ``czmpc.<subpackage>``.
+#: the top of czmpc/), ``czmpc.<subpackage>`` or ``benchmarks`` (above the product, which
+#: ships without it and so never imports it).
 LAYERS: dict[str, float] = {
     "sysid": 0,
     "sim": 1,
@@ -39,6 +41,7 @@ LAYERS: dict[str, float] = {
     "czmpc.commissioning": 4,
     "czmpc.testing": 4,
     "czmpc.cli": 5,
+    "benchmarks": 6,
 }
 #: Imports forbidden although the layers would allow them.
 FORBIDDEN = {("czmpc", "sim"), ("czmpc.pid", "sim"), ("czmpc.peers", "sim")}
@@ -47,7 +50,7 @@ FORBIDDEN = {("czmpc", "sim"), ("czmpc.pid", "sim"), ("czmpc.peers", "sim")}
 def room_of_module(module: str) -> str | None:
     """The room a dotted module name belongs to, or None for a third-party module."""
     parts = module.split(".")
-    if parts[0] not in {"sysid", "sim", "czmpc"}:
+    if parts[0] not in {"sysid", "sim", "czmpc", "benchmarks"}:
         return None
     if parts[0] == "czmpc" and len(parts) > 1 and f"czmpc.{parts[1]}" in LAYERS:
         return f"czmpc.{parts[1]}"
@@ -83,7 +86,8 @@ def imported_modules(path: Path) -> set[str]:
 
 
 def _sources() -> list[Path]:
-    return sorted(p for pkg in ("sysid", "sim", "czmpc") for p in (REPO / pkg).rglob("*.py"))
+    return sorted(p for pkg in ("sysid", "sim", "czmpc", "benchmarks")
+                  for p in (REPO / pkg).rglob("*.py"))
 
 
 def violations(own: str, modules: set[str]) -> list[str]:
@@ -121,6 +125,8 @@ def test_contract_catches_upward_and_forbidden_imports() -> None:
     assert violations("sysid", {"sim"})
     assert violations("czmpc.cli", {"czmpc.campaigns.bench", "sim.loop", "sysid.data", "numpy"}) == []
     assert violations("czmpc.campaigns", {"czmpc.campaigns.golden", "czmpc.peers.pi", "sim"}) == []
+    assert violations("czmpc.cli", {"benchmarks._md"})       # the wheel has no benchmarks/
+    assert violations("benchmarks", {"czmpc.cli._argtypes", "czmpc.runtime.loop", "sim"}) == []
 
 
 def test_test_module_names_are_unique() -> None:

@@ -19,8 +19,6 @@ if TYPE_CHECKING:
     from sysid.historian import LoadedLog
     from sysid.model import HammersteinModel
 
-_REPO = Path(__file__).resolve().parents[2]
-
 
 #: The test-signal kinds of `sysid.design.KINDS`, here so that ``--help`` needs no numpy
 #: (a test holds the two equal).
@@ -277,8 +275,3 @@ def settings_for(args: argparse.Namespace, model: HammersteinModel) -> MPCSettin
     if args.settings is not None:
         return load_settings(args.settings, model)
     return MPCSettings.preset(args.preset, model)
-
-
-def default_benchmarks_md() -> Path:
-    """BENCHMARKS.md at the project root of a source checkout, else in the working directory."""
-    return _REPO / "BENCHMARKS.md" if (_REPO / "pyproject.toml").is_file() else Path("BENCHMARKS.md")

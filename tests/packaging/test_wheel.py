@@ -106,6 +106,32 @@ def test_sdist_and_wheel_carry_the_version_licence_and_package_data(dist: Path) 
                  "czmpc/py.typed", "sysid/py.typed", "sim/py.typed", "sim/scenarios/staircase.toml"):
         assert name in names, name
     assert not any(n.startswith(("tests/", "docs/")) for n in names)
+    assert _benchmark_modules(names) == []
+
+
+def _benchmark_modules(names: set[str] | list[str]) -> list[str]:
+    """The benchmark modules among file names: benchmarks/ or a module named bench*."""
+    return sorted(n for n in names if n.endswith(".py")
+                  and (n.startswith("benchmarks/") or Path(n).name.startswith("bench")))
+
+
+def test_the_packages_setuptools_finds_hold_no_benchmark_module() -> None:
+    """What the wheel would contain (pyproject's package find), without building it.
+
+    The benchmarks (benchmarks/ at the repository root) are the project's own: they
+    rewrite BENCHMARKS.md and hold goal constants, so they never ship.
+    """
+    from setuptools import find_packages
+
+    config = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))
+    packages = find_packages(str(REPO), **config["tool"]["setuptools"]["packages"]["find"])
+    assert "czmpc.cli" in packages and "sysid" in packages and "sim" in packages
+    assert not [p for p in packages if p.split(".")[0] in ("benchmarks", "tests", "docs")]
+    files = [str(f.relative_to(REPO)) for p in packages
+             for f in (REPO / p.replace(".", "/")).glob("*.py")]
+    assert _benchmark_modules(files) == []
+    assert _benchmark_modules(["benchmarks/_md.py", "czmpc/cli/bench.py", "czmpc/x.py"]) == [
+        "benchmarks/_md.py", "czmpc/cli/bench.py"]
 
 
 def _czmpc(venv: Path, cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
