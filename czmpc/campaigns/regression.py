@@ -64,7 +64,7 @@ from czmpc.campaigns.campaign import (
     simulate_run,
     spec_from_dict,
 )
-from czmpc.campaigns.measure import COUNT_COLUMNS, metric_row
+from czmpc.campaigns.measure import COUNT_COLUMNS, METRIC_COLUMNS, metric_row
 from czmpc.campaigns.runner import map_runs
 from czmpc.errors import CzmpcError
 from sysid.atomic import atomic_write_text, file_sha256
@@ -191,7 +191,8 @@ def execute_case(run: RunSpec) -> CaseResult:
         return CaseResult(case_id=run.case_id, applicable=False)
     except Exception as exc:  # noqa: BLE001 - a crashed case is a result of the check
         return CaseResult(case_id=run.case_id, error=error_text(exc))
-    metrics = {k: float(v) for k, v in metric_row(result).items()}
+    row = metric_row(result)
+    metrics = {k: float(row[k]) for k in METRIC_COLUMNS}  # not the machine's step times
     trajectory = {k: np.asarray(getattr(result, k), dtype=np.float64) for k in TRAJECTORY_SIGNALS}
     return CaseResult(case_id=run.case_id, metrics=metrics, trajectory=trajectory)
 
