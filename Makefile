@@ -49,10 +49,10 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.identify --repeats 5 --with-sippy --out out/bench/identify
 	$(PY) -m benchmarks.mpc_step --repeats 5
 	$(PY) -m benchmarks.tracking --out out/bench/tracking
-	$(PY) -m benchmarks.robustness --grid full --out out/bench/robustness
+	$(PY) -m benchmarks.robustness --full --out out/bench/robustness
 	$(PY) -m benchmarks.health
 	$(PY) -m benchmarks.commission_length --record-benchmarks --out out/bench/commission
-	$(PY) -m benchmarks.campaign_throughput campaign_montecarlo.toml --controllers mpc --samples 5000 --time-scale 0.01 --workers 2 --record-benchmarks
+	$(PY) -m benchmarks.campaign_throughput --workers 2 --record
 
 clean:
 	rm -rf $(VENV) out dist docs/_build docs/api/generated docs/auto_examples $(PLC_SERVER)/node_modules
