@@ -36,7 +36,6 @@ from czmpc.cli import _argtypes
 
 NAME = "campaign"
 HELP = "run a campaign spec on serial, process or Dask executors; summarise its results"
-ORDER = 32
 
 
 def _workers(text: str) -> int:

@@ -29,7 +29,6 @@ from czmpc.cli import _argtypes
 
 NAME = "check-model"
 HELP = "go/no-go before switch-on: ready / ready with conditions / not ready, with every reason"
-ORDER = 25
 
 
 def register(parser: argparse.ArgumentParser) -> None:

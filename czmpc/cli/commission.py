@@ -33,7 +33,6 @@ from czmpc.cli._progress import Progress
 
 NAME = "commission"
 HELP = "commission a heater: design and run a test, identify, check, report, switch the MPC on"
-ORDER = 79
 
 
 def register(parser: argparse.ArgumentParser) -> None:

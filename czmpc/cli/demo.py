@@ -22,7 +22,6 @@ from czmpc.shipped import EXPERIMENT_CSV, shipped_path
 
 NAME = "demo"
 HELP = "run the whole job: experiment, identification, MPC on the staircase (both plants)"
-ORDER = 1
 
 
 def register(parser: argparse.ArgumentParser) -> None:

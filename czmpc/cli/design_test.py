@@ -19,7 +19,6 @@ from czmpc.cli import _argtypes as t
 
 NAME = "design-test"
 HELP = "design an identification test signal (staircase + GBN) and write TEST.csv (time_s,triac_pct)"
-ORDER = 12
 
 
 def register(parser: argparse.ArgumentParser) -> None:

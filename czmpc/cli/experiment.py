@@ -23,7 +23,6 @@ from czmpc.reports.tables import format_table
 
 NAME = "experiment"
 HELP = "simulate the paper's identification experiment on the virtual heater; write CSV"
-ORDER = 6
 
 
 def register(parser: argparse.ArgumentParser) -> None:

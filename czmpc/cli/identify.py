@@ -62,7 +62,6 @@ from czmpc.cli._progress import Progress
 
 NAME = "identify"
 HELP = "identify the Hammerstein heater model from logged data and write model, report, figures"
-ORDER = 10
 
 
 def register(parser: argparse.ArgumentParser) -> None:

@@ -15,7 +15,6 @@ from czmpc.cli import _argtypes
 
 NAME = "inspect"
 HELP = "check a logged data file: samples, sampling time, ranges, input steps and gains"
-ORDER = 5
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""

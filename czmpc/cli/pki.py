@@ -24,7 +24,6 @@ from pathlib import Path
 
 NAME = "pki"
 HELP = "make an OPC UA application certificate and key for a secure plant link"
-ORDER = 62
 
 
 def register(parser: argparse.ArgumentParser) -> None:

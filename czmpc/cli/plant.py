@@ -76,7 +76,6 @@ if TYPE_CHECKING:
 NAME = "plant"
 HELP = ("serve the virtual CZ heater or a model plant over OPC UA (plant serve); read a "
         "plant server's history into a run log (plant history)")
-ORDER = 81
 
 
 def register(parser: argparse.ArgumentParser) -> None:

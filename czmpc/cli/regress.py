@@ -53,7 +53,6 @@ from czmpc.cli import _argtypes
 
 NAME = "regress"
 HELP = "record a regression suite of your controller, check it after a change, audit it"
-ORDER = 34
 
 
 def _executor_options(p: argparse.ArgumentParser) -> None:

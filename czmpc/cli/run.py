@@ -108,7 +108,6 @@ _log = logging.getLogger("czmpc.cli.run")
 
 NAME = "run"
 HELP = "run the MPC in real time against a plant's OPC UA server (config file)"
-ORDER = 80
 
 
 def register(parser: argparse.ArgumentParser) -> None:

@@ -28,7 +28,6 @@ from pathlib import Path
 
 NAME = "run-report"
 HELP = "draw a 'czmpc run' log: power, input, quality, timing, model health and alarms"
-ORDER = 82
 
 
 def register(parser: argparse.ArgumentParser) -> None:

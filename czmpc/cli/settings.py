@@ -26,7 +26,6 @@ from czmpc.cli import _argtypes
 
 NAME = "settings"
 HELP = "show (and check) the effective MPC settings for a model, as a settings TOML file"
-ORDER = 45
 
 
 def register(parser: argparse.ArgumentParser) -> None:

@@ -17,7 +17,6 @@ import math
 
 NAME = "show-model"
 HELP = "print a czmpc-model/1 file: equation, gains, time constants, validity range"
-ORDER = 30
 
 
 def register(parser: argparse.ArgumentParser) -> None:

@@ -65,7 +65,6 @@ if TYPE_CHECKING:
 
 NAME = "simulate"
 HELP = "run the offset-free MPC through a scenario on a plant; write trajectory, metrics, figure"
-ORDER = 30
 
 #: A run reports its progress on stderr once it has taken this long [s].
 PROGRESS_AFTER_S = 1.0

@@ -45,7 +45,6 @@ from czmpc.cli import _argtypes
 
 NAME = "tune-pid"
 HELP = "tune a gain-scheduled PI/PID from a model; write pid_table.csv, vendor forms, report"
-ORDER = 32
 
 
 def register(parser: argparse.ArgumentParser) -> None:
