@@ -31,8 +31,7 @@ MEANING: dict[ExitCode, str] = {
         "a run that failed: an identification that did not converge (the files are still "
         "written; ``--allow-unconverged`` accepts it), a log that cannot support a model "
         "(``czmpc identify`` writes nothing; ``--accept-unidentifiable`` overrides), a "
-        "benchmark goal missed when asked "
-        "to be strict, a constraint violated in a campaign"
+        "constraint violated in a campaign"
     ),
     ExitCode.BAD_INPUT: (
         "bad input: a file that cannot be read or breaks its contract, an invalid option, "
