@@ -1,8 +1,8 @@
 """Console script ``czmpc``: wires sysid, sim and czmpc together; maps errors to exit codes.
 
 Exit codes: 0 success, 1 a run that failed (for example an identification that did
-not converge), 2 bad input (files, options). Errors print ``czmpc: error: <message>`` without a traceback unless
-``--debug`` is given.
+not converge), 2 bad input (files, options). Errors print ``czmpc: error: <message>``
+without a traceback unless ``--debug`` is given.
 """
 
 from __future__ import annotations
