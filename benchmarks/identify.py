@@ -479,7 +479,7 @@ def run_benchmark(
     *,
     repeats: int = 5,
     with_sippy: bool = False,
-    command: str = "czmpc bench-identify",
+    command: str = "python -m benchmarks.identify",
     progress: Callable[[str], None] | None = None,
 ) -> BenchmarkResult:
     """Time the whole identification pipeline on one log, ``repeats`` times.
