@@ -52,13 +52,16 @@ def iae_ratios(rows: Sequence[Row]) -> dict[str, float]:
             for r in rows if r["status"] == "ok"}
 
 
-def section_text(rows: Sequence[Row], *, command: str, machine: str, wall_time_s: float) -> str:
+def section_text(rows: Sequence[Row], *, command: str, machine: str, wall_time_s: float,
+                 n_resumed: int = 0) -> str:
     """The BENCHMARKS.md section body: command, machine, the table, the summary."""
     ratios = iae_ratios(rows)
     ok = [r for r in rows if r["status"] == "ok"]
     lines = [
         f"Command: `{command}`", "", f"Machine: {machine}", "",
-        f"{len(rows)} runs in {wall_time_s:.1f} s wall time. Errors are taken against the "
+        f"{len(rows)} runs in {wall_time_s:.1f} s wall time"
+        + (f" ({n_resumed} resumed from an earlier run)" if n_resumed else "")
+        + ". Errors are taken against the "
         "reachable setpoint (the setpoint clipped to the powers that plant holds with the "
         "allowed input); offset-free: |mean measured error over the last quarter of each "
         f"step| < {OFFSET_FREE_THRESHOLD_KW:g} kW.", "",
@@ -98,7 +101,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--time-scale", metavar="X", type=float, default=None,
                         help="shorten the scenario: times x X, 0 < X <= 1")
     parser.add_argument("--out", metavar="DIR", type=Path, default=None,
-                        help="campaign directory (default: a temporary one)")
+                        help="campaign directory (default: a temporary one; runs already in "
+                             "it are resumed, not run again)")
     parser.add_argument("--executor", choices=("serial", "processes"), default="serial",
                         help="where runs execute (default: serial)")
     parser.add_argument("--workers", metavar="N", type=int, default=2,
@@ -123,7 +127,7 @@ def _run(args: argparse.Namespace) -> int:
         outcome = run_campaign(spec, args.out or Path(tmp) / "robustness",
                                executor=args.executor, workers=args.workers)
     body = section_text(outcome.rows, command=args.command_line, machine=machine,
-                        wall_time_s=time.perf_counter() - t0)
+                        wall_time_s=time.perf_counter() - t0, n_resumed=outcome.n_skipped)
     print(body, end="")
     if not args.no_record:
         write_benchmarks_section(args.benchmarks_md, body, heading=SECTION_HEADING)

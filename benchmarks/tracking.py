@@ -127,13 +127,14 @@ def _pivot(rows: Sequence[Row], plant: str, key: str, spec: str) -> list[str]:
 
 
 def section_text(rows: Sequence[Row], goals: Sequence[GoalCheck], *, command: str,
-                 machine: str, wall_time_s: float, time_scale: float) -> str:
+                 machine: str, wall_time_s: float, time_scale: float, n_resumed: int = 0) -> str:
     """The BENCHMARKS.md section body: command, machine, IAE and step-time tables, goals."""
     n_samples = sum(int(r["n_steps"]) for r in rows if r["status"] == "ok")
     seeds = sorted({int(r["seed"]) for r in rows})
     lines = [
         f"Command: `{command}`", "", f"Machine: {machine}", "",
         f"{len(rows)} runs ({n_samples} controller steps) in {wall_time_s:.1f} s wall time"
+        + (f" ({n_resumed} runs resumed from an earlier run)" if n_resumed else "")
         + (f"; scenarios shortened x {time_scale:g}" if time_scale != 1.0 else "")
         + f"; seed {', '.join(map(str, seeds))} for every run.", "", READING_NOTES,
     ]
@@ -159,8 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--controllers", metavar="A,B", default=None,
                         help="run only these controllers of the spec (default: all six)")
     parser.add_argument("--out", metavar="DIR", type=Path, default=None,
-                        help="campaign directory (default: a temporary one); "
-                             "'czmpc campaign report DIR' draws its figures")
+                        help="campaign directory (default: a temporary one; runs already in "
+                             "it are resumed, not run again); 'czmpc campaign report DIR' "
+                             "draws its figures")
     parser.add_argument("--executor", choices=("serial", "processes"), default="serial",
                         help="where runs execute (default: serial)")
     parser.add_argument("--workers", metavar="N", type=int, default=2,
@@ -184,7 +186,8 @@ def _run(args: argparse.Namespace) -> int:
     rows = list(outcome.rows)
     goals = check_goals(rows)
     body = section_text(rows, goals, command=args.command_line, machine=machine,
-                        wall_time_s=time.perf_counter() - t0, time_scale=spec.time_scale)
+                        wall_time_s=time.perf_counter() - t0, time_scale=spec.time_scale,
+                        n_resumed=outcome.n_skipped)
     print(body, end="")
     if not args.no_record:
         write_benchmarks_section(args.benchmarks_md, body, heading=SECTION_HEADING)

@@ -66,6 +66,10 @@ def test_the_tracking_benchmark_runs_the_shipped_spec_and_records_its_section(
     assert "keep me" in text and tracking.SECTION_HEADING in text
     assert "28 runs" in text and "MPC IAE below gain-scheduled PI" in text
     assert (tmp_path / "c" / "results.parquet").is_file()
+    capsys.readouterr()
+    assert tracking.main(["--time-scale", "0.01", "--controllers", "mpc,pi_gs", "--no-record",
+                          "--out", str(tmp_path / "c")]) == 0
+    assert "(28 runs resumed from an earlier run)" in capsys.readouterr().out
     assert tracking.main(["--time-scale", "2"]) == 2
     assert "time_scale" in capsys.readouterr().err
 
