@@ -218,6 +218,15 @@ class Estimator:
     history_samples :
         Past samples kept for `roll_back`.
 
+    Attributes
+    ----------
+    gains :
+        The steady-state gains (`design_estimator`).
+    eps :
+        This sample's innovation [kW] once `update` used it, else 0.
+    gap :
+        Samples without a measurement update, this one included once skipped.
+
     Raises
     ------
     DesignError
@@ -319,7 +328,7 @@ class Estimator:
                 self._history[-1] = self._history[-1]._replace(w=w_applied)
 
     def roll_back(self, samples: int) -> int:
-        """Undo the last ``samples`` measurement updates: predict from the sample before them.
+        """Undo the updates of the last ``samples`` samples: predict from the sample before them.
 
         The estimator restarts from ``z_{j|j}`` of the last sample it trusts and predicts
         with the inputs applied since, as if those samples had been skipped. Returns the
@@ -339,7 +348,6 @@ class Estimator:
         frozen = steps_back - 1
         self.gap = max(self.gap, frozen)
         return frozen
-
 
 
 __all__ = [
