@@ -437,10 +437,12 @@ class MPCQP:
         self._q = self._data[:n_var]
         self._l = self._data[n_var : n_var + m]
         self._u = self._data[n_var + m :]
+        # Views of the rows each step writes, taken once.
+        self._q_w = self._q[:N]
+        self._l_box, self._u_box = self._l[:N], self._u[:N]
+        self._l_rate, self._u_rate = self._l[N : 2 * N - 1], self._u[N : 2 * N - 1]
         if self.has_soft:
             self._q[N] = soft_limit_linear_weight
-        # Row offsets.
-        self._row_rate = N
         self._row_soft = N + (N - 1 if has_rate_limit else 0)
         if self.has_soft:
             self._l[-1] = 0.0
@@ -543,15 +545,14 @@ class MPCQP:
         params[-2] = w_prev
         params[-1] = w_target
         q = self._q
-        np.dot(self._q_params, params, out=q[:N])
+        np.dot(self._q_params, params, out=self._q_w)
         lo = self._l
         up = self._u
-        lo[:N] = w_lo
-        up[:N] = w_hi
+        self._l_box[:] = w_lo
+        self._u_box[:] = w_hi
         if self.has_rate_limit and rate is not None:
-            r0 = self._row_rate
-            np.negative(rate, out=lo[r0 : r0 + N - 1])
-            up[r0 : r0 + N - 1] = rate
+            np.negative(rate, out=self._l_rate)
+            self._u_rate[:] = rate
         if self.has_soft:
             # C dx_j = Cphi_j h + Cgam_j w - (Cgam_j 1) w_s ; y_j = y_s + C dx_j.
             base = self._Cphi @ h - self._Cgam_rowsum * w_target + y_target
