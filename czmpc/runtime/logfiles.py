@@ -194,7 +194,8 @@ def _first_wall_time(path: Path) -> float:
     return math.inf
 
 
-def _is_log_file(path: Path) -> bool:
+def is_log_file(path: Path) -> bool:
+    """True if the file's header is the one of a run log (its first `LOG_COLUMNS`)."""
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:
             header = next(csv.reader(fh), [])
@@ -217,10 +218,10 @@ def log_parts(spec: str | Path) -> list[Path]:
         candidates = sorted(Path(p) for p in glob.glob(text))
     else:
         return [path]
-    parts = [p for p in candidates if p.is_file() and _is_log_file(p)]
+    parts = [p for p in candidates if p.is_file() and is_log_file(p)]
     return sorted(parts, key=lambda p: (_first_wall_time(p), p.name))
 
 
 __all__ = ["LOG_COLUMNS", "LOG_POLICIES", "RUN_META_FORMAT", "RunLog",
-           "RunLogExistsError", "log_parts", "meta_path", "open_run_log",
+           "RunLogExistsError", "is_log_file", "log_parts", "meta_path", "open_run_log",
            "part_path", "refuse_overwrite", "run_file_name"]

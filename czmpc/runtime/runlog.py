@@ -32,28 +32,16 @@ from typing import Any
 import numpy as np
 
 from czmpc.runtime.config import RunConfigError
-from czmpc.runtime.logfiles import LOG_COLUMNS, RUN_META_FORMAT, log_parts, meta_path
+from czmpc.runtime.logfiles import RUN_META_FORMAT, is_log_file, log_parts, meta_path
 from sysid.data import Dataset
 
 #: Shortest segment kept between gaps [samples]: shorter ones carry too little to fit
 #: an initial state and a model (a model of the paper's orders has 5 parameters).
 MIN_SEGMENT_SAMPLES = 10
-#: The columns that mark a file as a czmpc run log (the first of `LOG_COLUMNS`).
-_SIGNATURE = LOG_COLUMNS[:4]
-
-
 def is_run_log(path: str | Path) -> bool:
     """True if the file's header is the one of a `czmpc run` log, or a directory or glob
     names such files (a rotated log, several runs: `czmpc.runtime.logfiles.log_parts`)."""
-    for part in log_parts(path):
-        try:
-            with open(part, newline="", encoding="utf-8-sig") as fh:
-                header = next(csv.reader(fh), [])
-        except (OSError, UnicodeDecodeError):
-            continue
-        if tuple(h.strip() for h in header[:len(_SIGNATURE)]) == _SIGNATURE:
-            return True
-    return False
+    return any(is_log_file(part) for part in log_parts(path))
 
 
 def read_run_meta(log_path: str | Path) -> dict[str, Any]:
@@ -145,7 +133,8 @@ def read_run_log(path: str | Path) -> Dataset:
         "closed_loop": closed,
         "input": "applied input published at the next sample, else the command",
         **{k: meta[k] for k in ("config", "config_sha256", "schedule", "schedule_sha256",
-                                "start_utc", "endpoint", "model", "dither") if k in meta},
+                                "start_utc", "endpoint", "model", "model_sha256", "czmpc_version",
+                                "dither") if k in meta},
     }
     split: dict[str, Any] = {
         "what": "split at unusable samples",

@@ -24,7 +24,8 @@ from tests.tolerances import IDENTITY_RTOL
 def _write(path: Path, ks: list[int], quality: dict[int, str], *, closed: bool) -> None:
     """Rows k with power 40 + k/10, command 30 + k, applied = previous command; one safe-ramp row."""
     log = RunLog(path, {"ts_s": 2.0, "kind": "test kind", "closed_loop": closed,
-                        "schedule_sha256": "ab" * 32, "start_utc": "2026-01-01T00:00:00+00:00"})
+                        "schedule_sha256": "ab" * 32, "start_utc": "2026-01-01T00:00:00+00:00",
+                        "czmpc_version": "9.9", "model_sha256": "cd" * 32})
     prev_cmd = math.nan
     for k in ks:
         log.row({c: "" for c in LOG_COLUMNS} | {
@@ -57,6 +58,7 @@ def test_applied_input_and_gaps(tmp_path: Path) -> None:
     info, split = data.preprocessing[0], data.preprocessing[1]
     assert info["what"] == "czmpc run log" and info["closed_loop"] is False
     assert info["schedule_sha256"] == "ab" * 32
+    assert (info["czmpc_version"], info["model_sha256"]) == ("9.9", "cd" * 32)
     assert split["segments"] == 2 and split["samples_kept"] == 35
     assert data.sha256 is not None
     assert "CLOSED-LOOP" not in describe_run_data(data)
