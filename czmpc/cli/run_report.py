@@ -44,14 +44,8 @@ def register(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Read the log, draw it, write the summary."""
     from czmpc.reports.run_report import write_run_report
-    from czmpc.runtime.logfiles import log_parts
+    from czmpc.runtime.runlog import read_run_record
 
-    parts = log_parts(args.log)
-    if not parts:
-        from czmpc.reports.run_report import RunLogError
-
-        raise RunLogError(f"{args.log}: no czmpc run log there (a file, a directory or a "
-                          "quoted glob of run logs)")
-    files = write_run_report(parts, args.out)
+    files = write_run_report(read_run_record(args.log), args.out)
     print(f"wrote {', '.join(str(f) for f in files)}")
     return 0

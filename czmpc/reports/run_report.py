@@ -1,9 +1,10 @@
 """A run log of `czmpc run` drawn for an operator: power, input, quality, timing, model health.
 
-`read_run_log` reads the CSV the runtime writes (`czmpc.runtime.logfiles.LOG_COLUMNS`; the
-columns ``predicted_kw``, ``health`` and ``stale_alarm`` of newer logs are optional, so
-older logs draw too), `plot_run` draws one figure of five panels on the plant-time
-axis, and `write_run_report` writes it with a short Markdown summary:
+`RunRecord` is a run log as arrays (read by `czmpc.runtime.runlog.read_run_record`,
+which joins the parts of a rotated log and the runs of a log directory as identification
+does; columns a log lacks are NaN, so older logs draw too), `plot_run` draws one figure
+of five panels on the plant-time axis, and `write_run_report` writes it with a short
+Markdown summary:
 
 1. power [kW]: measured (good samples), the model's one-step prediction, setpoint;
 2. TRIAC input [%]: the command and the input the plant reports applied, with the
@@ -20,42 +21,29 @@ Rows written by the safe action after a stop (no time, status ``SAFE_RAMP``) are
 counted in the summary and left out of the time panels. The summary lists what happened
 (`incidents`): link losses and shed periods with their start and duration, mode
 changes, refused writes, aborts and configuration errors, from the log's ``connected``,
-``status`` and ``event`` columns. Several files (the parts of a rotated log, or runs
-after a restart) are read as one record, each run after the previous one.
+``status`` and ``event`` columns.
 """
 
 from __future__ import annotations
 
-import csv
-import math
 import os
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
 
-from czmpc.errors import CzmpcError
 from czmpc.reports.figure_style import FigureError
 from czmpc.reports.figure_style import legend_above as _legend_above
 from czmpc.reports.figure_style import save_figure as _save
 from sysid._typing import FloatArray
 
-#: Columns a run log must have to be drawn.
-REQUIRED_COLUMNS = ("k", "time_s", "power_kw", "quality", "setpoint_kw", "triac_pct",
-                    "applied_triac_pct", "mode", "written", "lateness_s", "step_latency_s",
-                    "skipped")
 #: Size of the five-panel figure [inch].
 RUN_FIGSIZE_IN = (10.0, 11.0)
 #: Modes, for the summary's counts.
 MODES = ("OFF", "PREDICT", "ON")
 #: Controller statuses in the order they are drawn on the status axis.
 STATUSES = ("GOOD", "PREDICTED", "CLAMPED", "HELD", "SHED")
-
-
-class RunLogError(CzmpcError, ValueError):
-    """A run log that cannot be read (the message names the file, line and column)."""
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -129,96 +117,6 @@ class RunRecord:
         """Plant time the stale alarm was first raised [s], or None."""
         hits = np.flatnonzero(self.stale_alarm)
         return float(self.time_s[hits[0]]) if hits.size else None
-
-
-def _number(text: str, *, path: str, line: int, column: str) -> float:
-    if text == "" or text.lower() == "nan":
-        return math.nan
-    try:
-        return float(text)
-    except ValueError:
-        raise RunLogError(f"{path}, line {line}, column '{column}': expected a number; "
-                          f"got {text!r}") from None
-
-
-def read_run_log(path: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]) -> RunRecord:
-    """Read a `czmpc run` log, or several files as one (module docstring).
-
-    Parameters
-    ----------
-    path :
-        The CSV file, or the files in the order they were written (a later run's plant
-        time, which starts again at 0, is put after the previous file's last step).
-
-    Returns
-    -------
-    RunRecord
-
-    Raises
-    ------
-    RunLogError
-        A missing column, a field that is not a number, or no step at all.
-    OSError
-        A file cannot be read.
-    """
-    paths = [path] if isinstance(path, str | os.PathLike) else list(path)
-    if not paths:
-        raise RunLogError("read_run_log: expected at least one run-log file; got none")
-    cols: dict[str, list[float]] = {c: [] for c in (
-        "time_s", "power_kw", "setpoint_kw", "triac_pct", "applied_triac_pct",
-        "predicted_kw", "lateness_s", "step_latency_s", "skipped", "health", "written",
-        "stale_alarm", "candidate_predicted_kw")}
-    words: dict[str, list[str]] = {"quality": [], "mode": [], "status": [], "event": [],
-                                   "connected": []}
-    n_safe = 0
-    offset_s = 0.0
-    for one in paths:
-        name = os.fspath(one)
-        with open(one, newline="", encoding="utf-8") as fh:
-            reader = csv.DictReader(fh)
-            header = reader.fieldnames or []
-            missing = [c for c in REQUIRED_COLUMNS if c not in header]
-            if missing:
-                raise RunLogError(f"{name}, line 1: expected the run-log columns of czmpc run; "
-                                  f"missing {missing}")
-            first = True
-            for line, row in enumerate(reader, start=2):
-                if row.get("status") == "SAFE_RAMP" or row["time_s"] == "":
-                    n_safe += 1
-                    continue
-                t = _number(row["time_s"], path=name, line=line, column="time_s")
-                if first and cols["time_s"] and t + offset_s <= cols["time_s"][-1]:
-                    # another run: its plant time starts again; put it after this one
-                    step = cols["time_s"][-1] - cols["time_s"][-2] if len(cols["time_s"]) > 1 \
-                        else 1.0
-                    offset_s = cols["time_s"][-1] + 2.0 * step - t
-                first = False
-                for c in cols:
-                    cols[c].append(_number(row.get(c) or "", path=name, line=line, column=c))
-                cols["time_s"][-1] = t + offset_s
-                for c in words:
-                    words[c].append(row.get(c) or "")
-    if not words["quality"]:
-        raise RunLogError(f"{', '.join(os.fspath(p) for p in paths)}: expected at least one "
-                          "step row; got none")
-
-    def arr(c: str) -> FloatArray:
-        return np.asarray(cols[c], dtype=float)
-
-    return RunRecord(
-        source=", ".join(os.fspath(p) for p in paths), time_s=arr("time_s"),
-        power_kw=arr("power_kw"),
-        setpoint_kw=arr("setpoint_kw"), triac_pct=arr("triac_pct"),
-        applied_triac_pct=arr("applied_triac_pct"), predicted_kw=arr("predicted_kw"),
-        good=np.asarray([q == "good" for q in words["quality"]], dtype=bool),
-        mode=tuple(words["mode"]),
-        written=np.nan_to_num(arr("written")) > 0, lateness_s=arr("lateness_s"),
-        latency_s=arr("step_latency_s"), skipped=np.nan_to_num(arr("skipped")).astype(int),
-        health=arr("health"), stale_alarm=np.nan_to_num(arr("stale_alarm")) > 0,
-        candidate_predicted_kw=arr("candidate_predicted_kw"), n_safe_rows=n_safe,
-        status=tuple(words["status"]),
-        connected=np.asarray([c != "0" for c in words["connected"]], dtype=bool),
-        event=tuple(words["event"]))
 
 
 @dataclass(frozen=True, slots=True)
@@ -407,12 +305,10 @@ def summary_markdown(record: RunRecord, figure_name: str) -> str:
     return "\n".join(lines)
 
 
-def write_run_report(log_path: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
-                     out_dir: str | os.PathLike[str]) -> list[Path]:
-    """Read a run log (or its parts); write ``run.png`` and ``report.md``; return the paths."""
+def write_run_report(record: RunRecord, out_dir: str | os.PathLike[str]) -> list[Path]:
+    """Write ``run.png`` and ``report.md`` of a run into ``out_dir``; return their paths."""
     from sysid.atomic import atomic_write_text
 
-    record = read_run_log(log_path)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     figure = out / "run.png"
@@ -422,5 +318,5 @@ def write_run_report(log_path: str | os.PathLike[str] | Sequence[str | os.PathLi
     return [figure, report]
 
 
-__all__ = ["REQUIRED_COLUMNS", "STATUSES", "Incident", "RunLogError", "RunRecord", "incidents",
-           "plot_run", "read_run_log", "summary_markdown", "write_run_report"]
+__all__ = ["STATUSES", "Incident", "RunRecord", "incidents", "plot_run", "summary_markdown",
+           "write_run_report"]

@@ -1,4 +1,4 @@
-"""Read a `czmpc run` log (and its ``<log>.meta.json``) as identification data.
+"""Read a `czmpc run` log (and its ``<log>.meta.json``) as identification data or a report's record.
 
 The log of `czmpc run` (an open-loop test, a dithered MPC or a plain MPC run) is read
 directly by `czmpc identify`. The rules:
@@ -31,8 +31,10 @@ from typing import Any
 
 import numpy as np
 
+from czmpc.reports.run_report import RunRecord
 from czmpc.runtime.config import RunConfigError
 from czmpc.runtime.logfiles import RUN_META_FORMAT, is_log_file, log_parts, meta_path
+from sysid._typing import FloatArray
 from sysid.data import Dataset
 
 #: Shortest segment kept between gaps [samples]: shorter ones carry too little to fit
@@ -74,17 +76,13 @@ def read_run_log(path: str | Path) -> Dataset:
         Not a run log, missing columns, or fewer than `MIN_SEGMENT_SAMPLES` usable
         samples in a row anywhere.
     """
-    parts = log_parts(path)
-    if not parts:
-        raise RunConfigError(f"{path}: no czmpc run log there (a file, a directory or a glob "
-                             "of run logs)")
-    rows, slots, meta, digest = _joined_rows(parts)
+    parts = _parts(path)
+    rows, slots, meta, digest, _ = _joined_rows(parts)
     if len(rows) < MIN_SEGMENT_SAMPLES:
         raise RunConfigError(f"{path}: expected at least {MIN_SEGMENT_SAMPLES} rows with a "
                              "sample index k")
     ks = np.asarray(slots)
-    ts_s = float(meta["ts_s"]) if meta.get("ts_s") else _float(rows[1]["time_s"]) / max(
-        1, int(_float(rows[1]["k"])))
+    ts_s = _ts_s(rows, meta)
     # one slot per sample period k, also for the periods the loop skipped after an overrun
     n = int(ks[-1] - ks[0]) + 1
     slot = ks - ks[0]
@@ -153,8 +151,61 @@ def read_run_log(path: str | Path) -> Dataset:
         preprocessing=(provenance, split), segment_starts=seg_starts)
 
 
-def _joined_rows(parts: list[Path]) -> tuple[list[dict[str, str]], list[int], dict[str, Any], str]:
-    """The step rows of the parts as one log: (rows, slot of each row, first meta, SHA-256).
+def read_run_record(path: str | Path) -> RunRecord:
+    """A run log (a file, a directory or a glob of its parts) for the operator's report.
+
+    The parts join as for identification (`read_run_log`): a step's plant time is its
+    sample period on one axis; a later run follows after the wall time between the runs.
+
+    Raises
+    ------
+    RunConfigError
+        Not a run log (missing columns), or no step row.
+    """
+    parts = _parts(path)
+    rows, slots, meta, _, n_safe = _joined_rows(parts)
+    if not rows:
+        raise RunConfigError(f"{path}: expected at least one step row; got none")
+
+    def arr(column: str) -> FloatArray:
+        return np.asarray([_float(r.get(column) or "nan") for r in rows])
+
+    def words(column: str) -> tuple[str, ...]:
+        return tuple(r.get(column) or "" for r in rows)
+
+    return RunRecord(
+        source=", ".join(str(p) for p in parts), time_s=np.asarray(slots) * _ts_s(rows, meta),
+        power_kw=arr("power_kw"), setpoint_kw=arr("setpoint_kw"), triac_pct=arr("triac_pct"),
+        applied_triac_pct=arr("applied_triac_pct"), predicted_kw=arr("predicted_kw"),
+        good=np.asarray(words("quality")) == "good", mode=words("mode"),
+        written=np.nan_to_num(arr("written")) > 0, lateness_s=arr("lateness_s"),
+        latency_s=arr("step_latency_s"), skipped=np.nan_to_num(arr("skipped")).astype(int),
+        health=arr("health"), stale_alarm=np.nan_to_num(arr("stale_alarm")) > 0,
+        candidate_predicted_kw=arr("candidate_predicted_kw"), n_safe_rows=n_safe,
+        status=words("status"), connected=np.asarray(words("connected")) != "0",
+        event=words("event"))
+
+
+def _parts(path: str | Path) -> list[Path]:
+    parts = log_parts(path)
+    if not parts:
+        raise RunConfigError(f"{path}: no czmpc run log there (a file, a directory or a glob "
+                             "of run logs)")
+    return parts
+
+
+def _ts_s(rows: list[dict[str, str]], meta: dict[str, Any]) -> float:
+    """The run's sampling time [s]: from its meta file, else from the rows' time and index."""
+    if meta.get("ts_s"):
+        return float(meta["ts_s"])
+    k = next((int(_float(r["k"])) for r in rows if _float(r["k"]) > 0), 1)
+    return next((_float(r["time_s"]) for r in rows if _float(r["k"]) == k), 1.0) / k
+
+
+def _joined_rows(parts: list[Path],
+                 ) -> tuple[list[dict[str, str]], list[int], dict[str, Any], str, int]:
+    """The step rows of the parts as one log: (rows, slot of each row, first meta, SHA-256,
+    rows without a sample index: the safe action's).
 
     A row's slot is its sample period on one axis. The parts of one run (meta ``part`` >
     1) continue its sample index; a new run (a part without ``part``, or the index
@@ -163,6 +214,7 @@ def _joined_rows(parts: list[Path]) -> tuple[list[dict[str, str]], list[int], di
     """
     rows: list[dict[str, str]] = []
     slots: list[int] = []
+    n_unindexed = 0
     digest = hashlib.sha256()
     first_meta: dict[str, Any] = {}
     offset = 0          # slot of sample index 0 of the current run
@@ -192,6 +244,7 @@ def _joined_rows(parts: list[Path]) -> tuple[list[dict[str, str]], list[int], di
         new_run_part = i > 0 and int(meta.get("part", 1)) <= 1
         for row in part_rows:
             if row["k"].strip() == "":
+                n_unindexed += 1
                 continue
             k = int(_float(row["k"]))
             wall = _float(row.get("wall_time_s", "") or "nan")
@@ -204,7 +257,7 @@ def _joined_rows(parts: list[Path]) -> tuple[list[dict[str, str]], list[int], di
             rows.append(row)
             slots.append(offset + k)
             last_k, last_wall = k, wall
-    return rows, slots, first_meta, digest.hexdigest()
+    return rows, slots, first_meta, digest.hexdigest(), n_unindexed
 
 
 def describe_run_data(data: Dataset) -> str:
@@ -228,4 +281,4 @@ def describe_run_data(data: Dataset) -> str:
 
 
 __all__ = ["MIN_SEGMENT_SAMPLES", "describe_run_data", "is_run_log", "read_run_log",
-           "read_run_meta"]
+           "read_run_meta", "read_run_record"]

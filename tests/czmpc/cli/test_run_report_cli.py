@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 
 from czmpc.cli import main
-from czmpc.reports.run_report import plot_run, read_run_log, summary_markdown
+from czmpc.reports.run_report import plot_run, summary_markdown
 
 pytest.importorskip("asyncua")
 
 from czmpc.runtime.logfiles import LOG_COLUMNS, RunLog  # noqa: E402
+from czmpc.runtime.runlog import read_run_record  # noqa: E402
 
 
 def _synthetic_log(path: Path) -> None:
@@ -43,7 +44,7 @@ def test_run_report_draws_and_summarises_a_run_log(
 ) -> None:
     log = tmp_path / "run.csv"
     _synthetic_log(log)
-    record = read_run_log(log)
+    record = read_run_record(log)
     assert record.n_steps == 300 and record.n_safe_rows == 2
     assert record.alarm_time_s == 400.0
     code = main(["run-report", str(log), "--out", str(tmp_path / "report")])
@@ -60,7 +61,7 @@ def test_run_report_draws_and_summarises_a_run_log(
 def test_every_axis_of_the_run_figure_has_a_unit(tmp_path: Path) -> None:
     log = tmp_path / "run.csv"
     _synthetic_log(log)
-    fig = plot_run(read_run_log(log), tmp_path / "run.png")
+    fig = plot_run(read_run_record(log), tmp_path / "run.png")
     axes = fig.get_axes()
     assert len(axes) == 5
     for ax in axes:
@@ -75,7 +76,7 @@ def test_a_file_that_is_no_run_log_exits_2(tmp_path: Path, capsys: pytest.Captur
     bad = tmp_path / "data.csv"
     bad.write_text("time_s,triac_pct,power_kw\n0,45,45\n", encoding="utf-8")
     assert main(["run-report", str(bad), "--out", str(tmp_path / "r")]) == 2
-    assert "missing ['k'" in capsys.readouterr().err
+    assert "missing columns ['k'" in capsys.readouterr().err
 
 
 def test_the_report_compares_a_shadow_candidate_with_the_active_model(tmp_path: Path) -> None:
@@ -88,7 +89,7 @@ def test_the_report_compares_a_shadow_candidate_with_the_active_model(tmp_path: 
             "quality": "good", "setpoint_kw": 46.0, "triac_pct": 40.0, "mode": "PREDICT",
             "predicted_kw": power + 0.1, "candidate_predicted_kw": power - 0.3})
     run_log.close()
-    record = read_run_log(log)
+    record = read_run_record(log)
     text = summary_markdown(record, "run.png")
     assert ("one-step prediction, RMS error over 40 samples: active model 0.1 kW, candidate "
             "model (shadow) 0.3 kW") in text

@@ -301,8 +301,9 @@ def test_a_stale_model_is_logged_published_and_alarmed(tmp_path: Path) -> None:
     assert published == pytest.approx(last_health, rel=1e-5)
     # the operator's view of the same log (czmpc run-report)
     from czmpc.reports.run_report import write_run_report
+    from czmpc.runtime.runlog import read_run_record
 
-    _, report = write_run_report(cfg.log_path, tmp_path / "report")
+    _, report = write_run_report(read_run_record(cfg.log_path), tmp_path / "report")
     text = report.read_text(encoding="utf-8")
     assert f"**stale-model alarm at {summary.stale_alarm_at_s:g} s**" in text
 
