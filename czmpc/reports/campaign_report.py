@@ -167,7 +167,7 @@ def plot_perturbation_heatmaps(rows: Sequence[Row], path: str | os.PathLike[str]
             ax.set_title(f"{name}, extra delay +{n} sample{'s' if n != 1 else ''}", fontsize="medium")
     if image is not None:
         fig.colorbar(image, ax=axes.ravel().tolist(), shrink=0.9,
-                     label="IAE (reachable setpoint) / nominal plant's [-]")
+                     label="IAE / nominal plant's IAE [-]")
     if path is not None:
         save_figure(fig, path)
     return fig
