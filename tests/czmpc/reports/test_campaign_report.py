@@ -29,3 +29,28 @@ def test_summary_statistics() -> None:
     assert (a["within_limits"], a["offset_free"]) == (0.75, 0.75)
     text = format_summary_markdown(rows, title="x")
     assert "## Failed runs" in text and "RuntimeError: x" in text
+
+
+def _perturbed(gain: float, delay: int, iae: float, offset_free: bool = True) -> dict[str, object]:
+    return {"controller": "mpc", "status": "ok", "scenario": "staircase", "seed": 1,
+            "plant": f"perturbed g{gain:g} m1 d+{delay}", "gain_factor": gain,
+            "time_constant_factor": 1.0, "extra_delay_steps": delay,
+            "iae_changes_reachable_kw_s": iae, "offset_free": offset_free,
+            "n_unreachable_changes": int(gain < 1.0)}
+
+
+def test_the_heat_map_shows_the_iae_ratio_to_the_nominal_plant_per_delay() -> None:
+    from czmpc.reports.campaign_report import plot_perturbation_heatmaps
+
+    rows = [_perturbed(1.0, 0, 80.0), _perturbed(0.7, 0, 160.0), _perturbed(1.0, 1, 170.0),
+            _perturbed(0.7, 1, 400.0, offset_free=False)]
+    fig = plot_perturbation_heatmaps(rows)
+    assert fig is not None
+    panels = [ax for ax in fig.axes if ax.get_title()]
+    assert [ax.get_title() for ax in panels] == ["mpc, extra delay +0 samples",
+                                                 "mpc, extra delay +1 sample"]
+    texts = [[t.get_text() for t in ax.texts] for ax in panels]
+    assert texts == [["2.00*", "1.00"], ["5.00*", "2.12"]]   # 160/80, 80/80; 400/80, 170/80
+    crosses = [[ln for ln in ax.lines if ln.get_marker() == "x"] for ax in panels]
+    assert [len(c) for c in crosses] == [0, 1]               # not offset-free: gain 0.7, +1
+    assert plot_perturbation_heatmaps([{**rows[0], "plant": "model"}]) is None
