@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks._md import BENCHMARKS_MD, machine_info, run_main, write_benchmarks_section
-from czmpc.campaigns.simulation import controller_settings
+from czmpc.campaigns.build import controller_settings
 from czmpc.cli import _argtypes
 from czmpc.cli._progress import Progress
 from czmpc.controller import OffsetFreeMPC

@@ -12,18 +12,22 @@ not start with an error.
 Controllers (`build_controller`, kinds `CONTROLLERS`). Fairness: every controller gets
 the Hammerstein MPC's allowed input range (the identified range widened by the validity
 margin, inside the scenario's TRIAC limits), the scenario's rate limit and the plant's
-start input (`czmpc.campaigns.simulation.controller_settings`).
+start input (`controller_settings`).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import replace
 from typing import Any
 
-from czmpc.campaigns.simulation import controller_settings, heater_steady_state_triac_pct
+from scipy.optimize import brentq
+
 from czmpc.errors import CzmpcError
+from czmpc.inversion import allowed_triac_range
 from czmpc.settings import MPCSettings, OSQPOptions
+from sim.errors import PlantError
 from sim.heater import HeaterParams, VirtualHeater
 from sim.heater import steady_state as heater_steady_state
 from sim.model_plant import ModelPlant, steady_state_triac_pct
@@ -88,6 +92,80 @@ MUTATIONS: dict[str, Callable[[MPCSettings], MPCSettings | None]] = {
 }
 #: Controller kinds a mutation changes.
 MUTATED_KINDS: frozenset[str] = frozenset({"mpc"})
+
+
+def heater_steady_state_triac_pct(power_kw: float, params: HeaterParams | None = None) -> float:
+    """TRIAC input [%] whose steady power on the virtual heater is ``power_kw`` [kW].
+
+    Bisection (`scipy.optimize.brentq`) on `sim.heater.steady_state` at nominal grid
+    voltage between the firing threshold and 100 %; the steady power rises
+    monotonically with the input there, so the root is unique.
+
+    Parameters
+    ----------
+    power_kw :
+        Desired steady power [kW].
+    params :
+        Heater parameters; default `HeaterParams()`.
+
+    Raises
+    ------
+    PlantError
+        ``power_kw`` is not reachable with 0..100 % input.
+    """
+    params = HeaterParams() if params is None else params
+    lo, hi = params.firing_threshold_pct, 100.0
+    p_hi = heater_steady_state(hi, params)[0]
+    if not (math.isfinite(power_kw) and 0.0 < power_kw <= p_hi):
+        raise PlantError(
+            f"heater_steady_state_triac_pct: expected a steady power in (0, {p_hi:.4g}] kW "
+            f"(the virtual heater's range at 0..100 % input); got {power_kw!r}"
+        )
+    if power_kw == p_hi:
+        return hi
+    return float(brentq(lambda s: heater_steady_state(s, params)[0] - power_kw, lo, hi,
+                        xtol=1e-9))
+
+
+def controller_settings(
+    model: HammersteinModel, scenario: Scenario, *, initial_triac_pct: float,
+    settings: MPCSettings | None = None,
+) -> MPCSettings:
+    """Settings for a run: ``settings`` with the scenario's limits and the plant's start.
+
+    The TRIAC limits become the intersection of the settings' and the scenario's, the
+    rate limit the tighter of the two (None if neither has one), and
+    ``initial_triac_pct`` the plant's initial input clipped to the controller's allowed
+    range (a plant may start where the model is not valid, e.g. a low meltdown power).
+
+    Parameters
+    ----------
+    model :
+        The controller's model.
+    scenario :
+        Supplies ``triac_limits_pct`` and ``max_move_pct_per_step``.
+    initial_triac_pct :
+        The plant's initial TRIAC input [%].
+    settings :
+        Base settings; None: `MPCSettings.default_for` ``(model)``.
+
+    Raises
+    ------
+    SettingsError, DesignError
+        The combined limits are empty or leave no allowed range.
+    """
+    base = MPCSettings.default_for(model) if settings is None else settings
+    lo = max(base.triac_min_pct, scenario.triac_limits_pct[0])
+    hi = min(base.triac_max_pct, scenario.triac_limits_pct[1])
+    rates = [r for r in (base.max_move_pct_per_step, scenario.max_move_pct_per_step)
+             if r is not None]
+    s_lo, s_hi = allowed_triac_range(model, triac_min_pct=lo, triac_max_pct=hi,
+                                     validity_margin_pct=base.validity_margin_pct)
+    return base.with_updates(
+        triac_min_pct=lo, triac_max_pct=hi,
+        max_move_pct_per_step=min(rates) if rates else None,
+        initial_triac_pct=min(s_hi, max(s_lo, float(initial_triac_pct))),
+    )
 
 
 def heater_params(scenario: Scenario, *, noise: bool) -> HeaterParams:
@@ -234,5 +312,7 @@ __all__ = [
     "MutationNotApplicable",
     "build_controller",
     "build_plant",
+    "controller_settings",
     "heater_params",
+    "heater_steady_state_triac_pct",
 ]

@@ -684,9 +684,8 @@ def simulate_run(run: RunSpec) -> SimulatedRun:
     czmpc.campaigns.build.MutationNotApplicable
         The run's mutation does not change its controller.
     """
-    from czmpc.campaigns.build import build_controller, build_plant
+    from czmpc.campaigns.build import build_controller, build_plant, controller_settings
     from czmpc.campaigns.sampling import static_gain_kw_per_pct
-    from czmpc.campaigns.simulation import controller_settings
     from czmpc.inversion import allowed_triac_range
     from czmpc.settings import MPCSettings
     from czmpc.settings_file import settings_from_dict

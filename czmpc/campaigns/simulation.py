@@ -1,16 +1,10 @@
 """run_simulation and write_outputs: one closed-loop run of the offset-free MPC, wired up.
 
-The one place that puts an identified model, a plant, a scenario and `OffsetFreeMPC`
-together for a closed-loop run (`czmpc simulate` and `czmpc demo` call it):
-
-* **plant** ``"model"``: `sim.model_plant.ModelPlant`, the model's own difference
-  equation (no model mismatch), built by `ModelPlant.for_scenario` (it starts in steady
-  state at the scenario's ``initial_triac_pct``, or at the input whose steady power is
-  the initial setpoint);
-* **plant** ``"heater"``: `sim.heater.VirtualHeater`, the grey-box physics (model
-  mismatch). It starts in steady state at the TRIAC input whose steady power on the
-  heater is the scenario's initial setpoint (`heater_steady_state_triac_pct`), so a run
-  starts without a transient.
+Puts an identified model, a plant, a scenario and `OffsetFreeMPC` together for one
+closed-loop run and writes its files (`czmpc simulate` and `czmpc demo` call it). The
+plant (``"model"``: the model's own difference equation, no mismatch; ``"heater"``: the
+virtual heater's grey-box physics) is built and started in steady state by
+`czmpc.campaigns.build.build_plant`, or varied and drifting (`sim.drift`).
 
 The controller starts at the plant's initial input (`MPCSettings.initial_triac_pct`,
 clipped to the controller's allowed range) and takes the scenario's TRIAC limits and
@@ -32,15 +26,15 @@ from typing import Any, Literal, get_args
 
 import numpy as np
 from matplotlib.figure import Figure
-from scipy.optimize import brentq
 
+from czmpc.campaigns.build import build_plant, controller_settings
 from czmpc.controller import OffsetFreeMPC
 from czmpc.inversion import allowed_triac_range
 from czmpc.reports.closed_loop_figure import plot_closed_loop
 from czmpc.settings import MPCSettings
 from sim.drift import PlantVariation, vary_heater, vary_model_plant
-from sim.errors import PlantError, SimError
-from sim.heater import HeaterParams, VirtualHeater, steady_state
+from sim.errors import SimError
+from sim.heater import HeaterParams, VirtualHeater
 from sim.loop import ClosedLoopResult, ProgressCallback, run_closed_loop
 from sim.metrics import ClosedLoopMetrics, compute_metrics
 from sim.protocols import Controller, Plant
@@ -64,8 +58,6 @@ TRAJECTORY_FILE = "trajectory.csv"
 METRICS_FILE = "metrics.json"
 FIGURE_FILE = "figure.png"
 
-#: Tolerance of the bisection for the heater's initial input [%].
-_INITIAL_TRIAC_XTOL_PCT = 1e-9
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -213,45 +205,9 @@ def format_metrics_table(metrics: ClosedLoopMetrics, measured: ClosedLoopMetrics
     return "\n".join(lines)
 
 
-# --- plants ----------------------------------------------------------------------------
-def heater_steady_state_triac_pct(power_kw: float, params: HeaterParams | None = None) -> float:
-    """TRIAC input [%] whose steady power on the virtual heater is ``power_kw`` [kW].
-
-    Bisection (`scipy.optimize.brentq`) on `sim.heater.steady_state` at nominal grid
-    voltage between the firing threshold and 100 %; the steady power rises
-    monotonically with the input there, so the root is unique.
-
-    Parameters
-    ----------
-    power_kw :
-        Desired steady power [kW].
-    params :
-        Heater parameters; default `HeaterParams()`.
-
-    Raises
-    ------
-    PlantError
-        ``power_kw`` is not reachable with 0..100 % input.
-    """
-    params = HeaterParams() if params is None else params
-    lo, hi = params.firing_threshold_pct, 100.0
-    p_hi = steady_state(hi, params)[0]
-    if not (math.isfinite(power_kw) and 0.0 < power_kw <= p_hi):
-        raise PlantError(
-            f"heater_steady_state_triac_pct: expected a steady power in (0, {p_hi:.4g}] kW "
-            f"(the virtual heater's range at 0..100 % input); got {power_kw!r}"
-        )
-    if power_kw == p_hi:
-        return hi
-    return float(brentq(lambda s: steady_state(s, params)[0] - power_kw, lo, hi,
-                        xtol=_INITIAL_TRIAC_XTOL_PCT))
-
-
 def _build_plant(model: HammersteinModel, scenario: Scenario, plant: PlantKind,
                  noise: bool, variation: PlantVariation | None = None) -> tuple[Plant, float]:
     """The plant and the TRIAC input [%] it starts in steady state at."""
-    from czmpc.campaigns.build import build_plant
-
     if variation is not None and not variation.is_nominal:
         return _varied_plant(model, scenario, plant, noise, variation)
     built, s0, _ = build_plant(plant, model, scenario, noise=noise)
@@ -270,47 +226,6 @@ def _varied_plant(model: HammersteinModel, scenario: Scenario, plant: PlantKind,
         return vary_model_plant(model, variation, noise=noise, initial_triac_pct=s0), s0
     params = nominal.params if isinstance(nominal, VirtualHeater) else HeaterParams()
     return vary_heater(variation, params), s0
-
-
-def controller_settings(
-    model: HammersteinModel, scenario: Scenario, *, initial_triac_pct: float,
-    settings: MPCSettings | None = None,
-) -> MPCSettings:
-    """Settings for a run: ``settings`` with the scenario's limits and the plant's start.
-
-    The TRIAC limits become the intersection of the settings' and the scenario's, the
-    rate limit the tighter of the two (None if neither has one), and
-    ``initial_triac_pct`` the plant's initial input clipped to the controller's allowed
-    range (a plant may start where the model is not valid, e.g. a low meltdown power).
-
-    Parameters
-    ----------
-    model :
-        The controller's model.
-    scenario :
-        Supplies ``triac_limits_pct`` and ``max_move_pct_per_step``.
-    initial_triac_pct :
-        The plant's initial TRIAC input [%].
-    settings :
-        Base settings; None: `MPCSettings.default_for` ``(model)``.
-
-    Raises
-    ------
-    SettingsError, DesignError
-        The combined limits are empty or leave no allowed range.
-    """
-    base = MPCSettings.default_for(model) if settings is None else settings
-    lo = max(base.triac_min_pct, scenario.triac_limits_pct[0])
-    hi = min(base.triac_max_pct, scenario.triac_limits_pct[1])
-    rates = [r for r in (base.max_move_pct_per_step, scenario.max_move_pct_per_step)
-             if r is not None]
-    s_lo, s_hi = allowed_triac_range(model, triac_min_pct=lo, triac_max_pct=hi,
-                                     validity_margin_pct=base.validity_margin_pct)
-    return base.with_updates(
-        triac_min_pct=lo, triac_max_pct=hi,
-        max_move_pct_per_step=min(rates) if rates else None,
-        initial_triac_pct=min(s_hi, max(s_lo, float(initial_triac_pct))),
-    )
 
 
 def run_simulation(
@@ -341,7 +256,7 @@ def run_simulation(
         bit-identical runs.
     settings :
         Controller tuning; None: `MPCSettings.default_for` ``(model)``. Limits and the
-        initial input are completed by `controller_settings`.
+        initial input are completed by `czmpc.campaigns.build.controller_settings`.
     noise :
         Plant noise on (the model's innovations through ``C/A``, or the heater's sensor
         noise and grid wander) or off.
@@ -475,9 +390,7 @@ __all__ = [
     "TRAJECTORY_FILE",
     "PlantKind",
     "SimulationOutcome",
-    "controller_settings",
     "format_metrics_table",
-    "heater_steady_state_triac_pct",
     "plot_outcome",
     "run_simulation",
     "write_outputs",

@@ -469,7 +469,7 @@ def _mc_scenario(model: HammersteinModel) -> Any:
 def _closed_loop(model: HammersteinModel, plant_model: HammersteinModel, scenario: Any,
                  settings: MPCSettings | None, seed: int) -> tuple[bool, float]:
     """(offset-free, IAE [kW s]) of the MPC of ``model`` on the noise-free ``plant_model``."""
-    from czmpc.campaigns.simulation import controller_settings
+    from czmpc.campaigns.build import controller_settings
     from czmpc.controller import OffsetFreeMPC
     from sim.loop import run_closed_loop
     from sim.model_plant import ModelPlant, steady_state_triac_pct

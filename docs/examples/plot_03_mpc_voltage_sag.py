@@ -16,7 +16,7 @@ import matplotlib.pyplot as plt
 import czmpc
 import sim
 import sysid
-from czmpc.campaigns.simulation import heater_steady_state_triac_pct
+from czmpc.campaigns.build import heater_steady_state_triac_pct
 from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
 
 model = sysid.load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))

@@ -14,12 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from czmpc.campaigns.simulation import (
-    SimulationOutcome,
-    controller_settings,
-    heater_steady_state_triac_pct,
-    run_simulation,
-)
+from czmpc.campaigns.build import controller_settings, heater_steady_state_triac_pct
+from czmpc.campaigns.simulation import SimulationOutcome, run_simulation
 from czmpc.controller import StepDiagnostics
 from czmpc.settings import MPCSettings
 from sim.disturbances import PowerShift, VoltageStep
