@@ -18,8 +18,6 @@ from czmpc.campaigns.regression import AuditReport, CaseCheck, CheckReport
 from czmpc.reports import tables
 from sysid.atomic import atomic_write_text
 
-_SIGNAL_NAMES = {"power_true_kw": "true power [kW]", "triac_pct": "TRIAC input [%]"}
-
 
 def _g(value: float) -> str:
     return "nan" if math.isnan(value) else f"{value:.6g}"
@@ -93,47 +91,6 @@ def safe_name(case_id: str) -> str:
     return re.sub(r"[^A-Za-z0-9.+-]+", "_", case_id).strip("_")
 
 
-def plot_case(report: CheckReport, case: CaseCheck, path: str | Path) -> None:
-    """Golden trajectory with its band and the new one, power and TRIAC on shared time axes."""
-    from czmpc.reports.figure_style import new_figure, save_figure
-
-    golden = report.golden.trajectory(case.case_id)
-    band = report.golden.doc["cases"][case.case_id]["band"]
-    new = case.new_trajectory
-    fig = new_figure((8.0, 8.0))
-    axes = fig.subplots(3, 1, sharex=True, height_ratios=(3, 3, 2))
-    for ax, signal in zip(axes[:2], ("power_true_kw", "triac_pct"), strict=True):
-        t, g = golden["time_s"], golden[signal]
-        if signal == "power_true_kw":
-            ax.plot(t, golden["setpoint_kw"], color="black", linestyle="--", linewidth=0.8,
-                    label="setpoint")
-        ax.fill_between(t, g - band[signal], g + band[signal], color="tab:blue", alpha=0.25,
-                        linewidth=0, label=f"golden band (+-{band[signal]:.3g})")
-        ax.plot(t, g, color="tab:blue", linewidth=1.0, label="golden")
-        if new:
-            ax.plot(new["time_s"], new[signal], color="tab:red", linewidth=1.0, label="new")
-        ax.set_ylabel(_SIGNAL_NAMES[signal])
-    ax_d = axes[2]
-    if new:
-        k = min(len(golden["time_s"]), len(new["time_s"]))
-        t = golden["time_s"][:k]
-        diff = new["power_true_kw"][:k] - golden["power_true_kw"][:k]
-        ax_d.fill_between(t, -band["power_true_kw"], band["power_true_kw"], color="tab:blue",
-                          alpha=0.25, linewidth=0, label="golden band")
-        ax_d.plot(t, diff, color="tab:red", linewidth=1.0, label="new - golden")
-        ax_d.legend(loc="best", fontsize="small")
-    ax_d.set_ylabel("new - golden power [kW]")
-    for ax in axes:
-        if case.divergence is not None:
-            ax.axvline(case.divergence.time_s, color="tab:red", linestyle=":", linewidth=1.0,
-                       label=f"first divergence t = {case.divergence.time_s:g} s")
-        ax.grid(True, linewidth=0.5, alpha=0.6)
-    axes[2].set_xlabel("time [s]")
-    axes[0].set_title(case.case_id, fontsize="medium")
-    axes[0].legend(loc="best", fontsize="small")
-    save_figure(fig, path)
-
-
 def markdown(report: CheckReport, figures: dict[str, str] | None = None) -> str:
     """The Markdown report (figures named relative to it)."""
     figures = figures or {}
@@ -176,6 +133,8 @@ def markdown(report: CheckReport, figures: dict[str, str] | None = None) -> str:
 
 def write_report(report: CheckReport, out_dir: str | Path) -> tuple[Path, ...]:
     """Write DIR/report.md and DIR/figures/<case>.png (failing cases); return the paths."""
+    from czmpc.reports.regression_figure import plot_regression_case
+
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     figures: dict[str, str] = {}
@@ -184,7 +143,10 @@ def write_report(report: CheckReport, out_dir: str | Path) -> tuple[Path, ...]:
         if case.error:
             continue
         rel = f"figures/{safe_name(case.case_id)}.png"
-        plot_case(report, case, out / rel)
+        plot_regression_case(
+            report.golden.trajectory(case.case_id), report.golden.doc["cases"][case.case_id]["band"],
+            case.new_trajectory, title=case.case_id, path=out / rel,
+            divergence_time_s=None if case.divergence is None else case.divergence.time_s)
         figures[case.case_id] = rel
         paths.append(out / rel)
     md = out / "report.md"
@@ -254,7 +216,6 @@ __all__ = [
     "failure_lines",
     "junit_xml",
     "markdown",
-    "plot_case",
     "safe_name",
     "write_report",
 ]
