@@ -168,12 +168,6 @@ def controller_settings(
     )
 
 
-def heater_params(scenario: Scenario, *, noise: bool) -> HeaterParams:
-    """The virtual heater's parameters for ``scenario``, noise-free unless ``noise``."""
-    params = HeaterParams(ts_s=scenario.ts_s)
-    return params if noise else replace(params, sensor_noise_std_kw=0.0, grid_wander_std=0.0)
-
-
 def build_plant(kind: str, model: HammersteinModel, scenario: Scenario, *, noise: bool
                 ) -> tuple[Plant, float, Callable[[float], float]]:
     """The plant, the TRIAC input [%] it starts at, and its steady power [kW] at an input [%].
@@ -181,8 +175,9 @@ def build_plant(kind: str, model: HammersteinModel, scenario: Scenario, *, noise
     Parameters
     ----------
     kind :
-        ``"model"`` or ``"heater"``; a perturbed or sampled plant is a ``"model"`` plant
-        of the perturbed or sampled ``model`` (it starts at its own steady state).
+        ``"model"`` (started as `ModelPlant.for_scenario` starts it), ``"heater"``, or
+        ``"perturbed"`` / ``"sampled"``: a model plant of the perturbed or sampled
+        ``model``, started at its own steady state for the initial setpoint.
     model :
         The plant's model (model plants).
     scenario :
@@ -196,7 +191,9 @@ def build_plant(kind: str, model: HammersteinModel, scenario: Scenario, *, noise
         An unknown kind.
     """
     if kind == "heater":
-        params = heater_params(scenario, noise=noise)
+        params = HeaterParams(ts_s=scenario.ts_s)
+        if not noise:
+            params = replace(params, sensor_noise_std_kw=0.0, grid_wander_std=0.0)
         s0 = heater_steady_state_triac_pct(scenario.initial_setpoint_kw, params)
         return (VirtualHeater(replace(params, initial_triac_pct=s0)), s0,
                 lambda s: float(heater_steady_state(s, params)[0]))
@@ -313,6 +310,5 @@ __all__ = [
     "build_controller",
     "build_plant",
     "controller_settings",
-    "heater_params",
     "heater_steady_state_triac_pct",
 ]
