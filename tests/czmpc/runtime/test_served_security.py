@@ -219,7 +219,7 @@ def secured_plant(pki: Pki) -> Iterator[SecuredPlant]:
         assert started.wait(60.0), "the secured plant did not start within 60 s"
         yield SecuredPlant(endpoint, served, loops[0], log)
     finally:
-        if loops:
+        if loops and not loops[0].is_closed():   # closed: the plant's duration ran out
             for task in asyncio.all_tasks(loops[0]):
                 loops[0].call_soon_threadsafe(task.cancel)
         thread.join(20.0)
