@@ -650,7 +650,7 @@ class RealLogRow:
 
 
 def _readers() -> dict[str, Callable[[Path], object]]:
-    from sysid.reallogs import (
+    from tests.sysid.reallogs import (
         read_cascaded_tanks,
         read_daisy_exchanger,
         read_daisy_heating,

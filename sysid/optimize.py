@@ -28,7 +28,7 @@ from sysid._typing import FloatArray
 from sysid.errors import IdentificationError
 
 #: Initial damping, relative to the scaled Gauss-Newton matrix.
-_MU_INITIAL = 1e-3
+_MU_INITIAL = 1e-6
 #: Rejected trial steps tolerated in one iteration before giving up.
 _MAX_REJECTIONS = 60
 
@@ -303,7 +303,7 @@ def levenberg_marquardt(
                 actual = ssr - ssr_new
                 if predicted > 0:
                     rho = actual / predicted
-                    mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                    mu *= max(0.1, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu = 2.0
                 small_reduction = actual <= ftol * ssr and 0 <= predicted <= ftol * ssr
                 theta, (r, jac), ssr = trial, evaluated, ssr_new
@@ -410,4 +410,5 @@ __all__ = [
     "levenberg_marquardt",
     "parameter_std_errors",
     "sum_of_squares",
+    "triangular_factor",
 ]

@@ -43,10 +43,10 @@ from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import IdentificationError
 from sysid.hammerstein.route import fixed_pole_starts, pole_start_time_constants
-from sysid.linear import _linear_model, arx_regressor
+from sysid.linear import _linear_model, arx_oe_start, sriv_oe
 from sysid.model import HammersteinModel, OperatingPoint
 from sysid.optimize import levenberg_marquardt
-from sysid.polynomials import is_stable, reflect_unstable_roots
+from sysid.polynomials import is_stable
 
 #: Share of the record at its start that is a burn-in: not scored, so that the unknown
 #: initial state (a log that does not start at rest) decays before the criterion counts.
@@ -65,8 +65,6 @@ N_REFINED = 4
 #: parameters is chosen (a record cannot tell them apart; fewer parameters extrapolate
 #: more safely).
 PARSIMONY_RTOL = 0.02
-#: SRIV iterations from the ARX estimate.
-SRIV_ITERATIONS = 4
 #: LM tolerances of the grid (structures ranked at the 1e-3 level of V_rest) and of the
 #: refined structures' fits.
 _GRID_TOL = 1e-8
@@ -286,42 +284,6 @@ class _Problem:
         return np.asarray(b, dtype=float)
 
 
-def _arx(y: FloatArray, u: FloatArray, nb: int, nf: int, nk: int) -> FloatArray | None:
-    phi, target, _ = arx_regressor(y, u, na=nf, nb=nb, nk=nk)
-    theta, *_ = np.linalg.lstsq(phi, target, rcond=None)
-    return _as_start(np.asarray(theta, dtype=float), nb, nf)
-
-
-def _as_start(theta: FloatArray, nb: int, nf: int) -> FloatArray | None:
-    """``[a1..a_nf, b..]`` of a regression as an OE start ``[b.., f1..]``, or None."""
-    if not np.all(np.isfinite(theta)):
-        return None
-    f = reflect_unstable_roots(np.concatenate([[1.0], theta[:nf]]))
-    return np.concatenate([theta[nf:], f[1:]])
-
-
-def _sriv(y: FloatArray, u: FloatArray, nb: int, nf: int, nk: int,
-          start: FloatArray) -> FloatArray | None:
-    """Simplified refined IV from `start` (module notes)."""
-    theta = start
-    for _ in range(SRIV_ITERATIONS):
-        b = np.concatenate([np.zeros(nk), theta[:nb]])
-        f = np.concatenate([[1.0], theta[nb:]])
-        x = lfilter(b, f, u)                               # noise-free output: instruments
-        yf, uf, xf = (lfilter([1.0], f, s) for s in (y, u, x))
-        phi, target, _ = arx_regressor(yf, uf, na=nf, nb=nb, nk=nk)
-        zeta, _, _ = arx_regressor(xf, uf, na=nf, nb=nb, nk=nk)
-        try:
-            est = np.linalg.solve(zeta.T @ phi, zeta.T @ target)
-        except np.linalg.LinAlgError:
-            return None
-        nxt = _as_start(np.asarray(est, dtype=float), nb, nf)
-        if nxt is None:
-            return None
-        theta = nxt
-    return theta
-
-
 def _refine(problem: _Problem, theta0: FloatArray,
             tol: float) -> tuple[FloatArray, float, int, bool] | None:
     if not is_stable(np.concatenate([[1.0], theta0[problem.nb:]])):
@@ -426,8 +388,8 @@ def search_oe_from_rest(
     for nb, nf, nk in itertools.product(range(1, NB_MAX + 1), range(1, NF_MAX + 1),
                                         (int(k) for k in nk_values)):
         problem = _Problem(yn, un, nb, nf, nk, burn)
-        arx = _arx(yn, un, nb, nf, nk)
-        sriv = None if arx is None else _sriv(yn, un, nb, nf, nk, arx)
+        arx = arx_oe_start(yn, un, nb=nb, nf=nf, nk=nk)
+        sriv = None if arx is None else sriv_oe(yn, un, nb=nb, nf=nf, nk=nk, start=arx)
         fit = _fit(problem, [("arx", arx), ("sriv", sriv)], y_rms, u_rms, _GRID_TOL)
         if fit is not None:
             fits.append(fit)

@@ -154,6 +154,17 @@ def _tail_sums(coef: FloatArray, n: int) -> FloatArray:
     return np.array([float(np.sum(padded[k + 1 :])) for k in range(n)])
 
 
+def _fir(coef: FloatArray, x: FloatArray) -> FloatArray:
+    """``sum_j coef_j x[k - j]`` with a zero past, along the first axis (1-D or columns).
+
+    What ``lfilter(coef, [1.0], x, axis=0)`` computes, by `numpy.convolve`: a tenth of its
+    time on these records, and every residual evaluation has two.
+    """
+    if x.ndim == 1:
+        return np.convolve(x, coef)[: x.size]
+    return np.column_stack([np.convolve(col, coef)[: x.shape[0]] for col in x.T])
+
+
 def _pulses(n: int, n_samples: int) -> FloatArray:
     """``(n_samples, n)``: column ``j`` is a unit pulse at sample ``j``."""
     out = np.zeros((n_samples, n))
@@ -171,7 +182,7 @@ def _oe_segment(
     n, deg, nk, nb = orders.n_state, orders.degree, orders.nk, orders.nb
     feats = np.column_stack([ds**i for i in range(1, deg + 1)])
     w = feats @ poly
-    src = lfilter(beta, [1.0], w)
+    src = _fir(beta, w)
     w0, ds0, y0 = float(w[0]), float(ds[0]), float(y[0])
     if initial_state == "estimate" and h_free is not None:
         h = h_free
@@ -189,7 +200,7 @@ def _oe_segment(
     for j in range(nk + 1, nk + nb):
         cols.append(_lag(w, j))
         dh.append(np.where(np.arange(n) < j, w0, 0.0))
-    bw = lfilter(beta, [1.0], feats, axis=0)
+    bw = _fir(beta, feats)
     tail_beta = _tail_sums(beta, n)
     for i in range(1, deg + 1):
         cols.append(bw[:, i - 1])
@@ -219,7 +230,7 @@ def _armax_segment(
     )
     feats = np.column_stack([ds**i for i in range(1, deg + 1)])
     w = feats @ poly
-    v = lfilter(a, [1.0], y) - lfilter(beta, [1.0], w)
+    v = _fir(a, y) - _fir(beta, w)
     w0, ds0, y0 = float(w[0]), float(ds[0]), float(y[0])
     tail_beta = _tail_sums(beta, n)
     if initial_state == "estimate" and g_free is not None:
@@ -239,7 +250,7 @@ def _armax_segment(
     for j in range(nk + 1, nk + nb):
         cols.append(-_lag(w, j))
         dg.append(np.where(k_idx < j, -w0, 0.0))
-    bw = lfilter(beta, [1.0], feats, axis=0)
+    bw = _fir(beta, feats)
     for i in range(1, deg + 1):
         cols.append(-bw[:, i - 1])
         dg.append(-(ds0**i) * tail_beta)

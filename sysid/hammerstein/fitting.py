@@ -42,6 +42,7 @@ from sysid.optimize import (
     LMResult,
     levenberg_marquardt,
     parameter_std_errors,
+    triangular_factor,
 )
 
 #: ``progress(iteration, cost)`` after every Levenberg-Marquardt iteration.
@@ -67,7 +68,7 @@ def split_segments(
 
 
 def covariance_from_jacobian(jacobian: FloatArray, residuals: FloatArray) -> FloatArray:
-    """``sigma^2 (J'J)^-1`` with ``sigma^2 = sum r^2 / (N - p)``, by the SVD of ``J``.
+    """``sigma^2 (J'J)^-1`` with ``sigma^2 = sum r^2 / (N - p)``, by the SVD of ``J``'s ``R``.
 
     Directions the data do not determine (singular values below ``N eps s_max``) are
     left out (pseudo-inverse); their standard errors come out as `inf` from
@@ -75,7 +76,7 @@ def covariance_from_jacobian(jacobian: FloatArray, residuals: FloatArray) -> Flo
     """
     n, p = jacobian.shape
     sigma2 = float(residuals @ residuals) / max(n - p, 1)
-    _, sv, vt = np.linalg.svd(jacobian, full_matrices=False)
+    _, sv, vt = np.linalg.svd(triangular_factor(jacobian))  # J = QR: same sv and V
     keep = sv > max(n, p) * np.finfo(float).eps * (sv[0] if sv.size else 0.0)
     inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0) ** 2, 0.0)
     out: FloatArray = sigma2 * (vt.T * inv) @ vt

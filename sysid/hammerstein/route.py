@@ -31,7 +31,7 @@ from sysid.hammerstein.model import (
     _poly_eval,
     hammerstein_model,
 )
-from sysid.linear import arx_least_squares, oe_pem, segment_bounds
+from sysid.linear import arx_least_squares, arx_oe_start, oe_pem, segment_bounds, sriv_oe
 from sysid.model import OperatingPoint
 from sysid.optimize import MAX_ITERATIONS, parameter_std_errors
 from sysid.result import IdentificationResult
@@ -424,6 +424,33 @@ def fixed_pole_starts(
     return tuple(out)
 
 
+def sriv_start(
+    y: FloatArray, ds: FloatArray, input_poly: FloatArray, *, nb: int, nf: int, nk: int,
+) -> dict[str, float] | None:
+    """Start of a Hammerstein-OE fit from the SRIV estimate of its linear block.
+
+    With ``f`` fixed at `input_poly`, ``y = B/F w`` with ``w = f(ds)`` is a linear OE
+    problem; `sysid.linear.sriv_oe` from the ARX estimate solves it without the ARX's
+    noise bias (a multi-segment record is treated as one here: this is a start only).
+
+    Returns
+    -------
+    dict or None
+        Start values by name (``d1..`` of ``f`` scaled by ``b_nk``, ``b_{nk+1}..``
+        normalized by ``b_nk``, ``f1..``), or None where the estimate fails or ``b_nk``
+        is zero.
+    """
+    w = _poly_eval(np.asarray(input_poly, dtype=float), ds)
+    arx = arx_oe_start(y, w, nb=nb, nf=nf, nk=nk)
+    theta = None if arx is None else sriv_oe(y, w, nb=nb, nf=nf, nk=nk, start=arx)
+    if theta is None or theta[0] == 0.0:
+        return None
+    start = {f"d{i + 1}": float(d * theta[0]) for i, d in enumerate(input_poly)}
+    start.update({f"b{nk + j}": float(theta[j] / theta[0]) for j in range(1, nb)})
+    start.update({f"f{i}": float(theta[nb + i - 1]) for i in range(1, nf + 1)})
+    return start
+
+
 def _multistart(
     final: HammersteinFit,
     y: FloatArray,
@@ -439,7 +466,9 @@ def _multistart(
     progress: Callable[[int, float], None] | None,
     segment_starts: Sequence[int] | None = None,
 ) -> HammersteinFit:
-    """The best of `final` and the OE fits from `fixed_pole_starts` (see `MULTISTART_V_RTOL`).
+    """The best of `final` and the OE fits from `sriv_start` and `fixed_pole_starts`.
+
+    A start's fit replaces `final` only if its V is lower by more than `MULTISTART_V_RTOL`.
 
     The losing searches' non-convergence warnings are dropped (they are not kept); the
     winner's is issued again.
@@ -449,11 +478,12 @@ def _multistart(
     # the longest segment bounds the time constants its settling can show
     longest = max(hi - lo for lo, hi in segment_bounds(
         y.size, None if segment_starts is None else tuple(segment_starts), "_multistart"))
-    for start in fixed_pole_starts(
+    iv = sriv_start(y, ds, final.input_poly, nb=nb, nf=nf, nk=nk)
+    for start in ([] if iv is None else [iv]) + list(fixed_pole_starts(
         y, ds, nb=nb, nf=nf, nk=nk,
         time_constants_samples=pole_start_time_constants(longest, n_starts),
         segment_starts=segment_starts,
-    ):
+    )):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", IdentificationWarning)
             try:

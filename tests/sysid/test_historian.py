@@ -31,7 +31,7 @@ from sysid.historian import (
     to_frame,
     write_parquet,
 )
-from sysid.reallogs import read_daisy_heating
+from tests.sysid.reallogs import read_daisy_heating
 from tests.tolerances import (
     IDENTITY_RTOL,
     POLICY_FIT_GAIN_RTOL,

@@ -14,14 +14,14 @@ from sysid.errors import DataFileError, IdentificationError
 from sysid.linear import arx_least_squares, fit_arx
 from sysid.model import OperatingPoint
 from sysid.preprocess import find_operating_point, find_outlier_candidates, to_deviation
-from sysid.reallogs import (
+from sysid.residuals import autocorrelation
+from sysid.simulate import simulate
+from tests.sysid.reallogs import (
     read_cascaded_tanks,
     read_daisy_exchanger,
     read_daisy_heating,
     read_tclab,
 )
-from sysid.residuals import autocorrelation
-from sysid.simulate import simulate
 
 REPO = Path(__file__).resolve().parents[2]
 REAL = REPO / "data" / "real"

@@ -122,7 +122,7 @@ def test_an_oe_from_a_first_sample_that_is_no_rest_does_not_replace_the_final_mo
     from pathlib import Path
 
     from sysid.pipeline import NamedModel, _better_from_rest
-    from sysid.reallogs import read_tclab
+    from tests.sysid.reallogs import read_tclab
 
     log = read_tclab(Path(__file__).resolve().parents[2] / "data" / "real"
                      / "tclab_mimo_steps_data.txt")

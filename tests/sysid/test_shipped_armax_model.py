@@ -18,9 +18,11 @@ from sysid.pipeline import run_paper_pipeline
 
 REPO = Path(__file__).resolve().parents[2]
 
-#: The fit is deterministic; only floating-point summation order across BLAS builds
-#: differs, far below 1e-8 relative on these parameters.
-REIDENTIFY_RTOL = 1e-8
+#: The fit is deterministic, but its search stops at a relative cost decrease of 1e-12
+#: (ftol): the cost is flat to second order there, so the parameters are fixed only to
+#: about sqrt(1e-12) = 1e-6 relative, and a change of the search's damping schedule moves
+#: them within that (7e-8 measured). Their standard errors are 1e-3 relative and more.
+REIDENTIFY_RTOL = 1e-6
 
 
 def test_shipped_armax_model_is_fit_armax_on_the_pipelines_preprocessed_data() -> None:

@@ -20,7 +20,7 @@ from scipy.signal import lfilter
 from czmpc.cli import main
 from sysid.data import Dataset
 from sysid.modelfile import load_model
-from sysid.reallogs import read_daisy_heating
+from tests.sysid.reallogs import read_daisy_heating
 
 REPO = Path(__file__).resolve().parents[3]
 DAISY = REPO / "data" / "real" / "daisy_heating_system.dat"

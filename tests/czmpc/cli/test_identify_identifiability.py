@@ -25,7 +25,7 @@ from sysid.identifiability import (
 from sysid.model import OperatingPoint
 from sysid.modelfile import load_model
 from sysid.pipeline import run_paper_pipeline
-from sysid.reallogs import read_cascaded_tanks, read_daisy_heating, read_tclab
+from tests.sysid.reallogs import read_cascaded_tanks, read_daisy_heating, read_tclab
 
 REAL = Path(__file__).resolve().parents[3] / "data" / "real"
 

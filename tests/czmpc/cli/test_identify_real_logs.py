@@ -34,7 +34,7 @@ from sysid.data import Dataset, write_csv
 from sysid.model import OperatingPoint
 from sysid.modelfile import load_model
 from sysid.pipeline import run_paper_pipeline
-from sysid.reallogs import (
+from tests.sysid.reallogs import (
     read_cascaded_tanks,
     read_daisy_exchanger,
     read_daisy_heating,
@@ -58,6 +58,18 @@ READERS = {
     "tclab": lambda: read_tclab(REAL / "tclab_mimo_steps_data.txt"),
     "tanks": lambda: read_cascaded_tanks(REAL / "cascaded_tanks_dataBenchmark.csv"),
     "exchanger": lambda: read_daisy_exchanger(REAL / "daisy_exchanger.dat"),
+}
+
+#: Issue 29, item 3: the short TCLab log (599 samples) with 5 % and 10 % of it cut from the
+#: end. The model.json of each keeps the full log's structure, and scored on the full log
+#: it errs by at most this factor over the full log's own model.json (measured 1.12, 1.17).
+#: Cut from the start, the log no longer starts at rest, and neither holds yet (V 2,000
+#: and 12,500 times the full log's model: the issue stays open on that).
+END_CUT_V_RATIO = 1.25
+END_CUTS = {
+    f"tclab_end{pct}": (lambda pct=pct: READERS["tclab"]().segment(
+        0, 599 - int(pct / 100 * 599)))
+    for pct in (5, 10)
 }
 
 
@@ -146,7 +158,7 @@ def identified(tmp_path_factory: pytest.TempPathFactory) -> Identified:
             reading = ["--columns", "time_s=t,triac_pct=u_V,power_kw=y_degC",
                        "--input-unit", "V", "--output-unit", "degC"]
         else:
-            write_csv(READERS[name](), folder / "log.csv")
+            write_csv({**READERS, **END_CUTS}[name](), folder / "log.csv")
         err = io.StringIO()
         with contextlib.redirect_stderr(err):
             code = main(["identify", str(folder / "log.csv"), "--out", str(folder / "id"),
@@ -171,6 +183,28 @@ def test_identify_with_default_options_exits_0_within_ten_percent_of_the_multist
                                    for p in sorted((out / "models").glob("*.json"))])
     assert v_model_json <= REFERENCE_V_RATIO * reference, (v_model_json, reference)
     assert v_best <= v_model_json
+
+
+def _structure(path: Path) -> tuple[int, int, int]:
+    """``(nb, nf, nk)`` of a written model file: B's leading zeros are the delay."""
+    obj = json.loads(path.read_text(encoding="utf-8"))
+    nk = int(np.flatnonzero(obj["B"])[0])
+    return len(obj["B"]) - nk, len(obj["A"]) - 1, nk
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(END_CUTS))
+def test_the_short_logs_model_holds_when_its_end_is_cut(name: str, identified: Identified,
+                                                        ) -> None:
+    full = READERS["tclab"]()
+    assert full.n_samples == 599
+    burn = int(BURN_IN_SHARE * full.n_samples)
+    code, err, out = identified(name)
+    assert code == 0, err
+    _, _, out_full = identified("tclab")
+    assert _structure(out / "model.json") == _structure(out_full / "model.json")
+    v_cut = _written_v(out / "model.json", full, burn)
+    assert v_cut <= END_CUT_V_RATIO * _written_v(out_full / "model.json", full, burn)
 
 
 def _pipeline(name: str):  # type: ignore[no-untyped-def]

@@ -11,7 +11,7 @@ import pytest
 from czmpc.reports.identification import render_report
 from sysid.data import Dataset
 from sysid.pipeline import PipelineResult, run_paper_pipeline
-from sysid.reallogs import read_daisy_heating
+from tests.sysid.reallogs import read_daisy_heating
 
 REPO = Path(__file__).resolve().parents[3]
 DAISY = REPO / "data" / "real" / "daisy_heating_system.dat"

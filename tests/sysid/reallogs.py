@@ -1,4 +1,7 @@
-"""Readers for four public real-rig logs (DaISy heater and exchanger, TCLab, tanks) into `Dataset`.
+"""Test support: readers for four public real-rig logs (DaISy heater and exchanger, TCLab, tanks).
+
+Imported by the tests and the identification benchmark as ``tests.sysid.reallogs`` (both
+run from the repository root); the logs are not in the wheel, so neither is this module.
 
 These logs come from rigs other than the CZ puller, in other formats, units and
 sampling (see ``data/real/README.md`` in the repository for provenance). Each reader keeps every
