@@ -191,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
             from czmpc.commissioning.dither import DitheredMPC, dominant_time_constant_s
 
             dithered = DitheredMPC(opened.mpc, amplitude_pct=args.dither_pct,
-                                   switch_time_s=dominant_time_constant_s(opened.model),
+                                   switch_time_s=dominant_time_constant_s(opened.mpc.model),
                                    rng=args.dither_seed)
             _log.info("closed-loop test: +-%g %% GBN dither on the MPC's input, mean switching "
                       "time %.0f s; the log is closed-loop data", args.dither_pct,

@@ -151,16 +151,14 @@ class OpenedRun:
     ----------
     config :
         The run configuration.
-    model :
-        The active model (``[controller] model``).
     mpc :
-        The controller; it starts in PREDICT when ``switch_on.allowed`` is False.
+        The controller of ``[controller] model``; it starts in PREDICT when
+        ``switch_on.allowed`` is False.
     switch_on :
         The rule's answer.
     """
 
     config: RunConfig
-    model: HammersteinModel
     mpc: OffsetFreeMPC
     switch_on: SwitchOn
 
@@ -226,8 +224,7 @@ def open_run(config: RunConfig, *, force: bool = False, unattended: bool = False
     if not rule.allowed:
         settings = dataclasses.replace(settings, reliability=dataclasses.replace(
             settings.reliability, initial_mode="predict"))
-    return OpenedRun(config=config, model=model, mpc=OffsetFreeMPC(model, settings),
-                     switch_on=rule)
+    return OpenedRun(config=config, mpc=OffsetFreeMPC(model, settings), switch_on=rule)
 
 
 __all__ = ["CHECK_FORMAT", "OpenedRun", "SwitchOn", "Verdict", "check_path", "open_run",
