@@ -16,7 +16,7 @@ its own noise from its own seed.
 
 With ``--plant-link`` the same comparison runs the way a user meets it: the issue's
 heater is served over OPC UA by ``czmpc plant serve`` in a process of its own
-(`czmpc.runtime.serve_process`), and `czmpc.commissioning.journey.commission` designs
+(`benchmarks._serving`), and `czmpc.commissioning.journey.commission` designs
 the test, runs it through the link, identifies, checks and, on a ``ready`` verdict,
 switches the MPC on for the staircase of `commissioning_staircase` (a recipe file).
 The reference is the same MPC on a model identified from the paper's 24,000 s
@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks._md import BENCHMARKS_MD, machine_info, run_main, write_benchmarks_section
+from benchmarks._serving import serving
 from czmpc.campaigns.simulation import run_simulation
 from czmpc.cli import _argtypes
 from czmpc.cli._progress import Progress
@@ -61,7 +62,6 @@ from czmpc.controller import OffsetFreeMPC
 from czmpc.errors import CzmpcError, DesignError
 from czmpc.runtime.config import load_run_config
 from czmpc.runtime.loop import ControlLoop
-from czmpc.runtime.serve_process import serving
 from czmpc.runtime.served import SERVED_NODE_IDS
 from czmpc.settings import MPCSettings
 from sim.drift import PlantVariation, vary_heater

@@ -21,7 +21,12 @@ log (``--log``) with the *true* power, which no controller sees; the figure draw
 """
 
 import csv
+import signal
+import socket
+import subprocess
+import sys
 import tempfile
+import time
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -29,7 +34,6 @@ import numpy as np
 
 from czmpc.commissioning.journey import JourneyPlan, commission
 from czmpc.runtime.config import load_run_config
-from czmpc.runtime.serve_process import serving
 from czmpc.runtime.served import SERVED_NODE_IDS
 
 TIME_SCALE = 40.0
@@ -40,9 +44,23 @@ recipe.write_text("time_s,setpoint_kw\n0,38\n600,42\n1200,46\n", encoding="utf-8
 plan = JourneyPlan(range_pct=(35.0, 60.0), tau_s=250.0, out_dir=work / "out", kind="multilevel",
                    duration_s=3000.0, max_step_pct=5.0, switch_on=True, run_duration_s=1800.0,
                    mc_runs=5)
-with serving("--plant", "heater", "--gain-factor", "0.8", "--seed", "3",
-             "--log", str(work / "plant.csv"), "--watchdog-s", "600", "--safe-triac-pct", "45",
-             output=work / "serve.log", time_scale=TIME_SCALE) as endpoint:
+# ``czmpc plant serve`` in a process of its own, on a free port of 127.0.0.1.
+with socket.socket() as sock:
+    sock.bind(("127.0.0.1", 0))
+    port = sock.getsockname()[1]
+endpoint = f"opc.tcp://127.0.0.1:{port}/czmpc/"
+server = subprocess.Popen(
+    [sys.executable, "-m", "czmpc.cli", "plant", "serve", "--endpoint", endpoint,
+     "--time-scale", f"{TIME_SCALE:g}", "--plant", "heater", "--gain-factor", "0.8",
+     "--seed", "3", "--log", str(work / "plant.csv"), "--watchdog-s", "600",
+     "--safe-triac-pct", "45"],
+    stdout=open(work / "serve.log", "w"), stderr=subprocess.STDOUT)
+while server.poll() is None:                  # wait until it listens
+    with socket.socket() as sock:
+        if sock.connect_ex(("127.0.0.1", port)) == 0:
+            break
+    time.sleep(0.2)
+try:
     # The run config: the served heater's nodes, the recipe, a safety band for the test.
     nodes = "\n".join(f'{k} = "{SERVED_NODE_IDS[k]}"'
                       for k in ("power_kw", "triac_pct", "applied_triac_pct", "heartbeat"))
@@ -53,6 +71,9 @@ with serving("--plant", "heater", "--gain-factor", "0.8", "--seed", "3",
         "[test]\npower_band_kw = [15, 80]\nmax_bad_quality_s = 60.0\n", encoding="utf-8")
     config = load_run_config(work / "run.toml")
     result = commission(config, plan, progress=print)
+finally:
+    server.send_signal(signal.SIGINT)
+    server.wait(10)
 
 print(f"journey ended: {result.stage}; verdict {result.check.verdict if result.check else None}; "
       f"held-out fit {result.fit_pct if result.fit_pct is not None else float('nan'):.1f} %")

@@ -90,7 +90,7 @@ def test_the_served_plant_logs_its_true_power(tmp_path: Path) -> None:
     import subprocess
     import sys
 
-    from czmpc.runtime.serve_process import free_loopback_port
+    from benchmarks._serving import free_loopback_port
 
     log = tmp_path / "plant.csv"
     endpoint = f"opc.tcp://127.0.0.1:{free_loopback_port()}/czmpc/"

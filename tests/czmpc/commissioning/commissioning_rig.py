@@ -7,8 +7,8 @@ import contextlib
 from collections.abc import Iterator
 from pathlib import Path
 
-from czmpc.runtime.serve_process import free_loopback_port as free_port  # noqa: F401  (the tests import it from here)
-from czmpc.runtime.serve_process import serving
+from benchmarks._serving import free_loopback_port as free_port  # noqa: F401  (the tests import it from here)
+from benchmarks._serving import serving
 from czmpc.runtime.served import SERVED_NODE_IDS
 
 #: Every loopback test runs the plant at this many samples per Ts (period 2 s / 50 = 40 ms).

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from benchmarks._serving import free_loopback_port as free_port
 from czmpc.runtime.pki import create_application_certificate
-from czmpc.runtime.serve_process import free_loopback_port as free_port
 
 USER = "mpc-operator"
 PASSWORD = "s3cret-Pa55-never-logged"

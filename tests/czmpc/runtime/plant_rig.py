@@ -9,8 +9,8 @@ from typing import Any, TypeVar
 
 import pytest
 
+from benchmarks._serving import free_loopback_port as free_port  # noqa: F401  (the tests import it from here)
 from czmpc.runtime.config import RunConfig, run_config_from_dict
-from czmpc.runtime.serve_process import free_loopback_port as free_port  # noqa: F401  (the tests import it from here)
 from czmpc.runtime.served import SERVED_NODE_IDS
 from czmpc.shipped import shipped_path
 

@@ -25,7 +25,7 @@ from typing import Any
 
 from opcua_rig import PASSWORD, PASSWORD_ENV, USER, Pki, run_async
 
-from czmpc.runtime.serve_process import free_loopback_port
+from benchmarks._serving import free_loopback_port
 from czmpc.shipped import shipped_path
 
 SERVER_DIR = Path(__file__).resolve().parent / "plc_server"

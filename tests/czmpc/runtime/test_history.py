@@ -22,6 +22,7 @@ import pytest
 from asyncua import ua
 from plant_rig import TIME_SCALE, free_port, with_served
 
+from benchmarks._serving import serving
 from czmpc.cli import main
 from czmpc.cli._plant_history import utc_time
 from czmpc.runtime.history import NodeHistory, align_history, grid_slots, read_node_history
@@ -29,7 +30,6 @@ from czmpc.runtime.node_types import NodeSpec
 from czmpc.runtime.runlog import read_run_log
 from czmpc.runtime.secure_client import connect
 from czmpc.runtime.security import INSECURE_LOOPBACK
-from czmpc.runtime.serve_process import serving
 from czmpc.runtime.served import SERVED_NODE_IDS, ServedPlant, ServeOptions
 from czmpc.shipped import shipped_path
 from sim.model_plant import ModelPlant

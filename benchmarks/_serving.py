@@ -4,8 +4,7 @@
 127.0.0.1, waits until it listens, yields its endpoint and stops it when the block
 ends. The plant runs on its own clock in its own interpreter, as a real plant does, so a
 controller in this process meets the same timing as against a PLC. Used by the
-commissioning study through the plant link, the documentation's commissioning example
-and the loopback tests.
+commissioning study through the plant link and the loopback tests (not installed).
 """
 
 from __future__ import annotations
