@@ -1,84 +1,16 @@
 """Run the offset-free MPC in real time against a plant's OPC UA server.
 
-CONFIG.toml names the server's endpoint, the node ids (any server's: they are strings
-such as "ns=2;s=Heater.Power"), the model, the setpoint (a node, a fixed value or a
-recipe CSV with columns time_s,setpoint_kw) and the log; see the example
-examples/plant_link/run.toml and the guide docs/guides/plant_link.rst.
-
-Every Ts (monotonic schedule, no drift) the loop reads the power, steps the controller
-and writes the TRIAC command and a heartbeat. Bad/Uncertain status codes and stale
-source timestamps are missing samples (soft sensor, then shed). It starts bumplessly
-from the plant's applied input; on a lost connection it keeps predicting and
-reconnects with backoff. SIGINT/SIGTERM stop it with the configured safe action
-([safety] action = "hold" or "ramp" to safe_triac_pct at the rate limit), exit 0.
-
-The log (CSV, one row per step, flushed per row) has: k, time_s [s], wall_time_s
-[s since epoch], power_kw [kW], quality, setpoint_kw [kW], triac_pct [%],
-applied_triac_pct [%], status, verdict, mode, connected, written, lateness_s [s],
-step_latency_s [s], skipped (periods skipped after an overrun), predicted_kw [kW]
-(the model's one-step prediction of power_kw), health (the
-model-health figure, czmpc.health: F over its limit of the test whether the model's
-residuals relate to past data differently than in the first 30 min of the run; >= 1 is
-the alarm) and stale_alarm (0/1, latched). The alarm is printed when it comes and in
-the summary; the optional node [nodes].model_health receives the health figure.
-
-Model check (czmpc check-model, MODEL.check.json beside the model): a model judged
-'not ready' runs in PREDICT only (shadow: nothing written, ON requests refused) unless
---force, which is logged; a model never checked, or changed since, runs with a warning.
-
-Open-loop identification test (--test TEST.csv, a time_s,triac_pct schedule as
-written by 'czmpc design-test'): the same loop plays the schedule instead of the MPC;
-no model is needed ([controller] may be absent) but a [test] section is:
-power_band_kw = [LO, HI] [kW] and max_bad_quality_s [s] (default 10). It starts from
-the plant's applied input and ramps into the schedule no faster than the schedule's
-largest step; it ends by itself after the schedule's last row (exit 0). A Good
-measurement outside the band, or a longer stretch without usable samples (Bad,
-Uncertain, stale, disconnected), or the plant's mode leaving ON aborts it: the
-TRIAC moves to [safety] safe_triac_pct at the schedule's largest step per sample,
-the reason goes to the log (column event) and stderr, exit 1. 'czmpc identify RUN.csv'
-reads the log directly (applied input where published; unusable samples are gaps that
-split the data into segments; RUN.meta.json beside it carries the provenance: config
-and its SHA-256, the schedule's SHA-256, the start time).
-
-Closed-loop test (--dither-pct A): the MPC runs and a generalized-binary-noise dither
-of +-A % is added to its INPUT (mean switching time = the model's dominant time
-constant; the MPC is told the applied input, so it is not misled). An input dither is
-the excitation itself, of known size in %, independent of the plant noise; a setpoint
-dither would reach the TRIAC only through the controller's filtering. The log is
-closed-loop data: 'czmpc identify' says so. The [test] limits guard this run too (a
-plain MPC run without --test or --dither-pct ignores [test]).
-
-Typed nodes (the servers plants run: S7-1500, CODESYS, TwinCAT, open62541). Once per
-session czmpc reads each node's DataType, ValueRank and access, and writes a value of
-the node's own type: Float (an S7 REAL), Double, the integer types (rounded and
-range-checked), Boolean. A raw integer tag can carry a scaled value, both ways:
-  triac_pct = { id = 'ns=3;s="DB_Heater"."TriacRaw"', raw = [0, 27648], value = [0.0, 100.0] }
-The heartbeat continues from the value the node holds and wraps to 0 past its type's
-top (a Boolean heartbeat toggles). --check connects with the configured security,
-prints one table (each node: exists, type, rank, access, timestamps, verdict) and
-exits 0 or 2; a run performs the same check before its first write.
-
-A refused write is not a lost link. A code that will not clear by itself
-(BadTypeMismatch, BadNotWritable, BadUserAccessDenied, BadNodeIdUnknown, BadOutOfRange,
-...) stops the run at once (exit 2), naming the node, the code and the fix. Other codes
-are counted and logged; [plant] max_refused_writes (default 5) refused commands in a
-row stop the run through the safe action (exit 1). Every OPC UA call has a hard
-deadline ([plant] connect_timeout_s); a server that stops answering mid-call is cut
-off, so no step lasts longer than one period plus that timeout.
-
-Events (start, link lost and restored, shed and resumed, mode changes, refused writes,
-aborts, alarms, overruns once a minute, the end) are logged to stderr, one line each
-with its UTC time, terminal or not (--log-format json: one JSON object a line), and in
-the log's event column; [logging] syslog sends them to syslog too.
-
-Logs are never lost: a start refuses to overwrite [run] log unless --append or
---replace-log; [run] log = "logs/" (a directory) gives each run its own timestamped
-file, and [run] rotate = "daily" / rotate_mb split long runs into parts, each with its
-meta file. One writer per plant: a second run for the same endpoint and command node on
-this machine refuses (exit 2); a command, heartbeat or [nodes] owner lease changed by
-someone else stops all writing (exit 1). Optional [nodes] status, mode_in_effect,
-stale_alarm, predicted_power_kw, target_triac_pct and watchdog publish the controller's
-state to the HMI every step. See docs/guides/service.rst.
+CONFIG.toml names the endpoint, the node ids, the model, the setpoint (a node, a value
+or a time_s,setpoint_kw recipe CSV) and the log (example: examples/plant_link/run.toml;
+keys: docs/reference/run_config.rst). Every Ts the loop reads the power [kW], steps the
+controller and writes the TRIAC command [%] and a heartbeat, starting bumplessly from
+the applied input; SIGINT/SIGTERM stop it with the [safety] action. The log (CSV, one
+row per step; columns in docs/guides/plant_link.rst) never overwrites an earlier one
+without --append or --replace-log. A model 'czmpc check-model' judged not ready runs
+in PREDICT only unless --force. --test plays an open-loop identification test and
+--dither-pct runs a closed-loop one, both guarded by [test] (docs/guides/commission.rst);
+--check only checks the nodes. Guides: docs/guides/plant_link.rst (typed nodes, refused
+writes, lost links), docs/guides/service.rst (events, log files, one writer per plant).
 
 Exit codes: 0 done or stopped by a signal; 2 bad config, model or settings, or a node
 the server will not accept as configured; 1 the plant could not be reached at the
