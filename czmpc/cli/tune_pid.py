@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     """Tune the schedule, write the files, print the rows and any warning."""
     from czmpc.inversion import allowed_triac_range
     from czmpc.pid.design import DesignSpec
-    from czmpc.pid.outputs import write_outputs
+    from czmpc.pid.report import write_outputs
     from czmpc.pid.schedule import tune_schedule
     from czmpc.pid.table import row_values
     from czmpc.pid.vendor import Spans

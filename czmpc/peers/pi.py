@@ -27,15 +27,13 @@ from dataclasses import dataclass
 
 from czmpc.errors import SettingsError
 from czmpc.inversion import InputMap, build_input_map, slope
-from czmpc.pid.controller import PIDStep, ScheduledPID
+from czmpc.pid.controller import ScheduledPID
 from czmpc.pid.rules import GAIN_DELAY_LOOP_GAIN, PIDTuning, gain_delay_sampled
 from sysid.model import HammersteinModel
 
 #: Cap on the proportional loop gain at the instantaneous response, ``K_c f'(ds)``
 #: (`czmpc.pid.rules.GAIN_DELAY_LOOP_GAIN`).
 MAX_INSTANT_LOOP_GAIN = GAIN_DELAY_LOOP_GAIN
-#: Diagnostics of one PI step (`czmpc.pid.controller.PIDStep`).
-PIStep = PIDStep
 #: Default closed-loop time constant ``lambda`` of `PIController.tuned_for` [s]: three
 #: samples of 2 s, so ``T_i = lambda beta / (1 + beta) = ts_s``, the fastest integral
 #: action the rule allows. Measured on the shipped model's staircase (exact model plant,
@@ -241,5 +239,4 @@ __all__ = [
     "MAX_INSTANT_LOOP_GAIN",
     "GainSchedule",
     "PIController",
-    "PIStep",
 ]

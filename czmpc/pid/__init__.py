@@ -14,7 +14,7 @@ wants it.
 - `czmpc.pid.controller`: the scheduled PID that runs in closed loop.
 - `czmpc.pid.table`: ``pid_table.csv`` and the characterizer table, written and read.
 - `czmpc.pid.vendor`: the tuning in the forms and units of DCS and PLC PID blocks.
-- `czmpc.pid.report`: ``report.md`` and its figures.
+- `czmpc.pid.report`: what ``czmpc tune-pid`` writes (tables, vendor forms, ``report.md``).
 
 It imports the core (`czmpc.inversion`, `czmpc.errors`) and `sysid`; never `sim`.
 """

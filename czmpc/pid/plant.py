@@ -67,11 +67,6 @@ class LocalPlant:
         """``g B(1)/A(1)``: steady-state gain [kW/%]."""
         return self.gain_kw_per_pct * sum(self.b) / sum(self.a)
 
-    def with_gain(self, gain_kw_per_pct: float) -> LocalPlant:
-        """The same dynamics with another instantaneous gain (another TRIAC input)."""
-        return LocalPlant(triac_pct=self.triac_pct, power_kw=self.power_kw,
-                          gain_kw_per_pct=gain_kw_per_pct, a=self.a, b=self.b, ts_s=self.ts_s)
-
     def frequency_response(self, w_rad_per_s: FloatArray) -> FloatArray:
         """``G(e^{j w Ts})`` [kW/%] at angular frequencies ``w`` [rad/s], below ``pi/Ts``."""
         zinv = np.exp(-1j * np.asarray(w_rad_per_s, dtype=float) * self.ts_s)

@@ -1,5 +1,8 @@
-"""``report.md`` and its figures: the schedule, the margins, step and load responses per row.
+"""Everything ``czmpc tune-pid`` writes: the tables, the vendor forms, ``report.md`` and its figures.
 
+`write_outputs` writes ``pid_table.csv`` and ``characterizer.csv`` (`czmpc.pid.table`),
+one ``vendor_<form>.csv`` per asked vendor form (`czmpc.pid.vendor`) and the report:
+the schedule, the margins, step and load responses per row.
 Figures are drawn with matplotlib's object API on the Agg canvas (no display needed),
 every axis with its unit. The responses are of the running law
 (`czmpc.pid.controller.ScheduledPID`, one row fixed) on the row's local sampled plant, in
@@ -20,11 +23,24 @@ from matplotlib.figure import Figure
 from czmpc.pid.controller import ScheduledPID, TableSchedule
 from czmpc.pid.plant import LocalPlant
 from czmpc.pid.rules import PIDTuning
-from czmpc.pid.schedule import PIDSchedule, Region
-from czmpc.pid.table import COLUMN_MEANINGS, COLUMNS, row_values
-from czmpc.pid.vendor import VendorTable
+from czmpc.pid.schedule import PIDSchedule, Region, merge_regions
+from czmpc.pid.table import (
+    COLUMN_MEANINGS,
+    COLUMNS,
+    row_values,
+    write_characterizer,
+    write_pid_table,
+)
+from czmpc.pid.table import characterizer_error_pct as interpolation_error_pct
+from czmpc.pid.vendor import Spans, VendorTable, vendor_csv_text, vendor_table
 from sysid._typing import FloatArray
 from sysid.atomic import atomic_write_text
+from sysid.model import HammersteinModel
+
+PID_TABLE_FILE = "pid_table.csv"
+CHARACTERIZER_FILE = "characterizer.csv"
+#: Regions of the merged schedule (DeltaV's gain-scheduling template has three).
+N_REGIONS = 3
 
 #: Setpoint step of the response figures [kW].
 SETPOINT_STEP_KW = 1.0
@@ -217,5 +233,50 @@ def write_report(
     return (out / "report.md",) + tuple(out / f for f in FIGURE_FILES)
 
 
-__all__ = ["FIGURE_FILES", "LOAD_STEP_PCT", "RESPONSE_SAMPLES", "SETPOINT_STEP_KW",
-           "simulate_row", "write_report"]
+def write_outputs(
+    schedule: PIDSchedule, model: HammersteinModel, directory: str | os.PathLike[str], *,
+    forms: Sequence[str] = (), spans: Spans | None = None, command: str = "",
+    model_source: str = "",
+) -> tuple[Path, ...]:
+    """Write the tables, vendor forms and report of ``schedule`` into ``directory``.
+
+    Parameters
+    ----------
+    schedule :
+        The tuned schedule.
+    model :
+        The model it was tuned on.
+    directory :
+        Output directory (created).
+    forms :
+        Vendor forms to write (`czmpc.pid.vendor.FORMS`).
+    spans :
+        The block's PV and output ranges; required when ``forms`` is not empty.
+    command, model_source :
+        Recorded in the report.
+
+    Raises
+    ------
+    PIDTuningError
+        A vendor form without spans (checked before anything is written).
+    """
+    regions = merge_regions(schedule, model, N_REGIONS)
+    tables = [vendor_table(schedule, form, spans, regions) for form in forms]
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    written = [write_pid_table(schedule, out / PID_TABLE_FILE),
+               write_characterizer(model, schedule.triac_range_pct, out / CHARACTERIZER_FILE)]
+    for vt in tables:
+        path = out / f"vendor_{vt.form}.csv"
+        atomic_write_text(path, vendor_csv_text(vt))
+        written.append(path)
+    written += write_report(
+        schedule, out, command=command, model_source=model_source,
+        files=[p.name for p in written],
+        characterizer_error_pct=interpolation_error_pct(model, schedule.triac_range_pct),
+        regions=regions, vendor_tables=tables)
+    return tuple(written)
+
+
+__all__ = ["CHARACTERIZER_FILE", "FIGURE_FILES", "LOAD_STEP_PCT", "N_REGIONS", "PID_TABLE_FILE",
+           "RESPONSE_SAMPLES", "SETPOINT_STEP_KW", "simulate_row", "write_outputs", "write_report"]

@@ -89,11 +89,6 @@ class PIDTuning:
                     f"PIDTuning.{name}: expected a finite value (Kc > 0, Ti > 0, Td >= 0, "
                     f"filter > 0 with Td > 0, 0 <= b <= 1); got {value!r}")
 
-    @property
-    def integral_gain_pct_per_kw_s(self) -> float:
-        """``Ki = Kc/Ti`` [%/(kW s)]."""
-        return self.kc_pct_per_kw / self.ti_s
-
     def scaled(self, factor: float) -> PIDTuning:
         """The same tuning with ``Kc`` multiplied by ``factor`` (times unchanged)."""
         return PIDTuning(kc_pct_per_kw=self.kc_pct_per_kw * factor, ti_s=self.ti_s,

@@ -35,35 +35,14 @@ FORMS: tuple[str, ...] = ("siemens", "deltav", "honeywell", "rockwell")
 SECONDS_PER_MINUTE = 60.0
 
 
-# --- conversions (each has its inverse; tests check the round trips) -------------------
 def gain_to_band_pct(gain: float) -> float:
     """Proportional band [%] of a dimensionless gain [%/%]: ``100/K``."""
     return 100.0 / gain
 
 
-def band_to_gain(band_pct: float) -> float:
-    """Dimensionless gain [%/%] of a proportional band [%]: ``100/PB``."""
-    return 100.0 / band_pct
-
-
 def seconds_to_minutes(time_s: float) -> float:
     """[s] to [min]."""
     return time_s / SECONDS_PER_MINUTE
-
-
-def minutes_to_seconds(time_min: float) -> float:
-    """[min] to [s]."""
-    return time_min * SECONDS_PER_MINUTE
-
-
-def minutes_per_repeat_to_repeats_per_minute(ti_min: float) -> float:
-    """Integral time [min/repeat] to integral rate [repeats/min]: ``1/Ti``."""
-    return 1.0 / ti_min
-
-
-def repeats_per_minute_to_minutes_per_repeat(rate_per_min: float) -> float:
-    """Integral rate [repeats/min] to integral time [min/repeat]: ``1/rate``."""
-    return 1.0 / rate_per_min
 
 
 def dependent_to_independent(kc: float, ti_min: float, td_min: float) -> tuple[float, float, float]:
@@ -72,12 +51,6 @@ def dependent_to_independent(kc: float, ti_min: float, td_min: float) -> tuple[f
     Returns ``(Kp, Ki [1/min], Kd [min]) = (Kc, Kc/Ti, Kc Td)``.
     """
     return kc, kc / ti_min, kc * td_min
-
-
-def independent_to_dependent(kp: float, ki_per_min: float,
-                             kd_min: float) -> tuple[float, float, float]:
-    """Independent ``(Kp, Ki [1/min], Kd [min])`` to dependent ``(Kc, Ti [min], Td [min])``."""
-    return kp, kp / ki_per_min, kd_min / kp
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -120,10 +93,6 @@ class Spans:
     def dimensionless_gain(self, kc_pct_per_kw: float) -> float:
         """``K = Kc pv_span/out_span`` [% of output span per % of PV span]."""
         return kc_pct_per_kw * self.pv_span_kw / self.out_span_pct
-
-    def engineering_gain(self, gain: float) -> float:
-        """``Kc = K out_span/pv_span`` [% TRIAC per kW], the inverse of `dimensionless_gain`."""
-        return gain * self.out_span_pct / self.pv_span_kw
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -305,8 +274,6 @@ def vendor_csv_text(table: VendorTable) -> str:
                      + [",".join(cell(v) for v in row) for row in table.rows]) + "\n"
 
 
-__all__ = ["FORMS", "SECONDS_PER_MINUTE", "Spans", "VendorForm", "VendorTable", "band_to_gain",
-           "dependent_to_independent", "gain_to_band_pct", "independent_to_dependent",
-           "minutes_per_repeat_to_repeats_per_minute", "minutes_to_seconds",
-           "repeats_per_minute_to_minutes_per_repeat", "seconds_to_minutes", "vendor_table",
+__all__ = ["FORMS", "SECONDS_PER_MINUTE", "Spans", "VendorForm", "VendorTable",
+           "dependent_to_independent", "gain_to_band_pct", "seconds_to_minutes", "vendor_table",
            "vendor_csv_text"]
