@@ -10,15 +10,6 @@ from czmpc.cli import _argtypes
 if TYPE_CHECKING:
     from sim.drift import PlantVariation
 
-#: One paragraph for a command's description.
-DESCRIPTION = """A plant that differs from its model (stale-model and commissioning tests):
---gain-factor 0.8 (every gain x0.8), --tau-s 600 (slow time constant 600 s),
---extra-delay-samples 2 (input acts two samples later), --drift gain=0.75@3600 (the
-gain moves to x0.75 of nominal at 3600 s of plant time; tau=1200@7200 likewise sets the
-time constant to 1200 s), repeatable. On the heater the gain is that of the element's
-rated power and the time constant that of its heat capacity (see sim.drift)."""
-
-
 def add_variation_options(p: argparse.ArgumentParser) -> None:
     """The plant's deviation from its model and its drift in time (sim.drift)."""
     g = p.add_argument_group("plant variation (a plant that differs from its model)")

@@ -1,61 +1,19 @@
-r"""The plant link's tools: `czmpc plant serve` (a simulated plant) and `czmpc plant history`.
+"""The plant link's tools: `czmpc plant serve` (a simulated plant) and `czmpc plant history`.
 
 `czmpc plant history` reads a plant server's history into a run log ('czmpc plant
-history --help'). `czmpc plant serve` serves a simulated plant over OPC UA:
-
-'heater' serves the virtual CZ heater (grey-box physics), 'model' the plant built from
-a model file (the model's own equation). The plant advances on its own clock, one
-sample every Ts / time_scale wall seconds, whether a controller keeps up or not.
-
-Nodes (namespace urn:czmpc:plant, ns=2 on this server): Heater.Power [kW] (read; Bad
-quality during a sensor fault; source timestamp), Heater.TriacCommand [%] (write),
-Heater.TriacApplied [%], Heater.PowerSetpoint [kW] (the scenario's, or writable),
-Heater.Heartbeat (write, counter), Heater.Mode (OFF/PREDICT/ON), Heater.WatchdogTripped,
-Heater.PlantTime_s [s].
-
---node-types plc serves the nodes typed as a PLC types them, to rehearse a link to a
-real puller's server before it exists: Float (an S7 REAL) power, command, applied
-input, setpoint, plant time and model health, a UInt16 (WORD) heartbeat and an Int16
-mode (0 OFF, 1 PREDICT, 2 ON). A write of another type is refused (BadTypeMismatch),
-as a PLC's server refuses it. The default, --node-types czmpc, serves Double, an Int64
-heartbeat and a String mode.
-
-History: --historize keeps the history of Heater.Power and Heater.TriacApplied (every
-change of value or status) in memory, --historize FILE.sqlite in a SQLite file kept
-across restarts; OPC UA clients read it with HistoryRead ('czmpc plant history'), in pages of
---history-page-values values joined by continuation points.
-
-Watchdog: when the heartbeat has not changed for --watchdog-s of plant time, the TRIAC
-goes to --safe-triac-pct and the server says so (stderr and Heater.WatchdogTripped).
-
-Security. By default the plant listens on 127.0.0.1 with no security (policy None,
-anonymous). On any other address (0.0.0.0, a host name, a LAN address) it refuses to
-start, before it binds, unless a security policy is given; --insecure overrides that
-refusal for an isolated test network and prints a warning on every start. With
---policy, the server offers that one endpoint and admits only:
-  - client applications whose certificate (DER or PEM) is given with --trusted-client
-    (repeatable) or lies in --trusted-client-dir, matched exactly;
-  - the users configured here; anonymous logins are refused. --user NAME is the
-    controller's user, the only one that may write Heater.TriacCommand and
-    Heater.Heartbeat; its password is read from the environment variable named by
-    --password-env (never from the command line). --operator NAME=VAR (repeatable)
-    adds a user who may write Heater.PowerSetpoint and Heater.Mode only.
-The server's own certificate and key come from 'czmpc pki create --role server'; the
-key file must be readable by its owner only (chmod 600).
-
-Example (see docs/guides/plant_link.rst, "Secure the link to a real plant"):
-  export PLANT_MPC_PASSWORD=...
-  czmpc plant serve --endpoint opc.tcp://0.0.0.0:4840/czmpc/ \
-      --policy Basic256Sha256 --mode SignAndEncrypt \
-      --certificate pki-plant/own/plant.der --private-key pki-plant/own/plant.pem \
-      --trusted-client pki/own/czmpc.der --user mpc-operator --password-env PLANT_MPC_PASSWORD
-
-A plant that differs from its model (for stale-model and commissioning tests):
---gain-factor 0.8 (every gain x0.8), --tau-s 600 (slow time constant 600 s),
---extra-delay-samples 2 (input acts two samples later), --drift gain=0.75@3600 (the
-gain moves to x0.75 of nominal at 3600 s of plant time; tau=1200@7200 likewise sets the
-time constant to 1200 s), repeatable. On the heater the gain is that of the element's
-rated power and the time constant that of its heat capacity (see sim.drift).
+history --help'). `czmpc plant serve` serves a simulated plant over OPC UA: 'heater' the
+virtual CZ heater, 'model' the plant of a model file, one sample every Ts / time_scale
+wall seconds whether a controller keeps up or not. Nodes (ns=2): Heater.Power [kW]
+(read; Bad during a sensor fault), Heater.TriacCommand [%] (write), Heater.TriacApplied
+[%], Heater.PowerSetpoint [kW], Heater.Heartbeat (write), Heater.Mode (OFF/PREDICT/ON),
+Heater.WatchdogTripped, Heater.PlantTime_s [s]; typed as a PLC types them with
+--node-types plc. When the heartbeat stops for --watchdog-s, the TRIAC goes to
+--safe-triac-pct. Without --policy it serves on 127.0.0.1 only (--insecure overrides
+that for an isolated test network); with --policy it admits only the trusted client
+certificates and the configured users. Guide: docs/guides/plant_link.rst (nodes, PLC
+types, "Secure the link to a real plant"); a plant that differs from its model:
+docs/guides/commission.rst and sim.drift. Exit codes: 0 stopped (duration or Ctrl-C),
+2 bad options or a refused address.
 """
 
 from __future__ import annotations
