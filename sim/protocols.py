@@ -39,6 +39,7 @@ NOMINAL = Exogenous()
 class Controller(Protocol):
     """Anything that maps a measured power and a setpoint to a TRIAC input."""
 
+    #: Sampling time [s] of the controller's steps (`run_closed_loop` refuses another than the scenario's).
     ts_s: float
 
     def step(self, power_kw: float, setpoint_kw: float) -> float:
@@ -54,6 +55,7 @@ class Controller(Protocol):
 class Plant(Protocol):
     """A heater: TRIAC input in, measured power out, one sample per call."""
 
+    #: Sampling time [s]: the plant time one call of `step` advances.
     ts_s: float
 
     def reset(self, rng: np.random.Generator | int | None = None) -> float:
