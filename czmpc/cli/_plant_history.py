@@ -1,33 +1,10 @@
 """`czmpc plant history`: read the plant server's power and applied-input history into a run log.
 
-CONFIG.toml is the run configuration of 'czmpc run': [plant] endpoint, ts_s,
-time_scale, connect_timeout_s and [plant.security]; [nodes] power_kw and
-applied_triac_pct (or, without an applied node, triac_pct: the command's history),
-with their raw/value scaling. The server must historize those tags (OPC UA
-HistoryRead of raw values); a tag it does not historize is refused at once (exit 2)
-with the fix: enable historizing for that tag on the server.
-
---from and --to are ISO 8601 times in UTC: 2026-11-26T06:00:00Z, 2026-11-26T06:00:00
-(a time without a zone is UTC) or with an offset, 2026-11-26T08:00:00+02:00. Both ends
-are included.
-
-The output is a run log as 'czmpc run' writes it (same columns; 'czmpc identify
-LOG.csv' reads it directly), one row per sample period on the grid of the power's
-source timestamps (Ts / time_scale of wall time apart):
-  quality    'good', 'bad' or 'uncertain' (the sample's status) or 'missing' (no
-             sample in that period); every word but 'good' is a gap to identify;
-  power_kw   the Good value, else nan;
-  applied_triac_pct  the last applied value at or before the sample (held between
-             changes, as historians store changes only);
-  triac_pct  the command in force after the sample (only without an applied node);
-  wall_time_s  the sample's source time [s since 1970 UTC];
-other columns are empty or nan. LOG.meta.json beside it records where it came from:
-"kind": "history", the endpoint, the nodes, the time range, the counts of values,
-requests and continuation points.
-
-Requests: raw values, at most --page-values per request, joined by the server's
-continuation points; every call has a hard deadline (--timeout-s). An existing LOG.csv
-or LOG.meta.json is never replaced unless --force.
+CONFIG.toml is the run configuration of 'czmpc run' ([plant], [plant.security], [nodes]
+power_kw and applied_triac_pct or triac_pct); the server must historize those tags.
+--from and --to are ISO 8601 times (UTC without a zone), both included. The output is a
+run log with LOG.meta.json beside it, one row per sample period, that 'czmpc identify'
+reads directly; it is never replaced without --force. Guide: docs/guides/history.rst.
 
 Exit codes: 0 written; 2 a bad config or time range, a node without history, no power
 sample in the range, an existing output without --force; 1 the server could not be

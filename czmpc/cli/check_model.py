@@ -1,20 +1,11 @@
 """Go/no-go before switch-on: judge a model 'ready', 'ready with conditions' or 'not ready'.
 
-Checks (each pass, condition, fail or skipped; see czmpc.commissioning.check):
-stability of A and C; the steady-state gain over the model's input range (positive,
-f monotone); the width of that range (the MPC keeps to it); with --data, on a held-out
-record: the simulation fit [%] (MATLAB compare), the whiteness of the one-step
-residuals and their cross-correlation with the input moves at lags 0..25 against the
-99 % bound (MATLAB resid); the static gain's uncertainty from the parameter covariance;
-and a closed-loop Monte Carlo of the MPC against --mc-runs plants drawn from that
-covariance (offset-free within 0.1 kW, IAE at most twice the nominal; seed fixed), with
-the controller settings --settings FILE or --preset NAME (as 'czmpc simulate').
-
-The verdict is 'not ready' if any check fails, 'ready with conditions' if any gives a
-condition or was skipped (no --data, no covariance), else 'ready'. Every reason is
-printed. It is written beside the model as MODEL.check.json (with the model file's
-SHA-256), where 'czmpc run' reads it: a 'not ready' model is not switched ON without
---force, an unchecked (or since changed) model runs with a warning.
+Checks the model's stability, its steady-state gain over its input range and, with
+--data (a held-out record), the simulation fit [%], the residuals, the gain's
+uncertainty and a closed-loop Monte Carlo of the MPC against --mc-runs plants drawn from
+the parameter covariance (docs/guides/commission.rst, czmpc.commissioning.check). Every
+reason is printed; the verdict is written beside the model as MODEL.check.json, where
+'czmpc run' reads it.
 
 Exit codes: 0 ready; 1 ready with conditions or not ready; 2 bad input (model or data
 file, sampling times that differ).

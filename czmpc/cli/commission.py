@@ -1,24 +1,15 @@
 """Commission a heater from nothing: test, identify, check, report, and switch the MPC on.
 
 czmpc commission CONFIG.toml --range-pct LO HI [--tau-s T] --out DIR [--switch-on]
+designs an open-loop test over LO..HI % (as 'czmpc design-test', timed from the time
+constant T [s]: --tau-s, else the slowest pole of CONFIG.toml's [controller] model),
+runs it through the plant link (as 'czmpc run --test': [test] and [safety] are needed),
+identifies a model from the log, checks it (as 'czmpc check-model'), writes
+DIR/commissioning.md with its figures and, with --switch-on and a 'ready' verdict only,
+runs the MPC with the new model (as 'czmpc run'). Guide: docs/guides/commission.rst.
 
-1. designs an open-loop test over LO..HI % (staircase + generalized binary noise, as
-   'czmpc design-test'; hold times and switching from the time constant T),
-2. runs it through the plant link of CONFIG.toml (as 'czmpc run --test': the config
-   needs [test] power_band_kw and [safety] safe_triac_pct; a test leaving the band
-   aborts, moves the TRIAC to the safe value and ends here with exit 1),
-3. identifies the model from the log (orders chosen automatically; the last 25 % of
-   the samples held out),
-4. checks it ('czmpc check-model': held-out fit, residuals, gain, stability,
-   closed-loop Monte Carlo) and stores the verdict beside DIR/model.json,
-5. writes DIR/commissioning.md with figures (the test and the response, the held-out
-   fit, the verdict and its Monte Carlo distribution, the controller settings), and
-6. with --switch-on and the verdict 'ready' only, runs the MPC with the new model
-   ('czmpc run', bumpless from the applied input; needs a setpoint in CONFIG.toml).
-
-T comes from --tau-s, else from the model named in CONFIG.toml's [controller] (a prior
-model's slowest pole). Exit codes: 0 a 'ready' model (and a switched-on run that
-ended normally); 1 the test was aborted, or the verdict is not 'ready'; 2 bad input.
+Exit codes: 0 a 'ready' model (and a switched-on run that ended normally); 1 the test
+was aborted, or the verdict is not 'ready'; 2 bad input.
 """
 
 from __future__ import annotations

@@ -2,19 +2,9 @@
 
     czmpc pki create --out pki --app-uri urn:plant-a:czmpc --host mpc-pc.plant-a.local
 
-writes pki/own/czmpc.der (certificate, DER) and pki/own/czmpc.pem (RSA 2048 private key,
-mode 0600). The certificate is self-signed, with the application URI and the host in its
-subject alternative names and key usage for signing and encryption.
-
-Then:
-1. give pki/own/czmpc.der to the plant's OPC UA administrator, who adds it to the server's
-   trusted certificates (for most servers: copy it into the server's pki/trusted/certs);
-2. get the server's certificate (DER) from them, store it as pki/trusted/server.der and
-   name it in the run config's [plant.security] server_certificate: czmpc refuses a server
-   that presents any other certificate (pinning);
-3. name pki/own/czmpc.der and pki/own/czmpc.pem as certificate and private_key there.
-
-Use --role server to make the certificate of a served plant (czmpc plant serve).
+writes pki/own/czmpc.der (self-signed certificate, DER) and pki/own/czmpc.pem (RSA 2048
+private key, mode 0600) and says what to do next; --role server makes a served plant's.
+Guide: docs/guides/plant_link.rst, "Secure the link to a real plant".
 """
 
 from __future__ import annotations

@@ -1,22 +1,10 @@
 """Draw a run log of 'czmpc run' for an operator: one figure and a short summary.
 
-Writes into DIR:
-
-  run.png    five panels on the plant-time axis [s]: power [kW] (measured, the model's
-             one-step prediction, setpoint); TRIAC input [%] (command, applied, the
-             samples written); status and link (GOOD/PREDICTED/CLAMPED/HELD/SHED, samples
-             not good, the stretches without a link shaded on every panel);
-             timing [ms wall] (lateness, step latency, overruns); model health [-]
-             (the stale-model test's figure, alarm limit 1, and the alarm)
-  report.md  steps, modes, bad samples, writes, overruns, timing, tracking error,
-             largest health figure and the stale-model alarm, link losses and
-             reconnections counted apart, and a table of what happened (link lost, shed,
-             mode changes, refused writes, aborts) with times and durations
-
-RUN.csv may be a directory or a quoted glob: the parts of a rotated log, or the runs of
-a log directory ([run] log = "logs/"), are drawn as one record, run after run.
-
-Logs of older versions without the health columns draw without that panel's curve.
+Writes into DIR run.png (power [kW], TRIAC input [%], status and link, timing [ms],
+model health [-] on the plant-time axis [s]) and report.md (counts, timing, tracking
+error, the stale-model alarm and a table of events). RUN.csv may be a directory or a
+quoted glob: the parts of a rotated log or the runs of a log directory are drawn as one
+record. Panels and summary: czmpc.reports.run_report; guide: docs/guides/commission.rst.
 
 Exit codes: 0 written; 2 bad input (not a run log, unreadable file).
 """

@@ -1,20 +1,11 @@
 """Print the effective controller settings for a model, as a settings file.
 
-The output is a complete settings TOML file: every key with its value and, as a
-comment, its meaning and unit. Keys the given file (or preset) leaves out are shown
-with the value they take for this model (the horizon from its slow time constant, the
-rate limit from its input range). Save it, edit it, and pass it back with
-``--settings`` to ``czmpc simulate``, ``czmpc bench`` or ``[controller].settings`` of
-``czmpc run``.
+The output is a complete settings TOML file: every key with its value (defaults as they
+follow from the model) and, as a comment, its meaning and unit; pass it back with
+--settings or [controller].settings (docs/reference/settings_file.rst). The settings are
+checked completely, including that a controller can be built from them and the model.
 
-The settings are checked completely: every key and value, and that a controller can be
-built from them and the model (allowed input range on the monotone branch of f, a
-detectable estimator). Exit 2 names what is wrong.
-
-Example::
-
-    czmpc settings --show > settings.toml           # the shipped model's defaults
-    czmpc settings --show --model model.json --settings settings.toml
+Exit codes: 0 printed; 2 names what is wrong.
 """
 
 from __future__ import annotations

@@ -1,34 +1,12 @@
 """Tune a gain-scheduled PI or PID from an identified model, for the plant's own PID block.
 
-The model is linearised at breakpoints of the TRIAC input (only the gain f'(ds) moves;
-the dynamics B/A and the delay stay), each breakpoint gets a PI/PID by the chosen rule
-on the sampled loop (sampling time and the one-sample delay inside), and the schedule is
-checked between breakpoints: where the Ms of a row's controller grows beyond the bound
-(without --ms: 5 % beyond its own) or f' changes by more than 10 %, a breakpoint is
-added halfway. Writes into DIR:
-
-  pid_table.csv      one row per breakpoint: triac_pct [%], power_kw [kW],
-                     gain_kw_per_pct [kW/%], tau_s, dead_time_s [s] (the plant the rule
-                     tuned on), kc_pct_per_kw [%/kW], ti_s, td_s, td_filter_s [s],
-                     setpoint_weight [-] (ideal ISA form, engineering units), ms [-],
-                     gain_margin [-, a factor], phase_margin_deg [deg],
-                     crossover_rad_per_s [rad/s], worst_ms_to_next [-]
-  characterizer.csv  x_linearized_pct -> y_triac_pct [%]: an f^-1 X-Y table before one
-                     fixed PI, for blocks that linearise instead of scheduling
-  vendor_FORM.csv    per --form: the same tuning in that block's parameters and units
-  report.md          the rows, where the schedule holds, regions, vendor notes, figures
-  schedule.png, margins.png, responses.png
-
-Rules: simc (Skogestad 2003 with the delay-dominant PI correction; knob tau_c, default
-the effective dead time), lambda (IMC; knob lambda), amigo (no knob), ms (least
-load-step IAE under an Ms bound, default 1.4). With --ms M, simc and lambda take the
-smallest knob whose sampled loop has Ms <= M.
-
-Vendor forms (siemens, deltav, honeywell, rockwell) need the spans the block scales
-with: --pv-range-kw LO HI and --out-range-pct LO HI. They are never assumed.
-
-Run the table in closed loop: czmpc simulate --model MODEL.json --controller
-DIR/pid_table.csv --scenario staircase --out RUN.
+The model is linearised at breakpoints of the TRIAC input, each gets a PI/PID by the
+chosen rule on the sampled loop, and breakpoints are added where the schedule does not
+hold between them. Writes into DIR: pid_table.csv (one row per breakpoint, ideal ISA
+form in engineering units), characterizer.csv (an f^-1 X-Y table), vendor_FORM.csv per
+--form (needs --pv-range-kw and --out-range-pct), report.md and its figures. Columns,
+rules and forms: docs/guides/pid.rst. Run the table in closed loop with 'czmpc simulate
+--controller DIR/pid_table.csv'.
 
 Exit codes: 0 written (warnings, if any, on stderr); 2 bad input (model file, options,
 a vendor form without spans, a rule the model cannot be reduced for).
