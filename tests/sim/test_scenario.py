@@ -117,17 +117,19 @@ def test_shortened_scales_every_time() -> None:
          r"expected a number; got True"),
         (GOOD.replace('name = "t"', "name = 3"), "name", r"expected a string"),
         (GOOD.replace("triac_max_pct = 70.0", "triac_max_pct = 5.0"), r"limits\.triac_max_pct",
-         r"inverted limits"),
+         r"min < max"),
         (GOOD.replace('name = "t"\n', ""), "name", r"missing"),
         (GOOD.replace('kind = "step"', 'kind = "stp"'), r"setpoint\[1\]\.kind",
          r"did you mean 'step'"),
         (GOOD.replace("at_s = 100\n", ""), r"setpoint\[1\]\.at_s", r"missing"),
         (GOOD + "[limits2]\n", "limits2", r"unknown key"),
+        (GOOD.replace("triac_max_pct = 70.0", "triac_max_pct = 70.0\nmax_move_pct_per_step = 0"),
+         r"limits\.max_move_pct_per_step", r"> 0"),
     ],
     ids=["unknown-top-key-with-hint", "unit-less-key-at-top", "unknown-setpoint-key",
          "unknown-limits-key", "negative-duration", "negative-step-time", "string-for-number",
          "bool-for-number", "number-for-string", "inverted-limits", "missing-name",
-         "unknown-kind", "missing-at_s", "unknown-table"],
+         "unknown-kind", "missing-at_s", "unknown-table", "non-positive-rate-limit"],
 )
 def test_bad_files_name_the_file_and_the_key(tmp_path: Path, text: str, key: str, what: str) -> None:
     path = _write(tmp_path, text)
@@ -144,9 +146,9 @@ def test_bad_files_name_the_file_and_the_key(tmp_path: Path, text: str, key: str
         ('[[fault]]\nkind = "missing_samples"\nat_s = 10\nduration_s = -60\n',
          r"bad\.toml: fault\[1\] \(missing_samples\): MissingSamples\.duration_s.*> 0"),
         ('[[setpoint]]\nkind = "ramp"\nstart_s = 90\nend_s = 200\npower_kw = 60\n',
-         r"bad\.toml: Scenario\.setpoints\[2\]\.start_s: expected a time after the previous"),
+         r"bad\.toml: key 'setpoint\[2\]\.start_s': expected a time after the previous"),
         ('[[setpoint]]\nkind = "ramp"\nstart_s = 300\nend_s = 200\npower_kw = 60\n',
-         r"bad\.toml: Scenario\.setpoints\[2\]\.end_s: expected a time > start_s"),
+         r"bad\.toml: key 'setpoint\[2\]\.end_s': expected a time > start_s"),
         ('[[fault]]\nkind = "spike"\nat_s = 900\nspike_kw = 1\n',
          r"bad\.toml: Scenario: MeasurementSpike starts at 900 s"),
     ],
@@ -159,7 +161,7 @@ def test_inconsistent_events_name_the_file_and_the_entry(tmp_path: Path, extra: 
 
 
 def test_duration_must_be_whole_samples_and_toml_must_parse(tmp_path: Path) -> None:
-    with pytest.raises(ScenarioError, match=r"bad\.toml: Scenario\.duration_s.*whole number"):
+    with pytest.raises(ScenarioError, match=r"bad\.toml: key 'duration_s'.*whole number"):
         load_scenario(_write(tmp_path, GOOD.replace("duration_s = 600", "duration_s = 601")))
     with pytest.raises(ScenarioError, match=r"bad\.toml: not a valid TOML"):
         load_scenario(_write(tmp_path, "name = \n"))

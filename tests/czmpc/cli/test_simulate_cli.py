@@ -338,5 +338,5 @@ def test_simulate_with_astronomical_setpoints_writes_all_or_nothing(
         assert sorted(p.name for p in (tmp_path / "out").iterdir()) == \
             ["figure.png", "metrics.json", "trajectory.csv"]
     else:
-        assert "setpoints[1].power_kw" in err and "MAX_ABS_POWER_KW" in err and "Traceback" not in err
+        assert "setpoint[1].power_kw" in err and "MAX_ABS_POWER_KW" in err and "Traceback" not in err
         assert not (tmp_path / "out").exists()
