@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -320,6 +320,19 @@ def sample_times_s(n_steps: int, ts_s: float) -> FloatArray:
     return np.arange(n_steps, dtype=float) * ts_s
 
 
+def _combined(disturbances: Sequence[Disturbance], time_s: FloatArray,
+              ts_s: float) -> tuple[FloatArray, FloatArray]:
+    """Voltage factors multiplied and power shifts added, at the sample times ``time_s``."""
+    volt = np.ones(time_s.size)
+    offset = np.zeros(time_s.size)
+    for dist in disturbances:
+        if isinstance(dist, PowerShift):
+            offset += dist.power_offset_kw(time_s, ts_s)
+        else:
+            volt *= dist.voltage_factor(time_s, ts_s)
+    return volt, offset
+
+
 def exogenous_profile(
     disturbances: Sequence[Disturbance], *, n_steps: int, ts_s: float
 ) -> ExogenousProfile:
@@ -334,14 +347,7 @@ def exogenous_profile(
     ts_s :
         Sampling time [s].
     """
-    t = sample_times_s(n_steps, ts_s)
-    volt = np.ones(n_steps)
-    offset = np.zeros(n_steps)
-    for dist in disturbances:
-        if isinstance(dist, PowerShift):
-            offset += dist.power_offset_kw(t, ts_s)
-        else:
-            volt *= dist.voltage_factor(t, ts_s)
+    volt, offset = _combined(disturbances, sample_times_s(n_steps, ts_s), ts_s)
     volt.setflags(write=False)
     offset.setflags(write=False)
     return ExogenousProfile(grid_voltage_factor=volt, power_offset_kw=offset)
@@ -359,14 +365,8 @@ def exogenous_at(disturbances: Sequence[Disturbance], k: int, ts_s: float) -> Ex
     ts_s :
         Sampling time [s].
     """
-    t = np.array([k * ts_s])
-    volt, offset = 1.0, 0.0
-    for dist in disturbances:
-        if isinstance(dist, PowerShift):
-            offset += float(dist.power_offset_kw(t, ts_s)[0])
-        else:
-            volt *= float(dist.voltage_factor(t, ts_s)[0])
-    return Exogenous(grid_voltage_factor=volt, power_offset_kw=offset)
+    volt, offset = _combined(disturbances, np.array([k * ts_s]), ts_s)
+    return Exogenous(grid_voltage_factor=float(volt[0]), power_offset_kw=float(offset[0]))
 
 
 def fault_profile(
@@ -402,12 +402,8 @@ def fault_profile(
 
 def scaled_times(event: Disturbance | Fault, factor: float) -> Disturbance | Fault:
     """Return a copy of ``event`` with every time field (``*_s``) multiplied by ``factor``."""
-    changes = {}
-    for f in fields(event):
-        value = getattr(event, f.name)
-        if f.name.endswith("_s") and value is not None:
-            changes[f.name] = value * factor
-    return type(event)(**{**{f.name: getattr(event, f.name) for f in fields(event)}, **changes})
+    return replace(event, **{f.name: getattr(event, f.name) * factor for f in fields(event)
+                             if f.name.endswith("_s") and getattr(event, f.name) is not None})
 
 
 __all__ = [
