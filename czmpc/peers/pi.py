@@ -1,10 +1,5 @@
 """Gain-scheduled PI with anti-windup: the hand-tuned controller the MPC is compared with.
 
-Every controller here has ``ts_s``, ``step(power_kw, setpoint_kw) -> triac_pct``,
-``reset()`` and ``last_step`` (diagnostics of the latest step), so `sim.loop` runs them
-like the MPC. The nonlinear MPC reference lives in `czmpc.peers.nmpc`; the linear MPC
-baseline is `OffsetFreeMPC` on a ``kind = "linear"`` model and needs no code here.
-
 The rule and the controller are those of `czmpc.pid`: `PIController` is a
 `czmpc.pid.controller.ScheduledPID` (velocity form, anti-windup at the TRIAC and rate
 limits) whose tuning is one PI, and `PIController.tuned_for` tunes it by

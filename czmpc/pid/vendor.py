@@ -1,24 +1,13 @@
-"""The schedule in the forms and units of DCS and PLC PID blocks, and the unit conversions.
+"""The schedule in the forms and units of DCS and PLC PID blocks.
 
 Blocks that work in percent of span need the spans of their PV (power) and output (TRIAC)
 ranges: the dimensionless gain is ``K = Kc * pv_span_kw / out_span_pct`` [% of output
 span per % of PV span]. The spans are the user's (the ranges configured in the block);
-they are never assumed, so `Spans` has no defaults.
-
-The forms follow the vendors' published descriptions of their blocks (parameter names
-as they appear there); check them against the manual of the firmware on site:
-
-* ``siemens`` - S7-1200/1500 ``PID_Compact``: ``Gain`` (output % per PV unit), ``Ti``,
-  ``Td`` [s], ``TdFiltRatio``, ``PWeighting``, ``DWeighting``, ``Cycle`` [s] in
-  ``Retain.CtrlParams``;
-* ``deltav`` - Emerson DeltaV PID (FORM Standard): ``GAIN`` [%/%], ``RESET`` [s/repeat],
-  ``RATE`` [s], ``STRUCTURE``, ``BETA``; plus the three-region gain-scheduling template;
-* ``honeywell`` - Honeywell Experion PID (non-interactive form): ``K`` [%/%], ``T1``
-  [min], ``T2`` [min], ``CTLEQN`` (A, B or C);
-* ``rockwell`` - Rockwell Logix ``PIDE``, dependent (``PGain`` [-], ``IGain`` [min/repeat],
-  ``DGain`` [min]) and independent (``PGain`` [-], ``IGain`` [1/min], ``DGain`` [min]).
-
-Every form also has the proportional band ``PB = 100/K`` [%] for blocks that want one.
+they are never assumed, so `Spans` has no defaults. `FORMS` are Siemens ``PID_Compact``,
+Emerson DeltaV ``PID``, Honeywell Experion ``PID`` and Rockwell Logix ``PIDE``, with the
+parameter names of the vendors' published descriptions (docs/guides/pid.rst lists each
+form's columns and units; check them against the manual of the firmware on site). Every
+form also has the proportional band ``PB = 100/K`` [%].
 """
 
 from __future__ import annotations
