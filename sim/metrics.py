@@ -20,7 +20,7 @@ Per setpoint change of size ``D = r_new - r_old``:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, Literal
 
 import numpy as np
@@ -123,8 +123,13 @@ def count_rate_violations(
 
 
 # --- results -------------------------------------------------------------------------------
-def _json_float(value: float | None) -> float | None:
-    return None if value is None or not math.isfinite(value) else float(value)
+def _jsonable(value: Any) -> Any:
+    """``value`` for JSON: non-finite floats become None, tuples lists."""
+    if isinstance(value, tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, float):
+        return float(value) if math.isfinite(value) else None
+    return value
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -170,16 +175,8 @@ class ChangeMetrics:
         return self.to_kw - self.from_kw
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready mapping (non-finite numbers become None)."""
-        return {
-            "kind": self.kind, "time_s": self.time_s, "from_kw": self.from_kw,
-            "to_kw": self.to_kw, "iae_kw_s": _json_float(self.iae_kw_s),
-            "ise_kw2_s": _json_float(self.ise_kw2_s),
-            "overshoot_kw": _json_float(self.overshoot_kw),
-            "overshoot_pct": _json_float(self.overshoot_pct),
-            "settling_time_s": _json_float(self.settling_time_s),
-            "steady_state_error_kw": _json_float(self.steady_state_error_kw),
-        }
+        """JSON-ready mapping, the fields in order (non-finite numbers become None)."""
+        return {f.name: _jsonable(getattr(self, f.name)) for f in fields(self)}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -206,14 +203,14 @@ class ClosedLoopMetrics:
         ``sum |s_k - s_{k-1}|`` [%].
     max_move_pct :
         Largest ``|s_k - s_{k-1}|`` [%].
+    step_time_median_ms, step_time_p95_ms, step_time_max_ms :
+        Statistics of the controller's step time [ms].
     n_limit_violations :
         Samples with the input outside the TRIAC limits.
     n_rate_violations :
         Moves beyond the rate limit (0 when there is none).
     n_solver_failures :
         Steps whose diagnostics report ``fallback != "none"``; None without diagnostics.
-    step_time_median_ms, step_time_p95_ms, step_time_max_ms :
-        Statistics of the controller's step time [ms].
     """
 
     scenario: str
@@ -225,12 +222,12 @@ class ClosedLoopMetrics:
     ise_kw2_s: float
     input_total_variation_pct: float
     max_move_pct: float
-    n_limit_violations: int
-    n_rate_violations: int
-    n_solver_failures: int | None
     step_time_median_ms: float
     step_time_p95_ms: float
     step_time_max_ms: float
+    n_limit_violations: int
+    n_rate_violations: int
+    n_solver_failures: int | None
 
     @property
     def n_constraint_violations(self) -> int:
@@ -238,21 +235,14 @@ class ClosedLoopMetrics:
         return self.n_limit_violations + self.n_rate_violations
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready mapping (non-finite numbers become None)."""
-        out: dict[str, Any] = {
-            "scenario": self.scenario,
-            "power_signal": self.power_signal,
-            "changes": [c.to_dict() for c in self.changes],
-            "steady_state_errors_kw": [_json_float(v) for v in self.steady_state_errors_kw],
-        }
-        for name in ("max_abs_steady_state_error_kw", "iae_kw_s", "ise_kw2_s",
-                     "input_total_variation_pct", "max_move_pct", "step_time_median_ms",
-                     "step_time_p95_ms", "step_time_max_ms"):
-            out[name] = _json_float(getattr(self, name))
-        out["n_limit_violations"] = self.n_limit_violations
-        out["n_rate_violations"] = self.n_rate_violations
-        out["n_constraint_violations"] = self.n_constraint_violations
-        out["n_solver_failures"] = self.n_solver_failures
+        """JSON-ready mapping, the fields in order with ``n_constraint_violations`` before
+        ``n_solver_failures`` (non-finite numbers become None)."""
+        out: dict[str, Any] = {}
+        for f in fields(self):
+            if f.name == "n_solver_failures":
+                out["n_constraint_violations"] = self.n_constraint_violations
+            value = getattr(self, f.name)
+            out[f.name] = [c.to_dict() for c in value] if f.name == "changes" else _jsonable(value)
         return out
 
 
