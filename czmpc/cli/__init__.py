@@ -135,10 +135,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-#: Exit code after SIGTERM (`ExitCode.TERMINATED`).
-SIGTERM_EXIT_CODE = int(ExitCode.TERMINATED)
-
-
 class Terminated(SystemExit):
     """Raised in the main thread by the console script's SIGTERM handler.
 

@@ -20,7 +20,8 @@ import pytest
 import czmpc.campaigns.simulation as simulation
 import czmpc.cli.simulate as simulate_cmd
 from czmpc.campaigns.simulation import run_simulation, write_outputs
-from czmpc.cli import SIGTERM_EXIT_CODE, build_parser, main
+from czmpc.cli import build_parser, main
+from czmpc.cli._exit import ExitCode
 from czmpc.reports.closed_loop_figure import DISTURBANCE_LABEL, PLOT_LIMIT, plot_closed_loop
 from czmpc.reports.figure_style import FigureError
 from czmpc.settings import MPCSettings
@@ -314,7 +315,7 @@ def test_sigterm_while_writing_leaves_no_temporary_file_and_exits_143(tmp_path: 
             if child.poll() is None:
                 child.kill()
                 child.wait()
-    assert child.returncode == SIGTERM_EXIT_CODE == 143
+    assert child.returncode == ExitCode.TERMINATED == 143
     assert "czmpc: error" not in err.decode() and "Traceback" not in err.decode()
     assert "terminated" in err.decode()
     out = tmp_path / "out"
