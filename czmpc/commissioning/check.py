@@ -3,54 +3,16 @@
 Each check gives ``pass``, ``condition`` (the MPC may run, with the stated caveat),
 ``fail`` (it must not) or ``skipped``; the verdict is ``not ready`` if any check fails,
 ``ready with conditions`` if any gives a condition or was skipped, else ``ready``. Every
-non-pass check is a reason. The checks and their limits (constants below):
-
-* **stability**: the roots of ``A`` and ``C`` inside the unit circle (the slow time
-  constant is reported).
-* **static gain**: the steady-state gain ``B(1)/A(1) f'(ds)`` over the model's input
-  range: positive everywhere (pass), on part of it only (condition: the MPC keeps to
-  the monotone part), nowhere (fail: the controller refuses such a model).
-* **input range**: the range of ``s`` the identification data visited, which the MPC
-  keeps to: narrower than `MIN_RANGE_PCT` fails, than `GOOD_RANGE_PCT` is a condition.
-* **validation fit** (with data): MATLAB ``compare``-style NRMSE fit of the ballistic
-  simulation on the held-out record (`sysid.criteria.fit_percent`): below
-  `FAIL_FIT_PCT` fails, below `GOOD_FIT_PCT` is a condition. Here and in the residual
-  checks below the record's initial state is fitted by least squares
-  (`sysid.criteria.errors_with_fitted_state`, as ``compare`` and ``resid``): a held-out
-  record need not start at rest.
-* **residual whiteness** (with data): autocorrelation of the one-step residuals at lags
-  1..25 against the 99 % bound ``2.58/sqrt(N)`` (`sysid.residuals`): more than
-  `MAX_WHITE_OUTSIDE` of the lags outside is a condition (the noise model is off; the
-  offset-free estimator copes, the tuning may not be the best).
-* **input-residual correlation** (with data): cross-correlation of the one-step
-  residuals with the input *moves* ``s_k - s_{k-1}`` (a pre-whitened input: the raw
-  staircase input would colour the test) at lags 0..25: the largest above the 99 %
-  bound for the largest of 26 lags (`family_bound`, ``3.55/sqrt(N)``) is a condition,
-  above `FAIL_CROSS_BOUNDS` times one lag's 99 % bound fails (the gain, the delay or the
-  dynamics are wrong: the residuals are explained by past inputs). Both need the error
-  to matter as well as to be significant: the response to a move that the model misses
-  (the least-squares fit of the residuals on the moves at lags 0..25, its largest
-  coefficient) must reach `NEGLIGIBLE_MISSED_PCT` of the model's own largest response
-  to a move over those lags (`largest_move_response`, about ``f'(0)`` for the heater).
-  On a quiet plant a model error far below anything the controller notices is
-  significant (the virtual heater: 2.3 % at 4.6 bounds); a wrong delay misses 94 %, a
-  15 % gain error 14 %.
-* **parameter uncertainty**: the relative standard deviation of the static gain at the
-  operating point from the parameter covariance (the file's ``covariance``, or
-  independent ``provenance.std_errors``), by the delta method: above
-  `FAIL_GAIN_RSD` fails, above `GOOD_GAIN_RSD` is a condition, none recorded is a
-  condition (and the Monte Carlo is skipped).
-* **closed-loop Monte Carlo**: the MPC of the model against ``n`` noise-free plants whose
-  parameters are drawn from that covariance (unstable draws are drawn again), through
-  a staircase of three steps across the input range (600 s each). A run is *good* if
-  every segment ends offset-free (``|mean error| < OFFSET_LIMIT_KW`` over its last 20
-  samples) and its IAE is at most `MAX_IAE_RATIO` times that of the model's own
-  plant. All good passes; at least `GOOD_MC_FRACTION` good is a condition; fewer fails.
+non-pass check is a reason. The checks (stability, static gain, input range; with data
+the validation fit, residual whiteness and input-residual correlation, each with the
+record's initial state fitted; the static gain's uncertainty by the delta method; a
+closed-loop Monte Carlo of the MPC against plants drawn from the parameter covariance,
+through a staircase of three `MC_SEGMENT_S` steps across the input range) and why their
+limits (the constants below) are where they are: docs/guides/commission.rst, step 5.
 
 The verdict is stored beside the model as ``MODEL.check.json`` (`write_check`), with the
 SHA-256 of the model file, so a run can tell a checked model from an unchecked or
-since-changed one (`czmpc.runtime.session.read_check`, for the switch-on rule). The
-model file itself is not touched.
+since-changed one (`czmpc.runtime.session.read_check`, for the switch-on rule).
 """
 
 from __future__ import annotations
@@ -307,6 +269,7 @@ def _data_checks(model: HammersteinModel, data: Dataset | None) -> list[CheckIte
                               f"({data.n_samples} samples, initial state fitted; pass >= "
                               f"{GOOD_FIT_PCT:g} %, fail < {FAIL_FIT_PCT:g} %)")]
     e = np.asarray(errors_with_fitted_state(model, data, one_step=True), dtype=float)
+    # the input *moves*, a pre-whitened input: the raw staircase would colour the test
     du = np.diff(np.asarray(data.triac_pct, dtype=float), prepend=float(data.triac_pct[0]))
     ac = autocorrelation(e, max_lag=MAX_LAG)
     white: ItemStatus = "condition" if ac.fraction_outside > MAX_WHITE_OUTSIDE else "pass"

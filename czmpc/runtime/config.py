@@ -1,60 +1,10 @@
 """The run configuration of `czmpc run` (a TOML file) and the recipe (schedule) file.
 
-Layout (every key checked; an unknown key, a wrong type or a value out of range raises
-`RunConfigError` naming the key)::
-
-    [plant]
-    endpoint = "opc.tcp://127.0.0.1:4840/czmpc/"
-    ts_s = 2.0
-    time_scale = 1.0            # > 1: faster than real time (simulated plants only)
-    max_sample_age_s = 4.0      # optional: older source timestamps are missing samples
-    connect_timeout_s = 2.0     # optional
-    align_to_plant = true       # optional: read just after the plant publishes (loop.py)
-    reject_repeated_samples = true  # optional: a sample read twice is a missing sample
-    max_refused_writes = 5      # optional: refused commands in a row that stop the run (exit 1)
-    [nodes]                     # a node id string, or { id = "...", raw = [LO, HI], value = [LO, HI] }
-    power_kw = "ns=2;s=Heater.Power"                 # read
-    triac_pct = "ns=2;s=Heater.TriacCommand"         # write
-    applied_triac_pct = "ns=2;s=Heater.TriacApplied" # read, optional
-    setpoint_kw = "ns=2;s=Heater.PowerSetpoint"      # read, optional
-    heartbeat = "ns=2;s=Heater.Heartbeat"            # write, optional
-    mode = "ns=2;s=Heater.Mode"                      # read, optional
-    model_health = "ns=2;s=Heater.ModelHealth"       # write, optional (czmpc.health)
-    owner = "ns=2;s=Heater.Owner"                    # String, read/write, optional: czmpc's lease
-    status = "ns=2;s=Heater.MPCStatus"               # write, optional: GOOD/PREDICTED/.../SHED
-    mode_in_effect = "ns=2;s=Heater.MPCMode"         # write, optional: OFF/PREDICT/ON
-    stale_alarm = "ns=2;s=Heater.StaleAlarm"         # write, optional: the stale-model alarm
-    predicted_power_kw = "ns=2;s=Heater.Predicted"   # write, optional: power predicted next [kW]
-    target_triac_pct = "ns=2;s=Heater.TargetTriac"   # write, optional: the target input [%]
-    watchdog = "ns=2;s=Heater.MPCWatchdog"           # write, optional: czmpc's own counter
-    [controller]                # optional for an open-loop test (`czmpc run --test`)
-    model = "model.json"
-    settings = "settings.toml"  # optional
-    candidate = "new.json"      # optional: a model run in shadow beside the active one
-    [run]
-    duration_s = 3600           # optional: run until stopped
-    setpoint_kw = 45.0          # or schedule = "recipe.csv"
-    log = "run.csv"             # a file (a start never overwrites it: --append, --replace-log)
-                                # or a directory "logs/" (one timestamped file per run)
-    rotate = "daily"            # optional: a new part at midnight UTC ("none": never)
-    rotate_mb = 100             # optional: a new part at this size [MB]
-    [safety]                    # optional
-    action = "hold"             # or "ramp" (to safe_triac_pct at the rate limit)
-    safe_triac_pct = 20.0
-    [logging]                   # optional
-    syslog = "/dev/log"         # also send the run's log lines to syslog ("/dev/log" or "HOST:PORT", UDP)
-    facility = "daemon"         # its syslog facility
-    [test]                      # required by `czmpc run --test`: the test's safety limits
-    power_band_kw = [30.0, 60.0]  # measured power must stay inside [kW]
-    max_bad_quality_s = 10.0    # longest tolerated stretch of missing samples [plant s]
-
-Each node is written as a Variant of its own DataType (Float, Int16, UInt16, ...;
-`czmpc.runtime.node_types`); a table form scales a raw tag both ways, for example a
-command of 0..27648 raw for 0..100 %::
-
-    triac_pct = { id = 'ns=3;s="DB_Heater"."TriacRaw"', raw = [0, 27648], value = [0.0, 100.0] }
-
-Relative paths are taken relative to the config file's directory.
+Every table and key is checked against `_TABLES`: an unknown key, a wrong type or a value
+out of range raises `RunConfigError` naming the key. docs/reference/run_config.rst lists
+the keys (generated from `_TABLES`), the node forms (an id, or a table with a raw/value
+scaling applied both ways) and a complete example. Relative paths are taken relative to
+the config file's directory.
 """
 
 from __future__ import annotations
