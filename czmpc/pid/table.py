@@ -1,12 +1,10 @@
 """``pid_table.csv`` and ``characterizer.csv``: the schedule and the input linearisation as files.
 
-``pid_table.csv`` has one row per breakpoint and exactly the columns `COLUMNS`; every
-name carries its unit (``_pct`` % TRIAC, ``_kw`` kW, ``_kw_per_pct`` kW/%, ``_s`` s,
-``_pct_per_kw`` % TRIAC per kW, ``_deg`` degrees, ``_rad_per_s`` rad/s; ``ms``,
-``gain_margin`` and ``setpoint_weight`` are dimensionless, the gain margin a factor, not
-dB). The gains are those of the ideal ISA form ``u = Kc (e + (1/Ti) integral e dt +
-Td de/dt)`` in engineering units, tuned for the model's sampling time. Numbers are
-written with Python's shortest round-trip repr, so reading gives the same floats.
+``pid_table.csv`` has one row per breakpoint and exactly the columns `COLUMNS`, each
+name with its unit (`COLUMN_MEANINGS`). The gains are those of the ideal ISA form
+``u = Kc (e + (1/Ti) integral e dt + Td de/dt)`` in engineering units, tuned for the
+model's sampling time. Numbers are written with Python's shortest round-trip repr, so
+reading gives the same floats.
 
 ``characterizer.csv`` is for DCS blocks that linearise the input instead of scheduling:
 an X-Y table from the output ``x`` of one fixed PI [%] to the TRIAC input ``y`` [%], with
