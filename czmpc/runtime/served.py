@@ -24,45 +24,24 @@ server)::
     Heater.TargetTriac      Double  write   the MPC's target input [%]
     Heater.MPCWatchdog      Int64   write   czmpc's own watchdog counter
 
-With ``ServeOptions.node_types = "plc"`` (``czmpc plant serve --node-types plc``) the
-nodes are typed as a PLC types them, to rehearse against a real puller's server:
-Power, TriacCommand, TriacApplied, PowerSetpoint, PlantTime_s and ModelHealth are
-``Float`` (an S7 ``REAL``), Heartbeat is ``UInt16`` (a ``WORD``) and Mode is ``Int16``
-(0 OFF, 1 PREDICT, 2 ON). `NODE_TYPES` lists both profiles.
+``ServeOptions.node_types = "plc"`` types them as a PLC does (`NODE_TYPES`).
 
 Watchdog (as a PLC has one): when the heartbeat has not changed for ``watchdog_s``
 [plant s], the applied input moves to ``safe_triac_pct`` and ``WatchdogTripped`` turns
 True (and a line is printed). It arms at the first heartbeat; a new heartbeat and a new command re-arm it.
 
-Security (``ServeOptions.security``, a `czmpc.runtime.security.ServerSecurity`): the
-server offers one endpoint, the configured policy and mode, and nothing else. A client
-is admitted only when
+Security (``ServeOptions.security``, a `czmpc.runtime.security.ServerSecurity`): one
+endpoint with the configured policy and mode; a client is admitted only with a trusted
+certificate (byte for byte, checked again at activation against the secure channel's)
+and a configured user's password, and may write only its user's nodes (``_UserManager``,
+``_permission_rules``); each refusal is logged, never a password. Without security:
+policy None, anonymous. docs/guides/plant_link.rst says how to serve a secured plant.
 
-1. its application certificate is one of the trusted ones, byte for byte (checked when
-   the session is created, and again when it is activated, against the certificate of
-   the secure channel itself, so a session over an unsecured channel is refused too);
-2. it logs in as a configured user with the right password (anonymous and certificate
-   tokens are not offered);
-3. and it writes only the nodes its user may write: ``TriacCommand`` and ``Heartbeat``
-   for the controller's user, ``PowerSetpoint`` and ``Mode`` for operators; any other
-   write is refused with ``BadUserAccessDenied`` (the whole request).
-
-Each refusal is logged (``log``): user name or client URI and the reason, never a password.
-
-Plant log (``ServeOptions.log_path``): one CSV row per plant sample, flushed as written,
-with what no controller can see: the *true* power next to the published one
-(`PLANT_LOG_COLUMNS`). Closed-loop figures of merit (IAE against the true power, as the
-in-process simulations compute them) are taken from it; the wall time of each sample
-lines it up with a controller's run log.
-
-History (``ServeOptions.historize``, ``czmpc plant serve --historize [SQLITE_FILE]``):
-the server historizes Power and TriacApplied (asyncua's ``historize_node_data_change``:
-every change of value or status, kept without limit), in memory or in a SQLite file,
-and answers OPC UA HistoryRead on them (`czmpc plant history`) with a continuation point
-after ``history_page_values`` values, as a plant historian pages a long read.
-
-Without security the server offers policy None with anonymous access; the command
-line allows that only on loopback or with ``--insecure``.
+Plant log (``ServeOptions.log_path``, `PLANT_LOG_COLUMNS`): one row per sample with
+the *true* power no controller sees, lined up with a run log by wall time. History
+(``ServeOptions.historize``): every change of `HISTORIZED_NODES`, in memory or in
+SQLite, answered to HistoryRead in pages of ``history_page_values`` values
+(docs/guides/history.rst).
 """
 
 from __future__ import annotations
