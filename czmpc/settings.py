@@ -19,7 +19,7 @@ from typing import Literal, get_args
 
 from czmpc.errors import SettingsError
 from sysid.model import HammersteinModel
-from sysid.polynomials import max_root_modulus
+from sysid.polynomials import slowest_time_constant_samples
 
 DisturbanceModel = Literal["input", "output"]
 PresetName = Literal["default", "aggressive", "smooth"]
@@ -447,12 +447,8 @@ class MPCSettings:
         model :
             The identified model the controller is built from.
         """
-        rho = max_root_modulus(model.a)
-        if rho <= 0.0:
-            horizon = MIN_DEFAULT_HORIZON_STEPS
-        else:
-            tau_steps = -1.0 / math.log(rho)
-            horizon = math.ceil(HORIZON_FRACTION_OF_SLOW_MODE * tau_steps)
+        tau_steps = slowest_time_constant_samples(model.a)   # the model is stable: finite
+        horizon = math.ceil(HORIZON_FRACTION_OF_SLOW_MODE * tau_steps)
         horizon = min(MAX_DEFAULT_HORIZON_STEPS, max(MIN_DEFAULT_HORIZON_STEPS, horizon))
         lo, hi = model.input_range_pct
         return cls(horizon_steps=horizon,
