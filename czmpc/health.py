@@ -83,6 +83,7 @@ import numpy as np
 from scipy import special
 
 from czmpc.errors import SettingsError
+from czmpc.inversion import evaluate
 from czmpc.mismatch import InnovationMonitor, monitored_noise_std_kw
 from sysid._typing import FloatArray
 from sysid.model import HammersteinModel
@@ -274,11 +275,10 @@ class ModelHealthMonitor:
         self._a = np.asarray(model.a, dtype=float)
         self._b = np.asarray(model.b, dtype=float)
         self._c = np.asarray(model.c, dtype=float)
-        self._poly = np.asarray(model.input_poly, dtype=float)
+        self._poly = tuple(float(v) for v in model.input_poly)
         self._a_t = tuple(float(v) for v in self._a)
         self._b_t = tuple(float(v) for v in self._b)
         self._c_t = tuple(float(v) for v in self._c)
-        self._poly_desc = tuple(float(v) for v in self._poly[::-1])
         self._na = len(self._a) - 1
         self._nw = len(self._b) - 1 + self.settings.extra_input_lags
         self._settle = _settle_samples(self._c)
@@ -315,13 +315,6 @@ class ModelHealthMonitor:
         self.alarm_reason = ""
         self.alarm_k: int | None = None
 
-    def _f_of(self, triac_pct: float) -> float:
-        ds = triac_pct - self._s_nom
-        out = 0.0
-        for coef in self._poly_desc:
-            out = (out + coef) * ds
-        return out
-
     def _y_hat(self, w_newest: float) -> float:
         """One-step prediction [kW, deviation] of the next sample with ``w_newest`` acting.
 
@@ -342,7 +335,7 @@ class ModelHealthMonitor:
         acts until then (NaN before the first measured sample)."""
         if not self._started or not math.isfinite(input_triac_pct):
             return math.nan
-        return self._p_nom + self._y_hat(self._f_of(input_triac_pct))
+        return self._p_nom + self._y_hat(evaluate(self._poly, input_triac_pct - self._s_nom))
 
     def update(self, power_kw: float, input_triac_pct: float,
                disturbance_kw: float = math.nan) -> ModelHealth:
@@ -364,7 +357,8 @@ class ModelHealthMonitor:
         ModelHealth
         """
         self._k += 1
-        w_prev = self._f_of(input_triac_pct) if math.isfinite(input_triac_pct) else self._last_w
+        w_prev = (evaluate(self._poly, input_triac_pct - self._s_nom)
+                  if math.isfinite(input_triac_pct) else self._last_w)
         self._last_w = w_prev
         measured = math.isfinite(power_kw)
         if not self._started:
