@@ -163,17 +163,13 @@ class ModelPlant:
                 f"ModelPlant.initial_triac_pct: expected a number in {lo:g}..{hi:g} %; "
                 f"got {initial_triac_pct!r}"
             )
-        self.model = model
+        self._use(model)
         self.ts_s = model.ts_s
         self.noise = bool(noise)
         self.initial_triac_pct = s0
         self.triac_limits_pct = (lo, hi)
         self._s_nom = op.triac_pct
         self._p_nom = op.power_kw
-        self._neg_a = tuple(-float(v) for v in model.a[1:])      # -a_1 .. -a_na
-        self._b = tuple(float(v) for v in model.b[1:])            # b_1 .. b_nb (b_0 = 0)
-        self._c = tuple(float(v) for v in model.c[1:])            # c_1 .. c_nc
-        self._poly_desc = tuple(float(v) for v in model.input_poly[::-1])  # p_n .. p_1
         self._sigma = model.noise_std_kw if self.noise else 0.0
         self._rng: np.random.Generator | None = None
         self._z: list[float] = []
@@ -239,13 +235,16 @@ class ModelPlant:
                 f"{len(model.c)} coefficients, delay {model.delay_steps} for A {len(old.a)}, "
                 f"B {len(old.b)}, C {len(old.c)}, delay {old.delay_steps}"
             )
-        self.model = model
-        self._neg_a = tuple(-float(v) for v in model.a[1:])
-        self._b = tuple(float(v) for v in model.b[1:])
-        self._c = tuple(float(v) for v in model.c[1:])
-        self._poly_desc = tuple(float(v) for v in model.input_poly[::-1])
+        self._use(model)
 
     # --- internals ----------------------------------------------------------------------
+    def _use(self, model: HammersteinModel) -> None:
+        self.model = model
+        self._neg_a = tuple(-float(v) for v in model.a[1:])      # -a_1 .. -a_na
+        self._b = tuple(float(v) for v in model.b[1:])            # b_1 .. b_nb (b_0 = 0)
+        self._c = tuple(float(v) for v in model.c[1:])            # c_1 .. c_nc
+        self._poly_desc = tuple(float(v) for v in model.input_poly[::-1])  # p_n .. p_1
+
     def _f(self, ds_pct: float) -> float:
         out = 0.0
         for coef in self._poly_desc:
