@@ -94,9 +94,4 @@ def transition(current: Mode, requested: Mode, *, estimator_ready: bool) -> tupl
     return requested, "accepted"
 
 
-def is_acting(mode: Mode) -> bool:
-    """True if the controller's output is applied in ``mode`` (only ``ON``)."""
-    return mode is Mode.ON
-
-
-__all__ = ["Mode", "ModeTransition", "Status", "is_acting", "transition"]
+__all__ = ["Mode", "ModeTransition", "Status", "transition"]

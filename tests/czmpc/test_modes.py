@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
 
 from czmpc.controller import OffsetFreeMPC
-from czmpc.modes import Mode, ModeTransition, Status, is_acting, transition
+from czmpc.modes import Mode, ModeTransition, Status, transition
 from czmpc.settings import MPCSettings, ReliabilitySettings
 from sysid.model import HammersteinModel
 
@@ -33,10 +33,6 @@ def test_transition_table(current: Mode, requested: Mode, ready: bool) -> None:
 def test_a_request_that_is_no_mode_is_refused() -> None:
     new, reason = transition(Mode.ON, "auto", estimator_ready=True)  # type: ignore[arg-type]
     assert new is Mode.ON and reason.startswith("refused")
-
-
-def test_only_on_acts() -> None:
-    assert [m for m in Mode if is_acting(m)] == [Mode.ON]
 
 
 class PureModeMachine(RuleBasedStateMachine):
