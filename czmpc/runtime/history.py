@@ -1,42 +1,17 @@
 """Read a plant's power and applied-input history over OPC UA and put it on the Ts grid.
 
-Reading (`read_node_history`): OPC UA HistoryRead of raw values
-(``ReadRawModifiedDetails`` with ``IsReadModified`` false), at most ``page_values``
-values per request (``NumValuesPerNode``), looping on the server's continuation
-point; a continuation point still held when the read stops is released. A server
-that ends a full page without a continuation point (asyncua's does when
-``NumValuesPerNode`` is reached) is asked again from the last time stamp, so a page
-limit never truncates the record silently. Every call has a hard deadline
-(`czmpc.runtime.link.within`). Before the first request the node's
-``UserAccessLevel`` must carry the ``HistoryRead`` bit: a node the server does not
-historize is refused at once (`HistoryUnavailableError`) with the fix.
+Reading (`read_node_history`): HistoryRead of raw values, at most ``page_values`` per
+request, following the server's continuation points (and asking again from the last
+time stamp after a full page without one, so a page limit never truncates silently);
+every call has a hard deadline; a node without the ``HistoryRead`` access bit is
+refused at once (`HistoryUnavailableError`) with the fix.
 
-Aligning (`align_history`, pure): the power's time stamps (source timestamps, else
-server timestamps, `czmpc.runtime.measurement.sample_time`) define the grid, one slot
-per ``ts_s / time_scale`` of wall time, phased on the samples' circular mean. Each
-power sample takes the slot nearest its time; a sample stamped late into the slot of
-the next one moves back to the free slot before it (a server that stamps samples
-when it publishes them gives a backlog one time). A slot with a Good power sample is
-``"good"``; one with a Bad or Uncertain sample is ``"bad"`` or ``"uncertain"``; one
-without a sample is ``"missing"``: every word but ``"good"`` is a gap to
-`czmpc.runtime.runlog.read_run_log`.
-
-The inputs, as a `czmpc run` log has them (`czmpc.runtime.runlog`):
-
-- ``applied_triac_pct`` of row ``j``: the last Good applied value at or before power
-  sample ``j`` (the input that produced it), placed on the grid as the power is; a
-  historian that stores changes only holds the value between changes. A Bad applied
-  value makes the input unknown (NaN) until the next Good one. The inputs are read
-  with their bounding values (``ReturnBounds``), so the value in force at the start
-  is known where the server returns bounds; elsewhere the input is unknown (a gap)
-  until its first change in the range.
-- ``triac_pct`` of row ``j`` (read only where no applied node is configured): the
-  last command written before power sample ``j + 1``, which the plant applied from
-  sample ``j`` to ``j + 1``.
-
-Writing (`write_history_log`): the run-log columns (`czmpc.runtime.logfiles.LOG_COLUMNS`;
-NaN or empty where the history does not say), full float precision, and
-``<log>.meta.json`` with ``"kind": "history"`` and the provenance.
+Aligning (`align_history`, pure): the power's time stamps define the grid, one slot per
+``ts_s / time_scale`` of wall time; each slot is ``good``, ``bad``, ``uncertain`` or
+``missing``, and the inputs are placed as a `czmpc run` log has them (the applied input
+held between changes; the command only without an applied node). Writing
+(`write_history_log`): a run log with ``<log>.meta.json``. The columns and their
+meaning: docs/guides/history.rst.
 """
 
 from __future__ import annotations
@@ -385,7 +360,13 @@ def _held(slots: IntArray, values: FloatArray, n_rows: int) -> FloatArray:
 
 def align_history(power: NodeHistory, applied: NodeHistory | None = None,
                   command: NodeHistory | None = None, *, period_s: float) -> AlignedHistory:
-    """Put the histories on the grid of the power's time stamps (module docstring).
+    """Put the histories on the grid of the power's time stamps.
+
+    Each power sample takes the slot nearest its time (one stamped late into the next
+    one's slot moves back to the free slot before it). ``applied_triac_pct`` of row ``j``
+    is the last Good applied value at or before power sample ``j`` (a Bad one makes it
+    NaN until the next Good one); ``triac_pct`` of row ``j`` is the last command written
+    before power sample ``j + 1``.
 
     Parameters
     ----------

@@ -1,48 +1,23 @@
 """The soft real-time MPC loop over OPC UA (`czmpc run`).
 
-Each period (``ts_s / time_scale`` wall seconds, on a monotonic-clock schedule
-``t0 + k * period``, so no drift accumulates):
+Each period (``ts_s / time_scale`` wall seconds on a monotonic schedule
+``t0 + k * period``, so no drift accumulates) the loop
 
-1. read (I/O only) the measured power (with its status code and source timestamp), and
-   the optional setpoint, mode and applied-input nodes;
-2. decide, without I/O (`czmpc.runtime.step`): a Bad or Uncertain status, a source
-   timestamp older than ``max_sample_age_s``, one not later than the previous read's
-   (``repeated``: the plant's step was late and the previous sample was read again;
-   ``[plant] reject_repeated_samples``), or no connection is a missing sample (NaN):
-   the controller predicts (soft sensor), then sheds, as in simulation;
-3. write the command (mode ON only: in OFF/PREDICT the operator drives the TRIAC) and
-   the heartbeat;
-4. record the row in the log (flushed per row).
+1. reads (I/O only) the power with its status and source timestamp, and the optional
+   setpoint, mode and applied-input nodes;
+2. decides without I/O (`czmpc.runtime.step`): a Bad, Uncertain, stale, repeated or
+   disconnected sample is missing, and the controller predicts, then sheds;
+3. writes the command (mode ON only) and the heartbeat, and the optional state nodes;
+4. records the row (`czmpc.runtime.logfiles`; ``<log>.meta.json`` holds the provenance)
+   and feeds the model-health monitor (`czmpc.health`).
 
-Model health (`czmpc.health`): every sample also goes to the model-health monitor (the
-model's own one-step residual and the stale-model test); its figure is logged
-(``health``, ``stale_alarm``), written to the optional ``model_health`` node and shown in
-the live status, and the alarm is said once when it is raised (`RunSummary`).
-
-Reads are kept just after the plant publishes its sample (`czmpc.runtime.alignment`,
-``[plant] align_to_plant``): from the power's source timestamps the loop estimates
-where in the plant's period it reads and, when that is late in the period (so that a
-write could land on either side of the plant's next step), delays its schedule once
-by less than a period.
-
-A step that ends past its deadline is an overrun: the periods it covered are skipped
-(recorded in ``skipped``), never caught up, so there is at most one write per period.
-Lost connection: the controller keeps predicting; reconnects are tried with a doubling
-backoff (up to `MAX_BACKOFF_S`); on return the applied input is read and handed to the
-controller, so the next move starts from it within the rate limit (bumpless). A stop
-(SIGINT/SIGTERM, or the duration) writes the safe action: ``hold`` leaves the last
-command, ``ramp`` moves to ``safe_triac_pct`` at the rate limit, one move per period.
-
-The loop drives any `LoopController`: the MPC (`MPCDriver`), or an open-loop test
-schedule or a dithered MPC (`czmpc.commissioning`). With a ``[test]`` section in the
-config (`ExperimentLimits`) every sample is checked against the power band and the
-longest tolerated stretch of unusable samples; leaving either aborts the run: the
-reason goes into the log (column ``event``) and the summary, and the input moves to
-``safe_triac_pct`` at the controller's rate limit whatever ``[safety] action`` says.
-A controller may also end the run itself (`LoopController.finished`, e.g. at the end
-of a test schedule). Beside the log, ``<log>.meta.json`` records where the run came
-from (the czmpc version, the config and the model files with their SHA-256, start
-time, what drove the input).
+Reads are kept just after the plant publishes (`czmpc.runtime.alignment`). An overrun
+skips periods, never catches up. A lost link keeps the controller predicting and
+reconnects with a doubling backoff (up to `MAX_BACKOFF_S`), bumpless from the applied
+input. A stop writes the ``[safety]`` action; a ``[test]`` limit left aborts the run to
+``safe_triac_pct``. The loop drives any `LoopController`: the MPC (`MPCDriver`), a test
+schedule or a dithered MPC (`czmpc.commissioning`). What each case looks like to a
+user: docs/guides/plant_link.rst and docs/guides/service.rst.
 """
 
 from __future__ import annotations
