@@ -196,10 +196,6 @@ class ScheduledPID:
         """Diagnostics of the latest `step`, None before the first."""
         return self._last_step
 
-    def gain_at(self, triac_pct: float) -> float:
-        """``Kc`` [%/kW] in force when ``triac_pct`` [%] was the last input."""
-        return self.schedule.tuning_at(triac_pct).kc_pct_per_kw
-
     def step(self, power_kw: float, setpoint_kw: float) -> float:
         """Return the TRIAC input [%] for this sample; a missing sample holds the input.
 

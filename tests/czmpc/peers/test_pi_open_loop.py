@@ -23,6 +23,11 @@ from sim.scenario import Scenario, SetpointStep
 from sysid.model import HammersteinModel
 
 
+def _gain(pi: PIController, s_pct: float) -> float:
+    """``Kc`` [%/kW] in force when ``s_pct`` was the last input."""
+    return pi.schedule.tuning_at(s_pct).kc_pct_per_kw
+
+
 def _slope(model: HammersteinModel, s_pct: float) -> float:
     """f'(s - s_nom) from numpy's polynomial derivative (independent of czmpc)."""
     coef = np.concatenate([[0.0], np.asarray(model.input_poly)])  # ascending, constant 0
@@ -72,16 +77,16 @@ def test_scheduled_gain_keeps_the_instantaneous_loop_gain_constant(
     assert pi.gain_schedule is not None
     lo, hi = pi.gain_schedule.valid_triac_pct
     for s in np.linspace(lo, hi, 9):
-        np.testing.assert_allclose(pi.gain_at(float(s)) * _slope(paper_armax_model, float(s)),
+        np.testing.assert_allclose(_gain(pi, float(s)) * _slope(paper_armax_model, float(s)),
                                    MAX_INSTANT_LOOP_GAIN, rtol=1e-12, atol=0.0)  # exact identity
     # outside the valid range f' is taken at the range's end
-    assert pi.gain_at(hi + 20.0) == pi.gain_at(hi)
-    assert pi.gain_at(lo - 20.0) == pi.gain_at(lo)
+    assert _gain(pi, hi + 20.0) == _gain(pi, hi)
+    assert _gain(pi, lo - 20.0) == _gain(pi, lo)
 
 
 def test_fixed_gain_pi_ignores_the_input() -> None:
     pi = PIController(gain_pct_per_kw=0.4, integral_time_s=10.0, ts_s=2.0, initial_triac_pct=45.0)
-    assert pi.gain_at(10.0) == pi.gain_at(90.0) == 0.4
+    assert _gain(pi, 10.0) == _gain(pi, 90.0) == 0.4
 
 
 def test_gain_schedule_refuses_a_range_where_f_falls() -> None:
