@@ -1,30 +1,14 @@
 """Read just after the plant publishes: the loop's phase against the plant's sample clock.
 
-A plant (a PLC, or `czmpc plant serve`) takes its samples on its own clock: every
-``ts_s`` it latches the TRIAC command and publishes the power with a source timestamp.
-The loop reads, steps the MPC and writes on *its* clock, with the same period. Where
-the two clocks' phases lie is chance. If the loop reads just before the plant's
-step, its write lands *after* that step on some periods and before it on others
-(read and write latencies jitter by milliseconds). The input then reaches the
-heater one sample later on some periods than on others: a delay that jitters
-between ``nk`` and ``nk + 1``. On a test log this shows as residuals correlated
-with the input moves at lag 1, and in closed loop as a model that is sometimes one
-sample off.
-
-The loop avoids this by reading a fixed share `TARGET_PHASE` of a period after the
-plant published. The *phase* of a read is the sample's age ``now - SourceTimestamp``
-as a share of the period, taken modulo 1. Over `WINDOW` good samples its circular
-mean is taken (`read_phase`). When that lies outside `BAND`, the loop delays its
-schedule once by less than a period (`alignment_delay_s`), so the next reads come at
-`TARGET_PHASE`. That one sample period is longer by the delay, and the row records
-it as an event.
-
-This needs the plant's source timestamps on a clock synchronised with the
-controller's (NTP on a real plant; the same clock on loopback), as the stale-sample
-test (``max_sample_age_s``) already does. Phases spread around the circle
-(concentration below `MIN_CONCENTRATION`: a plant that publishes at another rate,
-or clocks that jump) give no estimate, and the schedule is left alone. Set
-``[plant] align_to_plant = false`` to turn it off.
+A loop that reads just before the plant's step writes after that step on some periods
+and before it on others, so the input reaches the heater with a delay that jitters by a
+sample (docs/guides/plant_link.rst, section 4, says how that shows and what to set).
+The *phase* of a read is the sample's age ``now - SourceTimestamp`` as a share of the
+period, modulo 1; `read_phase` takes its circular mean over `WINDOW` good samples and,
+outside `BAND`, `alignment_delay_s` is the one delay of the schedule (less than a period)
+that moves the reads to `TARGET_PHASE`. Phases spread around the circle (concentration
+below `MIN_CONCENTRATION`: another publishing rate, or clocks that jump) give no
+estimate, and the schedule is left alone.
 """
 
 from __future__ import annotations
