@@ -1,27 +1,12 @@
 """The controller settings file: MPCSettings as TOML, read and written.
 
-One TOML file tunes the MPC for ``czmpc simulate``, ``czmpc bench`` and ``czmpc run``
-(``--settings FILE``, or ``[controller].settings`` in a run config)::
-
-    preset = "default"              # optional base: "default", "aggressive" or "smooth"
-    horizon_steps = 30              # [samples]
-    move_weight = 0.1               # [1/kW^2]
-    max_move_pct_per_step = 1.6     # [%/step]; "off" for no rate limit
-
-    [reliability]
-    shed_triac_pct = 30.0           # [%]; "off" holds the last input
-
-    [osqp]
-    eps_abs = 1e-5
-
 Top-level keys are the fields of `czmpc.settings.MPCSettings`; the tables
 ``[reliability]`` and ``[osqp]`` hold those of `czmpc.settings.ReliabilitySettings` and
-`czmpc.settings.OSQPOptions`. Every key is optional: what the file leaves out comes
-from the preset (``MPCSettings.preset(preset, model)``, default ``"default"``, that is
-`MPCSettings.default_for` the model). A setting that may be switched off (type
-``float | None`` in Python) is switched off with the string ``"off"``, since TOML has no
-null. An unknown key, a value of the wrong type or out of range raises
-`czmpc.errors.SettingsError` naming the file, the table and the key.
+`czmpc.settings.OSQPOptions`; ``preset`` names the base the file starts from
+(``MPCSettings.preset(preset, model)``). A ``float | None`` setting is switched off with
+the string ``"off"``. An unknown key, a value of the wrong type or out of range raises
+`czmpc.errors.SettingsError` naming the file, the table and the key. The user's page,
+with an example and every key, is docs/reference/settings_file.rst.
 """
 
 from __future__ import annotations
