@@ -253,12 +253,8 @@ def parse_security(table: Mapping[str, object] | None, *, endpoint: str, base_di
             raise SettingsError(
                 f"{where}: username {shown(username)} needs password_env = \"NAME\", the environment "
                 f"variable that holds the password")
-        env = os.environ if environ is None else environ
-        if password_env not in env:
-            raise SettingsError(
-                f"{where}.password_env: the environment variable {password_env} is not set; "
-                f"export it with the password of user {shown(username)}")
-        password = Secret(env[password_env])
+        password = _password(username, password_env, os.environ if environ is None else environ,
+                             f"{where}.password_env")
     elif password_env is not None:
         raise SettingsError(f"{where}.password_env is set but username is not; add username")
     return SecuritySettings(
