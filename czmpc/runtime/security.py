@@ -1,25 +1,12 @@
 """OPC UA channel security of the plant link: the ``[plant.security]`` table, checked.
 
-A plant's OPC UA server normally accepts only signed and encrypted channels, trusted
-application certificates and authenticated users (IEC 62541-2, IEC 62443). This module
-turns the run config's ``[plant.security]`` table into a validated, frozen
-`SecuritySettings` and refuses, before any connection is tried, what an OT security
-officer would refuse:
-
-- no table: only a loopback endpoint (127.0.0.0/8, ``localhost``, ``[::1]``);
-- ``policy = "None"`` on a non-loopback endpoint;
-- a ``password`` key in the file (the password is read from the environment variable
-  named by ``password_env``, so it never sits in a file under version control);
-- a private key file that other users can read (as ssh refuses one);
-- a missing certificate, key or pinned server certificate file;
-- any key not listed in `SECURITY_KEYS`.
-
-The password is held in a `Secret`, whose ``repr`` and ``str`` never show it, so that it
-cannot reach a log line, an exception message or a report by accident.
-
-The served plant's side (``czmpc plant serve``) is checked here too:
-`parse_server_security` validates its policy, certificate, key (owner-only), trusted
-client certificates and users (passwords from environment variables), and
+`parse_security` turns the run config's table into a frozen `SecuritySettings` and
+refuses, before any connection is tried, what an OT security officer would refuse: no
+table (or ``policy = "None"``) on a non-loopback endpoint, a ``password`` key in the file
+(it comes from the environment variable ``password_env`` names), a private key others
+can read, a missing file, an unknown key (docs/reference/plant_security.rst). The
+password is held in a `Secret`, which no ``repr`` or ``str`` shows. The served plant's
+side: `parse_server_security` validates ``czmpc plant serve``'s options, and
 `check_serve_address` refuses an unsecured non-loopback endpoint before anything binds.
 """
 
@@ -208,7 +195,7 @@ def parse_security(table: Mapping[str, object] | None, *, endpoint: str, base_di
     Raises
     ------
     SettingsError
-        Every refusal listed in the module docstring, naming the key and what to do.
+        Every refusal the module docstring lists, naming the key and what to do.
     """
     where = "plant.security"
     if table is None:
