@@ -90,6 +90,8 @@ OVERRUN_REPORT_S = 60.0
 RECENT_STEPS = 200
 #: Read-phase estimates a run keeps (one per `alignment.WINDOW` good samples).
 RECENT_PHASES = 1000
+
+
 class MPCDriver:
     """The offset-free MPC as a `LoopController` (it never finishes or aborts by itself)."""
 
@@ -130,8 +132,6 @@ class MPCDriver:
     def abort_reason(self) -> str | None:
         """Never."""
         return None
-
-
 
 
 @dataclass(slots=True)
