@@ -21,7 +21,7 @@ import math
 from dataclasses import dataclass
 
 from czmpc.errors import SettingsError
-from czmpc.inversion import InputMap, build_input_map, slope
+from czmpc.inversion import build_input_map, slope
 from czmpc.pid.controller import ScheduledPID
 from czmpc.pid.rules import GAIN_DELAY_LOOP_GAIN, PIDTuning, gain_delay_sampled
 from sysid.model import HammersteinModel
@@ -73,14 +73,6 @@ class GainSchedule:
                     f"got f'({s - self.operating_triac_pct:g}) = "
                     f"{self.slope_kw_per_pct(s):.4g} kW/%"
                 )
-
-    @classmethod
-    def from_input_map(cls, input_map: InputMap, *, reference_triac_pct: float) -> GainSchedule:
-        """Schedule on ``f`` restricted to the allowed range of ``input_map``."""
-        s_nom = input_map.operating_triac_pct
-        return cls(coefficients=input_map.coefficients, operating_triac_pct=s_nom,
-                   reference_triac_pct=reference_triac_pct,
-                   valid_triac_pct=(input_map.ds_min_pct + s_nom, input_map.ds_max_pct + s_nom))
 
     def slope_kw_per_pct(self, triac_pct: float) -> float:
         """``f'(ds)`` at ``s`` clipped to the valid range [kW/%]."""
@@ -213,8 +205,10 @@ class PIController(ScheduledPID):
                                         validity_margin_pct=validity_margin_pct)
             lo = input_map.ds_min_pct + s_nom
             hi = input_map.ds_max_pct + s_nom
-            schedule = GainSchedule.from_input_map(
-                input_map, reference_triac_pct=min(hi, max(lo, s0)))
+            schedule = GainSchedule(coefficients=input_map.coefficients,
+                                    operating_triac_pct=s_nom,
+                                    reference_triac_pct=min(hi, max(lo, s0)),
+                                    valid_triac_pct=(lo, hi))
             g = schedule.slope_kw_per_pct(s0)
         else:
             g = slope(coefficients, s0 - s_nom)
