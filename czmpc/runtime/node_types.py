@@ -8,12 +8,8 @@ writes a Variant of that type (`encode`): floats range-checked, integers rounded
 away from zero and range-checked, never silently clipped.
 
 A node may carry a scaled value (`LinearScale`): a raw integer tag of 0..27648 for
-0..100 % (an S7 analog output), applied both ways (`encode` and `decode`). In the run
-configuration a node is either a plain node-id string or a table with the id and the
-scaling (`parse_node_spec`)::
-
-    triac_pct = 'ns=3;s="DB_Heater"."TriacCmd"'
-    triac_pct = { id = 'ns=3;s="DB_Heater"."TriacRaw"', raw = [0, 27648], value = [0.0, 100.0] }
+0..100 % (an S7 analog output), applied both ways (`encode` and `decode`); the run
+config's two forms of a node (`parse_node_spec`) are in docs/reference/run_config.rst.
 
 Pure functions and frozen records only: no server is needed to test them.
 """
