@@ -27,18 +27,11 @@ times are seconds from the start of the run. Scenarios ship as TOML files in
                                              start_s (optional), end_s (optional)
     [[fault]]      kind = "missing_samples", at_s, duration_s
 
-Bounds (what the machine can hold): a closed-loop run keeps every sample in memory
-(the trajectory arrays, a diagnostics record and the controller's per-step result,
-about ``BYTES_PER_STEP`` bytes together), so a run may have at most ``MAX_N_STEPS``
-samples: ``MAX_N_STEPS * BYTES_PER_STEP`` is 4 GB, a share of a small machine, and
-``MAX_N_STEPS`` is 23 days of 2-s samples, longer than a crystal growth. Every time
-(``duration_s``, ``at_s``, ``start_s``, ``end_s``) must be at most ``MAX_TIME_S`` (the
-same span at the longest sensible sampling time), and ``duration_s / ts_s`` at most
-``MAX_N_STEPS``; these are checked before anything is allocated. Every power
-(``initial_setpoint_kw``, ``power_kw``, ``offset_kw``, ``spike_kw``) must be at most
-``MAX_ABS_POWER_KW`` = 1e100 kW in magnitude, so that the squared errors the metrics sum
-over ``MAX_N_STEPS`` samples stay finite floats (1e308 overflowed them). Other numbers need
-only be finite floats (TOML integers too large for a float are refused).
+Bounds (what the machine can hold, checked before anything is allocated): a run has at
+most ``MAX_N_STEPS`` samples (23 days of 2-s samples, longer than a crystal growth),
+every time is at most ``MAX_TIME_S`` and every power at most ``MAX_ABS_POWER_KW`` in
+magnitude (the constants say why). Other numbers need only be finite floats (TOML
+integers too large for a float are refused).
 
 Every key carries its unit in its name. Unknown keys, wrong types, negative times,
 inverted limits and overlapping setpoint changes are refused with a `ScenarioError`
@@ -166,7 +159,7 @@ def _first_sample_at(time_s: float, ts_s: float) -> int:
 #: checks the estimate stays an upper bound on a short run): trajectory arrays, the
 #: controller's diagnostics record and per-step result.
 BYTES_PER_STEP = 4_000
-#: Most samples in one run: ``MAX_N_STEPS * BYTES_PER_STEP`` = 4 GB (see the module docstring).
+#: Most samples in one run: ``MAX_N_STEPS * BYTES_PER_STEP`` = 4 GB, a share of a small machine.
 MAX_N_STEPS = 1_000_000
 #: Largest power magnitude in a scenario [kW]: ``(2 * MAX_ABS_POWER_KW)**2 * MAX_N_STEPS *
 #: 60 s`` (the integrated squared error) is far below the float range (1.8e308).
