@@ -591,10 +591,10 @@ def run_hammerstein_route(
         A second start of step 3 by parameter name (for example the structure
         search's fit); the better of the two final OE fits on V is kept.
     pole_starts :
-        Also run step 3 from this many fixed-pole starts (`fixed_pole_starts` at
-        `pole_start_time_constants`); one replaces the fit from the route's own start
-        only if its V is lower by more than `MULTISTART_V_RTOL`. 0 (default): the
-        paper's route alone.
+        Also run step 3 from the SRIV start (`sriv_start`) and this many fixed-pole
+        starts (`fixed_pole_starts` at `pole_start_time_constants`); one replaces the
+        fit from the route's own start only if its V is lower by more than
+        `MULTISTART_V_RTOL`. 0 (default): the paper's route alone.
     segment_starts :
         First sample of each segment (experiment) of the record, starting with 0;
         default one segment. Every step uses all segments, each with its own initial
