@@ -25,6 +25,7 @@ import numpy as np
 
 from czmpc.reports import identification_figures as figs
 from czmpc.reports.tables import format_table
+from sim.experiment import PAPER_TABLE3, PAPER_TRIAC_NOM_PCT
 from sysid._version import SOFTWARE
 from sysid.atomic import atomic_write_text
 from sysid.optimize import DEFAULT_PROGRESS_RTOL, MAX_ITERATIONS, PROGRESS_WINDOW
@@ -39,16 +40,6 @@ PAPER_TABLE2_V: dict[str, float] = {
     "arx_1_2": 0.106, "arx_2_3": 0.109, "armax_1_2_1": 0.108, "armax_2_3_2": 0.110,
     "oe_2_1": 0.043, "oe_3_2": 0.042,
 }
-#: Sec. 5.1: the paper's operating point (s_nom [%], P_nom [kW]); Table 3's ds and dP are
-#: deviations from it.
-PAPER_OPERATING_POINT = (45.0, 45.0)
-#: Table 3: (ds before, ds after [%], dP before, dP after [kW], r [kW/%]).
-PAPER_TABLE3: tuple[tuple[float, float, float, float, float], ...] = (
-    (0.0, 5.0, 0.04, 6.78, 1.35),
-    (5.0, 10.0, 6.09, 12.64, 1.31),
-    (10.0, 15.0, 11.72, 17.87, 1.23),
-    (15.0, 20.0, 16.99, 22.68, 1.14),
-)
 #: Secs. 7.4-7.6: V [kW^2] of every step of the Hammerstein route.
 PAPER_ROUTE_V: dict[str, float] = {
     "hammerstein_eq21": 0.045,               # Fig. 12
@@ -685,8 +676,8 @@ def _table2_section(result: PipelineResult, st: _Style) -> str:
 
 def _match_paper_step(step: InputStep) -> tuple[float, float, float, float, float] | None:
     """The paper's Table 3 row of the same absolute input step (the paper's s_nom = 45 %)."""
-    before = step.triac_before_pct - PAPER_OPERATING_POINT[0]
-    after = step.triac_after_pct - PAPER_OPERATING_POINT[0]
+    before = step.triac_before_pct - PAPER_TRIAC_NOM_PCT
+    after = step.triac_after_pct - PAPER_TRIAC_NOM_PCT
     for row in PAPER_TABLE3:
         if abs(before - row[0]) < 0.5 and abs(after - row[1]) < 0.5:
             return row
