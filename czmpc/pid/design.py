@@ -21,12 +21,7 @@ from scipy.optimize import minimize_scalar
 from scipy.signal import lfilter
 
 from czmpc.pid.errors import PIDTuningError
-from czmpc.pid.margins import (
-    SAMPLED_LOW_FRACTION,
-    max_sensitivity,
-    nyquist_rad_per_s,
-    sampled_loop,
-)
+from czmpc.pid.margins import SAMPLED_LOW_FRACTION, sampled_loop, sampled_margins
 from czmpc.pid.plant import LocalPlant, reduce_to_rule_plant
 from czmpc.pid.rules import (
     DERIVATIVE_FILTER_RATIO,
@@ -117,7 +112,7 @@ class DesignSpec:
 
 
 def _grid_ms(tuning: PIDTuning, plant: LocalPlant) -> float:
-    wn = nyquist_rad_per_s(plant.ts_s)
+    wn = math.pi / plant.ts_s
     w = np.geomspace(SAMPLED_LOW_FRACTION * wn, wn, _SEARCH_GRID_POINTS)
     return float(np.max(np.abs(1.0 / (1.0 + sampled_loop(tuning, plant)(w)))))
 
@@ -182,14 +177,14 @@ def _knob_for_ms(make: Callable[[float], PIDTuning], plant: LocalPlant, dead_tim
             hi = mid
         else:
             lo = mid
-    while max_sensitivity(make(hi), plant) > bound:
+    while sampled_margins(make(hi), plant).ms > bound:
         hi *= 1.0 + _BOUND_STEP
     return make(hi)
 
 
 def _within_bound(tuning: PIDTuning, plant: LocalPlant, bound: float) -> PIDTuning:
     """``tuning`` with ``Kc`` lowered in small steps until the refined Ms meets ``bound``."""
-    while max_sensitivity(tuning, plant) > bound:
+    while sampled_margins(tuning, plant).ms > bound:
         tuning = tuning.scaled(1.0 - _BOUND_STEP)
     return tuning
 

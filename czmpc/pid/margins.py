@@ -142,11 +142,6 @@ def sampled_loop(tuning: PIDTuning, plant: LocalPlant) -> LoopResponse:
     return loop
 
 
-def nyquist_rad_per_s(ts_s: float) -> float:
-    """``pi/Ts`` [rad/s]."""
-    return math.pi / ts_s
-
-
 def sampled_margins(tuning: PIDTuning, plant: LocalPlant) -> LoopMargins:
     """Margins of ``tuning`` on ``plant`` as sampled (hold and delay included).
 
@@ -157,15 +152,9 @@ def sampled_margins(tuning: PIDTuning, plant: LocalPlant) -> LoopMargins:
     plant :
         The local plant.
     """
-    wn = nyquist_rad_per_s(plant.ts_s)
+    wn = math.pi / plant.ts_s
     return loop_margins(sampled_loop(tuning, plant), w_min_rad_per_s=SAMPLED_LOW_FRACTION * wn,
                         w_max_rad_per_s=wn)
 
 
-def max_sensitivity(tuning: PIDTuning, plant: LocalPlant) -> float:
-    """``Ms`` of ``tuning`` on ``plant`` as sampled [-] (`sampled_margins`)."""
-    return sampled_margins(tuning, plant).ms
-
-
-__all__ = ["LoopMargins", "LoopResponse", "loop_margins", "max_sensitivity",
-           "nyquist_rad_per_s", "sampled_loop", "sampled_margins"]
+__all__ = ["LoopMargins", "LoopResponse", "loop_margins", "sampled_loop", "sampled_margins"]
