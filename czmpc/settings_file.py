@@ -105,16 +105,12 @@ def _convert(where: str, cls: type[Any], name: str, value: object) -> object:
     raise SettingsError(f"{where}{name} cannot be set from a file")  # pragma: no cover
 
 
-def _unknown_key(where: str, key: str, valid: list[str]) -> SettingsError:
-    return SettingsError(unknown_key(where, key, valid))
-
-
 def _table_changes(where: str, cls: type[Any], table: Mapping[str, object]) -> dict[str, object]:
     valid = [f.name for f in dataclasses.fields(cls) if f.name not in TABLES]
     changes: dict[str, object] = {}
     for key, value in table.items():
         if key not in valid:
-            raise _unknown_key(where, key, valid)
+            raise SettingsError(unknown_key(where, key, valid))
         changes[key] = _convert(where, cls, key, value)
     return changes
 
