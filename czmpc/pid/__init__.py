@@ -6,17 +6,9 @@ sampled loop (hold and delay included), checks the schedule between breakpoints,
 it (velocity form, bumpless, anti-windup) and writes it as the plant's own PID block
 wants it.
 
-- `czmpc.pid.plant`: the local plant at a breakpoint and its dead-time reduction.
-- `czmpc.pid.rules`: SIMC, lambda/IMC, AMIGO and the sampled gain-delay rule.
-- `czmpc.pid.margins`: Ms, gain and phase margins from a frequency response.
-- `czmpc.pid.design`: one plant tuned by a rule, its knob or an Ms bound.
-- `czmpc.pid.schedule`: the schedule over the TRIAC range, breakpoints added where needed.
-- `czmpc.pid.controller`: the scheduled PID that runs in closed loop.
-- `czmpc.pid.table`: ``pid_table.csv`` and the characterizer table, written and read.
-- `czmpc.pid.vendor`: the tuning in the forms and units of DCS and PLC PID blocks.
-- `czmpc.pid.report`: what ``czmpc tune-pid`` writes (tables, vendor forms, ``report.md``).
-
-It imports the core (`czmpc.inversion`, `czmpc.errors`) and `sysid`; never `sim`.
+The modules, in that order: ``plant``, ``rules``, ``margins``, ``design``, ``schedule``,
+``controller``, ``table``, ``vendor``, ``report`` (each docstring's first line says its
+job). It imports the core (`czmpc.inversion`, `czmpc.errors`) and `sysid`; never `sim`.
 """
 
 from czmpc.pid.controller import PIDStep, ScheduledPID, TableSchedule
