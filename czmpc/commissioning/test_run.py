@@ -2,25 +2,18 @@
 
 `InputSchedule` is a designed TRIAC schedule (``time_s,triac_pct``, as written by
 `czmpc design-test`); `ScheduleDriver` plays it as a `czmpc.runtime.step.LoopController`,
-so the test runs in the same loop as the MPC: same timing, heartbeat, quality
-handling, plant watchdog and SIGTERM safe action, and the ``[test]`` limits of the
-config abort it (`czmpc.runtime.config.ExperimentLimits`).
+so the test runs in the same loop as the MPC (timing, heartbeat, quality handling,
+watchdog, safe action), and the config's ``[test]`` limits abort it
+(`czmpc.runtime.config.ExperimentLimits`).
 
 Start (bumpless): the first command is the input the plant applies now, held for
-`LEAD_IN_HOLD_SAMPLES` samples; from there the driver ramps to the schedule's first
-value at the schedule's own largest step per sample (`InputSchedule.max_step_pct`),
-then plays the schedule (zero-order hold on the loop's samples) and reports the run
-finished after its last row. An operator who switches the plant's mode away from ON
-aborts the test.
-
-The hold lets the loop find where in the plant's period it reads before any input
-moves (`czmpc.runtime.alignment`: `alignment.WINDOW` good samples, then at most one
-delay). Until then a read may fall just at the plant's step, and a write then lands
-after that step on some periods and before it on others: the input reaches the heater
-a sample late now and then. On a loaded machine at a time scale of 40, the lead-in
-ramp's third move arrived a sample late before the loop had aligned, and the ±5 kW
-one-step residual it left at the start of the log made check-model's residual
-whiteness fail (25 of 25 lags) on a test that was otherwise clean.
+`LEAD_IN_HOLD_SAMPLES` samples so that the loop aligns its reads to the plant's period
+before any input moves (`czmpc.runtime.alignment`; before, a lead-in move that reached
+the heater a sample late left a +-5 kW residual that failed check-model's whiteness on
+an otherwise clean test). The driver then ramps to the schedule's first value at the
+schedule's own largest step per sample (`InputSchedule.max_step_pct`), plays the
+schedule (zero-order hold) and reports the run finished after its last row. An operator
+who switches the plant's mode away from ON aborts the test.
 """
 
 from __future__ import annotations

@@ -1,25 +1,15 @@
 """The client side of the plant link: one OPC UA session, its typed nodes, hard deadlines.
 
 Once per session (`PlantLink.connect`) the link reads every configured node's
-``DataType``, ``ValueRank``, ``AccessLevel``, ``UserAccessLevel`` and value in one Read
-request and checks it against what czmpc does with it (`ROLES`): the node exists, it
-is a scalar, its type can carry its value after scaling, this user may read it and,
-where czmpc writes, write it. The result is a `CheckReport` (the table of ``czmpc run
---check``); a run writes nothing until that check has passed.
-
-Each step then makes one Read request (power, setpoint, mode, applied input) and one
-Write request (command, heartbeat, model health), each Variant of the node's own type
-(`czmpc.runtime.node_types`) and without timestamps (a PLC's server may refuse written
-timestamps). A write's result is one status per node: a Bad one is a refusal (the
-session stands; `czmpc.runtime.refusals` says what it means), never a lost link.
-
-Every call has a hard deadline (`within`): a call that misses it is abandoned, not
-awaited, and the session's socket is closed at once (`PlantLink.abort`). Closing at the
-end of a run is bounded the same way, so a server that stops answering mid-call can
-never hold the loop longer than the deadline it was given.
-
-Timestamps: the check says for each node whether the server sends source
-timestamps; the loop falls back to server timestamps where it does not
+``DataType``, ``ValueRank``, access levels and value in one Read request and checks it
+against what czmpc does with it (`ROLES`); the result is a `CheckReport` (the table of
+``czmpc run --check``), and a run writes nothing until it has passed. Each step then makes
+one Read and one Write request, each value a Variant of the node's own type
+(`czmpc.runtime.node_types`) without timestamps. A Bad write status is a refusal
+(`czmpc.runtime.refusals`), never a lost link. Every call has a hard deadline
+(`within`): a call that misses it is abandoned and the socket closed at once
+(`PlantLink.abort`), so a server that stops answering never holds the loop longer than
+that. Where the server sends no source timestamps the loop uses server timestamps
 (`czmpc.runtime.measurement.sample_time`).
 """
 

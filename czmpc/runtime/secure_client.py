@@ -1,21 +1,12 @@
 """Open an OPC UA client session with the security a `SecuritySettings` asks for, or say why not.
 
-The order of a secure connection, and what each failure means:
-
-1. ``GetEndpoints`` on an unsecured discovery channel (OPC UA allows it on every
-   server): the server must offer an endpoint with the configured policy and mode
-   (else: *no matching endpoint*, with what it does offer), and that endpoint's
-   certificate must be the pinned one, byte for byte (else: *the server presents
-   another certificate*, with both SHA-1 thumbprints).
-2. The secure channel and the session, signed and encrypted with czmpc's certificate,
-   with the user name and password when configured. The server may refuse czmpc's
-   certificate (``BadCertificate*``: not trusted there) or the user
-   (``BadUserAccessDenied``, ``BadIdentityTokenRejected``).
-
-Every one of these is a configuration error (`SecurityRejectedError`, exit 2), raised
-within ``timeout_s``: retrying cannot fix it, and a weaker policy is never tried in its
-place. A refused TCP connection or a timeout before the server answered is a network
-fault (`PlantUnreachableError`), which a runtime may retry with backoff.
+First ``GetEndpoints`` on an unsecured discovery channel: the server must offer the
+configured policy and mode, with the pinned certificate byte for byte. Then the secure
+channel and session with czmpc's certificate and user. Each refusal (no matching
+endpoint, another certificate, czmpc's certificate or user not accepted) is a
+configuration error (`SecurityRejectedError`, exit 2) raised within ``timeout_s``, and a
+weaker policy is never tried in its place; a refused TCP connection or a timeout before
+the server answered is a network fault (`PlantUnreachableError`) a runtime may retry.
 """
 
 from __future__ import annotations
