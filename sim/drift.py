@@ -7,26 +7,23 @@ value, a step change such as a new crucible or an aged element). `vary_model_pla
 `vary_heater` build a `DriftingPlant` (the `sim.protocols.Plant` protocol) from a model
 plant or the virtual heater; `czmpc plant serve` and the stale-model tests use them.
 
-What each quantity means on each plant:
+On a model plant the gain and the time constant move as `sim.perturbed.perturb_model`
+says (every gain times ``g`` exactly; the slow pole moved to ``exp(-Ts / tau_s)``,
+holding the instantaneous jump and the static gain). On the virtual heater:
 
-* **gain factor** ``g``.
-  Model plant: ``f(ds) -> g f(ds)`` (`sim.perturbed.perturb_model`): every gain, the
-  instantaneous and the static one, is multiplied by ``g`` exactly.
-  Virtual heater: the rated power ``P_rated = V^2 / R_ref`` is multiplied by ``g`` (an
-  element whose cold resistance ``R_ref`` has changed by ``1/g``, as an aged element's
-  does). The power the TRIAC passes at the element's present temperature scales by
-  ``g``; because a different power moves the element's temperature, the static gain of
-  a small step scales by ``g`` only to within a few per cent (stated in the tests).
-* **time constant** ``tau_s`` [s] (None: the plant's own).
-  Model plant: the slow pole of ``A(q)`` is moved to ``exp(-Ts / tau_s)``, holding the
-  instantaneous jump and the static gain (`sim.perturbed.scale_slow_time_constant`).
-  Virtual heater: the heat capacity ``C`` is scaled so that the linearized sag time
-  constant ``C / (4 eps A sigma T^3 + P alpha / rho)`` at the heater's initial input
-  (`heater_time_constant_s`) equals ``tau_s``.
-* **extra delay** ``n`` samples: the input is held in a first-in first-out line of
-  ``n`` samples before it reaches the plant (the line starts full of the initial
-  input), on either plant; the response is that of the undelayed plant shifted by
-  exactly ``n`` samples.
+* **gain factor** ``g``: the rated power ``P_rated = V^2 / R_ref`` is multiplied by
+  ``g`` (an element whose cold resistance ``R_ref`` has changed by ``1/g``, as an aged
+  element's does). The power the TRIAC passes at the element's present temperature
+  scales by ``g``; because a different power moves the element's temperature, the
+  static gain of a small step scales by ``g`` only to within a few per cent (stated in
+  the tests).
+* **time constant** ``tau_s`` [s] (None: the plant's own): the heat capacity ``C`` is
+  scaled so that the linearized sag time constant ``C / (4 eps A sigma T^3 + P alpha /
+  rho)`` at the heater's initial input (`heater_time_constant_s`) equals ``tau_s``.
+
+An **extra delay** of ``n`` samples holds the input, on either plant, in a first-in
+first-out line of ``n`` samples (it starts full of the initial input): the response is
+that of the undelayed plant shifted by exactly ``n`` samples.
 
 A drift changes the plant's parameters between samples, keeping its state (the model
 plant's histories, the heater's temperature): the first sample whose start time
