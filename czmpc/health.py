@@ -528,38 +528,4 @@ class ModelHealthMonitor:
             alarm_reason=self.alarm_reason)
 
 
-def residuals_kw(model: HammersteinModel, power_kw: FloatArray, triac_pct: FloatArray) -> FloatArray:
-    """One-step prediction residuals of ``model`` on a record (the monitor's ``e_k``).
-
-    Parameters
-    ----------
-    power_kw :
-        (n,) measured power ``y_k`` [kW], no missing samples.
-    triac_pct :
-        (n,) input ``s_k`` applied over ``(t_k, t_{k+1}]`` [%].
-
-    Returns
-    -------
-    FloatArray
-        (n,) ``e_k`` from ``C e = A y - B w`` with the record's first sample as steady
-        state before it (the first `_settle_samples` values carry the start transient).
-    """
-    from scipy import signal
-
-    y = np.asarray(power_kw, dtype=float) - model.operating_point.power_kw
-    w = model.input_nonlinearity(np.asarray(triac_pct, dtype=float)
-                                 - model.operating_point.triac_pct)
-    n_pad = max(len(model.a), len(model.b), len(model.c))
-    y_pad = np.concatenate([np.full(n_pad, y[0]), y])
-    w_pad = np.concatenate([np.full(n_pad, w[0]), w])
-    rhs = signal.lfilter(model.a, [1.0], y_pad) - signal.lfilter(model.b, [1.0], w_pad)
-    c = np.asarray(model.c, dtype=float)
-    zi = signal.lfiltic([1.0], c, y=np.zeros(len(c) - 1)) if len(c) > 1 else None
-    if zi is None:
-        return np.asarray(rhs[n_pad:], dtype=float)
-    e = signal.lfilter([1.0], c, rhs, zi=zi)[0]
-    return np.asarray(e[n_pad:], dtype=float)
-
-
-__all__ = ["RUNTIME_HEALTH", "HealthSettings", "ModelHealth", "ModelHealthMonitor",
-           "residuals_kw"]
+__all__ = ["RUNTIME_HEALTH", "HealthSettings", "ModelHealth", "ModelHealthMonitor"]

@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 
 from czmpc.errors import SettingsError
-from czmpc.health import HealthSettings, ModelHealthMonitor, residuals_kw
+from czmpc.health import HealthSettings, ModelHealthMonitor
 from czmpc.shipped import shipped_path
 from sim.model_plant import ModelPlant
 from sysid.model import HammersteinModel
 from sysid.modelfile import load_model
+from sysid.simulate import prediction_errors_arrays
 from tests.tolerances import RESIDUAL_ATOL_KW
 
 SHIPPED = load_model(shipped_path("cz_heater_model.json"))
@@ -51,8 +52,10 @@ def test_residuals_are_the_plant_innovations() -> None:
                                atol=1e-3 * abs(power[0] - SHIPPED.operating_point.power_kw))
     # ... and nothing after 100 samples
     np.testing.assert_allclose(got_arr[100:], innovation[100:], rtol=0.0, atol=RESIDUAL_ATOL_KW)
-    # the batch function gives the same once its own start transient has decayed
-    batch = residuals_kw(SHIPPED, power, triac)
+    # sysid's batch prediction errors give the same once their start transient has decayed
+    op = SHIPPED.operating_point
+    batch = prediction_errors_arrays(SHIPPED.a, SHIPPED.b, SHIPPED.c, power - op.power_kw,
+                                     SHIPPED.input_nonlinearity(triac - op.triac_pct))
     np.testing.assert_allclose(batch[200:], innovation[200:], rtol=0.0, atol=1e-6)
 
 
