@@ -44,6 +44,7 @@ from czmpc.commissioning.test_run import (
 )
 from czmpc.errors import CzmpcError, DesignError
 from czmpc.reports import commissioning as figures
+from czmpc.reports.identification import model_equation
 from czmpc.runtime.config import RunConfig
 from czmpc.runtime.loop import RunSummary
 from czmpc.runtime.runlog import read_run_log
@@ -359,15 +360,10 @@ def commission(config: RunConfig, plan: JourneyPlan, *,
 
 
 def _equation(model: HammersteinModel) -> list[str]:
-    def poly(name: str, c: Sequence[float] | np.ndarray) -> str:
-        terms = " ".join(f"{v:+.6g} q^-{i}" if i else f"{v:.6g}" for i, v in enumerate(c))
-        return f"    {name}(q) = {terms}"
-
-    f = " ".join(f"{p:+.6g} ds^{i + 1}" for i, p in enumerate(model.input_poly))
-    return ["```", f"A(q) dP = B(q) f(ds) + C(q) e,  ds = s - {model.operating_point.triac_pct:g} %, "
-            f"dP = P - {model.operating_point.power_kw:g} kW",
-            poly("A", model.a), poly("B", model.b), poly("C", model.c), f"    f(ds) = {f}  [kW]",
-            f"    noise std(e) = {model.noise_std_kw:.4g} kW, Ts = {model.ts_s:g} s", "```"]
+    op = model.operating_point
+    return ["```", model_equation(model), f"ds = s - {op.triac_pct:g} %, dP = P - "
+            f"{op.power_kw:g} kW; noise std(e) = {model.noise_std_kw:.4g} kW, Ts = {model.ts_s:g} s",
+            "```"]
 
 
 def _write_report(out: Path, *, config: RunConfig, plan: JourneyPlan, signal: ExcitationSignal,
