@@ -152,11 +152,6 @@ class InputMap:
     w_max: float
     slope_critical_points_pct: tuple[float, ...]
 
-    @property
-    def degree(self) -> int:
-        """Degree of ``f``."""
-        return len(self.coefficients)
-
     def f(self, ds_pct: float) -> float:
         """``f(ds)`` for a scalar [kW-equivalent]."""
         return evaluate(self.coefficients, ds_pct)
