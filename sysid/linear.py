@@ -437,11 +437,12 @@ def _lag_with_past(x: FloatArray, lag: int, past: FloatArray | None) -> FloatArr
 
 def _free_responses(den: FloatArray, n: int) -> FloatArray:
     """Column ``j``: output of ``1/den`` for zero input from the unit lfilter state ``j``."""
+    # the response from state j is the impulse response delayed by j samples (one filter)
     order = len(den) - 1
-    out: FloatArray = lfilter(
-        [1.0], den, np.zeros((n, order)), axis=0, zi=np.eye(order)
-    )[0]
-    return out
+    pulse = np.zeros(n)
+    pulse[:1] = 1.0
+    h = lfilter([1.0], den, pulse)
+    return np.column_stack([_lag_with_past(h, j, None) for j in range(order)])
 
 
 def _stabilizer(blocks: tuple[slice, ...]) -> Callable[[FloatArray], FloatArray]:

@@ -165,12 +165,16 @@ def _fir(coef: FloatArray, x: FloatArray) -> FloatArray:
     return np.column_stack([np.convolve(col, coef)[: x.shape[0]] for col in x.T])
 
 
-def _pulses(n: int, n_samples: int) -> FloatArray:
-    """``(n_samples, n)``: column ``j`` is a unit pulse at sample ``j``."""
-    out = np.zeros((n_samples, n))
-    m = min(n, n_samples)
-    out[np.arange(m), np.arange(m)] = 1.0
-    return out
+def _pulse_responses(den: FloatArray, n: int, n_samples: int) -> FloatArray:
+    """``(n_samples, n)``: column ``j`` is ``1/den``'s response to a unit pulse at sample ``j``.
+
+    One impulse response, delayed: a time-invariant filter from rest commutes with the
+    delay, so the columns equal filtering each pulse (bit for bit) at ``1/n`` the cost.
+    """
+    pulse = np.zeros(n_samples)
+    pulse[:1] = 1.0
+    h = lfilter([1.0], den, pulse)
+    return np.column_stack([_lag(h, j) for j in range(n)]) if n else np.zeros((n_samples, 0))
 
 
 def _oe_segment(
@@ -213,8 +217,7 @@ def _oe_segment(
         g[: min(n, y.size)] += np.column_stack(dh)[: y.size]
     sens = lfilter([1.0], f, g, axis=0)
     pulses = (
-        lfilter([1.0], f, _pulses(n, y.size), axis=0)
-        if initial_state == "estimate" else np.zeros((y.size, 0))
+        _pulse_responses(f, n, y.size) if initial_state == "estimate" else np.zeros((y.size, 0))
     )
     return eps, -sens, -pulses
 
@@ -269,8 +272,7 @@ def _armax_segment(
         x[: min(n, y.size)] += np.column_stack(dg)[: y.size]
     sens = lfilter([1.0], c, x, axis=0)
     pulses = (
-        lfilter([1.0], c, _pulses(n, y.size), axis=0)
-        if initial_state == "estimate" else np.zeros((y.size, 0))
+        _pulse_responses(c, n, y.size) if initial_state == "estimate" else np.zeros((y.size, 0))
     )
     return e, sens, pulses
 
