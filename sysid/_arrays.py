@@ -1,4 +1,4 @@
-"""Read-only float copies: how frozen values hold arrays (STYLE.md B.5)."""
+"""Read-only float copies: how frozen values hold arrays."""
 
 from __future__ import annotations
 

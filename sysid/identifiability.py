@@ -3,7 +3,7 @@
 Identification is general: a negative gain, a long delay or an integrating process are
 legitimate properties of a process, and are *warnings* (the model may be right; the
 user decides). What no fit can repair is a log that carries no information about the
-input: those are *refusals*. DESIGN.md, "Facts that bite", draws this line.
+input: those are *refusals*. docs/theory.rst, "Facts that bite", draws this line.
 
 Checks on the data (before a fit, `assess_data`, and again with the fitted model's
 orders in `assess_model`), each a refusal when it fails:

@@ -2,7 +2,7 @@
 
 Notation
 --------
-The one general form of every model the project stores (DESIGN.md, "Model file")::
+The one general form of every model the project stores (docs/reference/model_file.rst)::
 
     A(q) dP_k = B(q) f(ds_k) + C(q) e_k,      f(ds) = sum_i p_i ds^i,  i = 1..n
 

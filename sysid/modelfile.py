@@ -1,4 +1,4 @@
-"""Read and write the ``czmpc-model/1`` JSON model file (DESIGN.md, "Model file").
+"""Read and write the ``czmpc-model/1`` JSON model file (docs/reference/model_file.rst).
 
 This is the only place that maps between the file's keys (``"A"``, ``"B"``, ``"C"``,
 ``"V"``, ``"W"``) and the Python attribute names (``a``, ``b``, ``c``,
@@ -124,7 +124,7 @@ def model_from_dict(obj: Any) -> HammersteinModel:
     if missing:
         raise ModelFileError(f"missing key(s) {missing}")
     # Keys outside _TOP_KEYS are ignored: optional fields may be added to
-    # czmpc-model/1 and readers ignore what they do not know (DESIGN.md).
+    # czmpc-model/1 and readers ignore what they do not know (docs/reference/model_file.rst).
     op = obj["operating_point"]
     if not isinstance(op, dict) or set(op) != {"triac_pct", "power_kw"}:
         raise ModelFileError(
