@@ -31,7 +31,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from czmpc.diagnostics import Fallback, StepDiagnostics
+from czmpc.diagnostics import Fallback, StepDiagnostics, record_from_fields
 from czmpc.errors import DesignError, SettingsError
 from czmpc.inversion import InputMap, build_input_map, slope
 from czmpc.kalman import Estimator, SteadyStateKalman
@@ -417,24 +417,27 @@ class OffsetFreeMPC:
         triac = self._s_nom + self._ds_prev
         d_power = d * self._d_power_gain
         sol = plan.solution
-        self._last = StepDiagnostics(
-            k=self._k, power_kw=power, setpoint_kw=sp.received_kw, setpoint_used_kw=sp.used_kw,
-            setpoint_held=sp.verdict != "valid", triac_pct=triac, measurement_used=used,
-            innovation_kw=eps, state_estimate=z, disturbance_estimate=d,
-            disturbance_power_kw=d_power, target_w=tgt.w_s,
-            target_triac_pct=self._s_nom + em.inverse(tgt.w_s),
-            target_power_kw=self._p_nom + tgt.y_s, setpoint_reachable=tgt.is_reachable,
-            planned_w=sol.w, solver_status=sol.status, solve_time_s=sol.solve_time_s,
-            n_iterations=sol.n_iterations, fallback=plan.fallback,
-            soft_limit_slack_kw=sol.slack_kw, mode=mode, status=status,
-            verdict=check.verdict, level_change_accepted=check.reopened,
-            innovation_std_kw=std_kw, samples_without_measurement=est.gap,
-            bad_solves_in_row=self._bad_in_row, advised_triac_pct=self._s_nom + ds,
-            applied_triac_pct=self._s_nom + ds_prev, triac_limits_pct=self._limits.triac_pct,
-            mismatch=self._monitor.update(eps if used else None, disturbance_kw=d_power),
-            transition=transition_record, setpoint_verdict=sp.verdict,
-            rolled_back_samples=rolled_back,
-        )
+        verdict = sp.verdict
+        # Every field, in the class's order (`record_from_fields`).
+        self._last = record_from_fields(StepDiagnostics, {
+            "k": self._k, "power_kw": power, "setpoint_kw": sp.received_kw,
+            "setpoint_used_kw": sp.used_kw, "setpoint_held": verdict != "valid",
+            "triac_pct": triac, "measurement_used": used, "innovation_kw": eps,
+            "state_estimate": z, "disturbance_estimate": d, "disturbance_power_kw": d_power,
+            "target_w": tgt.w_s, "target_triac_pct": self._s_nom + em.inverse(tgt.w_s),
+            "target_power_kw": self._p_nom + tgt.y_s, "setpoint_reachable": tgt.is_reachable,
+            "planned_w": sol.w, "solver_status": sol.status, "solve_time_s": sol.solve_time_s,
+            "n_iterations": sol.n_iterations, "fallback": plan.fallback,
+            "soft_limit_slack_kw": sol.slack_kw, "mode": mode, "status": status,
+            "verdict": check.verdict, "level_change_accepted": check.reopened,
+            "innovation_std_kw": std_kw, "samples_without_measurement": est.gap,
+            "bad_solves_in_row": self._bad_in_row, "advised_triac_pct": self._s_nom + ds,
+            "applied_triac_pct": self._s_nom + ds_prev,
+            "triac_limits_pct": self._limits.triac_pct,
+            "mismatch": self._monitor.update(eps if used else None, disturbance_kw=d_power),
+            "transition": transition_record, "setpoint_verdict": verdict,
+            "rolled_back_samples": rolled_back,
+        })
         self._k += 1
         return triac
 
@@ -567,21 +570,25 @@ class OffsetFreeMPC:
         triac = self._s_nom + self._ds_prev
         z = self._est.z
         d = float(z[self._n_x])
-        self._last = StepDiagnostics(
-            k=self._k, power_kw=power, setpoint_kw=sp.received_kw, setpoint_used_kw=sp.used_kw,
-            setpoint_held=sp.verdict != "valid", triac_pct=triac, measurement_used=False,
-            innovation_kw=0.0, state_estimate=z, disturbance_estimate=d,
-            disturbance_power_kw=d * self._d_power_gain, target_w=math.nan,
-            target_triac_pct=math.nan, target_power_kw=math.nan, setpoint_reachable=True,
-            planned_w=self._nan_plan, solver_status="skipped (mode off)", solve_time_s=0.0,
-            n_iterations=0, fallback="none", soft_limit_slack_kw=0.0, mode=Mode.OFF,
-            status=Status.HELD,
-            verdict=Verdict.VALID if math.isfinite(power) else Verdict.MISSING,
-            samples_without_measurement=self._est.gap, bad_solves_in_row=self._bad_in_row,
-            advised_triac_pct=triac, applied_triac_pct=triac,
-            triac_limits_pct=self._limits.triac_pct, transition=transition_record,
-            setpoint_verdict=sp.verdict,
-        )
+        d_power = d * self._d_power_gain
+        self._last = record_from_fields(StepDiagnostics, {
+            "k": self._k, "power_kw": power, "setpoint_kw": sp.received_kw,
+            "setpoint_used_kw": sp.used_kw, "setpoint_held": sp.verdict != "valid",
+            "triac_pct": triac, "measurement_used": False, "innovation_kw": 0.0,
+            "state_estimate": z, "disturbance_estimate": d, "disturbance_power_kw": d_power,
+            "target_w": math.nan, "target_triac_pct": math.nan, "target_power_kw": math.nan,
+            "setpoint_reachable": True, "planned_w": self._nan_plan,
+            "solver_status": "skipped (mode off)", "solve_time_s": 0.0, "n_iterations": 0,
+            "fallback": "none", "soft_limit_slack_kw": 0.0, "mode": Mode.OFF,
+            "status": Status.HELD,
+            "verdict": Verdict.VALID if math.isfinite(power) else Verdict.MISSING,
+            "level_change_accepted": False, "innovation_std_kw": math.nan,
+            "samples_without_measurement": self._est.gap, "bad_solves_in_row": self._bad_in_row,
+            "advised_triac_pct": triac, "applied_triac_pct": triac,
+            "triac_limits_pct": self._limits.triac_pct, "mismatch": None,
+            "transition": transition_record, "setpoint_verdict": sp.verdict,
+            "rolled_back_samples": 0,
+        })
         self._k += 1
         return triac
 

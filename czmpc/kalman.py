@@ -310,11 +310,12 @@ class Estimator:
         v[-2] = w
         v[-1] = self.eps
         out = self._ABG_C @ v
-        if np.isfinite(out).all():
+        values = out.tolist()  # math.isfinite on n + 1 floats beats np.isfinite on a tiny array
+        if all(map(math.isfinite, values)):
             z_next = out[:-1]
             z_next.flags.writeable = False
             self._z = z_next
-            self._y_pred = float(out[-1])
+            self._y_pred = values[-1]
         else:
             self._set(z.copy())
         self.eps = 0.0

@@ -55,6 +55,7 @@ import osqp
 import scipy.linalg
 import scipy.sparse as sp
 
+from czmpc.diagnostics import record_from_fields
 from czmpc.errors import DesignError
 from czmpc.inversion import InputMap
 from czmpc.inversion import slope as slope_at
@@ -475,6 +476,7 @@ class MPCQP:
         self._needs_cold_start = False
         self._zero_x = np.zeros(n_var)
         self._zero_y = np.zeros(self.n_constraints)
+        self._data_zeros = np.zeros(self._data.size)
         self._nan_plan = np.full(N, math.nan)
         self._nan_plan.setflags(write=False)
 
@@ -544,15 +546,16 @@ class MPCQP:
         params[:-2] = h
         params[-2] = w_prev
         params[-1] = w_target
-        q = self._q
         np.dot(self._q_params, params, out=self._q_w)
-        lo = self._l
-        up = self._u
-        self._l_box[:] = w_lo
-        self._u_box[:] = w_hi
+        if w_lo is not self._l_box:
+            self._l_box[:] = w_lo
+        if w_hi is not self._u_box:
+            self._u_box[:] = w_hi
         if self.has_rate_limit and rate is not None:
             np.negative(rate, out=self._l_rate)
             self._u_rate[:] = rate
+        lo = self._l
+        up = self._u
         if self.has_soft:
             # C dx_j = Cphi_j h + Cgam_j w - (Cgam_j 1) w_s ; y_j = y_s + C dx_j.
             base = self._Cphi @ h - self._Cgam_rowsum * w_target + y_target
@@ -562,11 +565,12 @@ class MPCQP:
                 r0 += N
             if self.has_soft_min and soft_min_rel_kw is not None:
                 lo[r0 : r0 + N] = soft_min_rel_kw - base
-        if not np.isfinite(self._data).all():
+        # 0 * v is 0 for every finite v and NaN for inf or NaN: one product checks them all.
+        if not self._data_zeros @ self._data == 0.0:
             return self._failed("non-finite problem data")
         ext = self._ext
         try:
-            ext.update_data_vec(q=q, l=lo, u=up)
+            ext.update_data_vec(q=self._q, l=lo, u=up)
             if self._needs_cold_start:
                 ext.warm_start(self._zero_x, self._zero_y)
                 self._needs_cold_start = False
@@ -574,10 +578,10 @@ class MPCQP:
         except osqp.OSQPException as exc:
             return self._failed(f"osqp error: {exc}")
         info = ext.info
-        status_val = int(info.status_val)
+        status_val = info.status_val
         x = ext.solution.x
         status = info.status
-        usable = status_val in (_SOLVED, _SOLVED_INACCURATE)
+        usable = status_val == _SOLVED or status_val == _SOLVED_INACCURATE
         # Every variable enters A x, so a residual below the tolerance also means x is finite.
         if usable and not (self._residual_bounds_violation and info.prim_res <= self.bound_tol_kw):
             if not np.isfinite(x).all():
@@ -595,16 +599,16 @@ class MPCQP:
             plan = self._nan_plan
             slack = math.nan if self.has_soft else 0.0
             self._needs_cold_start = True
-        return QPSolution(
-            status=status,
-            is_usable=usable,
-            is_accurate=usable and status_val == _SOLVED,
-            w=plan,
-            slack_kw=slack,
-            objective=float(info.obj_val),
-            n_iterations=int(info.iter),
-            solve_time_s=float(info.solve_time),
-        )
+        return record_from_fields(QPSolution, {
+            "status": status,
+            "is_usable": usable,
+            "is_accurate": usable and status_val == _SOLVED,
+            "w": plan,
+            "slack_kw": slack,
+            "objective": float(info.obj_val),
+            "n_iterations": int(info.iter),
+            "solve_time_s": float(info.solve_time),
+        })
 
 
 __all__ = [

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from czmpc.diagnostics import record_from_fields
 from czmpc.errors import DesignError
 from czmpc.realization import InnovationsForm
 from czmpc.settings import DisturbanceModel
@@ -135,7 +136,8 @@ def compute_target(
     reachable = w_s == w_free
     if reachable:
         y_s = setpoint
-    return Target(x_s=x_s, w_s=w_s, y_s=y_s, is_reachable=reachable, w_unclipped=w_free)
+    return record_from_fields(Target, {"x_s": x_s, "w_s": w_s, "y_s": y_s,
+                                       "is_reachable": reachable, "w_unclipped": w_free})
 
 
 __all__ = [

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Callable
@@ -13,10 +14,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from czmpc.controller import OffsetFreeMPC
+from czmpc.diagnostics import StepDiagnostics
 from czmpc.errors import DesignError
 from czmpc.qp import QPSolution
 from czmpc.realization import innovations_form
 from czmpc.settings import MPCSettings, OSQPOptions, ReliabilitySettings
+from czmpc.target import Target, compute_target, steady_state_map
 from sim.protocols import Controller
 from sysid.model import HammersteinModel
 
@@ -216,6 +219,30 @@ def test_missing_measurement_and_setpoint_are_handled_and_recorded(
         assert not last.measurement_used and last.innovation_kw == 0.0
         assert last.setpoint_held and last.setpoint_used_kw == 46.0
         assert math.isnan(last.setpoint_kw)
+
+
+@pytest.mark.parametrize("mode", ["on", "predict", "off"])
+def test_step_records_name_every_field_in_order(
+    paper_armax_model: HammersteinModel, mode: str,
+) -> None:
+    # The step builds its records with record_from_fields (no __init__): every field, in order.
+    mpc = OffsetFreeMPC(paper_armax_model)
+    if mode != "on":
+        mpc.request_mode(mode)
+    mpc.step(45.0, 46.0)
+    last = mpc.last_step
+    assert last is not None
+    assert list(vars(last)) == [f.name for f in dataclasses.fields(StepDiagnostics)]
+    assert dataclasses.replace(last) is not last
+    horizon = mpc.settings.horizon_steps
+    solution = mpc.qp.solve(
+        h=np.zeros(mpc.augmented_model.n_states - 1), w_prev=0.0, w_target=0.0, y_target=0.0,
+        w_lo=np.full(horizon, -1.0), w_hi=np.full(horizon, 1.0),
+        rate=np.full(horizon - 1, 1.0) if mpc.qp.has_rate_limit else None)
+    target = compute_target(steady_state_map(innovations_form(paper_armax_model), "input"),
+                            setpoint=1.0, disturbance=0.0, w_min=-10.0, w_max=10.0)
+    for record, cls in ((solution, QPSolution), (target, Target)):
+        assert list(vars(record)) == [f.name for f in dataclasses.fields(cls)]
 
 
 def test_reset_restarts_bit_for_bit(paper_armax_model: HammersteinModel) -> None:
