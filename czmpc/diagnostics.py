@@ -155,7 +155,7 @@ def record_from_fields(cls: type[_Record], fields: dict[str, Any]) -> _Record:
     fields :
         Every field's value by name; the instance keeps this dict.
     """
-    record: _Record = object.__new__(cls)  # type: ignore[call-overload]
+    record: _Record = object.__new__(cls)
     object.__setattr__(record, "__dict__", fields)
     return record
 
