@@ -290,7 +290,8 @@ class Estimator:
         if not abs(eps) <= MAX_INNOVATION_KW:
             self.gap += 1
             return False
-        z = self._z + self._M * eps
+        z = self._M * eps
+        z += self._z  # = z + M eps, in place
         z.flags.writeable = False
         self._z = z
         self.eps = eps

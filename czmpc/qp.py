@@ -282,7 +282,8 @@ class MoveBounds:
             self._w_hi.fill(input_map.w_max)
             return self._w_lo, self._w_hi, None
         ds = self._ds
-        np.add(self._reach, ds_prev_pct, out=ds)
+        ds[:] = self._reach
+        ds += ds_prev_pct  # = reach + ds_prev; in place costs less than np.add(..., out=)
         np.maximum(ds, input_map.ds_min_pct, out=ds)
         np.minimum(ds, input_map.ds_max_pct, out=ds)
         c = input_map.coefficients
