@@ -63,12 +63,27 @@ READERS = {
 #: Issue 29, item 3: the short TCLab log (599 samples) with 5 % and 10 % of it cut from the
 #: end. The model.json of each keeps the full log's structure, and scored on the full log
 #: it errs by at most this factor over the full log's own model.json (measured 1.12, 1.17).
-#: Cut from the start, the log no longer starts at rest, and neither holds yet (V 2,000
-#: and 12,500 times the full log's model: the issue stays open on that).
 END_CUT_V_RATIO = 1.25
 END_CUTS = {
     f"tclab_end{pct}": (lambda pct=pct: READERS["tclab"]().segment(
         0, 599 - int(pct / 100 * 599)))
+    for pct in (5, 10)
+}
+#: The same log with 5 % (29 samples) and 10 % (59) cut from the start: it then begins 19
+#: and 49 samples after the 0 -> 100 % heater step, mid-transient, and no longer at rest.
+#: The same bar as the end cuts. Not met yet (issue 29 stays open on it): scored on the
+#: full log, model.json errs 2,019 and 12,544 times the full log's model (219.2 and 1,362
+#: against 0.1086 degC^2). The from-rest OE then assumes a rest that is none (5 %: static
+#: gain 7.7e6, refused, and the noise-model Hammerstein, 219, stays; 10 %: V from rest 47
+#: on the cut log, chosen), and a whole-record criterion with the initial state and the
+#: rest output estimated is no cure on this log: it prefers near-integrators (static gains
+#: 1e3..1e7) that trade a slow pole against the free offset, on the full log too. The full
+#: log's model (poles 0.995, tau about 200 samples, input steps 200 apart) scores 0.136 and
+#: 0.140 degC^2 on the cut records that way, against 0.036..0.045 for those integrators.
+START_CUT_V_RATIO = 1.25
+START_CUTS = {
+    f"tclab_start{pct}": (lambda pct=pct: READERS["tclab"]().segment(
+        int(pct / 100 * 599), 599))
     for pct in (5, 10)
 }
 
@@ -158,7 +173,7 @@ def identified(tmp_path_factory: pytest.TempPathFactory) -> Identified:
             reading = ["--columns", "time_s=t,triac_pct=u_V,power_kw=y_degC",
                        "--input-unit", "V", "--output-unit", "degC"]
         else:
-            write_csv({**READERS, **END_CUTS}[name](), folder / "log.csv")
+            write_csv({**READERS, **END_CUTS, **START_CUTS}[name](), folder / "log.csv")
         err = io.StringIO()
         with contextlib.redirect_stderr(err):
             code = main(["identify", str(folder / "log.csv"), "--out", str(folder / "id"),
@@ -205,6 +220,21 @@ def test_the_short_logs_model_holds_when_its_end_is_cut(name: str, identified: I
     assert _structure(out / "model.json") == _structure(out_full / "model.json")
     v_cut = _written_v(out / "model.json", full, burn)
     assert v_cut <= END_CUT_V_RATIO * _written_v(out_full / "model.json", full, burn)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 29 item 3: a log that starts mid-transient "
+                   "(TCLab cut at its start) gives a model 2,000-12,500x worse on the full log")
+@pytest.mark.parametrize("name", list(START_CUTS))
+def test_the_short_logs_model_holds_when_its_start_is_cut(name: str, identified: Identified,
+                                                          ) -> None:
+    full = READERS["tclab"]()
+    burn = int(BURN_IN_SHARE * full.n_samples)
+    code, err, out = identified(name)
+    assert code == 0, err
+    _, _, out_full = identified("tclab")
+    v_cut = _written_v(out / "model.json", full, burn)
+    assert v_cut <= START_CUT_V_RATIO * _written_v(out_full / "model.json", full, burn), v_cut
 
 
 def _pipeline(name: str):  # type: ignore[no-untyped-def]
