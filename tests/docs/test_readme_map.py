@@ -158,5 +158,7 @@ def test_the_library_example_runs(text: str, monkeypatch: pytest.MonkeyPatch) ->
 def test_every_path_the_readme_names_exists(text: str) -> None:
     paths = set(re.findall(r"`((?:docs|tests|tools|examples|data)/[\w./-]+)`", text))
     paths |= set(re.findall(r"\]\(([\w.]+)\)", text))
-    missing = sorted(p for p in paths if not (REPO / p).exists())
+    # what `make docs` builds is named, not shipped: a clean clone has no docs/_build yet
+    missing = sorted(p for p in paths
+                     if not p.startswith("docs/_build/") and not (REPO / p).exists())
     assert missing == [], f"the README names files that do not exist: {missing}"
