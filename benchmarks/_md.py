@@ -120,6 +120,28 @@ def write_benchmarks_section(path: str | os.PathLike[str], body: str, *, heading
     atomic_write_text(path, new)
 
 
+def benchmark_parser(module: str, doc: str | None) -> argparse.ArgumentParser:
+    """The parser of ``python -m benchmarks.<module>``, its module docstring as the help."""
+    return argparse.ArgumentParser(prog=f"python -m benchmarks.{module}", description=doc,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
+def add_campaign_run_options(parser: argparse.ArgumentParser, *, out_note: str = "") -> None:
+    """``--out``, ``--executor``, ``--workers``, ``--benchmarks-md``, ``--no-record``: the
+    options of a benchmark that runs a shipped campaign spec and records its section."""
+    parser.add_argument("--out", metavar="DIR", type=Path, default=None,
+                        help="campaign directory (default: a temporary one; runs already in "
+                             "it are resumed, not run again)" + out_note)
+    parser.add_argument("--executor", choices=("serial", "processes"), default="serial",
+                        help="where runs execute (default: serial)")
+    parser.add_argument("--workers", metavar="N", type=int, default=2,
+                        help="worker processes of 'processes' (default: 2)")
+    parser.add_argument("--benchmarks-md", metavar="FILE", type=Path, default=BENCHMARKS_MD,
+                        help="Markdown file of the section (default: BENCHMARKS.md of this "
+                             "repository)")
+    parser.add_argument("--no-record", action="store_true", help="only print the section")
+
+
 def run_main(parser: argparse.ArgumentParser, run: Callable[[argparse.Namespace], int],
              argv: Sequence[str] | None) -> int:
     """Parse ``argv``, call ``run``; bad input prints ``<prog>: error: ...`` and returns 2.
@@ -148,4 +170,5 @@ def run_main(parser: argparse.ArgumentParser, run: Callable[[argparse.Namespace]
 
 
 __all__ = ["BENCHMARKS_MD", "CORE_LIBRARIES", "OPTIONAL_LIBRARIES", "MachineInfo",
-           "machine_info", "run_main", "write_benchmarks_section"]
+           "add_campaign_run_options", "benchmark_parser", "machine_info", "run_main",
+           "write_benchmarks_section"]

@@ -29,7 +29,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from benchmarks._md import BENCHMARKS_MD, machine_info, run_main, write_benchmarks_section
+from benchmarks._md import BENCHMARKS_MD, benchmark_parser, machine_info, run_main, write_benchmarks_section
 from czmpc.campaigns.campaign import CampaignSpec, load_spec
 from czmpc.campaigns.runner import ExecutorName, run_campaign
 
@@ -113,9 +113,7 @@ def format_benchmark_markdown(timings: list[ExecutorTiming], *, spec: CampaignSp
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of ``python -m benchmarks.campaign_throughput``."""
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.campaign_throughput",
-                                     description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = benchmark_parser("campaign_throughput", __doc__)
     parser.add_argument("spec", metavar="SPEC.toml", nargs="?", default="campaign_throughput.toml",
                         help="campaign spec file or shipped spec name (default: %(default)s)")
     parser.add_argument("--workers", metavar="N", type=int, default=2,

@@ -52,7 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._md import BENCHMARKS_MD, machine_info, run_main, write_benchmarks_section
+from benchmarks._md import BENCHMARKS_MD, benchmark_parser, machine_info, run_main, write_benchmarks_section
 from benchmarks._serving import serving
 from czmpc.campaigns.simulation import run_simulation
 from czmpc.cli import _argtypes
@@ -746,9 +746,7 @@ def _case(text: str) -> tuple[str, float | None]:
 
 def build_parser() -> argparse.ArgumentParser:
     """The options of ``python -m benchmarks.commission_length``."""
-    parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.commission_length", description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = benchmark_parser("commission_length", __doc__)
     parser.add_argument("--case", metavar="KIND[:S]|paper", type=_case, action="append",
                         default=None,
                         help="a test: a design kind and its length in plant seconds "

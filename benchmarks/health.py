@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._md import BENCHMARKS_MD, machine_info, run_main, write_benchmarks_section
+from benchmarks._md import BENCHMARKS_MD, benchmark_parser, machine_info, run_main, write_benchmarks_section
 from czmpc.campaigns.build import controller_settings
 from czmpc.cli import _argtypes
 from czmpc.cli._progress import Progress
@@ -515,9 +515,7 @@ def format_health_report(bench: HealthBenchmark, *, ts_s: float) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     """The options of ``python -m benchmarks.health``."""
-    parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.health", description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = benchmark_parser("health", __doc__)
     parser.add_argument("--model", metavar="MODEL.json", type=Path, default=None,
                         help="model of the controller, the monitor and the plant (default: the "
                              "shipped data/cz_heater_model.json)")

@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from benchmarks._md import BENCHMARKS_MD, MachineInfo, machine_info, run_main
+from benchmarks._md import BENCHMARKS_MD, MachineInfo, benchmark_parser, machine_info, run_main
 from benchmarks._md import write_benchmarks_section as _write_section
 from czmpc.cli import _argtypes
 from czmpc.cli._progress import Progress
@@ -814,9 +814,7 @@ __all__ = [
 
 def build_parser() -> argparse.ArgumentParser:
     """The options of ``python -m benchmarks.identify``."""
-    parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.identify", description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = benchmark_parser("identify", __doc__)
     parser.add_argument(
         "--data", metavar="FILE", type=Path, default=None,
         help=f"logged data CSV (time_s [s], triac_pct [%%], power_kw [kW]); default: the "

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks._md import BENCHMARKS_MD, MachineInfo, machine_info, run_main
+from benchmarks._md import BENCHMARKS_MD, MachineInfo, benchmark_parser, machine_info, run_main
 from benchmarks._md import write_benchmarks_section as _write_section
 from czmpc.campaigns.simulation import PLANT_DESCRIPTIONS, PlantKind, run_simulation
 from czmpc.cli import _argtypes, _progress
@@ -541,9 +541,7 @@ __all__ = [
 
 def build_parser() -> argparse.ArgumentParser:
     """The options of ``python -m benchmarks.mpc_step``."""
-    parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.mpc_step", description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = benchmark_parser("mpc_step", __doc__)
     parser.add_argument(
         "--model", metavar="MODEL.json", type=Path, default=None,
         help="identified model file for the controller and the model plant (default: the "

@@ -26,7 +26,13 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from benchmarks._md import BENCHMARKS_MD, machine_info, run_main, write_benchmarks_section
+from benchmarks._md import (
+    add_campaign_run_options,
+    benchmark_parser,
+    machine_info,
+    run_main,
+    write_benchmarks_section,
+)
 from czmpc.campaigns.campaign import spec_from_dict
 from czmpc.campaigns.measure import OFFSET_FREE_THRESHOLD_KW
 from czmpc.campaigns.runner import run_campaign
@@ -95,21 +101,11 @@ def section_text(rows: Sequence[Row], *, command: str, machine: str, wall_time_s
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of ``python -m benchmarks.robustness``."""
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.robustness", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = benchmark_parser("robustness", __doc__)
     parser.add_argument("--full", action="store_true", help="the full grid (module notes)")
     parser.add_argument("--time-scale", metavar="X", type=float, default=None,
                         help="shorten the scenario: times x X, 0 < X <= 1")
-    parser.add_argument("--out", metavar="DIR", type=Path, default=None,
-                        help="campaign directory (default: a temporary one; runs already in "
-                             "it are resumed, not run again)")
-    parser.add_argument("--executor", choices=("serial", "processes"), default="serial",
-                        help="where runs execute (default: serial)")
-    parser.add_argument("--workers", metavar="N", type=int, default=2,
-                        help="worker processes of 'processes' (default: 2)")
-    parser.add_argument("--benchmarks-md", metavar="FILE", type=Path, default=BENCHMARKS_MD,
-                        help="Markdown file of the section (default: BENCHMARKS.md of this repository)")
-    parser.add_argument("--no-record", action="store_true", help="only print the section")
+    add_campaign_run_options(parser)
     return parser
 
 

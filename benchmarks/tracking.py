@@ -31,7 +31,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from benchmarks._md import BENCHMARKS_MD, machine_info, run_main, write_benchmarks_section
+from benchmarks._md import (
+    add_campaign_run_options,
+    benchmark_parser,
+    machine_info,
+    run_main,
+    write_benchmarks_section,
+)
 from czmpc.campaigns.campaign import load_spec
 from czmpc.campaigns.runner import run_campaign
 from czmpc.shipped import shipped_path
@@ -153,23 +159,12 @@ def section_text(rows: Sequence[Row], goals: Sequence[GoalCheck], *, command: st
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of ``python -m benchmarks.tracking``."""
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.tracking", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = benchmark_parser("tracking", __doc__)
     parser.add_argument("--time-scale", metavar="X", type=float, default=None,
                         help="shorten every scenario: times x X, 0 < X <= 1")
     parser.add_argument("--controllers", metavar="A,B", default=None,
                         help="run only these controllers of the spec (default: all six)")
-    parser.add_argument("--out", metavar="DIR", type=Path, default=None,
-                        help="campaign directory (default: a temporary one; runs already in "
-                             "it are resumed, not run again); 'czmpc campaign report DIR' "
-                             "draws its figures")
-    parser.add_argument("--executor", choices=("serial", "processes"), default="serial",
-                        help="where runs execute (default: serial)")
-    parser.add_argument("--workers", metavar="N", type=int, default=2,
-                        help="worker processes of 'processes' (default: 2)")
-    parser.add_argument("--benchmarks-md", metavar="FILE", type=Path, default=BENCHMARKS_MD,
-                        help="Markdown file of the section (default: BENCHMARKS.md of this repository)")
-    parser.add_argument("--no-record", action="store_true", help="only print the section")
+    add_campaign_run_options(parser, out_note="; 'czmpc campaign report DIR' draws its figures")
     parser.add_argument("--strict", action="store_true", help="exit 1 if a goal is missed")
     return parser
 
