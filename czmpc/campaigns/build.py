@@ -212,7 +212,7 @@ def build_plant(kind: str, model: HammersteinModel, scenario: Scenario, *, noise
 def build_controller(
     kind: str, model: HammersteinModel, scenario: Scenario, *, initial_triac_pct: float,
     linear_model: HammersteinModel | None = None, settings_doc: Mapping[str, object] | None = None,
-    tight: bool = False, mutation: str | None = None,
+    settings: MPCSettings | None = None, tight: bool = False, mutation: str | None = None,
 ) -> Controller:
     """Controller ``kind`` (a key of `CONTROLLERS`) set up for ``scenario``.
 
@@ -230,7 +230,10 @@ def build_controller(
         The linear ARMAX model of ``linear_mpc``.
     settings_doc :
         A parsed settings file (`czmpc.settings_file`) applied to each model's own
-        defaults; None: `MPCSettings.default_for`.
+        defaults; None: ``settings``.
+    settings :
+        The tuning when there is no ``settings_doc``, completed by `controller_settings`
+        (limits, rate limit, start input); None: `MPCSettings.default_for`.
     tight :
         Solve at `TIGHT_OSQP` / `TIGHT_IPOPT_TOL` (the reference re-run of a suite).
     mutation :
@@ -247,8 +250,7 @@ def build_controller(
     from czmpc.settings_file import settings_from_dict
 
     def settings_of(m: HammersteinModel) -> MPCSettings:
-        base = (MPCSettings.default_for(m) if settings_doc is None
-                else settings_from_dict(settings_doc, m))
+        base = (settings if settings_doc is None else settings_from_dict(settings_doc, m))
         final = controller_settings(m, scenario, initial_triac_pct=initial_triac_pct, settings=base)
         if mutation is not None:
             mutated = MUTATIONS[mutation](final) if kind in MUTATED_KINDS else None

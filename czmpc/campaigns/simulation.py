@@ -22,12 +22,12 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Any, Literal, cast, get_args
 
 import numpy as np
 from matplotlib.figure import Figure
 
-from czmpc.campaigns.build import build_plant, controller_settings
+from czmpc.campaigns.build import build_controller, build_plant, controller_settings
 from czmpc.controller import OffsetFreeMPC
 from czmpc.inversion import allowed_triac_range
 from czmpc.reports.closed_loop_figure import plot_closed_loop
@@ -296,7 +296,8 @@ def run_simulation(
                                   validity_margin_pct=used.validity_margin_pct)
     controller: Controller
     if controller_factory is None:
-        mpc = OffsetFreeMPC(model, used)
+        mpc = cast(OffsetFreeMPC, build_controller("mpc", model, scenario, initial_triac_pct=s0,
+                                                   settings=settings))
         name, controller, allowed = "mpc", mpc, mpc.allowed_triac_range_pct
     else:
         name, controller = controller_factory[0], controller_factory[1](used, allowed)
