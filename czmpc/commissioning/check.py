@@ -432,15 +432,12 @@ def _mc_scenario(model: HammersteinModel) -> Any:
 def _closed_loop(model: HammersteinModel, plant_model: HammersteinModel, scenario: Any,
                  settings: MPCSettings | None, seed: int) -> tuple[bool, float]:
     """(offset-free, IAE [kW s]) of the MPC of ``model`` on the noise-free ``plant_model``."""
-    from czmpc.campaigns.build import controller_settings
-    from czmpc.controller import OffsetFreeMPC
+    from czmpc.campaigns.build import build_controller, build_plant
     from sim.loop import run_closed_loop
-    from sim.model_plant import ModelPlant, steady_state_triac_pct
 
-    s0 = steady_state_triac_pct(plant_model, scenario.initial_setpoint_kw)
-    plant = ModelPlant(plant_model, noise=False, initial_triac_pct=s0)
-    mpc = OffsetFreeMPC(model, controller_settings(model, scenario, initial_triac_pct=s0,
-                                                   settings=settings))
+    # a model plant of another model, at its own steady state for the first setpoint
+    plant, s0, _ = build_plant("perturbed", plant_model, scenario, noise=False)
+    mpc = build_controller("mpc", model, scenario, initial_triac_pct=s0, settings=settings)
     run = run_closed_loop(plant, mpc, scenario, rng=seed)
     err = np.asarray(run.power_true_kw, dtype=float) - np.asarray(run.setpoint_kw, dtype=float)
     n_seg = int(round(MC_SEGMENT_S / model.ts_s))
