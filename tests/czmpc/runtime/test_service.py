@@ -126,8 +126,10 @@ def _wait_rows(path: Path, n: int, timeout_s: float) -> None:
 def test_one_writer_per_plant(procs: list[subprocess.Popen[str]], tmp_path: Path) -> None:
     port = free_port()
     endpoint = f"opc.tcp://127.0.0.1:{port}/czmpc/"
-    _serve(procs, tmp_path, port, duration_s=600.0)
-    config = _config(tmp_path, port, duration_s=500.0, log="first.csv")
+    # the run must outlast a loaded machine's second start and rogue connect (each several
+    # seconds of wall time under CI load); the rogue write ends it long before 100 s wall
+    _serve(procs, tmp_path, port, duration_s=6000.0)
+    config = _config(tmp_path, port, duration_s=5000.0, log="first.csv")
     first = subprocess.Popen([*CLI, "run", str(config)], stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True)
     procs.append(first)
@@ -162,7 +164,7 @@ def test_a_plant_already_driven_is_refused_before_any_write(
 
     port = free_port()
     endpoint = f"opc.tcp://127.0.0.1:{port}/czmpc/"
-    _serve(procs, tmp_path, port, duration_s=600.0)
+    _serve(procs, tmp_path, port, duration_s=3000.0)   # 60 s wall: outlasts a loaded start
     stop = threading.Event()
 
     async def drive() -> None:   # another controller, without czmpc's lock: a heartbeat
