@@ -406,20 +406,6 @@ def scaled_times(event: Disturbance | Fault, factor: float) -> Disturbance | Fau
                              if f.name.endswith("_s") and getattr(event, f.name) is not None})
 
 
-__all__ = [
-    "Disturbance",
-    "ExogenousProfile",
-    "Fault",
-    "FaultProfile",
-    "MeasurementSpike",
-    "MissingSamples",
-    "PowerShift",
-    "RandomSpikes",
-    "VoltageRamp",
-    "VoltageStep",
-    "exogenous_at",
-    "exogenous_profile",
-    "fault_profile",
-    "sample_times_s",
-    "scaled_times",
-]
+__all__ = ["Disturbance", "ExogenousProfile", "Fault", "FaultProfile", "MeasurementSpike", "MissingSamples",
+           "PowerShift", "RandomSpikes", "VoltageRamp", "VoltageStep", "exogenous_at", "exogenous_profile",
+           "fault_profile", "sample_times_s", "scaled_times"]

@@ -304,11 +304,5 @@ def table3_comparison(
     )
 
 
-__all__ = [
-    "DEFAULT_SEED",
-    "PAPER_TABLE3",
-    "ExperimentSpec",
-    "Table3Row",
-    "identification_experiment",
-    "table3_comparison",
-]
+__all__ = ["DEFAULT_SEED", "PAPER_TABLE3", "ExperimentSpec", "Table3Row", "identification_experiment",
+           "table3_comparison"]

@@ -343,19 +343,7 @@ def compute_metrics(
     )
 
 
-__all__ = [
-    "LIMIT_ATOL_PCT",
-    "SETTLING_BAND",
-    "STEADY_STATE_FRACTION",
-    "ChangeMetrics",
-    "ClosedLoopMetrics",
-    "compute_metrics",
-    "count_limit_violations",
-    "count_rate_violations",
-    "integral_absolute_error_kw_s",
-    "integral_squared_error_kw2_s",
-    "overshoot_kw",
-    "settling_time_s",
-    "steady_state_error_kw",
-    "total_variation_pct",
-]
+__all__ = ["LIMIT_ATOL_PCT", "SETTLING_BAND", "STEADY_STATE_FRACTION", "ChangeMetrics", "ClosedLoopMetrics",
+           "compute_metrics", "count_limit_violations", "count_rate_violations",
+           "integral_absolute_error_kw_s", "integral_squared_error_kw2_s", "overshoot_kw", "settling_time_s",
+           "steady_state_error_kw", "total_variation_pct"]

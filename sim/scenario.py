@@ -627,17 +627,6 @@ def load_scenario(name_or_path: str | os.PathLike[str]) -> Scenario:
     return scenario_from_dict(doc, source=src)
 
 
-__all__ = [
-    "BYTES_PER_STEP",
-    "MAX_ABS_POWER_KW",
-    "MAX_N_STEPS",
-    "MAX_TIME_S",
-    "Scenario",
-    "SetpointChange",
-    "SetpointRamp",
-    "SetpointSegment",
-    "SetpointStep",
-    "list_scenarios",
-    "load_scenario",
-    "scenario_from_dict",
-]
+__all__ = ["BYTES_PER_STEP", "MAX_ABS_POWER_KW", "MAX_N_STEPS", "MAX_TIME_S", "Scenario", "SetpointChange",
+           "SetpointRamp", "SetpointSegment", "SetpointStep", "list_scenarios", "load_scenario",
+           "scenario_from_dict"]

@@ -299,18 +299,6 @@ def _classic(kind: str, model: HammersteinModel, settings: MPCSettings) -> Contr
     return OpenLoopInversion(model, validity_margin_pct=settings.validity_margin_pct, **common)
 
 
-__all__ = [
-    "CONTROLLERS",
-    "MUTATED_KINDS",
-    "MUTATIONS",
-    "PI_TABLE_MS",
-    "PRESET_ALIASES",
-    "TIGHT_IPOPT_TOL",
-    "TIGHT_OSQP",
-    "BuildError",
-    "MutationNotApplicable",
-    "build_controller",
-    "build_plant",
-    "controller_settings",
-    "heater_steady_state_triac_pct",
-]
+__all__ = ["CONTROLLERS", "MUTATED_KINDS", "MUTATIONS", "PI_TABLE_MS", "PRESET_ALIASES", "TIGHT_IPOPT_TOL",
+           "TIGHT_OSQP", "BuildError", "MutationNotApplicable", "build_controller", "build_plant",
+           "controller_settings", "heater_steady_state_triac_pct"]

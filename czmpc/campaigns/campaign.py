@@ -758,26 +758,7 @@ def execute_run(run: RunSpec) -> dict[str, Any]:
     return row
 
 
-__all__ = [
-    "DETERMINISTIC_COLUMNS",
-    "KEY_COLUMNS",
-    "PLANT_KINDS",
-    "PRESETS",
-    "RESULT_COLUMNS",
-    "ROW_COLUMNS",
-    "CampaignError",
-    "CampaignSpec",
-    "ControllerSpec",
-    "PlantSpec",
-    "RunSpec",
-    "SimulatedRun",
-    "Tolerance",
-    "error_text",
-    "execute_run",
-    "load_model_cached",
-    "load_spec",
-    "run_scenario",
-    "run_seed",
-    "simulate_run",
-    "spec_from_dict",
-]
+__all__ = ["DETERMINISTIC_COLUMNS", "KEY_COLUMNS", "PLANT_KINDS", "PRESETS", "RESULT_COLUMNS", "ROW_COLUMNS",
+           "CampaignError", "CampaignSpec", "ControllerSpec", "PlantSpec", "RunSpec", "SimulatedRun",
+           "Tolerance", "error_text", "execute_run", "load_model_cached", "load_spec", "run_scenario",
+           "run_seed", "simulate_run", "spec_from_dict"]

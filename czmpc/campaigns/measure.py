@@ -145,12 +145,5 @@ def reachable_row(result: ClosedLoopResult, scenario: Scenario, power_at: Callab
     }
 
 
-__all__ = [
-    "COUNT_COLUMNS",
-    "METRIC_COLUMNS",
-    "OFFSET_FREE_THRESHOLD_KW",
-    "REACHABLE_COLUMNS",
-    "TIMING_COLUMNS",
-    "metric_row",
-    "reachable_row",
-]
+__all__ = ["COUNT_COLUMNS", "METRIC_COLUMNS", "OFFSET_FREE_THRESHOLD_KW", "REACHABLE_COLUMNS",
+           "TIMING_COLUMNS", "metric_row", "reachable_row"]

@@ -208,14 +208,5 @@ def audit_table(report: AuditReport) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = [
-    "audit_table",
-    "cause_lines",
-    "check_table",
-    "divergence_text",
-    "failure_lines",
-    "junit_xml",
-    "markdown",
-    "safe_name",
-    "write_report",
-]
+__all__ = ["audit_table", "cause_lines", "check_table", "divergence_text", "failure_lines", "junit_xml",
+           "markdown", "safe_name", "write_report"]

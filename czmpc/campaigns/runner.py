@@ -362,22 +362,6 @@ def run_campaign(
                            n_errors=sum(r["status"] != "ok" for r in ordered), results_path=results)
 
 
-__all__ = [
-    "CAMPAIGN_FILE",
-    "DASK_BATCH_MAX",
-    "EXECUTORS",
-    "RESULTS_FILE",
-    "ROWS_FILE",
-    "TRAJECTORY_DIR",
-    "CampaignOutcome",
-    "dask_batches",
-    "dask_client",
-    "execute_batch",
-    "map_runs",
-    "pin_blas_threads",
-    "read_results",
-    "run_campaign",
-    "save_trajectories",
-    "spec_digest",
-    "worst_runs",
-]
+__all__ = ["CAMPAIGN_FILE", "DASK_BATCH_MAX", "EXECUTORS", "RESULTS_FILE", "ROWS_FILE", "TRAJECTORY_DIR",
+           "CampaignOutcome", "dask_batches", "dask_client", "execute_batch", "map_runs", "pin_blas_threads",
+           "read_results", "run_campaign", "save_trajectories", "spec_digest", "worst_runs"]

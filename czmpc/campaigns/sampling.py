@@ -178,18 +178,6 @@ def sample_plant(nominal: HammersteinModel, base_seed: int, sample_index: int) -
                         f"(last: {last})")
 
 
-__all__ = [
-    "GAIN_CHECK_POINTS",
-    "MAX_DRAWS",
-    "ParameterDistribution",
-    "SampledPlant",
-    "SamplingError",
-    "draw_parameters",
-    "model_parameters",
-    "model_with_parameters",
-    "parameter_distribution",
-    "plant_rng",
-    "rejection_reason",
-    "sample_plant",
-    "static_gain_kw_per_pct",
-]
+__all__ = ["GAIN_CHECK_POINTS", "MAX_DRAWS", "ParameterDistribution", "SampledPlant", "SamplingError",
+           "draw_parameters", "model_parameters", "model_with_parameters", "parameter_distribution",
+           "plant_rng", "rejection_reason", "sample_plant", "static_gain_kw_per_pct"]

@@ -384,15 +384,5 @@ def plot_outcome(outcome: SimulationOutcome, path: str | os.PathLike[str]) -> Fi
     )
 
 
-__all__ = [
-    "FIGURE_FILE",
-    "METRICS_FILE",
-    "PLANT_DESCRIPTIONS",
-    "TRAJECTORY_FILE",
-    "PlantKind",
-    "SimulationOutcome",
-    "format_metrics_table",
-    "plot_outcome",
-    "run_simulation",
-    "write_outputs",
-]
+__all__ = ["FIGURE_FILE", "METRICS_FILE", "PLANT_DESCRIPTIONS", "TRAJECTORY_FILE", "PlantKind",
+           "SimulationOutcome", "format_metrics_table", "plot_outcome", "run_simulation", "write_outputs"]

@@ -449,6 +449,5 @@ def _write_report(out: Path, *, config: RunConfig, plan: JourneyPlan, signal: Ex
     return path
 
 
-__all__ = ["DESIGN_DEGREE", "ESTIMATION_FRACTION", "JourneyError",
-           "JourneyPlan", "JourneyResult", "commission", "design_spec",
-           "fit_percent", "split_estimation_validation"]
+__all__ = ["DESIGN_DEGREE", "ESTIMATION_FRACTION", "JourneyError", "JourneyPlan", "JourneyResult",
+           "commission", "design_spec", "fit_percent", "split_estimation_validation"]

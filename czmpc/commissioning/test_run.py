@@ -263,5 +263,4 @@ def make_test_loop(config: RunConfig, schedule: InputSchedule, **loop_options: o
 
 
 __all__ = ["CONSTANT_SCHEDULE_RAMP_PCT", "LEAD_IN_HOLD_SAMPLES", "InputSchedule", "RunSummary",
-           "ScheduleDriver", "ScheduleError", "load_input_schedule", "make_test_loop",
-           "schedule_provenance"]
+           "ScheduleDriver", "ScheduleError", "load_input_schedule", "make_test_loop", "schedule_provenance"]
