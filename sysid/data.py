@@ -14,8 +14,8 @@ import hashlib
 import io
 import math
 import os
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +35,6 @@ DEFAULT_SAMPLING_RTOL = 0.01
 
 #: The fewest samples any model in this project can be fitted to.
 MIN_SAMPLES = 3
-
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -220,18 +219,11 @@ class Dataset:
         change: Mapping[str, Any] | None = None,
     ) -> Dataset:
         """Return a copy with new signal values and, if given, one more recorded change."""
-        return Dataset(
-            time_s=self.time_s,
+        return replace(
+            self,
             triac_pct=self.triac_pct if triac_pct is None else triac_pct,
             power_kw=self.power_kw if power_kw is None else power_kw,
-            ts_s=self.ts_s,
-            input_unit=self.input_unit,
-            output_unit=self.output_unit,
-            source=self.source,
-            sha256=self.sha256,
             preprocessing=self.preprocessing + ((dict(change),) if change else ()),
-            sampling_rtol=self.sampling_rtol,
-            segment_starts=self.segment_starts,
         )
 
     def segment(self, start: int, stop: int) -> Dataset:
@@ -244,18 +236,13 @@ class Dataset:
                 f"segment must satisfy 0 <= start < stop <= {self.n_samples}; got {start}:{stop}",
                 path=self.source,
             )
-        return Dataset(
+        return replace(
+            self,
             time_s=self.time_s[start:stop],
             triac_pct=self.triac_pct[start:stop],
             power_kw=self.power_kw[start:stop],
-            ts_s=self.ts_s,
-            input_unit=self.input_unit,
-            output_unit=self.output_unit,
-            source=self.source,
-            sha256=self.sha256,
             preprocessing=self.preprocessing
             + ({"what": "segment", "start_sample": start, "stop_sample": stop},),
-            sampling_rtol=self.sampling_rtol,
             segment_starts=(0, *(b - start for b in self.segment_starts if start < b < stop)),
         )
 
@@ -278,6 +265,61 @@ def sampling_violation_message(time_s: FloatArray, k: int, ts_s: float, rtol: fl
         f"sampling must be uniform (interval {ts_s:g} s within {100 * rtol:g} %); got an "
         f"interval of {step:g} s from {time_s[k - 1]:g} s to {time_s[k]:g} s"
     )
+
+
+def decode_text(blob: bytes, path: str | Path) -> str:
+    """A file's bytes as UTF-8 text (a byte-order mark dropped).
+
+    Raises
+    ------
+    DataFileError
+        Bytes that are not UTF-8 (the message gives the offset).
+    """
+    try:
+        return blob.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise DataFileError(f"expected UTF-8 text; got undecodable byte at offset {exc.start}",
+                            path=path) from None
+
+
+def check_column_mapping(
+    header: Sequence[str],
+    columns: Mapping[str, str] | None,
+    path: str | Path | None,
+    *,
+    missing_hint: str = "",
+    layout_hint: str | None = None,
+) -> dict[str, str]:
+    """Contract name -> the log's column name (`columns`, default the contract's own).
+
+    Refuses a mapping of other names or onto one column twice, and a mapped column
+    missing from `header` (`missing_hint` ends that message when `columns` is None).
+    With `layout_hint` and no `columns`, `header` must be exactly `CSV_COLUMNS`.
+    """
+    wanted = {c: c for c in CSV_COLUMNS} if columns is None else dict(columns)
+    if set(wanted) != set(CSV_COLUMNS):
+        raise DataFileError(
+            f"the column mapping must map exactly {list(CSV_COLUMNS)}; got {sorted(wanted)}",
+            path=path)
+    if len(set(wanted.values())) != len(wanted):
+        raise DataFileError(
+            f"the column mapping must map each name to a different column; got {wanted}",
+            path=path)
+    for contract, name in wanted.items():
+        if name not in header:
+            raise DataFileError(
+                f"header must contain '{name}'"
+                + ("" if name == contract else f" (mapped to {contract})")
+                + f"; got fields {list(header)}" + ("" if columns is not None else missing_hint),
+                path=path, line=1, column=name)
+    if columns is None and layout_hint is not None and list(header) != list(CSV_COLUMNS):
+        extra = [h for h in header if h not in CSV_COLUMNS]
+        detail = f"extra field(s) {extra}" if extra else f"fields in the order {list(header)}"
+        raise DataFileError(
+            f"header must be exactly 'time_s,triac_pct,power_kw'; got {detail} "
+            f"({layout_hint} to read other layouts)",
+            path=path, line=1, column=extra[0] if extra else None)
+    return wanted
 
 
 def read_csv(
@@ -328,11 +370,7 @@ def read_csv(
     path = Path(path)
     raw = path.read_bytes()
     digest = hashlib.sha256(raw).hexdigest()
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise DataFileError(f"expected UTF-8 text; got undecodable byte at offset {exc.start}",
-                            path=path) from None
+    text = decode_text(raw, path)
     if not text.strip():
         raise DataFileError("the file is empty; expected a header 'time_s,triac_pct,power_kw' "
                             "and at least one row", path=path)
@@ -343,37 +381,10 @@ def read_csv(
         raise DataFileError(f"not readable as CSV: {exc}", path=path,
                             line=reader.line_num) from None
     header = [h.strip() for h in rows[0]]
-    wanted = dict(zip(CSV_COLUMNS, CSV_COLUMNS, strict=True)) if columns is None else dict(columns)
-    unknown_keys = set(wanted) - set(CSV_COLUMNS)
-    if unknown_keys or set(wanted) != set(CSV_COLUMNS):
-        raise DataFileError(
-            f"the column mapping must map exactly {list(CSV_COLUMNS)}; got {sorted(wanted)}",
-            path=path,
-        )
-    if len(set(wanted.values())) != len(wanted):
-        raise DataFileError(
-            f"the column mapping must map each name to a different column; got {wanted}",
-            path=path,
-        )
     if len(set(header)) != len(header):
         dup = next(h for h in header if header.count(h) > 1)
         raise DataFileError(f"header field '{dup}' appears twice", path=path, line=1, column=dup)
-    for contract_name, file_name in wanted.items():
-        if file_name not in header:
-            raise DataFileError(
-                f"header must contain '{file_name}'"
-                + ("" if file_name == contract_name else f" (mapped to {contract_name})")
-                + f"; got fields {header}",
-                path=path, line=1, column=file_name,
-            )
-    if columns is None and header != list(CSV_COLUMNS):
-        extra = [h for h in header if h not in CSV_COLUMNS]
-        detail = f"extra field(s) {extra}" if extra else f"fields in the order {header}"
-        raise DataFileError(
-            f"header must be exactly 'time_s,triac_pct,power_kw'; got {detail} "
-            "(pass a column mapping to read other layouts)",
-            path=path, line=1, column=extra[0] if extra else None,
-        )
+    wanted = check_column_mapping(header, columns, path, layout_hint="pass a column mapping")
     index = {name: header.index(wanted[name]) for name in CSV_COLUMNS}
     values: dict[str, list[float]] = {name: [] for name in CSV_COLUMNS}
     for line_no, row in enumerate(rows[1:], start=2):

@@ -53,7 +53,14 @@ import numpy as np
 import numpy.typing as npt
 
 from sysid._typing import FloatArray
-from sysid.data import CSV_COLUMNS, DEFAULT_SAMPLING_RTOL, MIN_SAMPLES, Dataset
+from sysid.data import (
+    CSV_COLUMNS,
+    DEFAULT_SAMPLING_RTOL,
+    MIN_SAMPLES,
+    Dataset,
+    check_column_mapping,
+    decode_text,
+)
 from sysid.errors import DataFileError
 
 GapPolicy = Literal["refuse", "split", "fill"]
@@ -82,6 +89,8 @@ MISSING_TOKENS = frozenset({"", "nan", "na", "n/a", "#n/a", "null", "none"})
 SEPARATORS: tuple[str, ...] = (",", ";", "\t")
 
 _DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+([eE][+-]?\d+)?$|^[+-]?\d+,\d*([eE][+-]?\d+)?$")
+_COLUMNS_HINT = ("; pass --columns time_s=NAME,triac_pct=NAME,power_kw=NAME to map the log's "
+                 "own column names")
 _GAP_OPTIONS = "pass --gaps split (cut into segments) or --gaps fill (interpolate runs of up to"
 
 
@@ -526,30 +535,6 @@ def _looks_numeric(text: str) -> bool:
 
 # --- CSV -------------------------------------------------------------------------------
 
-def _check_mapping(header: Sequence[str], columns: Mapping[str, str] | None, path: str | None
-                   ) -> dict[str, str]:
-    wanted = {c: c for c in CSV_COLUMNS} if columns is None else dict(columns)
-    if set(wanted) != set(CSV_COLUMNS):
-        raise DataFileError(
-            f"the column mapping must map exactly {list(CSV_COLUMNS)}; got {sorted(wanted)}",
-            path=path)
-    if len(set(wanted.values())) != len(wanted):
-        raise DataFileError(
-            f"the column mapping must map each name to a different column; got {wanted}",
-            path=path)
-    for contract, name in wanted.items():
-        if name not in header:
-            hint = ("" if columns is not None else
-                    "; pass --columns time_s=NAME,triac_pct=NAME,power_kw=NAME to map the "
-                    "log's own column names")
-            raise DataFileError(
-                f"header must contain '{name}'"
-                + ("" if name == contract else f" (mapped to {contract})")
-                + f"; got fields {list(header)}{hint}",
-                path=path, line=1, column=name)
-    return wanted
-
-
 def detect_separator(header_line: str) -> str:
     """The separator of a CSV header: the most frequent of ``,``, ``;`` and tab.
 
@@ -622,11 +607,7 @@ def read_log_csv(
     p = Path(path)
     blob = p.read_bytes()
     digest = hashlib.sha256(blob).hexdigest()
-    try:
-        text = blob.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise DataFileError(f"expected UTF-8 text; got undecodable byte at offset {exc.start}",
-                            path=p) from None
+    text = decode_text(blob, p)
     lines = text.splitlines()
     while lines and not lines[-1].strip():
         lines.pop()
@@ -651,14 +632,9 @@ def read_log_csv(
     if len(set(header)) != len(header):
         dup = next(h for h in header if header.count(h) > 1)
         raise DataFileError(f"header field '{dup}' appears twice", path=p, line=1, column=dup)
-    names = _check_mapping(header, columns, str(p))
-    if columns is None and header != list(CSV_COLUMNS):
-        extra = [h for h in header if h not in CSV_COLUMNS]
-        detail = f"extra field(s) {extra}" if extra else f"fields in the order {header}"
-        raise DataFileError(
-            f"header must be exactly 'time_s,triac_pct,power_kw'; got {detail} (pass --columns "
-            "time_s=NAME,triac_pct=NAME,power_kw=NAME to read other layouts)",
-            path=p, line=1, column=extra[0] if extra else None)
+    names = check_column_mapping(
+        header, columns, p, missing_hint=_COLUMNS_HINT,
+        layout_hint="pass --columns time_s=NAME,triac_pct=NAME,power_kw=NAME")
     index = {c: header.index(names[c]) for c in CSV_COLUMNS}
     body = table[1:]
     if len(body) < MIN_SAMPLES:
@@ -805,7 +781,7 @@ def read_log_parquet(
         table = pq.read_table(io.BytesIO(blob))
     except Exception as exc:  # pyarrow raises several types for a damaged file
         raise DataFileError(f"not readable as Parquet: {exc}", path=p) from None
-    names = _check_mapping(table.column_names, columns, str(p))
+    names = check_column_mapping(table.column_names, columns, p, missing_hint=_COLUMNS_HINT)
     time, fmt, origin = _arrow_time(table.column(names["time_s"]), names["time_s"], str(p))
     u = _arrow_values(table.column(names["triac_pct"]), names["triac_pct"], str(p))
     y = _arrow_values(table.column(names["power_kw"]), names["power_kw"], str(p))
@@ -893,7 +869,7 @@ def read_frame(
             f"'{time_name}'; got columns {[str(c) for c in frame.columns]} (map the time "
             "column with columns={'time_s': NAME, ...})", column=time_name)
     header = [str(c) for c in frame.columns] + ([] if time_name in frame.columns else [time_name])
-    names = _check_mapping(header, wanted, None)
+    names = check_column_mapping(header, wanted, None)
     if pd.api.types.is_datetime64_any_dtype(time_series):
         zoned = getattr(time_series.dt, "tz", None) is not None
         utc = time_series.dt.tz_convert("UTC").dt.tz_localize(None) if zoned else time_series
