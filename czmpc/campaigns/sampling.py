@@ -70,28 +70,6 @@ def _as_sampling_error() -> Iterator[None]:
         raise SamplingError(f"sampled plant: {exc}") from exc
 
 
-def model_parameters(model: HammersteinModel, names: tuple[str, ...]) -> FloatArray:
-    """`sysid.uncertainty.model_parameters`, refusals as `SamplingError`."""
-    with _as_sampling_error():
-        return _uncertainty.model_parameters(model, names)
-
-
-def model_with_parameters(model: HammersteinModel, names: tuple[str, ...],
-                          values: FloatArray) -> HammersteinModel:
-    """`sysid.uncertainty.model_with_parameters`, a name it refuses as `SamplingError`.
-
-    Raises
-    ------
-    SamplingError
-        A name that is no coefficient of the model.
-    ModelFileError
-        The result breaks the model contract; `sysid.errors.UnstableModelError` for an
-        ``A`` or ``C`` outside the unit circle.
-    """
-    with _as_sampling_error():
-        return _uncertainty.model_with_parameters(model, names, values)
-
-
 def parameter_distribution(model: HammersteinModel) -> ParameterDistribution:
     """The distribution sampled plants are drawn from (full covariance, else std errors).
 
@@ -105,21 +83,22 @@ def parameter_distribution(model: HammersteinModel) -> ParameterDistribution:
         return _uncertainty.parameter_distribution(model)
 
 
-def _gain_grid(model: HammersteinModel) -> FloatArray:
-    lo, hi = model.input_range_pct
-    return np.linspace(lo, hi, GAIN_CHECK_POINTS)
-
-
 def rejection_reason(nominal: HammersteinModel, names: tuple[str, ...],
                      values: FloatArray) -> tuple[str, HammersteinModel | None]:
-    """Why a draw is rejected ("" if accepted) and the drawn model (None if unbuildable)."""
+    """Why a draw is rejected ("" if accepted) and the drawn model (None if unbuildable).
+
+    Raises
+    ------
+    SamplingError
+        A name that is no coefficient of the model.
+    """
     try:
-        drawn = model_with_parameters(nominal, names, values)
-    except ModelFileError as exc:
+        with _as_sampling_error():
+            drawn = _uncertainty.model_with_parameters(nominal, names, values)
+    except ModelFileError as exc:  # the draw breaks the model contract (e.g. an unstable A)
         return f"not a valid model ({exc})", None
-    grid = _gain_grid(nominal)
     sign = np.sign(static_gain_kw_per_pct(nominal, np.array(nominal.operating_point.triac_pct)))
-    gains = static_gain_kw_per_pct(drawn, grid)
+    gains = static_gain_kw_per_pct(drawn, np.linspace(*nominal.input_range_pct, GAIN_CHECK_POINTS))
     if not np.all(np.sign(gains) == sign):
         return "static gain of the wrong sign inside the identified input range", drawn
     return "", drawn
@@ -179,5 +158,5 @@ def sample_plant(nominal: HammersteinModel, base_seed: int, sample_index: int) -
 
 
 __all__ = ["GAIN_CHECK_POINTS", "MAX_DRAWS", "ParameterDistribution", "SampledPlant", "SamplingError",
-           "draw_parameters", "model_parameters", "model_with_parameters", "parameter_distribution",
-           "plant_rng", "rejection_reason", "sample_plant", "static_gain_kw_per_pct"]
+           "draw_parameters", "parameter_distribution", "plant_rng", "rejection_reason", "sample_plant",
+           "static_gain_kw_per_pct"]

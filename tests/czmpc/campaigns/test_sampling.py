@@ -13,8 +13,6 @@ from czmpc.campaigns.sampling import (
     MAX_DRAWS,
     SamplingError,
     draw_parameters,
-    model_parameters,
-    model_with_parameters,
     parameter_distribution,
     rejection_reason,
     sample_plant,
@@ -22,6 +20,7 @@ from czmpc.campaigns.sampling import (
 from czmpc.shipped import shipped_path
 from sysid.model import HammersteinModel, Provenance
 from sysid.modelfile import load_model, save_model
+from sysid.uncertainty import model_parameters, model_with_parameters
 from tests.tolerances import IDENTITY_RTOL, SAMPLING_SIGMAS
 
 #: Covariance of (b2, d1, d2, a1, k1) that `czmpc identify` computes for the shipped
