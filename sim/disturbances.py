@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -33,6 +34,9 @@ from sysid._typing import FloatArray
 TIME_RTOL = 1e-9
 
 BoolArray = npt.NDArray[np.bool_]
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+_Event = TypeVar("_Event", bound="DataclassInstance")
 
 
 def _check_time(obj: object, name: str, *, allow_none: bool = False, positive: bool = False) -> None:
@@ -400,8 +404,9 @@ def fault_profile(
     return FaultProfile(spike_kw=spike, missing=missing)
 
 
-def scaled_times(event: Disturbance | Fault, factor: float) -> Disturbance | Fault:
-    """Return a copy of ``event`` with every time field (``*_s``) multiplied by ``factor``."""
+def scaled_times(event: _Event, factor: float) -> _Event:
+    """Return a copy of ``event`` (a disturbance, fault or setpoint change) with every time
+    field (``*_s``) multiplied by ``factor``."""
     return replace(event, **{f.name: getattr(event, f.name) * factor for f in fields(event)
                              if f.name.endswith("_s") and getattr(event, f.name) is not None})
 

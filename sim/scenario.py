@@ -406,20 +406,14 @@ class Scenario:
         ):
             raise ScenarioError(f"Scenario.shortened: expected 0 < factor <= 1; got {factor!r}")
         n = max(1, math.ceil(self.n_steps * factor - 1e-9))
-        setpoints: list[SetpointChange] = []
-        for c in self.setpoints:
-            if isinstance(c, SetpointStep):
-                setpoints.append(replace(c, at_s=c.at_s * factor))
-            else:
-                setpoints.append(replace(c, start_s=c.start_s * factor, end_s=c.end_s * factor))
         return replace(
             self,
             name=f"{self.name}-short",
             description=f"{self.description} (times x {factor:g})",
             duration_s=n * self.ts_s,
-            setpoints=tuple(setpoints),
-            disturbances=tuple(scaled_times(d, factor) for d in self.disturbances),  # type: ignore[misc]
-            faults=tuple(scaled_times(f, factor) for f in self.faults),  # type: ignore[misc]
+            setpoints=tuple(scaled_times(c, factor) for c in self.setpoints),
+            disturbances=tuple(scaled_times(d, factor) for d in self.disturbances),
+            faults=tuple(scaled_times(f, factor) for f in self.faults),
         )
 
 
