@@ -35,13 +35,14 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import casadi as ca
 import numpy as np
 
+from sysid._arrays import readonly_array
 from sysid._typing import FloatArray
 from sysid.errors import IdentificationError, IdentificationWarning
 from sysid.optimize import LMResult, levenberg_marquardt, parameter_std_errors
@@ -181,27 +182,21 @@ class GreyBoxStructure:
 
     def with_initial_values(self, values: Mapping[str, float]) -> GreyBoxStructure:
         """Return a copy with some initial (or fixed) values replaced, by name."""
-        unknown = set(values) - set(self.parameter_names)
-        if unknown:
-            raise IdentificationError(
-                f"{self.name}: unknown parameter name(s) {sorted(unknown)}; "
-                f"expected some of {list(self.parameter_names)}"
-            )
-        new = tuple(
+        self._check_names(values)
+        return replace(self, initial_values=tuple(
             float(values.get(n, v)) for n, v in zip(self.parameter_names, self.initial_values,
-                                                    strict=True)
-        )
-        return replace(self, initial_values=new)
+                                                    strict=True)))
 
     def with_free(self, names: Sequence[str]) -> GreyBoxStructure:
         """Return a copy where exactly the named parameters are free (the rest fixed)."""
+        self._check_names(names)
+        return replace(self, free=tuple(n in names for n in self.parameter_names))
+
+    def _check_names(self, names: Iterable[str]) -> None:
         unknown = set(names) - set(self.parameter_names)
         if unknown:
-            raise IdentificationError(
-                f"{self.name}: unknown parameter name(s) {sorted(unknown)}; "
-                f"expected some of {list(self.parameter_names)}"
-            )
-        return replace(self, free=tuple(n in names for n in self.parameter_names))
+            raise IdentificationError(f"{self.name}: unknown parameter name(s) {sorted(unknown)}; "
+                                      f"expected some of {list(self.parameter_names)}")
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -256,9 +251,7 @@ class GreyBoxResult:
 
     def __post_init__(self) -> None:
         for name in ("parameters", "std_errors", "initial_state", "residuals"):
-            arr = np.array(getattr(self, name), dtype=float, copy=True)
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
+            object.__setattr__(self, name, readonly_array(getattr(self, name)))
 
     def value(self, name: str) -> float:
         """Final value of the parameter called ``name``."""
@@ -472,16 +465,9 @@ def _build_evaluator(
     # the parameters as (free, fixed) symbols, substituted into the user's matrices
     th_free = ca.SX.sym("theta_free", n_par)
     th_fixed = ca.SX.sym("theta_fixed", len(free) - n_par)
-    parts = []
-    i_free = i_fixed = 0
-    for is_free in free:
-        if is_free:
-            parts.append(th_free[i_free])
-            i_free += 1
-        else:
-            parts.append(th_fixed[i_fixed])
-            i_fixed += 1
-    theta_all = ca.vertcat(*parts)
+    free_at, fixed_at = np.cumsum(free) - 1, np.cumsum(np.logical_not(free)) - 1
+    theta_all = ca.vertcat(*(th_free[int(free_at[i])] if is_free else th_fixed[int(fixed_at[i])]
+                             for i, is_free in enumerate(free)))
     A, B, C, D, K = (
         ca.substitute(mat, m.theta, theta_all) for mat in (m.A, m.B, m.C, m.D, m.K)
     )
@@ -528,17 +514,10 @@ def _build_evaluator(
             "start", [th_free, th_fixed, u, y], [x_start, ca.jacobian(x_start, th_free)]
         )
     return _Evaluator(
-        run=_BlockRunner(step, n_samples),
-        run_with_sensitivities=_BlockRunner(step_sens, n_samples),
-        start=start,
-        guess=ca.Function("guess", [th_free, th_fixed, u, y], [x_held]),
-        U=U,
-        Y=Y,
-        theta_fixed=np.asarray(structure.initial_values)[~np.asarray(free)],
-        free=free,
-        n_states=n_x,
-        n_estimated_states=n_est,
-    )
+        run=_BlockRunner(step, n_samples), run_with_sensitivities=_BlockRunner(step_sens, n_samples),
+        start=start, guess=ca.Function("guess", [th_free, th_fixed, u, y], [x_held]), U=U, Y=Y,
+        theta_fixed=np.asarray(structure.initial_values)[~np.asarray(free)], free=free,
+        n_states=n_x, n_estimated_states=n_est)
 
 
 # --------------------------------------------------------------------------- inputs
@@ -767,16 +746,10 @@ def fit_greybox(
         theta0 = project(theta0)
 
     lm = levenberg_marquardt(
-        evaluator.residuals_and_jacobian,
-        theta0,
+        evaluator.residuals_and_jacobian, theta0,
         lower=None if np.all(np.isinf(lower)) else lower,
         upper=None if np.all(np.isinf(upper)) else upper,
-        project=project,
-        max_iterations=max_iterations,
-        xtol=xtol,
-        ftol=ftol,
-        gtol=gtol,
-    )
+        project=project, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol)
     theta = np.asarray(lm.theta, dtype=float)
     x0, _ = evaluator.initial(theta)
     se_free = np.asarray(parameter_std_errors(lm.jacobian, lm.residuals), dtype=float)
@@ -791,20 +764,11 @@ def fit_greybox(
             stacklevel=2,
         )
     return GreyBoxResult(
-        structure=structure,
-        criterion=criterion,
-        parameter_names=structure.parameter_names,
-        parameters=full_values(theta),
-        std_errors=std_errors,
-        free=structure.free_mask,
-        initial_state=x0,
-        residuals=residuals,
-        criterion_value=float(np.mean(residuals**2)),
-        n_iterations=int(lm.n_iterations),
-        converged=bool(lm.converged),
-        message=str(lm.message),
-        raw=lm,
-    )
+        structure=structure, criterion=criterion, parameter_names=structure.parameter_names,
+        parameters=full_values(theta), std_errors=std_errors, free=structure.free_mask,
+        initial_state=x0, residuals=residuals, criterion_value=float(np.mean(residuals**2)),
+        n_iterations=int(lm.n_iterations), converged=bool(lm.converged),
+        message=str(lm.message), raw=lm)
 
 
 __all__ = [

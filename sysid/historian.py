@@ -490,6 +490,11 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
 def _iso_seconds(cells: Sequence[str | None], raw_names: Mapping[str, str], path: str | None,
                  lines: Sequence[int] | None) -> tuple[FloatArray, str]:
     """Seconds from the first ISO-8601 stamp, and that stamp's text (NaN where missing)."""
+    def fail(i: int, message: str) -> DataFileError:
+        return DataFileError(message if lines is not None else f"row {i + 1}: {message}",
+                             path=path, line=None if lines is None else lines[i],
+                             column=raw_names["time_s"])
+
     stamps: list[datetime | None] = []
     zoned: bool | None = None
     for i, cell in enumerate(cells):
@@ -500,22 +505,15 @@ def _iso_seconds(cells: Sequence[str | None], raw_names: Mapping[str, str], path
         try:
             stamp = datetime.fromisoformat(text)
         except ValueError:
-            line = None if lines is None else lines[i]
-            raise DataFileError(
-                ("" if lines is not None else f"row {i + 1}: ")
-                + f"expected seconds or an ISO-8601 time stamp such as "
-                f"2024-05-01T12:00:00 or 2024-05-01 12:00:00+02:00; got {text!r}",
-                path=path, line=line, column=raw_names["time_s"]) from None
+            raise fail(i, "expected seconds or an ISO-8601 time stamp such as 2024-05-01T12:00:00 "
+                          f"or 2024-05-01 12:00:00+02:00; got {text!r}") from None
         has_zone = stamp.tzinfo is not None
         if zoned is None:
             zoned = has_zone
         elif zoned != has_zone:
-            line = None if lines is None else lines[i]
-            raise DataFileError(
-                ("" if lines is not None else f"row {i + 1}: ")
-                + f"time stamps mix zoned and zone-less forms; got {text!r} after "
-                + ("zoned" if zoned else "zone-less") + " ones (export every stamp in one form)",
-                path=path, line=line, column=raw_names["time_s"])
+            raise fail(i, f"time stamps mix zoned and zone-less forms; got {text!r} after "
+                          + ("zoned" if zoned else "zone-less")
+                          + " ones (export every stamp in one form)")
         stamps.append(stamp.astimezone(UTC) if has_zone else stamp)
     first = next((s for s in stamps if s is not None), None)
     if first is None:
@@ -803,9 +801,8 @@ def write_parquet(data: Dataset, path: str | os.PathLike[str]) -> None:
 
     from sysid.atomic import atomic_write_bytes
 
-    segment = np.zeros(data.n_samples, dtype=np.int64)
-    for i, (lo, hi) in enumerate(data.segment_bounds()):
-        segment[lo:hi] = i
+    segment = np.repeat(np.arange(data.n_segments, dtype=np.int64),
+                        [hi - lo for lo, hi in data.segment_bounds()])
     table = pa.table({"time_s": data.time_s, "triac_pct": data.triac_pct,
                       "power_kw": data.power_kw, "segment": segment})
     sink = pa.BufferOutputStream()
@@ -911,9 +908,8 @@ def read_frame(
 def to_frame(data: Dataset) -> Any:
     """The data set as a pandas DataFrame (contract columns and ``segment``; needs pandas)."""
     pd = _pandas()
-    segment = np.zeros(data.n_samples, dtype=np.int64)
-    for i, (lo, hi) in enumerate(data.segment_bounds()):
-        segment[lo:hi] = i
+    segment = np.repeat(np.arange(data.n_segments, dtype=np.int64),
+                        [hi - lo for lo, hi in data.segment_bounds()])
     return pd.DataFrame({"time_s": np.array(data.time_s), "triac_pct": np.array(data.triac_pct),
                          "power_kw": np.array(data.power_kw), "segment": segment})
 

@@ -27,6 +27,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from sysid._arrays import readonly_array
 from sysid._typing import FloatArray
 from sysid.errors import ModelFileError, SamplingTimeError, UnstableModelError
 from sysid.polynomials import max_root_modulus
@@ -39,14 +40,12 @@ LinearBlock = Literal["armax", "oe", "arx"]
 NORMALIZATION_ATOL = 1e-9
 
 
-
 def _frozen_array(values: Any, name: str) -> FloatArray:
-    arr = np.array(values, dtype=float, copy=True)
+    arr = readonly_array(values)
     if arr.ndim != 1 or arr.size == 0:
         raise ModelFileError(f"{name} must be a non-empty 1-D list of numbers; got {values!r}")
     if not np.all(np.isfinite(arr)):
         raise ModelFileError(f"{name} must hold finite numbers; got {arr.tolist()}")
-    arr.setflags(write=False)
     return arr
 
 
@@ -304,11 +303,7 @@ class HammersteinModel:
     @property
     def covariance_matrix(self) -> FloatArray | None:
         """`covariance` as a read-only ``(p, p)`` array, or None."""
-        if self.covariance is None:
-            return None
-        arr = np.array(self.covariance, dtype=float)
-        arr.setflags(write=False)
-        return arr
+        return None if self.covariance is None else readonly_array(self.covariance)
 
     @property
     def delay_steps(self) -> int:

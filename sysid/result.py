@@ -5,8 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-import numpy as np
-
+from sysid._arrays import readonly_array
 from sysid._typing import FloatArray
 from sysid.model import HammersteinModel
 
@@ -55,9 +54,7 @@ class IdentificationResult:
 
     def __post_init__(self) -> None:
         for name in ("parameters", "std_errors", "residuals_kw"):
-            arr = np.array(getattr(self, name), dtype=float, copy=True)
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
+            object.__setattr__(self, name, readonly_array(getattr(self, name)))
 
     def parameter(self, name: str) -> tuple[float, float]:
         """``(value, standard error)`` of the parameter called ``name``."""
