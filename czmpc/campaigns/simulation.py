@@ -59,7 +59,6 @@ METRICS_FILE = "metrics.json"
 FIGURE_FILE = "figure.png"
 
 
-
 @dataclass(frozen=True, kw_only=True)
 class SimulationOutcome:
     """One closed-loop run of the offset-free MPC with what it was run with.
@@ -207,21 +206,15 @@ def format_metrics_table(metrics: ClosedLoopMetrics, measured: ClosedLoopMetrics
 
 def _build_plant(model: HammersteinModel, scenario: Scenario, plant: PlantKind,
                  noise: bool, variation: PlantVariation | None = None) -> tuple[Plant, float]:
-    """The plant and the TRIAC input [%] it starts in steady state at."""
-    if variation is not None and not variation.is_nominal:
-        return _varied_plant(model, scenario, plant, noise, variation)
-    built, s0, _ = build_plant(plant, model, scenario, noise=noise)
-    return built, s0
+    """The plant and the TRIAC input [%] it starts in steady state at.
 
-
-def _varied_plant(model: HammersteinModel, scenario: Scenario, plant: PlantKind, noise: bool,
-                  variation: PlantVariation) -> tuple[Plant, float]:
-    """`_build_plant` for a plant that differs from its nominal self (`sim.drift`).
-
-    It starts in steady state at the *nominal* plant's input for the initial setpoint
-    (so a plant with another gain starts off the setpoint, as a drifted one would).
+    A plant with a ``variation`` (`sim.drift`) starts in steady state at the *nominal*
+    plant's input for the initial setpoint (so a plant with another gain starts off the
+    setpoint, as a drifted one would).
     """
-    nominal, s0 = _build_plant(model, scenario, plant, noise)
+    nominal, s0, _ = build_plant(plant, model, scenario, noise=noise)
+    if variation is None or variation.is_nominal:
+        return nominal, s0
     if plant == "model":
         return vary_model_plant(model, variation, noise=noise, initial_triac_pct=s0), s0
     params = nominal.params if isinstance(nominal, VirtualHeater) else HeaterParams()
