@@ -421,56 +421,51 @@ def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Fi
         lambda p: figs.plot_dataset(t, ds, dp, p, deviation=True, marked_time_s=repair_times,
                                     marked_label="repair",
                                     labels=lab, title=st.title("Preprocessed data", "paper Fig. 7")))
+    def sims(pairs: Sequence[tuple[str, str]]) -> dict[str, np.ndarray]:
+        """Legend label -> ballistic simulation [kW, deviation] of each named model."""
+        return {_label(m[n], short, st.v_unit): _sim_dev(m[n].model, result) for n, short in pairs}
+
+    def add_sims(key: str, caption: str, curves: dict[str, np.ndarray], title: str,
+                 paper_fig: str) -> None:
+        add(key, caption, lambda p: figs.plot_simulations(
+            t, dp, curves, p, input_pct=ds, labels=lab, title=st.title(title, paper_fig)))
+
+    def add_errors(key: str, caption: str, errors: dict[str, np.ndarray], title: str,
+                   paper_fig: str) -> None:
+        add(key, caption, lambda p: figs.plot_simulation_errors(
+            t, errors, p, labels=lab, title=st.title(title, paper_fig)))
+
     lin = [(n, s) for n, s in (("arx_1_2", "ARX(1,2)"), ("armax_1_2_1", "ARMAX(1,2,1)"),
                                ("oe_2_1", "OE(2,1)")) if n in m]
     if lin:
-        sims = {_label(m[n], s, st.v_unit): _sim_dev(m[n].model, result) for n, s in lin}
-        add("fig08_linear_simulations", "Fig. 8 analogue: ballistic simulations of the linear "
-            f"models against the measured {st.out_name}.",
-            lambda p: figs.plot_simulations(t, dp, sims, p, input_pct=ds,
-                                            labels=lab,
-                                            title=st.title("Ballistic simulations, linear models",
-                                                           "paper Fig. 8")))
-        errs = {s: dp - sims[_label(m[n], s, st.v_unit)] for n, s in lin}
-        add("fig09_linear_errors", "Fig. 9 analogue: ballistic simulation errors of the linear models.",
-            lambda p: figs.plot_simulation_errors(
-                t, errs, p, labels=lab, title=st.title("Simulation errors, linear models", "paper Fig. 9")))
+        curves8 = sims(lin)
+        add_sims("fig08_linear_simulations", "Fig. 8 analogue: ballistic simulations of the "
+                 f"linear models against the measured {st.out_name}.", curves8,
+                 "Ballistic simulations, linear models", "paper Fig. 8")
+        add_errors("fig09_linear_errors", "Fig. 9 analogue: ballistic simulation errors of the "
+                   "linear models.", {s: dp - sim for (_, s), sim in zip(lin, curves8.values(),
+                                                                       strict=True)},
+                   "Simulation errors, linear models", "paper Fig. 9")
     if "hammerstein_eq21" in m:
-        curves = {_label(m["hammerstein_eq21"], "Hammerstein, eq. 21", st.v_unit):
-                  _sim_dev(m["hammerstein_eq21"].model, result)}
-        if "arx_1_2" in m:
-            curves[_label(m["arx_1_2"], "ARX(1,2)", st.v_unit)] = _sim_dev(m["arx_1_2"].model, result)
-        add("fig12_eq21", "Fig. 12 analogue: the Hammerstein model of eq. 21 (ARX block, f from "
-            "the step gains) against ARX(1,2) and the measurement.",
-            lambda p: figs.plot_simulations(t, dp, curves, p, input_pct=ds,
-                                            labels=lab,
-                                            title=st.title("Hammerstein from eq. 21 vs ARX",
-                                                           "paper Fig. 12")))
+        add_sims("fig12_eq21", "Fig. 12 analogue: the Hammerstein model of eq. 21 (ARX block, f "
+                 "from the step gains) against ARX(1,2) and the measurement.",
+                 sims([("hammerstein_eq21", "Hammerstein, eq. 21")]
+                      + [("arx_1_2", "ARX(1,2)")] * ("arx_1_2" in m)),
+                 "Hammerstein from eq. 21 vs ARX", "paper Fig. 12")
     re = [(n, s) for n, s in (("hammerstein_arx_reidentified", "Hammerstein, ARX-reidentified"),
                               ("hammerstein_oe_reidentified", "Hammerstein, OE-reidentified"))
           if n in m]
     if re:
-        curves13 = {_label(m[n], s, st.v_unit): _sim_dev(m[n].model, result) for n, s in re}
-        add("fig13_reidentified", "Fig. 13 analogue: Hammerstein models with f fixed and the "
-            "linear block re-identified by ARX and by OE.",
-            lambda p: figs.plot_simulations(t, dp, curves13, p, input_pct=ds,
-                                            labels=lab,
-                                            title=st.title("Re-identified Hammerstein models",
-                                                           "paper Fig. 13")))
+        add_sims("fig13_reidentified", "Fig. 13 analogue: Hammerstein models with f fixed and "
+                 "the linear block re-identified by ARX and by OE.", sims(re),
+                 "Re-identified Hammerstein models", "paper Fig. 13")
     if "hammerstein_oe" in m:
-        fin = m["hammerstein_oe"]
-        sim = _sim_dev(fin.model, result)
-        add("fig15_final_simulation", "Fig. 15 analogue: ballistic simulation of the final "
-            "Hammerstein model (eq. 27).",
-            lambda p: figs.plot_simulations(
-                t, dp, {_label(fin, "final Hammerstein (eq. 27)", st.v_unit): sim},
-                                            p, input_pct=ds,
-                                            labels=lab,
-                                            title=st.title("Final Hammerstein model", "paper Fig. 15")))
-        add("fig16_final_error", "Fig. 16 analogue: its ballistic simulation error.",
-            lambda p: figs.plot_simulation_errors(
-                t, {"final Hammerstein (eq. 27)": dp - sim}, p,
-                labels=lab, title=st.title("Simulation error, final Hammerstein", "paper Fig. 16")))
+        final15 = sims([("hammerstein_oe", "final Hammerstein (eq. 27)")])
+        add_sims("fig15_final_simulation", "Fig. 15 analogue: ballistic simulation of the final "
+                 "Hammerstein model (eq. 27).", final15, "Final Hammerstein model", "paper Fig. 15")
+        add_errors("fig16_final_error", "Fig. 16 analogue: its ballistic simulation error.",
+                   {"final Hammerstein (eq. 27)": dp - next(iter(final15.values()))},
+                   "Simulation error, final Hammerstein", "paper Fig. 16")
     if "armax_1_2_1" in m and "hammerstein_armax" in m:
         e_lin = _pred_error(m["armax_1_2_1"].model, result)
         e_ham = _pred_error(m["hammerstein_armax"].model, result)

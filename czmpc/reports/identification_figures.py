@@ -84,6 +84,14 @@ def _labels(labels: Mapping[str, str] | None) -> Mapping[str, str]:
 _MEASURED_STYLE = {"color": "black", "linewidth": 1.2, "label": "measured"}
 
 
+def _series(func: str, noun: str, what: str, series: Mapping[str, Sequence[float] | np.ndarray],
+            n: int) -> dict[str, np.ndarray]:
+    """The labelled series ``what`` of ``func`` as float arrays of ``n`` samples (at least one)."""
+    if not series:
+        raise FigureError(f"{func} needs at least one {noun} series; got none")
+    return {name: vector(v, f"{what}[{name!r}]", n) for name, v in series.items()}
+
+
 def _rms(values: np.ndarray) -> float:
     """Root mean square over the finite samples (NaN marks "no value")."""
     return float(np.sqrt(np.nanmean(np.square(values))))
@@ -191,9 +199,7 @@ def plot_residuals(
         No series, or arrays of the wrong shape.
     """
     t = vector(time_s, "time_s")
-    if not residuals_kw:
-        raise FigureError("plot_residuals needs at least one residual series; got none")
-    series = {name: vector(v, f"residuals_kw[{name!r}]", t.size) for name, v in residuals_kw.items()}
+    series = _series("plot_residuals", "residual", "residuals_kw", residuals_kw, t.size)
     fig, axes = stacked_axes(len(series))
     if len(series) > 1:
         for ax in axes[1:]:
@@ -315,9 +321,7 @@ def plot_simulations(
     """
     t = vector(time_s, "time_s")
     y = vector(measured_kw, "measured_kw", t.size)
-    if not simulated_kw:
-        raise FigureError("plot_simulations needs at least one simulated series; got none")
-    sims = {name: vector(v, f"simulated_kw[{name!r}]", t.size) for name, v in simulated_kw.items()}
+    sims = _series("plot_simulations", "simulated", "simulated_kw", simulated_kw, t.size)
     fig, axes = stacked_axes(1 if input_pct is None else 2)
     ax = axes[0]
     ax.plot(t, y, **_MEASURED_STYLE)  # type: ignore[arg-type]
@@ -368,9 +372,7 @@ def plot_simulation_errors(
         No series, or arrays of the wrong shape.
     """
     t = vector(time_s, "time_s")
-    if not errors_kw:
-        raise FigureError("plot_simulation_errors needs at least one error series; got none")
-    errs = {name: vector(v, f"errors_kw[{name!r}]", t.size) for name, v in errors_kw.items()}
+    errs = _series("plot_simulation_errors", "error", "errors_kw", errors_kw, t.size)
     fig, (ax,) = stacked_axes(1)
     ax.axhline(0.0, color="black", linewidth=0.8)
     for i, (name, eps) in enumerate(errs.items()):
