@@ -216,11 +216,6 @@ class IdentifiabilityAssessment:
 
 
 # =========================================================================== measurements
-def _segments(data: Dataset) -> list[tuple[FloatArray, FloatArray]]:
-    return [(np.asarray(data.triac_pct[lo:hi], dtype=float),
-             np.asarray(data.power_kw[lo:hi], dtype=float)) for lo, hi in data.segment_bounds()]
-
-
 def input_std_ratio(triac_pct: FloatArray) -> float:
     """``std(s) / max|s|`` of the finite input samples (0 for a constant or all-zero input).
 
@@ -320,7 +315,8 @@ def input_information_test(
     s_nom = float(np.nanmean(data.triac_pct)) if operating_triac_pct is None else operating_triac_pct
     start = max(na, nk + nb - 1)
     full_rows: list[FloatArray] = []
-    for s, y in _segments(data):
+    for lo, hi in data.segment_bounds():
+        s, y = data.triac_pct[lo:hi], data.power_kw[lo:hi]
         if y.size <= start:
             continue
         ds = s - s_nom

@@ -177,18 +177,11 @@ def detect_steps(
         if k in starts or after >= seg_end[k]:
             continue
         before = after - 1
-        du = float(u[k] - u[k - 1])
-        steps.append(
-            InputStep(
-                k=k,
-                time_s=float(data.time_s[k]),
-                triac_before_pct=float(u[k - 1]),
-                triac_after_pct=float(u[k]),
-                power_before_kw=float(y[before]),
-                power_after_kw=float(y[after]),
-                gain_kw_per_pct=float(y[after] - y[before]) / du,
-            )
-        )
+        steps.append(InputStep(
+            k=k, time_s=float(data.time_s[k]), triac_before_pct=float(u[k - 1]),
+            triac_after_pct=float(u[k]), power_before_kw=float(y[before]),
+            power_after_kw=float(y[after]),
+            gain_kw_per_pct=float(y[after] - y[before]) / float(u[k] - u[k - 1])))
     return tuple(steps)
 
 
