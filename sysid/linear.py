@@ -427,22 +427,38 @@ class PemFit:
             object.__setattr__(self, name, arr)
 
 
-def _lag_with_past(x: FloatArray, lag: int, past: FloatArray | None) -> FloatArray:
-    """``z[k] = x[k - lag]``, with ``x[-m] = past[m - 1]`` (or 0 if None) before the record."""
-    z = np.empty_like(x)
+def _shifted(x: FloatArray, lag: int) -> FloatArray:
+    """``z[k] = x[k - lag]`` with zeros before the record (``lag >= 0``)."""
+    z = np.zeros_like(x)
     z[lag:] = x[: x.size - lag]
-    z[:lag] = 0.0 if past is None else past[:lag][::-1]
     return z
 
 
-def _free_responses(den: FloatArray, n: int) -> FloatArray:
-    """Column ``j``: output of ``1/den`` for zero input from the unit lfilter state ``j``."""
-    # the response from state j is the impulse response delayed by j samples (one filter)
-    order = len(den) - 1
+def _held_lag_responses(x: FloatArray, den: FloatArray, lags: range,
+                        step: FloatArray) -> FloatArray:
+    """Columns ``lagged(x, j) / den`` from a zero filter state, one per lag ``j``, by shifting.
+
+    ``lagged(x, j) = x_0 + q^-j (x - x_0)`` (the past held at ``x_0``), and ``1/den``
+    commutes with the delay ``q^-j`` from rest, so every column is ``x_0 g + q^-j v``
+    with the step response ``g`` of ``1/den`` and ``v = (x - x_0)/den``: one filtering
+    of the data for all lags (the sensitivity filters of the PEM, Ljung 1999, sec. 10.3).
+    """
+    x0 = float(x[0])
+    v = lfilter([1.0], den, x - x0)
+    out = np.empty((x.size, len(lags)))
+    for col, lag in enumerate(lags):
+        out[:lag, col] = 0.0
+        out[lag:, col] = v[: x.size - lag]
+        out[:, col] += x0 * step
+    return out
+
+
+def _impulse_response(den: FloatArray, n: int) -> FloatArray:
+    """First ``n`` samples of the impulse response of ``1/den``."""
     pulse = np.zeros(n)
     pulse[:1] = 1.0
-    h = lfilter([1.0], den, pulse)
-    return np.column_stack([_lag_with_past(h, j, None) for j in range(order)])
+    out: FloatArray = lfilter([1.0], den, pulse)
+    return out
 
 
 def _stabilizer(blocks: tuple[slice, ...]) -> Callable[[FloatArray], FloatArray]:
@@ -490,7 +506,7 @@ def _check_length(n: int, n_total: int, max_lag: int, where: str) -> None:
         )
 
 
-Problem = Callable[[FloatArray], tuple[FloatArray, FloatArray]]
+Problem = Callable[[FloatArray], tuple[FloatArray, Callable[[], FloatArray]]]
 
 
 def _stacked_problem(problems: list[Problem], n_model: int, n_state: int) -> Problem:
@@ -504,37 +520,47 @@ def _stacked_problem(problems: list[Problem], n_model: int, n_state: int) -> Pro
         return problems[0]
     n_theta = n_model + len(problems) * n_state
 
-    def fun(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
-        rs, js = [], []
+    def fun(theta: FloatArray) -> tuple[FloatArray, Callable[[], FloatArray]]:
+        parts = []
         for s, problem in enumerate(problems):
             lo = n_model + s * n_state
-            r, jac = problem(np.concatenate([theta[:n_model], theta[lo : lo + n_state]]))
-            full = np.zeros((r.size, n_theta))
-            full[:, :n_model] = jac[:, :n_model]
-            full[:, lo : lo + n_state] = jac[:, n_model:]
-            rs.append(r)
-            js.append(full)
-        return np.concatenate(rs), np.vstack(js)
+            parts.append(problem(np.concatenate([theta[:n_model], theta[lo : lo + n_state]])))
+
+        def jacobian() -> FloatArray:
+            full = np.zeros((sum(r.size for r, _ in parts), n_theta))
+            row = 0
+            for s, (r, make) in enumerate(parts):
+                jac = make()
+                lo = n_model + s * n_state
+                full[row : row + r.size, :n_model] = jac[:, :n_model]
+                full[row : row + r.size, lo : lo + n_state] = jac[:, n_model:]
+                row += r.size
+            return full
+
+        return np.concatenate([r for r, _ in parts]), jacobian
 
     return fun
 
 
 def _oe_problem(
     y: FloatArray, u: FloatArray, nb: int, nf: int, nk: int, estimate: bool
-) -> Callable[[FloatArray], tuple[FloatArray, FloatArray]]:
+) -> Callable[[FloatArray], tuple[FloatArray, Callable[[], FloatArray]]]:
     """Residuals ``eps = y - B/F u`` and their exact Jacobian via sensitivity filters.
 
     ``d yhat/d b_j = u_{k-j} / F`` (past input held: data), and ``d yhat/d f_i =
     -yhat_{k-i} / F`` with the held past ``yhat = y_0`` (data) or, when the initial state
     ``w`` of ``1/F`` is estimated, with a zero past (the past lives in ``w``); all
     sensitivity filters start from zero. ``d yhat/d w_j`` is the free response of ``1/F``.
+    The Jacobian is made on request (`sysid.optimize.levenberg_marquardt` asks at
+    accepted points only), from three filterings whatever the orders: ``(u - u_0)/F``,
+    ``yhat/F`` (every lag is a shift of them) and the impulse response of ``1/F``.
     """
     n = y.size
-    u_lags = np.column_stack([lagged(u, j) for j in range(nk, nk + nb)])
     held = np.full(nf, y[0])
     u_held = np.full(nk + nb - 1, u[0])
+    y0 = float(y[0])
 
-    def fun(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+    def fun(theta: FloatArray) -> tuple[FloatArray, Callable[[], FloatArray]]:
         b = np.concatenate([np.zeros(nk), theta[:nb]])
         f = np.concatenate([[1.0], theta[nb : nb + nf]])
         if estimate:
@@ -543,50 +569,68 @@ def _oe_problem(
             yhat = lfilter(b, f, u, zi=zi)[0]
         else:
             yhat = simulate_arrays(b, f, u, y_past=held)
-        x = np.empty((n, nb + nf))
-        x[:, :nb] = u_lags
-        for i in range(1, nf + 1):
-            x[:, nb + i - 1] = -_lag_with_past(yhat, i, None if estimate else held)
-        sens = lfilter([1.0], f, x, axis=0)
-        if estimate and nf > 0:
-            sens = np.hstack([sens, _free_responses(f, n)])
-        return y - yhat, -sens
+
+        def jacobian() -> FloatArray:
+            h = _impulse_response(f, n)
+            step = np.cumsum(h)
+            jac = np.empty((n, nb + nf + (nf if estimate else 0)))
+            jac[:, :nb] = -_held_lag_responses(u, f, range(nk, nk + nb), step)
+            if nf:
+                # d eps/d f_i = (q^-i yhat)/F: zero past (estimated) or y_0 held
+                yf = lfilter([1.0], f, yhat if estimate else yhat - y0)
+                for i in range(1, nf + 1):
+                    col = _shifted(yf, i)
+                    jac[:, nb + i - 1] = col if estimate else col + y0 * step
+            if estimate:
+                for j in range(nf):
+                    jac[:, nb + nf + j] = -_shifted(h, j)
+            return jac
+
+        return y - yhat, jacobian
 
     return fun
 
 
 def _armax_problem(
     y: FloatArray, u: FloatArray, na: int, nb: int, nc: int, nk: int, estimate: bool
-) -> Callable[[FloatArray], tuple[FloatArray, FloatArray]]:
+) -> Callable[[FloatArray], tuple[FloatArray, Callable[[], FloatArray]]]:
     """Prediction errors ``e = (A y - B u)/C`` and their exact Jacobian.
 
     ``de/da_i = y_{k-i}/C``, ``de/db_j = -u_{k-j}/C`` (pasts held: data),
     ``de/dc_i = -e_{k-i}/C`` with a zero past (held: past errors are zero; estimated: the
     past lives in the initial state ``w`` of ``1/C``), all from zero filter states;
-    ``de/dw_j`` is the free response of ``1/C``.
+    ``de/dw_j`` is the free response of ``1/C``. The Jacobian is made on request, each
+    signal's lags as shifts of one filtering (``(y - y_0)/C``, ``(u - u_0)/C``, ``e/C``).
     """
     n = y.size
     n_model = na + nb + nc
-    data_cols = np.column_stack(
-        [lagged(y, i) for i in range(1, na + 1)] + [-lagged(u, j) for j in range(nk, nk + nb)]
-    )
     zero_state = np.zeros(nc)
 
-    def fun(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+    def fun(theta: FloatArray) -> tuple[FloatArray, Callable[[], FloatArray]]:
         a = np.concatenate([[1.0], theta[:na]])
         b = np.concatenate([np.zeros(nk), theta[na : na + nb]])
         c = np.concatenate([[1.0], theta[na + nb : n_model]])
         state = theta[n_model:] if estimate else zero_state
         v = equation_errors(a, b, y, u)
         e = lfilter([1.0], c, v, zi=state)[0]
-        x = np.empty((n, n_model))
-        x[:, : na + nb] = data_cols
-        for i in range(1, nc + 1):
-            x[:, na + nb + i - 1] = -_lag_with_past(e, i, None)
-        sens = lfilter([1.0], c, x, axis=0)
-        if estimate and nc > 0:
-            sens = np.hstack([sens, _free_responses(c, n)])
-        return e, sens
+
+        def jacobian() -> FloatArray:
+            h = _impulse_response(c, n)
+            step = np.cumsum(h)
+            jac = np.empty((n, n_model + (nc if estimate else 0)))
+            if na:
+                jac[:, :na] = _held_lag_responses(y, c, range(1, na + 1), step)
+            jac[:, na : na + nb] = -_held_lag_responses(u, c, range(nk, nk + nb), step)
+            if nc:
+                ef = lfilter([1.0], c, e)
+                for i in range(1, nc + 1):
+                    jac[:, na + nb + i - 1] = -_shifted(ef, i)
+            if estimate:
+                for j in range(nc):
+                    jac[:, n_model + j] = _shifted(h, j)
+            return jac
+
+        return e, jacobian
 
     return fun
 

@@ -12,8 +12,10 @@ The step solves the damped Gauss-Newton system with Marquardt's diagonal scaling
 
     (J'J + mu D'D) s = -J'r
 
-through a QR factorization of ``J`` (never forming ``J'J``), and the damping ``mu`` is
-updated by Nielsen's rule (Madsen, Nielsen and Tingleff, 2004, sec. 3.2).
+through a QR factorization of ``[J, r]`` (never forming ``J'J``; its ``R`` also gives
+the gradient ``J'r`` and the column norms) and one SVD of the small scaled ``R`` per
+iteration, which solves the system for every damping that iteration tries; the damping
+``mu`` is updated by Nielsen's rule (Madsen, Nielsen and Tingleff, 2004, sec. 3.2).
 """
 
 from __future__ import annotations
@@ -94,21 +96,58 @@ def triangular_factor(jac: FloatArray, free: FloatArray | None = None,
     return np.triu(qr[:k])
 
 
+#: What ``fun`` may return as its Jacobian: the array, or a callable that makes it. The
+#: callable is called only where the trial point is accepted, so a rejected trial costs
+#: one residual evaluation, not the sensitivity filters of every parameter.
+Jacobian = FloatArray | Callable[[], FloatArray]
+
+
 def _evaluate(
-    fun: Callable[[FloatArray], tuple[FloatArray, FloatArray]], theta: FloatArray, p: int
-) -> tuple[FloatArray, FloatArray] | None:
-    """``fun(theta)`` checked for shape; None if any value is non-finite."""
-    r_raw, jac_raw = fun(theta)
+    fun: Callable[[FloatArray], tuple[FloatArray, Jacobian]], theta: FloatArray
+) -> tuple[FloatArray, Jacobian] | None:
+    """``fun(theta)``'s residuals, checked 1-D, and its Jacobian; None if one is not finite."""
+    r_raw, jac = fun(theta)
     r = np.asarray(r_raw, dtype=float)
-    jac = np.asarray(jac_raw, dtype=float)
-    if r.ndim != 1 or jac.shape != (r.size, p):
+    if r.ndim != 1:
         raise IdentificationError(
-            "levenberg_marquardt: fun must return (r of shape (N,), J of shape (N, p)) with "
-            f"p = {p}; got shapes {r.shape} and {jac.shape}"
-        )
-    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
+            f"levenberg_marquardt: fun must return residuals of shape (N,); got {r.shape}")
+    if not np.isfinite(sum_of_squares(r)):
         return None
     return r, jac
+
+
+def _jacobian(jac: Jacobian, n: int, p: int) -> FloatArray | None:
+    """The Jacobian (made if lazy) checked for shape ``(n, p)``; None if not finite."""
+    out = np.asarray(jac() if callable(jac) else jac, dtype=float)
+    if out.shape != (n, p):
+        raise IdentificationError(
+            "levenberg_marquardt: fun must return (r of shape (N,), J of shape (N, p)) with "
+            f"p = {p}; got shapes ({n},) and {out.shape}"
+        )
+    # one sum finds a nan or inf (an overflowing sum of finite values is checked in full)
+    finite = np.isfinite(np.einsum("ij->", out)) or bool(np.all(np.isfinite(out)))
+    return out if finite else None
+
+
+def _damped_solver(r_mat: FloatArray, qtr: FloatArray,
+                   d: FloatArray) -> Callable[[float], FloatArray]:
+    """``s(mu) = argmin |R s + Q'r|^2 + mu |D s|^2`` for any damping ``mu``, one SVD.
+
+    With ``t = D s`` and ``R D^-1 = U S V'``: ``t = -V S / (S^2 + mu) U'Q'r``. One SVD
+    per iteration serves every trial of its damping search (the stacked least squares
+    ``[R; sqrt(mu) D] s = [-Q'r; 0]`` solved anew per trial costs as much each time).
+    """
+    u, sing, vt = np.linalg.svd(r_mat / d, full_matrices=False)
+    coef = u.T @ qtr
+
+    def solve(mu: float) -> FloatArray:
+        denom = sing * sing + mu
+        cut = (np.finfo(float).eps * 2 * d.size) ** 2 * (float(sing[0]) ** 2 + mu) if sing.size else 0.0
+        weights = np.divide(sing, denom, out=np.zeros_like(sing), where=denom > cut)
+        out: FloatArray = -(vt.T @ (weights * coef)) / d
+        return out
+
+    return solve
 
 
 def _as_bound(bound: FloatArray | None, p: int, fill: float, name: str) -> FloatArray:
@@ -140,7 +179,7 @@ MAX_ITERATIONS = 1000
 
 
 def levenberg_marquardt(
-    fun: Callable[[FloatArray], tuple[FloatArray, FloatArray]],
+    fun: Callable[[FloatArray], tuple[FloatArray, Jacobian]],
     theta0: FloatArray,
     *,
     lower: FloatArray | None = None,
@@ -159,8 +198,10 @@ def levenberg_marquardt(
     ----------
     fun :
         ``fun(theta) -> (r, J)``: residuals, shape ``(N,)``, and their Jacobian
-        ``dr/dtheta``, shape ``(N, p)``. It may return non-finite values at a trial point
-        (for example an unstable filter); that trial is rejected and the damping raised.
+        ``dr/dtheta``, shape ``(N, p)``, or a callable without arguments that returns
+        it: then it is called only at accepted trial points (a rejected trial costs the
+        residuals alone). It may return non-finite values at a trial point (for example
+        an unstable filter); that trial is rejected and the damping raised.
     theta0 :
         Starting point, shape ``(p,)``. It is clipped to the bounds and projected.
     lower, upper :
@@ -237,19 +278,22 @@ def levenberg_marquardt(
             f"levenberg_marquardt: lower must not exceed upper; got {lo} > {hi}"
         )
 
+    bounded = bool(np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)))
+
     def feasible(x: FloatArray) -> FloatArray:
-        x = np.clip(x, lo, hi)
+        x = np.clip(x, lo, hi) if bounded else x
         return np.asarray(project(x), dtype=float) if project is not None else x
 
     theta = feasible(theta)
-    first = _evaluate(fun, theta, p)
-    if first is None:
+    first = _evaluate(fun, theta)
+    jac = None if first is None else _jacobian(first[1], first[0].size, p)
+    if first is None or jac is None:
         raise IdentificationError(
             "levenberg_marquardt: the residuals or Jacobian at the starting point theta0 "
             f"= {theta.tolist()} are not finite; start from a point where the model is "
             "stable and defined"
         )
-    r, jac = first
+    r = first[0]
     ssr = sum_of_squares(r)
     n = r.size
     scale = np.zeros(p)
@@ -264,8 +308,11 @@ def levenberg_marquardt(
         if ssr <= np.finfo(float).tiny:
             converged, message = True, "the sum of squared residuals is zero"
             break
-        grad = np.einsum("ij,i->j", jac, r)
-        col_norms = np.sqrt(np.einsum("ij,ij->j", jac, jac))
+        # R of the QR factorization of [J, r]: J = Q R_J and r = Q R_r + (a part
+        # orthogonal to J), so J'r = R_J' R_r and the column norms of J are R_J's.
+        r_aug = triangular_factor(jac, None, r)
+        grad = r_aug[:, :p].T @ r_aug[:, p]
+        col_norms = np.sqrt(np.einsum("ij,ij->j", r_aug[:, :p], r_aug[:, :p]))
         at_lo = (theta <= lo) & (grad > 0)
         at_hi = (theta >= hi) & (grad < 0)
         free = ~(at_lo | at_hi) & (col_norms > 0)
@@ -278,26 +325,25 @@ def levenberg_marquardt(
             break
         scale = np.maximum(scale, col_norms)
         d = np.where(scale[free] > 0, scale[free], 1.0)
-        # R of the QR factorization of [J_free, r]: its last column holds Q'r.
-        r_aug = triangular_factor(jac, free, r)
         n_free = int(np.count_nonzero(free))
+        if n_free < p:  # R of [J_free, r]: its last column holds Q'r
+            r_aug = triangular_factor(jac, free, r)
         r_mat = r_aug[:n_free, :n_free]
-        qtr = r_aug[:n_free, n_free]
+        qtr = r_aug[:n_free, -1]
+        damped_step = _damped_solver(r_mat, qtr, d)
+        theta_norm = float(np.sqrt(theta @ theta))
         accepted = False
         for _ in range(_MAX_REJECTIONS):
-            system = np.vstack([r_mat, np.diag(np.sqrt(mu) * d)])
-            rhs = -np.concatenate([qtr, np.zeros(d.size)])
-            step_free = np.linalg.lstsq(system, rhs, rcond=None)[0]
             step = np.zeros(p)
-            step[free] = step_free
+            step[free] = damped_step(mu)
             trial = feasible(theta + step)
             step = trial - theta
-            step_small = float(np.linalg.norm(step)) <= xtol * (
-                xtol + float(np.linalg.norm(theta))
-            )
-            evaluated = _evaluate(fun, trial, p)
+            step_small = float(np.sqrt(step @ step)) <= xtol * (xtol + theta_norm)
+            evaluated = _evaluate(fun, trial)
             ssr_new = sum_of_squares(evaluated[0]) if evaluated is not None else np.inf
-            if evaluated is not None and ssr_new < ssr:
+            jac_new = (_jacobian(evaluated[1], n, p)
+                       if evaluated is not None and ssr_new < ssr else None)
+            if evaluated is not None and jac_new is not None:
                 lin = qtr + r_mat @ step[free]
                 predicted = float(qtr @ qtr - lin @ lin)
                 actual = ssr - ssr_new
@@ -306,7 +352,7 @@ def levenberg_marquardt(
                     mu *= max(0.1, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu = 2.0
                 small_reduction = actual <= ftol * ssr and 0 <= predicted <= ftol * ssr
-                theta, (r, jac), ssr = trial, evaluated, ssr_new
+                theta, r, jac, ssr = trial, evaluated[0], jac_new, ssr_new
                 accepted = True
                 if small_reduction:
                     converged = True
@@ -404,6 +450,7 @@ def parameter_std_errors(jacobian: FloatArray, residuals: FloatArray) -> FloatAr
 
 __all__ = [
     "DEFAULT_PROGRESS_RTOL",
+    "Jacobian",
     "MAX_ITERATIONS",
     "PROGRESS_WINDOW",
     "LMResult",
