@@ -75,13 +75,11 @@ import numpy as np
 from scipy.optimize import brentq
 
 from sim.errors import PlantError
+from sim.loop import spawn_streams
 from sim.protocols import NOMINAL, Exogenous
 
 #: Stefan-Boltzmann constant [kW/(m^2 K^4)].
 STEFAN_BOLTZMANN_KW_PER_M2_K4 = 5.670374419e-11
-
-#: Independent random streams of one run: 0 sensor noise, 1 grid-voltage wander.
-_N_STREAMS = 2
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -353,12 +351,7 @@ class VirtualHeater:
         float
             The first measured power ``y_0`` [kW].
         """
-        if isinstance(rng, np.random.Generator):
-            streams = rng.spawn(_N_STREAMS)
-        else:
-            streams = [np.random.default_rng(seq)
-                       for seq in np.random.SeedSequence(rng).spawn(_N_STREAMS)]
-        self._noise_rng, self._wander_rng = streams
+        _, self._noise_rng, self._wander_rng = spawn_streams(rng)  # sensor noise, grid wander
         p = self.params
         self._wander = p.grid_wander_std * float(self._wander_rng.standard_normal())
         self._true_power_kw, self._temp_k = steady_state(
