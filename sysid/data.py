@@ -98,20 +98,16 @@ class Dataset:
             raise DataFileError(
                 "time_s, triac_pct and power_kw must have equal lengths; got "
                 f"{n}, {self.triac_pct.size}, {self.power_kw.size}",
-                path=self.source,
-            )
+                path=self.source)
         if n < MIN_SAMPLES:
-            raise DataFileError(
-                f"a data set needs at least {MIN_SAMPLES} samples; got {n}", path=self.source
-            )
+            raise DataFileError(f"a data set needs at least {MIN_SAMPLES} samples; got {n}", path=self.source)
         for name in ("time_s", "triac_pct", "power_kw"):
             bad = np.flatnonzero(~np.isfinite(getattr(self, name)))
             if bad.size:
                 raise DataFileError(
                     f"sample {bad[0]}: expected a finite number; got {getattr(self, name)[bad[0]]}",
                     path=self.source,
-                    column=name,
-                )
+                    column=name)
         if not (math.isfinite(self.ts_s) and self.ts_s > 0):
             raise DataFileError(f"ts_s must be a finite number > 0; got {self.ts_s}", path=self.source)
         object.__setattr__(self, "ts_s", float(self.ts_s))
@@ -125,16 +121,14 @@ class Dataset:
                     sampling_violation_message(
                         self.time_s, lo + k, self.ts_s, self.sampling_rtol),
                     path=self.source,
-                    column="time_s",
-                )
+                    column="time_s")
         for lo in starts[1:]:
             if not self.time_s[lo] > self.time_s[lo - 1]:
                 raise DataFileError(
                     f"time must be strictly increasing across segments; segment at sample "
                     f"{lo} starts at {self.time_s[lo]:g} s after {self.time_s[lo - 1]:g} s",
                     path=self.source,
-                    column="time_s",
-                )
+                    column="time_s")
 
     def _checked_segment_starts(self, n: int) -> tuple[int, ...]:
         raw = self.segment_starts
@@ -223,8 +217,7 @@ class Dataset:
             self,
             triac_pct=self.triac_pct if triac_pct is None else triac_pct,
             power_kw=self.power_kw if power_kw is None else power_kw,
-            preprocessing=self.preprocessing + ((dict(change),) if change else ()),
-        )
+            preprocessing=self.preprocessing + ((dict(change),) if change else ()))
 
     def segment(self, start: int, stop: int) -> Dataset:
         """Samples ``start:stop`` as a new data set (the change is recorded).
@@ -234,8 +227,7 @@ class Dataset:
         if not (0 <= start < stop <= self.n_samples):
             raise DataFileError(
                 f"segment must satisfy 0 <= start < stop <= {self.n_samples}; got {start}:{stop}",
-                path=self.source,
-            )
+                path=self.source)
         return replace(
             self,
             time_s=self.time_s[start:stop],
@@ -243,8 +235,7 @@ class Dataset:
             power_kw=self.power_kw[start:stop],
             preprocessing=self.preprocessing
             + ({"what": "segment", "start_sample": start, "stop_sample": stop},),
-            segment_starts=(0, *(b - start for b in self.segment_starts if start < b < stop)),
-        )
+            segment_starts=(0, *(b - start for b in self.segment_starts if start < b < stop)))
 
 
 def first_sampling_violation(time_s: FloatArray, ts_s: float, rtol: float) -> int | None:
@@ -258,13 +249,10 @@ def sampling_violation_message(time_s: FloatArray, k: int, ts_s: float, rtol: fl
     """Explain why the interval ending at sample ``k`` breaks uniform sampling."""
     step = time_s[k] - time_s[k - 1]
     if step <= 0:
-        return (
-            f"time must be strictly increasing; got {time_s[k]:g} s after {time_s[k - 1]:g} s"
-        )
+        return f"time must be strictly increasing; got {time_s[k]:g} s after {time_s[k - 1]:g} s"
     return (
         f"sampling must be uniform (interval {ts_s:g} s within {100 * rtol:g} %); got an "
-        f"interval of {step:g} s from {time_s[k - 1]:g} s to {time_s[k]:g} s"
-    )
+        f"interval of {step:g} s from {time_s[k - 1]:g} s to {time_s[k]:g} s")
 
 
 def decode_text(blob: bytes, path: str | Path) -> str:
@@ -393,8 +381,7 @@ def read_csv(
         if len(row) != len(header):
             raise DataFileError(
                 f"expected {len(header)} cells like the header; got {len(row)}",
-                path=path, line=line_no,
-            )
+                path=path, line=line_no)
         for name in CSV_COLUMNS:
             cell = row[index[name]].strip()
             try:
@@ -408,9 +395,7 @@ def read_csv(
             values[name].append(value)
     n = len(values["time_s"])
     if n < max(min_samples, MIN_SAMPLES):
-        raise DataFileError(
-            f"expected at least {max(min_samples, MIN_SAMPLES)} samples; got {n}", path=path
-        )
+        raise DataFileError(f"expected at least {max(min_samples, MIN_SAMPLES)} samples; got {n}", path=path)
     time_s = np.asarray(values["time_s"])
     steps = np.diff(time_s)
     nonincreasing = np.flatnonzero(steps <= 0)
@@ -418,15 +403,13 @@ def read_csv(
         k = int(nonincreasing[0]) + 1
         raise DataFileError(
             sampling_violation_message(time_s, k, 1.0, 0.0), path=path, line=k + 2,
-            column=wanted["time_s"],
-        )
+            column=wanted["time_s"])
     nominal = float(np.median(steps)) if ts_s is None else float(ts_s)
     k_bad = first_sampling_violation(time_s, nominal, sampling_rtol)
     if k_bad is not None:
         raise DataFileError(
             sampling_violation_message(time_s, k_bad, nominal, sampling_rtol),
-            path=path, line=k_bad + 2, column=wanted["time_s"],
-        )
+            path=path, line=k_bad + 2, column=wanted["time_s"])
     return Dataset(
         time_s=time_s,
         triac_pct=np.asarray(values["triac_pct"]),
@@ -436,8 +419,7 @@ def read_csv(
         output_unit=output_unit,
         source=str(path),
         sha256=digest,
-        sampling_rtol=sampling_rtol,
-    )
+        sampling_rtol=sampling_rtol)
 
 
 def format_csv(data: Dataset) -> str:

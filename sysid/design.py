@@ -233,8 +233,7 @@ class ExcitationSignal:
             f"(tau = {spec.tau_s:g} s)",
             f"range visited: {self.triac_pct.min():g} .. {self.triac_pct.max():g} %, "
             f"largest jump {np.abs(np.diff(self.triac_pct)).max():g} % (limit {spec.max_step_pct:g} %)",
-            f"distinct levels visited: {np.unique(self.triac_pct).size}",
-        ]
+            f"distinct levels visited: {np.unique(self.triac_pct).size}"]
         if self.levels_pct.size and spec.kind == "multilevel":
             lines.append("levels [%]: " + ", ".join(f"{v:g}" for v in self.levels_pct)
                          + ", visited in shuffled rounds")

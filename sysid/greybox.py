@@ -64,8 +64,7 @@ def _as_tuple(values: Sequence[Any] | None, n: int, fill: Any, name: str) -> tup
     out = tuple(values)
     if len(out) != n:
         raise IdentificationError(
-            f"GreyBoxStructure.{name} must have one entry per parameter ({n}); got {len(out)}"
-        )
+            f"GreyBoxStructure.{name} must have one entry per parameter ({n}); got {len(out)}")
     return out
 
 
@@ -134,9 +133,7 @@ class GreyBoxStructure:
             raise IdentificationError("GreyBoxStructure.parameter_names must not be empty")
         if len(set(names)) != n:
             dup = next(x for x in names if names.count(x) > 1)
-            raise IdentificationError(
-                f"GreyBoxStructure.parameter_names must be unique; got {dup!r} twice"
-            )
+            raise IdentificationError(f"GreyBoxStructure.parameter_names must be unique; got {dup!r} twice")
         values = tuple(float(v) for v in _as_tuple(self.initial_values, n, 0.0, "initial_values"))
         free = tuple(bool(v) for v in _as_tuple(self.free, n, True, "free"))
         lower = tuple(float(v) for v in _as_tuple(self.lower, n, -math.inf, "lower"))
@@ -144,21 +141,17 @@ class GreyBoxStructure:
         for name, v, lo, hi in zip(names, values, lower, upper, strict=True):
             if not math.isfinite(v):
                 raise IdentificationError(
-                    f"GreyBoxStructure: initial value of {name!r} must be finite; got {v}"
-                )
+                    f"GreyBoxStructure: initial value of {name!r} must be finite; got {v}")
             if not lo < hi:
                 raise IdentificationError(
                     f"GreyBoxStructure: bounds of {name!r} must satisfy lower < upper; "
-                    f"got [{lo}, {hi}]"
-                )
+                    f"got [{lo}, {hi}]")
             if not lo <= v <= hi:
                 raise IdentificationError(
-                    f"GreyBoxStructure: initial value of {name!r} must lie in [{lo}, {hi}]; got {v}"
-                )
+                    f"GreyBoxStructure: initial value of {name!r} must lie in [{lo}, {hi}]; got {v}")
         if not callable(self.matrices):
             raise IdentificationError(
-                f"GreyBoxStructure.matrices must be callable; got {type(self.matrices).__name__}"
-            )
+                f"GreyBoxStructure.matrices must be callable; got {type(self.matrices).__name__}")
         object.__setattr__(self, "parameter_names", names)
         object.__setattr__(self, "initial_values", values)
         object.__setattr__(self, "free", free)
@@ -282,8 +275,7 @@ def _to_sx(value: Any, shape: tuple[int, int], what: str, structure: GreyBoxStru
         sx = ca.vertcat(*rows)
     if sx.shape != shape:
         raise IdentificationError(
-            f"{structure.name}: matrices() returned {what} of shape {sx.shape}; expected {shape}"
-        )
+            f"{structure.name}: matrices() returned {what} of shape {sx.shape}; expected {shape}")
     return sx
 
 
@@ -310,14 +302,11 @@ def _symbolic_matrices(structure: GreyBoxStructure, n_inputs: int) -> _Matrices:
         ) from exc
     if not isinstance(out, tuple) or len(out) != 5:
         raise IdentificationError(
-            f"{structure.name}: matrices() must return (A, B, C, D, K); got {type(out).__name__}"
-        )
+            f"{structure.name}: matrices() must return (A, B, C, D, K); got {type(out).__name__}")
     A_raw = out[0]
     a_shape = ca.SX(A_raw).shape if isinstance(A_raw, (ca.SX, ca.DM)) else np.shape(A_raw)
     if len(a_shape) != 2 or a_shape[0] != a_shape[1] or a_shape[0] < 1:
-        raise IdentificationError(
-            f"{structure.name}: A must be a square matrix; got shape {tuple(a_shape)}"
-        )
+        raise IdentificationError(f"{structure.name}: A must be a square matrix; got shape {tuple(a_shape)}")
     n_x = int(a_shape[0])
     return _Matrices(
         A=_to_sx(out[0], (n_x, n_x), "A", structure),
@@ -325,8 +314,7 @@ def _symbolic_matrices(structure: GreyBoxStructure, n_inputs: int) -> _Matrices:
         C=_to_sx(out[2], (1, n_x), "C", structure),
         D=_to_sx(out[3], (1, n_inputs), "D", structure),
         K=_to_sx(out[4], (n_x, 1), "K", structure),
-        theta=theta,
-    )
+        theta=theta)
 
 
 #: Samples per CasADi ``mapaccum`` block. Building a ``mapaccum`` costs time that grows
@@ -413,9 +401,7 @@ class _Evaluator:
         x0, s0 = self.initial(theta)
         z0 = np.concatenate([x0, s0.ravel(order="F")])
         n_par = int(np.sum(self.free))
-        out = self.run_with_sensitivities(
-            z0, self.U, self.Y, theta[:n_par], self.theta_fixed
-        )
+        out = self.run_with_sensitivities(z0, self.U, self.Y, theta[:n_par], self.theta_fixed)
         rows = np.asarray(out, dtype=float)
         return rows[0].copy(), np.ascontiguousarray(rows[1:].T)
 
@@ -468,9 +454,7 @@ def _build_evaluator(
     free_at, fixed_at = np.cumsum(free) - 1, np.cumsum(np.logical_not(free)) - 1
     theta_all = ca.vertcat(*(th_free[int(free_at[i])] if is_free else th_fixed[int(fixed_at[i])]
                              for i, is_free in enumerate(free)))
-    A, B, C, D, K = (
-        ca.substitute(mat, m.theta, theta_all) for mat in (m.A, m.B, m.C, m.D, m.K)
-    )
+    A, B, C, D, K = (ca.substitute(mat, m.theta, theta_all) for mat in (m.A, m.B, m.C, m.D, m.K))
 
     x = ca.SX.sym("x", n_x)
     u = ca.SX.sym("u", n_inputs)
@@ -489,16 +473,13 @@ def _build_evaluator(
     # forward sensitivities S = dx/dtheta (n_x, q), carried with the state
     S = ca.SX.sym("S", n_x, q)
     pad = ca.SX.zeros(1, n_est)
-    S_next = ca.jacobian(x_next, x) @ S + ca.horzcat(
-        ca.jacobian(x_next, th_free), ca.SX.zeros(n_x, n_est)
-    )
+    S_next = ca.jacobian(x_next, x) @ S + ca.horzcat(ca.jacobian(x_next, th_free), ca.SX.zeros(n_x, n_est))
     d_residual = ca.jacobian(residual, x) @ S + ca.horzcat(ca.jacobian(residual, th_free), pad)
     z = ca.vertcat(x, ca.vec(S))
     step_sens = ca.Function(
         "step_sens",
         [z, u, y, th_free, th_fixed],
-        [ca.vertcat(x_next, ca.vec(S_next)), ca.vertcat(residual, ca.transpose(d_residual))],
-    )
+        [ca.vertcat(x_next, ca.vec(S_next)), ca.vertcat(residual, ca.transpose(d_residual))])
     step = ca.Function("step", [x, u, y, th_free, th_fixed], [x_next, residual])
 
     if initial_state == "estimate":
@@ -506,13 +487,10 @@ def _build_evaluator(
         start = ca.Function(
             "start",
             [ca.vertcat(th_free, th_est), th_fixed, u, y],
-            [th_est, ca.horzcat(ca.SX.zeros(n_x, n_par), ca.SX.eye(n_x))],
-        )
+            [th_est, ca.horzcat(ca.SX.zeros(n_x, n_par), ca.SX.eye(n_x))])
     else:
         x_start = x_ss if initial_state == "steady" else x_held
-        start = ca.Function(
-            "start", [th_free, th_fixed, u, y], [x_start, ca.jacobian(x_start, th_free)]
-        )
+        start = ca.Function("start", [th_free, th_fixed, u, y], [x_start, ca.jacobian(x_start, th_free)])
     return _Evaluator(
         run=_BlockRunner(step, n_samples), run_with_sensitivities=_BlockRunner(step_sens, n_samples),
         start=start, guess=ca.Function("guess", [th_free, th_fixed, u, y], [x_held]), U=U, Y=Y,
@@ -531,8 +509,7 @@ def _model_inputs(structure: GreyBoxStructure, u: FloatArray) -> FloatArray:
     if features.ndim != 2 or features.shape[0] != u.shape[0]:
         raise IdentificationError(
             f"{structure.name}: input_map must return shape (n_samples, n_inputs) = "
-            f"({u.shape[0]}, n_u); got {features.shape}"
-        )
+            f"({u.shape[0]}, n_u); got {features.shape}")
     if not np.all(np.isfinite(features)):
         raise IdentificationError(f"{structure.name}: input_map returned non-finite values")
     return np.ascontiguousarray(features, dtype=float)
@@ -546,12 +523,10 @@ def _check_signals(y: Any, u: Any, structure: GreyBoxStructure) -> tuple[FloatAr
     if u_arr.ndim not in (1, 2) or u_arr.shape[0] != y_arr.shape[0]:
         raise IdentificationError(
             f"fit_greybox: u must have shape ({y_arr.shape[0]},) or ({y_arr.shape[0]}, m) like y; "
-            f"got {u_arr.shape}"
-        )
+            f"got {u_arr.shape}")
     if not (np.all(np.isfinite(y_arr)) and np.all(np.isfinite(u_arr))):
         raise IdentificationError(
-            "fit_greybox: y and u must be finite (repair missing samples before fitting)"
-        )
+            "fit_greybox: y and u must be finite (repair missing samples before fitting)")
     return y_arr, u_arr
 
 
@@ -565,13 +540,11 @@ def _prepare(
 ) -> _Evaluator:
     if criterion not in ("ballistic", "one_step"):
         raise IdentificationError(
-            f"fit_greybox: criterion must be 'ballistic' or 'one_step'; got {criterion!r}"
-        )
+            f"fit_greybox: criterion must be 'ballistic' or 'one_step'; got {criterion!r}")
     if initial_state not in ("held_past", "steady", "estimate"):
         raise IdentificationError(
             "fit_greybox: initial_state must be 'held_past', 'steady' or 'estimate'; "
-            f"got {initial_state!r}"
-        )
+            f"got {initial_state!r}")
     y_arr, u_arr = _check_signals(y, u, structure)
     features = _model_inputs(structure, u_arr)
     return _build_evaluator(
@@ -695,9 +668,7 @@ def fit_greybox(
     coloured noise they are optimistic.
     """
     if not (isinstance(max_iterations, int) and max_iterations >= 1):
-        raise IdentificationError(
-            f"fit_greybox: max_iterations must be an int >= 1; got {max_iterations!r}"
-        )
+        raise IdentificationError(f"fit_greybox: max_iterations must be an int >= 1; got {max_iterations!r}")
     for tol_name, tol in (("xtol", xtol), ("ftol", ftol), ("gtol", gtol)):
         if not (math.isfinite(tol) and tol >= 0):
             raise IdentificationError(f"fit_greybox: {tol_name} must be finite and >= 0; got {tol}")
@@ -709,13 +680,11 @@ def fit_greybox(
         raise IdentificationError(f"{structure.name}: no free parameter to fit")
     if n_samples <= n_unknown:
         raise IdentificationError(
-            f"fit_greybox: need more samples than free parameters ({n_unknown}); got {n_samples}"
-        )
+            f"fit_greybox: need more samples than free parameters ({n_unknown}); got {n_samples}")
     if np.all(np.ptp(evaluator.U, axis=1) == 0.0):
         raise IdentificationError(
             "fit_greybox: the input never changes over the record; expected an exciting "
-            "input (steps or noise) to identify dynamics from"
-        )
+            "input (steps or noise) to identify dynamics from")
 
     free = np.asarray(structure.free_mask)
     values = np.asarray(structure.initial_values)
@@ -761,8 +730,7 @@ def fit_greybox(
             f"{structure.name}: the prediction-error search did not converge after "
             f"{lm.n_iterations} iterations ({lm.message}); the best iterate is kept",
             IdentificationWarning,
-            stacklevel=2,
-        )
+            stacklevel=2)
     return GreyBoxResult(
         structure=structure, criterion=criterion, parameter_names=structure.parameter_names,
         parameters=full_values(theta), std_errors=std_errors, free=structure.free_mask,

@@ -246,8 +246,7 @@ class LoadReport:
             "max_jitter_fraction_of_ts": self.max_jitter,
             "resampled": self.resampled,
             "n_segments": len(self.segment_starts),
-            "segment_starts": list(self.segment_starts),
-        }
+            "segment_starts": list(self.segment_starts)}
 
     def summary(self) -> str:
         """One sentence: what was read and every change made to it."""
@@ -817,8 +816,7 @@ def _pandas() -> Any:
         import pandas
     except ImportError:
         raise ImportError(
-            "reading or writing a pandas DataFrame needs pandas: pip install 'czmpc[pandas]'"
-        ) from None
+            "reading or writing a pandas DataFrame needs pandas: pip install 'czmpc[pandas]'") from None
     return pandas
 
 

@@ -497,8 +497,7 @@ def _data_checks(data: Dataset, *, degree: int, nb: int, n_parameters: int,
                        f"{what}, at least {need} needed ({SAMPLES_PER_PARAMETER} per "
                        "parameter)"
                        + ("" if n >= need else
-                          "; record a longer test, or choose lower orders (--orders)"))),
-    ]
+                          "; record a longer test, or choose lower orders (--orders)")))]
 
 
 def assess_data(

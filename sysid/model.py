@@ -117,8 +117,7 @@ class Units:
             if not isinstance(value, str) or not value.strip() or len(value) > MAX_UNIT_CHARS:
                 raise ModelFileError(
                     f"units.{name} must be a non-empty string of at most {MAX_UNIT_CHARS} "
-                    f"characters; got {value!r}"
-                )
+                    f"characters; got {value!r}")
 
 
 #: Longest unit string accepted (a unit, not a description).
@@ -242,12 +241,8 @@ class HammersteinModel:
         if self.kind not in ("hammerstein", "linear"):
             raise ModelFileError(f"kind must be 'hammerstein' or 'linear'; got {self.kind!r}")
         if self.linear_block not in ("armax", "oe", "arx"):
-            raise ModelFileError(
-                f"linear_block must be 'armax', 'oe' or 'arx'; got {self.linear_block!r}"
-            )
-        if not isinstance(self.ts_s, (int, float)) or not (
-            math.isfinite(self.ts_s) and self.ts_s > 0
-        ):
+            raise ModelFileError(f"linear_block must be 'armax', 'oe' or 'arx'; got {self.linear_block!r}")
+        if not isinstance(self.ts_s, (int, float)) or not (math.isfinite(self.ts_s) and self.ts_s > 0):
             raise ModelFileError(f"ts_s must be a finite number > 0 [s]; got {self.ts_s!r}")
         object.__setattr__(self, "ts_s", float(self.ts_s))
         for name in ("a", "b", "c", "input_poly"):
@@ -262,24 +257,20 @@ class HammersteinModel:
         if abs(self.b[nonzero[0]] - 1.0) > NORMALIZATION_ATOL:
             raise ModelFileError(
                 "B(q)'s first non-zero coefficient must be normalized to 1 (the gain lives "
-                f"in input_poly); got {self.b[nonzero[0]]}"
-            )
+                f"in input_poly); got {self.b[nonzero[0]]}")
         if self.kind == "linear" and self.input_poly.size != 1:
             raise ModelFileError(
                 f"a linear model has one input coefficient (b1); got input_poly of "
-                f"length {self.input_poly.size}"
-            )
+                f"length {self.input_poly.size}")
         if not (math.isfinite(self.noise_std_kw) and self.noise_std_kw >= 0.0):
             raise ModelFileError(
                 f"noise_std_kw must be finite and >= 0 (0: a noise-free model, which the "
-                f"controller runs); got {self.noise_std_kw!r}"
-            )
+                f"controller runs); got {self.noise_std_kw!r}")
         object.__setattr__(self, "noise_std_kw", float(self.noise_std_kw))
         lo, hi = (float(v) for v in self.input_range_pct)
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
             raise ModelFileError(
-                f"input_range_pct must be finite with min < max [%]; got {self.input_range_pct!r}"
-            )
+                f"input_range_pct must be finite with min < max [%]; got {self.input_range_pct!r}")
         object.__setattr__(self, "input_range_pct", (lo, hi))
         if self.units is not None and not isinstance(self.units, Units):
             raise ModelFileError(f"units must be a Units or None; got {self.units!r}")
@@ -291,8 +282,7 @@ class HammersteinModel:
             if rho >= 1.0:
                 raise UnstableModelError(
                     f"{name.upper()}(q) has a root at |z| = {rho:.4g}, outside the unit circle; "
-                    "the model is unstable"
-                )
+                    "the model is unstable")
 
     # --- structure -------------------------------------------------------------
     @property
@@ -356,9 +346,7 @@ class HammersteinModel:
     def check_ts(self, ts_s: float, *, what: str = "data") -> None:
         """Raise `SamplingTimeError` unless ``ts_s`` equals this model's sampling time."""
         if not math.isclose(ts_s, self.ts_s, rel_tol=1e-9, abs_tol=1e-12):
-            raise SamplingTimeError(
-                f"{what} has sampling time {ts_s} s but the model has {self.ts_s} s"
-            )
+            raise SamplingTimeError(f"{what} has sampling time {ts_s} s but the model has {self.ts_s} s")
 
 
 #: Relative asymmetry ``|C - C^T| / max|C|`` tolerated in a covariance (rounding of a
@@ -374,8 +362,7 @@ def _checked_covariance(
         arr = np.array(values, dtype=float)
     except (TypeError, ValueError, OverflowError):
         raise ModelFileError(
-            f"covariance must be a square matrix of finite numbers; got {values!r}"[:300]
-        ) from None
+            f"covariance must be a square matrix of finite numbers; got {values!r}"[:300]) from None
     if arr.ndim != 2 or arr.shape[0] != arr.shape[1] or arr.size == 0:
         raise ModelFileError(f"covariance must be a non-empty square matrix; got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
@@ -383,8 +370,7 @@ def _checked_covariance(
     if names is not None and len(names) != arr.shape[0]:
         raise ModelFileError(
             f"covariance is {arr.shape[0]} x {arr.shape[0]} but provenance.parameter_names "
-            f"lists {len(names)} parameters {list(names)}"
-        )
+            f"lists {len(names)} parameters {list(names)}")
     scale = float(np.max(np.abs(arr)))
     asym = float(np.max(np.abs(arr - arr.T)))
     if asym > COVARIANCE_SYMMETRY_RTOL * max(scale, np.finfo(float).tiny):

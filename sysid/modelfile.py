@@ -42,8 +42,7 @@ def model_to_dict(model: HammersteinModel) -> dict[str, Any]:
         data_sha256=prov.data_sha256,
         preprocessing=[dict(step) for step in prov.preprocessing],
         method=prov.method,
-        created_utc=prov.created_utc,
-    )
+        created_utc=prov.created_utc)
     out: dict[str, Any] = {
         "format": FORMAT,
         "kind": model.kind,
@@ -63,8 +62,7 @@ def model_to_dict(model: HammersteinModel) -> dict[str, Any]:
             "V": model.criteria.ballistic_mse_kw2,
             "W": model.criteria.one_step_mse_kw2,
         },
-        "provenance": provenance,
-    }
+        "provenance": provenance}
     if model.units is not None:
         out["units"] = {"input": model.units.input, "output": model.units.output}
     if model.covariance is not None:
@@ -127,9 +125,7 @@ def model_from_dict(obj: Any) -> HammersteinModel:
     # czmpc-model/1 and readers ignore what they do not know (docs/reference/model_file.rst).
     op = obj["operating_point"]
     if not isinstance(op, dict) or set(op) != {"triac_pct", "power_kw"}:
-        raise ModelFileError(
-            f"operating_point must be {{'triac_pct': ..., 'power_kw': ...}}; got {op!r}"
-        )
+        raise ModelFileError(f"operating_point must be {{'triac_pct': ..., 'power_kw': ...}}; got {op!r}")
     crit = obj.get("criteria") or {}
     if not isinstance(crit, dict) or not set(crit) <= {"V", "W"}:
         raise ModelFileError(f"criteria must be an object with keys V and W; got {crit!r}")
@@ -186,8 +182,7 @@ def model_from_dict(obj: Any) -> HammersteinModel:
             extra={k: v for k, v in prov_obj.items() if k not in _PROVENANCE_KEYS},
         ),
         units=units,
-        covariance=covariance,
-    )
+        covariance=covariance)
 
 
 def save_model(model: HammersteinModel, path: str | os.PathLike[str]) -> None:

@@ -275,19 +275,16 @@ def find_operating_point(
     """
     if method not in ("given", "means", "steady"):
         raise IdentificationError(
-            f"find_operating_point: method must be 'given', 'means' or 'steady'; got {method!r}"
-        )
+            f"find_operating_point: method must be 'given', 'means' or 'steady'; got {method!r}")
     if method == "given":
         if given is None:
             raise IdentificationError(
-                "find_operating_point: method='given' needs given=OperatingPoint(...); got None"
-            )
+                "find_operating_point: method='given' needs given=OperatingPoint(...); got None")
         return OperatingPointChoice(operating_point=given, method="given")
     if given is not None:
         raise IdentificationError(
             f"find_operating_point: given is only used with method='given'; got "
-            f"method={method!r} and given={given!r}"
-        )
+            f"method={method!r} and given={given!r}")
     u, y = data.triac_pct, data.power_kw
     if method == "means":
         op = OperatingPoint(triac_pct=float(u.mean()), power_kw=float(y.mean()))
@@ -296,14 +293,12 @@ def find_operating_point(
                         ("output_atol_kw", output_atol_kw)):
         if not (math.isfinite(value) and value >= 0.0):
             raise IdentificationError(
-                f"find_operating_point: {name} must be a finite number >= 0; got {value!r}"
-            )
+                f"find_operating_point: {name} must be a finite number >= 0; got {value!r}")
     if isinstance(min_window_samples, bool) or not isinstance(min_window_samples, int) or \
             min_window_samples < 4:
         raise IdentificationError(
             f"find_operating_point: min_window_samples must be an int >= 4; got "
-            f"{min_window_samples!r}"
-        )
+            f"{min_window_samples!r}")
     bounds = data.segment_bounds()
     # differences and constant-input runs within each segment, never across a boundary
     diffs = np.diff(y) if len(bounds) == 1 else np.concatenate(
@@ -321,8 +316,7 @@ def find_operating_point(
             f"find_operating_point(method='steady'), {data.source or '<memory>'}: expected a "
             f"window of at least {min_window_samples} samples with the input constant within "
             f"{input_tol:g} and the output settled (within {limit:.4g} {data.output_unit}); "
-            "got none. Use method='means' or 'given', or relax the tolerances"
-        )
+            "got none. Use method='means' or 'given', or relax the tolerances")
     start, stop, drift, final = best
     yw, uw = y[start:stop], u[start:stop]
     window = SteadyWindow(
@@ -330,8 +324,7 @@ def find_operating_point(
         start_time_s=float(data.time_s[start]), end_time_s=float(data.time_s[stop - 1]),
         input_spread=float(np.ptp(uw)), output_spread_kw=float(np.ptp(yw)),
         output_std_kw=float(np.std(yw)), output_drift_kw=drift, final_level_kw=final,
-        settle_limit_kw=limit,
-    )
+        settle_limit_kw=limit)
     op = OperatingPoint(triac_pct=float(uw.mean()), power_kw=float(yw.mean()))
     return OperatingPointChoice(operating_point=op, method="steady", window=window)
 
@@ -583,8 +576,7 @@ def find_outlier_candidates(
         raise IdentificationError(
             f"{where}: expected residuals with a positive robust scale (MAD); got {scale:.3g} "
             f"(the ARX({na},{nb},{nk}) fits at least half the samples exactly, to rounding), "
-            "so no outlier can be told from the rest"
-        )
+            "so no outlier can be told from the rest")
     residuals = np.full(data.n_samples, np.nan)
     residuals[rows] = e
     du = np.diff(data.triac_pct)
@@ -604,8 +596,7 @@ def find_outlier_candidates(
         if near.size:
             step_residuals.append(StepResidual(
                 sample=first, last_sample=last, time_s=float(data.time_s[first]),
-                peak_residual_kw=float(residuals[peak]), input_step_sample=int(near[-1]),
-            ))
+                peak_residual_kw=float(residuals[peak]), input_step_sample=int(near[-1])))
             continue
         before = float(np.median(y[max(first - LEVEL_WINDOW_SAMPLES, 0) : max(first, 1)]))
         onset = y[first : min(last, first + 2) + 1] - before
@@ -620,15 +611,13 @@ def find_outlier_candidates(
             residual_kw=float(residuals[first]), peak_residual_kw=float(residuals[peak]),
             opposite_residual_follows=opposite, output_jump_kw=jump,
             persisting_change_kw=persisting,
-            kind="spike" if abs(persisting) < abs(jump) / 2 else "level_shift",
-        ))
+            kind="spike" if abs(persisting) < abs(jump) / 2 else "level_shift"))
     return OutlierReport(
         residuals_kw=residuals, first_sample=n0, scale_kw=scale, threshold=float(threshold),
         threshold_kw=limit, na=na, nb=nb, nk=nk,
         input_step_samples=tuple(int(j) for j in steps), input_step_tol=step_tol,
         candidates=tuple(candidates), step_residuals=tuple(step_residuals),
-        clipped_samples=_clipped_samples(y, clip_min_run_samples),
-    )
+        clipped_samples=_clipped_samples(y, clip_min_run_samples))
 
 
 # --------------------------------------------------------------------------- repairs
@@ -643,8 +632,7 @@ def _sample_at(data: Dataset, time_s: float, where: str) -> int:
     if abs(data.time_s[k] - time_s) > 0.5 * data.ts_s:
         raise DataFileError(
             f"{where}: expected a time within the record [{data.time_s[0]:g}, "
-            f"{data.time_s[-1]:g}] s; got {time_s:g} s", path=data.source,
-        )
+            f"{data.time_s[-1]:g}] s; got {time_s:g} s", path=data.source)
     return k
 
 
@@ -690,21 +678,18 @@ def interpolate_spike(
     if not 1 <= k <= data.n_samples - 2:
         raise DataFileError(
             f"{where}: expected a sample with two neighbours, 1 <= sample <= "
-            f"{data.n_samples - 2}; got {k}", path=data.source,
-        )
+            f"{data.n_samples - 2}; got {k}", path=data.source)
     if k in data.segment_starts or k + 1 in data.segment_starts:
         raise DataFileError(
             f"{where}: expected a sample with two neighbours in its own segment; got {k}, "
             f"at a segment boundary (segments start at {list(data.segment_starts)})",
-            path=data.source,
-        )
+            path=data.source)
     power = np.array(data.power_kw, copy=True)
     old = float(power[k])
     power[k] = 0.5 * (power[k - 1] + power[k + 1])
     return data.with_signals(power_kw=power, change={
         "what": "interpolate_spike", "signal": "power_kw", "sample": k,
-        "time_s": float(data.time_s[k]), "old_value": old, "new_value": float(power[k]),
-    })
+        "time_s": float(data.time_s[k]), "old_value": old, "new_value": float(power[k])})
 
 
 def correct_level_shift(data: Dataset, *, from_time_s: float, shift_kw: float) -> Dataset:
@@ -739,8 +724,7 @@ def correct_level_shift(data: Dataset, *, from_time_s: float, shift_kw: float) -
     if not (math.isfinite(from_time_s) and t[0] < from_time_s <= t[-1]):
         raise DataFileError(
             f"{where}: expected from_time_s inside the record ({t[0]:g}, {t[-1]:g}] s; got "
-            f"{from_time_s!r} s", path=data.source,
-        )
+            f"{from_time_s!r} s", path=data.source)
     if not math.isfinite(shift_kw):
         raise DataFileError(f"{where}: shift_kw must be a finite number; got {shift_kw!r}",
                             path=data.source)
@@ -749,8 +733,7 @@ def correct_level_shift(data: Dataset, *, from_time_s: float, shift_kw: float) -
     power[k0:] -= shift_kw
     return data.with_signals(power_kw=power, change={
         "what": "correct_level_shift", "signal": "power_kw", "from_time_s": float(from_time_s),
-        "from_sample": k0, "shift_kw": float(shift_kw), "n_samples_changed": int(t.size - k0),
-    })
+        "from_sample": k0, "shift_kw": float(shift_kw), "n_samples_changed": int(t.size - k0)})
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -833,8 +816,7 @@ def estimate_level_shift(
         raise IdentificationError(
             f"{where}: expected at least 2 samples before {from_time_s:g} s and 2 after "
             f"the {m}-sample transition; got {before[1] - before[0]} and "
-            f"{after[1] - after[0]}"
-        )
+            f"{after[1] - after[0]}")
     k = np.concatenate([np.arange(*before), np.arange(*after)])
     phi = np.column_stack([np.ones(k.size), (k - k0).astype(float), (k >= k0).astype(float)])
     theta, _, _, _ = np.linalg.lstsq(phi, data.power_kw[k], rcond=None)
@@ -846,8 +828,7 @@ def estimate_level_shift(
         shift_kw=float(theta[2]), std_error_kw=float(math.sqrt(cov[2, 2])),
         from_sample=k0, from_time_s=float(data.time_s[k0]),
         before_samples=before, after_samples=after,
-        input_constant=bool(np.ptp(u_used) == 0.0),
-    )
+        input_constant=bool(np.ptp(u_used) == 0.0))
 
 
 __all__ = [

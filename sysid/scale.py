@@ -53,8 +53,7 @@ def check_representable(data: Dataset, *, where: str) -> None:
                 f"spans of {MIN_SPAN:g} to {MAX_SPAN:g} of a signal's unit (its squares and "
                 f"cubes must stay normal floating-point numbers); rescale the {name} column "
                 "to a unit in which it spans an ordinary range (for example kW instead of W, "
-                "mV instead of V) and run again"
-            )
+                "mV instead of V) and run again")
 
 
 __all__ = ["MAX_SPAN", "MIN_SPAN", "check_representable"]

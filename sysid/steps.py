@@ -163,8 +163,7 @@ def detect_steps(
         threshold = float(min_step)
         if not (math.isfinite(threshold) and threshold >= 0.0):
             raise IdentificationError(
-                f"detect_steps: min_step must be a finite number >= 0; got {min_step!r}"
-            )
+                f"detect_steps: min_step must be a finite number >= 0; got {min_step!r}")
     u, y = data.triac_pct, data.power_kw
     candidates = np.flatnonzero(np.abs(np.diff(u)) > threshold) + 1
     # the segment each sample is in, and that segment's end: no step across a boundary
@@ -218,16 +217,14 @@ def format_step_table(
     gain_unit = f"{output_unit}/{input_unit}"
     header = (
         f"{'k':>6}  {'time [s]':>9}  {'input [' + input_unit + ']':>18}  "
-        f"{'output [' + output_unit + ']':>20}  {'r [' + gain_unit + ']':>12}"
-    )
+        f"{'output [' + output_unit + ']':>20}  {'r [' + gain_unit + ']':>12}")
     lines = [header]
     for step in steps:
         lines.append(
             f"{step.k:>6}  {step.time_s:>9.1f}  "
             f"{step.triac_before_pct:>7.2f} -> {step.triac_after_pct:>7.2f}  "
             f"{step.power_before_kw:>8.3f} -> {step.power_after_kw:>8.3f}  "
-            f"{step.gain_kw_per_pct:>12.4f}"
-        )
+            f"{step.gain_kw_per_pct:>12.4f}")
     return "\n".join(lines) + "\n"
 
 
