@@ -14,7 +14,7 @@ defaults for every model in this form.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from typing import Literal, get_args
 
 from czmpc.errors import SettingsError
@@ -53,6 +53,28 @@ def _check_finite(owner: str, name: str, value: object, *, minimum: float | None
 def _check_int(owner: str, name: str, value: object, *, minimum: int) -> None:
     if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
         raise SettingsError(f"{owner}.{name} must be an int >= {minimum}; got {value!r}")
+
+
+#: Rules of `_check_numbers`: ``(minimum, strict)``; any finite number, >= 0 or > 0.
+_ANY: tuple[float | None, bool] = (None, False)
+_GE0: tuple[float | None, bool] = (0.0, False)
+_GT0: tuple[float | None, bool] = (0.0, True)
+
+
+def _check_fields(obj: object, *, ints: dict[str, int] | None = None,
+                  numbers: dict[str, tuple[float | None, bool]] | None = None) -> None:
+    """Check ``obj``'s int fields (name -> minimum) and number fields (name -> rule).
+
+    A number field whose type admits None may be None (the setting is off).
+    """
+    owner = type(obj).__name__
+    for name, least in (ints or {}).items():
+        _check_int(owner, name, getattr(obj, name), minimum=least)
+    optional = {f.name for f in fields(obj) if "None" in str(f.type)}  # type: ignore[arg-type]
+    for name, (minimum, strict) in (numbers or {}).items():
+        value = getattr(obj, name)
+        if value is not None or name not in optional:
+            _check_finite(owner, name, value, minimum=minimum, strict=strict)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -94,25 +116,14 @@ class OSQPOptions:
     adaptive_rho_interval: int = 25
 
     def __post_init__(self) -> None:
-        owner = "OSQPOptions"
-        _check_finite(owner, "eps_abs", self.eps_abs, minimum=0.0, strict=True)
-        _check_finite(owner, "eps_rel", self.eps_rel, minimum=0.0)
-        _check_int(owner, "max_iter", self.max_iter, minimum=1)
+        _check_fields(self, ints={"max_iter": 1, "check_termination": 1,
+                                  "adaptive_rho_interval": 1},
+                      numbers={"eps_abs": _GT0, "eps_rel": _GE0, "time_limit_s": _GT0})
         if not isinstance(self.polishing, bool):
-            raise SettingsError(f"{owner}.polishing must be a bool; got {self.polishing!r}")
-        if self.time_limit_s is not None:
-            _check_finite(owner, "time_limit_s", self.time_limit_s, minimum=0.0, strict=True)
-        _check_int(owner, "check_termination", self.check_termination, minimum=1)
-        _check_int(owner, "adaptive_rho_interval", self.adaptive_rho_interval, minimum=1)
+            raise SettingsError(f"OSQPOptions.polishing must be a bool; got {self.polishing!r}")
 
 
 ModeName = Literal["off", "predict", "on"]
-
-
-def _check_optional(owner: str, name: str, value: object, *, minimum: float | None = None,
-                    strict: bool = False) -> None:
-    if value is not None:
-        _check_finite(owner, name, value, minimum=minimum, strict=strict)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -205,49 +216,32 @@ class ReliabilitySettings:
             raise SettingsError(
                 f"{owner}.initial_mode must be 'off', 'predict' or 'on'; got {self.initial_mode!r}"
             )
-        _check_int(owner, "warmup_samples", self.warmup_samples, minimum=0)
-        _check_optional(owner, "power_min_kw", self.power_min_kw)
-        _check_optional(owner, "power_max_kw", self.power_max_kw)
+        _check_fields(self, ints={
+            "warmup_samples": 0, "stuck_samples": 0, "reopen_after_samples": 0,
+            "max_predicted_samples": 0, "max_bad_solves": 1, "mismatch_window_samples": 2,
+            "transition_log_size": 1,
+        }, numbers={
+            "power_min_kw": _ANY, "power_max_kw": _ANY, "max_change_kw_per_sample": _GT0,
+            "stuck_min_predicted_change_kw": _GT0, "spike_gate_k_sigma": _GT0,
+            "spike_gate_floor_kw": _GE0, "shed_triac_pct": _GE0, "solver_bound_tol_kw": _GT0,
+            "setpoint_ramp_kw_per_s": _GT0, "setpoint_filter_time_s": _GT0,
+            "limit_ramp_pct_per_s": _GT0, "mismatch_disturbance_limit_kw": _GT0,
+        })
         if (self.power_min_kw is not None and self.power_max_kw is not None
                 and not self.power_min_kw < self.power_max_kw):
             raise SettingsError(
                 f"{owner}: expected power_min_kw < power_max_kw [kW]; got "
                 f"{self.power_min_kw!r} and {self.power_max_kw!r}"
             )
-        _check_optional(owner, "max_change_kw_per_sample", self.max_change_kw_per_sample,
-                        minimum=0.0, strict=True)
-        _check_int(owner, "stuck_samples", self.stuck_samples, minimum=0)
         if self.stuck_samples == 1:
             raise SettingsError(
                 f"{owner}.stuck_samples must be 0 (off) or >= 2 (one reading is never "
                 f"stuck); got 1"
             )
-        _check_finite(owner, "stuck_min_predicted_change_kw",
-                      self.stuck_min_predicted_change_kw, minimum=0.0, strict=True)
-        _check_optional(owner, "spike_gate_k_sigma", self.spike_gate_k_sigma, minimum=0.0,
-                        strict=True)
-        _check_finite(owner, "spike_gate_floor_kw", self.spike_gate_floor_kw, minimum=0.0)
-        _check_int(owner, "reopen_after_samples", self.reopen_after_samples, minimum=0)
-        _check_int(owner, "max_predicted_samples", self.max_predicted_samples, minimum=0)
-        if self.shed_triac_pct is not None:
-            _check_finite(owner, "shed_triac_pct", self.shed_triac_pct, minimum=0.0)
-            if self.shed_triac_pct > 100.0:
-                raise SettingsError(
-                    f"{owner}.shed_triac_pct must lie in 0..100 [%]; got {self.shed_triac_pct!r}"
-                )
-        _check_int(owner, "max_bad_solves", self.max_bad_solves, minimum=1)
-        _check_finite(owner, "solver_bound_tol_kw", self.solver_bound_tol_kw, minimum=0.0,
-                      strict=True)
-        _check_optional(owner, "setpoint_ramp_kw_per_s", self.setpoint_ramp_kw_per_s,
-                        minimum=0.0, strict=True)
-        _check_optional(owner, "setpoint_filter_time_s", self.setpoint_filter_time_s,
-                        minimum=0.0, strict=True)
-        _check_finite(owner, "limit_ramp_pct_per_s", self.limit_ramp_pct_per_s, minimum=0.0,
-                      strict=True)
-        _check_int(owner, "mismatch_window_samples", self.mismatch_window_samples, minimum=2)
-        _check_optional(owner, "mismatch_disturbance_limit_kw",
-                        self.mismatch_disturbance_limit_kw, minimum=0.0, strict=True)
-        _check_int(owner, "transition_log_size", self.transition_log_size, minimum=1)
+        if self.shed_triac_pct is not None and self.shed_triac_pct > 100.0:
+            raise SettingsError(
+                f"{owner}.shed_triac_pct must lie in 0..100 [%]; got {self.shed_triac_pct!r}"
+            )
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -333,10 +327,13 @@ class MPCSettings:
 
     def __post_init__(self) -> None:
         owner = "MPCSettings"
-        _check_int(owner, "horizon_steps", self.horizon_steps, minimum=1)
-        _check_finite(owner, "output_weight", self.output_weight, minimum=0.0, strict=True)
-        _check_finite(owner, "move_weight", self.move_weight, minimum=0.0)
-        _check_finite(owner, "input_target_weight", self.input_target_weight, minimum=0.0)
+        _check_fields(self, ints={"horizon_steps": 1}, numbers={
+            "output_weight": _GT0, "move_weight": _GE0, "input_target_weight": _GE0,
+            "disturbance_noise": _GT0, "triac_min_pct": _GE0, "triac_max_pct": _ANY,
+            "validity_margin_pct": _GE0, "max_move_pct_per_step": _GT0,
+            "soft_power_min_kw": _ANY, "soft_power_max_kw": _ANY, "soft_limit_weight": _GT0,
+            "soft_limit_linear_weight": _GE0, "initial_triac_pct": _ANY, "ts_s": _GT0,
+        })
         if self.move_weight + self.input_target_weight <= 0.0:
             raise SettingsError(
                 f"{owner}.move_weight + input_target_weight must be > 0 (the LQ problem "
@@ -348,22 +345,11 @@ class MPCSettings:
                 f"{owner}.disturbance_model must be 'input' or 'output'; "
                 f"got {self.disturbance_model!r}"
             )
-        _check_finite(owner, "disturbance_noise", self.disturbance_noise, minimum=0.0,
-                      strict=True)
-        _check_finite(owner, "triac_min_pct", self.triac_min_pct, minimum=0.0)
-        _check_finite(owner, "triac_max_pct", self.triac_max_pct)
         if not self.triac_min_pct < self.triac_max_pct <= 100.0:
             raise SettingsError(
                 f"{owner}: expected 0 <= triac_min_pct < triac_max_pct <= 100 [%]; got "
                 f"triac_min_pct={self.triac_min_pct!r}, triac_max_pct={self.triac_max_pct!r}"
             )
-        _check_finite(owner, "validity_margin_pct", self.validity_margin_pct, minimum=0.0)
-        if self.max_move_pct_per_step is not None:
-            _check_finite(owner, "max_move_pct_per_step", self.max_move_pct_per_step,
-                          minimum=0.0, strict=True)
-        for name in ("soft_power_min_kw", "soft_power_max_kw"):
-            if getattr(self, name) is not None:
-                _check_finite(owner, name, getattr(self, name))
         if (
             self.soft_power_min_kw is not None
             and self.soft_power_max_kw is not None
@@ -373,22 +359,15 @@ class MPCSettings:
                 f"{owner}: expected soft_power_min_kw < soft_power_max_kw [kW]; got "
                 f"{self.soft_power_min_kw!r} and {self.soft_power_max_kw!r}"
             )
-        _check_finite(owner, "soft_limit_weight", self.soft_limit_weight, minimum=0.0,
-                      strict=True)
-        _check_finite(owner, "soft_limit_linear_weight", self.soft_limit_linear_weight,
-                      minimum=0.0)
-        if self.initial_triac_pct is not None:
-            _check_finite(owner, "initial_triac_pct", self.initial_triac_pct)
-            if not self.triac_min_pct <= self.initial_triac_pct <= self.triac_max_pct:
-                raise SettingsError(
-                    f"{owner}.initial_triac_pct must lie within [triac_min_pct, "
-                    f"triac_max_pct] = [{self.triac_min_pct:g}, {self.triac_max_pct:g}] [%]; "
-                    f"got {self.initial_triac_pct!r}"
-                )
+        initial = self.initial_triac_pct
+        if initial is not None and not self.triac_min_pct <= initial <= self.triac_max_pct:
+            raise SettingsError(
+                f"{owner}.initial_triac_pct must lie within [triac_min_pct, "
+                f"triac_max_pct] = [{self.triac_min_pct:g}, {self.triac_max_pct:g}] [%]; "
+                f"got {initial!r}"
+            )
         if not isinstance(self.osqp, OSQPOptions):
             raise SettingsError(f"{owner}.osqp must be an OSQPOptions; got {self.osqp!r}")
-        if self.ts_s is not None:
-            _check_finite(owner, "ts_s", self.ts_s, minimum=0.0, strict=True)
         if not isinstance(self.reliability, ReliabilitySettings):
             raise SettingsError(
                 f"{owner}.reliability must be a ReliabilitySettings; got {self.reliability!r}"
