@@ -282,8 +282,7 @@ class MoveBounds:
             self._w_hi.fill(input_map.w_max)
             return self._w_lo, self._w_hi, None
         ds = self._ds
-        ds[:] = self._reach
-        ds += ds_prev_pct  # = reach + ds_prev; in place costs less than np.add(..., out=)
+        np.add(self._reach, ds_prev_pct, out=ds)
         np.maximum(ds, input_map.ds_min_pct, out=ds)
         np.minimum(ds, input_map.ds_max_pct, out=ds)
         c = input_map.coefficients
@@ -291,21 +290,26 @@ class MoveBounds:
         for coef in reversed(c[:-1]):
             w += coef
             w *= ds
-        deg = len(c)
-        slope = self._slope                            # f'(ds) by Horner's rule
-        if deg == 1:
-            slope.fill(c[0])
+        rate = self._rate                             # min of f' over [ds_lo_j, ds_hi_j]
+        if len(c) == 1:
+            rate.fill(c[0])
+        elif len(c) == 2:
+            # f' = c_0 + 2 c_1 ds is monotone, in floating point too: its minimum is at
+            # the lower end for c_1 >= 0, at the upper end otherwise.
+            np.multiply(self._ds_lo1 if c[1] >= 0.0 else self._ds_hi1, 2 * c[1], out=rate)
+            rate += c[0]
         else:
+            slope = self._slope                       # f'(ds) by Horner's rule
+            deg = len(c)
             np.multiply(ds, deg * c[-1], out=slope)
             slope += (deg - 1) * c[-2]
             for i in range(deg - 2, 0, -1):
                 slope *= ds
                 slope += i * c[i - 1]
-        rate = self._rate
-        np.minimum(self._slope_lo1, self._slope_hi1, out=rate)
-        for r in input_map.slope_critical_points_pct:  # an interior minimum of f'
-            inside = (self._ds_lo1 < r) & (r < self._ds_hi1)
-            rate[inside] = np.minimum(rate[inside], slope_at(c, r))
+            np.minimum(self._slope_lo1, self._slope_hi1, out=rate)
+            for r in input_map.slope_critical_points_pct:  # an interior minimum of f'
+                inside = (self._ds_lo1 < r) & (r < self._ds_hi1)
+                rate[inside] = np.minimum(rate[inside], slope_at(c, r))
         rate *= delta
         return self._w_lo, self._w_hi, rate
 

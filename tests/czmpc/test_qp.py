@@ -171,9 +171,17 @@ def _cubic_map() -> InputMap:
                     w_min=-40.0 - 64.0, w_max=50.0 + 125.0, slope_critical_points_pct=(0.0,))
 
 
-@pytest.mark.parametrize("which", ["quadratic", "cubic"])
+def _convex_quadratic_map() -> InputMap:
+    """f(ds) = ds + 2e-3 ds^2: f' rises with ds, so its minimum is at the lower end."""
+    return InputMap(coefficients=(1.0, 2e-3), operating_triac_pct=45.0, ds_min_pct=-40.0,
+                    ds_max_pct=50.0, w_min=-40.0 + 3.2, w_max=50.0 + 5.0,
+                    slope_critical_points_pct=())
+
+
+@pytest.mark.parametrize("which", ["quadratic", "convex quadratic", "cubic"])
 def test_move_bounds_match_a_dense_grid_reference(which: str, input_map: InputMap) -> None:
-    im = input_map if which == "quadratic" else _cubic_map()
+    im = {"quadratic": input_map, "convex quadratic": _convex_quadratic_map(),
+          "cubic": _cubic_map()}[which]
     delta, n = 1.5, 40
     bounds = MoveBounds(delta, n)
     for ds_prev in (im.ds_min_pct + 1.0, 0.3, im.ds_max_pct - 2.0):  # buffers reused
