@@ -20,7 +20,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Literal
 
@@ -166,12 +166,8 @@ class ModelCheck:
         mc = self.monte_carlo
         return {
             "format": CHECK_FORMAT, "verdict": self.verdict, "reasons": list(self.reasons),
-            "items": [{"name": i.name, "status": i.status, "detail": i.detail,
-                       "value": i.value} for i in self.items],
-            "monte_carlo": None if mc is None else {
-                "n_runs": mc.n_runs, "n_good": mc.n_good, "n_offset_free": mc.n_offset_free,
-                "n_redrawn": mc.n_redrawn, "iae_ratios": list(mc.iae_ratios),
-                "nominal_iae_kw_s": mc.nominal_iae_kw_s, "seed": mc.seed},
+            "items": [asdict(i) for i in self.items],
+            "monte_carlo": None if mc is None else {**asdict(mc), "iae_ratios": list(mc.iae_ratios)},
             "data_source": self.data_source, "model_sha256": self.model_sha256,
             "created_utc": self.created_utc,
         }
