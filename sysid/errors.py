@@ -65,11 +65,6 @@ class IdentificationWarning(UserWarning):
 
 
 __all__ = [
-    "DataFileError",
-    "IdentificationError",
-    "IdentificationWarning",
-    "ModelFileError",
-    "SamplingTimeError",
-    "SysidError",
-    "UnstableModelError",
+    "DataFileError", "IdentificationError", "IdentificationWarning", "ModelFileError",
+    "SamplingTimeError", "SysidError", "UnstableModelError"
 ]

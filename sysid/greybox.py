@@ -740,10 +740,6 @@ def fit_greybox(
 
 
 __all__ = [
-    "GreyBoxCriterion",
-    "GreyBoxResult",
-    "GreyBoxStructure",
-    "InitialState",
-    "fit_greybox",
-    "greybox_residuals",
+    "GreyBoxCriterion", "GreyBoxResult", "GreyBoxStructure", "InitialState", "fit_greybox",
+    "greybox_residuals"
 ]

@@ -940,20 +940,7 @@ def load_log(
 
 
 __all__ = [
-    "DEFAULT_FILL_MAX_SAMPLES",
-    "GAP_POLICIES",
-    "LINEAR_GAP_PERIODS",
-    "LoadPolicy",
-    "LoadReport",
-    "LoadedLog",
-    "MIN_SEGMENT_SAMPLES",
-    "RESAMPLE_POLICIES",
-    "SNAP_MAX_JITTER",
-    "detect_separator",
-    "load_log",
-    "read_frame",
-    "read_log_csv",
-    "read_log_parquet",
-    "to_frame",
-    "write_parquet",
+    "DEFAULT_FILL_MAX_SAMPLES", "GAP_POLICIES", "LINEAR_GAP_PERIODS", "LoadPolicy", "LoadReport",
+    "LoadedLog", "MIN_SEGMENT_SAMPLES", "RESAMPLE_POLICIES", "SNAP_MAX_JITTER", "detect_separator",
+    "load_log", "read_frame", "read_log_csv", "read_log_parquet", "to_frame", "write_parquet"
 ]

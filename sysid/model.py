@@ -399,12 +399,6 @@ def normalize_input_gain(
 
 
 __all__ = [
-    "Criteria",
-    "HammersteinModel",
-    "LinearBlock",
-    "ModelKind",
-    "OperatingPoint",
-    "Provenance",
-    "Units",
-    "normalize_input_gain",
+    "Criteria", "HammersteinModel", "LinearBlock", "ModelKind", "OperatingPoint", "Provenance",
+    "Units", "normalize_input_gain"
 ]

@@ -832,19 +832,8 @@ def estimate_level_shift(
 
 
 __all__ = [
-    "DEFAULT_OUTLIER_THRESHOLD",
-    "LevelShiftEstimate",
-    "OperatingPointChoice",
-    "OperatingPointMethod",
-    "OutlierCandidate",
-    "OutlierKind",
-    "OutlierReport",
-    "SteadyWindow",
-    "StepResidual",
-    "correct_level_shift",
-    "estimate_level_shift",
-    "find_operating_point",
-    "find_outlier_candidates",
-    "interpolate_spike",
-    "to_deviation",
+    "DEFAULT_OUTLIER_THRESHOLD", "LevelShiftEstimate", "OperatingPointChoice",
+    "OperatingPointMethod", "OutlierCandidate", "OutlierKind", "OutlierReport", "SteadyWindow",
+    "StepResidual", "correct_level_shift", "estimate_level_shift", "find_operating_point",
+    "find_outlier_candidates", "interpolate_spike", "to_deviation"
 ]

@@ -229,10 +229,6 @@ def format_step_table(
 
 
 __all__ = [
-    "DEFAULT_STEP_FRACTION_OF_RANGE",
-    "DEFAULT_STEP_NOISE_SIGMAS",
-    "InputStep",
-    "default_step_threshold",
-    "detect_steps",
-    "format_step_table",
+    "DEFAULT_STEP_FRACTION_OF_RANGE", "DEFAULT_STEP_NOISE_SIGMAS", "InputStep",
+    "default_step_threshold", "detect_steps", "format_step_table"
 ]

@@ -33,8 +33,7 @@ ParameterSource = Literal["covariance", "std_errors"]
 
 __all__ = [
     "ParameterDistribution", "ParameterError", "ParameterSource", "draw_parameters",
-    "model_parameters", "model_with_parameters", "parameter_distribution",
-    "static_gain_kw_per_pct",
+    "model_parameters", "model_with_parameters", "parameter_distribution", "static_gain_kw_per_pct"
 ]
 
 
