@@ -37,7 +37,7 @@ from czmpc.inversion import InputMap, build_input_map, slope
 from czmpc.kalman import Estimator, SteadyStateKalman
 from czmpc.mismatch import InnovationMonitor, monitored_noise_std_kw
 from czmpc.modes import Mode, ModeTransition, Status, transition
-from czmpc.qp import MPCQP, MoveBounds, QPSolution
+from czmpc.qp import MPCQP, QPSolution
 from czmpc.realization import AugmentedModel, augment, innovations_form
 from czmpc.settings import MPCSettings
 from czmpc.supervision import LimitRamp, SetpointShaper, ShapedSetpoint
@@ -172,7 +172,7 @@ class OffsetFreeMPC:
             None if kw is None else kw - self._p_nom
             for kw in (settings.soft_power_min_kw, settings.soft_power_max_kw))
         self._max_move = settings.max_move_pct_per_step
-        self._bounds = MoveBounds(self._max_move, settings.horizon_steps)
+        self._bounds = self._qp.move_bounds(self._max_move)
         self._checker = MeasurementChecker(
             power_min_kw=rel.power_min_kw, power_max_kw=rel.power_max_kw,
             max_change_kw=rel.max_change_kw_per_sample, stuck_samples=rel.stuck_samples,

@@ -236,18 +236,24 @@ class MoveBounds:
         ``delta`` [%/step], or None for no rate limit.
     horizon_steps :
         ``N``.
+    rate_rows :
+        ``(lower, upper)`` (N-1,) arrays to write ``-rate`` and ``rate`` into: the rate
+        rows of a QP's ``l`` and ``u`` (`MPCQP.move_bounds`), so the QP takes them as they
+        stand; None for an array of its own (``rate`` only).
     """
 
-    def __init__(self, max_move_pct_per_step: float | None, horizon_steps: int) -> None:
+    def __init__(self, max_move_pct_per_step: float | None, horizon_steps: int, *,
+                 rate_rows: tuple[FloatArray, FloatArray] | None = None) -> None:
         n = horizon_steps
         self.max_move_pct_per_step = max_move_pct_per_step
         self.horizon_steps = n
+        self._rate_rows = rate_rows
         reach = (0.0 if max_move_pct_per_step is None else max_move_pct_per_step) * np.arange(1, n + 1)
         self._reach = np.concatenate([-reach, reach])   # [lower; upper] reach after j + 1 moves
         self._ds = np.empty(2 * n)
         self._w = np.empty(2 * n)
         self._slope = np.empty(2 * n)
-        self._rate = np.empty(n - 1)
+        self._min_slope = np.empty(n - 1)
         # Views, taken once: [lower; upper] halves, and their moves j >= 1.
         self._w_lo, self._w_hi = self._w[:n], self._w[n:]
         self._ds_lo1, self._ds_hi1 = self._ds[1:n], self._ds[n + 1 :]
@@ -290,7 +296,7 @@ class MoveBounds:
         for coef in reversed(c[:-1]):
             w += coef
             w *= ds
-        rate = self._rate                             # min of f' over [ds_lo_j, ds_hi_j]
+        rate = self._min_slope                        # min of f' over [ds_lo_j, ds_hi_j]
         if len(c) == 1:
             rate.fill(c[0])
         elif len(c) == 2:
@@ -310,8 +316,13 @@ class MoveBounds:
             for r in input_map.slope_critical_points_pct:  # an interior minimum of f'
                 inside = (self._ds_lo1 < r) & (r < self._ds_hi1)
                 rate[inside] = np.minimum(rate[inside], slope_at(c, r))
-        rate *= delta
-        return self._w_lo, self._w_hi, rate
+        if self._rate_rows is None:
+            rate *= delta
+            return self._w_lo, self._w_hi, rate
+        lower, upper = self._rate_rows
+        np.multiply(rate, -delta, out=lower)  # = -(rate * delta): the sign is exact
+        np.multiply(rate, delta, out=upper)
+        return self._w_lo, self._w_hi, upper
 
 
 class MPCQP:
@@ -511,6 +522,17 @@ class MPCQP:
         """(n+1, n+1) DARE terminal weight ``P_f`` on ``[dx_N; w_{N-1} - w_s]``."""
         return self._terminal_P
 
+    def move_bounds(self, max_move_pct_per_step: float | None) -> MoveBounds:
+        """A `MoveBounds` that writes the rate limits straight into this problem's ``l`` and ``u``.
+
+        Parameters
+        ----------
+        max_move_pct_per_step :
+            ``delta`` [%/step], or None for no rate limit.
+        """
+        rows = (self._l_rate, self._u_rate) if self.has_rate_limit else None
+        return MoveBounds(max_move_pct_per_step, self.horizon_steps, rate_rows=rows)
+
     def request_cold_start(self) -> None:
         """Start the next solve from zero instead of the previous solution."""
         self._needs_cold_start = True
@@ -535,7 +557,8 @@ class MPCQP:
         w_lo, w_hi :
             (N,) box bounds on ``w_j`` (see `MoveBounds`).
         rate :
-            (N-1,) move limits, required if built with ``has_rate_limit``.
+            (N-1,) move limits, required if built with ``has_rate_limit``; those of a
+            `move_bounds` are in place already (``-rate`` too).
         soft_min_rel_kw, soft_max_rel_kw :
             Soft power limits as deviations from ``P_nom`` [kW], required for the rows
             the problem was built with.
@@ -556,7 +579,7 @@ class MPCQP:
             self._l_box[:] = w_lo
         if w_hi is not self._u_box:
             self._u_box[:] = w_hi
-        if self.has_rate_limit and rate is not None:
+        if self.has_rate_limit and rate is not None and rate is not self._u_rate:
             np.negative(rate, out=self._l_rate)
             self._u_rate[:] = rate
         lo = self._l
@@ -575,7 +598,7 @@ class MPCQP:
             return self._failed("non-finite problem data")
         ext = self._ext
         try:
-            ext.update_data_vec(q=self._q, l=lo, u=up)
+            ext.update_data_vec(self._q, lo, up)  # (q, l, u): keywords cost more
             if self._needs_cold_start:
                 ext.warm_start(self._zero_x, self._zero_y)
                 self._needs_cold_start = False
@@ -598,7 +621,7 @@ class MPCQP:
                     status = f"{status}; outside bounds by {violation:.3g} kW"
         if usable:
             plan = x[:N]  # x is the solver's copy, ours alone
-            plan.flags.writeable = False
+            plan.setflags(write=False)
             slack = max(0.0, float(x[N])) if self.has_soft else 0.0  # >= 0 up to eps
         else:
             plan = self._nan_plan

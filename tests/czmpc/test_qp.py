@@ -150,6 +150,25 @@ def test_the_primal_residual_bounds_the_violation_of_box_and_rate_limits(
         assert violation <= qp._ext.info.prim_res + 1e-12  # reason: round-off of |A x - z|
 
 
+def test_the_qps_own_move_bounds_give_the_same_problem_as_copied_ones(
+    linear_block: InnovationsForm, input_map: InputMap
+) -> None:
+    """`MPCQP.move_bounds` writes -rate and rate into l and u itself; solve then takes them."""
+    ss = linear_block
+    kw = {"A": ss.A, "B": ss.B, "C": ss.C, "horizon_steps": 30, "has_rate_limit": True, **WEIGHTS}
+    in_place, copied = MPCQP(**kw), MPCQP(**kw)
+    own, separate = in_place.move_bounds(1.5), MoveBounds(1.5, 30)
+    for ds_prev in (-20.0, 3.0, 19.0):
+        args = {"h": np.array([0.5, -0.2]), "w_prev": input_map.f(ds_prev), "w_target": 2.0,
+                "y_target": 0.0}
+        w_lo, w_hi, rate = own.compute(input_map, ds_prev)
+        a = in_place.solve(**args, w_lo=w_lo, w_hi=w_hi, rate=rate)
+        w_lo, w_hi, rate = separate.compute(input_map, ds_prev)
+        b = copied.solve(**args, w_lo=w_lo, w_hi=w_hi, rate=rate)
+        np.testing.assert_array_equal(in_place._data, copied._data)
+        np.testing.assert_array_equal(a.w, b.w)
+
+
 def test_first_move_bounds_are_exact_and_later_slopes_local(input_map: InputMap) -> None:
     delta, ds_prev = 2.0, -25.0
     w_lo, w_hi, rate = MoveBounds(delta, 30).compute(input_map, ds_prev)
