@@ -10,11 +10,14 @@ segment by segment, each restarted with its own initial state under the same pol
 and the squared errors are pooled over all samples; ``initial_state="estimate"``
 scores the model with its initial state (each segment's) fitted by least squares (the
 errors are affine in it), as MATLAB's ``compare`` with ``'InitialCondition',
-'estimate'``, which is fair to records that do not start at rest.
+'estimate'``, which is fair to records that do not start at rest. `start_at_rest`
+judges whether a record does: whether the held past, and any simulation from rest at
+the first sample, describe its start.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import numpy as np
@@ -23,9 +26,21 @@ from scipy.signal import lfilter
 from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import IdentificationError
+from sysid.identifiability import Check
 from sysid.model import HammersteinModel
 from sysid.optimize import sum_of_squares
 from sysid.simulate import predict_one_step, simulate
+
+#: The input holds its first value, within this share of its span, until its first change.
+REST_INPUT_RTOL = 0.01
+#: Fewest samples before the first input change for `start_at_rest` to judge a start.
+REST_MIN_SAMPLES = 5
+#: A start is not at rest when, while the input holds its first value, the output's
+#: straight-line trend moves it by more than this share of its recorded span ...
+REST_DRIFT_SHARE = 0.05
+#: ... and by more than this many standard errors of that move (the noise level the
+#: larger of the window's residual and the record's, from second differences).
+REST_DRIFT_Z = 3.0
 
 #: Initial-state policies of the criteria.
 CriterionInitialState = Literal["held", "estimate"]
@@ -225,5 +240,75 @@ def fit_percent(measured: FloatArray, simulated: FloatArray) -> float:
     return 100.0 * (1.0 - float(np.linalg.norm(y - yhat)) / spread)
 
 
-__all__ = ["ballistic_mse", "errors_with_fitted_state", "fit_percent", "mean_squared_error",
-           "one_step_mse"]
+def start_at_rest(data: Dataset) -> Check:
+    """Whether each segment of a record starts at rest: a warning check when one does not.
+
+    While the input holds its first value (within `REST_INPUT_RTOL` of its span) before
+    its first change, a process at rest keeps its output within noise. A straight line
+    is fitted to the output over those samples; the start is not at rest when the line
+    moves the output by more than `REST_DRIFT_SHARE` of the segment's output span and by
+    more than `REST_DRIFT_Z` standard errors. Such a record begins inside a transient
+    that an input change before it caused: the held past of V (eq. 9) and any model
+    simulated from rest at the first sample misread it, and the record alone may not
+    determine the static gain (seen: the TCLab log cut by 5 % at its start, 19 samples
+    after a 0 -> 100 % step, moves by 99 % of its span in the 171 samples before its
+    first input change; every model fitted to it errs 3.8 times or more the full log's
+    model on the full log).
+
+    Parameters
+    ----------
+    data :
+        The record (absolute units), one or more segments.
+
+    Returns
+    -------
+    Check
+        ``start_at_rest``, severity ``"warning"``: measured the largest share of the
+        output span moved over the segments' first samples [-]; passed (measured NaN, not
+        judged) when no segment holds its input for `REST_MIN_SAMPLES` samples.
+    """
+    where, worst = "", (-1.0, 0.0, 0.0, 0)
+    for i, (lo, hi) in enumerate(data.segment_bounds()):
+        u, y = data.triac_pct[lo:hi], data.power_kw[lo:hi]
+        moved = np.flatnonzero(np.abs(u - u[0]) > REST_INPUT_RTOL * np.ptp(u))
+        m = int(moved[0]) if moved.size else u.size
+        if m < REST_MIN_SAMPLES or np.ptp(y) == 0.0:
+            continue
+        k = np.arange(m) - (m - 1) / 2.0
+        slope = float(k @ y[:m]) / float(k @ k)
+        d2 = np.diff(y, 2)
+        noise = max(1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0),
+                    float(np.std(y[:m] - np.mean(y[:m]) - slope * k)))
+        drift = slope * (m - 1)
+        z = abs(slope) * float(np.sqrt(k @ k)) / noise if noise > 0 else math.inf
+        share = abs(drift) / float(np.ptp(y))
+        if share > worst[0]:
+            worst = (share, z, drift, m)
+            where = f" of segment {i + 1}" if data.n_segments > 1 else ""
+    share, z, drift, m = worst
+    if share < 0:
+        return Check(name="start_at_rest", passed=True, severity="warning", measured=math.nan,
+                     threshold=REST_DRIFT_SHARE,
+                     message=(f"start at rest: not judged, the input changes within the "
+                              f"first {REST_MIN_SAMPLES} samples of every segment"))
+    at_rest = share <= REST_DRIFT_SHARE or z <= REST_DRIFT_Z
+    return Check(
+        name="start_at_rest", passed=at_rest, severity="warning", measured=share,
+        threshold=REST_DRIFT_SHARE,
+        message=(f"start at rest: while the input holds its first value for the first {m} "
+                 f"samples{where}, the output's trend moves it by {drift:.4g} "
+                 f"{data.output_unit} ({100 * share:.3g} % of its recorded span, "
+                 f"{z:.3g} standard errors; a start at rest moves at most "
+                 f"{100 * REST_DRIFT_SHARE:g} % or {REST_DRIFT_Z:g} standard errors)"
+                 + ("" if at_rest else
+                    "; the record does not start at rest but inside a transient that an "
+                    "input change before it caused, which the record does not show: a "
+                    "model simulated from rest at the first sample misreads that "
+                    "transient, and the record alone may not determine the static gain "
+                    "(see gain_significance); log from a steady state before the first "
+                    "input change")))
+
+
+__all__ = ["REST_DRIFT_SHARE", "REST_DRIFT_Z", "REST_INPUT_RTOL", "REST_MIN_SAMPLES",
+           "ballistic_mse", "errors_with_fitted_state", "fit_percent", "mean_squared_error",
+           "one_step_mse", "start_at_rest"]

@@ -271,7 +271,9 @@ def identify_to_directory(
     notes: list[str] = []
     if data.n_segments > 1:
         notes.append(segments_note(data))
+    from sysid.criteria import start_at_rest
     from sysid.identifiability import (
+        IdentifiabilityAssessment,
         UnidentifiableDataError,
         assess_data,
         assess_model,
@@ -301,7 +303,8 @@ def identify_to_directory(
     messages = tuple(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught))
     if result.final is None:  # pragma: no cover - the pipeline raises instead
         raise IdentificationError("identify: the pipeline returned no model")
-    judged = before + assess_model(result.final.model, result.data)
+    judged = before + assess_model(result.final.model, result.data) + \
+        IdentifiabilityAssessment(checks=(start_at_rest(data),))
     if judged.refusals and not accept_unidentifiable:
         raise UnidentifiableDataError(judged)
     out = Path(out_dir)

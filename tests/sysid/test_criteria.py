@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter, lfiltic
 
-from sysid.criteria import ballistic_mse, fit_percent, mean_squared_error, one_step_mse
+from sysid.criteria import (
+    REST_DRIFT_SHARE,
+    ballistic_mse,
+    fit_percent,
+    mean_squared_error,
+    one_step_mse,
+    start_at_rest,
+)
 from sysid.data import Dataset
 from sysid.errors import IdentificationError, SamplingTimeError
 from sysid.model import HammersteinModel
@@ -80,3 +87,42 @@ def test_criteria_refuse_mismatched_sampling_time(
         ballistic_mse(paper_oe_model, slow)
     with pytest.raises(SamplingTimeError):
         one_step_mse(paper_oe_model, slow)
+
+
+def _first_order_log(rng: np.random.Generator, *, skip: int) -> Dataset:
+    """``y = 20 + 0.5 / (1 - 0.98 q^-1) 0.02 u`` from rest, a step 0 -> 100 at sample 10
+    and 100 -> 40 at 400, noise 0.05; the first ``skip`` samples cut off."""
+    n = 800
+    u = np.where(np.arange(n) < 10, 0.0, np.where(np.arange(n) < 400, 100.0, 40.0))
+    y = 20.0 + lfilter([0.01], [1.0, -0.98], u) + 0.05 * rng.standard_normal(n)
+    return Dataset(time_s=np.arange(n - skip, dtype=float), triac_pct=u[skip:],
+                   power_kw=y[skip:], ts_s=1.0)
+
+
+def test_start_at_rest_passes_a_log_that_starts_at_rest(rng: np.random.Generator) -> None:
+    check = start_at_rest(_first_order_log(rng, skip=0))
+    assert check.name == "start_at_rest" and check.severity == "warning"
+    assert check.passed and check.measured < REST_DRIFT_SHARE
+
+
+def test_start_at_rest_warns_of_a_log_that_starts_mid_transient(
+    rng: np.random.Generator,
+) -> None:
+    # 20 samples after the step, tau = 49.5 samples: the line through its climb to the
+    # input's next change at 400 moves the output by about 60 % of its span
+    data = _first_order_log(rng, skip=30)
+    check = start_at_rest(data)
+    assert not check.passed
+    m = 400 - 30
+    slope = np.polyfit(np.arange(m), data.power_kw[:m], 1)[0]      # independent line fit
+    expected = abs(slope) * (m - 1) / np.ptp(data.power_kw)
+    np.testing.assert_allclose(check.measured, expected, rtol=1e-9)
+    assert "log from a steady state before the first input change" in check.message
+
+
+def test_start_at_rest_is_not_judged_when_the_input_moves_at_once(
+    rng: np.random.Generator,
+) -> None:
+    data = _first_order_log(rng, skip=8)         # the input changes at its third sample
+    check = start_at_rest(data)
+    assert check.passed and np.isnan(check.measured) and "not judged" in check.message
