@@ -135,8 +135,7 @@ class VoltageRamp:
         _check_number(self, "factor", lo=0.0, lo_open=True, hi=2.0)
         if self.end_s <= self.start_s:
             raise ScenarioError(
-                f"VoltageRamp.end_s: expected a time > start_s = {self.start_s:g} s; got {self.end_s:g}"
-            )
+                f"VoltageRamp.end_s: expected a time > start_s = {self.start_s:g} s; got {self.end_s:g}")
 
     def voltage_factor(self, time_s: FloatArray, ts_s: float) -> FloatArray:
         """Voltage factor [-] at the sample times ``time_s`` [s]."""
@@ -237,10 +236,8 @@ class RandomSpikes:
         _check_time(self, "start_s")
         _check_time(self, "end_s", allow_none=True)
         if self.end_s is not None and self.end_s <= self.start_s:
-            raise ScenarioError(
-                f"RandomSpikes.end_s: expected a time > start_s = {self.start_s:g} s; "
-                f"got {self.end_s:g}"
-            )
+            raise ScenarioError(f"RandomSpikes.end_s: expected a time > start_s = {self.start_s:g} s; "
+                                f"got {self.end_s:g}")
 
     def spike_profile_kw(
         self, time_s: FloatArray, ts_s: float, rng: np.random.Generator

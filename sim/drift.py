@@ -118,15 +118,12 @@ def parse_drift(text: str) -> DriftEvent:
     if match is None:
         raise PlantError(
             "drift: expected QUANTITY=VALUE@TIME_S with QUANTITY gain (factor) or tau (seconds), "
-            f"e.g. gain=0.75@3600; got {text!r}"
-        )
+            f"e.g. gain=0.75@3600; got {text!r}")
     quantity, value_text, at_text = match.groups()
     try:
         value, at_s = float(value_text), float(at_text)
     except ValueError:
-        raise PlantError(
-            f"drift: expected numbers in QUANTITY=VALUE@TIME_S; got {text!r}"
-        ) from None
+        raise PlantError(f"drift: expected numbers in QUANTITY=VALUE@TIME_S; got {text!r}") from None
     return DriftEvent(quantity="gain" if quantity == "gain" else "tau", value=value, at_s=at_s)
 
 
@@ -159,18 +156,14 @@ class PlantVariation:
     def __post_init__(self) -> None:
         if not (math.isfinite(self.gain_factor) and self.gain_factor > 0.0):
             raise PlantError(
-                f"PlantVariation.gain_factor: expected a finite number > 0; got {self.gain_factor!r}"
-            )
+                f"PlantVariation.gain_factor: expected a finite number > 0; got {self.gain_factor!r}")
         if self.tau_s is not None and not (math.isfinite(self.tau_s) and self.tau_s > 0.0):
             raise PlantError(
-                f"PlantVariation.tau_s: expected a finite time constant > 0 [s]; got {self.tau_s!r}"
-            )
+                f"PlantVariation.tau_s: expected a finite time constant > 0 [s]; got {self.tau_s!r}")
         if (isinstance(self.extra_delay_samples, bool)
                 or not isinstance(self.extra_delay_samples, int) or self.extra_delay_samples < 0):
-            raise PlantError(
-                "PlantVariation.extra_delay_samples: expected an integer >= 0; got "
-                f"{self.extra_delay_samples!r}"
-            )
+            raise PlantError("PlantVariation.extra_delay_samples: expected an integer >= 0; got "
+                             f"{self.extra_delay_samples!r}")
         object.__setattr__(self, "drifts",
                            tuple(sorted(self.drifts, key=lambda event: event.at_s)))
 

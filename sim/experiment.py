@@ -110,9 +110,7 @@ class ExperimentSpec:
                 or self.n_samples < 3:
             raise ScenarioError(f"ExperimentSpec.n_samples must be an int >= 3; got {self.n_samples!r}")
         if isinstance(self.power_decimals, bool) or not isinstance(self.power_decimals, int):
-            raise ScenarioError(
-                f"ExperimentSpec.power_decimals must be an int; got {self.power_decimals!r}"
-            )
+            raise ScenarioError(f"ExperimentSpec.power_decimals must be an int; got {self.power_decimals!r}")
         for name in ("ts_s", "dip_voltage_factor", "after_dip_voltage_factor"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -141,10 +139,8 @@ class ExperimentSpec:
         k = round(time_s / self.ts_s)
         if not (math.isclose(k * self.ts_s, time_s, rel_tol=0.0, abs_tol=1e-9 * self.ts_s)
                 and 1 <= k < self.n_samples):
-            raise ScenarioError(
-                f"ExperimentSpec.{name}: expected a time on the {self.ts_s:g} s grid inside "
-                f"(0, {self.duration_s:g}] s; got {time_s!r}"
-            )
+            raise ScenarioError(f"ExperimentSpec.{name}: expected a time on the {self.ts_s:g} s grid inside "
+                                f"(0, {self.duration_s:g}] s; got {time_s!r}")
         return k
 
     def triac_schedule_pct(self) -> FloatArray:
@@ -190,10 +186,8 @@ def identification_experiment(
     spec = ExperimentSpec() if spec is None else spec
     params = HeaterParams() if params is None else params
     if params.ts_s != spec.ts_s:
-        raise ScenarioError(
-            f"identification_experiment: HeaterParams.ts_s must equal ExperimentSpec.ts_s "
-            f"= {spec.ts_s:g} s; got {params.ts_s:g} s"
-        )
+        raise ScenarioError(f"identification_experiment: HeaterParams.ts_s must equal ExperimentSpec.ts_s "
+                            f"= {spec.ts_s:g} s; got {params.ts_s:g} s")
     heater = VirtualHeater(replace(params, initial_triac_pct=spec.initial_triac_pct))
     triac_pct = spec.triac_schedule_pct()
     k_dip = spec.sample_of(spec.dip_time_s, "dip_time_s")
@@ -207,12 +201,8 @@ def identification_experiment(
         offset_kw = spec.level_shift_kw if k >= k_shift else 0.0
         exogenous = Exogenous(grid_voltage_factor=voltage, power_offset_kw=offset_kw)
         power_kw[k] = heater.step(float(triac_pct[k - 1]), exogenous)
-    return Dataset(
-        time_s=np.arange(spec.n_samples, dtype=float) * spec.ts_s,
-        triac_pct=triac_pct,
-        power_kw=np.round(power_kw, spec.power_decimals),
-        ts_s=spec.ts_s,
-    )
+    return Dataset(time_s=np.arange(spec.n_samples, dtype=float) * spec.ts_s, triac_pct=triac_pct,
+                   power_kw=np.round(power_kw, spec.power_decimals), ts_s=spec.ts_s)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -274,9 +264,7 @@ def table3_comparison(
         The record does not hold exactly four steps after ``t = 1.0e4`` s.
     """
     spec = ExperimentSpec() if spec is None else spec
-    corrected_kw = data.power_kw - np.where(
-        data.time_s >= spec.level_shift_time_s, spec.level_shift_kw, 0.0
-    )
+    corrected_kw = data.power_kw - np.where(data.time_s >= spec.level_shift_time_s, spec.level_shift_kw, 0.0)
     corrected = data.with_signals(
         power_kw=corrected_kw,
         change={"what": "subtract level shift", "from_time_s": spec.level_shift_time_s,
@@ -284,22 +272,14 @@ def table3_comparison(
     )
     steps = [s for s in detect_steps(corrected) if s.time_s > PAPER_TABLE3_AFTER_S]
     if len(steps) != len(PAPER_TABLE3):
-        raise SimError(
-            f"table3_comparison: expected {len(PAPER_TABLE3)} input steps after "
-            f"t = {PAPER_TABLE3_AFTER_S:g} s; got {len(steps)}"
-        )
+        raise SimError(f"table3_comparison: expected {len(PAPER_TABLE3)} input steps after "
+                       f"t = {PAPER_TABLE3_AFTER_S:g} s; got {len(steps)}")
     return tuple(
-        Table3Row(
-            time_s=step.time_s,
-            ds_before_pct=step.triac_before_pct - PAPER_TRIAC_NOM_PCT,
-            ds_after_pct=step.triac_after_pct - PAPER_TRIAC_NOM_PCT,
-            paper_dp_before_kw=paper[2],
-            paper_dp_after_kw=paper[3],
-            paper_gain_kw_per_pct=paper[4],
-            dp_before_kw=step.power_before_kw - PAPER_POWER_NOM_KW,
-            dp_after_kw=step.power_after_kw - PAPER_POWER_NOM_KW,
-            gain_kw_per_pct=step.gain_kw_per_pct,
-        )
+        Table3Row(time_s=step.time_s, ds_before_pct=step.triac_before_pct - PAPER_TRIAC_NOM_PCT,
+                  ds_after_pct=step.triac_after_pct - PAPER_TRIAC_NOM_PCT, paper_dp_before_kw=paper[2],
+                  paper_dp_after_kw=paper[3], paper_gain_kw_per_pct=paper[4],
+                  dp_before_kw=step.power_before_kw - PAPER_POWER_NOM_KW,
+                  dp_after_kw=step.power_after_kw - PAPER_POWER_NOM_KW, gain_kw_per_pct=step.gain_kw_per_pct)
         for step, paper in zip(steps, PAPER_TABLE3, strict=True)
     )
 

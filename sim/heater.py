@@ -164,23 +164,19 @@ class HeaterParams:
                 raise PlantError(f"HeaterParams.{name} must be >= 0; got {getattr(self, name)!r}")
         if not 0.0 <= self.firing_threshold_pct < 100.0:
             raise PlantError(
-                f"HeaterParams.firing_threshold_pct must be in [0, 100); got {self.firing_threshold_pct!r}"
-            )
+                f"HeaterParams.firing_threshold_pct must be in [0, 100); got {self.firing_threshold_pct!r}")
         if self.firing_exponent < 1.0:
             raise PlantError(f"HeaterParams.firing_exponent must be >= 1; got {self.firing_exponent!r}")
         if not 0.0 <= self.firing_droop < 1.0:
             raise PlantError(f"HeaterParams.firing_droop must be in [0, 1); got {self.firing_droop!r}")
         if not 0.0 <= self.initial_triac_pct <= 100.0:
             raise PlantError(
-                f"HeaterParams.initial_triac_pct must be in [0, 100]; got {self.initial_triac_pct!r}"
-            )
+                f"HeaterParams.initial_triac_pct must be in [0, 100]; got {self.initial_triac_pct!r}")
         rho_wall = 1.0 + self.resistance_tc_per_k * (self.wall_temp_k - self.reference_temp_k)
         if rho_wall <= 0.0:
-            raise PlantError(
-                "HeaterParams: the relative resistance at the wall temperature, 1 + "
-                "resistance_tc_per_k * (wall_temp_k - reference_temp_k), must be > 0; "
-                f"got {rho_wall!r}"
-            )
+            raise PlantError("HeaterParams: the relative resistance at the wall temperature, 1 + "
+                             "resistance_tc_per_k * (wall_temp_k - reference_temp_k), must be > 0; "
+                             f"got {rho_wall!r}")
 
 
 def power_fraction(triac_pct: float, params: HeaterParams) -> float:
@@ -262,9 +258,7 @@ def steady_state(
     drive_kw = power_fraction(triac_pct, params) * grid_voltage_factor**2 * params.rated_power_kw
 
     def balance_kw(temp_k: float) -> float:
-        return _electric_power_kw(temp_k, drive_kw, power_offset_kw, params) - _heat_loss_kw(
-            temp_k, params
-        )
+        return _electric_power_kw(temp_k, drive_kw, power_offset_kw, params) - _heat_loss_kw(temp_k, params)
 
     low_k = params.wall_temp_k
     if balance_kw(low_k) <= 0.0:  # no net heating: the element sits at the wall temperature
@@ -283,14 +277,10 @@ def _check_input(triac_pct: float, exogenous: Exogenous) -> None:
         raise PlantError(f"VirtualHeater: triac_pct must be a number in [0, 100]; got {triac_pct!r}")
     v = exogenous.grid_voltage_factor
     if not (math.isfinite(v) and v > 0.0):
-        raise PlantError(
-            f"VirtualHeater: Exogenous.grid_voltage_factor must be finite and > 0; got {v!r}"
-        )
+        raise PlantError(f"VirtualHeater: Exogenous.grid_voltage_factor must be finite and > 0; got {v!r}")
     if not math.isfinite(exogenous.power_offset_kw):
-        raise PlantError(
-            "VirtualHeater: Exogenous.power_offset_kw must be finite; got "
-            f"{exogenous.power_offset_kw!r}"
-        )
+        raise PlantError("VirtualHeater: Exogenous.power_offset_kw must be finite; got "
+                         f"{exogenous.power_offset_kw!r}")
 
 
 class VirtualHeater:
@@ -354,9 +344,8 @@ class VirtualHeater:
         _, self._noise_rng, self._wander_rng = spawn_streams(rng)  # sensor noise, grid wander
         p = self.params
         self._wander = p.grid_wander_std * float(self._wander_rng.standard_normal())
-        self._true_power_kw, self._temp_k = steady_state(
-            p.initial_triac_pct, p, grid_voltage_factor=1.0 + self._wander
-        )
+        self._true_power_kw, self._temp_k = steady_state(p.initial_triac_pct, p,
+                                                         grid_voltage_factor=1.0 + self._wander)
         return self._measure()
 
     def step(self, triac_pct: float, exogenous: Exogenous = NOMINAL) -> float:
@@ -387,9 +376,8 @@ class VirtualHeater:
         offset_kw = exogenous.power_offset_kw
         self._temp_k = self._integrate_temp(self._temp_k, drive_kw, offset_kw)
         self._true_power_kw = _electric_power_kw(self._temp_k, drive_kw, offset_kw, p)
-        self._wander = self._wander_decay * self._wander + self._wander_innovation_std * float(
-            self._wander_rng.standard_normal()
-        )
+        innovation = self._wander_innovation_std * float(self._wander_rng.standard_normal())
+        self._wander = self._wander_decay * self._wander + innovation
         return self._measure()
 
     @property

@@ -51,10 +51,8 @@ ProgressCallback = Callable[[int, int], None]
 def _readonly(values: object, name: str, n: int) -> FloatArray:
     arr = np.array(values, dtype=float, copy=True)
     if arr.shape != (n,):
-        raise ScenarioError(
-            f"ClosedLoopResult.{name}: expected shape ({n},) (the scenario's n_steps); "
-            f"got {arr.shape}"
-        )
+        raise ScenarioError(f"ClosedLoopResult.{name}: expected shape ({n},) (the scenario's n_steps); "
+                            f"got {arr.shape}")
     arr.setflags(write=False)
     return arr
 
@@ -112,8 +110,7 @@ class ClosedLoopResult:
             diagnostics = tuple(self.diagnostics)
             if len(diagnostics) != n:
                 raise ScenarioError(
-                    f"ClosedLoopResult.diagnostics: expected {n} entries; got {len(diagnostics)}"
-                )
+                    f"ClosedLoopResult.diagnostics: expected {n} entries; got {len(diagnostics)}")
             object.__setattr__(self, "diagnostics", diagnostics)
 
     @property
@@ -173,10 +170,8 @@ class ClosedLoopResult:
 def _check_sampling_times(plant: Plant, controller: Controller, scenario: Scenario) -> None:
     for what, ts_s in (("plant", plant.ts_s), ("controller", controller.ts_s)):
         if not math.isclose(ts_s, scenario.ts_s, rel_tol=1e-9, abs_tol=1e-12):
-            raise SamplingTimeError(
-                f"run_closed_loop: expected the {what}'s ts_s to equal scenario "
-                f"'{scenario.name}''s {scenario.ts_s:g} s; got {ts_s:g} s"
-            )
+            raise SamplingTimeError(f"run_closed_loop: expected the {what}'s ts_s to equal scenario "
+                                    f"'{scenario.name}''s {scenario.ts_s:g} s; got {ts_s:g} s")
 
 
 def spawn_streams(
@@ -264,9 +259,7 @@ def run_closed_loop(
     n = scenario.n_steps
     ts_s = scenario.ts_s
     setpoints = scenario.setpoint_profile_kw().tolist()
-    exogenous = _exogenous_per_sample(
-        exogenous_profile(scenario.disturbances, n_steps=n, ts_s=ts_s)
-    )
+    exogenous = _exogenous_per_sample(exogenous_profile(scenario.disturbances, n_steps=n, ts_s=ts_s))
     faults = fault_profile(scenario.faults, n_steps=n, ts_s=ts_s, rng=fault_rng)
     missing = faults.missing.tolist()
     spikes = faults.spike_kw.tolist()
@@ -292,10 +285,8 @@ def run_closed_loop(
         triac = controller_step(measured, setpoints[k])
         t1 = clock()
         if not isfinite(triac):
-            raise SimError(
-                f"run_closed_loop: expected a finite TRIAC input [%] from the controller; "
-                f"got {triac!r} at sample {k} (t = {k * ts_s:g} s)"
-            )
+            raise SimError(f"run_closed_loop: expected a finite TRIAC input [%] from the controller; "
+                           f"got {triac!r} at sample {k} (t = {k * ts_s:g} s)")
         measured_rec[k] = measured
         true_rec[k] = plant.true_power_kw
         triac_rec[k] = triac
@@ -306,17 +297,11 @@ def run_closed_loop(
         if progress is not None and ((k + 1) % every == 0 or k + 1 == n):
             progress(k + 1, n)
 
-    return ClosedLoopResult(
-        scenario=scenario,
-        seed=seed,
-        time_s=scenario.time_s(),
-        setpoint_kw=np.array(setpoints),
-        power_measured_kw=np.array(measured_rec),
-        power_true_kw=np.array(true_rec),
-        triac_pct=np.array(triac_rec),
-        step_time_s=np.array(time_rec),
-        diagnostics=tuple(diagnostics) if has_diagnostics else None,
-    )
+    return ClosedLoopResult(scenario=scenario, seed=seed, time_s=scenario.time_s(),
+                            setpoint_kw=np.array(setpoints), power_measured_kw=np.array(measured_rec),
+                            power_true_kw=np.array(true_rec), triac_pct=np.array(triac_rec),
+                            step_time_s=np.array(time_rec),
+                            diagnostics=tuple(diagnostics) if has_diagnostics else None)
 
 
 __all__ = ["CSV_COLUMNS", "STATUS_COLUMNS", "ClosedLoopResult", "ProgressCallback",

@@ -287,8 +287,7 @@ def compute_metrics(
         power = result.power_measured_kw
     else:
         raise ScenarioError(
-            f"compute_metrics: expected power_signal 'true' or 'measured'; got {power_signal!r}"
-        )
+            f"compute_metrics: expected power_signal 'true' or 'measured'; got {power_signal!r}")
     ts_s = result.ts_s
     error = power - result.setpoint_kw
 
@@ -325,9 +324,7 @@ def compute_metrics(
     step_ms = result.step_time_s * 1e3
     finite_offsets = [abs(v) for v in offsets if math.isfinite(v)]
     return ClosedLoopMetrics(
-        scenario=scenario.name,
-        power_signal=power_signal,
-        changes=tuple(changes),
+        scenario=scenario.name, power_signal=power_signal, changes=tuple(changes),
         steady_state_errors_kw=tuple(offsets),
         max_abs_steady_state_error_kw=max(finite_offsets) if finite_offsets else math.nan,
         iae_kw_s=integral_absolute_error_kw_s(error, ts_s),
@@ -336,11 +333,8 @@ def compute_metrics(
         max_move_pct=float(moves.max()) if moves.size else 0.0,
         n_limit_violations=count_limit_violations(triac, (lo, hi)),
         n_rate_violations=0 if move is None else count_rate_violations(triac, move),
-        n_solver_failures=n_failures,
-        step_time_median_ms=float(np.median(step_ms)),
-        step_time_p95_ms=float(np.percentile(step_ms, 95)),
-        step_time_max_ms=float(step_ms.max()),
-    )
+        n_solver_failures=n_failures, step_time_median_ms=float(np.median(step_ms)),
+        step_time_p95_ms=float(np.percentile(step_ms, 95)), step_time_max_ms=float(step_ms.max()))
 
 
 __all__ = ["LIMIT_ATOL_PCT", "SETTLING_BAND", "STEADY_STATE_FRACTION", "ChangeMetrics", "ClosedLoopMetrics",

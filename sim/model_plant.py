@@ -89,10 +89,8 @@ def steady_state_triac_pct(
                 if lo - 1e-9 <= s <= hi + 1e-9:
                     candidates.append(min(max(s, lo), hi))
     if not candidates:
-        raise PlantError(
-            f"steady_state_triac_pct: expected a power the model reaches in steady state with "
-            f"{lo:g}..{hi:g} % TRIAC input; got {power_kw:g} kW"
-        )
+        raise PlantError(f"steady_state_triac_pct: expected a power the model reaches in steady state with "
+                         f"{lo:g}..{hi:g} % TRIAC input; got {power_kw:g} kW")
     return min(candidates, key=lambda s: abs(s - s_nom))
 
 
@@ -147,22 +145,17 @@ class ModelPlant:
         triac_limits_pct: tuple[float, float] = (0.0, 100.0),
     ) -> None:
         if model.delay_steps < 1:
-            raise PlantError(
-                "ModelPlant: expected a model with an input delay of at least 1 sample "
-                f"(B(q) starting with 0); got delay {model.delay_steps}"
-            )
+            raise PlantError("ModelPlant: expected a model with an input delay of at least 1 sample "
+                             f"(B(q) starting with 0); got delay {model.delay_steps}")
         lo, hi = (float(v) for v in triac_limits_pct)
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
             raise PlantError(
-                f"ModelPlant.triac_limits_pct: expected finite min < max [%]; got {triac_limits_pct!r}"
-            )
+                f"ModelPlant.triac_limits_pct: expected finite min < max [%]; got {triac_limits_pct!r}")
         op = model.operating_point
         s0 = op.triac_pct if initial_triac_pct is None else float(initial_triac_pct)
         if not (math.isfinite(s0) and lo <= s0 <= hi):
-            raise PlantError(
-                f"ModelPlant.initial_triac_pct: expected a number in {lo:g}..{hi:g} %; "
-                f"got {initial_triac_pct!r}"
-            )
+            raise PlantError(f"ModelPlant.initial_triac_pct: expected a number in {lo:g}..{hi:g} %; "
+                             f"got {initial_triac_pct!r}")
         self._use(model)
         self.ts_s = model.ts_s
         self.noise = bool(noise)
@@ -233,8 +226,7 @@ class ModelPlant:
                 "ModelPlant.set_model: expected a model with the same Ts, operating point, delay "
                 f"and polynomial lengths; got A {len(model.a)}, B {len(model.b)}, C "
                 f"{len(model.c)} coefficients, delay {model.delay_steps} for A {len(old.a)}, "
-                f"B {len(old.b)}, C {len(old.c)}, delay {old.delay_steps}"
-            )
+                f"B {len(old.b)}, C {len(old.c)}, delay {old.delay_steps}")
         self._use(model)
 
     # --- internals ----------------------------------------------------------------------

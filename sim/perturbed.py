@@ -85,10 +85,8 @@ def slow_pole(a: FloatArray, *, ts_s: float) -> tuple[float, float]:
         raise PlantError("slow_pole: expected A(q) of degree >= 1; got a constant A")
     top = roots[int(np.argmax(np.abs(roots)))]
     if abs(top.imag) > REAL_ROOT_RTOL * abs(top) or not 0.0 < top.real < 1.0:
-        raise PlantError(
-            "slow_pole: expected A(q)'s root of largest modulus to be real in (0, 1) (a slow "
-            f"exponential mode); got {complex(top):.6g}"
-        )
+        raise PlantError("slow_pole: expected A(q)'s root of largest modulus to be real in (0, 1) (a slow "
+                         f"exponential mode); got {complex(top):.6g}")
     pole = float(top.real)
     return pole, -ts_s / math.log(pole)
 
@@ -133,11 +131,9 @@ def scale_slow_time_constant(
     tail = b[first + 1:]
     tail_sum = float(np.sum(tail))
     if abs(tail_sum) < MIN_TAIL_SUM:
-        raise PlantError(
-            "scale_slow_time_constant: expected B(q) with coefficients after b_1 whose sum is "
-            "non-zero (they carry the static gain while b_1 = 1 is held); got "
-            f"B = {b.tolist()}"
-        )
+        raise PlantError("scale_slow_time_constant: expected B(q) with coefficients after b_1 whose sum is "
+                         "non-zero (they carry the static gain while b_1 = 1 is held); got "
+                         f"B = {b.tolist()}")
     static_gain = float(np.sum(b) / np.sum(a))
     scale = (static_gain * float(np.sum(a_new)) - 1.0) / tail_sum
     b_new = b.copy()
@@ -196,12 +192,10 @@ def perturb_model(
     """
     gain = _check_factor(gain_factor, "gain_factor")
     factor = _check_factor(time_constant_factor, "time_constant_factor")
-    if isinstance(extra_delay_steps, bool) or not isinstance(
-        extra_delay_steps, (int, np.integer)
-    ) or extra_delay_steps < 0:
+    if (isinstance(extra_delay_steps, bool) or not isinstance(extra_delay_steps, (int, np.integer))
+            or extra_delay_steps < 0):
         raise PlantError(
-            f"perturb_model.extra_delay_steps: expected an integer >= 0; got {extra_delay_steps!r}"
-        )
+            f"perturb_model.extra_delay_steps: expected an integer >= 0; got {extra_delay_steps!r}")
     a, b = scale_slow_time_constant(model.a, model.b, ts_s=model.ts_s, factor=factor)
     b = np.concatenate([np.zeros(int(extra_delay_steps)), b])
     c = a if model.linear_block == "oe" else model.c
@@ -212,10 +206,8 @@ def perturb_model(
         "time_constant_factor": factor,
         "extra_delay_steps": int(extra_delay_steps),
     }
-    return model.with_updates(
-        a=a, b=b, c=c, input_poly=input_poly,
-        provenance=replace(model.provenance, extra=extra),
-    )
+    return model.with_updates(a=a, b=b, c=c, input_poly=input_poly,
+                              provenance=replace(model.provenance, extra=extra))
 
 
 __all__ = ["perturb_model", "scale_slow_time_constant", "slow_pole"]

@@ -170,18 +170,15 @@ MAX_TIME_S = MAX_N_STEPS * 60.0
 
 def _bounded_time(value: float, where: str) -> None:
     if value > MAX_TIME_S:
-        raise ScenarioError(
-            f"{where}: expected a time <= {MAX_TIME_S:g} s (MAX_TIME_S: a run holds at most "
-            f"MAX_N_STEPS = {MAX_N_STEPS} samples in memory); got {value:g} s"
-        )
+        raise ScenarioError(f"{where}: expected a time <= {MAX_TIME_S:g} s (MAX_TIME_S: a run holds at most "
+                            f"MAX_N_STEPS = {MAX_N_STEPS} samples in memory); got {value:g} s")
 
 
 def _bounded_power(value: float, where: str) -> None:
     if abs(value) > MAX_ABS_POWER_KW:
         raise ScenarioError(
             f"{where}: expected a power of magnitude <= {MAX_ABS_POWER_KW:g} kW "
-            f"(MAX_ABS_POWER_KW: the metrics' squared errors must stay finite); got {value:g}"
-        )
+            f"(MAX_ABS_POWER_KW: the metrics' squared errors must stay finite); got {value:g}")
 
 
 def _finite(value: Any, where: str, *, positive: bool = False, nonneg: bool = False) -> float:
@@ -259,33 +256,24 @@ class Scenario:
         _bounded_time(duration_s, "Scenario.duration_s")
         n = duration_s / ts_s
         if n > MAX_N_STEPS + 0.5:
-            raise ScenarioError(
-                f"Scenario.duration_s: expected at most MAX_N_STEPS = {MAX_N_STEPS} samples "
-                f"(duration_s / ts_s; about {BYTES_PER_STEP} bytes of memory each); got "
-                f"{duration_s:g} s / {ts_s:g} s = {n:.4g} samples"
-            )
+            raise ScenarioError(f"Scenario.duration_s: expected at most MAX_N_STEPS = {MAX_N_STEPS} samples "
+                                f"(duration_s / ts_s; about {BYTES_PER_STEP} bytes of memory each); got "
+                                f"{duration_s:g} s / {ts_s:g} s = {n:.4g} samples")
         if not math.isfinite(n) or round(n) < 1 or abs(n - round(n)) > 1e-6 * max(1.0, n):
             raise ScenarioError(
                 f"Scenario.duration_s: expected a whole number (>= 1) of samples of {ts_s:g} s; "
-                f"got {duration_s:g} s"
-            )
-        object.__setattr__(
-            self, "initial_setpoint_kw",
-            _finite(self.initial_setpoint_kw, "Scenario.initial_setpoint_kw"),
-        )
+                f"got {duration_s:g} s")
+        object.__setattr__(self, "initial_setpoint_kw",
+                           _finite(self.initial_setpoint_kw, "Scenario.initial_setpoint_kw"))
         _bounded_power(self.initial_setpoint_kw, "Scenario.initial_setpoint_kw")
         if self.initial_triac_pct is not None:
-            object.__setattr__(
-                self, "initial_triac_pct",
-                _finite(self.initial_triac_pct, "Scenario.initial_triac_pct"),
-            )
+            object.__setattr__(self, "initial_triac_pct",
+                               _finite(self.initial_triac_pct, "Scenario.initial_triac_pct"))
         for name in ("setpoints", "disturbances", "faults"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
         lo, hi = (_finite(v, "Scenario.triac_limits_pct") for v in self.triac_limits_pct)
         if not lo < hi:
-            raise ScenarioError(
-                f"Scenario.triac_limits_pct: expected min < max [%]; got ({lo:g}, {hi:g})"
-            )
+            raise ScenarioError(f"Scenario.triac_limits_pct: expected min < max [%]; got ({lo:g}, {hi:g})")
         object.__setattr__(self, "triac_limits_pct", (lo, hi))
         if self.max_move_pct_per_step is not None:
             object.__setattr__(
@@ -307,17 +295,14 @@ class Scenario:
             if start >= duration_s:
                 raise ScenarioError(
                     f"Scenario: {type(event).__name__} starts at {start:g} s; expected a time "
-                    f"before the end of the run ({duration_s:g} s)"
-                )
+                    f"before the end of the run ({duration_s:g} s)")
 
     def _check_setpoints(self) -> None:
         previous_end = -math.inf
         for i, change in enumerate(self.setpoints, start=1):
             if not isinstance(change, (SetpointStep, SetpointRamp)):
-                raise ScenarioError(
-                    f"Scenario.setpoints[{i}]: expected a SetpointStep or SetpointRamp; "
-                    f"got {change!r}"
-                )
+                raise ScenarioError(f"Scenario.setpoints[{i}]: expected a SetpointStep or SetpointRamp; "
+                                    f"got {change!r}")
             key = "at_s" if isinstance(change, SetpointStep) else "start_s"
             start = _finite(change.start_s, f"Scenario.setpoints[{i}].{key}", nonneg=True)
             end = _finite(change.end_s, f"Scenario.setpoints[{i}].end_s", nonneg=True)
@@ -326,18 +311,13 @@ class Scenario:
             if end < start or (isinstance(change, SetpointRamp) and end == start):
                 raise ScenarioError(
                     f"Scenario.setpoints[{i}].end_s: expected a time > start_s = {start:g} s; "
-                    f"got {end:g}"
-                )
+                    f"got {end:g}")
             if start <= previous_end:
-                raise ScenarioError(
-                    f"Scenario.setpoints[{i}].{key}: expected a time after the previous "
-                    f"change ends ({previous_end:g} s); got {start:g}"
-                )
+                raise ScenarioError(f"Scenario.setpoints[{i}].{key}: expected a time after the previous "
+                                    f"change ends ({previous_end:g} s); got {start:g}")
             if end >= self.duration_s:
-                raise ScenarioError(
-                    f"Scenario.setpoints[{i}]: expected the change to end before the run "
-                    f"ends ({self.duration_s:g} s); got {end:g} s"
-                )
+                raise ScenarioError(f"Scenario.setpoints[{i}]: expected the change to end before the run "
+                                    f"ends ({self.duration_s:g} s); got {end:g} s")
             previous_end = end
 
     # --- derived ----------------------------------------------------------------------
@@ -381,11 +361,9 @@ class Scenario:
         level = self.initial_setpoint_kw
         for i, change in enumerate(self.setpoints):
             settled = _first_sample_at(change.end_s, self.ts_s)
-            segs.append(SetpointSegment(
-                kind="step" if isinstance(change, SetpointStep) else "ramp",
-                start_k=starts[i], settled_k=min(settled, bounds[i + 1]), stop_k=bounds[i + 1],
-                from_kw=level, to_kw=change.power_kw,
-            ))
+            segs.append(SetpointSegment(kind="step" if isinstance(change, SetpointStep) else "ramp",
+                                        start_k=starts[i], settled_k=min(settled, bounds[i + 1]),
+                                        stop_k=bounds[i + 1], from_kw=level, to_kw=change.power_kw))
             level = change.power_kw
         return tuple(s for s in segs if s.stop_k > s.start_k)
 
@@ -406,15 +384,11 @@ class Scenario:
         ):
             raise ScenarioError(f"Scenario.shortened: expected 0 < factor <= 1; got {factor!r}")
         n = max(1, math.ceil(self.n_steps * factor - 1e-9))
-        return replace(
-            self,
-            name=f"{self.name}-short",
-            description=f"{self.description} (times x {factor:g})",
-            duration_s=n * self.ts_s,
-            setpoints=tuple(scaled_times(c, factor) for c in self.setpoints),
-            disturbances=tuple(scaled_times(d, factor) for d in self.disturbances),
-            faults=tuple(scaled_times(f, factor) for f in self.faults),
-        )
+        return replace(self, name=f"{self.name}-short",
+                       description=f"{self.description} (times x {factor:g})", duration_s=n * self.ts_s,
+                       setpoints=tuple(scaled_times(c, factor) for c in self.setpoints),
+                       disturbances=tuple(scaled_times(d, factor) for d in self.disturbances),
+                       faults=tuple(scaled_times(f, factor) for f in self.faults))
 
 
 # --- TOML files ------------------------------------------------------------------------
@@ -466,8 +440,7 @@ def _check_keys(table: Mapping[str, Any], allowed: list[str], where: str, src: s
         if key not in allowed:
             raise ScenarioError(
                 f"{src}: key '{where}{key}': unknown key{_hint(key, allowed)}; expected one of "
-                f"{', '.join(sorted(allowed))}"
-            )
+                f"{', '.join(sorted(allowed))}")
 
 
 def _typed(value: Any, kind: str, key: str, src: str) -> Any:
@@ -496,14 +469,10 @@ def _events(doc: Mapping[str, Any], group: str, src: str) -> list[Any]:
         kinds = _KINDS[group]
         kind = table.get("kind")
         if kind is None:
-            raise ScenarioError(
-                f"{src}: key '{where}.kind': missing; expected one of {', '.join(kinds)}"
-            )
+            raise ScenarioError(f"{src}: key '{where}.kind': missing; expected one of {', '.join(kinds)}")
         if not isinstance(kind, str) or kind not in kinds:
-            raise ScenarioError(
-                f"{src}: key '{where}.kind': expected one of {', '.join(kinds)}"
-                f"{_hint(str(kind), list(kinds))}; got {kind!r}"
-            )
+            raise ScenarioError(f"{src}: key '{where}.kind': expected one of {', '.join(kinds)}"
+                                f"{_hint(str(kind), list(kinds))}; got {kind!r}")
         cls, required, optional = kinds[kind]
         _check_keys(table, ["kind", *required, *optional], f"{where}.", src)
         for key in required:
@@ -544,21 +513,14 @@ def scenario_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>") -> S
     lim = {k: _typed(v, _NUM, f"limits.{k}", src) for k, v in limits.items()}
     setpoints = _events(doc, "setpoint", src)
     try:
-        return Scenario(
-            name=top["name"],
-            description=top.get("description", ""),
-            duration_s=top["duration_s"],
-            ts_s=top.get("ts_s", 2.0),
-            initial_setpoint_kw=top["initial_setpoint_kw"],
-            initial_triac_pct=top.get("initial_triac_pct"),
-            setpoints=tuple(setpoints),
-            disturbances=tuple(_events(doc, "disturbance", src)),
-            faults=tuple(_events(doc, "fault", src)),
-            plant_noise=top.get("plant_noise", True),
-            triac_limits_pct=(lim.get("triac_min_pct", 0.0), lim.get("triac_max_pct", 100.0)),
-            max_move_pct_per_step=lim.get("max_move_pct_per_step"),
-            source=src,
-        )
+        return Scenario(name=top["name"], description=top.get("description", ""),
+                        duration_s=top["duration_s"], ts_s=top.get("ts_s", 2.0),
+                        initial_setpoint_kw=top["initial_setpoint_kw"],
+                        initial_triac_pct=top.get("initial_triac_pct"), setpoints=tuple(setpoints),
+                        disturbances=tuple(_events(doc, "disturbance", src)),
+                        faults=tuple(_events(doc, "fault", src)), plant_noise=top.get("plant_noise", True),
+                        triac_limits_pct=(lim.get("triac_min_pct", 0.0), lim.get("triac_max_pct", 100.0)),
+                        max_move_pct_per_step=lim.get("max_move_pct_per_step"), source=src)
     except ScenarioError as exc:
         message = str(exc)
         if message.startswith(src):
@@ -608,10 +570,8 @@ def load_scenario(name_or_path: str | os.PathLike[str]) -> Scenario:
     else:
         names = list_scenarios()
         if text_name not in names:
-            raise ScenarioError(
-                f"load_scenario: expected a shipped scenario name ({', '.join(names)}) or a "
-                f".toml path; got {text_name!r}{_hint(text_name, list(names))}"
-            )
+            raise ScenarioError(f"load_scenario: expected a shipped scenario name ({', '.join(names)}) or a "
+                                f".toml path; got {text_name!r}{_hint(text_name, list(names))}")
         raw = resources.files("sim.scenarios").joinpath(f"{text_name}.toml").read_bytes()
         src = f"{text_name}.toml"
     try:
