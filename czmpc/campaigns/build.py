@@ -117,10 +117,8 @@ def heater_steady_state_triac_pct(power_kw: float, params: HeaterParams | None =
     lo, hi = params.firing_threshold_pct, 100.0
     p_hi = heater_steady_state(hi, params)[0]
     if not (math.isfinite(power_kw) and 0.0 < power_kw <= p_hi):
-        raise PlantError(
-            f"heater_steady_state_triac_pct: expected a steady power in (0, {p_hi:.4g}] kW "
-            f"(the virtual heater's range at 0..100 % input); got {power_kw!r}"
-        )
+        raise PlantError(f"heater_steady_state_triac_pct: expected a steady power in (0, {p_hi:.4g}] kW "
+                         f"(the virtual heater's range at 0..100 % input); got {power_kw!r}")
     if power_kw == p_hi:
         return hi
     return float(brentq(lambda s: heater_steady_state(s, params)[0] - power_kw, lo, hi,
@@ -161,11 +159,9 @@ def controller_settings(
              if r is not None]
     s_lo, s_hi = allowed_triac_range(model, triac_min_pct=lo, triac_max_pct=hi,
                                      validity_margin_pct=base.validity_margin_pct)
-    return base.with_updates(
-        triac_min_pct=lo, triac_max_pct=hi,
-        max_move_pct_per_step=min(rates) if rates else None,
-        initial_triac_pct=min(s_hi, max(s_lo, float(initial_triac_pct))),
-    )
+    return base.with_updates(triac_min_pct=lo, triac_max_pct=hi,
+                             max_move_pct_per_step=min(rates) if rates else None,
+                             initial_triac_pct=min(s_hi, max(s_lo, float(initial_triac_pct))))
 
 
 def build_plant(kind: str, model: HammersteinModel, scenario: Scenario, *, noise: bool
