@@ -177,17 +177,35 @@ def _pulse_responses(den: FloatArray, n: int, n_samples: int) -> FloatArray:
     return np.column_stack([_lag(h, j) for j in range(n)]) if n else np.zeros((n_samples, 0))
 
 
+#: A segment's Jacobian, made on request: ``(d r/d theta_model, d r/d transient)``.
+SegmentJacobian = Callable[[], tuple[FloatArray, FloatArray]]
+
+
+def _columns(cols: Sequence[FloatArray], n_samples: int) -> FloatArray:
+    return np.column_stack(cols) if cols else np.zeros((n_samples, 0))
+
+
+def _powers(ds: FloatArray, degree: int) -> FloatArray:
+    """``(N, degree)``: column ``i`` is ``ds^(i+1)``, the regressors of ``f`` (eq. 22)."""
+    return np.column_stack([ds**i for i in range(1, degree + 1)])
+
+
 def _oe_segment(
     orders: HammersteinOrders, theta: FloatArray, h_free: FloatArray | None, y: FloatArray,
-    ds: FloatArray, initial_state: InitialState, jacobian: bool,
-) -> tuple[FloatArray, FloatArray | None, FloatArray]:
-    """Simulation errors of one segment, their Jacobian (model params) and pulse block."""
+    feats: FloatArray, initial_state: InitialState,
+) -> tuple[FloatArray, SegmentJacobian]:
+    """Simulation errors of one segment and the maker of their Jacobian and pulse block.
+
+    The sensitivities are shifts and FIR sums of three filterings by ``1/F``: of the
+    input powers ``ds^i`` (``q^-j w / F`` is the shift of their combination ``w/F``,
+    ``B ds^i / F`` their FIR), of ``yhat`` (``q^-i yhat / F``) and of a unit pulse
+    (the transient's columns, and the held past's first samples through them).
+    """
     f, beta, _, poly = orders.polynomials(theta)
     n, deg, nk, nb = orders.n_state, orders.degree, orders.nk, orders.nb
-    feats = np.column_stack([ds**i for i in range(1, deg + 1)])
     w = feats @ poly
     src = _fir(beta, w)
-    w0, ds0, y0 = float(w[0]), float(ds[0]), float(y[0])
+    w0, ds0, y0 = float(w[0]), float(feats[0, 0]), float(y[0])
     if initial_state == "estimate" and h_free is not None:
         h = h_free
     elif initial_state == "held":
@@ -196,85 +214,117 @@ def _oe_segment(
         h = np.zeros(n)
     src[: min(n, src.size)] += h[: src.size]
     yhat = lfilter([1.0], f, src)
-    eps = y - yhat
-    if not jacobian:
-        return eps, None, np.zeros((y.size, 0))
-    cols = []
-    dh = []
-    for j in range(nk + 1, nk + nb):
-        cols.append(_lag(w, j))
-        dh.append(np.where(np.arange(n) < j, w0, 0.0))
-    bw = _fir(beta, feats)
-    tail_beta = _tail_sums(beta, n)
-    for i in range(1, deg + 1):
-        cols.append(bw[:, i - 1])
-        dh.append(ds0**i * tail_beta)
-    for i in range(1, orders.na + 1):
-        cols.append(-_lag(yhat, i))
-        dh.append(np.where(np.arange(n) < i, -y0, 0.0))
-    g = np.column_stack(cols) if cols else np.zeros((y.size, 0))
-    if initial_state == "held" and n > 0 and cols:
-        g[: min(n, y.size)] += np.column_stack(dh)[: y.size]
-    sens = lfilter([1.0], f, g, axis=0)
-    pulses = (
-        _pulse_responses(f, n, y.size) if initial_state == "estimate" else np.zeros((y.size, 0))
-    )
-    return eps, -sens, -pulses
+
+    def jacobian() -> tuple[FloatArray, FloatArray]:
+        feats_f = lfilter([1.0], f, feats, axis=0)
+        w_f = feats_f @ poly
+        yhat_f = lfilter([1.0], f, yhat)
+        cols = [_lag(w_f, j) for j in range(nk + 1, nk + nb)]
+        bw_f = _fir(beta, feats_f)
+        cols += [bw_f[:, i] for i in range(deg)]
+        cols += [-_lag(yhat_f, i) for i in range(1, orders.na + 1)]
+        sens = _columns(cols, y.size)
+        pulses = (_pulse_responses(f, n, y.size) if initial_state != "zero"
+                  else np.zeros((y.size, 0)))
+        if initial_state == "held" and n > 0 and cols:
+            # the held past enters as the first n samples of the filter input: their
+            # response is the pulse block times d h/d theta
+            k_idx = np.arange(n)
+            tail_beta = _tail_sums(beta, n)
+            dh = [np.where(k_idx < j, w0, 0.0) for j in range(nk + 1, nk + nb)]
+            dh += [ds0**i * tail_beta for i in range(1, deg + 1)]
+            dh += [np.where(k_idx < i, -y0, 0.0) for i in range(1, orders.na + 1)]
+            sens += pulses @ np.column_stack(dh)
+        return -sens, (-pulses if initial_state == "estimate" else np.zeros((y.size, 0)))
+
+    return y - yhat, jacobian
 
 
 def _armax_segment(
     orders: HammersteinOrders, theta: FloatArray, g_free: FloatArray | None, y: FloatArray,
-    ds: FloatArray, initial_state: InitialState, jacobian: bool,
-) -> tuple[FloatArray, FloatArray | None, FloatArray]:
-    """One-step prediction errors of one segment, their Jacobian and pulse block."""
+    feats: FloatArray, initial_state: InitialState,
+) -> tuple[FloatArray, SegmentJacobian]:
+    """One-step prediction errors of one segment and the maker of their Jacobian.
+
+    As `_oe_segment` through ``1/C``: filterings of ``ds^i``, ``y``, ``e`` and a pulse.
+    """
     a, beta, c, poly = orders.polynomials(theta)
     n, deg, nk, nb, na, nc = (
         orders.n_state, orders.degree, orders.nk, orders.nb, orders.na, orders.nc
     )
-    feats = np.column_stack([ds**i for i in range(1, deg + 1)])
     w = feats @ poly
     v = _fir(a, y) - _fir(beta, w)
-    w0, ds0, y0 = float(w[0]), float(ds[0]), float(y[0])
-    tail_beta = _tail_sums(beta, n)
+    w0, ds0, y0 = float(w[0]), float(feats[0, 0]), float(y[0])
     if initial_state == "estimate" and g_free is not None:
         g = g_free
     elif initial_state == "held":
-        g = y0 * _tail_sums(a, n) - w0 * tail_beta
+        g = y0 * _tail_sums(a, n) - w0 * _tail_sums(beta, n)
     else:
         g = np.zeros(n)
     v[: min(n, v.size)] += g[: v.size]
     e = lfilter([1.0], c, v)
-    if not jacobian:
-        return e, None, np.zeros((y.size, 0))
-    held = initial_state == "held"
-    k_idx = np.arange(n)
-    cols: list[FloatArray] = []
-    dg: list[FloatArray] = []
-    for j in range(nk + 1, nk + nb):
-        cols.append(-_lag(w, j))
-        dg.append(np.where(k_idx < j, -w0, 0.0))
-    bw = _fir(beta, feats)
-    for i in range(1, deg + 1):
-        cols.append(-bw[:, i - 1])
-        dg.append(-(ds0**i) * tail_beta)
-    c_cols = [-_lag(e, i) for i in range(1, nc + 1)]
-    for i in range(1, na + 1):
-        col = _lag(y, i)
-        if i <= nc:
-            col = col + c_cols[i - 1]
-        cols.append(col)
-        dg.append(np.where(k_idx < i, y0, 0.0))
-    for i in range(1, nc + 1):
-        cols.append(c_cols[i - 1])
-        dg.append(np.zeros(n))
-    x = np.column_stack(cols)
-    if held and n > 0:
-        x[: min(n, y.size)] += np.column_stack(dg)[: y.size]
-    sens = lfilter([1.0], c, x, axis=0)
-    pulses = (
-        _pulse_responses(c, n, y.size) if initial_state == "estimate" else np.zeros((y.size, 0))
-    )
-    return e, sens, pulses
+
+    def jacobian() -> tuple[FloatArray, FloatArray]:
+        feats_c = lfilter([1.0], c, feats, axis=0)
+        w_c = feats_c @ poly
+        e_c = lfilter([1.0], c, e) if nc else e
+        y_c = lfilter([1.0], c, y) if na else y
+        cols = [-_lag(w_c, j) for j in range(nk + 1, nk + nb)]
+        bw_c = _fir(beta, feats_c)
+        cols += [-bw_c[:, i] for i in range(deg)]
+        c_cols = [-_lag(e_c, i) for i in range(1, nc + 1)]
+        cols += [_lag(y_c, i) + (c_cols[i - 1] if i <= nc else 0.0) for i in range(1, na + 1)]
+        cols += c_cols
+        sens = _columns(cols, y.size)
+        pulses = (_pulse_responses(c, n, y.size) if initial_state != "zero"
+                  else np.zeros((y.size, 0)))
+        if initial_state == "held" and n > 0:
+            k_idx = np.arange(n)
+            tail_beta = _tail_sums(beta, n)
+            dg = [np.where(k_idx < j, -w0, 0.0) for j in range(nk + 1, nk + nb)]
+            dg += [-(ds0**i) * tail_beta for i in range(1, deg + 1)]
+            dg += [np.where(k_idx < i, y0, 0.0) for i in range(1, na + 1)]
+            dg += [np.zeros(n)] * nc
+            sens += pulses @ np.column_stack(dg)
+        return sens, (pulses if initial_state == "estimate" else np.zeros((y.size, 0)))
+
+    return e, jacobian
+
+
+def _segment_terms(
+    orders: HammersteinOrders, theta: FloatArray, prepared: Sequence[Segment],
+    initial_state: InitialState,
+) -> list[tuple[FloatArray, SegmentJacobian]]:
+    """Each segment's residuals and Jacobian maker; ``theta`` as `segment_residuals`.
+
+    ``prepared``: each segment's ``(y, _powers(ds, degree))``.
+    """
+    kernel = _oe_segment if orders.block == "oe" else _armax_segment
+    p_model, n = orders.n_model, orders.n_state
+    estimate = initial_state == "estimate"
+    return [kernel(orders, theta[:p_model],
+                   theta[p_model + s * n : p_model + (s + 1) * n] if estimate else None,
+                   y, feats, initial_state)
+            for s, (y, feats) in enumerate(prepared)]
+
+
+def _prepare(orders: HammersteinOrders, segments: Sequence[Segment]) -> list[Segment]:
+    return [(y, _powers(ds, orders.degree)) for y, ds in segments]
+
+
+def _stacked_jacobian(orders: HammersteinOrders, terms: list[tuple[FloatArray, SegmentJacobian]],
+                      n_theta: int, initial_state: InitialState) -> FloatArray:
+    """The Jacobian over all segments: shared model columns, each segment's own transient."""
+    p_model, n = orders.n_model, orders.n_state
+    jac = np.zeros((sum(r.size for r, _ in terms), n_theta), order="F")
+    row = 0
+    for s, (res, make) in enumerate(terms):
+        sens, pulses = make()
+        jac[row : row + res.size, :p_model] = sens
+        if initial_state == "estimate":
+            jac[row : row + res.size, p_model + s * n : p_model + (s + 1) * n] = pulses
+        row += res.size
+    return jac
 
 
 def segment_residuals(
@@ -307,24 +357,11 @@ def segment_residuals(
         ``(r, J)`` with ``r`` the simulation errors (OE, V) or one-step prediction
         errors (ARMAX, W); ``J`` None when not asked for.
     """
-    kernel = _oe_segment if orders.block == "oe" else _armax_segment
-    p_model = orders.n_model
-    n = orders.n_state
-    estimate = initial_state == "estimate"
-    n_total = sum(seg[0].size for seg in segments)
-    r = np.empty(n_total)
-    jac = np.zeros((n_total, theta.size), order="F") if jacobian else None
-    row = 0
-    for s, (y, ds) in enumerate(segments):
-        free = theta[p_model + s * n : p_model + (s + 1) * n] if estimate else None
-        res, sens, pulses = kernel(orders, theta[:p_model], free, y, ds, initial_state, jacobian)
-        r[row : row + y.size] = res
-        if jac is not None and sens is not None:
-            jac[row : row + y.size, :p_model] = sens
-            if estimate:
-                jac[row : row + y.size, p_model + s * n : p_model + (s + 1) * n] = pulses
-        row += y.size
-    return r, jac
+    terms = _segment_terms(orders, theta, _prepare(orders, segments), initial_state)
+    r = np.concatenate([res for res, _ in terms])
+    if not jacobian:
+        return r, None
+    return r, _stacked_jacobian(orders, terms, theta.size, initial_state)
 
 
 def estimate_transients(
@@ -350,7 +387,9 @@ def estimate_transients(
     out = []
     for y, ds in segments:
         # r = r0 + P h is affine in h: h = argmin |r0 + P h|
-        r0, _, pulses = kernel(orders, theta_model, np.zeros(n), y, ds, "estimate", True)
+        r0, make = kernel(orders, theta_model, np.zeros(n), y, _powers(ds, orders.degree),
+                          "estimate")
+        pulses = make()[1]
         m = y.size if fit_samples is None else fit_samples
         out.append(np.linalg.lstsq(pulses[:m], -r0[:m], rcond=None)[0])
     return np.concatenate(out)
@@ -376,14 +415,15 @@ def mean_square_criterion(
 
 def residual_function(
     orders: HammersteinOrders, segments: Sequence[Segment], initial_state: InitialState
-) -> Callable[[FloatArray], tuple[FloatArray, FloatArray]]:
-    """``fun(theta) -> (r, J)`` for `sysid.optimize.levenberg_marquardt`."""
+) -> Callable[[FloatArray], tuple[FloatArray, Callable[[], FloatArray]]]:
+    """``fun(theta) -> (r, J)`` for `sysid.optimize.levenberg_marquardt`, ``J`` made on request."""
 
-    def fun(theta: FloatArray) -> tuple[FloatArray, FloatArray]:
-        r, jac = segment_residuals(orders, theta, segments, initial_state)
-        if jac is None:  # pragma: no cover - jacobian=True always returns one
-            raise IdentificationError("residual_function: no Jacobian")
-        return r, jac
+    prepared = _prepare(orders, segments)
+
+    def fun(theta: FloatArray) -> tuple[FloatArray, Callable[[], FloatArray]]:
+        terms = _segment_terms(orders, theta, prepared, initial_state)
+        r = terms[0][0] if len(terms) == 1 else np.concatenate([res for res, _ in terms])
+        return r, lambda: _stacked_jacobian(orders, terms, theta.size, initial_state)
 
     return fun
 
