@@ -1,10 +1,12 @@
-"""Read-only float copies: how frozen values hold arrays."""
+"""Array helpers shared by sysid modules: read-only float copies (how frozen values hold
+arrays) and runs of a boolean mask."""
 
 from __future__ import annotations
 
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from sysid._typing import FloatArray
 
@@ -16,4 +18,10 @@ def readonly_array(values: Any) -> FloatArray:
     return arr
 
 
-__all__ = ["readonly_array"]
+def true_runs(mask: npt.NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """``(start, stop)`` of every run of True in ``mask``."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[False], mask, [False]]).astype(np.int8)))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+__all__ = ["readonly_array", "true_runs"]

@@ -52,6 +52,7 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
+from sysid._arrays import true_runs
 from sysid._typing import FloatArray
 from sysid.data import (
     CSV_COLUMNS,
@@ -317,18 +318,11 @@ def _fail(raw: _Raw, row: int, column: str | None, message: str) -> DataFileErro
 
 # --- the policies (pure, on arrays) ----------------------------------------------------
 
-def _runs(mask: npt.NDArray[np.bool_]) -> list[tuple[int, int]]:
-    """``(start, stop)`` of every run of True in ``mask``."""
-    padded = np.concatenate([[False], mask, [False]]).astype(np.int8)
-    edges = np.flatnonzero(np.diff(padded))
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
-
-
 def _fill_runs(values: FloatArray, max_run: int) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
     """Interpolate interior NaN runs of at most ``max_run`` samples linearly (by index)."""
     out = values.copy()
     filled = np.zeros(values.size, dtype=bool)
-    for lo, hi in _runs(np.isnan(values)):
+    for lo, hi in true_runs(np.isnan(values)):
         if lo == 0 or hi == values.size or hi - lo > max_run:
             continue
         left, right = values[lo - 1], values[hi]
@@ -420,9 +414,7 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
             ts_s = float(time[-1] - time[0]) / float(slots[-1])
             slots, max_jitter = _grid_slots(raw, time, ts_s, policy, rows)
         n_slots = int(slots[-1]) + 1
-        t_slot = np.full(n_slots, np.nan)
-        u_slot = np.full(n_slots, np.nan)
-        y_slot = np.full(n_slots, np.nan)
+        t_slot, u_slot, y_slot = np.full((3, n_slots), np.nan)
         snap = max_jitter > policy.sampling_rtol
         t_slot[slots] = time[0] + ts_s * slots if snap else time
         if snap:
@@ -439,7 +431,7 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
     if policy.gaps == "refuse" and missing.any():
         k = int(np.argmax(missing))
         if absent[k]:
-            lo, hi = next((a, b) for a, b in _runs(absent) if a == k)
+            lo, hi = next((a, b) for a, b in true_runs(absent) if a == k)
             raise _fail(raw, int(line_rows[k]), "time_s",
                         f"a gap in time: {hi - lo} missing sample(s) between {t_slot[lo - 1]:g} s "
                         f"and the next row (Ts = {ts_s:g} s); " + _gap_hint(policy))
@@ -459,7 +451,7 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
     if keep.all():   # nothing cut: the strict reader's minimum applies, not the segments'
         segments = [(0, n_slots)]
     else:
-        segments = [(a, b) for a, b in _runs(keep) if b - a >= policy.min_segment_samples]
+        segments = [(a, b) for a, b in true_runs(keep) if b - a >= policy.min_segment_samples]
     if not segments:
         raise DataFileError(
             f"no run of at least {policy.min_segment_samples} complete samples is left after "
@@ -645,13 +637,9 @@ def read_log_csv(
             raise DataFileError(f"expected {len(header)} cells like the header; got {len(row)}"
                                 + hint, path=p, line=i + 2)
     if decimal is None:
-        decimal = "."
-        if separator != ",":
-            for row in body[:200]:
-                if any(len(row) > index[c] and _DECIMAL_COMMA.match(row[index[c]].strip())
-                       for c in ("triac_pct", "power_kw")):
-                    decimal = ","
-                    break
+        decimal = "," if separator != "," and any(
+            len(row) > index[c] and _DECIMAL_COMMA.match(row[index[c]].strip())
+            for row in body[:200] for c in ("triac_pct", "power_kw")) else "."
     elif decimal not in (".", ","):
         raise DataFileError(f"decimal must be '.' or ','; got {decimal!r}", path=p)
     if decimal == "," and separator == ",":

@@ -27,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sysid._arrays import readonly_array as _readonly
+from sysid._arrays import true_runs
 from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import DataFileError, IdentificationError
@@ -477,14 +478,8 @@ def _events(flagged: npt.NDArray[np.intp]) -> list[tuple[int, int]]:
 
 
 def _clipped_samples(y: FloatArray, min_run: int) -> tuple[int, ...]:
-    out: list[int] = []
-    for extreme in {float(y.max()), float(y.min())}:
-        at = np.concatenate([[False], y == extreme, [False]])
-        edges = np.flatnonzero(np.diff(at.astype(np.int8)))
-        for a, b in zip(edges[::2], edges[1::2], strict=True):
-            if b - a >= min_run:
-                out.extend(range(int(a), int(b)))
-    return tuple(sorted(out))
+    return tuple(sorted(k for extreme in {float(y.max()), float(y.min())}
+                        for a, b in true_runs(y == extreme) if b - a >= min_run for k in range(a, b)))
 
 
 def _check_int(where: str, name: str, value: object, minimum: int) -> int:

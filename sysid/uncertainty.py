@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -127,18 +127,13 @@ def model_with_parameters(model: HammersteinModel, names: tuple[str, ...],
     poly = model.input_poly.copy()
     k = c - _a_padded(model, c.size)
     set_c: dict[int, float] = {}
+    # where each letter's coefficient i lives (d<i> is input_poly[i-1]); c<i> is set last
+    slots: dict[str, tuple[Any, int]] = {"a": (a, 0), "b": (b, 0), "d": (poly, 1), "k": (k, 0),
+                                         "c": (set_c, 0)}
     for name, value in zip(names, np.asarray(values, dtype=float), strict=True):
         letter, i = _slot(model, name)
-        if letter == "b":
-            b[i] = value
-        elif letter == "d":
-            poly[i - 1] = value
-        elif letter == "a":
-            a[i] = value
-        elif letter == "k":
-            k[i] = value
-        else:
-            set_c[i] = float(value)
+        array, shift = slots[letter]
+        array[i - shift] = float(value)
     if model.linear_block == "oe":
         c = a.copy()
     elif model.linear_block == "armax":
