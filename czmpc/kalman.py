@@ -253,13 +253,17 @@ class Estimator:
         self._history.clear()
 
     def _set(self, z: FloatArray) -> None:
-        z.flags.writeable = False  # handed out in diagnostics
+        z.setflags(write=False)  # handed out in diagnostics
         self._z = z
+        self._z_shared = True
         self._y_pred = float(self._C @ z)
 
     @property
     def z(self) -> FloatArray:
         """(n,) the state now (read-only): ``z_{k|k-1}``, or ``z_{k|k}`` after `update`."""
+        if not self._z_shared:  # made read-only when first handed out: most are replaced first
+            self._z.setflags(write=False)
+            self._z_shared = True
         return self._z
 
     @property
@@ -289,8 +293,8 @@ class Estimator:
             return False
         z = self._M * eps
         z += self._z  # = z + M eps, in place
-        z.flags.writeable = False
         self._z = z
+        self._z_shared = False
         self.eps = eps
         self.gap = 0
         return True
@@ -301,7 +305,7 @@ class Estimator:
 
     def predict(self, w: float) -> None:
         """Time update ``z+ = A z + B w + G eps`` with the ``w`` applied (a non-finite result keeps ``z``)."""
-        z = self._z
+        z = self.z  # read-only: the trace keeps it
         self._history.append((z, self.eps, w))
         v = self._v
         v[:-2] = z
@@ -310,9 +314,8 @@ class Estimator:
         out = self._ABG_C @ v
         values = out.tolist()  # math.isfinite on n + 1 floats beats np.isfinite on a tiny array
         if all(map(math.isfinite, values)):
-            z_next = out[:-1]
-            z_next.flags.writeable = False
-            self._z = z_next
+            self._z = out[:-1]
+            self._z_shared = False
             self._y_pred = values[-1]
         else:
             self._set(z.copy())

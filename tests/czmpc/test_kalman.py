@@ -108,6 +108,30 @@ def test_estimator_equals_a_hand_written_kalman_recursion_with_missing_samples(
         np.testing.assert_allclose(est.z, z_ref, rtol=0.0, atol=FILTER_ATOL_KW)
 
 
+def test_every_state_handed_out_stays_read_only_and_unchanged(
+    paper_armax_model: HammersteinModel, rng: np.random.Generator
+) -> None:
+    # The estimator makes z read-only when it first hands it out (not when it makes it).
+    aug = augment(innovations_form(paper_armax_model), "input")
+    est = Estimator(aug, 0.1, noise_std_kw=1.0, history_samples=5)
+    kept = []
+    for k in range(12):
+        if k % 4 == 3:
+            est.skip()
+        else:
+            est.update(float(rng.normal()))
+        z = est.z
+        assert not z.flags.writeable
+        kept.append((z, z.copy()))
+        est.predict(float(rng.normal()))
+        if k == 6:
+            est.correct_input(0.0, 0.5)
+    assert est.roll_back(2) == 2
+    assert not est.z.flags.writeable
+    for z, value in kept:
+        np.testing.assert_array_equal(z, value)
+
+
 def test_roll_back_predicts_as_if_the_undone_samples_were_skipped(
     paper_armax_model: HammersteinModel, rng: np.random.Generator
 ) -> None:
