@@ -146,6 +146,13 @@ def _json_number(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
+def _check(name: str, passed: bool, severity: Severity, *, measured: float, threshold: float,
+           finding: str, advice: str) -> Check:
+    """A `Check` whose message is `finding`, with `advice` appended when it failed."""
+    return Check(name=name, passed=passed, severity=severity, measured=measured,
+                 threshold=threshold, message=finding + ("" if passed else advice))
+
+
 @dataclass(frozen=True, kw_only=True)
 class IdentifiabilityAssessment:
     """Every check run on a log (and a model), passed or not.
@@ -465,13 +472,12 @@ def _data_checks(data: Dataset, *, degree: int, nb: int, n_parameters: int,
     n = int(np.sum(np.isfinite(data.triac_pct) & np.isfinite(data.power_kw)))
     need = SAMPLES_PER_PARAMETER * n_parameters
     return [
-        Check(name="input_excitation", passed=ratio >= INPUT_STD_RTOL, severity="refusal",
-              measured=ratio, threshold=INPUT_STD_RTOL,
-              message=(f"input excitation: std(s)/max|s| = {ratio:.3g}, at least "
-                       f"{INPUT_STD_RTOL:g} needed (the input must move by more than 0.1 % "
-                       f"of its scale [{unit}])"
-                       + ("" if ratio >= INPUT_STD_RTOL else
-                          f"; the input is constant but for noise: {_ADVICE_TEST}"))),
+        _check("input_excitation", ratio >= INPUT_STD_RTOL, "refusal", measured=ratio,
+               threshold=INPUT_STD_RTOL,
+               finding=(f"input excitation: std(s)/max|s| = {ratio:.3g}, at least "
+                        f"{INPUT_STD_RTOL:g} needed (the input must move by more than 0.1 % "
+                        f"of its scale [{unit}])"),
+               advice=f"; the input is constant but for noise: {_ADVICE_TEST}"),
         Check(name="input_levels", passed=levels >= degree + 1,
               severity="refusal" if levels < 2 else "warning",
               measured=float(levels), threshold=float(degree + 1),
@@ -485,19 +491,16 @@ def _data_checks(data: Dataset, *, degree: int, nb: int, n_parameters: int,
                            "model written is of lower order (the terminal says which); for "
                            f"the nonlinearity, {_ADVICE_TEST}")
                           + (", or a lower degree (--orders)" if degree > 1 else "")))),
-        Check(name="persistent_excitation", passed=pe >= nb, severity="refusal",
-              measured=float(pe), threshold=float(nb),
-              message=(f"persistent excitation: the input is persistently exciting of order "
-                       f"{pe}, at least {nb} needed for the {nb} B coefficient(s) of {what}"
-                       + ("" if pe >= nb else f"; {_ADVICE_TEST}"
-                          + (", or fewer B coefficients (--orders)" if nb > 1 else "")))),
-        Check(name="samples_per_parameter", passed=n >= need, severity="refusal",
-              measured=float(n), threshold=float(need),
-              message=(f"samples: {n} usable samples for the {n_parameters} parameters of "
-                       f"{what}, at least {need} needed ({SAMPLES_PER_PARAMETER} per "
-                       "parameter)"
-                       + ("" if n >= need else
-                          "; record a longer test, or choose lower orders (--orders)")))]
+        _check("persistent_excitation", pe >= nb, "refusal", measured=float(pe),
+               threshold=float(nb),
+               finding=(f"persistent excitation: the input is persistently exciting of order "
+                        f"{pe}, at least {nb} needed for the {nb} B coefficient(s) of {what}"),
+               advice=f"; {_ADVICE_TEST}" + (", or fewer B coefficients (--orders)" if nb > 1 else "")),
+        _check("samples_per_parameter", n >= need, "refusal", measured=float(n),
+               threshold=float(need),
+               finding=(f"samples: {n} usable samples for the {n_parameters} parameters of "
+                        f"{what}, at least {need} needed ({SAMPLES_PER_PARAMETER} per parameter)"),
+               advice="; record a longer test, or choose lower orders (--orders)")]
 
 
 def assess_data(
@@ -581,15 +584,14 @@ def assess_model(model: HammersteinModel, data: Dataset) -> IdentifiabilityAsses
         data, degree=degree, na=na, nb=nb, nk=nk,
         operating_triac_pct=model.operating_point.triac_pct)
     informative = p_value <= INFORMATION_P_VALUE
-    checks.append(Check(
-        name="input_information", passed=informative, severity="refusal", measured=p_value,
+    checks.append(_check(
+        "input_information", informative, "refusal", measured=p_value,
         threshold=INFORMATION_P_VALUE,
-        message=(f"information about the input: F-test of the input terms (degree {degree}, "
+        finding=(f"information about the input: F-test of the input terms (degree {degree}, "
                  f"{nb} lag(s) from delay {nk}) against the output's own past: F = "
-                 f"{f_stat:.3g}, p = {p_value:.3g}, at most {INFORMATION_P_VALUE:g} needed"
-                 + ("" if informative else
-                    f"; the output does not depend on the input in these data (a wrong "
-                    f"column, a loop that was open, a dead actuator?): {_ADVICE_TEST}"))))
+                 f"{f_stat:.3g}, p = {p_value:.3g}, at most {INFORMATION_P_VALUE:g} needed"),
+        advice=("; the output does not depend on the input in these data (a wrong "
+                f"column, a loop that was open, a dead actuator?): {_ADVICE_TEST}")))
 
     gain, gain_std = static_gain(model)
     z = abs(gain) / gain_std if gain_std > 0 else (math.inf if gain_std == 0 else math.nan)
@@ -601,40 +603,35 @@ def assess_model(model: HammersteinModel, data: Dataset) -> IdentifiabilityAsses
             message=(f"static gain: g = {gain:.4g} {gain_unit} over s in [{lo:g}, {hi:g}]; "
                      "its significance cannot be judged (the model stores no covariance)")))
     else:
-        checks.append(Check(
-            name="gain_significance", passed=z >= GAIN_Z_MIN, severity="warning", measured=z,
-            threshold=GAIN_Z_MIN,
-            message=(f"static gain: g = {gain:.4g} +- {gain_std:.3g} {gain_unit} over s in "
-                     f"[{lo:g}, {hi:g}], |g|/std(g) = {z:.3g}, at least {GAIN_Z_MIN:g} needed"
-                     + ("" if z >= GAIN_Z_MIN else
-                        "; the data do not determine this model's steady-state gain (not "
-                        f"even its sign): do not control with it; {_ADVICE_TEST}, or try "
-                        "other orders (--orders paper)"))))
+        checks.append(_check(
+            "gain_significance", z >= GAIN_Z_MIN, "warning", measured=z, threshold=GAIN_Z_MIN,
+            finding=(f"static gain: g = {gain:.4g} +- {gain_std:.3g} {gain_unit} over s in "
+                     f"[{lo:g}, {hi:g}], |g|/std(g) = {z:.3g}, at least {GAIN_Z_MIN:g} needed"),
+            advice=("; the data do not determine this model's steady-state gain (not "
+                    f"even its sign): do not control with it; {_ADVICE_TEST}, or try "
+                    "other orders (--orders paper)")))
 
     pole, pole_std = pole_nearest_one(model)
     distance = abs(1.0 - pole)
     pole_z = distance / pole_std if pole_std > 0 else math.inf
     at_one = distance < POLE_AT_ONE_ATOL or pole_z < POLE_Z_MIN
-    checks.append(Check(
-        name="pole_at_one", passed=not at_one, severity="warning", measured=pole_z,
-        threshold=POLE_Z_MIN,
-        message=(f"pole nearest to z = 1: p = {pole:.6g}, |1 - p| = {distance:.3g} = "
-                 f"{pole_z:.3g} standard deviations, at least {POLE_Z_MIN:g} needed"
-                 + ("" if not at_one else
-                    "; the data cannot tell this model from an integrator, so its "
-                    f"steady-state gain is not finite for control; {_ADVICE_TEST}"))))
+    checks.append(_check(
+        "pole_at_one", not at_one, "warning", measured=pole_z, threshold=POLE_Z_MIN,
+        finding=(f"pole nearest to z = 1: p = {pole:.6g}, |1 - p| = {distance:.3g} = "
+                 f"{pole_z:.3g} standard deviations, at least {POLE_Z_MIN:g} needed"),
+        advice=("; the data cannot tell this model from an integrator, so its "
+                f"steady-state gain is not finite for control; {_ADVICE_TEST}")))
 
     duration_s = data.n_samples * data.ts_s
     tau_s = slowest_time_constant_s(model)
     slow = tau_s > TIME_CONSTANT_RECORD_MAX * duration_s
-    checks.append(Check(
-        name="slow_pole", passed=not slow, severity="warning", measured=tau_s / duration_s,
+    checks.append(_check(
+        "slow_pole", not slow, "warning", measured=tau_s / duration_s,
         threshold=TIME_CONSTANT_RECORD_MAX,
-        message=(f"slowest time constant: {tau_s:.4g} s = {tau_s / duration_s:.3g} x the "
-                 f"record ({duration_s:.4g} s), at most {TIME_CONSTANT_RECORD_MAX:g} x"
-                 + ("" if not slow else
-                    "; the record does not show the model settle, so its steady-state "
-                    "gain is an extrapolation; record steps that each settle"))))
+        finding=(f"slowest time constant: {tau_s:.4g} s = {tau_s / duration_s:.3g} x the "
+                 f"record ({duration_s:.4g} s), at most {TIME_CONSTANT_RECORD_MAX:g} x"),
+        advice=("; the record does not show the model settle, so its steady-state "
+                "gain is an extrapolation; record steps that each settle")))
 
     ds = np.linspace(lo, hi, 201) - model.operating_point.triac_pct
     local = model.linear_static_gain * model.input_nonlinearity_slope(ds)
@@ -655,18 +652,15 @@ def assess_model(model: HammersteinModel, data: Dataset) -> IdentifiabilityAsses
     dominance = delay_s / (delay_s + tau_s) if delay_s + tau_s > 0 else 0.0
     share = delay_s / duration_s
     long_delay = dominance > DELAY_DOMINANCE_MAX or share > DELAY_RECORD_MAX
-    checks.append(Check(
-        name="long_delay", passed=not long_delay, severity="warning", measured=dominance,
+    checks.append(_check(
+        "long_delay", not long_delay, "warning", measured=dominance,
         threshold=DELAY_DOMINANCE_MAX,
-        message=(f"delay: {nk} sample(s) = {delay_s:g} s; normalized dead time L/(L+T) = "
+        finding=(f"delay: {nk} sample(s) = {delay_s:g} s; normalized dead time L/(L+T) = "
                  f"{dominance:.3g} (at most {DELAY_DOMINANCE_MAX:g}), {100 * share:.3g} % of "
-                 f"the record (at most {100 * DELAY_RECORD_MAX:g} %)"
-                 + ("" if not long_delay else
-                    "; a delay-dominated process: check the delay against the process, and "
-                    "record a test several delays long"))))
+                 f"the record (at most {100 * DELAY_RECORD_MAX:g} %)"),
+        advice=("; a delay-dominated process: check the delay against the process, and "
+                "record a test several delays long")))
     return IdentifiabilityAssessment(checks=tuple(checks))
-
-
 
 
 class UnidentifiableDataError(IdentificationError):
