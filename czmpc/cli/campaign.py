@@ -38,14 +38,7 @@ NAME = "campaign"
 HELP = "run a campaign spec on serial, process or Dask executors; summarise its results"
 
 
-def _workers(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1; got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1; got {text!r}")
-    return value
+_workers = _argtypes.integer(1, "a whole number")
 
 
 def _names(text: str) -> list[str]:

@@ -246,13 +246,10 @@ def vendor_table(schedule: PIDSchedule, form: str, spans: Spans | None,
             f"vendor form {form!r} needs the spans the block scales with: give the PV range "
             "in kW and the output range in % (--pv-range-kw LO HI --out-range-pct LO HI); "
             "they are not assumed")
-    if form == "siemens":
-        return _siemens(schedule, spans)
     if form == "deltav":
         return _deltav(schedule, spans, regions)
-    if form == "honeywell":
-        return _honeywell(schedule, spans)
-    return _rockwell(schedule, spans)
+    return {"siemens": _siemens, "honeywell": _honeywell, "rockwell": _rockwell}[form](
+        schedule, spans)
 
 
 def vendor_csv_text(table: VendorTable) -> str:

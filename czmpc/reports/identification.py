@@ -267,75 +267,62 @@ def findings_checklist(result: PipelineResult) -> tuple[Finding, ...]:
     out: list[Finding] = []
     u2 = f"{result.raw_data.output_unit}^2"
 
-    arx, armax, oe = m.get("arx_1_2"), m.get("armax_1_2_1"), m.get("oe_2_1")
-    claim = "OE(2,1) has a lower V than ARX(1,2) and ARMAX(1,2,1) (Table 2)"
-    paper = "V: OE 0.043 vs ARX 0.106, ARMAX 0.108"
-    if arx is None or armax is None or oe is None:
-        out.append(Finding(claim=claim, paper=paper, ours="a model is missing", verdict="not measured"))
-    else:
-        shown = oe.ballistic_mse_kw2 < min(arx.ballistic_mse_kw2, armax.ballistic_mse_kw2)
-        out.append(Finding(
-            claim=claim, paper=paper,
-            ours=(f"V: OE {oe.ballistic_mse_kw2:.4g} vs ARX {arx.ballistic_mse_kw2:.4g}, "
-                  f"ARMAX {armax.ballistic_mse_kw2:.4g} {u2}"),
-            verdict="shown" if shown else "not shown"))
+    def add(claim: str, paper: str, measured: str | tuple[str, bool]) -> None:
+        """Record a finding: ``(ours, shown)``, or why it was not measured."""
+        if isinstance(measured, str):
+            out.append(Finding(claim=claim, paper=paper, ours=measured, verdict="not measured"))
+        else:
+            out.append(Finding(claim=claim, paper=paper, ours=measured[0],
+                               verdict="shown" if measured[1] else "not shown"))
 
-    claim = (f"one order more improves each family's own criterion (W for ARX and ARMAX, "
-             f"V for OE) by at most {100 * HIGHER_ORDER_MAX_IMPROVEMENT:.0f} % "
-             "(Table 2: the base orders suffice)")
-    paper = "V: ARX 0.106 -> 0.109, ARMAX 0.108 -> 0.110, OE 0.043 -> 0.042 (at most 2 %)"
+    arx, armax, oe = m.get("arx_1_2"), m.get("armax_1_2_1"), m.get("oe_2_1")
+    add("OE(2,1) has a lower V than ARX(1,2) and ARMAX(1,2,1) (Table 2)",
+        "V: OE 0.043 vs ARX 0.106, ARMAX 0.108",
+        "a model is missing" if arx is None or armax is None or oe is None else (
+            f"V: OE {oe.ballistic_mse_kw2:.4g} vs ARX {arx.ballistic_mse_kw2:.4g}, "
+            f"ARMAX {armax.ballistic_mse_kw2:.4g} {u2}",
+            oe.ballistic_mse_kw2 < min(arx.ballistic_mse_kw2, armax.ballistic_mse_kw2)))
+
     comparisons = result.findings.higher_order_comparisons
-    if not comparisons:
-        out.append(Finding(claim=claim, paper=paper, ours="models missing", verdict="not measured"))
-    else:
-        parts = [f"{c.criterion} {c.family.upper()} {c.base_kw2:.4g} -> {c.high_kw2:.4g} "
-                 f"({-100 * c.improvement:+.1f} %)" for c in comparisons]
-        shown = max(c.improvement for c in comparisons) <= HIGHER_ORDER_MAX_IMPROVEMENT
-        out.append(Finding(claim=claim, paper=paper, ours=", ".join(parts) + f" {u2}",
-                           verdict="shown" if shown else "not shown"))
+    add(f"one order more improves each family's own criterion (W for ARX and ARMAX, "
+        f"V for OE) by at most {100 * HIGHER_ORDER_MAX_IMPROVEMENT:.0f} % "
+        "(Table 2: the base orders suffice)",
+        "V: ARX 0.106 -> 0.109, ARMAX 0.108 -> 0.110, OE 0.043 -> 0.042 (at most 2 %)",
+        "models missing" if not comparisons else (
+            ", ".join(f"{c.criterion} {c.family.upper()} {c.base_kw2:.4g} -> {c.high_kw2:.4g} "
+                      f"({-100 * c.improvement:+.1f} %)" for c in comparisons) + f" {u2}",
+            max(c.improvement for c in comparisons) <= HIGHER_ORDER_MAX_IMPROVEMENT))
 
     final_oe = m.get("hammerstein_oe")
-    claim = (f"the final Hammerstein (eq. 27) has V at least {HAMMERSTEIN_MIN_V_RATIO:g}x below "
-             "OE(2,1) with one parameter more (sec. 7.5)")
-    paper = f"0.043 / 0.007 = {PAPER_V_RATIO:.1f}x with 4 vs 3 parameters"
-    if final_oe is None or oe is None:
-        out.append(Finding(claim=claim, paper=paper, ours="a model is missing", verdict="not measured"))
-    else:
-        ratio = oe.ballistic_mse_kw2 / final_oe.ballistic_mse_kw2
-        shown = ratio >= HAMMERSTEIN_MIN_V_RATIO and final_oe.n_parameters == oe.n_parameters + 1
-        out.append(Finding(
-            claim=claim, paper=paper,
-            ours=(f"{oe.ballistic_mse_kw2:.4g} / {final_oe.ballistic_mse_kw2:.4g} = {ratio:.1f}x with "
-                  f"{final_oe.n_parameters} vs {oe.n_parameters} parameters"),
-            verdict="shown" if shown else "not shown"))
+    ratio = (math.nan if final_oe is None or oe is None
+             else oe.ballistic_mse_kw2 / final_oe.ballistic_mse_kw2)
+    add(f"the final Hammerstein (eq. 27) has V at least {HAMMERSTEIN_MIN_V_RATIO:g}x below "
+        "OE(2,1) with one parameter more (sec. 7.5)",
+        f"0.043 / 0.007 = {PAPER_V_RATIO:.1f}x with 4 vs 3 parameters",
+        "a model is missing" if final_oe is None or oe is None else (
+            f"{oe.ballistic_mse_kw2:.4g} / {final_oe.ballistic_mse_kw2:.4g} = {ratio:.1f}x with "
+            f"{final_oe.n_parameters} vs {oe.n_parameters} parameters",
+            ratio >= HAMMERSTEIN_MIN_V_RATIO and final_oe.n_parameters == oe.n_parameters + 1))
 
     noise = m.get("hammerstein_armax")
-    claim = (f"the noise-model Hammerstein (eq. 30) has W at least "
-             f"{100 * NOISE_MODEL_MIN_W_REDUCTION:.0f} % below ARMAX(1,2,1) (sec. 7.6, Fig. 18)")
-    paper = "W 3.1e-4 -> 1.8e-4 kW^2, 42 % lower"
-    if noise is None or armax is None:
-        out.append(Finding(claim=claim, paper=paper, ours="a model is missing", verdict="not measured"))
-    else:
-        red = 1.0 - noise.one_step_mse_kw2 / armax.one_step_mse_kw2
-        out.append(Finding(
-            claim=claim, paper=paper,
-            ours=(f"W {armax.one_step_mse_kw2:.3g} -> {noise.one_step_mse_kw2:.3g} {u2}, "
-                  f"{100 * red:.0f} % lower"),
-            verdict="shown" if red >= NOISE_MODEL_MIN_W_REDUCTION else "not shown"))
+    red = (math.nan if noise is None or armax is None
+           else 1.0 - noise.one_step_mse_kw2 / armax.one_step_mse_kw2)
+    add(f"the noise-model Hammerstein (eq. 30) has W at least "
+        f"{100 * NOISE_MODEL_MIN_W_REDUCTION:.0f} % below ARMAX(1,2,1) (sec. 7.6, Fig. 18)",
+        "W 3.1e-4 -> 1.8e-4 kW^2, 42 % lower",
+        "a model is missing" if noise is None or armax is None else (
+            f"W {armax.one_step_mse_kw2:.3g} -> {noise.one_step_mse_kw2:.3g} {u2}, "
+            f"{100 * red:.0f} % lower", red >= NOISE_MODEL_MIN_W_REDUCTION))
 
     f = result.findings
-    claim = (f"the final PEM from zeros reaches the same parameters as from good initial values "
-             f"(max relative difference < {FROM_ZEROS_MAX_RELATIVE_DIFFERENCE:g}; sec. 7.5)")
-    paper = "the same parameters; 3 iterations from good values, 17 from zeros"
-    if f.from_zeros_relative_difference is None:
-        out.append(Finding(claim=claim, paper=paper, ours="PEM from zeros not run", verdict="not measured"))
-    else:
-        d = f.from_zeros_relative_difference
-        out.append(Finding(
-            claim=claim, paper=paper,
-            ours=(f"max relative difference {d:.2g}; {f.iterations_from_initial_values} iterations "
-                  f"from good values, {f.iterations_from_zeros} from zeros"),
-            verdict="shown" if d < FROM_ZEROS_MAX_RELATIVE_DIFFERENCE else "not shown"))
+    d = f.from_zeros_relative_difference
+    add(f"the final PEM from zeros reaches the same parameters as from good initial values "
+        f"(max relative difference < {FROM_ZEROS_MAX_RELATIVE_DIFFERENCE:g}; sec. 7.5)",
+        "the same parameters; 3 iterations from good values, 17 from zeros",
+        "PEM from zeros not run" if d is None else (
+            f"max relative difference {d:.2g}; {f.iterations_from_initial_values} iterations "
+            f"from good values, {f.iterations_from_zeros} from zeros",
+            d < FROM_ZEROS_MAX_RELATIVE_DIFFERENCE))
     return tuple(out)
 
 
