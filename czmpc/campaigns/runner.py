@@ -314,13 +314,8 @@ def run_campaign(
         The campaign.
     out_dir :
         Campaign directory (created; resumed if it holds the same spec).
-    executor :
-        ``"serial"``, ``"processes"`` or ``"dask"``.
-    workers :
-        Worker processes of ``processes`` and of a local Dask cluster, >= 1.
-    dask_address :
-        ``"local"`` (a LocalCluster on 127.0.0.1) or a scheduler address such as
-        ``"tcp://10.0.0.5:8786"``.
+    executor, workers, dask_address :
+        See `map_runs`.
     progress :
         Called as ``progress(done, total)`` after every run (done includes skipped runs).
     max_runs :

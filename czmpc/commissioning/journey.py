@@ -148,15 +148,14 @@ class JourneyResult:
 def design_spec(plan: JourneyPlan, ts_s: float) -> ExcitationSpec:
     """The test's design; the duration defaults to the shortest ``plan.kind`` accepts."""
     lo, hi = plan.range_pct
+    common: dict[str, Any] = {"ts_s": ts_s, "lo_pct": lo, "hi_pct": hi, "tau_s": plan.tau_s,
+                              "max_step_pct": plan.max_step_pct, "kind": plan.kind,
+                              "degree": DESIGN_DEGREE}
     duration = plan.duration_s
     if duration is None:
-        probe = ExcitationSpec(ts_s=ts_s, lo_pct=lo, hi_pct=hi, tau_s=plan.tau_s,
-                               duration_s=2 * ts_s, max_step_pct=plan.max_step_pct,
-                               kind=plan.kind, degree=DESIGN_DEGREE)  # type: ignore[arg-type]
+        probe = ExcitationSpec(duration_s=2 * ts_s, **common)
         duration = ts_s * math.ceil(shortest_duration_s(probe) / ts_s)
-    return ExcitationSpec(ts_s=ts_s, lo_pct=lo, hi_pct=hi, tau_s=plan.tau_s, duration_s=duration,
-                          max_step_pct=plan.max_step_pct, kind=plan.kind,  # type: ignore[arg-type]
-                          degree=DESIGN_DEGREE)
+    return ExcitationSpec(duration_s=duration, **common)
 
 
 def split_estimation_validation(data: Dataset) -> tuple[Dataset, Dataset]:
