@@ -31,7 +31,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from czmpc.diagnostics import Fallback, StepDiagnostics, record_from_fields
+from czmpc._records import record_from_fields
+from czmpc.diagnostics import Fallback, StepDiagnostics
 from czmpc.errors import DesignError, SettingsError
 from czmpc.inversion import InputMap, build_input_map, slope
 from czmpc.kalman import Estimator, SteadyStateKalman

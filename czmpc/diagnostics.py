@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Literal, TypeVar
+from typing import Literal
 
 from czmpc.mismatch import MismatchStats
 from czmpc.modes import Mode, ModeTransition, Status
@@ -12,7 +12,6 @@ from czmpc.validation import Verdict
 from sysid._typing import FloatArray
 
 Fallback = Literal["none", "shifted_plan", "target"]
-_Record = TypeVar("_Record")
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -139,25 +138,4 @@ class StepDiagnostics:
     rolled_back_samples: int = 0
 
 
-def record_from_fields(cls: type[_Record], fields: dict[str, Any]) -> _Record:
-    """An instance of frozen dataclass ``cls`` whose ``__dict__`` is ``fields``, set at once.
-
-    The step's path for its records (`StepDiagnostics`, `czmpc.qp.QPSolution`,
-    `czmpc.target.Target`): a frozen dataclass's ``__init__`` calls ``object.__setattr__``
-    once per field, which cost more than the rest of building the record (issue 30). For
-    classes without ``__post_init__`` and ``slots`` only, so nothing is skipped but the
-    calls; ``fields`` must name every field, in order (the tests check the step's records).
-
-    Parameters
-    ----------
-    cls :
-        The class.
-    fields :
-        Every field's value by name; the instance keeps this dict.
-    """
-    record: _Record = object.__new__(cls)
-    object.__setattr__(record, "__dict__", fields)
-    return record
-
-
-__all__ = ["Fallback", "StepDiagnostics", "record_from_fields"]
+__all__ = ["Fallback", "StepDiagnostics"]

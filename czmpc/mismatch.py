@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from czmpc._records import record_from_fields
 from sysid.model import HammersteinModel
 
 #: A noise-free model is monitored as if its innovations had this fraction of its
@@ -67,7 +68,7 @@ def monitored_noise_std_kw(model: HammersteinModel) -> float:
     return max(model.noise_std_kw, NOISE_FREE_STD_FRACTION * span_kw, _MIN_MONITORED_STD)
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
+@dataclass(frozen=True, kw_only=True)
 class MismatchStats:
     """Windowed innovation statistics (module notes).
 
@@ -173,8 +174,9 @@ class InnovationMonitor:
             if self._last is not None:
                 if len(self._pairs) == self._pairs.maxlen:
                     self._sum_pair -= self._pairs[0]
-                self._pairs.append(self._last * e)
-                self._sum_pair += self._last * e
+                pair = self._last * e
+                self._pairs.append(pair)
+                self._sum_pair += pair
             self._last = e
             self._since_resum += 1
             if self._since_resum >= self.window_samples:
@@ -187,9 +189,10 @@ class InnovationMonitor:
         """Statistics of the current window."""
         n = len(self._buf)
         if n == 0:
-            return MismatchStats(n_samples=0, mean_kw=0.0, std_kw=0.0, mean_z=0.0,
-                                 variance_ratio=0.0, lag1_correlation=0.0,
-                                 disturbance_kw=disturbance_kw, biased=False, drifted=False)
+            return record_from_fields(MismatchStats, {
+                "n_samples": 0, "mean_kw": 0.0, "std_kw": 0.0, "mean_z": 0.0,
+                "variance_ratio": 0.0, "lag1_correlation": 0.0,
+                "disturbance_kw": disturbance_kw, "biased": False, "drifted": False})
         # The running sums are recomputed from the window once per window length, so a
         # huge value that left the window cannot leave rounding residue behind for long.
         mean = self._sum / n
@@ -205,11 +208,11 @@ class InnovationMonitor:
         biased = d_flag or (enough and abs(mean_z) > self.z_limit)
         drifted = enough and (var_ratio > self.variance_limit
                               or abs(lag1) * math.sqrt(n) > self.z_limit)
-        return MismatchStats(
-            n_samples=n, mean_kw=mean, std_kw=math.sqrt(var), mean_z=mean_z,
-            variance_ratio=var_ratio, lag1_correlation=lag1, disturbance_kw=disturbance_kw,
-            biased=biased, drifted=drifted,
-        )
+        # Every field, in the class's order (`record_from_fields`): once per controller step.
+        return record_from_fields(MismatchStats, {
+            "n_samples": n, "mean_kw": mean, "std_kw": math.sqrt(var), "mean_z": mean_z,
+            "variance_ratio": var_ratio, "lag1_correlation": lag1,
+            "disturbance_kw": disturbance_kw, "biased": biased, "drifted": drifted})
 
 
 __all__ = ["NOISE_FREE_STD_FRACTION", "InnovationMonitor", "MismatchStats",

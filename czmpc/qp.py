@@ -55,7 +55,7 @@ import osqp
 import scipy.linalg
 import scipy.sparse as sp
 
-from czmpc.diagnostics import record_from_fields
+from czmpc._records import record_from_fields
 from czmpc.errors import DesignError
 from czmpc.inversion import InputMap
 from czmpc.inversion import slope as slope_at

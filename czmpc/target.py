@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from czmpc.diagnostics import record_from_fields
+from czmpc._records import record_from_fields
 from czmpc.errors import DesignError
 from czmpc.realization import InnovationsForm
 from czmpc.settings import DisturbanceModel

@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from czmpc.controller import OffsetFreeMPC
 from czmpc.diagnostics import StepDiagnostics
 from czmpc.errors import DesignError
+from czmpc.mismatch import MismatchStats
 from czmpc.qp import QPSolution
 from czmpc.realization import innovations_form
 from czmpc.settings import MPCSettings, OSQPOptions, ReliabilitySettings
@@ -241,7 +242,10 @@ def test_step_records_name_every_field_in_order(
         rate=np.full(horizon - 1, 1.0) if mpc.qp.has_rate_limit else None)
     target = compute_target(steady_state_map(innovations_form(paper_armax_model), "input"),
                             setpoint=1.0, disturbance=0.0, w_min=-10.0, w_max=10.0)
-    for record, cls in ((solution, QPSolution), (target, Target)):
+    records = [(solution, QPSolution), (target, Target)]
+    if mode != "off":
+        records.append((last.mismatch, MismatchStats))
+    for record, cls in records:
         assert list(vars(record)) == [f.name for f in dataclasses.fields(cls)]
 
 
