@@ -279,17 +279,8 @@ def _to_sx(value: Any, shape: tuple[int, int], what: str, structure: GreyBoxStru
     return sx
 
 
-@dataclass(frozen=True, kw_only=True)
-class _Matrices:
-    A: ca.SX
-    B: ca.SX
-    C: ca.SX
-    D: ca.SX
-    K: ca.SX
-    theta: ca.SX
-
-
-def _symbolic_matrices(structure: GreyBoxStructure, n_inputs: int) -> _Matrices:
+def _symbolic_matrices(structure: GreyBoxStructure, n_inputs: int) -> tuple[list[ca.SX], ca.SX]:
+    """``[A, B, C, D, K]`` of the user's ``matrices`` on the symbols ``theta``, and ``theta``."""
     theta = ca.SX.sym("theta", structure.n_parameters)
     p = {n: theta[i] for i, n in enumerate(structure.parameter_names)}
     try:
@@ -308,13 +299,9 @@ def _symbolic_matrices(structure: GreyBoxStructure, n_inputs: int) -> _Matrices:
     if len(a_shape) != 2 or a_shape[0] != a_shape[1] or a_shape[0] < 1:
         raise IdentificationError(f"{structure.name}: A must be a square matrix; got shape {tuple(a_shape)}")
     n_x = int(a_shape[0])
-    return _Matrices(
-        A=_to_sx(out[0], (n_x, n_x), "A", structure),
-        B=_to_sx(out[1], (n_x, n_inputs), "B", structure),
-        C=_to_sx(out[2], (1, n_x), "C", structure),
-        D=_to_sx(out[3], (1, n_inputs), "D", structure),
-        K=_to_sx(out[4], (n_x, 1), "K", structure),
-        theta=theta)
+    shapes = {"A": (n_x, n_x), "B": (n_x, n_inputs), "C": (1, n_x), "D": (1, n_inputs), "K": (n_x, 1)}
+    return [_to_sx(mat, shape, what, structure)
+            for mat, (what, shape) in zip(out, shapes.items(), strict=True)], theta
 
 
 #: Samples per CasADi ``mapaccum`` block. Building a ``mapaccum`` costs time that grows
@@ -441,8 +428,8 @@ def _build_evaluator(
     initial_state: InitialState,
 ) -> _Evaluator:
     n_inputs, n_samples = U.shape
-    m = _symbolic_matrices(structure, n_inputs)
-    n_x = m.A.shape[0]
+    matrices, theta_sym = _symbolic_matrices(structure, n_inputs)
+    n_x = matrices[0].shape[0]
     free = structure.free_mask
     n_par = sum(free)
     n_est = n_x if initial_state == "estimate" else 0
@@ -454,7 +441,7 @@ def _build_evaluator(
     free_at, fixed_at = np.cumsum(free) - 1, np.cumsum(np.logical_not(free)) - 1
     theta_all = ca.vertcat(*(th_free[int(free_at[i])] if is_free else th_fixed[int(fixed_at[i])]
                              for i, is_free in enumerate(free)))
-    A, B, C, D, K = (ca.substitute(mat, m.theta, theta_all) for mat in (m.A, m.B, m.C, m.D, m.K))
+    A, B, C, D, K = (ca.substitute(mat, theta_sym, theta_all) for mat in matrices)
 
     x = ca.SX.sym("x", n_x)
     u = ca.SX.sym("u", n_inputs)

@@ -36,13 +36,9 @@ def model_to_dict(model: HammersteinModel) -> dict[str, Any]:
     """The JSON object of the model file for ``model``."""
     prov = model.provenance
     # Which czmpc wrote the model; a model read from a file keeps the version that made it.
-    provenance: dict[str, Any] = {"software": SOFTWARE, **prov.extra}
-    provenance.update(
-        data_file=prov.data_file,
-        data_sha256=prov.data_sha256,
-        preprocessing=[dict(step) for step in prov.preprocessing],
-        method=prov.method,
-        created_utc=prov.created_utc)
+    provenance: dict[str, Any] = {"software": SOFTWARE, **prov.extra,
+                                  **{key: getattr(prov, key) for key in _PROVENANCE_KEYS},
+                                  "preprocessing": [dict(step) for step in prov.preprocessing]}
     out: dict[str, Any] = {
         "format": FORMAT,
         "kind": model.kind,
@@ -174,13 +170,9 @@ def model_from_dict(obj: Any) -> HammersteinModel:
             one_step_mse_kw2=None if crit.get("W") is None else _number(crit["W"], "criteria.W"),
         ),
         provenance=Provenance(
-            data_file=prov_obj.get("data_file"),
-            data_sha256=prov_obj.get("data_sha256"),
+            **{key: prov_obj.get(key) for key in _PROVENANCE_KEYS if key != "preprocessing"},
             preprocessing=tuple(steps),
-            method=prov_obj.get("method"),
-            created_utc=prov_obj.get("created_utc"),
-            extra={k: v for k, v in prov_obj.items() if k not in _PROVENANCE_KEYS},
-        ),
+            extra={k: v for k, v in prov_obj.items() if k not in _PROVENANCE_KEYS}),
         units=units,
         covariance=covariance)
 

@@ -67,7 +67,6 @@ def _robust_scale(x: FloatArray) -> float:
     return MAD_TO_STD * float(np.median(np.abs(x - np.median(x))))
 
 
-
 # --------------------------------------------------------------------------- operating point
 
 
