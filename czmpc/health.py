@@ -272,22 +272,19 @@ class ModelHealthMonitor:
         self.ts_s = model.ts_s
         self._p_nom = model.operating_point.power_kw
         self._s_nom = model.operating_point.triac_pct
-        self._a = np.asarray(model.a, dtype=float)
-        self._b = np.asarray(model.b, dtype=float)
         self._c = np.asarray(model.c, dtype=float)
         self._poly = tuple(float(v) for v in model.input_poly)
-        self._a_t = tuple(float(v) for v in self._a)
-        self._b_t = tuple(float(v) for v in self._b)
-        self._c_t = tuple(float(v) for v in self._c)
-        self._na = len(self._a) - 1
-        self._nw = len(self._b) - 1 + self.settings.extra_input_lags
+        self._a_t, self._b_t, self._c_t = (tuple(float(v) for v in np.asarray(p, dtype=float))
+                                           for p in (model.a, model.b, model.c))
+        self._na = len(self._a_t) - 1
+        self._nw = len(self._b_t) - 1 + self.settings.extra_input_lags
         self._settle = _settle_samples(self._c)
         self.reset()
 
     def reset(self) -> None:
         """Forget the past and clear the alarm."""
         s = self.settings
-        n_hist = max(self._na, len(self._b) - 1, len(self._c) - 1, self._nw,
+        n_hist = max(self._na, len(self._b_t) - 1, len(self._c) - 1, self._nw,
                      s.residual_lags) + 1
         self._y: deque[float] = deque([0.0] * n_hist, maxlen=n_hist)    # y_{k-1}, y_{k-2}, ...
         self._w: deque[float] = deque([0.0] * n_hist, maxlen=n_hist)    # w_{k-1}, ...
@@ -425,10 +422,7 @@ class ModelHealthMonitor:
         p = self.settings.residual_lags
         base = np.asarray(self._baseline, dtype=float)
         now = np.asarray(self._rows, dtype=float)
-        parts = []
-        for block in (base, now):
-            centred = block - block.mean(axis=0)
-            parts.append(centred)
+        parts = [block - block.mean(axis=0) for block in (base, now)]
         scale = np.sqrt(sum(np.sum(c[:, 1:] ** 2, axis=0) for c in parts))
         scale[scale == 0.0] = 1.0
         n_b, n_w = len(base), len(now)

@@ -209,15 +209,13 @@ class MeasurementChecker:
         suspect: Verdict | None = None
         if not within_rate(power_kw, self._last_accepted, max_change_kw=self.max_change_kw):
             suspect = Verdict.TOO_FAST
-        elif gate and self.gate_k_sigma is not None and not self._gate_open:
+        elif (gate or self._gate_open) and self.gate_k_sigma is not None:
             inside = within_gate(power_kw - predicted_kw, innovation_std_kw=innovation_std_kw,
                                  k_sigma=self.gate_k_sigma, floor_kw=self.gate_floor_kw)
-            if not inside:
+            if self._gate_open:
+                self._gate_open = not inside
+            elif not inside:
                 suspect = Verdict.SPIKE
-        elif self._gate_open and self.gate_k_sigma is not None and within_gate(
-                power_kw - predicted_kw, innovation_std_kw=innovation_std_kw,
-                k_sigma=self.gate_k_sigma, floor_kw=self.gate_floor_kw):
-            self._gate_open = False
         reopened = False
         if suspect is not None:
             if self._n_rejected < self.reopen_after:
