@@ -270,14 +270,9 @@ def decode_text(blob: bytes, path: str | Path) -> str:
                             path=path) from None
 
 
-def check_column_mapping(
-    header: Sequence[str],
-    columns: Mapping[str, str] | None,
-    path: str | Path | None,
-    *,
-    missing_hint: str = "",
-    layout_hint: str | None = None,
-) -> dict[str, str]:
+def check_column_mapping(header: Sequence[str], columns: Mapping[str, str] | None,
+                         path: str | Path | None, *, missing_hint: str = "",
+                         layout_hint: str | None = None) -> dict[str, str]:
     """Contract name -> the log's column name (`columns`, default the contract's own).
 
     Refuses a mapping of other names or onto one column twice, and a mapped column

@@ -326,9 +326,7 @@ class _BlockRunner:
         self._tail = step.mapaccum("tail", tail) if tail else None
         self._n_samples = n_samples
 
-    def __call__(
-        self, z0: FloatArray, U: FloatArray, Y: FloatArray, *params: FloatArray
-    ) -> FloatArray:
+    def __call__(self, z0: FloatArray, U: FloatArray, Y: FloatArray, *params: FloatArray) -> FloatArray:
         chunks = []
         z = z0
         start = 0
@@ -393,9 +391,7 @@ class _Evaluator:
         return rows[0].copy(), np.ascontiguousarray(rows[1:].T)
 
 
-def _held_past_state(
-    A: ca.SX, B: ca.SX, C: ca.SX, D: ca.SX, u0: ca.SX, y0: ca.SX
-) -> ca.SX:
+def _held_past_state(A: ca.SX, B: ca.SX, C: ca.SX, D: ca.SX, u0: ca.SX, y0: ca.SX) -> ca.SX:
     """State ``x_0`` of a model whose past inputs were ``u0`` and past outputs ``y0``.
 
     Solves for ``z = x_{-n}`` such that ``x_{j+1} = A x_j + B u0`` gives outputs
@@ -419,14 +415,8 @@ def _held_past_state(
     return power @ z + acc
 
 
-def _build_evaluator(
-    structure: GreyBoxStructure,
-    *,
-    U: FloatArray,
-    Y: FloatArray,
-    criterion: GreyBoxCriterion,
-    initial_state: InitialState,
-) -> _Evaluator:
+def _build_evaluator(structure: GreyBoxStructure, *, U: FloatArray, Y: FloatArray,
+                     criterion: GreyBoxCriterion, initial_state: InitialState) -> _Evaluator:
     n_inputs, n_samples = U.shape
     matrices, theta_sym = _symbolic_matrices(structure, n_inputs)
     n_x = matrices[0].shape[0]
@@ -518,13 +508,8 @@ def _check_signals(y: Any, u: Any, structure: GreyBoxStructure) -> tuple[FloatAr
 
 
 # --------------------------------------------------------------------------- public API
-def _prepare(
-    structure: GreyBoxStructure,
-    y: Any,
-    u: Any,
-    criterion: str,
-    initial_state: str,
-) -> _Evaluator:
+def _prepare(structure: GreyBoxStructure, y: Any, u: Any, criterion: str, initial_state: str
+             ) -> _Evaluator:
     if criterion not in ("ballistic", "one_step"):
         raise IdentificationError(
             f"fit_greybox: criterion must be 'ballistic' or 'one_step'; got {criterion!r}")

@@ -354,9 +354,7 @@ class HammersteinModel:
 COVARIANCE_SYMMETRY_RTOL = 1e-9
 
 
-def _checked_covariance(
-    values: Any, names: tuple[str, ...] | None
-) -> tuple[tuple[float, ...], ...]:
+def _checked_covariance(values: Any, names: tuple[str, ...] | None) -> tuple[tuple[float, ...], ...]:
     """Validate a covariance matrix and return it as a tuple of float tuples."""
     try:
         arr = np.array(values, dtype=float)

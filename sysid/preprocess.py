@@ -184,9 +184,8 @@ def _settled_start(
 MIN_WINDOW_SHARE_OF_LONGEST = 0.5
 
 
-def _central_window(
-    windows: list[tuple[int, int, float, float]], u: FloatArray
-) -> tuple[int, int, float, float]:
+def _central_window(windows: list[tuple[int, int, float, float]], u: FloatArray
+                    ) -> tuple[int, int, float, float]:
     """The window whose mean input is nearest the middle of the input's range.
 
     Only windows with at least `MIN_WINDOW_SHARE_OF_LONGEST` of the longest one's
