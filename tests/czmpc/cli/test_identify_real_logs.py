@@ -71,15 +71,21 @@ END_CUTS = {
 }
 #: The same log with 5 % (29 samples) and 10 % (59) cut from the start: it then begins 19
 #: and 49 samples after the 0 -> 100 % heater step, mid-transient, and no longer at rest.
-#: The same bar as the end cuts. Not met yet (issue 29 stays open on it): scored on the
-#: full log, model.json errs 2,019 and 12,544 times the full log's model (219.2 and 1,362
-#: against 0.1086 degC^2). The from-rest OE then assumes a rest that is none (5 %: static
-#: gain 7.7e6, refused, and the noise-model Hammerstein, 219, stays; 10 %: V from rest 47
-#: on the cut log, chosen), and a whole-record criterion with the initial state and the
-#: rest output estimated is no cure on this log: it prefers near-integrators (static gains
-#: 1e3..1e7) that trade a slow pole against the free offset, on the full log too. The full
-#: log's model (poles 0.995, tau about 200 samples, input steps 200 apart) scores 0.136 and
-#: 0.140 degC^2 on the cut records that way, against 0.036..0.045 for those integrators.
+#: The end cuts' bar (model.json within 1.25 of the full log's on the full log) is out of
+#: reach there: no linear OE fitted to the cut record with its initial state and output
+#: offset estimated (`_free_start_oe`, nb 1..3, nf 1..2, nk 0..3) holds within it, not
+#: even the one of the 24 that does best on the full log (a choice only the full log can
+#: make): measured 0.4155 and 2.697 degC^2, 3.8 and 24.8 times the full log's model.json
+#: (0.1086); the one lowest on its own record errs 12.3 and 5.99 degC^2. Hammerstein
+#: fits of degree 2 and 3 (the same search with u^2, u^3 columns, nf up to 3) do no better:
+#: best on the full log 1.091 and 9.246 (5 %), 1.229 and 0.2738 (10 %). The cut records
+#: never show the input at 0 %, the start's rest, and the plant's gain falls as it warms
+#: (the full log's secant 0.605 degC/%, the cut records' local fits 0.48..0.53): what
+#: the data leave open is the model's rest, not the estimator's choice. So identify warns
+#: that such a log does not start at rest (`sysid.criteria.start_at_rest`) and says to log
+#: from a steady state instead. Without the cut, model.json at 5 % / 10 % errs 219.2 and
+#: 1,362 degC^2 on the full log (nb, nf, nk 4, 3, 0 and 4, 2, 0 against the full log's
+#: 4, 3, 3): the choice of structure is not stable under a start cut either (open).
 START_CUT_V_RATIO = 1.25
 START_CUTS = {
     f"tclab_start{pct}": (lambda pct=pct: READERS["tclab"]().segment(
@@ -222,19 +228,92 @@ def test_the_short_logs_model_holds_when_its_end_is_cut(name: str, identified: I
     assert v_cut <= END_CUT_V_RATIO * _written_v(out_full / "model.json", full, burn)
 
 
+def _free_start_oe(y: np.ndarray, u: np.ndarray, nb: int, nf: int, nk: int,
+                   rng: np.random.Generator) -> tuple[float, np.ndarray, np.ndarray] | None:
+    """Lowest-V OE on a record with its initial state and output offset estimated.
+
+    ``y = c + B/F u + sum_i x_i (1/F) pulse_i``: for a given ``F`` the model is linear in
+    ``B``, the offset ``c`` and the transients ``x`` of the first ``max(nf, nk+nb-1)``
+    samples (any initial state), which least squares eliminates (variable projection);
+    scipy's LM searches ``F`` from random stable starts. Returns ``(V, B, F)``.
+    """
+    n, n_state = y.size, max(nf, nk + nb - 1)
+    pulses = np.zeros((n, n_state))
+    pulses[np.arange(n_state), np.arange(n_state)] = 1.0
+
+    def columns(f_tail: np.ndarray) -> np.ndarray:
+        f = np.concatenate([[1.0], f_tail])
+        v = lfilter([1.0], f, u)
+        lags = [np.concatenate([np.zeros(nk + j), v[:n - nk - j]]) for j in range(nb)]
+        return np.column_stack([*lags, lfilter([1.0], f, pulses, axis=0), np.ones(n)])
+
+    def errors(f_tail: np.ndarray) -> np.ndarray:
+        x = columns(f_tail)
+        if not np.all(np.isfinite(x)) or np.max(np.abs(x)) > 1e12:
+            return np.full(n, 1e6)                # an unstable trial: a flat high cost
+        return y - x @ np.linalg.lstsq(x, y, rcond=None)[0]
+
+    best = None
+    for _ in range(N_REFERENCE_STARTS):
+        poles = np.exp(-1.0 / np.exp(rng.uniform(np.log(0.5), np.log(n / 2), nf)))
+        with np.errstate(all="ignore"):
+            sol = least_squares(errors, np.poly(poles)[1:], method="lm", xtol=1e-10,
+                                ftol=1e-10)
+        f = np.concatenate([[1.0], sol.x])
+        v = float(np.mean(sol.fun ** 2))
+        if np.max(np.abs(np.roots(f))) < 1.0 and (best is None or v < best[0]):
+            b = np.linalg.lstsq(columns(sol.x), y, rcond=None)[0][:nb]
+            best = (v, np.concatenate([np.zeros(nk), b]), f)
+    return best
+
+
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="issue 29 item 3: a log that starts mid-transient "
-                   "(TCLab cut at its start) gives a model 2,000-12,500x worse on the full log")
 @pytest.mark.parametrize("name", list(START_CUTS))
-def test_the_short_logs_model_holds_when_its_start_is_cut(name: str, identified: Identified,
-                                                          ) -> None:
+def test_no_oe_fitted_on_a_log_cut_at_its_start_holds_on_the_full_log(
+    name: str, identified: Identified,
+) -> None:
     full = READERS["tclab"]()
     burn = int(BURN_IN_SHARE * full.n_samples)
+    _, _, out_full = identified("tclab")
+    bar = START_CUT_V_RATIO * _written_v(out_full / "model.json", full, burn)
+    cut = START_CUTS[name]()
+    rng = np.random.default_rng(29)
+    on_full = []
+    for nb, nf, nk in itertools.product(range(1, 4), range(1, 3), range(4)):
+        fit = _free_start_oe(cut.power_kw, cut.triac_pct, nb, nf, nk, rng)
+        if fit is not None:
+            err = full.power_kw - _from_rest(fit[1], fit[2], full.triac_pct, full.power_kw)
+            on_full.append(float(np.mean(err[burn:] ** 2)))
+    assert len(on_full) >= 20
+    assert min(on_full) > bar, (min(on_full), bar)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["tclab", *END_CUTS, *START_CUTS])
+def test_identify_says_when_a_log_does_not_start_at_rest(name: str, identified: Identified,
+                                                         ) -> None:
     code, err, out = identified(name)
     assert code == 0, err
+    checks = {c["check"]: c for c in json.loads((out / "model.json").read_text(
+        encoding="utf-8"))["provenance"]["identifiability"]}
+    report = (out / "report.md").read_text(encoding="utf-8")
+    at_rest = name not in START_CUTS
+    assert checks["start_at_rest"]["passed"] is at_rest
+    assert ("czmpc: WARNING: start at rest" in err) is not at_rest
+    assert ("| start_at_rest | warning |" in report) is not at_rest
+    if not at_rest:
+        assert "log from a steady state before the first input change" in err
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 29 item 3: cut at its start, the TCLab log "
+                   "gives nb, nf, nk 4, 3, 0 and 4, 2, 0 instead of the full log's 4, 3, 3")
+@pytest.mark.parametrize("name", list(START_CUTS))
+def test_the_short_logs_structure_holds_when_its_start_is_cut(name: str,
+                                                              identified: Identified) -> None:
+    _, _, out = identified(name)
     _, _, out_full = identified("tclab")
-    v_cut = _written_v(out / "model.json", full, burn)
-    assert v_cut <= START_CUT_V_RATIO * _written_v(out_full / "model.json", full, burn), v_cut
+    assert _structure(out / "model.json") == _structure(out_full / "model.json")
 
 
 def _pipeline(name: str):  # type: ignore[no-untyped-def]
