@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from czmpc.reports.figure_style import FigureError
+from czmpc.reports.figure_style import FigureError, stacked_axes
 from czmpc.reports.figure_style import legend_above as _legend_above
 from czmpc.reports.figure_style import save_figure as _save
 from sysid._typing import FloatArray
@@ -170,16 +170,10 @@ def plot_run(record: RunRecord, path: str | os.PathLike[str]) -> Figure:
     FigureError
         A record without steps.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
     if record.n_steps == 0:
         raise FigureError("plot_run: expected a run with at least one step; got none")
     t = record.time_s
-    fig = Figure(figsize=RUN_FIGSIZE_IN, dpi=100, layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(5, 1, sharex=True)
-    for ax in axes:
-        ax.grid(True, linewidth=0.5, alpha=0.6)
+    fig, axes = stacked_axes(5, figsize_in=RUN_FIGSIZE_IN)
     ax_p, ax_u, ax_q, ax_t, ax_h = axes
     measured = np.where(record.good, record.power_kw, np.nan)
     ax_p.plot(t, measured, color="black", linewidth=0.9, label="measured (good samples)")
