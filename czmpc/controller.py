@@ -498,7 +498,7 @@ class OffsetFreeMPC:
         h_in[: self._n_x + 1] = z
         h_in[self._n_x + 1 : -1] = tgt.x_s
         h_in[-1] = eps
-        h = self._h_mat @ h_in
+        h = np.dot(self._h_mat, h_in, out=self._qp.h_input)
         w_lo, w_hi, rate = self._bounds.compute(em, ds_base)
         sol: QPSolution = self._qp.solve(
             h=h, w_prev=w_base, w_target=tgt.w_s, y_target=tgt.y_s, w_lo=w_lo,

@@ -414,6 +414,8 @@ class MPCQP:
         # q[:N] = Q_p [h; w_prev; w_s]: one product per step.
         self._q_params = np.column_stack([2.0 * F_h, 2.0 * f_p, -2.0 * (f_p + H.sum(axis=1))])
         self._params = np.empty(n_x + 2)
+        #: (n,) where `solve` reads ``h`` from when given this very array (no copy).
+        self.h_input: FloatArray = self._params[:n_x]
         self._terminal_P: FloatArray = P_f
         self._Cgam_rowsum = Cgam.sum(axis=1)
         self._Cphi = Cphi
@@ -547,7 +549,8 @@ class MPCQP:
         Parameters
         ----------
         h :
-            (n,) free first-step state error (module notes).
+            (n,) free first-step state error (module notes); `h_input` itself is taken
+            without a copy.
         w_prev :
             Nonlinearity output applied at the previous sample [kW-equivalent].
         w_target :
@@ -571,7 +574,8 @@ class MPCQP:
         """
         N = self.horizon_steps
         params = self._params
-        params[:-2] = h
+        if h is not self.h_input:
+            params[:-2] = h
         params[-2] = w_prev
         params[-1] = w_target
         np.dot(self._q_params, params, out=self._q_w)
@@ -620,7 +624,7 @@ class MPCQP:
                     usable = False
                     status = f"{status}; outside bounds by {violation:.3g} kW"
         if usable:
-            plan = x[:N]  # x is the solver's copy, ours alone
+            plan = x[:N] if self.has_soft else x  # x is the solver's copy, ours alone
             plan.setflags(write=False)
             slack = max(0.0, float(x[N])) if self.has_soft else 0.0  # >= 0 up to eps
         else:
@@ -633,9 +637,9 @@ class MPCQP:
             "is_accurate": usable and status_val == _SOLVED,
             "w": plan,
             "slack_kw": slack,
-            "objective": float(info.obj_val),
-            "n_iterations": int(info.iter),
-            "solve_time_s": float(info.solve_time),
+            "objective": info.obj_val,  # float, int, float already
+            "n_iterations": info.iter,
+            "solve_time_s": info.solve_time,
         })
 
 
