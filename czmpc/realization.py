@@ -235,10 +235,4 @@ def check_detectable(A: FloatArray, C: FloatArray, *, what: str) -> None:
             )
 
 
-__all__ = [
-    "AugmentedModel",
-    "InnovationsForm",
-    "augment",
-    "check_detectable",
-    "innovations_form",
-]
+__all__ = ["AugmentedModel", "InnovationsForm", "augment", "check_detectable", "innovations_form"]

@@ -476,12 +476,5 @@ class MPCSettings:
         )
 
 
-__all__ = [
-    "DEFAULT_RATE_FRACTION_OF_RANGE",
-    "DisturbanceModel",
-    "MPCSettings",
-    "ModeName",
-    "OSQPOptions",
-    "PresetName",
-    "ReliabilitySettings",
-]
+__all__ = ["DEFAULT_RATE_FRACTION_OF_RANGE", "DisturbanceModel", "MPCSettings", "ModeName", "OSQPOptions",
+           "PresetName", "ReliabilitySettings"]

@@ -228,11 +228,4 @@ class MeasurementChecker:
         return MeasurementCheck(verdict=Verdict.VALID, reopened=reopened)
 
 
-__all__ = [
-    "MeasurementCheck",
-    "MeasurementChecker",
-    "Verdict",
-    "check_limits",
-    "within_gate",
-    "within_rate",
-]
+__all__ = ["MeasurementCheck", "MeasurementChecker", "Verdict", "check_limits", "within_gate", "within_rate"]

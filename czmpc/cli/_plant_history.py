@@ -97,12 +97,7 @@ def run(args: argparse.Namespace) -> int:
     """Read the history, put it on the Ts grid, write the run log and its provenance."""
     from czmpc.cli._progress import Progress
     from czmpc.runtime.config import load_run_config
-    from czmpc.runtime.history import (
-        DEFAULT_PAGE_VALUES,
-        align_history,
-        refuse_existing,
-        write_history_log,
-    )
+    from czmpc.runtime.history import DEFAULT_PAGE_VALUES, align_history, refuse_existing, write_history_log
     from czmpc.runtime.link import CallDeadlineError
     from czmpc.runtime.secure_client import PlantUnreachableError
     from sysid.atomic import file_sha256

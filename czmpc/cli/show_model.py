@@ -209,12 +209,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {args.export_mat} (linearized at {', '.join(f'{v:g}' for v in levels)} "
               f"{model.effective_units.input})")
     if args.plot is not None:
-        from czmpc.reports.model_figures import (
-            bode_figure,
-            draw_models,
-            pole_zero_figure,
-            step_figure,
-        )
+        from czmpc.reports.model_figures import bode_figure, draw_models, pole_zero_figure, step_figure
 
         args.plot.mkdir(parents=True, exist_ok=True)
         draws = draw_models(model, args.draws)

@@ -19,26 +19,7 @@ from czmpc.pid.plant import LocalPlant, RulePlant, local_plant, reduce_to_rule_p
 from czmpc.pid.rules import PIDTuning, amigo, gain_delay_sampled, lambda_imc, simc
 from czmpc.pid.schedule import PIDSchedule, ScheduleRow, tune_schedule
 
-__all__ = [
-    "DesignSpec",
-    "PIDSchedule",
-    "LocalPlant",
-    "LoopMargins",
-    "PIDStep",
-    "PIDTuning",
-    "PIDTuningError",
-    "RulePlant",
-    "ScheduleRow",
-    "ScheduledPID",
-    "TableSchedule",
-    "amigo",
-    "gain_delay_sampled",
-    "lambda_imc",
-    "local_plant",
-    "loop_margins",
-    "reduce_to_rule_plant",
-    "sampled_margins",
-    "simc",
-    "tune_local",
-    "tune_schedule",
-]
+__all__ = ["DesignSpec", "PIDSchedule", "LocalPlant", "LoopMargins", "PIDStep", "PIDTuning",
+           "PIDTuningError", "RulePlant", "ScheduleRow", "ScheduledPID", "TableSchedule", "amigo",
+           "gain_delay_sampled", "lambda_imc", "local_plant", "loop_margins", "reduce_to_rule_plant",
+           "sampled_margins", "simc", "tune_local", "tune_schedule"]

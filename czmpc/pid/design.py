@@ -23,14 +23,7 @@ from scipy.signal import lfilter
 from czmpc.pid.errors import PIDTuningError
 from czmpc.pid.margins import SAMPLED_LOW_FRACTION, sampled_loop, sampled_margins
 from czmpc.pid.plant import LocalPlant, reduce_to_rule_plant
-from czmpc.pid.rules import (
-    DERIVATIVE_FILTER_RATIO,
-    ControllerType,
-    PIDTuning,
-    amigo,
-    lambda_imc,
-    simc,
-)
+from czmpc.pid.rules import DERIVATIVE_FILTER_RATIO, ControllerType, PIDTuning, amigo, lambda_imc, simc
 from sysid._typing import FloatArray
 
 RuleName = Literal["simc", "lambda", "amigo", "ms"]

@@ -24,13 +24,7 @@ from czmpc.pid.controller import ScheduledPID, TableSchedule
 from czmpc.pid.plant import LocalPlant
 from czmpc.pid.rules import PIDTuning
 from czmpc.pid.schedule import PIDSchedule, Region, merge_regions
-from czmpc.pid.table import (
-    COLUMN_MEANINGS,
-    COLUMNS,
-    row_values,
-    write_characterizer,
-    write_pid_table,
-)
+from czmpc.pid.table import COLUMN_MEANINGS, COLUMNS, row_values, write_characterizer, write_pid_table
 from czmpc.pid.table import characterizer_error_pct as interpolation_error_pct
 from czmpc.pid.vendor import Spans, VendorTable, vendor_csv_text, vendor_table
 from sysid._typing import FloatArray

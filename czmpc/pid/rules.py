@@ -287,14 +287,5 @@ def gain_delay_sampled(gain_kw_per_pct: float, *, lambda_s: float,
                      ti_s=lam * loop_gain / (1.0 + loop_gain))
 
 
-__all__ = [
-    "DERIVATIVE_FILTER_RATIO",
-    "GAIN_DELAY_LOOP_GAIN",
-    "ControllerType",
-    "PIDTuning",
-    "amigo",
-    "gain_delay_sampled",
-    "lambda_imc",
-    "series_to_ideal",
-    "simc",
-]
+__all__ = ["DERIVATIVE_FILTER_RATIO", "GAIN_DELAY_LOOP_GAIN", "ControllerType", "PIDTuning", "amigo",
+           "gain_delay_sampled", "lambda_imc", "series_to_ideal", "simc"]

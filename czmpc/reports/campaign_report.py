@@ -200,10 +200,5 @@ def plot_trajectories(trajectories: Sequence[Mapping[str, Any]],
     return fig
 
 
-__all__ = [
-    "controller_summary",
-    "format_summary_markdown",
-    "plot_iae_distribution",
-    "plot_perturbation_heatmaps",
-    "plot_trajectories",
-]
+__all__ = ["controller_summary", "format_summary_markdown", "plot_iae_distribution",
+           "plot_perturbation_heatmaps", "plot_trajectories"]

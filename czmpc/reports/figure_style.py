@@ -84,15 +84,5 @@ def save_figure(fig: Figure, path: str | os.PathLike[str]) -> Figure:
     return fig
 
 
-__all__ = [
-    "DPI",
-    "PALETTE",
-    "TALL_FIGSIZE_IN",
-    "WIDE_FIGSIZE_IN",
-    "FigureError",
-    "legend_above",
-    "new_figure",
-    "save_figure",
-    "stacked_axes",
-    "vector",
-]
+__all__ = ["DPI", "PALETTE", "TALL_FIGSIZE_IN", "WIDE_FIGSIZE_IN", "FigureError", "legend_above",
+           "new_figure", "save_figure", "stacked_axes", "vector"]

@@ -947,11 +947,4 @@ def write_report(
     return ReportFiles(report_path=report, figure_files=tuple(f.path for f in drawn))
 
 
-__all__ = [
-    "Finding",
-    "ReportFiles",
-    "findings_checklist",
-    "model_equation",
-    "render_report",
-    "write_report",
-]
+__all__ = ["Finding", "ReportFiles", "findings_checklist", "model_equation", "render_report", "write_report"]

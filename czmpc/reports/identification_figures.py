@@ -26,14 +26,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
-from czmpc.reports.figure_style import (
-    PALETTE,
-    FigureError,
-    legend_above,
-    save_figure,
-    stacked_axes,
-    vector,
-)
+from czmpc.reports.figure_style import PALETTE, FigureError, legend_above, save_figure, stacked_axes, vector
 
 #: Axis labels with units, shared by all figures (and by the tests that check them).
 AXIS_LABELS: dict[str, str] = {
@@ -526,13 +519,5 @@ def plot_gain_curve(
     return save_figure(fig, path)
 
 
-__all__ = [
-    "AXIS_LABELS",
-    "plot_correlations",
-    "plot_dataset",
-    "plot_gain_curve",
-    "plot_outlier_zoom",
-    "plot_residuals",
-    "plot_simulation_errors",
-    "plot_simulations",
-]
+__all__ = ["AXIS_LABELS", "plot_correlations", "plot_dataset", "plot_gain_curve", "plot_outlier_zoom",
+           "plot_residuals", "plot_simulation_errors", "plot_simulations"]

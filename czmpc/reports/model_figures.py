@@ -22,12 +22,7 @@ from sysid.errors import ModelFileError
 from sysid.export import linearize
 from sysid.model import HammersteinModel
 from sysid.polynomials import slowest_time_constant_samples
-from sysid.uncertainty import (
-    ParameterError,
-    draw_parameters,
-    model_with_parameters,
-    parameter_distribution,
-)
+from sysid.uncertainty import ParameterError, draw_parameters, model_with_parameters, parameter_distribution
 
 #: Percentiles of the confidence band [%].
 BAND_PERCENTILES = (2.5, 97.5)

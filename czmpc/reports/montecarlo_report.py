@@ -173,11 +173,5 @@ def plot_iae_ecdf(rows: Sequence[Row], path: str | os.PathLike[str] | None = Non
     return fig
 
 
-__all__ = [
-    "format_montecarlo_markdown",
-    "is_sampled",
-    "montecarlo_summary",
-    "plot_iae_ecdf",
-    "rejection_summary",
-    "within_limits",
-]
+__all__ = ["format_montecarlo_markdown", "is_sampled", "montecarlo_summary", "plot_iae_ecdf",
+           "rejection_summary", "within_limits"]
