@@ -144,12 +144,7 @@ def innovations_form(model: HammersteinModel) -> InnovationsForm:
             f"got b = {model.b.tolist()}"
         )
     n = max(model.a.size, model.b.size, model.c.size) - 1
-    a = np.zeros(n + 1)
-    b = np.zeros(n + 1)
-    c = np.zeros(n + 1)
-    a[: model.a.size] = model.a
-    b[: model.b.size] = model.b
-    c[: model.c.size] = model.c
+    a, b, c = (np.pad(np.asarray(p, dtype=float), (0, n + 1 - p.size)) for p in (model.a, model.b, model.c))
     A = np.zeros((n, n))
     A[:, 0] = -a[1:]
     A[: n - 1, 1:] = np.eye(n - 1)
@@ -187,10 +182,7 @@ def augment(base: InnovationsForm, disturbance_model: DisturbanceModel) -> Augme
         A[:n, n] = base.B
     else:
         C[n] = 1.0
-    B = np.zeros(n + 1)
-    B[:n] = base.B
-    K = np.zeros(n + 1)
-    K[:n] = base.K
+    B, K = np.append(base.B, 0.0), np.append(base.K, 0.0)
     check_detectable(A, C, what=f"{disturbance_model} disturbance augmentation")
     return AugmentedModel(
         base=base, disturbance_model=disturbance_model, A=_readonly(A), B=_readonly(B),

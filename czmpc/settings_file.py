@@ -90,19 +90,15 @@ def _convert(where: str, cls: type[Any], name: str, value: object) -> object:
         if value not in choices:
             raise SettingsError(f"{where}{name} must be one of {list(choices)}; got {value!r}")
         return value
-    if base is bool:
-        if not isinstance(value, bool):
-            raise SettingsError(f"{where}{name} must be true or false; got {value!r}")
-        return value
-    if base is int:
-        if not isinstance(value, int) or isinstance(value, bool):
-            raise SettingsError(f"{where}{name} must be an integer{off}; got {value!r}")
-        return value
-    if base is float:
-        if not isinstance(value, (int, float)) or isinstance(value, bool):
-            raise SettingsError(f"{where}{name} must be a number{off}; got {value!r}")
-        return float(value)
-    raise SettingsError(f"{where}{name} cannot be set from a file")  # pragma: no cover
+    number = isinstance(value, int | float) and not isinstance(value, bool)
+    ok, expected = {bool: (isinstance(value, bool), "true or false"),
+                    int: (number and isinstance(value, int), f"an integer{off}"),
+                    float: (number, f"a number{off}")}.get(base, (False, ""))
+    if not expected:
+        raise SettingsError(f"{where}{name} cannot be set from a file")  # pragma: no cover
+    if not ok:
+        raise SettingsError(f"{where}{name} must be {expected}; got {value!r}")
+    return float(value) if base is float else value  # type: ignore[arg-type]
 
 
 def _table_changes(where: str, cls: type[Any], table: Mapping[str, object]) -> dict[str, object]:

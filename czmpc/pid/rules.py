@@ -38,7 +38,7 @@ design", Ind. Eng. Chem. Process Des. Dev. 25 (1986) 252-265.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 from czmpc.pid.errors import PIDTuningError
@@ -91,9 +91,7 @@ class PIDTuning:
 
     def scaled(self, factor: float) -> PIDTuning:
         """The same tuning with ``Kc`` multiplied by ``factor`` (times unchanged)."""
-        return PIDTuning(kc_pct_per_kw=self.kc_pct_per_kw * factor, ti_s=self.ti_s,
-                         td_s=self.td_s, td_filter_s=self.td_filter_s,
-                         setpoint_weight=self.setpoint_weight)
+        return replace(self, kc_pct_per_kw=self.kc_pct_per_kw * factor)
 
 
 def series_to_ideal(kc: float, ti_s: float, td_s: float) -> tuple[float, float, float]:
