@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -220,6 +221,18 @@ def test_move_bounds_match_a_dense_grid_reference(which: str, input_map: InputMa
                 assert rate[j - 1] == pytest.approx(ref, rel=1e-12, abs=1e-12)
     w_lo, w_hi, none = MoveBounds(None, 5).compute(im, 0.0)
     assert none is None and np.all(w_lo == im.w_min) and np.all(w_hi == im.w_max)
+
+
+def test_move_bounds_follow_a_changed_input_map(input_map: InputMap) -> None:
+    # MoveBounds keeps the scalars of the map it last saw; a new map (a limit ramp's
+    # restricted one, another f) must be taken up at once.
+    restricted = dataclasses.replace(input_map, ds_max_pct=5.0, w_max=input_map.f(5.0))
+    bounds = MoveBounds(1.5, 20)
+    for im in (input_map, restricted, _convex_quadratic_map(), input_map):
+        got = [a.copy() for a in bounds.compute(im, 0.3) if a is not None]
+        fresh = [a for a in MoveBounds(1.5, 20).compute(im, 0.3) if a is not None]
+        for a, b in zip(got, fresh, strict=True):
+            np.testing.assert_array_equal(a, b)
 
 
 @settings(max_examples=60, deadline=None)
