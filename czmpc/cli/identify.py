@@ -289,13 +289,9 @@ def identify_to_directory(
         triac_pct=operating_point[0], power_kw=operating_point[1])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        if isinstance(orders, tuple):
-            order_kw: dict[str, Any] = {"nb": orders[0], "nf": orders[1], "nk": orders[2],
-                                        "orders": "paper"}
-            if len(orders) == 4:
-                order_kw["nc"] = orders[3]
-        else:
-            order_kw = {"orders": orders, "min_nk": min_nk}
+        order_kw: dict[str, Any] = (  # NB,NF,NK[,NC] fix the paper's structure's orders
+            {"orders": "paper", **dict(zip(("nb", "nf", "nk", "nc"), orders, strict=False))}
+            if isinstance(orders, tuple) else {"orders": orders, "min_nk": min_nk})
         result = run_paper_pipeline(
             data, operating_point=op, level_shift="auto" if level_shift is None else level_shift,
             progress=progress, initial_state=initial_state,  # type: ignore[arg-type]
