@@ -666,10 +666,8 @@ def _describe_change(old: Path, new: Path) -> tuple[str, ...]:
         a, b = read(old), read(new)
     except (OSError, ValueError):
         return ()
-    lines = []
-    for key in sorted(set(a) | set(b)):
-        if a.get(key, "<absent>") != b.get(key, "<absent>"):
-            lines.append(f"{key}: {a.get(key, '<absent>')!r} -> {b.get(key, '<absent>')!r}")
+    old_new = {key: (a.get(key, "<absent>"), b.get(key, "<absent>")) for key in sorted(set(a) | set(b))}
+    lines = [f"{key}: {was!r} -> {now!r}" for key, (was, now) in old_new.items() if was != now]
     return tuple(lines[:8]) + ((f"... and {len(lines) - 8} more",) if len(lines) > 8 else ())
 
 

@@ -174,9 +174,7 @@ class ModelCheck:
 
     def format_text(self) -> str:
         """The verdict and every check, one line each, for a terminal."""
-        lines = [f"verdict: {self.verdict}"]
-        for item in self.items:
-            lines.append(f"  [{item.status:>9}] {item.name}: {item.detail}")
+        lines = [f"verdict: {self.verdict}", *(f"  [{i.status:>9}] {i.name}: {i.detail}" for i in self.items)]
         return "\n".join(lines) + "\n"
 
 

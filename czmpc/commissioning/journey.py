@@ -138,9 +138,7 @@ class JourneyResult:
     @property
     def ok(self) -> bool:
         """True when the journey reached a ``ready`` model (and ran it if asked)."""
-        if self.stage == "test aborted" or self.check is None:
-            return False
-        if self.check.verdict != "ready":
+        if self.stage == "test aborted" or self.check is None or self.check.verdict != "ready":
             return False
         return self.run_summary is None or not self.run_summary.failed
 
