@@ -168,6 +168,7 @@ class OffsetFreeMPC:
         self._h_mat = np.hstack([base.A, np.zeros((n, 1)), -base.A,
                                  self._est.gains.G[:n].reshape(n, 1)])
         self._h_in = np.empty(2 * n + 2)
+        self._h_in_z, self._h_in_xs = self._h_in[: n + 1], self._h_in[n + 1 : -1]  # views, once
         self._d_power_gain = self._aug.disturbance_power_gain
         self._soft_min_rel, self._soft_max_rel = (
             None if kw is None else kw - self._p_nom
@@ -495,10 +496,11 @@ class OffsetFreeMPC:
         ds_base = min(em.ds_max_pct, max(em.ds_min_pct, ds_prev))
         w_base = self._w_prev if ds_base == ds_prev else em.f(ds_base)
         h_in = self._h_in
-        h_in[: self._n_x + 1] = z
-        h_in[self._n_x + 1 : -1] = tgt.x_s
+        self._h_in_z[...] = z
+        self._h_in_xs[...] = tgt.x_s
         h_in[-1] = eps
-        h = np.dot(self._h_mat, h_in, out=self._qp.h_input)
+        # ndarray.dot: the same BLAS product as np.dot or @, with less call overhead.
+        h = self._h_mat.dot(h_in, out=self._qp.h_input)
         w_lo, w_hi, rate = self._bounds.compute(em, ds_base)
         sol: QPSolution = self._qp.solve(
             h=h, w_prev=w_base, w_target=tgt.w_s, y_target=tgt.y_s, w_lo=w_lo,

@@ -242,6 +242,7 @@ class Estimator:
         ABG = np.column_stack([self._A, self._B, self._G])
         self._ABG_C = np.vstack([ABG, self._C @ ABG])
         self._v = np.empty(model.n_states + 2)
+        self._v_z = self._v[:-2]  # a view, taken once
         self._history: deque[_Trace] = deque(maxlen=history_samples)
         self.restart(np.zeros(model.n_states))
 
@@ -308,10 +309,10 @@ class Estimator:
         z = self.z  # read-only: the trace keeps it
         self._history.append((z, self.eps, w))
         v = self._v
-        v[:-2] = z
+        self._v_z[...] = z
         v[-2] = w
         v[-1] = self.eps
-        out = self._ABG_C @ v
+        out = self._ABG_C.dot(v)  # the same BLAS product as @, with less call overhead
         values = out.tolist()  # math.isfinite on n + 1 floats beats np.isfinite on a tiny array
         if all(map(math.isfinite, values)):
             self._z = out[:-1]
