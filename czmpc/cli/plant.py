@@ -129,7 +129,7 @@ def _serve(args: argparse.Namespace) -> int:
     from czmpc.runtime.security import check_serve_address, parse_server_security
     from czmpc.runtime.served import NODE_TYPES, ServedPlant, ServeOptions
     from czmpc.shipped import shipped_path
-    from sim.drift import vary_heater, vary_model_plant
+    from sim.drift import DriftingPlant, vary_heater, vary_model_plant
     from sim.heater import HeaterParams, VirtualHeater
     from sim.model_plant import ModelPlant
     from sim.protocols import Plant
@@ -153,24 +153,18 @@ def _serve(args: argparse.Namespace) -> int:
             else HeaterParams()
         if args.initial_triac_pct is not None:
             params = dataclasses.replace(params, initial_triac_pct=args.initial_triac_pct)
-        if variation.is_nominal:
-            heater = VirtualHeater(params, rng=args.seed)
-            plant, initial = heater, heater.params.initial_triac_pct
-        else:
-            varied = vary_heater(variation, params, rng=args.seed)
-            plant, initial = varied, varied.initial_triac_pct
+        plant = (VirtualHeater(params, rng=args.seed) if variation.is_nominal
+                 else vary_heater(variation, params, rng=args.seed))
+        initial = params.initial_triac_pct
     else:
         model = load_model(args.model or shipped_path("cz_heater_model.json"))
-        if variation.is_nominal:
-            mp = ModelPlant(model, noise=not args.no_noise,
-                            initial_triac_pct=args.initial_triac_pct)
-            mp.reset(args.seed)
-            plant, initial = mp, mp.initial_triac_pct
-        else:
-            vp = vary_model_plant(model, variation, noise=not args.no_noise,
-                                  initial_triac_pct=args.initial_triac_pct)
-            vp.reset(args.seed)
-            plant, initial = vp, vp.initial_triac_pct
+        mp: ModelPlant | DriftingPlant = (
+            ModelPlant(model, noise=not args.no_noise, initial_triac_pct=args.initial_triac_pct)
+            if variation.is_nominal else
+            vary_model_plant(model, variation, noise=not args.no_noise,
+                             initial_triac_pct=args.initial_triac_pct))
+        mp.reset(args.seed)
+        plant, initial = mp, mp.initial_triac_pct
     options = ServeOptions(endpoint=args.endpoint, time_scale=args.time_scale,
                            watchdog_s=args.watchdog_s, safe_triac_pct=args.safe_triac_pct,
                            duration_s=args.duration_s, setpoint_kw=args.setpoint_kw,
