@@ -16,6 +16,14 @@ through a QR factorization of ``[J, r]`` (never forming ``J'J``; its ``R`` also 
 the gradient ``J'r`` and the column norms) and one SVD of the small scaled ``R`` per
 iteration, which solves the system for every damping that iteration tries; the damping
 ``mu`` is updated by Nielsen's rule (Madsen, Nielsen and Tingleff, 2004, sec. 3.2).
+
+Gauss-Newton's ``J'J`` leaves out ``S = sum_k r_k d^2 r_k/dtheta^2``, which is not small
+for an output-error fit whose residuals are mostly model error, not noise: there
+Gauss-Newton converges only linearly (the cost falling by a constant factor per
+iteration). As NL2SOL does (Dennis, Gay and Welsch, ACM TOMS 7, 1981), a secant
+approximation of ``S`` is kept, and each iteration uses the model, ``J'J`` or
+``J'J + S``, that predicted the last reduction better; an augmented step that fails
+falls back to Gauss-Newton's at the same damping.
 """
 
 from __future__ import annotations
@@ -150,6 +158,47 @@ def _damped_solver(r_mat: FloatArray, qtr: FloatArray,
     return solve
 
 
+def _augmented_solver(jtj: FloatArray, second: FloatArray, grad: FloatArray,
+                      d: FloatArray) -> Callable[[float], FloatArray] | None:
+    """``s(mu) = -(J'J + S + mu D'D)^-1 J'r`` from one eigendecomposition, or None.
+
+    None where ``J'J + S`` (scaled by ``D``) is not positive definite: the augmented
+    model then has no minimum and Gauss-Newton's is used instead.
+    """
+    scaled = (jtj + second) / np.outer(d, d)
+    lam, vec = np.linalg.eigh((scaled + scaled.T) / 2.0)
+    if lam.size == 0 or not lam[0] > 0:
+        return None
+    coef = vec.T @ (grad / d)
+
+    def solve(mu: float) -> FloatArray:
+        out: FloatArray = -(vec @ (coef / (lam + mu))) / d
+        return out
+
+    return solve
+
+
+def _secant_update(second: FloatArray, step: FloatArray, y_sharp: FloatArray,
+                   y_full: FloatArray) -> FloatArray:
+    """NL2SOL's sized structured secant update of ``S`` (Dennis, Gay and Welsch 1981).
+
+    ``S`` approximates ``sum_k r_k d^2 r_k/dtheta^2``, the part of the Hessian that
+    Gauss-Newton leaves out. Sized by ``min(1, |s'y#| / |s'Ss|)``, then the symmetric
+    rank-two update with ``S+ s = y#``, where ``y# = (J+ - J)' r+`` and ``y = J+'r+ - J'r``;
+    unchanged (only sized) where ``y's <= 0``.
+    """
+    s_s = float(step @ second @ step)
+    if s_s > 0:
+        second = second * min(1.0, abs(float(step @ y_sharp)) / s_s)
+    ys = float(y_full @ step)
+    if not ys > 0:
+        return second
+    z = y_sharp - second @ step
+    zy = np.outer(z, y_full)
+    out: FloatArray = second + (zy + zy.T) / ys - float(z @ step) * np.outer(y_full, y_full) / ys**2
+    return out
+
+
 def _as_bound(bound: FloatArray | None, p: int, fill: float, name: str) -> FloatArray:
     if bound is None:
         return np.full(p, fill)
@@ -193,6 +242,9 @@ def levenberg_marquardt(
     callback: Callable[[int, float], None] | None = None,
 ) -> LMResult:
     """Minimize ``sum r(theta)^2`` by Levenberg-Marquardt with exact Jacobians.
+
+    Each iteration takes the Gauss-Newton or the NL2SOL-augmented model (see the module
+    docstring), whichever predicted the last accepted step's reduction better.
 
     Parameters
     ----------
@@ -303,6 +355,8 @@ def levenberg_marquardt(
     message = ""
     iteration = 0
     history = [ssr]
+    second = np.zeros((p, p))  # NL2SOL's S: the second-order part of the Hessian
+    use_augmented = False
     while iteration < max_iterations:
         iteration += 1
         if ssr <= np.finfo(float).tiny:
@@ -330,29 +384,40 @@ def levenberg_marquardt(
             r_aug = triangular_factor(jac, free, r)
         r_mat = r_aug[:n_free, :n_free]
         qtr = r_aug[:n_free, -1]
-        damped_step = _damped_solver(r_mat, qtr, d)
+        gauss_newton = _damped_solver(r_mat, qtr, d)
+        second_free = second[np.ix_(free, free)]
+        augmented = (_augmented_solver(r_mat.T @ r_mat, second_free, grad[free], d)
+                     if use_augmented else None)
         theta_norm = float(np.sqrt(theta @ theta))
         accepted = False
         for _ in range(_MAX_REJECTIONS):
             step = np.zeros(p)
-            step[free] = damped_step(mu)
+            step[free] = (augmented or gauss_newton)(mu)
             trial = feasible(theta + step)
             step = trial - theta
             step_small = float(np.sqrt(step @ step)) <= xtol * (xtol + theta_norm)
+            lin = qtr + r_mat @ step[free]
+            predicted_gn = float(qtr @ qtr - lin @ lin)
+            predicted_aug = predicted_gn - float(step[free] @ second_free @ step[free])
+            predicted = predicted_gn if augmented is None else predicted_aug
             evaluated = _evaluate(fun, trial)
             ssr_new = sum_of_squares(evaluated[0]) if evaluated is not None else np.inf
             jac_new = (_jacobian(evaluated[1], n, p)
                        if evaluated is not None and ssr_new < ssr else None)
             if evaluated is not None and jac_new is not None:
-                lin = qtr + r_mat @ step[free]
-                predicted = float(qtr @ qtr - lin @ lin)
                 actual = ssr - ssr_new
                 if predicted > 0:
                     rho = actual / predicted
                     mu *= max(0.1, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu = 2.0
                 small_reduction = actual <= ftol * ssr and 0 <= predicted <= ftol * ssr
-                theta, r, jac, ssr = trial, evaluated[0], jac_new, ssr_new
+                r_new = evaluated[0]
+                grad_new = np.einsum("ij,i->j", jac_new, r_new)
+                second = _secant_update(second, step, grad_new - np.einsum("ij,i->j", jac, r_new),
+                                        grad_new - grad)
+                # the next iteration uses the model that predicted this reduction better
+                use_augmented = abs(predicted_aug - actual) < abs(predicted_gn - actual)
+                theta, r, jac, ssr = trial, r_new, jac_new, ssr_new
                 accepted = True
                 if small_reduction:
                     converged = True
@@ -361,6 +426,10 @@ def levenberg_marquardt(
                     converged = True
                     message = f"step size below xtol = {xtol:g} (relative to |theta|)"
                 break
+            if augmented is not None:  # the augmented model failed: Gauss-Newton's, same mu
+                augmented = None
+                use_augmented = False
+                continue
             if step_small:
                 converged = True
                 message = (
