@@ -29,6 +29,7 @@ import math
 import sys
 from collections import deque
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -92,6 +93,12 @@ class MismatchStats:
         ``|mean_z| > z_limit`` or ``|disturbance_kw| > disturbance_limit_kw``.
     drifted :
         ``variance_ratio > variance_limit`` or ``|lag1| > z_limit / sqrt(n)``.
+
+    Notes
+    -----
+    `InnovationMonitor` makes one per controller step, and most are never read: it hands
+    out records holding the window's sums, whose fields are all computed at the first
+    read of one (`window_statistics`), with the same values.
     """
 
     n_samples: int
@@ -108,6 +115,53 @@ class MismatchStats:
     def flagged(self) -> bool:
         """True if either flag is raised."""
         return self.biased or self.drifted
+
+    if not TYPE_CHECKING:  # (type checkers still see only the fields)
+        def __getattr__(self, name: str) -> Any:
+            # Reached only for a field not in __dict__ yet: a record of the sums (class notes).
+            sums = None if name.startswith("__") else self.__dict__.pop("_window_sums", None)
+            if sums is None:
+                raise AttributeError(f"'MismatchStats' object has no attribute {name!r}")
+            self.__dict__.update(window_statistics(*sums))
+            return getattr(self, name)
+
+
+def window_statistics(
+    n: int, total: float, total_sq: float, n_pairs: int, total_pairs: float,
+    disturbance_kw: float, monitor: InnovationMonitor,
+) -> dict[str, Any]:
+    """Every field of `MismatchStats`, in order, from the window's running sums.
+
+    Parameters
+    ----------
+    n, total, total_sq :
+        Innovations in the window, their sum [kW] and sum of squares [kW^2].
+    n_pairs, total_pairs :
+        Consecutive pairs in the window and the sum of their products [kW^2].
+    disturbance_kw :
+        The disturbance estimate's steady power effect [kW].
+    monitor :
+        The thresholds and ``sigma_kw``.
+    """
+    if n == 0:
+        return {"n_samples": 0, "mean_kw": 0.0, "std_kw": 0.0, "mean_z": 0.0,
+                "variance_ratio": 0.0, "lag1_correlation": 0.0,
+                "disturbance_kw": disturbance_kw, "biased": False, "drifted": False}
+    mean = total / n
+    var = max(0.0, total_sq / n - mean * mean)
+    sigma = monitor.sigma_kw
+    mean_z = mean / (sigma / math.sqrt(n))
+    var_ratio = var / (sigma * sigma)
+    lag1 = (total_pairs / n_pairs - mean * mean) / var if n_pairs > 0 and var > 0.0 else 0.0
+    enough = n >= monitor.min_samples
+    d_flag = (monitor.disturbance_limit_kw is not None
+              and abs(disturbance_kw) > monitor.disturbance_limit_kw)
+    biased = d_flag or (enough and abs(mean_z) > monitor.z_limit)
+    drifted = enough and (var_ratio > monitor.variance_limit
+                          or abs(lag1) * math.sqrt(n) > monitor.z_limit)
+    return {"n_samples": n, "mean_kw": mean, "std_kw": math.sqrt(var), "mean_z": mean_z,
+            "variance_ratio": var_ratio, "lag1_correlation": lag1,
+            "disturbance_kw": disturbance_kw, "biased": biased, "drifted": drifted}
 
 
 class InnovationMonitor:
@@ -127,6 +181,9 @@ class InnovationMonitor:
         Threshold on ``variance_ratio``.
     disturbance_limit_kw :
         Threshold on ``|disturbance_kw|``; None disables that flag.
+
+    The thresholds are fixed at construction: the records it hands out read them when
+    first read themselves.
     """
 
     def __init__(self, *, window_samples: int, sigma_kw: float, min_samples: int = 30,
@@ -186,34 +243,13 @@ class InnovationMonitor:
         return self.stats(disturbance_kw)
 
     def stats(self, disturbance_kw: float) -> MismatchStats:
-        """Statistics of the current window."""
-        n = len(self._buf)
-        if n == 0:
-            return record_from_fields(MismatchStats, {
-                "n_samples": 0, "mean_kw": 0.0, "std_kw": 0.0, "mean_z": 0.0,
-                "variance_ratio": 0.0, "lag1_correlation": 0.0,
-                "disturbance_kw": disturbance_kw, "biased": False, "drifted": False})
+        """Statistics of the current window (computed when first read, `MismatchStats`)."""
         # The running sums are recomputed from the window once per window length, so a
         # huge value that left the window cannot leave rounding residue behind for long.
-        mean = self._sum / n
-        var = max(0.0, self._sum2 / n - mean * mean)
-        sigma = self.sigma_kw
-        mean_z = mean / (sigma / math.sqrt(n))
-        var_ratio = var / (sigma * sigma)
-        m = len(self._pairs)
-        lag1 = (self._sum_pair / m - mean * mean) / var if m > 0 and var > 0.0 else 0.0
-        enough = n >= self.min_samples
-        d_flag = (self.disturbance_limit_kw is not None
-                  and abs(disturbance_kw) > self.disturbance_limit_kw)
-        biased = d_flag or (enough and abs(mean_z) > self.z_limit)
-        drifted = enough and (var_ratio > self.variance_limit
-                              or abs(lag1) * math.sqrt(n) > self.z_limit)
-        # Every field, in the class's order (`record_from_fields`): once per controller step.
-        return record_from_fields(MismatchStats, {
-            "n_samples": n, "mean_kw": mean, "std_kw": math.sqrt(var), "mean_z": mean_z,
-            "variance_ratio": var_ratio, "lag1_correlation": lag1,
-            "disturbance_kw": disturbance_kw, "biased": biased, "drifted": drifted})
+        return record_from_fields(MismatchStats, {"_window_sums": (
+            len(self._buf), self._sum, self._sum2, len(self._pairs), self._sum_pair,
+            disturbance_kw, self)})
 
 
 __all__ = ["NOISE_FREE_STD_FRACTION", "InnovationMonitor", "MismatchStats",
-           "monitored_noise_std_kw"]
+           "monitored_noise_std_kw", "window_statistics"]

@@ -244,6 +244,7 @@ def test_step_records_name_every_field_in_order(
                             setpoint=1.0, disturbance=0.0, w_min=-10.0, w_max=10.0)
     records = [(solution, QPSolution), (target, Target)]
     if mode != "off":
+        assert last.mismatch is not None and last.mismatch.n_samples >= 0  # computed when read
         records.append((last.mismatch, MismatchStats))
     for record, cls in records:
         assert list(vars(record)) == [f.name for f in dataclasses.fields(cls)]

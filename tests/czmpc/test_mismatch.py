@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import math
+import pickle
 
 import numpy as np
 import pytest
 
-from czmpc.mismatch import InnovationMonitor
+from czmpc.mismatch import InnovationMonitor, MismatchStats
 
 SIGMA_KW = 0.0134
 WINDOW = 150
@@ -94,3 +97,24 @@ def test_a_huge_value_leaves_no_residue_once_out_of_the_window() -> None:
 def test_memory_is_bounded_by_the_window() -> None:
     monitor = _feed(np.ones(10 * WINDOW))
     assert monitor.stats(0.0).n_samples == WINDOW
+
+
+def test_records_read_late_hold_the_window_they_were_made_from(rng: np.random.Generator) -> None:
+    # The monitor hands out records whose fields are computed when first read: a record
+    # read after the monitor moved on must still describe its own window.
+    e = SIGMA_KW * rng.standard_normal(400) + 0.002
+    monitor = InnovationMonitor(window_samples=WINDOW, sigma_kw=SIGMA_KW, disturbance_limit_kw=0.5)
+    kept = [monitor.update(float(v), disturbance_kw=0.01 * k) for k, v in enumerate(e)]
+    for k in (0, 37, 149, 150, 399):
+        stats = kept[k]
+        last = e[max(0, k + 1 - WINDOW): k + 1]
+        assert stats.n_samples == last.size and stats.disturbance_kw == 0.01 * k
+        np.testing.assert_allclose(stats.mean_kw, last.mean(), rtol=STATS_RTOL, atol=1e-15,
+                                   err_msg="reason: same sums, different order")
+    copied = pickle.loads(pickle.dumps(kept[200]))
+    assert copied == kept[200] and copy.copy(kept[201]) == kept[201]
+    assert dataclasses.replace(kept[202]) == kept[202] and repr(kept[203]).startswith("MismatchStats(")
+    assert list(vars(kept[0])) == [f.name for f in dataclasses.fields(MismatchStats)]
+    with pytest.raises(AttributeError):
+        kept[204].no_such_field  # noqa: B018
+    assert InnovationMonitor(window_samples=5, sigma_kw=1.0).stats(0.3).n_samples == 0
