@@ -445,7 +445,7 @@ def _held_lag_responses(x: FloatArray, den: FloatArray, lags: range,
     """
     x0 = float(x[0])
     v = lfilter([1.0], den, x - x0)
-    out = np.empty((x.size, len(lags)))
+    out = np.empty((x.size, len(lags)), order="F")
     for col, lag in enumerate(lags):
         out[:lag, col] = 0.0
         out[lag:, col] = v[: x.size - lag]
@@ -527,7 +527,7 @@ def _stacked_problem(problems: list[Problem], n_model: int, n_state: int) -> Pro
             parts.append(problem(np.concatenate([theta[:n_model], theta[lo : lo + n_state]])))
 
         def jacobian() -> FloatArray:
-            full = np.zeros((sum(r.size for r, _ in parts), n_theta))
+            full = np.zeros((sum(r.size for r, _ in parts), n_theta), order="F")
             row = 0
             for s, (r, make) in enumerate(parts):
                 jac = make()
@@ -573,7 +573,7 @@ def _oe_problem(
         def jacobian() -> FloatArray:
             h = _impulse_response(f, n)
             step = np.cumsum(h)
-            jac = np.empty((n, nb + nf + (nf if estimate else 0)))
+            jac = np.empty((n, nb + nf + (nf if estimate else 0)), order="F")
             jac[:, :nb] = -_held_lag_responses(u, f, range(nk, nk + nb), step)
             if nf:
                 # d eps/d f_i = (q^-i yhat)/F: zero past (estimated) or y_0 held
@@ -617,7 +617,7 @@ def _armax_problem(
         def jacobian() -> FloatArray:
             h = _impulse_response(c, n)
             step = np.cumsum(h)
-            jac = np.empty((n, n_model + (nc if estimate else 0)))
+            jac = np.empty((n, n_model + (nc if estimate else 0)), order="F")
             if na:
                 jac[:, :na] = _held_lag_responses(y, c, range(1, na + 1), step)
             jac[:, na : na + nb] = -_held_lag_responses(u, c, range(nk, nk + nb), step)

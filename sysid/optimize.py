@@ -357,6 +357,7 @@ def levenberg_marquardt(
     history = [ssr]
     second = np.zeros((p, p))  # NL2SOL's S: the second-order part of the Hessian
     use_augmented = False
+    pending: tuple[FloatArray, FloatArray, FloatArray] | None = None
     while iteration < max_iterations:
         iteration += 1
         if ssr <= np.finfo(float).tiny:
@@ -367,6 +368,10 @@ def levenberg_marquardt(
         r_aug = triangular_factor(jac, None, r)
         grad = r_aug[:, :p].T @ r_aug[:, p]
         col_norms = np.sqrt(np.einsum("ij,ij->j", r_aug[:, :p], r_aug[:, :p]))
+        if pending is not None:  # y# = (J - J_old)'r and y = J'r - J_old'r_old
+            step_old, old_jac_r, old_grad = pending
+            second = _secant_update(second, step_old, grad - old_jac_r, grad - old_grad)
+            pending = None
         at_lo = (theta <= lo) & (grad > 0)
         at_hi = (theta >= hi) & (grad < 0)
         free = ~(at_lo | at_hi) & (col_norms > 0)
@@ -412,9 +417,8 @@ def levenberg_marquardt(
                 nu = 2.0
                 small_reduction = actual <= ftol * ssr and 0 <= predicted <= ftol * ssr
                 r_new = evaluated[0]
-                grad_new = np.einsum("ij,i->j", jac_new, r_new)
-                second = _secant_update(second, step, grad_new - np.einsum("ij,i->j", jac, r_new),
-                                        grad_new - grad)
+                # the secant update waits for the next iteration's J'r (from its R)
+                pending = (step, r_new @ jac, grad)
                 # the next iteration uses the model that predicted this reduction better
                 use_augmented = abs(predicted_aug - actual) < abs(predicted_gn - actual)
                 theta, r, jac, ssr = trial, r_new, jac_new, ssr_new
