@@ -513,6 +513,9 @@ class MPCQP:
         # copies of l and u, a namespace of every info field), which cost a third of a
         # bare solve (BENCHMARKS.md, "MPC step against a bare OSQP solve").
         self._ext = self._solver._solver
+        # Its info and solution: the same objects on every access, read after each solve.
+        self._info = self._ext.info
+        self._solution = self._ext.solution
         # Without polishing, the returned x and z are the ADMM iterates, z inside [l, u],
         # so a primal residual |A x - z| below the tolerance bounds the violation.
         self._residual_bounds_violation = not options.polishing
@@ -634,9 +637,9 @@ class MPCQP:
             ext.solve()
         except osqp.OSQPException as exc:
             return self._failed(f"osqp error: {exc}")
-        info = ext.info
+        info = self._info
         status_val = info.status_val
-        x = ext.solution.x
+        x = self._solution.x
         status = info.status
         usable = status_val == _SOLVED or status_val == _SOLVED_INACCURATE
         # Every variable enters A x, so a residual below the tolerance also means x is finite.
