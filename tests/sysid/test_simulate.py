@@ -10,6 +10,7 @@ from sysid.data import Dataset
 from sysid.errors import SamplingTimeError
 from sysid.model import HammersteinModel
 from sysid.simulate import (
+    equation_errors,
     predict_one_step,
     predict_one_step_arrays,
     prediction_errors_arrays,
@@ -172,3 +173,21 @@ def test_mismatched_sampling_time_is_refused(
                       power_kw=data.power_kw, ts_s=1.0)
     with pytest.raises(SamplingTimeError, match="sampling time 1.0 s but the model has 2.0 s"):
         fn(paper_armax_model, data_1s)  # type: ignore[operator]
+
+
+#: Convolution and lfilter sum the same few products in another order.
+FIR_ATOL = 1e-12
+
+
+@pytest.mark.parametrize(("a", "b"), [([1.0], [0.0, 1.0]), ([1.0, -1.5, 0.7], [0.0, 0.0, 1.0, 0.3]),
+                                      ([1.0, -0.9], [2.0])])
+def test_equation_errors_equal_lfilter_with_the_held_past(
+    rng: np.random.Generator, a: list[float], b: list[float],
+) -> None:
+    y = 3.0 + rng.standard_normal(300)
+    u = -2.0 + rng.standard_normal(300)
+    zy = lfiltic(a, [1.0], [], np.full(len(a) - 1, y[0]))
+    zu = lfiltic(b, [1.0], [], np.full(len(b) - 1, u[0]))
+    ref = lfilter(a, [1.0], y, zi=zy)[0] - lfilter(b, [1.0], u, zi=zu)[0]
+    np.testing.assert_allclose(equation_errors(np.array(a), np.array(b), y, u), ref,
+                               rtol=0, atol=FIR_ATOL)
