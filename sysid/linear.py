@@ -356,7 +356,7 @@ def arx_least_squares(
         a=a,
         b=b,
         theta=theta,
-        std_errors=parameter_std_errors(phi, residuals),
+        std_errors=parameter_std_errors(phi, residuals, factor=r_mat * col_scale),
         residuals=residuals,
         first_sample=n0,
         na=na,

@@ -475,7 +475,8 @@ def levenberg_marquardt(
     )
 
 
-def parameter_std_errors(jacobian: FloatArray, residuals: FloatArray) -> FloatArray:
+def parameter_std_errors(jacobian: FloatArray, residuals: FloatArray, *,
+                         factor: FloatArray | None = None) -> FloatArray:
     """Standard errors ``sqrt(diag(s^2 (J'J)^-1))`` of least-squares parameters.
 
     Parameters
@@ -484,6 +485,9 @@ def parameter_std_errors(jacobian: FloatArray, residuals: FloatArray) -> FloatAr
         ``dr/dtheta`` at the optimum, shape ``(N, p)``.
     residuals :
         Residuals at the optimum, shape ``(N,)``.
+    factor :
+        `triangular_factor` of `jacobian` if the caller has it (the first ``p`` columns
+        of the factor of ``[J, r]`` are it), or None to factor here.
 
     Returns
     -------
@@ -506,7 +510,7 @@ def parameter_std_errors(jacobian: FloatArray, residuals: FloatArray) -> FloatAr
         return np.full(p, np.inf)
     s2 = sum_of_squares(r) / (n - p)
     # J = Q R, so J and the small R share singular values and right singular vectors.
-    _, sing, vt = np.linalg.svd(triangular_factor(jac))
+    _, sing, vt = np.linalg.svd(triangular_factor(jac) if factor is None else factor)
     tol = max(n, p) * np.finfo(float).eps * (float(sing[0]) if sing.size else 0.0)
     good = sing > tol
     if not np.any(good):

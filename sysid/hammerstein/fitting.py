@@ -67,16 +67,19 @@ def split_segments(
     return [(y[lo:hi], ds[lo:hi]) for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]
 
 
-def covariance_from_jacobian(jacobian: FloatArray, residuals: FloatArray) -> FloatArray:
+def covariance_from_jacobian(jacobian: FloatArray, residuals: FloatArray, *,
+                             factor: FloatArray | None = None) -> FloatArray:
     """``sigma^2 (J'J)^-1`` with ``sigma^2 = sum r^2 / (N - p)``, by the SVD of ``J``'s ``R``.
 
     Directions the data do not determine (singular values below ``N eps s_max``) are
     left out (pseudo-inverse); their standard errors come out as `inf` from
-    `sysid.optimize.parameter_std_errors` instead.
+    `sysid.optimize.parameter_std_errors` instead. ``factor``: that ``R`` if the caller
+    has it (`sysid.optimize.triangular_factor`), or None to factor here.
     """
     n, p = jacobian.shape
     sigma2 = float(residuals @ residuals) / max(n - p, 1)
-    _, sv, vt = np.linalg.svd(triangular_factor(jacobian))  # J = QR: same sv and V
+    r_factor = triangular_factor(jacobian) if factor is None else factor
+    _, sv, vt = np.linalg.svd(r_factor)  # J = QR: same sv and V
     keep = sv > max(n, p) * np.finfo(float).eps * (sv[0] if sv.size else 0.0)
     inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0) ** 2, 0.0)
     out: FloatArray = sigma2 * (vt.T * inv) @ vt
@@ -116,8 +119,9 @@ def _pem(
         ftol=DEFAULT_FTOL if tolerance is None else tolerance,
         xtol=DEFAULT_XTOL if tolerance is None else tolerance,
     )
-    cov = covariance_from_jacobian(lm.jacobian, lm.residuals)[:p, :p]
-    std = parameter_std_errors(lm.jacobian, lm.residuals)[:p]
+    factor = triangular_factor(lm.jacobian)
+    cov = covariance_from_jacobian(lm.jacobian, lm.residuals, factor=factor)[:p, :p]
+    std = parameter_std_errors(lm.jacobian, lm.residuals, factor=factor)[:p]
     return lm, cov, std, lm.theta[p:]
 
 

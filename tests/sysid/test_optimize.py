@@ -7,7 +7,7 @@ import pytest
 from scipy.optimize import least_squares
 
 from sysid.errors import IdentificationError
-from sysid.optimize import levenberg_marquardt, parameter_std_errors
+from sysid.optimize import levenberg_marquardt, parameter_std_errors, triangular_factor
 
 #: Rosenbrock's minimum (1, 1) is met to the xtol test's scale (1e-10 relative) and better.
 ROSENBROCK_ATOL = 1e-8
@@ -131,6 +131,11 @@ def test_std_errors_equal_textbook_formula(rng: np.random.Generator) -> None:
     expected = np.sqrt(np.diag(s2 * np.linalg.inv(jac.T @ jac)))
     np.testing.assert_allclose(
         parameter_std_errors(jac, r), expected, rtol=STD_ERROR_RTOL, atol=0
+    )
+    # the first p columns of the factor of [J, r] are J's factor
+    factor = triangular_factor(jac, None, r)[:3, :3]
+    np.testing.assert_allclose(
+        parameter_std_errors(jac, r, factor=factor), expected, rtol=STD_ERROR_RTOL, atol=0
     )
 
 
