@@ -243,6 +243,7 @@ class Estimator:
         self._ABG_C = np.vstack([ABG, self._C @ ABG])
         self._v = np.empty(model.n_states + 2)
         self._v_z = self._v[:-2]  # a view, taken once
+        self._eps = np.array(0.0)  # eps as a 0-d array: numpy converts a float on every call
         self._history: deque[_Trace] = deque(maxlen=history_samples)
         self.restart(np.zeros(model.n_states))
 
@@ -292,7 +293,9 @@ class Estimator:
         if not abs(eps) <= MAX_INNOVATION_KW:
             self.gap += 1
             return False
-        z = self._M * eps
+        e = self._eps
+        e[()] = eps
+        z = np.multiply(self._M, e)
         z += self._z  # = z + M eps, in place
         self._z = z
         self._z_shared = False

@@ -516,6 +516,7 @@ class MPCQP:
         # Its info and solution: the same objects on every access, read after each solve.
         self._info = self._ext.info
         self._solution = self._ext.solution
+        self._status_names: dict[int, str] = {}  # OSQP's status string by value, as seen
         # Without polishing, the returned x and z are the ADMM iterates, z inside [l, u],
         # so a primal residual |A x - z| below the tolerance bounds the violation.
         self._residual_bounds_violation = not options.polishing
@@ -640,7 +641,9 @@ class MPCQP:
         info = self._info
         status_val = info.status_val
         x = self._solution.x
-        status = info.status
+        status = self._status_names.get(status_val)
+        if status is None:
+            status = self._status_names[status_val] = info.status
         usable = status_val == _SOLVED or status_val == _SOLVED_INACCURATE
         # Every variable enters A x, so a residual below the tolerance also means x is finite.
         if usable and not (self._residual_bounds_violation and info.prim_res <= self.bound_tol_kw):

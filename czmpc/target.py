@@ -122,12 +122,13 @@ def compute_target(
         Input bounds [kW-equivalent], ``w_min < w_max``.
     """
     g = ssm.static_gain
-    if ssm.disturbance_model == "input":
+    is_input = ssm.disturbance_model == "input"
+    if is_input:
         w_free = setpoint / g - disturbance
     else:
         w_free = (setpoint - disturbance) / g
     w_s = min(w_max, max(w_min, w_free))
-    if ssm.disturbance_model == "input":
+    if is_input:
         x_s = ssm.xw * (w_s + disturbance)
         y_s = g * (w_s + disturbance)
     else:
