@@ -139,14 +139,6 @@ class HammersteinOrders:
         return a, beta, c, poly
 
 
-def _lag(x: FloatArray, lag: int) -> FloatArray:
-    """``x[k - lag]`` with zeros before the start; works on 1-D and column arrays."""
-    out = np.zeros_like(x)
-    if lag < x.shape[0]:
-        out[lag:] = x[: x.shape[0] - lag]
-    return out
-
-
 def _tail_sums(coef: FloatArray, n: int) -> FloatArray:
     """``s_k = sum_{j > k} coef_j`` for ``k = 0..n-1`` (``coef_j = 0`` beyond its end)."""
     padded = np.zeros(max(n + 1, coef.size))
@@ -155,34 +147,27 @@ def _tail_sums(coef: FloatArray, n: int) -> FloatArray:
 
 
 def _fir(coef: FloatArray, x: FloatArray) -> FloatArray:
-    """``sum_j coef_j x[k - j]`` with a zero past, along the first axis (1-D or columns).
+    """``sum_j coef_j x[k - j]`` with a zero past, of a 1-D record.
 
-    What ``lfilter(coef, [1.0], x, axis=0)`` computes, by `numpy.convolve`: a tenth of its
-    time on these records, and every residual evaluation has two.
+    What ``lfilter(coef, [1.0], x)`` computes, by `numpy.convolve`: a tenth of its time
+    on these records, and every residual evaluation has two.
     """
-    if x.ndim == 1:
-        return np.convolve(x, coef)[: x.size]
-    return np.column_stack([np.convolve(col, coef)[: x.shape[0]] for col in x.T])
+    out: FloatArray = np.convolve(x, coef)[: x.size]
+    return out
 
 
-def _pulse_responses(den: FloatArray, n: int, n_samples: int) -> FloatArray:
-    """``(n_samples, n)``: column ``j`` is ``1/den``'s response to a unit pulse at sample ``j``.
-
-    One impulse response, delayed: a time-invariant filter from rest commutes with the
-    delay, so the columns equal filtering each pulse (bit for bit) at ``1/n`` the cost.
-    """
+def _impulse_response(den: FloatArray, n_samples: int) -> FloatArray:
+    """First ``n_samples`` of the impulse response of ``1/den``: a delayed pulse's response
+    is it delayed (a time-invariant filter from rest commutes with the delay)."""
     pulse = np.zeros(n_samples)
     pulse[:1] = 1.0
-    h = lfilter([1.0], den, pulse)
-    return np.column_stack([_lag(h, j) for j in range(n)]) if n else np.zeros((n_samples, 0))
+    out: FloatArray = lfilter([1.0], den, pulse)
+    return out
 
 
-#: A segment's Jacobian, made on request: ``(d r/d theta_model, d r/d transient)``.
-SegmentJacobian = Callable[[], tuple[FloatArray, FloatArray]]
-
-
-def _columns(cols: Sequence[FloatArray], n_samples: int) -> FloatArray:
-    return np.column_stack(cols) if cols else np.zeros((n_samples, 0))
+#: A segment's Jacobian, made on request: ``[d r/d theta_model, d r/d transient]`` in one
+#: column-major block (the transient's columns only under ``"estimate"``).
+SegmentJacobian = Callable[[], FloatArray]
 
 
 def _powers(ds: FloatArray, degree: int) -> FloatArray:
@@ -190,11 +175,44 @@ def _powers(ds: FloatArray, degree: int) -> FloatArray:
     return np.column_stack([ds**i for i in range(1, degree + 1)])
 
 
+def _put_lag(out: FloatArray, col: int, x: FloatArray, lag: int, sign: float = 1.0) -> None:
+    """``out[:, col] = sign * x[k - lag]`` with zeros before the start."""
+    out[:lag, col] = 0.0
+    out[lag:, col] = x[: x.size - lag] if sign == 1.0 else -x[: x.size - lag]
+
+
+def _jacobian_block(n_samples: int, n_model: int, n_state: int,
+                    initial_state: InitialState) -> FloatArray:
+    return np.empty((n_samples, n_model + (n_state if initial_state == "estimate" else 0)),
+                    order="F")
+
+
+def _transient_columns(out: FloatArray, den: FloatArray, n_model: int, n_state: int,
+                       initial_state: InitialState, d_state: list[FloatArray],
+                       sign: float) -> None:
+    """The transient's part of a segment's Jacobian, from one impulse response of ``1/den``.
+
+    ``"estimate"``: its columns ``sign * q^-j h``. ``"held"``: the held past enters as the
+    first ``n_state`` samples of the filter input, ``d_state[i]`` their derivatives by
+    model parameter ``i``, so ``out[:, i] += sign * sum_j d_state[i][j] q^-j h``.
+    """
+    if initial_state == "zero" or n_state == 0:
+        return
+    h = _impulse_response(den, out.shape[0])
+    if initial_state == "estimate":
+        for j in range(n_state):
+            _put_lag(out, n_model + j, h, j, sign)
+        return
+    for i, dh in enumerate(d_state):
+        for k in np.flatnonzero(dh).tolist():
+            out[k:, i] += sign * float(dh[k]) * h[: h.size - k]
+
+
 def _oe_segment(
     orders: HammersteinOrders, theta: FloatArray, h_free: FloatArray | None, y: FloatArray,
     feats: FloatArray, initial_state: InitialState,
 ) -> tuple[FloatArray, SegmentJacobian]:
-    """Simulation errors of one segment and the maker of their Jacobian and pulse block.
+    """Simulation errors of one segment and the maker of their Jacobian.
 
     The sensitivities are shifts and FIR sums of three filterings by ``1/F``: of the
     input powers ``ds^i`` (``q^-j w / F`` is the shift of their combination ``w/F``,
@@ -215,27 +233,29 @@ def _oe_segment(
     src[: min(n, src.size)] += h[: src.size]
     yhat = lfilter([1.0], f, src)
 
-    def jacobian() -> tuple[FloatArray, FloatArray]:
+    def jacobian() -> FloatArray:
+        # d eps/d theta = -(d yhat/d theta): every column written with its sign
         feats_f = lfilter([1.0], f, feats, axis=0)
         w_f = feats_f @ poly
         yhat_f = lfilter([1.0], f, yhat)
-        cols = [_lag(w_f, j) for j in range(nk + 1, nk + nb)]
-        bw_f = _fir(beta, feats_f)
-        cols += [bw_f[:, i] for i in range(deg)]
-        cols += [-_lag(yhat_f, i) for i in range(1, orders.na + 1)]
-        sens = _columns(cols, y.size)
-        pulses = (_pulse_responses(f, n, y.size) if initial_state != "zero"
-                  else np.zeros((y.size, 0)))
-        if initial_state == "held" and n > 0 and cols:
-            # the held past enters as the first n samples of the filter input: their
-            # response is the pulse block times d h/d theta
-            k_idx = np.arange(n)
-            tail_beta = _tail_sums(beta, n)
-            dh = [np.where(k_idx < j, w0, 0.0) for j in range(nk + 1, nk + nb)]
-            dh += [ds0**i * tail_beta for i in range(1, deg + 1)]
-            dh += [np.where(k_idx < i, -y0, 0.0) for i in range(1, orders.na + 1)]
-            sens += pulses @ np.column_stack(dh)
-        return -sens, (-pulses if initial_state == "estimate" else np.zeros((y.size, 0)))
+        out = _jacobian_block(y.size, orders.n_model, n, initial_state)
+        col = 0
+        for j in range(nk + 1, nk + nb):
+            _put_lag(out, col, w_f, j, -1.0)
+            col += 1
+        for i in range(deg):
+            out[:, col] = -_fir(beta, feats_f[:, i])
+            col += 1
+        for i in range(1, orders.na + 1):
+            _put_lag(out, col, yhat_f, i)
+            col += 1
+        k_idx = np.arange(n)
+        tail_beta = _tail_sums(beta, n)
+        d_state = [np.where(k_idx < j, w0, 0.0) for j in range(nk + 1, nk + nb)]
+        d_state += [ds0**i * tail_beta for i in range(1, deg + 1)]
+        d_state += [np.where(k_idx < i, -y0, 0.0) for i in range(1, orders.na + 1)]
+        _transient_columns(out, f, orders.n_model, n, initial_state, d_state, -1.0)
+        return out
 
     return y - yhat, jacobian
 
@@ -264,29 +284,35 @@ def _armax_segment(
     v[: min(n, v.size)] += g[: v.size]
     e = lfilter([1.0], c, v)
 
-    def jacobian() -> tuple[FloatArray, FloatArray]:
+    def jacobian() -> FloatArray:
         feats_c = lfilter([1.0], c, feats, axis=0)
         w_c = feats_c @ poly
         e_c = lfilter([1.0], c, e) if nc else e
         y_c = lfilter([1.0], c, y) if na else y
-        cols = [-_lag(w_c, j) for j in range(nk + 1, nk + nb)]
-        bw_c = _fir(beta, feats_c)
-        cols += [-bw_c[:, i] for i in range(deg)]
-        c_cols = [-_lag(e_c, i) for i in range(1, nc + 1)]
-        cols += [_lag(y_c, i) + (c_cols[i - 1] if i <= nc else 0.0) for i in range(1, na + 1)]
-        cols += c_cols
-        sens = _columns(cols, y.size)
-        pulses = (_pulse_responses(c, n, y.size) if initial_state != "zero"
-                  else np.zeros((y.size, 0)))
-        if initial_state == "held" and n > 0:
-            k_idx = np.arange(n)
-            tail_beta = _tail_sums(beta, n)
-            dg = [np.where(k_idx < j, -w0, 0.0) for j in range(nk + 1, nk + nb)]
-            dg += [-(ds0**i) * tail_beta for i in range(1, deg + 1)]
-            dg += [np.where(k_idx < i, y0, 0.0) for i in range(1, na + 1)]
-            dg += [np.zeros(n)] * nc
-            sens += pulses @ np.column_stack(dg)
-        return sens, (pulses if initial_state == "estimate" else np.zeros((y.size, 0)))
+        out = _jacobian_block(y.size, orders.n_model, n, initial_state)
+        col = 0
+        for j in range(nk + 1, nk + nb):
+            _put_lag(out, col, w_c, j, -1.0)
+            col += 1
+        for i in range(deg):
+            out[:, col] = -_fir(beta, feats_c[:, i])
+            col += 1
+        for i in range(1, na + 1):  # c_i = a_i + k_i: d/d a_i also moves C
+            _put_lag(out, col, y_c, i)
+            if i <= nc:
+                out[i:, col] -= e_c[: y.size - i]
+            col += 1
+        for i in range(1, nc + 1):
+            _put_lag(out, col, e_c, i, -1.0)
+            col += 1
+        k_idx = np.arange(n)
+        tail_beta = _tail_sums(beta, n)
+        d_state = [np.where(k_idx < j, -w0, 0.0) for j in range(nk + 1, nk + nb)]
+        d_state += [-(ds0**i) * tail_beta for i in range(1, deg + 1)]
+        d_state += [np.where(k_idx < i, y0, 0.0) for i in range(1, na + 1)]
+        d_state += [np.zeros(n)] * nc
+        _transient_columns(out, c, orders.n_model, n, initial_state, d_state, 1.0)
+        return out
 
     return e, jacobian
 
@@ -315,14 +341,16 @@ def _prepare(orders: HammersteinOrders, segments: Sequence[Segment]) -> list[Seg
 def _stacked_jacobian(orders: HammersteinOrders, terms: list[tuple[FloatArray, SegmentJacobian]],
                       n_theta: int, initial_state: InitialState) -> FloatArray:
     """The Jacobian over all segments: shared model columns, each segment's own transient."""
+    if len(terms) == 1:  # one segment: its block is the whole Jacobian
+        return terms[0][1]()
     p_model, n = orders.n_model, orders.n_state
     jac = np.zeros((sum(r.size for r, _ in terms), n_theta), order="F")
     row = 0
     for s, (res, make) in enumerate(terms):
-        sens, pulses = make()
-        jac[row : row + res.size, :p_model] = sens
+        block = make()
+        jac[row : row + res.size, :p_model] = block[:, :p_model]
         if initial_state == "estimate":
-            jac[row : row + res.size, p_model + s * n : p_model + (s + 1) * n] = pulses
+            jac[row : row + res.size, p_model + s * n : p_model + (s + 1) * n] = block[:, p_model:]
         row += res.size
     return jac
 
@@ -389,7 +417,7 @@ def estimate_transients(
         # r = r0 + P h is affine in h: h = argmin |r0 + P h|
         r0, make = kernel(orders, theta_model, np.zeros(n), y, _powers(ds, orders.degree),
                           "estimate")
-        pulses = make()[1]
+        pulses = make()[:, orders.n_model :]
         m = y.size if fit_samples is None else fit_samples
         out.append(np.linalg.lstsq(pulses[:m], -r0[:m], rcond=None)[0])
     return np.concatenate(out)
