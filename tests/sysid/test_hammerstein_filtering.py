@@ -45,15 +45,17 @@ def test_held_residuals_equal_the_greybox_simulator(block: str, rng: np.random.G
 
 @pytest.mark.parametrize("block", ["oe", "armax"])
 @pytest.mark.parametrize("policy", ["held", "zero", "estimate"])
-def test_jacobian_equals_central_differences_over_two_segments(
-    block: str, policy: str, rng: np.random.Generator,
+@pytest.mark.parametrize("n_segments", [1, 2])
+def test_jacobian_equals_central_differences_over_one_and_two_segments(
+    block: str, policy: str, n_segments: int, rng: np.random.Generator,
 ) -> None:
     y, ds = _record(rng)
     orders = HammersteinOrders(block=block, degree=2, nb=3, na=2, nc=1, nk=2)  # type: ignore[arg-type]
     theta = rng.uniform(-0.3, 0.3, orders.n_model)
     if policy == "estimate":
-        theta = np.concatenate([theta, rng.standard_normal(2 * orders.n_state)])
-    segments = [(y[:150], ds[:150]), (y[150:], ds[150:])]
+        theta = np.concatenate([theta, rng.standard_normal(n_segments * orders.n_state)])
+    segments = ([(y, ds)] if n_segments == 1
+                else [(y[:150], ds[:150]), (y[150:], ds[150:])])
     r, jac = segment_residuals(orders, theta, segments, policy)  # type: ignore[arg-type]
     assert jac is not None and jac.shape == (y.size, theta.size)
     numeric = np.empty_like(jac)
