@@ -83,9 +83,9 @@ END_CUTS = {
 #: (the full log's secant 0.605 degC/%, the cut records' local fits 0.48..0.53): what
 #: the data leave open is the model's rest, not the estimator's choice. So identify warns
 #: that such a log does not start at rest (`sysid.criteria.start_at_rest`) and says to log
-#: from a steady state instead. Without the cut, model.json at 5 % / 10 % errs 219.2 and
-#: 1,362 degC^2 on the full log (nb, nf, nk 4, 3, 0 and 4, 2, 0 against the full log's
-#: 4, 3, 3): the choice of structure is not stable under a start cut either (open).
+#: from a steady state instead. The model.json identify writes from the cut logs errs
+#: 219.2 and 1,362 degC^2 on the full log, with nb, nf, nk 4, 3, 0 and 4, 2, 0 against the
+#: full log's 4, 3, 3: its choice of structure is not stable under a start cut (open).
 START_CUT_V_RATIO = 1.25
 START_CUTS = {
     f"tclab_start{pct}": (lambda pct=pct: READERS["tclab"]().segment(
