@@ -216,11 +216,13 @@ def test_a_solution_outside_its_bounds_is_not_used(
                                prim_res=abs(x_value))
         solution = SimpleNamespace(x=np.full(n, x_value))
 
-        def update_data_vec(self, **kwargs: object) -> None: ...
+        def update_data_vec(self, *args: object) -> None: ...
         def warm_start(self, *args: object) -> None: ...
         def solve(self) -> None: ...
 
-    monkeypatch.setattr(mpc.qp, "_ext", FakeSolver())
+    fake = FakeSolver()  # MPCQP keeps the solver object's info and solution objects too
+    for name, value in (("_ext", fake), ("_info", fake.info), ("_solution", fake.solution)):
+        monkeypatch.setattr(mpc.qp, name, value)
     s_prev = mpc.last_step.triac_pct  # type: ignore[union-attr]
     s = mpc.step(45.0, 47.0)
     last = mpc.last_step
