@@ -26,7 +26,7 @@ from typing import Literal
 
 import numpy as np
 from scipy.linalg import solve_triangular
-from scipy.signal import lfilter, lfiltic
+from scipy.signal import lfilter
 
 from sysid._typing import FloatArray
 from sysid.criteria import ballistic_mse, one_step_mse
@@ -50,7 +50,7 @@ from sysid.optimize import (
 )
 from sysid.polynomials import is_stable, reflect_unstable_roots
 from sysid.result import CriterionName, IdentificationResult
-from sysid.simulate import equation_errors, simulate_arrays
+from sysid.simulate import equation_errors, filter_state, simulate_arrays
 
 InitialConditions = Literal["held", "estimated"]
 
@@ -402,7 +402,7 @@ class PemFit:
     initial_state :
         ``w``: the part of the `scipy.signal.lfilter` (direct form II transposed) state of
         ``1/F`` (OE, length ``nf``) or ``1/C`` (ARMAX, length ``nc``) that the samples
-        before the record leave. Held: OE ``lfiltic([1], F, [y_0]*nf)``, ARMAX zeros.
+        before the record leave. Held: OE ``filter_state([1], F, [y_0]*nf)``, ARMAX zeros.
         Estimated: fitted. With several segments, each segment's, concatenated.
     converged, message, n_iterations :
         From the optimizer.
@@ -570,7 +570,7 @@ def _oe_problem(
         b = np.concatenate([np.zeros(nk), theta[:nb]])
         f = np.concatenate([[1.0], theta[nb : nb + nf]])
         if estimate:
-            zi = lfiltic(b, f, np.zeros(nf), u_held)
+            zi = filter_state(b, f, np.zeros(nf), u_held)
             zi[:nf] += theta[nb + nf :]
             yhat = lfilter(b, f, u, zi=zi)[0]
         else:
@@ -702,7 +702,7 @@ def _oe_pem(
     if estimate and nf > 0:
         f0 = np.concatenate([[1.0], project(start)[nb:]])
         start = np.concatenate(
-            [start, *(lfiltic([1.0], f0, np.full(nf, y[lo])) for lo, _ in bounds)])
+            [start, *(filter_state(np.ones(1), f0, np.full(nf, y[lo])) for lo, _ in bounds)])
     problem = _stacked_problem(
         [_oe_problem(y[lo:hi], u[lo:hi], nb, nf, nk, estimate) for lo, hi in bounds],
         n_model, n_state)
@@ -713,7 +713,7 @@ def _oe_pem(
         f"f{i}" for i in range(1, nf + 1)
     )
     held_state = np.concatenate(
-        [lfiltic([1.0], f, np.full(nf, y[lo])) for lo, _ in bounds]) if nf else np.zeros(0)
+        [filter_state(np.ones(1), f, np.full(nf, y[lo])) for lo, _ in bounds]) if nf else np.zeros(0)
     return _finish("oe", lm, n_model, names, (f, b, f), ic, held_state)
 
 

@@ -11,6 +11,7 @@ from sysid.errors import SamplingTimeError
 from sysid.model import HammersteinModel
 from sysid.simulate import (
     equation_errors,
+    filter_state,
     predict_one_step,
     predict_one_step_arrays,
     prediction_errors_arrays,
@@ -191,3 +192,17 @@ def test_equation_errors_equal_lfilter_with_the_held_past(
     ref = lfilter(a, [1.0], y, zi=zy)[0] - lfilter(b, [1.0], u, zi=zu)[0]
     np.testing.assert_allclose(equation_errors(np.array(a), np.array(b), y, u), ref,
                                rtol=0, atol=FIR_ATOL)
+
+
+@pytest.mark.parametrize(("b", "a", "y_past", "x_past"), [
+    ([0.0, 1.2, 0.3], [1.0, -0.9], [1.5], [2.0, 2.0]),
+    ([1.0], [1.0, -1.5, 0.7], [0.4, -0.2], None),
+    ([0.5, 0.1, 0.0, 0.2], [2.0, -1.0], [1.0, 9.0], [1.0]),   # a0 != 1, pasts too long/short
+    ([1.0, 0.4], [1.0], [], [3.0]),
+])
+def test_filter_state_equals_lfiltic(b: list[float], a: list[float], y_past: list[float],
+                                     x_past: list[float] | None) -> None:
+    np.testing.assert_allclose(
+        filter_state(np.array(b), np.array(a), np.array(y_past),
+                     None if x_past is None else np.array(x_past)),
+        lfiltic(b, a, y_past, x_past), rtol=0, atol=FIR_ATOL)
