@@ -252,8 +252,8 @@ def start_at_rest(data: Dataset) -> Check:
     simulated from rest at the first sample misread it, and the record alone may not
     determine the static gain (seen: the TCLab log cut by 5 % at its start, 19 samples
     after a 0 -> 100 % step, moves by 99 % of its span in the 171 samples before its
-    first input change; every model fitted to it errs 3.8 times or more the full log's
-    model on the full log).
+    first input change; no OE or Hammerstein model fitted to it with its initial state
+    and offset estimated comes within 3.8 times the full log's model on the full log).
 
     Parameters
     ----------
