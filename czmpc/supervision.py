@@ -88,7 +88,8 @@ class SetpointShaper:
             ramped = self._ramped + min(self._max_step, max(-self._max_step, delta))
         self._ramped = ramped
         self._filtered += self._alpha * (ramped - self._filtered)
-        return ShapedSetpoint(received, self._filtered, verdict)
+        # tuple.__new__ skips the NamedTuple's Python-level __new__ (once per step, issue 30).
+        return tuple.__new__(ShapedSetpoint, (received, self._filtered, verdict))
 
 
 class LimitRamp:
