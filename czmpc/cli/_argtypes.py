@@ -44,14 +44,9 @@ def number(
     unit: str = "",
 ) -> Callable[[str], float]:
     """Converter to a finite float with optional bounds (``above`` is exclusive)."""
-    parts = ["a finite number"]
-    if above is not None:
-        parts.append(f"> {above:g}")
-    if at_least is not None:
-        parts.append(f">= {at_least:g}")
-    if at_most is not None:
-        parts.append(f"<= {at_most:g}")
-    expected = " ".join(parts) + (f" [{unit}]" if unit else "")
+    bounds = " ".join(f"{op} {v:g}" for op, v in ((">", above), (">=", at_least), ("<=", at_most))
+                      if v is not None)
+    expected = " ".join(part for part in ("a finite number", bounds, unit and f"[{unit}]") if part)
 
     def convert(text: str) -> float:
         try:

@@ -14,12 +14,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
 
 from czmpc.pid.errors import PIDTuningError
 from czmpc.pid.schedule import PIDSchedule, Region
 
-VendorForm = Literal["siemens", "deltav", "honeywell", "rockwell"]
 FORMS: tuple[str, ...] = ("siemens", "deltav", "honeywell", "rockwell")
 SECONDS_PER_MINUTE = 60.0
 
@@ -260,6 +258,6 @@ def vendor_csv_text(table: VendorTable) -> str:
                      + [",".join(cell(v) for v in row) for row in table.rows]) + "\n"
 
 
-__all__ = ["FORMS", "SECONDS_PER_MINUTE", "Spans", "VendorForm", "VendorTable",
+__all__ = ["FORMS", "SECONDS_PER_MINUTE", "Spans", "VendorTable",
            "dependent_to_independent", "gain_to_band_pct", "seconds_to_minutes", "vendor_table",
            "vendor_csv_text"]
