@@ -256,13 +256,7 @@ def sampling_violation_message(time_s: FloatArray, k: int, ts_s: float, rtol: fl
 
 
 def decode_text(blob: bytes, path: str | Path) -> str:
-    """A file's bytes as UTF-8 text (a byte-order mark dropped).
-
-    Raises
-    ------
-    DataFileError
-        Bytes that are not UTF-8 (the message gives the offset).
-    """
+    """A file's bytes as UTF-8 text (a byte-order mark dropped); `DataFileError` if not UTF-8."""
     try:
         return blob.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

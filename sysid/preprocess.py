@@ -300,8 +300,7 @@ def find_operating_point(
             f"{min_window_samples!r}")
     bounds = data.segment_bounds()
     # differences and constant-input runs within each segment, never across a boundary
-    diffs = np.diff(y) if len(bounds) == 1 else np.concatenate(
-        [np.diff(y[lo:hi]) for lo, hi in bounds])
+    diffs = np.concatenate([np.diff(y[lo:hi]) for lo, hi in bounds])
     sigma_y = _robust_scale(diffs) / math.sqrt(2.0)
     limit = max(drift_sigmas * sigma_y, output_atol_kw)
     runs = [(lo + a, lo + b) for lo, hi in bounds
