@@ -604,17 +604,17 @@ class MPCQP:
         N = self.horizon_steps
         params = self._params
         if h is not self.h_input:
-            params[:-2] = h
+            self.h_input[...] = h
         params[-2] = w_prev
         params[-1] = w_target
         self._q_params.dot(params, out=self._q_w)  # ndarray.dot: less call overhead than np.dot
         if w_lo is not self._l_box:
-            self._l_box[:] = w_lo
+            self._l_box[...] = w_lo  # [...]: no slice object made
         if w_hi is not self._u_box:
-            self._u_box[:] = w_hi
+            self._u_box[...] = w_hi
         if self.has_rate_limit and rate is not None and rate is not self._u_rate:
             np.negative(rate, out=self._l_rate)
-            self._u_rate[:] = rate
+            self._u_rate[...] = rate
         lo = self._l
         up = self._u
         if self.has_soft:
