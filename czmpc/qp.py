@@ -236,10 +236,13 @@ class MoveBounds:
         ``delta`` [%/step], or None for no rate limit.
     horizon_steps :
         ``N``.
+    box_rows :
+        ``(w_lo, w_hi)`` (N,) arrays to write the box bounds into: the box rows of a QP's
+        ``l`` and ``u`` (`MPCQP.move_bounds`), so the QP takes them as they stand; None
+        for arrays of its own.
     rate_rows :
-        ``(lower, upper)`` (N-1,) arrays to write ``-rate`` and ``rate`` into: the rate
-        rows of a QP's ``l`` and ``u`` (`MPCQP.move_bounds`), so the QP takes them as they
-        stand; None for an array of its own (``rate`` only).
+        ``(lower, upper)`` (N-1,) arrays to write ``-rate`` and ``rate`` into (the rate
+        rows of a QP's ``l`` and ``u``); None for an array of its own (``rate`` only).
 
     Notes
     -----
@@ -249,6 +252,7 @@ class MoveBounds:
     """
 
     def __init__(self, max_move_pct_per_step: float | None, horizon_steps: int, *,
+                 box_rows: tuple[FloatArray, FloatArray] | None = None,
                  rate_rows: tuple[FloatArray, FloatArray] | None = None) -> None:
         n = horizon_steps
         self.max_move_pct_per_step = max_move_pct_per_step
@@ -264,7 +268,9 @@ class MoveBounds:
         self._slope = np.empty(2 * n)
         self._min_slope = np.empty(n - 1)
         # Views, taken once: [lower; upper] halves, and their moves j >= 1.
-        self._w_lo, self._w_hi = self._w[:n], self._w[n:]
+        self._w_half = self._w[:n], self._w[n:]
+        self._ds_half = self._ds[:n], self._ds[n:]
+        self._w_lo, self._w_hi = (np.empty(n), np.empty(n)) if box_rows is None else box_rows
         self._ds_lo1, self._ds_hi1 = self._ds[1:n], self._ds[n + 1 :]
         self._slope_lo1, self._slope_hi1 = self._slope[1:n], self._slope[n + 1 :]
         self._map: InputMap | None = None
@@ -315,11 +321,22 @@ class MoveBounds:
         np.add(self._reach, ds_prev, out=ds)
         np.maximum(ds, self._ds_min, out=ds)
         np.minimum(ds, self._ds_max, out=ds)
-        horner = self._horner                          # f(ds) by Horner's rule
-        np.multiply(ds, horner[0], out=w)
-        for coef in horner[1:]:
-            np.add(w, coef, out=w)
-            np.multiply(w, ds, out=w)
+        # f(ds) by Horner's rule, (..(c_n ds + c_n-1) ds + .. + c_1) ds; the last product
+        # of each half goes straight into w_lo and w_hi (a QP's rows: no copy).
+        ds_lo, ds_hi = self._ds_half
+        horner = self._horner
+        if len(horner) == 1:                           # f(ds) = c_1 ds
+            np.multiply(ds_lo, horner[0], out=self._w_lo)
+            np.multiply(ds_hi, horner[0], out=self._w_hi)
+        else:
+            np.multiply(ds, horner[0], out=w)
+            for coef in horner[1:-1]:
+                np.add(w, coef, out=w)
+                np.multiply(w, ds, out=w)
+            np.add(w, horner[-1], out=w)
+            inner_lo, inner_hi = self._w_half
+            np.multiply(inner_lo, ds_lo, out=self._w_lo)
+            np.multiply(inner_hi, ds_hi, out=self._w_hi)
         c = input_map.coefficients
         rate = self._min_slope                         # min of f' over [ds_lo_j, ds_hi_j]
         if len(c) == 1:
@@ -554,7 +571,7 @@ class MPCQP:
         return self._terminal_P
 
     def move_bounds(self, max_move_pct_per_step: float | None) -> MoveBounds:
-        """A `MoveBounds` that writes the rate limits straight into this problem's ``l`` and ``u``.
+        """A `MoveBounds` that writes the bounds straight into this problem's ``l`` and ``u``.
 
         Parameters
         ----------
@@ -562,7 +579,8 @@ class MPCQP:
             ``delta`` [%/step], or None for no rate limit.
         """
         rows = (self._l_rate, self._u_rate) if self.has_rate_limit else None
-        return MoveBounds(max_move_pct_per_step, self.horizon_steps, rate_rows=rows)
+        return MoveBounds(max_move_pct_per_step, self.horizon_steps,
+                          box_rows=(self._l_box, self._u_box), rate_rows=rows)
 
     def request_cold_start(self) -> None:
         """Start the next solve from zero instead of the previous solution."""

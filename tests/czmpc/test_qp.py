@@ -198,9 +198,11 @@ def _convex_quadratic_map() -> InputMap:
                     slope_critical_points_pct=())
 
 
-@pytest.mark.parametrize("which", ["quadratic", "convex quadratic", "cubic"])
+@pytest.mark.parametrize("which", ["linear", "quadratic", "convex quadratic", "cubic"])
 def test_move_bounds_match_a_dense_grid_reference(which: str, input_map: InputMap) -> None:
-    im = {"quadratic": input_map, "convex quadratic": _convex_quadratic_map(),
+    linear = InputMap(coefficients=(1.2,), operating_triac_pct=45.0, ds_min_pct=-40.0,
+                      ds_max_pct=50.0, w_min=-48.0, w_max=60.0, slope_critical_points_pct=())
+    im = {"linear": linear, "quadratic": input_map, "convex quadratic": _convex_quadratic_map(),
           "cubic": _cubic_map()}[which]
     delta, n = 1.5, 40
     bounds = MoveBounds(delta, n)
