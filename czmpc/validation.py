@@ -68,6 +68,12 @@ class MeasurementCheck:
         return self.verdict is Verdict.VALID
 
 
+# The records of an accepted sample: frozen, so one of each serves every step (building
+# a frozen record costs about 0.5 us, a quarter of the whole check).
+_VALID = MeasurementCheck(verdict=Verdict.VALID)
+_VALID_REOPENED = MeasurementCheck(verdict=Verdict.VALID, reopened=True)
+
+
 def check_limits(power_kw: float, *, power_min_kw: float | None,
                  power_max_kw: float | None) -> Verdict:
     """`Verdict.MISSING` for a non-finite value, else the limit verdict; pure.
@@ -225,7 +231,7 @@ class MeasurementChecker:
             self._gate_open = suspect is Verdict.SPIKE
         self._n_rejected = 0
         self._last_accepted = power_kw
-        return MeasurementCheck(verdict=Verdict.VALID, reopened=reopened)
+        return _VALID_REOPENED if reopened else _VALID
 
 
 __all__ = ["MeasurementCheck", "MeasurementChecker", "Verdict", "check_limits", "within_gate", "within_rate"]
