@@ -154,6 +154,9 @@ class MeasurementChecker:
         self.gate_k_sigma = gate_k_sigma
         self.gate_floor_kw = gate_floor_kw
         self.reopen_after = reopen_after
+        # Strictly between these a sample is finite and within the limits (check's fast path).
+        self._inside_min = -math.inf if power_min_kw is None else power_min_kw
+        self._inside_max = math.inf if power_max_kw is None else power_max_kw
         self.reset()
 
     def reset(self) -> None:
@@ -179,9 +182,11 @@ class MeasurementChecker:
             self._run_length = 1
             self._run_pred_min = math.inf
             self._run_pred_max = -math.inf
-        if math.isfinite(predicted_kw):
-            self._run_pred_min = min(self._run_pred_min, predicted_kw)
-            self._run_pred_max = max(self._run_pred_max, predicted_kw)
+        if math.isfinite(predicted_kw):  # min() and max() by comparison: no calls
+            if predicted_kw < self._run_pred_min:
+                self._run_pred_min = predicted_kw
+            if predicted_kw > self._run_pred_max:
+                self._run_pred_max = predicted_kw
         return (
             self.stuck_samples > 0
             and self._run_length >= self.stuck_samples
@@ -203,13 +208,14 @@ class MeasurementChecker:
         gate :
             False skips the spike gate (estimator warm-up after a restart).
         """
-        verdict = check_limits(power_kw, power_min_kw=self.power_min_kw,
-                               power_max_kw=self.power_max_kw)
-        if verdict is not Verdict.VALID:
-            if verdict is Verdict.MISSING:
-                self._run_length = 0
-                self._run_value = math.nan
-            return MeasurementCheck(verdict=verdict)
+        if not self._inside_min < power_kw < self._inside_max:  # on a limit, beyond, or not finite
+            verdict = check_limits(power_kw, power_min_kw=self.power_min_kw,
+                                   power_max_kw=self.power_max_kw)
+            if verdict is not Verdict.VALID:
+                if verdict is Verdict.MISSING:
+                    self._run_length = 0
+                    self._run_value = math.nan
+                return MeasurementCheck(verdict=verdict)
         if self._stuck(power_kw, predicted_kw):
             return MeasurementCheck(verdict=Verdict.STUCK, stuck_run_samples=self._run_length)
         suspect: Verdict | None = None

@@ -49,6 +49,16 @@ def test_no_limits_accepts_any_finite_value() -> None:
     assert check_limits(-1e300, power_min_kw=None, power_max_kw=None) is Verdict.VALID
 
 
+@pytest.mark.parametrize(("power_min_kw", "power_max_kw"), [(0.0, 150.0), (None, None)])
+@pytest.mark.parametrize("power", [math.nan, math.inf, -math.inf, -0.001, 0.0, 45.0, 150.0, 150.001])
+def test_the_checker_gives_the_limit_verdict(power: float, power_min_kw: float | None,
+                                             power_max_kw: float | None) -> None:
+    # the checker's fast path (strictly inside the limits) must agree on the limits and beyond
+    checker = _checker(power_min_kw=power_min_kw, power_max_kw=power_max_kw, gate_k_sigma=None)
+    verdict = checker.check(power, predicted_kw=45.0, innovation_std_kw=SIGMA_KW).verdict
+    assert verdict is check_limits(power, power_min_kw=power_min_kw, power_max_kw=power_max_kw)
+
+
 def test_rate_and_gate_are_closed_intervals() -> None:
     assert within_rate(46.0, 45.0, max_change_kw=1.0)
     assert not within_rate(46.0 + 1e-9, 45.0, max_change_kw=1.0)
