@@ -35,19 +35,14 @@ MAX_DEFAULT_HORIZON_STEPS = 60
 DEFAULT_RATE_FRACTION_OF_RANGE = 0.05
 
 
-def _is_number(value: object) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
 def _check_finite(owner: str, name: str, value: object, *, minimum: float | None = None,
                   strict: bool = False) -> None:
-    if not _is_number(value) or not math.isfinite(float(value)):  # type: ignore[arg-type]
+    if (not isinstance(value, int | float) or isinstance(value, bool)
+            or not math.isfinite(value)):
         raise SettingsError(f"{owner}.{name} must be a finite number; got {value!r}")
-    if minimum is not None:
-        v = float(value)  # type: ignore[arg-type]
-        if (strict and v <= minimum) or (not strict and v < minimum):
-            op = ">" if strict else ">="
-            raise SettingsError(f"{owner}.{name} must be a number {op} {minimum:g}; got {value!r}")
+    if minimum is not None and (value <= minimum if strict else value < minimum):
+        raise SettingsError(f"{owner}.{name} must be a number {'>' if strict else '>='} "
+                            f"{minimum:g}; got {value!r}")
 
 
 def _check_int(owner: str, name: str, value: object, *, minimum: int) -> None:
