@@ -201,12 +201,15 @@ def tune_schedule(
         return tunings[at]
 
     warnings: list[str] = []
+    fragile: list[str] = []   # said after every "does not hold"
+    rows: list[ScheduleRow] = []
     i = 0
     while i < len(points):
         s = points[i]
         nxt = points[i + 1] if i + 1 < len(points) else (hi if s < hi else s)
         tuning = tuning_for(s, nxt)
-        own = sampled_margins(tuning, local_plant(model, highest_gain_input(s, nxt))).ms
+        tuned_at = highest_gain_input(s, nxt)
+        own = sampled_margins(tuning, local_plant(model, tuned_at)).ms
         bound = spec.ms_bound if spec.ms_bound is not None else own * (1.0 + MS_SLACK)
         worst_ms, change = _interval_check(model, tuning, s, nxt)
         holds = worst_ms <= bound and change <= MAX_GAIN_CHANGE
@@ -218,25 +221,20 @@ def tune_schedule(
                 f"between {s:g} % and {nxt:g} % the schedule does not hold: worst Ms "
                 f"{worst_ms:.3f} (bound {bound:.3f}), gain change {100 * change:.1f} % "
                 f"(limit {100 * MAX_GAIN_CHANGE:g} %)")
-        i += 1
-    rows = []
-    for i, s in enumerate(points):
+        # point i is final: later breakpoints are inserted after it
         plant = local_plant(model, s)
-        nxt = points[i + 1] if i + 1 < len(points) else (hi if s < hi else s)
-        tuning = tuning_for(s, nxt)
-        tuned_at = highest_gain_input(s, nxt)
         margins = sampled_margins(tuning, plant)
-        worst_ms, change = _interval_check(model, tuning, s, nxt)
         if margins.ms > MS_WARNING:
-            warnings.append(f"row at {s:g} %: Ms {margins.ms:.3f} exceeds {MS_WARNING:g}; the "
-                            "loop is fragile")
+            fragile.append(f"row at {s:g} %: Ms {margins.ms:.3f} exceeds {MS_WARNING:g}; the "
+                           "loop is fragile")
         rows.append(ScheduleRow(plant=plant, tuned_at_pct=tuned_at,
                                 rule_plant=_reduced(local_plant(model, tuned_at)), tuning=tuning,
                                 margins=margins, worst_ms_to_next=worst_ms,
                                 worst_gain_change=change))
+        i += 1
     return PIDSchedule(rows=tuple(rows), spec=spec, ts_s=model.ts_s, triac_range_pct=(lo, hi),
                         added_breakpoints_pct=tuple(p for p in points if p not in given),
-                        warnings=tuple(warnings))
+                        warnings=tuple(warnings + fragile))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
