@@ -28,6 +28,7 @@ falls back to Gauss-Newton's at the same damping.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -41,6 +42,8 @@ from sysid.errors import IdentificationError
 _MU_INITIAL = 1e-6
 #: Rejected trial steps tolerated in one iteration before giving up.
 _MAX_REJECTIONS = 60
+_EPS = float(np.finfo(float).eps)
+_TINY = float(np.finfo(float).tiny)
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -88,10 +91,10 @@ def triangular_factor(jac: FloatArray, free: FloatArray | None = None,
     ``numpy.linalg.qr`` on the row-major Jacobian costs four times more, most of it in a
     transposing copy (12,000 x 9: 1.2 ms against 0.3 ms).
     """
-    cols = np.flatnonzero(np.ones(jac.shape[1], bool) if free is None else free)
-    block = np.empty((jac.shape[0], cols.size + (last is not None)), order="F")
-    if cols.size == jac.shape[1]:
-        block[:, : cols.size] = jac
+    cols = range(jac.shape[1]) if free is None else np.flatnonzero(free).tolist()
+    block = np.empty((jac.shape[0], len(cols) + (last is not None)), order="F")
+    if len(cols) == jac.shape[1]:
+        block[:, : len(cols)] = jac
     else:
         for i, j in enumerate(cols):
             block[:, i] = jac[:, j]
@@ -101,7 +104,10 @@ def triangular_factor(jac: FloatArray, free: FloatArray | None = None,
     if info != 0:  # pragma: no cover - geqrf fails only on an illegal argument
         raise IdentificationError(f"triangular_factor: LAPACK dgeqrf returned info = {info}")
     k = min(block.shape)
-    return np.triu(qr[:k])
+    out: FloatArray = np.ascontiguousarray(qr[:k])  # zero the reflectors below the diagonal
+    for i in range(1, k):
+        out[i, :i] = 0.0
+    return out
 
 
 #: What ``fun`` may return as its Jacobian: the array, or a callable that makes it. The
@@ -112,16 +118,18 @@ Jacobian = FloatArray | Callable[[], FloatArray]
 
 def _evaluate(
     fun: Callable[[FloatArray], tuple[FloatArray, Jacobian]], theta: FloatArray
-) -> tuple[FloatArray, Jacobian] | None:
-    """``fun(theta)``'s residuals, checked 1-D, and its Jacobian; None if one is not finite."""
+) -> tuple[FloatArray, Jacobian, float] | None:
+    """``fun(theta)``'s residuals, checked 1-D, its Jacobian and ``sum r^2``; None if the
+    residuals are not finite."""
     r_raw, jac = fun(theta)
     r = np.asarray(r_raw, dtype=float)
     if r.ndim != 1:
         raise IdentificationError(
             f"levenberg_marquardt: fun must return residuals of shape (N,); got {r.shape}")
-    if not np.isfinite(sum_of_squares(r)):
+    ssr = sum_of_squares(r)
+    if not math.isfinite(ssr):
         return None
-    return r, jac
+    return r, jac, ssr
 
 
 def _jacobian(jac: Jacobian, n: int, p: int) -> FloatArray | None:
@@ -147,10 +155,13 @@ def _damped_solver(r_mat: FloatArray, qtr: FloatArray,
     """
     u, sing, vt = np.linalg.svd(r_mat / d, full_matrices=False)
     coef = u.T @ qtr
+    sing2 = sing * sing
+    rel_cut = (_EPS * 2 * d.size) ** 2
+    top2 = float(sing2[0]) if sing.size else 0.0
 
     def solve(mu: float) -> FloatArray:
-        denom = sing * sing + mu
-        cut = (np.finfo(float).eps * 2 * d.size) ** 2 * (float(sing[0]) ** 2 + mu) if sing.size else 0.0
+        denom = sing2 + mu
+        cut = rel_cut * (top2 + mu) if sing.size else 0.0
         weights = np.divide(sing, denom, out=np.zeros_like(sing), where=denom > cut)
         out: FloatArray = -(vt.T @ (weights * coef)) / d
         return out
@@ -345,8 +356,7 @@ def levenberg_marquardt(
             f"= {theta.tolist()} are not finite; start from a point where the model is "
             "stable and defined"
         )
-    r = first[0]
-    ssr = sum_of_squares(r)
+    r, _, ssr = first
     n = r.size
     scale = np.zeros(p)
     mu = _MU_INITIAL
@@ -360,7 +370,7 @@ def levenberg_marquardt(
     pending: tuple[FloatArray, FloatArray, FloatArray] | None = None
     while iteration < max_iterations:
         iteration += 1
-        if ssr <= np.finfo(float).tiny:
+        if ssr <= _TINY:
             converged, message = True, "the sum of squared residuals is zero"
             break
         # R of the QR factorization of [J, r]: J = Q R_J and r = Q R_r + (a part
@@ -372,41 +382,49 @@ def levenberg_marquardt(
             step_old, old_jac_r, old_grad = pending
             second = _secant_update(second, step_old, grad - old_jac_r, grad - old_grad)
             pending = None
-        at_lo = (theta <= lo) & (grad > 0)
-        at_hi = (theta >= hi) & (grad < 0)
-        free = ~(at_lo | at_hi) & (col_norms > 0)
-        if not np.any(free):
+        free = col_norms > 0
+        if bounded:
+            free &= ~(((theta <= lo) & (grad > 0)) | ((theta >= hi) & (grad < 0)))
+        n_free = int(np.count_nonzero(free))
+        if n_free == 0:
             converged, message = True, "every parameter is held at a bound or has no effect"
             break
-        cosines = np.abs(grad[free]) / (col_norms[free] * np.sqrt(ssr))
+        all_free = n_free == p
+        root_ssr = math.sqrt(ssr)
+        cosines = (np.abs(grad) / (col_norms * root_ssr) if all_free
+                   else np.abs(grad[free]) / (col_norms[free] * root_ssr))
         if float(np.max(cosines)) <= gtol:
             converged, message = True, f"gradient test met (max cosine <= gtol = {gtol:g})"
             break
         scale = np.maximum(scale, col_norms)
-        d = np.where(scale[free] > 0, scale[free], 1.0)
-        n_free = int(np.count_nonzero(free))
-        if n_free < p:  # R of [J_free, r]: its last column holds Q'r
+        d = scale.copy() if all_free else np.where(scale[free] > 0, scale[free], 1.0)
+        if not all_free:  # R of [J_free, r]: its last column holds Q'r
             r_aug = triangular_factor(jac, free, r)
         r_mat = r_aug[:n_free, :n_free]
         qtr = r_aug[:n_free, -1]
         gauss_newton = _damped_solver(r_mat, qtr, d)
-        second_free = second[np.ix_(free, free)]
+        second_free = second if all_free else second[np.ix_(free, free)]
         augmented = (_augmented_solver(r_mat.T @ r_mat, second_free, grad[free], d)
                      if use_augmented else None)
-        theta_norm = float(np.sqrt(theta @ theta))
+        theta_norm = math.sqrt(float(theta @ theta))
+        qtr_qtr = float(qtr @ qtr)
         accepted = False
         for _ in range(_MAX_REJECTIONS):
-            step = np.zeros(p)
-            step[free] = (augmented or gauss_newton)(mu)
-            trial = feasible(theta + step)
+            if all_free:
+                trial = feasible(theta + (augmented or gauss_newton)(mu))
+            else:
+                step = np.zeros(p)
+                step[free] = (augmented or gauss_newton)(mu)
+                trial = feasible(theta + step)
             step = trial - theta
-            step_small = float(np.sqrt(step @ step)) <= xtol * (xtol + theta_norm)
-            lin = qtr + r_mat @ step[free]
-            predicted_gn = float(qtr @ qtr - lin @ lin)
-            predicted_aug = predicted_gn - float(step[free] @ second_free @ step[free])
+            step_free = step if all_free else step[free]
+            step_small = math.sqrt(float(step @ step)) <= xtol * (xtol + theta_norm)
+            lin = qtr + r_mat @ step_free
+            predicted_gn = qtr_qtr - float(lin @ lin)
+            predicted_aug = predicted_gn - float(step_free @ second_free @ step_free)
             predicted = predicted_gn if augmented is None else predicted_aug
             evaluated = _evaluate(fun, trial)
-            ssr_new = sum_of_squares(evaluated[0]) if evaluated is not None else np.inf
+            ssr_new = evaluated[2] if evaluated is not None else math.inf
             jac_new = (_jacobian(evaluated[1], n, p)
                        if evaluated is not None and ssr_new < ssr else None)
             if evaluated is not None and jac_new is not None:
