@@ -48,7 +48,7 @@ from sysid.optimize import (
     sum_of_squares,
     triangular_factor,
 )
-from sysid.polynomials import is_stable, reflect_unstable_roots
+from sysid.polynomials import impulse_response, is_stable, reflect_unstable_roots
 from sysid.result import CriterionName, IdentificationResult
 from sysid.simulate import equation_errors, filter_state, simulate_arrays
 
@@ -459,14 +459,6 @@ def _held_lag_responses(x: FloatArray, den: FloatArray, lags: range,
     return out
 
 
-def _impulse_response(den: FloatArray, n: int) -> FloatArray:
-    """First ``n`` samples of the impulse response of ``1/den``."""
-    pulse = np.zeros(n)
-    pulse[:1] = 1.0
-    out: FloatArray = lfilter([1.0], den, pulse)
-    return out
-
-
 def _stabilizer(blocks: tuple[slice, ...]) -> Callable[[FloatArray], FloatArray]:
     """Projection that mirrors unstable roots of the monic polynomials ``[1, theta[blk]]``."""
 
@@ -577,7 +569,7 @@ def _oe_problem(
             yhat = simulate_arrays(b, f, u, y_past=held)
 
         def jacobian() -> FloatArray:
-            h = _impulse_response(f, n)
+            h = impulse_response(f, n)
             step = np.cumsum(h)
             jac = np.empty((n, nb + nf + (nf if estimate else 0)), order="F")
             jac[:, :nb] = -_held_lag_responses(u, f, range(nk, nk + nb), step)
@@ -621,7 +613,7 @@ def _armax_problem(
         e = lfilter([1.0], c, v, zi=state)[0]
 
         def jacobian() -> FloatArray:
-            h = _impulse_response(c, n)
+            h = impulse_response(c, n)
             step = np.cumsum(h)
             jac = np.empty((n, n_model + (nc if estimate else 0)), order="F")
             if na:

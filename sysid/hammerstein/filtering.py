@@ -42,6 +42,7 @@ from scipy.signal import lfilter
 
 from sysid._typing import FloatArray
 from sysid.errors import IdentificationError
+from sysid.polynomials import impulse_response
 
 InitialState = Literal["estimate", "zero", "held"]
 INITIAL_STATES: tuple[InitialState, ...] = ("estimate", "zero", "held")
@@ -156,15 +157,6 @@ def _fir(coef: FloatArray, x: FloatArray) -> FloatArray:
     return out
 
 
-def _impulse_response(den: FloatArray, n_samples: int) -> FloatArray:
-    """First ``n_samples`` of the impulse response of ``1/den``: a delayed pulse's response
-    is it delayed (a time-invariant filter from rest commutes with the delay)."""
-    pulse = np.zeros(n_samples)
-    pulse[:1] = 1.0
-    out: FloatArray = lfilter([1.0], den, pulse)
-    return out
-
-
 #: A segment's Jacobian, made on request: ``[d r/d theta_model, d r/d transient]`` in one
 #: column-major block (the transient's columns only under ``"estimate"``).
 SegmentJacobian = Callable[[], FloatArray]
@@ -194,11 +186,12 @@ def _transient_columns(out: FloatArray, den: FloatArray, n_model: int, n_state: 
 
     ``"estimate"``: its columns ``sign * q^-j h``. ``"held"``: the held past enters as the
     first ``n_state`` samples of the filter input, ``d_state[i]`` their derivatives by
-    model parameter ``i``, so ``out[:, i] += sign * sum_j d_state[i][j] q^-j h``.
+    model parameter ``i``, so ``out[:, i] += sign * sum_j d_state[i][j] q^-j h``
+    (``d_state`` is read under ``"held"`` only).
     """
     if initial_state == "zero" or n_state == 0:
         return
-    h = _impulse_response(den, out.shape[0])
+    h = impulse_response(den, out.shape[0])
     if initial_state == "estimate":
         for j in range(n_state):
             _put_lag(out, n_model + j, h, j, sign)
@@ -249,11 +242,13 @@ def _oe_segment(
         for i in range(1, orders.na + 1):
             _put_lag(out, col, yhat_f, i)
             col += 1
-        k_idx = np.arange(n)
-        tail_beta = _tail_sums(beta, n)
-        d_state = [np.where(k_idx < j, w0, 0.0) for j in range(nk + 1, nk + nb)]
-        d_state += [ds0**i * tail_beta for i in range(1, deg + 1)]
-        d_state += [np.where(k_idx < i, -y0, 0.0) for i in range(1, orders.na + 1)]
+        d_state: list[FloatArray] = []
+        if initial_state == "held":
+            k_idx = np.arange(n)
+            tail_beta = _tail_sums(beta, n)
+            d_state = [np.where(k_idx < j, w0, 0.0) for j in range(nk + 1, nk + nb)]
+            d_state += [ds0**i * tail_beta for i in range(1, deg + 1)]
+            d_state += [np.where(k_idx < i, -y0, 0.0) for i in range(1, orders.na + 1)]
         _transient_columns(out, f, orders.n_model, n, initial_state, d_state, -1.0)
         return out
 
@@ -305,12 +300,14 @@ def _armax_segment(
         for i in range(1, nc + 1):
             _put_lag(out, col, e_c, i, -1.0)
             col += 1
-        k_idx = np.arange(n)
-        tail_beta = _tail_sums(beta, n)
-        d_state = [np.where(k_idx < j, -w0, 0.0) for j in range(nk + 1, nk + nb)]
-        d_state += [-(ds0**i) * tail_beta for i in range(1, deg + 1)]
-        d_state += [np.where(k_idx < i, y0, 0.0) for i in range(1, na + 1)]
-        d_state += [np.zeros(n)] * nc
+        d_state: list[FloatArray] = []
+        if initial_state == "held":
+            k_idx = np.arange(n)
+            tail_beta = _tail_sums(beta, n)
+            d_state = [np.where(k_idx < j, -w0, 0.0) for j in range(nk + 1, nk + nb)]
+            d_state += [-(ds0**i) * tail_beta for i in range(1, deg + 1)]
+            d_state += [np.where(k_idx < i, y0, 0.0) for i in range(1, na + 1)]
+            d_state += [np.zeros(n)] * nc
         _transient_columns(out, c, orders.n_model, n, initial_state, d_state, 1.0)
         return out
 

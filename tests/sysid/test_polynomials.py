@@ -6,8 +6,9 @@ import math
 
 import numpy as np
 import pytest
+from scipy.signal import lfilter
 
-from sysid.polynomials import is_stable, slowest_time_constant_samples
+from sysid.polynomials import impulse_response, is_stable, slowest_time_constant_samples
 
 
 def test_slowest_time_constant_is_minus_one_over_log_of_the_largest_root() -> None:
@@ -32,3 +33,14 @@ def test_the_stability_test_normalises_a_leading_coefficient_and_trailing_zeros(
     assert is_stable(np.array([2.0, -1.8, 0.0]))
     assert not is_stable(np.array([0.5, -0.6]))    # root 1.2
     assert not is_stable(np.array([0.0, 1.0]))     # no leading coefficient: no polynomial
+
+
+def test_the_impulse_response_is_lfilters_bit_for_bit() -> None:
+    # first order by cumprod: the same products as lfilter's recursion, so no tolerance
+    rng = np.random.default_rng(3)
+    pulse = np.zeros(3000)
+    pulse[0] = 1.0
+    for den in [np.r_[1.0, a] for a in rng.uniform(-0.9999, 0.9999, 300)] + [
+            np.array([1.0, -1.5, 0.7]), np.array([1.0, 0.0]), np.array([1.0])]:
+        np.testing.assert_array_equal(impulse_response(den, 3000), lfilter([1.0], den, pulse))
+    assert impulse_response(np.array([1.0, -0.5]), 0).size == 0
