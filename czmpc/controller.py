@@ -139,6 +139,10 @@ class OffsetFreeMPC:
                               history_samples=4 * max(rel.stuck_samples, 1) + 1)
         self._ssm: SteadyStateMap = steady_state_map(base, settings.disturbance_model)
         _check_static_gain(model, self._ssm.static_gain, im)
+        n = self._n_x = base.n_states
+        # h = A (x - x_s) + G_x eps (`czmpc.qp`) = [A, 0, -A, G_x] [z; x_s; eps]: the QP
+        # folds the map into its own products and reads the terms from its h_input.
+        h_map = np.hstack([base.A, np.zeros((n, 1)), -base.A, self._est.gains.G[:n].reshape(n, 1)])
         self._qp = MPCQP(
             A=base.A, B=base.B, C=base.C, horizon_steps=settings.horizon_steps,
             output_weight=settings.output_weight,
@@ -148,7 +152,7 @@ class OffsetFreeMPC:
             has_soft_max=settings.soft_power_max_kw is not None,
             soft_limit_weight=settings.soft_limit_weight,
             soft_limit_linear_weight=settings.soft_limit_linear_weight,
-            options=settings.osqp, bound_tol_kw=rel.solver_bound_tol_kw,
+            options=settings.osqp, bound_tol_kw=rel.solver_bound_tol_kw, h_map=h_map,
         )
         s_init = self._s_nom if settings.initial_triac_pct is None else settings.initial_triac_pct
         self._ds_init = s_init - self._s_nom
@@ -158,11 +162,7 @@ class OffsetFreeMPC:
                 f"[{im.ds_min_pct + self._s_nom:g}, {im.ds_max_pct + self._s_nom:g}] %; "
                 f"got {s_init:g}"
             )
-        n = self._n_x = base.n_states
-        # h = A (x - x_s) + G_x eps (`czmpc.qp`) = [A, 0, -A, G_x] [z; x_s; eps]: one product.
-        self._h_mat = np.hstack([base.A, np.zeros((n, 1)), -base.A,
-                                 self._est.gains.G[:n].reshape(n, 1)])
-        self._h_in = np.empty(2 * n + 2)
+        self._h_in = self._qp.h_input
         self._h_in_z, self._h_in_xs = self._h_in[: n + 1], self._h_in[n + 1 : -1]  # views, once
         self._d_power_gain = self._aug.disturbance_power_gain
         self._soft_min_rel, self._soft_max_rel = (
@@ -494,11 +494,9 @@ class OffsetFreeMPC:
         self._h_in_z[...] = z
         self._h_in_xs[...] = tgt.x_s
         h_in[-1] = eps
-        # ndarray.dot: the same BLAS product as np.dot or @, with less call overhead.
-        h = self._h_mat.dot(h_in, out=self._qp.h_input)
         w_lo, w_hi, rate = self._bounds.compute(em, ds_base)
         sol: QPSolution = self._qp.solve(
-            h=h, w_prev=w_base, w_target=tgt.w_s, y_target=tgt.y_s, w_lo=w_lo,
+            h_terms=h_in, w_prev=w_base, w_target=tgt.w_s, y_target=tgt.y_s, w_lo=w_lo,
             w_hi=w_hi, rate=rate, soft_min_rel_kw=self._soft_min_rel,
             soft_max_rel_kw=self._soft_max_rel,
         )

@@ -390,11 +390,17 @@ class MPCQP:
         How far [kW-equivalent] a returned plan may violate its box and rate bounds and
         still count as usable; OSQP can stop at its iteration or time limit (or report
         "solved inaccurate") with a point outside them.
+    h_map :
+        (n, k) ``M`` with ``h = M t`` for the k terms ``t`` `solve` is given (the
+        controller's ``[z; x_s; eps]``); None for ``t = h``. ``M`` is folded into the
+        products with ``h``, so ``h`` is never formed (one matrix-vector product a step
+        fewer; the rounding of ``q`` differs from forming ``h`` first by about an ulp).
 
     Raises
     ------
     DesignError
-        If the terminal-cost DARE fails or OSQP rejects the problem at set-up.
+        If the terminal-cost DARE fails, ``h_map`` has not ``n`` rows, or OSQP rejects
+        the problem at set-up.
     """
 
     def __init__(
@@ -403,8 +409,13 @@ class MPCQP:
         has_rate_limit: bool = False, has_soft_min: bool = False, has_soft_max: bool = False,
         soft_limit_weight: float = 1e3, soft_limit_linear_weight: float = 1e2,
         options: OSQPOptions | None = None, bound_tol_kw: float = 1e-2,
+        h_map: FloatArray | None = None,
     ) -> None:
         options = OSQPOptions() if options is None else options
+        h_map = np.eye(B.size) if h_map is None else np.asarray(h_map, dtype=float)
+        if h_map.ndim != 2 or h_map.shape[0] != B.size:
+            raise DesignError(f"MPC QP: h_map must have {B.size} rows (one per state); "
+                              f"got shape {h_map.shape}")
         self.bound_tol_kw = float(bound_tol_kw)
         n_x = B.size
         N = horizon_steps
@@ -452,15 +463,16 @@ class MPCQP:
         F_h = output_weight * Ey.T @ Eh + T_w.T @ P_f @ T_h
         f_p = np.zeros(N)
         f_p[0] = -move_weight
-        # In absolute w: q/2 = F_h h + f_p w_prev - (f_p + H 1) w_s.
-        # q[:N] = Q_p [h; w_prev; w_s]: one product per step.
-        self._q_params = np.column_stack([2.0 * F_h, 2.0 * f_p, -2.0 * (f_p + H.sum(axis=1))])
-        self._params = np.empty(n_x + 2)
-        #: (n,) where `solve` reads ``h`` from when given this very array (no copy).
-        self.h_input: FloatArray = self._params[:n_x]
+        # In absolute w: q/2 = F_h M t + f_p w_prev - (f_p + H 1) w_s (h = M t).
+        # q[:N] = Q_p [t; w_prev; w_s]: one product per step.
+        self._q_params = np.column_stack([2.0 * F_h @ h_map, 2.0 * f_p,
+                                          -2.0 * (f_p + H.sum(axis=1))])
+        self._params = np.empty(h_map.shape[1] + 2)
+        #: (k,) where `solve` reads ``h_terms`` from when given this very array (no copy).
+        self.h_input: FloatArray = self._params[:-2]
         self._terminal_P: FloatArray = P_f
         self._Cgam_rowsum = Cgam.sum(axis=1)
-        self._Cphi = Cphi
+        self._Cphi_map = Cphi @ h_map  # C Phi_j h = (C Phi_j M) t
         self._cost_hessian: FloatArray = np.asarray(H, dtype=float)
 
         n_var = N + (1 if self.has_soft else 0)
@@ -587,7 +599,7 @@ class MPCQP:
         self._needs_cold_start = True
 
     def solve(
-        self, *, h: FloatArray, w_prev: float, w_target: float, y_target: float,
+        self, *, h_terms: FloatArray, w_prev: float, w_target: float, y_target: float,
         w_lo: FloatArray, w_hi: FloatArray, rate: FloatArray | None = None,
         soft_min_rel_kw: float | None = None, soft_max_rel_kw: float | None = None,
     ) -> QPSolution:
@@ -595,9 +607,10 @@ class MPCQP:
 
         Parameters
         ----------
-        h :
-            (n,) free first-step state error (module notes); `h_input` itself is taken
-            without a copy.
+        h_terms :
+            (k,) the terms ``t`` of the free first-step state error ``h = M t`` (module
+            notes, ``h_map``): ``h`` itself without an ``h_map``; `h_input` itself is
+            taken without a copy.
         w_prev :
             Nonlinearity output applied at the previous sample [kW-equivalent].
         w_target :
@@ -621,8 +634,8 @@ class MPCQP:
         """
         N = self.horizon_steps
         params = self._params
-        if h is not self.h_input:
-            self.h_input[...] = h
+        if h_terms is not self.h_input:
+            self.h_input[...] = h_terms
         params[-2] = w_prev
         params[-1] = w_target
         self._q_params.dot(params, out=self._q_w)  # ndarray.dot: less call overhead than np.dot
@@ -637,7 +650,7 @@ class MPCQP:
         up = self._u
         if self.has_soft:
             # C dx_j = Cphi_j h + Cgam_j w - (Cgam_j 1) w_s ; y_j = y_s + C dx_j.
-            base = self._Cphi @ h - self._Cgam_rowsum * w_target + y_target
+            base = self._Cphi_map @ h_terms - self._Cgam_rowsum * w_target + y_target
             r0 = self._row_soft
             if self.has_soft_max and soft_max_rel_kw is not None:
                 up[r0 : r0 + N] = soft_max_rel_kw - base

@@ -237,7 +237,7 @@ def test_step_records_name_every_field_in_order(
     assert dataclasses.replace(last) is not last
     horizon = mpc.settings.horizon_steps
     solution = mpc.qp.solve(
-        h=np.zeros(mpc.augmented_model.n_states - 1), w_prev=0.0, w_target=0.0, y_target=0.0,
+        h_terms=np.zeros(mpc.qp.h_input.size), w_prev=0.0, w_target=0.0, y_target=0.0,
         w_lo=np.full(horizon, -1.0), w_hi=np.full(horizon, 1.0),
         rate=np.full(horizon - 1, 1.0) if mpc.qp.has_rate_limit else None)
     target = compute_target(steady_state_map(innovations_form(paper_armax_model), "input"),

@@ -11,6 +11,7 @@ import scipy.linalg
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from czmpc.errors import DesignError
 from czmpc.inversion import InputMap, build_input_map
 from czmpc.qp import MPCQP, MoveBounds
 from czmpc.realization import InnovationsForm, innovations_form
@@ -75,7 +76,7 @@ def test_unconstrained_first_move_equals_the_lqr_law(
         dx0 = rng.normal(size=n)
         w_s, w_prev = float(rng.normal()), float(rng.normal())
         xi = np.concatenate([dx0, [w_prev - w_s]])
-        sol = qp.solve(h=ss.A @ dx0, w_prev=w_prev, w_target=w_s, y_target=0.0,
+        sol = qp.solve(h_terms=ss.A @ dx0, w_prev=w_prev, w_target=w_s, y_target=0.0,
                        w_lo=np.full(horizon_steps, -WIDE), w_hi=np.full(horizon_steps, WIDE))
         assert sol.is_accurate
         # The whole plan is the LQR closed-loop rollout (the DARE terminal cost makes
@@ -98,7 +99,7 @@ def test_box_bounds_hold_to_solver_tolerance(
     tol = _qp_tol(options, max(abs(input_map.w_min), abs(input_map.w_max)))
     for w_s in (input_map.w_max, input_map.w_min):  # targets on the bounds
         h = -2.0 * np.sign(w_s) * np.array([30.0, 0.0])  # far on the other side
-        sol = qp.solve(h=h, w_prev=0.0, w_target=w_s, y_target=0.0, w_lo=w_lo, w_hi=w_hi)
+        sol = qp.solve(h_terms=h, w_prev=0.0, w_target=w_s, y_target=0.0, w_lo=w_lo, w_hi=w_hi)
         assert sol.is_usable
         assert np.all(sol.w >= w_lo - tol) and np.all(sol.w <= w_hi + tol)
         assert np.min(np.abs(sol.w - w_s)) <= tol  # a bound is active
@@ -115,7 +116,7 @@ def test_rate_limits_hold_and_translate_to_triac_moves(
     ds_prev = -20.0
     w_lo, w_hi, rate = MoveBounds(delta, 30).compute(input_map, ds_prev)
     assert rate is not None
-    sol = qp.solve(h=np.zeros(2), w_prev=input_map.f(ds_prev), w_target=input_map.w_max,
+    sol = qp.solve(h_terms=np.zeros(2), w_prev=input_map.f(ds_prev), w_target=input_map.w_max,
                    y_target=0.0, w_lo=w_lo, w_hi=w_hi, rate=rate)
     assert sol.is_usable
     tol = _qp_tol(options, max(abs(input_map.w_min), abs(input_map.w_max)))
@@ -142,7 +143,7 @@ def test_the_primal_residual_bounds_the_violation_of_box_and_rate_limits(
         ds_prev = float(rng.uniform(-30.0, 20.0))
         w_lo, w_hi, rate = bounds.compute(input_map, ds_prev)
         assert rate is not None
-        qp.solve(h=rng.normal(scale=5.0, size=2), w_prev=input_map.f(ds_prev),
+        qp.solve(h_terms=rng.normal(scale=5.0, size=2), w_prev=input_map.f(ds_prev),
                  w_target=float(rng.uniform(input_map.w_min, input_map.w_max)), y_target=0.0,
                  w_lo=w_lo, w_hi=w_hi, rate=rate)
         x = qp._ext.solution.x
@@ -160,7 +161,7 @@ def test_the_qps_own_move_bounds_give_the_same_problem_as_copied_ones(
     in_place, copied = MPCQP(**kw), MPCQP(**kw)
     own, separate = in_place.move_bounds(1.5), MoveBounds(1.5, 30)
     for ds_prev in (-20.0, 3.0, 19.0):
-        args = {"h": np.array([0.5, -0.2]), "w_prev": input_map.f(ds_prev), "w_target": 2.0,
+        args = {"h_terms": np.array([0.5, -0.2]), "w_prev": input_map.f(ds_prev), "w_target": 2.0,
                 "y_target": 0.0}
         w_lo, w_hi, rate = own.compute(input_map, ds_prev)
         a = in_place.solve(**args, w_lo=w_lo, w_hi=w_hi, rate=rate)
@@ -268,13 +269,36 @@ def test_soft_power_limit_is_met_when_possible_and_slack_reports_violations(
     w_lo, w_hi, _ = MoveBounds(None, 30).compute(input_map, 0.0)
     # Target at y_s = 2 kW with the soft maximum at 3 kW: no conflict, slack ~ 0.
     g = ss.static_gain
-    free = qp.solve(h=np.zeros(2), w_prev=0.0, w_target=2.0 / g, y_target=2.0, w_lo=w_lo,
+    free = qp.solve(h_terms=np.zeros(2), w_prev=0.0, w_target=2.0 / g, y_target=2.0, w_lo=w_lo,
                     w_hi=w_hi, soft_max_rel_kw=3.0)
     assert free.is_usable and free.slack_kw == pytest.approx(0.0, abs=_qp_tol(options, 3.0))
     # Soft maximum at 1 kW below the 2 kW target: the plan keeps y near 1 kW.
-    capped = qp.solve(h=np.zeros(2), w_prev=0.0, w_target=2.0 / g, y_target=2.0, w_lo=w_lo,
+    capped = qp.solve(h_terms=np.zeros(2), w_prev=0.0, w_target=2.0 / g, y_target=2.0, w_lo=w_lo,
                       w_hi=w_hi, soft_max_rel_kw=1.0)
     assert capped.is_usable and 0.0 < capped.slack_kw < 0.1
+
+
+def test_an_h_map_solves_the_problem_of_h_formed_first(
+    linear_block: InnovationsForm, input_map: InputMap, rng: np.random.Generator
+) -> None:
+    # h = M t folded into q and the soft rows: the same problem up to the rounding of q.
+    ss = linear_block
+    kw = {"A": ss.A, "B": ss.B, "C": ss.C, "horizon_steps": 30, "has_soft_max": True,
+          "has_soft_min": True, "options": TIGHT, **WEIGHTS}
+    h_map = rng.normal(size=(2, 5))
+    mapped, plain = MPCQP(**kw, h_map=h_map), MPCQP(**kw)  # type: ignore[arg-type]
+    w_lo, w_hi, _ = MoveBounds(None, 30).compute(input_map, 0.0)
+    for _ in range(5):
+        terms = rng.normal(scale=3.0, size=5)
+        args = {"w_prev": 1.0, "w_target": 2.0, "y_target": 2.0 * ss.static_gain,
+                "w_lo": w_lo, "w_hi": w_hi, "soft_max_rel_kw": 2.5, "soft_min_rel_kw": -1.0}
+        a = mapped.solve(h_terms=terms, **args)  # type: ignore[arg-type]
+        b = plain.solve(h_terms=h_map @ terms, **args)  # type: ignore[arg-type]
+        np.testing.assert_allclose(mapped._data, plain._data, rtol=1e-13, atol=1e-12)
+        assert a.is_usable and b.is_usable
+        np.testing.assert_allclose(a.w, b.w, atol=LQR_ATOL_KW)
+    with pytest.raises(DesignError, match="h_map must have 2 rows"):
+        MPCQP(**kw, h_map=np.ones((3, 5)))  # type: ignore[arg-type]
 
 
 def test_warm_start_needs_few_iterations_and_failure_forces_a_cold_start(
@@ -287,13 +311,13 @@ def test_warm_start_needs_few_iterations_and_failure_forces_a_cold_start(
         return MPCQP(A=ss.A, B=ss.B, C=ss.C, horizon_steps=30, options=options, **WEIGHTS)
 
     w_lo, w_hi, _ = MoveBounds(None, 30).compute(input_map, 0.0)
-    args = {"h": np.array([-3.0, 0.5]), "w_prev": 1.0, "w_target": 4.0, "y_target": 3.6,
+    args = {"h_terms": np.array([-3.0, 0.5]), "w_prev": 1.0, "w_target": 4.0, "y_target": 3.6,
             "w_lo": w_lo, "w_hi": w_hi}
     qp = make()
     cold = qp.solve(**args)  # type: ignore[arg-type]
     warm = qp.solve(**args)  # type: ignore[arg-type]
     assert warm.n_iterations <= options.check_termination < cold.n_iterations
-    failed = qp.solve(**{**args, "h": np.array([math.nan, 0.0])})  # type: ignore[arg-type]
+    failed = qp.solve(**{**args, "h_terms": np.array([math.nan, 0.0])})  # type: ignore[arg-type]
     assert not failed.is_usable and np.all(np.isnan(failed.w))
     after = qp.solve(**args)  # type: ignore[arg-type]
     # A cold start repeats the fresh solve bit for bit.
@@ -308,7 +332,7 @@ def test_max_iter_one_reports_an_unusable_solution(
     qp = MPCQP(A=ss.A, B=ss.B, C=ss.C, horizon_steps=30,
                options=OSQPOptions(max_iter=1), **WEIGHTS)
     w_lo, w_hi, _ = MoveBounds(None, 30).compute(input_map, 0.0)
-    sol = qp.solve(h=np.array([-3.0, 0.5]), w_prev=1.0, w_target=4.0, y_target=3.6,
+    sol = qp.solve(h_terms=np.array([-3.0, 0.5]), w_prev=1.0, w_target=4.0, y_target=3.6,
                    w_lo=w_lo, w_hi=w_hi)
     assert sol.status == "maximum iterations reached"
     assert not sol.is_usable and not sol.is_accurate
@@ -316,7 +340,6 @@ def test_max_iter_one_reports_an_unusable_solution(
 
 
 def test_terminal_cost_without_stabilizing_solution_is_a_design_error() -> None:
-    from czmpc.errors import DesignError
     from czmpc.qp import terminal_cost
 
     A = np.diag([1.1, 0.5])  # unstable mode the input cannot reach
