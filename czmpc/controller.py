@@ -33,7 +33,7 @@ import numpy as np
 from czmpc._records import record_from_fields
 from czmpc.diagnostics import Fallback, StepDiagnostics
 from czmpc.errors import DesignError, SettingsError
-from czmpc.inversion import InputMap, build_input_map, slope
+from czmpc.inversion import InputMap, build_input_map, clamp, slope
 from czmpc.kalman import Estimator, SteadyStateKalman
 from czmpc.mismatch import InnovationMonitor, monitored_noise_std_kw
 from czmpc.modes import Mode, ModeTransition, Status, transition
@@ -185,7 +185,7 @@ class OffsetFreeMPC:
                                       power_min_kw=rel.power_min_kw, power_max_kw=rel.power_max_kw)
         self._limits = LimitRamp(im, ramp_pct_per_step=rel.limit_ramp_pct_per_s * self.ts_s)
         self._shed_ds = (None if rel.shed_triac_pct is None
-                         else min(im.ds_max_pct, max(im.ds_min_pct, rel.shed_triac_pct - self._s_nom)))
+                         else clamp(rel.shed_triac_pct - self._s_nom, im.ds_min_pct, im.ds_max_pct))
         self._nan_plan = np.full(settings.horizon_steps, math.nan)
         self._nan_plan.flags.writeable = False
         self.reset()
@@ -445,7 +445,7 @@ class OffsetFreeMPC:
         applied = float(applied_triac_pct)
         if not math.isfinite(applied):
             return False
-        ds_a = min(100.0, max(0.0, applied)) - self._s_nom
+        ds_a = clamp(applied, 0.0, 100.0) - self._s_nom
         differs = abs(ds_a - self._ds_prev) > APPLIED_TOL_PCT
         if ds_a != self._ds_prev:
             w_a = self._input_map.f(ds_a)
@@ -488,7 +488,7 @@ class OffsetFreeMPC:
     def _solve_or_fall_back(self, z: FloatArray, eps: float, tgt: Target, em: InputMap) -> _Plan:
         """Stage 3: the QP, checked; on failure the shifted previous plan, then the target."""
         ds_prev = self._ds_prev
-        ds_base = min(em.ds_max_pct, max(em.ds_min_pct, ds_prev))
+        ds_base = clamp(ds_prev, em.ds_min_pct, em.ds_max_pct)
         w_base = self._w_prev if ds_base == ds_prev else em.f(ds_base)
         h_in = self._h_in
         self._h_in_z[...] = z
@@ -542,8 +542,7 @@ class OffsetFreeMPC:
             ds_raw = em.inverse(w0)
             if not math.isfinite(ds_raw):
                 ds_raw = ds_prev
-        ds_rate = min(r_hi, max(r_lo, ds_raw))
-        return min(em.ds_max_pct, max(em.ds_min_pct, ds_rate)), ds_raw
+        return clamp(clamp(ds_raw, r_lo, r_hi), em.ds_min_pct, em.ds_max_pct), ds_raw
 
     def _judge(self, used: bool, plan: _Plan, tgt: Target, ds: float, ds_raw: float,
                applied_differs: bool, *, shed: bool) -> Status:

@@ -36,6 +36,16 @@ INVERSE_RTOL = 1e-13
 INVERSE_MAX_ITER = 100
 
 
+def clamp(value: float, lo: float, hi: float) -> float:
+    """``min(hi, max(lo, value))``, exactly (NaN and signed zeros too), without the calls.
+
+    The two builtin calls cost 0.2 us, these two comparisons 0.04 us; the MPC's step
+    clamps six scalars (issue 30).
+    """
+    value = value if value > lo else lo  # what max(lo, value) returns
+    return value if value < hi else hi   # what min(hi, value) returns
+
+
 def evaluate(coefficients: tuple[float, ...], ds_pct: float) -> float:
     """Return ``f(ds) = sum_i p_i ds^i`` for a scalar (Horner) [kW-equivalent].
 
@@ -180,13 +190,13 @@ class InputMap:
             d1 = c[0]
             d2 = c[1] if len(c) == 2 else 0.0
             ds = 2.0 * w / (d1 + math.sqrt(d1 * d1 + 4.0 * d2 * w))
-            return min(self.ds_max_pct, max(self.ds_min_pct, ds))
+            return clamp(ds, self.ds_min_pct, self.ds_max_pct)
         return self._newton_inverse(w)
 
     def _newton_inverse(self, w: float) -> float:
         c = self.coefficients
         lo, hi = self.ds_min_pct, self.ds_max_pct
-        ds = min(hi, max(lo, w / c[0]))
+        ds = clamp(w / c[0], lo, hi)
         scale = max(1.0, abs(lo), abs(hi))
         for _ in range(INVERSE_MAX_ITER):
             residual = evaluate(c, ds) - w
@@ -203,7 +213,7 @@ class InputMap:
             ds = candidate if lo < candidate < hi else 0.5 * (lo + hi)
             if abs(step) <= INVERSE_RTOL * scale:
                 break
-        return min(self.ds_max_pct, max(self.ds_min_pct, ds))
+        return clamp(ds, self.ds_min_pct, self.ds_max_pct)
 
     def min_slope(self, ds_lo_pct: float, ds_hi_pct: float) -> float:
         """Smallest ``f'`` over ``[ds_lo, ds_hi]`` (see module function `min_slope`)."""
@@ -298,6 +308,7 @@ __all__ = [
     "InputMap",
     "allowed_triac_range",
     "build_input_map",
+    "clamp",
     "evaluate",
     "min_slope",
     "monotone_branch",

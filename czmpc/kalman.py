@@ -276,7 +276,8 @@ class Estimator:
     @property
     def innovation_std_kw(self) -> float:
         """Predicted std [kW] of this sample's innovation after `gap` samples without update."""
-        return self._std_kw[min(self.gap, len(self._std_kw) - 1)]
+        std, gap = self._std_kw, self.gap
+        return std[gap] if gap < len(std) else std[-1]  # std[min(gap, len - 1)], no min() call
 
     @property
     def sigma_kw(self) -> float:

@@ -17,7 +17,7 @@ from dataclasses import replace
 from typing import NamedTuple
 
 from czmpc.errors import SettingsError
-from czmpc.inversion import InputMap
+from czmpc.inversion import InputMap, clamp
 
 #: Largest setpoint magnitude taken [kW]: beyond it a setpoint is no heater power and is
 #: rejected like a non-finite one (the previous setpoint is held), so that values such as
@@ -85,7 +85,7 @@ class SetpointShaper:
         ramped = self._held
         if self._max_step is not None:
             delta = ramped - self._ramped
-            ramped = self._ramped + min(self._max_step, max(-self._max_step, delta))
+            ramped = self._ramped + clamp(delta, -self._max_step, self._max_step)
         self._ramped = ramped
         self._filtered += self._alpha * (ramped - self._filtered)
         # tuple.__new__ skips the NamedTuple's Python-level __new__ (once per step, issue 30).
@@ -150,7 +150,7 @@ class LimitRamp:
                 f"({lo_pct:g}, {hi_pct:g})"
             )
         self._lo_goal, self._hi_goal = lo, hi
-        self._move(lo if lo <= self.lo else min(lo, max(self.lo, ds_now_pct)),
+        self._move(lo if lo <= self.lo else clamp(ds_now_pct, self.lo, lo),
                    hi if hi >= self.hi else max(hi, min(self.hi, ds_now_pct)))
 
     def ramp(self) -> None:

@@ -25,6 +25,7 @@ import numpy as np
 
 from czmpc._records import record_from_fields
 from czmpc.errors import DesignError
+from czmpc.inversion import clamp
 from czmpc.realization import InnovationsForm
 from czmpc.settings import DisturbanceModel
 from sysid._typing import FloatArray
@@ -127,7 +128,7 @@ def compute_target(
         w_free = setpoint / g - disturbance
     else:
         w_free = (setpoint - disturbance) / g
-    w_s = min(w_max, max(w_min, w_free))
+    w_s = clamp(w_free, w_min, w_max)
     if is_input:
         x_s = ssm.xw * (w_s + disturbance)
         y_s = g * (w_s + disturbance)

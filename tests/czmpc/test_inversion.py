@@ -14,6 +14,7 @@ from czmpc.inversion import (
     InputMap,
     allowed_triac_range,
     build_input_map,
+    clamp,
     evaluate,
     min_slope,
     monotone_branch,
@@ -162,3 +163,13 @@ def test_min_slope_finds_an_interior_minimum(cubic_model: HammersteinModel) -> N
     # Dense grid: the grid minimum is within (spacing/2)^2 |f'''|/2 (< 1e-10) of the true one.
     assert min_slope(c, -30.0, 30.0) == pytest.approx(reference, abs=1e-9)
     assert min_slope(c, -30.0, 30.0) < min(slope(c, -30.0), slope(c, 30.0))
+
+
+def test_clamp_is_min_of_max_exactly() -> None:
+    # NaN, infinities and signed zeros included: the same value, bit for bit, in every order
+    values = [math.nan, -math.inf, -1.0, -0.0, 0.0, 0.5, 1.0, math.inf]
+    for v in values:
+        for lo in values:
+            for hi in values:
+                assert repr(clamp(v, lo, hi)) == repr(min(hi, max(lo, v)))
+                assert math.copysign(1.0, clamp(v, lo, hi)) == math.copysign(1.0, min(hi, max(lo, v)))
