@@ -29,11 +29,10 @@ from scipy.linalg import solve_triangular
 from scipy.signal import lfilter
 
 from sysid._typing import FloatArray
-from sysid.criteria import ballistic_mse, one_step_mse
+from sysid.criteria import model_criteria
 from sysid.data import Dataset
 from sysid.errors import IdentificationError, IdentificationWarning, UnstableModelError
 from sysid.model import (
-    Criteria,
     HammersteinModel,
     LinearBlock,
     OperatingPoint,
@@ -177,13 +176,17 @@ def arx_regressor(
 
     Returns ``(Phi, target, first_sample)`` with ``Phi`` of shape ``(N - n0, na + nb)``,
     rows ``phi_k = [-y_{k-1} .. -y_{k-na}, u_{k-nk} .. u_{k-nk-nb+1}]`` and
-    ``target = y[n0:]``, ``n0 = max(na, nk + nb - 1)``. Trusts its inputs.
+    ``target = y[n0:]``, ``n0 = max(na, nk + nb - 1)``. Trusts its inputs. ``Phi`` is
+    column-major, the layout of its QR factorization and its column norms.
     """
     n = y.size
     n0 = max(na, nk + nb - 1)
-    cols = [-y[n0 - i : n - i] for i in range(1, na + 1)]
-    cols += [u[n0 - j : n - j] for j in range(nk, nk + nb)]
-    return np.column_stack(cols), y[n0:].copy(), n0
+    phi = np.empty((n - n0, na + nb), order="F")
+    for i in range(1, na + 1):
+        np.negative(y[n0 - i : n - i], out=phi[:, i - 1])
+    for col, j in enumerate(range(nk, nk + nb), start=na):
+        phi[:, col] = u[n0 - j : n - j]
+    return phi, y[n0:].copy(), n0
 
 
 #: Iterations of the simplified refined IV estimate (`sriv_oe`) from its start.
@@ -327,9 +330,9 @@ def arx_least_squares(
     else:
         parts = [arx_regressor(y[lo:hi], u[lo:hi], na=na, nb=nb, nk=nk)
                  for lo, hi in bounds if hi - lo > n0]
-        phi = np.vstack([p[0] for p in parts])
+        phi = np.asfortranarray(np.vstack([p[0] for p in parts]))
         target = np.concatenate([p[1] for p in parts])
-    col_scale = np.linalg.norm(phi, axis=0)
+    col_scale = np.sqrt(np.einsum("ij,ij->j", phi, phi))
     if np.any(col_scale == 0.0):
         raise IdentificationError(
             "arx_least_squares: a regressor column is identically zero (the output or "
@@ -338,7 +341,10 @@ def arx_least_squares(
         )
     # R of [Phi / scale, target] (its last column holds Q'target), and the rank from the
     # singular values of the small R (Phi's): numpy's lstsq cut-off, at a third of its time
-    r_aug = triangular_factor(phi / col_scale, None, target)
+    aug = np.empty((phi.shape[0], n_par + 1), order="F")
+    np.divide(phi, col_scale, out=aug[:, :n_par])
+    aug[:, n_par] = target
+    r_aug = triangular_factor(aug, overwrite=True)
     r_mat = r_aug[:n_par, :n_par]
     sing = np.linalg.svd(r_mat, compute_uv=False)
     rank = int(np.count_nonzero(sing > np.finfo(float).eps * max(phi.shape) * sing[0]))
@@ -955,11 +961,7 @@ def _linear_model(
             f"{where}: the estimate is not a usable model ({exc}); check the data and the "
             "orders"
         ) from None
-    criteria = Criteria(
-        ballistic_mse_kw2=ballistic_mse(model, data),
-        one_step_mse_kw2=one_step_mse(model, data),
-    )
-    return model.with_updates(criteria=criteria)
+    return model.with_updates(criteria=model_criteria(model, data))
 
 
 def _result(

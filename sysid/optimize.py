@@ -84,16 +84,22 @@ def sum_of_squares(x: FloatArray) -> float:
 
 
 def triangular_factor(jac: FloatArray, free: FloatArray | None = None,
-                      last: FloatArray | None = None) -> FloatArray:
+                      last: FloatArray | None = None, *, overwrite: bool = False) -> FloatArray:
     """``R`` of the QR factorization of ``[J[:, free], last]`` (Householder, LAPACK geqrf).
 
     The columns are copied once into a column-major block and factored in place:
     ``numpy.linalg.qr`` on the row-major Jacobian costs four times more, most of it in a
-    transposing copy (12,000 x 9: 1.2 ms against 0.3 ms).
+    transposing copy (12,000 x 9: 1.2 ms against 0.3 ms). ``overwrite``: a column-major
+    ``jac`` (no ``free``, no ``last``) is factored in its own memory, which it then loses.
     """
     cols = range(jac.shape[1]) if free is None else np.flatnonzero(free).tolist()
-    block = np.empty((jac.shape[0], len(cols) + (last is not None)), order="F")
-    if len(cols) == jac.shape[1]:
+    if overwrite and free is None and last is None and jac.flags.f_contiguous:
+        block = jac
+    else:
+        block = np.empty((jac.shape[0], len(cols) + (last is not None)), order="F")
+    if block is jac:
+        pass
+    elif len(cols) == jac.shape[1]:
         block[:, : len(cols)] = jac
     else:
         for i, j in enumerate(cols):
