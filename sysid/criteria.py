@@ -27,7 +27,7 @@ from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import IdentificationError
 from sysid.identifiability import Check
-from sysid.model import HammersteinModel
+from sysid.model import Criteria, HammersteinModel
 from sysid.optimize import sum_of_squares
 from sysid.simulate import predict_one_step, simulate
 
@@ -204,6 +204,13 @@ def one_step_mse(
     return mean_squared_error(data.power_kw, predict_one_step(model, data))
 
 
+def model_criteria(model: HammersteinModel, data: Dataset) -> Criteria:
+    """V (eq. 9) and W (eq. 10) of a model on a record, held past: `ballistic_mse` and
+    `one_step_mse`, the simulation run once for an OE model (whose predictor is it)."""
+    v = ballistic_mse(model, data)
+    w = v if model.linear_block == "oe" else one_step_mse(model, data)
+    return Criteria(ballistic_mse_kw2=v, one_step_mse_kw2=w)
+
 def fit_percent(measured: FloatArray, simulated: FloatArray) -> float:
     """NRMSE fit [%] as MATLAB's ``compare``: ``100 (1 - |y - yhat| / |y - mean(y)|)``.
 
@@ -311,4 +318,4 @@ def start_at_rest(data: Dataset) -> Check:
 
 __all__ = ["REST_DRIFT_SHARE", "REST_DRIFT_Z", "REST_INPUT_RTOL", "REST_MIN_SAMPLES",
            "ballistic_mse", "errors_with_fitted_state", "fit_percent", "mean_squared_error",
-           "one_step_mse", "start_at_rest"]
+           "model_criteria", "one_step_mse", "start_at_rest"]

@@ -139,14 +139,18 @@ class OperatingPointChoice:
 
 
 def _constant_input_runs(u: FloatArray, tol: float) -> list[tuple[int, int]]:
-    """Maximal runs ``[a, b)`` in which every input lies within ``tol`` of ``u[a]``."""
+    """Maximal runs ``[a, b)`` in which every input lies within ``tol`` of ``u[a]``.
+
+    On Python floats (a third of the time of indexing the array sample by sample).
+    """
     runs: list[tuple[int, int]] = []
-    start = 0
-    for k in range(1, u.size):
-        if abs(u[k] - u[start]) > tol:
+    values = u.tolist()
+    start, first = 0, values[0] if values else 0.0
+    for k in range(1, len(values)):
+        if abs(values[k] - first) > tol:
             runs.append((start, k))
-            start = k
-    runs.append((start, u.size))
+            start, first = k, values[k]
+    runs.append((start, len(values)))
     return runs
 
 

@@ -408,13 +408,16 @@ def estimate_transients(
     n = orders.n_state
     if n == 0:
         return np.zeros(0)
-    kernel = _oe_segment if orders.block == "oe" else _armax_segment
+    oe = orders.block == "oe"
+    kernel = _oe_segment if oe else _armax_segment
+    den = orders.polynomials(theta_model)[2]  # F (OE) or C (ARMAX)
     out = []
     for y, ds in segments:
-        # r = r0 + P h is affine in h: h = argmin |r0 + P h|
-        r0, make = kernel(orders, theta_model, np.zeros(n), y, _powers(ds, orders.degree),
-                          "estimate")
-        pulses = make()[:, orders.n_model :]
+        # r = r0 + P h is affine in h: h = argmin |r0 + P h|, P the Jacobian's transient columns
+        r0, _ = kernel(orders, theta_model, np.zeros(n), y, _powers(ds, orders.degree),
+                       "estimate")
+        pulses = np.empty((y.size, n), order="F")
+        _transient_columns(pulses, den, 0, n, "estimate", [], -1.0 if oe else 1.0)
         m = y.size if fit_samples is None else fit_samples
         out.append(np.linalg.lstsq(pulses[:m], -r0[:m], rcond=None)[0])
     return np.concatenate(out)

@@ -20,7 +20,7 @@ import numpy as np
 
 from sysid._arrays import readonly_array as _readonly
 from sysid._typing import FloatArray
-from sysid.criteria import ballistic_mse, one_step_mse
+from sysid.criteria import model_criteria
 from sysid.data import Dataset
 from sysid.errors import IdentificationError, UnstableModelError
 from sysid.greybox import GreyBoxResult, GreyBoxStructure
@@ -532,11 +532,6 @@ def hammerstein_model(
         raise IdentificationError(
             f"hammerstein_model: the {fit.method} estimate is not a usable model ({exc})"
         ) from None
-    return model.with_updates(
-        criteria=Criteria(
-            ballistic_mse_kw2=ballistic_mse(model, data),
-            one_step_mse_kw2=one_step_mse(model, data),
-        )
-    )
+    return model.with_updates(criteria=model_criteria(model, data))
 
 
