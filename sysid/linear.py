@@ -457,11 +457,12 @@ def _held_lag_responses(x: FloatArray, den: FloatArray, lags: range,
     """
     x0 = float(x[0])
     v = lfilter([1.0], den, x - x0)
+    held = x0 * step
     out = np.empty((x.size, len(lags)), order="F")
     for col, lag in enumerate(lags):
         out[:lag, col] = 0.0
         out[lag:, col] = v[: x.size - lag]
-        out[:, col] += x0 * step
+        out[:, col] += held
     return out
 
 

@@ -237,7 +237,7 @@ def _oe_segment(
             _put_lag(out, col, w_f, j, -1.0)
             col += 1
         for i in range(deg):
-            out[:, col] = -_fir(beta, feats_f[:, i])
+            np.negative(_fir(beta, feats_f[:, i]), out=out[:, col])
             col += 1
         for i in range(1, orders.na + 1):
             _put_lag(out, col, yhat_f, i)
@@ -290,7 +290,7 @@ def _armax_segment(
             _put_lag(out, col, w_c, j, -1.0)
             col += 1
         for i in range(deg):
-            out[:, col] = -_fir(beta, feats_c[:, i])
+            np.negative(_fir(beta, feats_c[:, i]), out=out[:, col])
             col += 1
         for i in range(1, na + 1):  # c_i = a_i + k_i: d/d a_i also moves C
             _put_lag(out, col, y_c, i)
