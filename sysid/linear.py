@@ -579,7 +579,7 @@ def _oe_problem(
             h = impulse_response(f, n)
             step = np.cumsum(h)
             jac = np.empty((n, nb + nf + (nf if estimate else 0)), order="F")
-            jac[:, :nb] = -_held_lag_responses(u, f, range(nk, nk + nb), step)
+            np.negative(_held_lag_responses(u, f, range(nk, nk + nb), step), out=jac[:, :nb])
             if nf:
                 # d eps/d f_i = (q^-i yhat)/F: zero past (estimated) or y_0 held
                 yf = lfilter([1.0], f, yhat if estimate else yhat - y0)
@@ -588,7 +588,7 @@ def _oe_problem(
                     jac[:, nb + i - 1] = col if estimate else col + y0 * step
             if estimate:
                 for j in range(nf):
-                    jac[:, nb + nf + j] = -_shifted(h, j)
+                    np.negative(_shifted(h, j), out=jac[:, nb + nf + j])
             return jac
 
         return y - yhat, jacobian
@@ -625,11 +625,12 @@ def _armax_problem(
             jac = np.empty((n, n_model + (nc if estimate else 0)), order="F")
             if na:
                 jac[:, :na] = _held_lag_responses(y, c, range(1, na + 1), step)
-            jac[:, na : na + nb] = -_held_lag_responses(u, c, range(nk, nk + nb), step)
+            np.negative(_held_lag_responses(u, c, range(nk, nk + nb), step),
+                        out=jac[:, na : na + nb])
             if nc:
                 ef = lfilter([1.0], c, e)
                 for i in range(1, nc + 1):
-                    jac[:, na + nb + i - 1] = -_shifted(ef, i)
+                    np.negative(_shifted(ef, i), out=jac[:, na + nb + i - 1])
             if estimate:
                 for j in range(nc):
                     jac[:, n_model + j] = _shifted(h, j)

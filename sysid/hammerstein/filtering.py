@@ -170,7 +170,10 @@ def _powers(ds: FloatArray, degree: int) -> FloatArray:
 def _put_lag(out: FloatArray, col: int, x: FloatArray, lag: int, sign: float = 1.0) -> None:
     """``out[:, col] = sign * x[k - lag]`` with zeros before the start."""
     out[:lag, col] = 0.0
-    out[lag:, col] = x[: x.size - lag] if sign == 1.0 else -x[: x.size - lag]
+    if sign == 1.0:
+        out[lag:, col] = x[: x.size - lag]
+    else:
+        np.negative(x[: x.size - lag], out=out[lag:, col])
 
 
 def _jacobian_block(n_samples: int, n_model: int, n_state: int,
