@@ -650,7 +650,9 @@ def _finish(
     initial_conditions: InitialConditions,
     held_state: FloatArray,
 ) -> PemFit:
-    std = parameter_std_errors(lm.jacobian, lm.residuals)[:n_model]
+    n_theta = lm.theta.size
+    std = parameter_std_errors(lm.jacobian, lm.residuals,
+                               factor=lm.factor[:n_theta, :n_theta])[:n_model]
     state = lm.theta[n_model:] if initial_conditions == "estimated" else held_state
     return PemFit(
         structure=structure,

@@ -58,6 +58,10 @@ class LMResult:
         Residuals at `theta`, shape ``(N,)``.
     jacobian :
         Jacobian ``dr/dtheta`` at `theta`, shape ``(N, p)``.
+    factor :
+        `triangular_factor` of ``[jacobian, residuals]``, shape ``(p + 1, p + 1)``: its
+        leading ``(p, p)`` block is the ``R`` of the Jacobian (for standard errors and
+        the covariance without factoring the Jacobian again).
     cost :
         Mean of the squared residuals at `theta` (V or W when the residuals are the
         simulation or prediction errors).
@@ -72,6 +76,7 @@ class LMResult:
     theta: FloatArray
     residuals: FloatArray
     jacobian: FloatArray
+    factor: FloatArray
     cost: float
     n_iterations: int
     converged: bool
@@ -138,17 +143,18 @@ def _evaluate(
     return r, jac, ssr
 
 
-def _jacobian(jac: Jacobian, n: int, p: int) -> FloatArray | None:
-    """The Jacobian (made if lazy) checked for shape ``(n, p)``; None if not finite."""
+def _factored(jac: Jacobian, r: FloatArray, p: int) -> tuple[FloatArray, FloatArray] | None:
+    """The Jacobian (made if lazy), checked for shape ``(n, p)``, and the
+    `triangular_factor` of ``[J, r]``; None if that factor is not finite (a nan or inf in
+    ``J`` reaches it: the check costs a small matrix, not a pass over ``J``)."""
     out = np.asarray(jac() if callable(jac) else jac, dtype=float)
-    if out.shape != (n, p):
+    if out.shape != (r.size, p):
         raise IdentificationError(
             "levenberg_marquardt: fun must return (r of shape (N,), J of shape (N, p)) with "
-            f"p = {p}; got shapes ({n},) and {out.shape}"
+            f"p = {p}; got shapes ({r.size},) and {out.shape}"
         )
-    # one sum finds a nan or inf (an overflowing sum of finite values is checked in full)
-    finite = np.isfinite(np.einsum("ij->", out)) or bool(np.all(np.isfinite(out)))
-    return out if finite else None
+    factor = triangular_factor(out, None, r)
+    return (out, factor) if np.isfinite(np.einsum("ij->", factor)) else None
 
 
 def _damped_solver(r_mat: FloatArray, qtr: FloatArray,
@@ -355,14 +361,15 @@ def levenberg_marquardt(
 
     theta = feasible(theta)
     first = _evaluate(fun, theta)
-    jac = None if first is None else _jacobian(first[1], first[0].size, p)
-    if first is None or jac is None:
+    made = None if first is None else _factored(first[1], first[0], p)
+    if first is None or made is None:
         raise IdentificationError(
             "levenberg_marquardt: the residuals or Jacobian at the starting point theta0 "
             f"= {theta.tolist()} are not finite; start from a point where the model is "
             "stable and defined"
         )
     r, _, ssr = first
+    jac, r_aug = made
     n = r.size
     scale = np.zeros(p)
     mu = _MU_INITIAL
@@ -379,9 +386,9 @@ def levenberg_marquardt(
         if ssr <= _TINY:
             converged, message = True, "the sum of squared residuals is zero"
             break
-        # R of the QR factorization of [J, r]: J = Q R_J and r = Q R_r + (a part
-        # orthogonal to J), so J'r = R_J' R_r and the column norms of J are R_J's.
-        r_aug = triangular_factor(jac, None, r)
+        # r_aug: R of the QR factorization of [J, r] (made where the point was accepted):
+        # J = Q R_J and r = Q R_r + (a part orthogonal to J), so J'r = R_J' R_r and the
+        # column norms of J are R_J's.
         grad = r_aug[:, :p].T @ r_aug[:, p]
         col_norms = np.sqrt(np.einsum("ij,ij->j", r_aug[:, :p], r_aug[:, :p]))
         if pending is not None:  # y# = (J - J_old)'r and y = J'r - J_old'r_old
@@ -404,10 +411,9 @@ def levenberg_marquardt(
             break
         scale = np.maximum(scale, col_norms)
         d = scale.copy() if all_free else np.where(scale[free] > 0, scale[free], 1.0)
-        if not all_free:  # R of [J_free, r]: its last column holds Q'r
-            r_aug = triangular_factor(jac, free, r)
-        r_mat = r_aug[:n_free, :n_free]
-        qtr = r_aug[:n_free, -1]
+        r_free = r_aug if all_free else triangular_factor(jac, free, r)  # R of [J_free, r]
+        r_mat = r_free[:n_free, :n_free]
+        qtr = r_free[:n_free, -1]
         gauss_newton = _damped_solver(r_mat, qtr, d)
         second_free = second if all_free else second[np.ix_(free, free)]
         augmented = (_augmented_solver(r_mat.T @ r_mat, second_free, grad[free], d)
@@ -431,9 +437,9 @@ def levenberg_marquardt(
             predicted = predicted_gn if augmented is None else predicted_aug
             evaluated = _evaluate(fun, trial)
             ssr_new = evaluated[2] if evaluated is not None else math.inf
-            jac_new = (_jacobian(evaluated[1], n, p)
-                       if evaluated is not None and ssr_new < ssr else None)
-            if evaluated is not None and jac_new is not None:
+            made = (_factored(evaluated[1], evaluated[0], p)
+                    if evaluated is not None and ssr_new < ssr else None)
+            if evaluated is not None and made is not None:
                 actual = ssr - ssr_new
                 if predicted > 0:
                     rho = actual / predicted
@@ -445,7 +451,8 @@ def levenberg_marquardt(
                 pending = (step, r_new @ jac, grad)
                 # the next iteration uses the model that predicted this reduction better
                 use_augmented = abs(predicted_aug - actual) < abs(predicted_gn - actual)
-                theta, r, jac, ssr = trial, r_new, jac_new, ssr_new
+                theta, r, ssr = trial, r_new, ssr_new
+                jac, r_aug = made
                 accepted = True
                 if small_reduction:
                     converged = True
@@ -492,6 +499,7 @@ def levenberg_marquardt(
         theta=theta,
         residuals=r,
         jacobian=jac,
+        factor=r_aug,
         cost=ssr / n,
         n_iterations=iteration,
         converged=converged,

@@ -119,7 +119,8 @@ def _pem(
         ftol=DEFAULT_FTOL if tolerance is None else tolerance,
         xtol=DEFAULT_XTOL if tolerance is None else tolerance,
     )
-    factor = triangular_factor(lm.jacobian)
+    n_theta = lm.theta.size
+    factor = lm.factor[:n_theta, :n_theta]  # R of the Jacobian: the factor of [J, r] without r
     cov = covariance_from_jacobian(lm.jacobian, lm.residuals, factor=factor)[:p, :p]
     std = parameter_std_errors(lm.jacobian, lm.residuals, factor=factor)[:p]
     return lm, cov, std, lm.theta[p:]

@@ -212,3 +212,16 @@ def test_a_lazy_jacobian_is_made_at_accepted_points_only() -> None:
     np.testing.assert_array_equal(res.theta, eager.theta)
     # one Jacobian at the start and one per accepted step, none at the rejected trials
     assert len(made) <= res.n_iterations + 1 < len(calls)
+
+
+def test_a_trial_whose_jacobian_is_not_finite_is_rejected_and_the_factor_is_the_final_points() -> None:
+    # r = x - 2 (so a full step goes to 2), but J is NaN for x > 1.5: every trial beyond it
+    # is rejected on its Jacobian (seen through the factor of [J, r]), and the search ends
+    # at or below 1.5 with the factor of its own [J, r]
+    def fun(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        slope = np.nan if theta[0] > 1.5 else 1.0
+        return np.array([theta[0] - 2.0, 0.0]), np.array([[slope], [0.0]])
+
+    res = levenberg_marquardt(fun, np.array([0.0]))
+    assert res.theta[0] <= 1.5 and np.all(np.isfinite(res.jacobian))
+    np.testing.assert_array_equal(res.factor, triangular_factor(res.jacobian, None, res.residuals))
