@@ -55,7 +55,7 @@ def is_stable(poly: FloatArray) -> bool:
     prediction-error searches test every trial point with it, so it runs on Python
     floats (a tenth of the time of the same recursion on numpy arrays).
     """
-    a = [float(v) for v in np.asarray(poly, dtype=float).reshape(-1)]
+    a: list[float] = np.asarray(poly, dtype=float).reshape(-1).tolist()
     while a and a[-1] == 0.0:  # trailing zeros: roots at z = 0
         a.pop()
     if not a or a[0] == 0.0 or not all(math.isfinite(v) for v in a):
