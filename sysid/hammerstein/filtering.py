@@ -182,6 +182,24 @@ def _jacobian_block(n_samples: int, n_model: int, n_state: int,
                     order="F")
 
 
+def _input_columns(out: FloatArray, w_f: FloatArray, feats_f: FloatArray, beta: FloatArray,
+                   orders: HammersteinOrders) -> int:
+    """The input block's columns of a segment's Jacobian; returns the next column.
+
+    ``d eps/d b_j = -q^-j w_f`` (``j = nk+1 .. nk+nb-1``; ``b_nk`` is fixed by the gain
+    normalisation) and ``d eps/d alpha_i = -B feats_f[:, i]``, with ``w_f`` and ``feats_f``
+    the gain ``w`` and the input powers through the block's denominator (``F`` or ``C``).
+    """
+    col = 0
+    for j in range(orders.nk + 1, orders.nk + orders.nb):
+        _put_lag(out, col, w_f, j, -1.0)
+        col += 1
+    for i in range(orders.degree):
+        np.negative(_fir(beta, feats_f[:, i]), out=out[:, col])
+        col += 1
+    return col
+
+
 def _transient_columns(out: FloatArray, den: FloatArray, n_model: int, n_state: int,
                        initial_state: InitialState, d_state: list[FloatArray],
                        sign: float) -> None:
@@ -235,13 +253,7 @@ def _oe_segment(
         w_f = feats_f @ poly
         yhat_f = lfilter([1.0], f, yhat)
         out = _jacobian_block(y.size, orders.n_model, n, initial_state)
-        col = 0
-        for j in range(nk + 1, nk + nb):
-            _put_lag(out, col, w_f, j, -1.0)
-            col += 1
-        for i in range(deg):
-            np.negative(_fir(beta, feats_f[:, i]), out=out[:, col])
-            col += 1
+        col = _input_columns(out, w_f, feats_f, beta, orders)
         for i in range(1, orders.na + 1):
             _put_lag(out, col, yhat_f, i)
             col += 1
@@ -288,13 +300,7 @@ def _armax_segment(
         e_c = lfilter([1.0], c, e) if nc else e
         y_c = lfilter([1.0], c, y) if na else y
         out = _jacobian_block(y.size, orders.n_model, n, initial_state)
-        col = 0
-        for j in range(nk + 1, nk + nb):
-            _put_lag(out, col, w_c, j, -1.0)
-            col += 1
-        for i in range(deg):
-            np.negative(_fir(beta, feats_c[:, i]), out=out[:, col])
-            col += 1
+        col = _input_columns(out, w_c, feats_c, beta, orders)
         for i in range(1, na + 1):  # c_i = a_i + k_i: d/d a_i also moves C
             _put_lag(out, col, y_c, i)
             if i <= nc:
