@@ -24,6 +24,7 @@ import os
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from czmpc.reports.figure_style import PALETTE, FigureError, legend_above, save_figure, stacked_axes, vector
@@ -78,11 +79,41 @@ _MEASURED_STYLE = {"color": "black", "linewidth": 1.2, "label": "measured"}
 
 
 def _series(func: str, noun: str, what: str, series: Mapping[str, Sequence[float] | np.ndarray],
-            n: int) -> dict[str, np.ndarray]:
-    """The labelled series ``what`` of ``func`` as float arrays of ``n`` samples (at least one)."""
-    if not series:
+            n: int, *, allow_empty: bool = False) -> dict[str, np.ndarray]:
+    """The labelled series ``what`` of ``func`` as float arrays of ``n`` samples.
+
+    At least one series is needed unless ``allow_empty``.
+    """
+    if not series and not allow_empty:
         raise FigureError(f"{func} needs at least one {noun} series; got none")
     return {name: vector(v, f"{what}[{name!r}]", n) for name, v in series.items()}
+
+
+def _color(i: int) -> str:
+    """Line colour of the ``i``-th series of a figure (`PALETTE`, from the start again when used up)."""
+    return PALETTE[i % len(PALETTE)]
+
+
+def _draw_input(ax: Axes, time_s: np.ndarray, input_pct: np.ndarray, *, color: str, label: str,
+                ylabel: str) -> None:
+    """The input against time on ``ax`` as a staircase (held between samples), with its y label."""
+    ax.plot(time_s, input_pct, color=color, linewidth=1.0, drawstyle="steps-post", label=label)
+    ax.set_ylabel(ylabel)
+
+
+def _mark_times(axes: Sequence[Axes], times_s: Sequence[float], label: str) -> None:
+    """Vertical dotted lines at ``times_s`` on every panel (one legend entry each), then its legend."""
+    for ax in axes:
+        for i, tm in enumerate(times_s):
+            ax.axvline(tm, color="tab:purple", linestyle=":", linewidth=1.0,
+                       label=label if i == 0 else None)
+        legend_above(ax)
+
+
+def _save_titled(fig: Figure, title: str, path: str | os.PathLike[str]) -> Figure:
+    """Give ``fig`` its title, write it to ``path`` (`save_figure`) and return it."""
+    fig.suptitle(title)
+    return save_figure(fig, path)
 
 
 def _rms(values: np.ndarray) -> float:
@@ -136,20 +167,15 @@ def plot_dataset(
     t = vector(time_s, "time_s")
     s = vector(triac_pct, "triac_pct", t.size)
     p = vector(power_kw, "power_kw", t.size)
+    lab = _labels(labels)
     fig, (ax_p, ax_s) = stacked_axes(2)
     ax_p.plot(t, p, color="tab:red", linewidth=1.0, label="dP" if deviation else "P")
-    ax_p.set_ylabel(_labels(labels)["power_dev" if deviation else "power"])
-    ax_s.plot(t, s, color="tab:blue", linewidth=1.0, drawstyle="steps-post",
-              label="ds" if deviation else "s")
-    ax_s.set_ylabel(_labels(labels)["triac_dev" if deviation else "triac"])
-    ax_s.set_xlabel(_labels(labels)["time"])
-    for ax in (ax_p, ax_s):
-        for i, tm in enumerate(marked_time_s):
-            ax.axvline(tm, color="tab:purple", linestyle=":", linewidth=1.0,
-                       label=marked_label if i == 0 else None)
-        legend_above(ax)
-    fig.suptitle(title)
-    return save_figure(fig, path)
+    ax_p.set_ylabel(lab["power_dev" if deviation else "power"])
+    _draw_input(ax_s, t, s, color="tab:blue", label="ds" if deviation else "s",
+                ylabel=lab["triac_dev" if deviation else "triac"])
+    ax_s.set_xlabel(lab["time"])
+    _mark_times((ax_p, ax_s), marked_time_s, marked_label)
+    return _save_titled(fig, title, path)
 
 
 def plot_residuals(
@@ -197,20 +223,20 @@ def plot_residuals(
     if len(series) > 1:
         for ax in axes[1:]:
             ax.sharey(axes[0])
+    lab = _labels(labels)
     marks = np.asarray(list(marked_time_s), dtype=float)
     for i, (ax, (name, e)) in enumerate(zip(axes, series.items(), strict=True)):
-        ax.plot(t, e, color=PALETTE[i % len(PALETTE)], linewidth=0.8,
-                label=f"{name} (RMS {_rms(e):.3g} {_labels(labels)['unit_out']})")
+        ax.plot(t, e, color=_color(i), linewidth=0.8,
+                label=f"{name} (RMS {_rms(e):.3g} {lab['unit_out']})")
         if marks.size:
             idx = np.clip(np.searchsorted(t, marks), 0, t.size - 1)
             top = float(np.nanmax(np.abs(e)))
             ax.plot(t[idx], np.full(idx.size, 1.05 * top), linestyle="none", marker="v",
                     markersize=9, color="tab:purple", label=marked_label)
-        ax.set_ylabel(_labels(labels)["residual"])
+        ax.set_ylabel(lab["residual"])
         legend_above(ax)
-    axes[-1].set_xlabel(_labels(labels)["time"])
-    fig.suptitle(title)
-    return save_figure(fig, path)
+    axes[-1].set_xlabel(lab["time"])
+    return _save_titled(fig, title, path)
 
 
 def plot_outlier_zoom(
@@ -261,18 +287,15 @@ def plot_outlier_zoom(
             f"plot_outlier_zoom: expected samples within {half_width_s:g} s of "
             f"{center_time_s:g} s; got none in {t[0]:g}..{t[-1]:g} s"
         )
+    lab = _labels(labels)
     fig, (ax_e, ax_p) = stacked_axes(2)
     ax_e.plot(t[window], e[window], marker=".", color="tab:blue", linewidth=0.8, label="e")
-    ax_e.set_ylabel(_labels(labels)["residual"])
+    ax_e.set_ylabel(lab["residual"])
     ax_p.plot(t[window], p[window], marker=".", color="tab:red", linewidth=0.8, label="dP")
-    ax_p.set_ylabel(_labels(labels)["power_dev"])
-    ax_p.set_xlabel(_labels(labels)["time"])
-    for ax in (ax_e, ax_p):
-        ax.axvline(center_time_s, color="tab:purple", linestyle=":", linewidth=1.0,
-                   label=f"candidate at {center_time_s:g} s")
-        legend_above(ax)
-    fig.suptitle(title)
-    return save_figure(fig, path)
+    ax_p.set_ylabel(lab["power_dev"])
+    ax_p.set_xlabel(lab["time"])
+    _mark_times((ax_e, ax_p), [center_time_s], f"candidate at {center_time_s:g} s")
+    return _save_titled(fig, title, path)
 
 
 def plot_simulations(
@@ -315,22 +338,21 @@ def plot_simulations(
     t = vector(time_s, "time_s")
     y = vector(measured_kw, "measured_kw", t.size)
     sims = _series("plot_simulations", "simulated", "simulated_kw", simulated_kw, t.size)
+    lab = _labels(labels)
     fig, axes = stacked_axes(1 if input_pct is None else 2)
     ax = axes[0]
     ax.plot(t, y, **_MEASURED_STYLE)  # type: ignore[arg-type]
     for i, (name, sim) in enumerate(sims.items()):
-        ax.plot(t, sim, color=PALETTE[i % len(PALETTE)], linewidth=1.0,
+        ax.plot(t, sim, color=_color(i), linewidth=1.0,
                 linestyle=("--", "-.", ":", (0, (5, 1)))[i % 4], label=name)
-    ax.set_ylabel(_labels(labels)["power_dev"])
+    ax.set_ylabel(lab["power_dev"])
     legend_above(ax)
     if input_pct is not None:
         u = vector(input_pct, "input_pct", t.size)
-        axes[1].plot(t, u, color="tab:gray", linewidth=1.0, drawstyle="steps-post", label="ds")
-        axes[1].set_ylabel(_labels(labels)["triac_dev"])
+        _draw_input(axes[1], t, u, color="tab:gray", label="ds", ylabel=lab["triac_dev"])
         legend_above(axes[1])
-    axes[-1].set_xlabel(_labels(labels)["time"])
-    fig.suptitle(title)
-    return save_figure(fig, path)
+    axes[-1].set_xlabel(lab["time"])
+    return _save_titled(fig, title, path)
 
 
 def plot_simulation_errors(
@@ -366,16 +388,16 @@ def plot_simulation_errors(
     """
     t = vector(time_s, "time_s")
     errs = _series("plot_simulation_errors", "error", "errors_kw", errors_kw, t.size)
+    lab = _labels(labels)
     fig, (ax,) = stacked_axes(1)
     ax.axhline(0.0, color="black", linewidth=0.8)
     for i, (name, eps) in enumerate(errs.items()):
-        ax.plot(t, eps, color=PALETTE[i % len(PALETTE)], linewidth=1.0,
-                label=f"{name} (V = {np.mean(eps ** 2):.3g} {_labels(labels)['unit_out']}^2)")
-    ax.set_ylabel(_labels(labels)["sim_error"])
-    ax.set_xlabel(_labels(labels)["time"])
+        ax.plot(t, eps, color=_color(i), linewidth=1.0,
+                label=f"{name} (V = {np.mean(eps ** 2):.3g} {lab['unit_out']}^2)")
+    ax.set_ylabel(lab["sim_error"])
+    ax.set_xlabel(lab["time"])
     legend_above(ax)
-    fig.suptitle(title)
-    return save_figure(fig, path)
+    return _save_titled(fig, title, path)
 
 
 def plot_correlations(
@@ -439,6 +461,7 @@ def plot_correlations(
     lags, r_ee = lags[keep], r_ee[keep]
     if lags.size == 0:
         raise FigureError("plot_correlations: autocorrelation needs a lag other than 0; got only lag 0")
+    lab = _labels(labels)
     fig, axes = stacked_axes(2, sharex=False)
     panels = (
         (axes[0], lags, r_ee, autocorr_bound, "autocorr", "residual e"),
@@ -453,11 +476,10 @@ def plot_correlations(
                    label=f"{100 * confidence:g} % band +-{bound:.3g}")
         ax.axhline(-bound, color="tab:gray", linestyle="--", linewidth=1.0)
         ax.axhline(0.0, color="black", linewidth=0.6)
-        ax.set_ylabel(_labels(labels)[key])
-        ax.set_xlabel(_labels(labels)["lag"])
+        ax.set_ylabel(lab[key])
+        ax.set_xlabel(lab["lag"])
         legend_above(ax)
-    fig.suptitle(title)
-    return save_figure(fig, path)
+    return _save_titled(fig, title, path)
 
 
 def plot_gain_curve(
@@ -497,8 +519,8 @@ def plot_gain_curve(
         Arrays of the wrong shape.
     """
     grid = vector(ds_grid_pct, "ds_grid_pct")
-    curves = {name: vector(v, f"gain_kw_per_pct[{name!r}]", grid.size)
-              for name, v in gain_kw_per_pct.items()}
+    curves = _series("plot_gain_curve", "gain", "gain_kw_per_pct", gain_kw_per_pct, grid.size,
+                     allow_empty=True)
     step_ds = np.asarray(step_ds_pct, dtype=float)
     step_r = np.asarray(step_gain_kw_per_pct, dtype=float)
     if step_ds.shape != step_r.shape or step_ds.ndim != 1:
@@ -506,17 +528,17 @@ def plot_gain_curve(
             "plot_gain_curve: step_ds_pct and step_gain_kw_per_pct must be 1-D of equal length; "
             f"got shapes {step_ds.shape} and {step_r.shape}"
         )
+    lab = _labels(labels)
     fig, (ax,) = stacked_axes(1)
     for i, (name, g) in enumerate(curves.items()):
-        ax.plot(grid, g, color=PALETTE[i % len(PALETTE)], linewidth=1.2, label=name)
+        ax.plot(grid, g, color=_color(i), linewidth=1.2, label=name)
     if step_ds.size:
         ax.plot(step_ds, step_r, linestyle="none", marker="o", color="black",
                 label="measured step gains r")
-    ax.set_xlabel(_labels(labels)["triac_dev"])
-    ax.set_ylabel(_labels(labels)["gain"])
+    ax.set_xlabel(lab["triac_dev"])
+    ax.set_ylabel(lab["gain"])
     ax.legend(loc="upper right")
-    fig.suptitle(title)
-    return save_figure(fig, path)
+    return _save_titled(fig, title, path)
 
 
 __all__ = ["AXIS_LABELS", "plot_correlations", "plot_dataset", "plot_gain_curve", "plot_outlier_zoom",
