@@ -60,6 +60,35 @@ def _check_order(name: str, value: object, minimum: int) -> int:
     return int(value)
 
 
+def _indexed_names(letter: str, indices: range) -> tuple[str, ...]:
+    """``("<letter><i>", ..)``: the names of one polynomial's coefficients (paper eq. 8)."""
+    return tuple(f"{letter}{i}" for i in indices)
+
+
+def _oe_polynomials(theta: FloatArray, nb: int, nf: int,
+                    nk: int) -> tuple[FloatArray, FloatArray]:
+    """``(B, F)`` of ``theta = [b_nk..b_{nk+nb-1}, f1..f_nf, ..]`` (paper eq. 7).
+
+    ``B`` with ``nk`` leading zeros, ``F`` monic; entries after ``f_nf`` are ignored.
+    """
+    b = np.concatenate([np.zeros(nk), theta[:nb]])
+    f = np.concatenate([[1.0], theta[nb : nb + nf]])
+    return b, f
+
+
+def _armax_polynomials(theta: FloatArray, na: int, nb: int, nc: int,
+                       nk: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``(A, B, C)`` of ``theta = [a1..a_na, b_nk..b_{nk+nb-1}, c1..c_nc, ..]`` (eqs. 5-6).
+
+    ``A`` and ``C`` monic, ``B`` with ``nk`` leading zeros; entries after ``c_nc`` are
+    ignored. ARX is the case ``nc = 0`` (``C = 1``).
+    """
+    a = np.concatenate([[1.0], theta[:na]])
+    b = np.concatenate([np.zeros(nk), theta[na : na + nb]])
+    c = np.concatenate([[1.0], theta[na + nb : na + nb + nc]])
+    return a, b, c
+
+
 def _check_signals(y: FloatArray, u: FloatArray, where: str) -> tuple[FloatArray, FloatArray]:
     y_arr = np.asarray(y, dtype=float)
     u_arr = np.asarray(u, dtype=float)
@@ -164,9 +193,8 @@ class ArxFit:
     @property
     def parameter_names(self) -> tuple[str, ...]:
         """``("a1", ..., "b<nk>", ...)`` in the order of `theta`."""
-        return tuple(f"a{i}" for i in range(1, self.na + 1)) + tuple(
-            f"b{j}" for j in range(self.nk, self.nk + self.nb)
-        )
+        return _indexed_names("a", range(1, self.na + 1)) + _indexed_names(
+            "b", range(self.nk, self.nk + self.nb))
 
 
 def arx_regressor(
@@ -238,8 +266,7 @@ def sriv_oe(y: FloatArray, u: FloatArray, *, nb: int, nf: int, nk: int,
     """
     theta = start
     for _ in range(SRIV_ITERATIONS):
-        b = np.concatenate([np.zeros(nk), theta[:nb]])
-        f = np.concatenate([[1.0], theta[nb:]])
+        b, f = _oe_polynomials(theta, nb, nf, nk)
         x = lfilter(b, f, u)                               # noise-free output: instruments
         yf, uf, xf = (lfilter([1.0], f, s) for s in (y, u, x))
         phi, target, _ = arx_regressor(yf, uf, na=nf, nb=nb, nk=nk)
@@ -356,8 +383,7 @@ def arx_least_squares(
         )
     theta = solve_triangular(r_mat, r_aug[:n_par, n_par]) / col_scale
     residuals = target - phi @ theta
-    a = np.concatenate([[1.0], theta[:na]])
-    b = np.concatenate([np.zeros(nk), theta[na:]])
+    a, b, _ = _armax_polynomials(theta, na, nb, 0, nk)
     return ArxFit(
         a=a,
         b=b,
@@ -566,8 +592,7 @@ def _oe_problem(
     y0 = float(y[0])
 
     def fun(theta: FloatArray) -> tuple[FloatArray, Callable[[], FloatArray]]:
-        b = np.concatenate([np.zeros(nk), theta[:nb]])
-        f = np.concatenate([[1.0], theta[nb : nb + nf]])
+        b, f = _oe_polynomials(theta, nb, nf, nk)
         if estimate:
             zi = filter_state(b, f, np.zeros(nf), u_held)
             zi[:nf] += theta[nb + nf :]
@@ -612,9 +637,7 @@ def _armax_problem(
     zero_state = np.zeros(nc)
 
     def fun(theta: FloatArray) -> tuple[FloatArray, Callable[[], FloatArray]]:
-        a = np.concatenate([[1.0], theta[:na]])
-        b = np.concatenate([np.zeros(nk), theta[na : na + nb]])
-        c = np.concatenate([[1.0], theta[na + nb : n_model]])
+        a, b, c = _armax_polynomials(theta, na, nb, nc, nk)
         state = theta[n_model:] if estimate else zero_state
         v = equation_errors(a, b, y, u)
         e = lfilter([1.0], c, v, zi=state)[0]
@@ -709,11 +732,8 @@ def _oe_pem(
         [_oe_problem(y[lo:hi], u[lo:hi], nb, nf, nk, estimate) for lo, hi in bounds],
         n_model, n_state)
     lm = levenberg_marquardt(problem, start, project=project, max_iterations=max_iterations)
-    f = np.concatenate([[1.0], lm.theta[nb : nb + nf]])
-    b = np.concatenate([np.zeros(nk), lm.theta[:nb]])
-    names = tuple(f"b{j}" for j in range(nk, nk + nb)) + tuple(
-        f"f{i}" for i in range(1, nf + 1)
-    )
+    b, f = _oe_polynomials(lm.theta, nb, nf, nk)
+    names = _indexed_names("b", range(nk, nk + nb)) + _indexed_names("f", range(1, nf + 1))
     held_state = np.concatenate(
         [filter_state(np.ones(1), f, np.full(nf, y[lo])) for lo, _ in bounds]) if nf else np.zeros(0)
     return _finish("oe", lm, n_model, names, (f, b, f), ic, held_state)
@@ -823,14 +843,9 @@ def _armax_pem(
         [_armax_problem(y[lo:hi], u[lo:hi], na, nb, nc, nk, estimate) for lo, hi in bounds],
         n_model, n_state)
     lm = levenberg_marquardt(problem, start, project=project, max_iterations=max_iterations)
-    a = np.concatenate([[1.0], lm.theta[:na]])
-    b = np.concatenate([np.zeros(nk), lm.theta[na : na + nb]])
-    c = np.concatenate([[1.0], lm.theta[na + nb : n_model]])
-    names = (
-        tuple(f"a{i}" for i in range(1, na + 1))
-        + tuple(f"b{j}" for j in range(nk, nk + nb))
-        + tuple(f"c{i}" for i in range(1, nc + 1))
-    )
+    a, b, c = _armax_polynomials(lm.theta, na, nb, nc, nk)
+    names = (_indexed_names("a", range(1, na + 1)) + _indexed_names("b", range(nk, nk + nb))
+             + _indexed_names("c", range(1, nc + 1)))
     return _finish("armax", lm, n_model, names, (a, b, c), ic, np.zeros(len(bounds) * nc))
 
 
