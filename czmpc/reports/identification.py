@@ -141,8 +141,12 @@ class _Style:
         return f"{self.out_unit}^2"
 
     def title(self, text: str, paper_part: str) -> str:
-        """A figure title, with the paper's figure named only when the paper is shown."""
+        """A figure title or section heading, with the paper's part named only when the paper is shown."""
         return f"{text} ({paper_part})" if self.paper else text
+
+    def paper_note(self, text: str) -> str:
+        """``text`` (what the paper found) when the paper is shown, else nothing."""
+        return text if self.paper else ""
 
 
 def load_record(result: PipelineResult) -> Mapping[str, Any] | None:
@@ -592,7 +596,7 @@ def _preprocessing_section(result: PipelineResult, st: _Style) -> str:
         lines.append(
             f"Steady window t = {w.start_time_s:g} .. {w.end_time_s:g} s (samples {w.start_sample}.."
             f"{w.stop_sample}); output std {w.output_std_kw:.3g} {y}, drift {w.output_drift_kw:.3g} {y}."
-            + (" The paper found t in [8700, 10300] s at (45 %, 45 kW)." if st.paper else ""))
+            + st.paper_note(" The paper found t in [8700, 10300] s at (45 %, 45 kW)."))
     out = result.outliers
     lines.append("")
     if out is None:
@@ -604,8 +608,8 @@ def _preprocessing_section(result: PipelineResult, st: _Style) -> str:
             f"{out.threshold_kw:.3g} {y} (scale {out.scale_kw:.3g} {y}). {len(out.step_residuals)} "
             "large-residual event(s) right after input steps are model imperfection, not outliers, "
             f"and are excluded. {len(out.candidates)} candidate(s) remain"
-            + (" (the paper found two: a one-sample power drop and a 0.15 kW level shift at "
-               "t = 20714 s)" if st.paper else "") + ":")
+            + st.paper_note(" (the paper found two: a one-sample power drop and a 0.15 kW level "
+                            "shift at t = 20714 s)") + ":")
         lines.append("")
         if out.candidates:
             rows = [[str(i), f"{c.time_s:g}", str(c.sample), c.kind, f"{c.peak_residual_kw:+.3g}",
@@ -631,28 +635,39 @@ def _preprocessing_section(result: PipelineResult, st: _Style) -> str:
     after = result.outliers_after
     if after is not None:
         lines.append(f"\nAfter the repairs the same search finds {len(after.candidates)} candidate(s)"
-                     + (" (paper Fig. 6: none)." if st.paper else "."))
+                     + st.paper_note(" (paper Fig. 6: none)") + ".")
     return "\n".join(lines)
+
+
+def _criteria_cells(nm: NamedModel) -> list[str]:
+    """A model's V (marked if its search did not converge), W, parameter and iteration counts."""
+    conv = "" if nm.converged else " (not converged)"
+    return [f"{nm.ballistic_mse_kw2:.4g}{conv}", f"{nm.one_step_mse_kw2:.3g}",
+            str(nm.n_parameters), str(nm.n_iterations)]
+
+
+def _criteria_table(first_column: str, rows: Sequence[Sequence[str]], st: _Style,
+                    paper_columns: Sequence[str]) -> str:
+    """Markdown table of rows of a name and its `_criteria_cells`, then ``paper_columns`` if shown."""
+    header = [first_column, f"V [{st.v_unit}]", f"W [{st.v_unit}]", "parameters", "iterations"]
+    if st.paper:
+        header += paper_columns
+    return _md_table(header, rows, "l" + "r" * (len(header) - 1))
 
 
 def _table2_section(result: PipelineResult, st: _Style) -> str:
     rows = []
     for nm in result.linear:
-        conv = "" if nm.converged else " (not converged)"
-        row = [nm.label, f"{nm.ballistic_mse_kw2:.4g}{conv}", f"{nm.one_step_mse_kw2:.3g}",
-               str(nm.n_parameters), str(nm.n_iterations)]
+        row = [nm.label, *_criteria_cells(nm)]
         if st.paper:
             row.append(_num(PAPER_TABLE2_V.get(nm.name), ".3f"))
         rows.append(row)
     nk = result.final.model.delay_steps if result.final is not None else 1
-    header = ["model", f"V [{st.v_unit}]", f"W [{st.v_unit}]", "parameters", "iterations"]
-    if st.paper:
-        header.append("paper V [kW^2]")
-    return (("## Linear models (paper Table 2)" if st.paper else "## Linear models")
+    return (st.title("## Linear models", "paper Table 2")
             + f"\n\nAll with a delay of {nk} sample(s). V: mean squared "
             "ballistic simulation error (eq. 9); W: mean squared one-step-ahead prediction error "
             "(eq. 10); ARX by least squares, ARMAX on W, OE on V.\n\n"
-            + (_md_table(header, rows, "l" + "r" * (len(header) - 1)) if rows
+            + (_criteria_table("model", rows, st, ["paper V [kW^2]"]) if rows
                else "No linear model could be fitted."))
 
 
@@ -687,8 +702,7 @@ def _table3_section(result: PipelineResult, st: _Style) -> str:
               f"r [{y}/{u}]"]
     if st.paper:
         header += ["paper step dP [kW]", "paper r [kW/%]"]
-    text = (("## Input steps and instantaneous gains (paper Table 3)" if st.paper
-             else "## Input steps and instantaneous gains")
+    text = (st.title("## Input steps and instantaneous gains", "paper Table 3")
             + f"\n\nr = ({dp} after - {dp} before) / ({ds} after - {ds} before), the first "
             "output sample that shows the step against the last one before it.")
     if st.paper:
@@ -720,15 +734,9 @@ def _route_section(result: PipelineResult, st: _Style) -> str:
         if name not in m:
             rows.append([label, "skipped", "-", "-", "-", *paper])
             continue
-        nm = m[name]
-        conv = "" if nm.converged else " (not converged)"
-        rows.append([label, f"{nm.ballistic_mse_kw2:.4g}{conv}", f"{nm.one_step_mse_kw2:.3g}",
-                     str(nm.n_parameters), str(nm.n_iterations), *paper])
-    header = ["step", f"V [{st.v_unit}]", f"W [{st.v_unit}]", "parameters", "iterations"]
-    if st.paper:
-        header += ["paper V [kW^2]", "paper W [kW^2]", "paper iterations"]
+        rows.append([label, *_criteria_cells(m[name]), *paper])
     text = ("## The Hammerstein route (paper secs. 7.4-7.6)\n\n"
-            + _md_table(header, rows, "l" + "r" * (len(header) - 1)))
+            + _criteria_table("step", rows, st, ["paper V [kW^2]", "paper W [kW^2]", "paper iterations"]))
     arx_like = [n for n in m if n.startswith("armax_")]
     if arx_like and "hammerstein_armax" in m:
         base = m[arx_like[0]]
@@ -737,13 +745,13 @@ def _route_section(result: PipelineResult, st: _Style) -> str:
         text += (f"\n\nOne-step prediction (Fig. 18): W of {base.label} = {w_lin:.3g} {st.v_unit}, "
                  f"of the noise-model Hammerstein = {w_ham:.3g} {st.v_unit}: "
                  f"**{100 * (1 - w_ham / w_lin):.0f} % lower**"
-                 + (f" (paper: 3.1e-4 vs 1.8e-4 kW^2, {100 * PAPER_W_REDUCTION:.0f} % lower)."
-                    if st.paper else "."))
+                 + st.paper_note(f" (paper: 3.1e-4 vs 1.8e-4 kW^2, {100 * PAPER_W_REDUCTION:.0f} % "
+                                 "lower)") + ".")
     f = result.findings
     if f.iterations_from_zeros is not None:
         text += (f"\n\nFinal PEM: {f.iterations_from_initial_values} iterations from the "
                  f"OE-reidentified values, {f.iterations_from_zeros} from zeros"
-                 + (" (paper: 3 and 17)" if st.paper else "")
+                 + st.paper_note(" (paper: 3 and 17)")
                  + "; largest relative parameter difference between the two: "
                  f"{_num(f.from_zeros_relative_difference, '.2g')}.")
     return text
@@ -805,6 +813,11 @@ _FIGURE_SECTIONS: tuple[tuple[str, str], ...] = (
     ("fig09", "linear"), ("gain_curve", "steps"), ("fig12", "route"), ("fig13", "route"),
     ("fig15", "route"), ("fig16", "route"), ("fig18", "route"), ("residual_tests", "final"),
 )
+
+
+def _figure_md(caption: str, rel_path: str) -> str:
+    """Markdown of one figure of the report: the image, then its caption in italics."""
+    return f"![{Path(rel_path).stem}]({rel_path})\n\n*{caption}*"
 
 
 def _section_of(rel_path: str) -> str | None:
@@ -886,12 +899,11 @@ def render_report(
         parts.append(text)
         for caption, rel in figures:
             if _section_of(rel) == key:
-                parts.append(f"![{Path(rel).stem}]({rel})\n\n*{caption}*")
+                parts.append(_figure_md(caption, rel))
                 placed.add(rel)
     rest = [(c, r) for c, r in figures if r not in placed]
     if rest:
-        parts.append("## Other figures\n\n" + "\n\n".join(
-            f"![{Path(rel).stem}]({rel})\n\n*{caption}*" for caption, rel in rest))
+        parts.append("## Other figures\n\n" + "\n\n".join(_figure_md(c, r) for c, r in rest))
     if model_files:
         parts.append("## Model files\n\n" + "\n".join(f"- [`{p}`]({p})" for p in model_files))
     parts.append(_timing_section(result))
