@@ -664,31 +664,143 @@ def _armax_problem(
     return fun
 
 
-def _finish(
-    structure: Literal["oe", "armax"],
-    lm: LMResult,
+@dataclass(frozen=True, kw_only=True, eq=False)
+class _PemSetup:
+    """The checked data and options of one OE or ARMAX fit (what `_pem_fit` runs on).
+
+    Parameters
+    ----------
+    y, u :
+        Output and input, 1-D of one length, finite, the input not constant.
+    bounds :
+        ``(start, stop)`` of each segment (`segment_bounds`).
+    initial_conditions :
+        ``"held"`` or ``"estimated"``.
+    n_model :
+        Model parameters (`PemFit.theta`).
+    n_state :
+        Initial-state parameters of one segment when they are estimated: the order of
+        the denominator, ``nf`` (OE) or ``nc`` (ARMAX).
+    """
+
+    y: FloatArray
+    u: FloatArray
+    bounds: tuple[tuple[int, int], ...]
+    initial_conditions: InitialConditions
+    n_model: int
+    n_state: int
+
+    @property
+    def estimate(self) -> bool:
+        """Whether the initial states are parameters of the search."""
+        return self.initial_conditions == "estimated"
+
+    @property
+    def n_searched_state(self) -> int:
+        """Initial-state parameters of one segment in the search (`n_state` or 0)."""
+        return self.n_state if self.estimate else 0
+
+
+def _pem_setup(
+    y: FloatArray,
+    u: FloatArray,
+    *,
+    initial_conditions: object,
+    segment_starts: tuple[int, ...] | list[int] | None,
     n_model: int,
+    n_state: int,
+    max_lag: int,
+    where: str,
+) -> _PemSetup:
+    """Check the options and data of an OE or ARMAX fit whose orders are checked.
+
+    Parameters
+    ----------
+    y, u, initial_conditions, segment_starts :
+        As given to `oe_pem` / `armax_pem`.
+    n_model, n_state :
+        See `_PemSetup`.
+    max_lag :
+        The longest lag of the structure [samples].
+    where :
+        The public function named in the messages.
+
+    Raises
+    ------
+    IdentificationError
+        Bad `initial_conditions`; non-finite, mismatched or constant signals; bad
+        `segment_starts`; fewer samples than the parameters (with every segment's
+        estimated initial state) and lags need.
+    """
+    ic = _check_initial_conditions(initial_conditions)
+    y, u = _check_signals(y, u, where)
+    bounds = segment_bounds(y.size, segment_starts, where)
+    setup = _PemSetup(y=y, u=u, bounds=bounds, initial_conditions=ic, n_model=n_model,
+                      n_state=n_state)
+    _check_length(y.size, n_model + len(bounds) * setup.n_searched_state, max_lag, where)
+    return setup
+
+
+def _pem_fit(
+    structure: Literal["oe", "armax"],
+    setup: _PemSetup,
+    start: FloatArray,
+    *,
+    segment_problem: Callable[[FloatArray, FloatArray], Problem],
+    project: Callable[[FloatArray], FloatArray],
+    held_state: Callable[[FloatArray], FloatArray],
+    polynomials: Callable[[FloatArray], tuple[FloatArray, FloatArray, FloatArray]],
     names: tuple[str, ...],
-    polys: tuple[FloatArray, FloatArray, FloatArray],
-    initial_conditions: InitialConditions,
-    held_state: FloatArray,
+    max_iterations: int,
 ) -> PemFit:
+    """Minimize the stacked residuals of the segments from `start` and make the `PemFit`.
+
+    Parameters
+    ----------
+    structure :
+        ``"oe"`` or ``"armax"``.
+    setup :
+        The checked data and options.
+    start :
+        Model parameters to start from, shape ``(n_model,)``.
+    segment_problem :
+        ``(y, u) -> Problem`` of one segment (`_oe_problem`, `_armax_problem`).
+    project :
+        The stabilizing projection applied at every trial point (`_stabilizer`).
+    held_state :
+        ``theta -> w``: every segment's initial state under held initial conditions,
+        concatenated; with estimated ones, the search starts from it (of the projected
+        `start`).
+    polynomials :
+        ``theta -> (a, b, c)`` as stored in `PemFit`.
+    names :
+        `PemFit.parameter_names`.
+    max_iterations :
+        Levenberg-Marquardt iteration limit.
+    """
+    if setup.estimate:
+        start = np.concatenate([start, held_state(project(start))])
+    problem = _stacked_problem(
+        [segment_problem(setup.y[lo:hi], setup.u[lo:hi]) for lo, hi in setup.bounds],
+        setup.n_model, setup.n_searched_state)
+    lm = levenberg_marquardt(problem, start, project=project, max_iterations=max_iterations)
+    n_model = setup.n_model
     n_theta = lm.theta.size
     std = parameter_std_errors(lm.jacobian, lm.residuals,
                                factor=lm.factor[:n_theta, :n_theta])[:n_model]
-    state = lm.theta[n_model:] if initial_conditions == "estimated" else held_state
+    a, b, c = polynomials(lm.theta)
     return PemFit(
         structure=structure,
-        a=polys[0],
-        b=polys[1],
-        c=polys[2],
+        a=a,
+        b=b,
+        c=c,
         theta=lm.theta[:n_model],
         parameter_names=names,
         std_errors=std,
         residuals=lm.residuals,
         cost=lm.cost,
-        initial_conditions=initial_conditions,
-        initial_state=state,
+        initial_conditions=setup.initial_conditions,
+        initial_state=lm.theta[n_model:] if setup.estimate else held_state(lm.theta),
         converged=lm.converged,
         message=lm.message,
         n_iterations=lm.n_iterations,
@@ -711,32 +823,34 @@ def _oe_pem(
     nb = _check_order("nb", nb, 1)
     nf = _check_order("nf", nf, 0)
     nk = _check_order("nk", nk, 0)
-    ic = _check_initial_conditions(initial_conditions)
-    y, u = _check_signals(y, u, "oe_pem")
-    bounds = segment_bounds(y.size, segment_starts, "oe_pem")
-    n_model = nb + nf
-    estimate = ic == "estimated"
-    n_state = nf if estimate else 0
-    n_total = n_model + len(bounds) * n_state
-    _check_length(y.size, n_total, max(nf, nk + nb - 1), "oe_pem")
-    start = _check_theta0(theta0, n_model, "oe_pem")
+    setup = _pem_setup(y, u, initial_conditions=initial_conditions,
+                       segment_starts=segment_starts, n_model=nb + nf, n_state=nf,
+                       max_lag=max(nf, nk + nb - 1), where="oe_pem")
+    start = _check_theta0(theta0, setup.n_model, "oe_pem")
     if start is None:
-        arx = arx_least_squares(y, u, na=nf, nb=nb, nk=nk, segment_starts=segment_starts)
+        arx = arx_least_squares(setup.y, setup.u, na=nf, nb=nb, nk=nk,
+                                segment_starts=segment_starts)
         start = np.concatenate([arx.b[nk:], arx.a[1:]])
-    project = _stabilizer((slice(nb, nb + nf),))
-    if estimate and nf > 0:
-        f0 = np.concatenate([[1.0], project(start)[nb:]])
-        start = np.concatenate(
-            [start, *(filter_state(np.ones(1), f0, np.full(nf, y[lo])) for lo, _ in bounds)])
-    problem = _stacked_problem(
-        [_oe_problem(y[lo:hi], u[lo:hi], nb, nf, nk, estimate) for lo, hi in bounds],
-        n_model, n_state)
-    lm = levenberg_marquardt(problem, start, project=project, max_iterations=max_iterations)
-    b, f = _oe_polynomials(lm.theta, nb, nf, nk)
-    names = _indexed_names("b", range(nk, nk + nb)) + _indexed_names("f", range(1, nf + 1))
-    held_state = np.concatenate(
-        [filter_state(np.ones(1), f, np.full(nf, y[lo])) for lo, _ in bounds]) if nf else np.zeros(0)
-    return _finish("oe", lm, n_model, names, (f, b, f), ic, held_state)
+
+    def polynomials(theta: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        b, f = _oe_polynomials(theta, nb, nf, nk)
+        return f, b, f                                     # A = C = F (model-file form)
+
+    def held_state(theta: FloatArray) -> FloatArray:
+        """The state of ``1/F`` that a past output held at each segment's first ``y``."""
+        if not nf:
+            return np.zeros(0)
+        f = polynomials(theta)[0]
+        return np.concatenate(
+            [filter_state(np.ones(1), f, np.full(nf, setup.y[lo])) for lo, _ in setup.bounds])
+
+    return _pem_fit(
+        "oe", setup, start,
+        segment_problem=lambda ys, us: _oe_problem(ys, us, nb, nf, nk, setup.estimate),
+        project=_stabilizer((slice(nb, nb + nf),)), held_state=held_state,
+        polynomials=polynomials,
+        names=_indexed_names("b", range(nk, nk + nb)) + _indexed_names("f", range(1, nf + 1)),
+        max_iterations=max_iterations)
 
 
 def oe_pem(
@@ -824,29 +938,25 @@ def _armax_pem(
     nb = _check_order("nb", nb, 1)
     nc = _check_order("nc", nc, 0)
     nk = _check_order("nk", nk, 0)
-    ic = _check_initial_conditions(initial_conditions)
-    y, u = _check_signals(y, u, "armax_pem")
-    bounds = segment_bounds(y.size, segment_starts, "armax_pem")
-    n_model = na + nb + nc
-    estimate = ic == "estimated"
-    n_state = nc if estimate else 0
-    n_total = n_model + len(bounds) * n_state
-    _check_length(y.size, n_total, max(na, nc, nk + nb - 1), "armax_pem")
-    start = _check_theta0(theta0, n_model, "armax_pem")
-    project = _stabilizer((slice(0, na), slice(na + nb, n_model)))
+    setup = _pem_setup(y, u, initial_conditions=initial_conditions,
+                       segment_starts=segment_starts, n_model=na + nb + nc, n_state=nc,
+                       max_lag=max(na, nc, nk + nb - 1), where="armax_pem")
+    start = _check_theta0(theta0, setup.n_model, "armax_pem")
+    project = _stabilizer((slice(0, na), slice(na + nb, setup.n_model)))
     if start is None:
-        arx = arx_least_squares(y, u, na=na, nb=nb, nk=nk, segment_starts=segment_starts)
+        arx = arx_least_squares(setup.y, setup.u, na=na, nb=nb, nk=nk,
+                                segment_starts=segment_starts)
         start = project(np.concatenate([arx.theta, np.zeros(nc)]))
-    if estimate:
-        start = np.concatenate([start, np.zeros(len(bounds) * nc)])
-    problem = _stacked_problem(
-        [_armax_problem(y[lo:hi], u[lo:hi], na, nb, nc, nk, estimate) for lo, hi in bounds],
-        n_model, n_state)
-    lm = levenberg_marquardt(problem, start, project=project, max_iterations=max_iterations)
-    a, b, c = _armax_polynomials(lm.theta, na, nb, nc, nk)
-    names = (_indexed_names("a", range(1, na + 1)) + _indexed_names("b", range(nk, nk + nb))
-             + _indexed_names("c", range(1, nc + 1)))
-    return _finish("armax", lm, n_model, names, (a, b, c), ic, np.zeros(len(bounds) * nc))
+    return _pem_fit(
+        "armax", setup, start,
+        segment_problem=lambda ys, us: _armax_problem(ys, us, na, nb, nc, nk, setup.estimate),
+        project=project,
+        # held: the past prediction errors are zero, so is the state of 1/C
+        held_state=lambda theta: np.zeros(len(setup.bounds) * nc),
+        polynomials=lambda theta: _armax_polynomials(theta, na, nb, nc, nk),
+        names=(_indexed_names("a", range(1, na + 1)) + _indexed_names("b", range(nk, nk + nb))
+               + _indexed_names("c", range(1, nc + 1))),
+        max_iterations=max_iterations)
 
 
 def armax_pem(
