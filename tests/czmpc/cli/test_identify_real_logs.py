@@ -69,6 +69,20 @@ END_CUTS = {
         0, 599 - int(pct / 100 * 599)))
     for pct in (5, 10)
 }
+#: The other real logs with 5 % and 10 % cut from their end. The structure of their
+#: model.json does not hold there (tanks: nb, nf, nk 4, 3, 2 becomes 3, 3, 0; the
+#: exchanger's Hammerstein 3, 3, 0 becomes 4, 1, 0 at 10 %): the structures within a
+#: few per cent of each other's V are many, and which wins moves with the record (no
+#: rule tried held them: parsimony margins of 2 to 20 %, BIC, one standard error over
+#: 5 to 20 blocks). What holds is the model: scored on the full log, the cut log's
+#: model.json errs by at most this factor over the full log's own (measured: lamp 1.00
+#: and 1.00, tanks 1.08 and 1.31, exchanger 1.00 and 1.18).
+OTHER_END_CUT_V_RATIO = 1.35
+OTHER_END_CUTS = {
+    f"{log}_end{pct}": (lambda log=log, pct=pct: READERS[log]().segment(
+        0, READERS[log]().n_samples - int(pct / 100 * READERS[log]().n_samples)))
+    for log in ("lamp", "tanks", "exchanger") for pct in (5, 10)
+}
 #: The same log with 5 % (29 samples) and 10 % (59) cut from the start: it then begins 19
 #: and 49 samples after the 0 -> 100 % heater step, mid-transient, and no longer at rest.
 #: The end cuts' bar (model.json within 1.25 of the full log's on the full log) is out of
@@ -180,7 +194,8 @@ def identified(tmp_path_factory: pytest.TempPathFactory) -> Identified:
             reading = ["--columns", "time_s=t,triac_pct=u_V,power_kw=y_degC",
                        "--input-unit", "V", "--output-unit", "degC"]
         else:
-            write_csv({**READERS, **END_CUTS, **START_CUTS}[name](), folder / "log.csv")
+            write_csv({**READERS, **END_CUTS, **OTHER_END_CUTS, **START_CUTS}[name](),
+                      folder / "log.csv")
         err = io.StringIO()
         with contextlib.redirect_stderr(err):
             code = main(["identify", str(folder / "log.csv"), "--out", str(folder / "id"),
@@ -227,6 +242,19 @@ def test_the_short_logs_model_holds_when_its_end_is_cut(name: str, identified: I
     assert _structure(out / "model.json") == _structure(out_full / "model.json")
     v_cut = _written_v(out / "model.json", full, burn)
     assert v_cut <= END_CUT_V_RATIO * _written_v(out_full / "model.json", full, burn)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(OTHER_END_CUTS))
+def test_every_real_logs_model_holds_when_its_end_is_cut(name: str, identified: Identified,
+                                                         ) -> None:
+    log = name.rsplit("_end", 1)[0]
+    full = READERS[log]()
+    burn = int(BURN_IN_SHARE * full.n_samples)
+    code, err, out = identified(name)
+    assert code == 0, err
+    v_full = _written_v(identified(log)[2] / "model.json", full, burn)
+    assert _written_v(out / "model.json", full, burn) <= OTHER_END_CUT_V_RATIO * v_full
 
 
 def _free_start_oe(y: np.ndarray, u: np.ndarray, nb: int, nf: int, nk: int,
