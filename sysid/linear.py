@@ -21,6 +21,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from functools import partial
 from pathlib import Path
 from typing import Literal
 
@@ -808,6 +809,16 @@ def _pem_fit(
     )
 
 
+def _warn_unless_converged(fit: PemFit, where: str, *, stacklevel: int) -> None:
+    """Issue an `IdentificationWarning` naming `where` if the search did not converge.
+
+    `stacklevel` counts as in `warnings.warn`, from the caller of this function.
+    """
+    if not fit.converged:
+        warnings.warn(f"{where} did not converge: {fit.message}", IdentificationWarning,
+                      stacklevel=stacklevel + 1)
+
+
 def _oe_pem(
     y: FloatArray,
     u: FloatArray,
@@ -915,9 +926,7 @@ def oe_pem(
     fit = _oe_pem(y, u, nb=nb, nf=nf, nk=nk, theta0=theta0,
                   initial_conditions=initial_conditions, max_iterations=max_iterations,
                   segment_starts=segment_starts)
-    if not fit.converged:
-        warnings.warn(f"oe_pem did not converge: {fit.message}", IdentificationWarning,
-                      stacklevel=2)
+    _warn_unless_converged(fit, "oe_pem", stacklevel=2)
     return fit
 
 
@@ -1026,9 +1035,7 @@ def armax_pem(
     fit = _armax_pem(y, u, na=na, nb=nb, nc=nc, nk=nk, theta0=theta0,
                      initial_conditions=initial_conditions, max_iterations=max_iterations,
                      segment_starts=segment_starts)
-    if not fit.converged:
-        warnings.warn(f"armax_pem did not converge: {fit.message}", IdentificationWarning,
-                      stacklevel=2)
+    _warn_unless_converged(fit, "armax_pem", stacklevel=2)
     return fit
 
 
@@ -1093,30 +1100,36 @@ def _linear_model(
     return model.with_updates(criteria=model_criteria(model, data))
 
 
-def _result(
-    model: HammersteinModel,
+def _fit_result(
+    data: Dataset,
+    operating_point: OperatingPoint,
+    fit: ArxFit | PemFit,
     *,
+    block: LinearBlock,
+    c: FloatArray,
     converged: bool,
     message: str,
     n_iterations: int,
     criterion: CriterionName,
-    names: tuple[str, ...],
-    theta: FloatArray,
-    std_errors: FloatArray,
-    residuals: FloatArray,
-    raw: object,
+    method: str,
+    where: str,
 ) -> IdentificationResult:
+    """The model of `fit` (with noise polynomial `c`) on `data` and its result."""
+    model = _linear_model(
+        data, operating_point, block=block, a=fit.a, b=fit.b, c=c, residuals=fit.residuals,
+        n_parameters=fit.theta.size, method=method, where=where,
+    )
     return IdentificationResult(
         model=model,
         converged=converged,
         message=message,
         n_iterations=n_iterations,
         criterion=criterion,
-        parameter_names=names,
-        parameters=theta,
-        std_errors=std_errors,
-        residuals_kw=residuals,
-        raw=raw,
+        parameter_names=fit.parameter_names,
+        parameters=fit.theta,
+        std_errors=fit.std_errors,
+        residuals_kw=fit.residuals,
+        raw=fit,
     )
 
 
@@ -1161,35 +1174,30 @@ def fit_arx(
     """
     dy, du = _deviation_arrays(data, operating_point, "fit_arx")
     fit = arx_least_squares(dy, du, na=na, nb=nb, nk=nk, segment_starts=data.segment_starts)
-    model = _linear_model(
-        data, operating_point, block="arx", a=fit.a, b=fit.b, c=np.array([1.0]),
-        residuals=fit.residuals, n_parameters=fit.theta.size, method="arx-least-squares",
-        where="fit_arx",
-    )
-    return _result(
-        model, converged=True, message="least squares: exact solution", n_iterations=0,
-        criterion="least_squares", names=fit.parameter_names, theta=fit.theta,
-        std_errors=fit.std_errors, residuals=fit.residuals, raw=fit,
+    return _fit_result(
+        data, operating_point, fit, block="arx", c=np.array([1.0]), converged=True,
+        message="least squares: exact solution", n_iterations=0, criterion="least_squares",
+        method="arx-least-squares", where="fit_arx",
     )
 
 
 def _pem_result(
-    data: Dataset, operating_point: OperatingPoint, fit: PemFit, *,
+    data: Dataset, operating_point: OperatingPoint, kernel: Callable[..., PemFit], *,
     block: Literal["oe", "armax"], criterion: Literal["ballistic", "one_step"], method: str,
     where: str,
 ) -> IdentificationResult:
-    """Model and result of an OE/ARMAX fit; warns (at the public caller) if not converged."""
-    if not fit.converged:
-        warnings.warn(f"{where} did not converge: {fit.message}", IdentificationWarning,
-                      stacklevel=3)
-    model = _linear_model(
-        data, operating_point, block=block, a=fit.a, b=fit.b, c=fit.c,
-        residuals=fit.residuals, n_parameters=fit.theta.size, method=method, where=where,
-    )
-    return _result(
-        model, converged=fit.converged, message=fit.message, n_iterations=fit.n_iterations,
-        criterion=criterion, names=fit.parameter_names, theta=fit.theta,
-        std_errors=fit.std_errors, residuals=fit.residuals, raw=fit,
+    """Run an OE/ARMAX `kernel` on the deviations of `data` and its segments.
+
+    `kernel` is `_oe_pem` or `_armax_pem` with every argument but ``y``, ``u`` and
+    ``segment_starts`` bound. Warns (at the public caller) if the search did not converge.
+    """
+    dy, du = _deviation_arrays(data, operating_point, where)
+    fit = kernel(dy, du, segment_starts=data.segment_starts)
+    _warn_unless_converged(fit, where, stacklevel=3)
+    return _fit_result(
+        data, operating_point, fit, block=block, c=fit.c, converged=fit.converged,
+        message=fit.message, n_iterations=fit.n_iterations, criterion=criterion,
+        method=method, where=where,
     )
 
 
@@ -1235,11 +1243,9 @@ def fit_oe(
     IdentificationError
         See `oe_pem`.
     """
-    dy, du = _deviation_arrays(data, operating_point, "fit_oe")
-    fit = _oe_pem(dy, du, nb=nb, nf=nf, nk=nk, theta0=None,
-                  initial_conditions=initial_conditions, max_iterations=max_iterations,
-                  segment_starts=data.segment_starts)
-    return _pem_result(data, operating_point, fit, block="oe", criterion="ballistic",
+    kernel = partial(_oe_pem, nb=nb, nf=nf, nk=nk, theta0=None,
+                     initial_conditions=initial_conditions, max_iterations=max_iterations)
+    return _pem_result(data, operating_point, kernel, block="oe", criterion="ballistic",
                        method="oe-pem-ballistic", where="fit_oe")
 
 
@@ -1287,11 +1293,9 @@ def fit_armax(
     IdentificationError
         See `armax_pem`.
     """
-    dy, du = _deviation_arrays(data, operating_point, "fit_armax")
-    fit = _armax_pem(dy, du, na=na, nb=nb, nc=nc, nk=nk, theta0=None,
-                     initial_conditions=initial_conditions, max_iterations=max_iterations,
-                     segment_starts=data.segment_starts)
-    return _pem_result(data, operating_point, fit, block="armax", criterion="one_step",
+    kernel = partial(_armax_pem, na=na, nb=nb, nc=nc, nk=nk, theta0=None,
+                     initial_conditions=initial_conditions, max_iterations=max_iterations)
+    return _pem_result(data, operating_point, kernel, block="armax", criterion="one_step",
                        method="armax-pem-one-step", where="fit_armax")
 
 
