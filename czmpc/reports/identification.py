@@ -13,7 +13,6 @@ with the table, figure or section it comes from.
 
 from __future__ import annotations
 
-import functools
 import math
 import os
 from collections.abc import Callable, Mapping, Sequence
@@ -364,6 +363,7 @@ def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Fi
     m = _models(result)
     raw = result.raw_data
     t, ds, dp = _deviation(result)
+    op = result.operating_point.operating_point
     drawn: list[_Figure] = []
     lab = st.labels
 
@@ -372,59 +372,63 @@ def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Fi
         draw(path)
         drawn.append(_Figure(key=key, caption=caption, path=path))
 
-    add("fig02_data", f"Fig. 2 analogue: the logged data ({st.in_name} [{st.in_unit}] "
-        f"and {st.out_name} [{st.out_unit}]).",
-        lambda p: figs.plot_dataset(raw.time_s, raw.triac_pct, raw.power_kw, p,
-                                    labels=lab, title=st.title("Logged data", "paper Fig. 2")))
+    def add_plot(key: str, caption: str, plot: Callable[..., object], *arrays: Any, title: str,
+                 paper_part: str, **options: Any) -> None:
+        """Draw ``plot(*arrays, path, **options)`` with the report's axis labels and a title
+        naming the paper's part (`_Style.title`)."""
+        add(key, caption, lambda p: plot(*arrays, p, labels=lab, title=st.title(title, paper_part),
+                                         **options))
+
+    add_plot("fig02_data", f"Fig. 2 analogue: the logged data ({st.in_name} [{st.in_unit}] "
+             f"and {st.out_name} [{st.out_unit}]).",
+             figs.plot_dataset, raw.time_s, raw.triac_pct, raw.power_kw,
+             title="Logged data", paper_part="paper Fig. 2")
     out = result.outliers
     if out is not None:
-        marks = [c.time_s for c in out.candidates]
-        add("fig03_residuals_before", "Fig. 3 analogue: one-step residuals of ARX"
-            f"({out.na},{out.nb}) on the raw data; outlier candidates marked.",
-            lambda p: figs.plot_residuals(
-                raw.time_s, {f"ARX({out.na},{out.nb}) on raw data": out.residuals_kw}, p,
-                marked_time_s=marks, labels=lab,
-                title=st.title(f"Residuals of ARX({out.na},{out.nb})", "paper Fig. 3")))
-        op = result.operating_point.operating_point
+        add_plot("fig03_residuals_before", "Fig. 3 analogue: one-step residuals of ARX"
+                 f"({out.na},{out.nb}) on the raw data; outlier candidates marked.",
+                 figs.plot_residuals, raw.time_s,
+                 {f"ARX({out.na},{out.nb}) on raw data": out.residuals_kw},
+                 marked_time_s=[c.time_s for c in out.candidates],
+                 title=f"Residuals of ARX({out.na},{out.nb})", paper_part="paper Fig. 3")
         for i, cand in enumerate(out.candidates, start=1):
-            add(f"fig04_zoom_{i}",
-                f"Figs. 4-5 analogue: candidate {i} ({cand.kind}) at t = {cand.time_s:g} s, zoomed.",
-                functools.partial(
-                    figs.plot_outlier_zoom, raw.time_s, out.residuals_kw,
-                    np.asarray(raw.power_kw) - op.power_kw, cand.time_s,
-                    half_width_s=ZOOM_HALF_WIDTH_S,
-                    labels=lab,
-                    title=st.title(f"Outlier candidate {i}: {cand.kind} at {cand.time_s:g} s",
-                                   "paper Figs. 4-5")))
+            add_plot(f"fig04_zoom_{i}",
+                     f"Figs. 4-5 analogue: candidate {i} ({cand.kind}) at t = {cand.time_s:g} s, "
+                     "zoomed.",
+                     figs.plot_outlier_zoom, raw.time_s, out.residuals_kw,
+                     np.asarray(raw.power_kw) - op.power_kw, cand.time_s,
+                     half_width_s=ZOOM_HALF_WIDTH_S,
+                     title=f"Outlier candidate {i}: {cand.kind} at {cand.time_s:g} s",
+                     paper_part="paper Figs. 4-5")
     after = result.outliers_after
     if after is not None:
-        add("fig06_residuals_after", "Fig. 6 analogue: residuals of the same ARX model after "
-            "the repairs; remaining candidates marked.",
-            lambda p: figs.plot_residuals(
-                t, {f"ARX({after.na},{after.nb}) after repairs": after.residuals_kw}, p,
-                marked_time_s=[c.time_s for c in after.candidates],
-                labels=lab, title=st.title("Residuals after handling outliers", "paper Fig. 6")))
+        add_plot("fig06_residuals_after", "Fig. 6 analogue: residuals of the same ARX model after "
+                 "the repairs; remaining candidates marked.",
+                 figs.plot_residuals, t,
+                 {f"ARX({after.na},{after.nb}) after repairs": after.residuals_kw},
+                 marked_time_s=[c.time_s for c in after.candidates],
+                 title="Residuals after handling outliers", paper_part="paper Fig. 6")
     repair_times = [float(step.get("time_s", step.get("from_time_s", math.nan)))
                     for step in result.data.preprocessing
                     if "time_s" in step or "from_time_s" in step]
-    add("fig07_preprocessed", "Fig. 7 analogue: the preprocessed data as deviations from the "
-        "operating point; repairs marked.",
-        lambda p: figs.plot_dataset(t, ds, dp, p, deviation=True, marked_time_s=repair_times,
-                                    marked_label="repair",
-                                    labels=lab, title=st.title("Preprocessed data", "paper Fig. 7")))
+    add_plot("fig07_preprocessed", "Fig. 7 analogue: the preprocessed data as deviations from the "
+             "operating point; repairs marked.",
+             figs.plot_dataset, t, ds, dp, deviation=True, marked_time_s=repair_times,
+             marked_label="repair", title="Preprocessed data", paper_part="paper Fig. 7")
+
     def sims(pairs: Sequence[tuple[str, str]]) -> dict[str, np.ndarray]:
         """Legend label -> ballistic simulation [kW, deviation] of each named model."""
         return {_label(m[n], short, st.v_unit): _sim_dev(m[n].model, result) for n, short in pairs}
 
     def add_sims(key: str, caption: str, curves: dict[str, np.ndarray], title: str,
                  paper_fig: str) -> None:
-        add(key, caption, lambda p: figs.plot_simulations(
-            t, dp, curves, p, input_pct=ds, labels=lab, title=st.title(title, paper_fig)))
+        add_plot(key, caption, figs.plot_simulations, t, dp, curves, input_pct=ds, title=title,
+                 paper_part=paper_fig)
 
     def add_errors(key: str, caption: str, errors: dict[str, np.ndarray], title: str,
                    paper_fig: str) -> None:
-        add(key, caption, lambda p: figs.plot_simulation_errors(
-            t, errors, p, labels=lab, title=st.title(title, paper_fig)))
+        add_plot(key, caption, figs.plot_simulation_errors, t, errors, title=title,
+                 paper_part=paper_fig)
 
     lin = [(n, s) for n, s in (("arx_1_2", "ARX(1,2)"), ("armax_1_2_1", "ARMAX(1,2,1)"),
                                ("oe_2_1", "OE(2,1)")) if n in m]
@@ -460,11 +464,11 @@ def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Fi
     if "armax_1_2_1" in m and "hammerstein_armax" in m:
         e_lin = _pred_error(m["armax_1_2_1"].model, result)
         e_ham = _pred_error(m["hammerstein_armax"].model, result)
-        add("fig18_one_step_errors", "Fig. 18 analogue: one-step-ahead prediction errors of "
-            "ARMAX(1,2,1) (upper) and the noise-model Hammerstein of eq. 30 (lower).",
-            lambda p: figs.plot_residuals(
-                t, {"ARMAX(1,2,1)": e_lin, "Hammerstein with noise model (eq. 30)": e_ham}, p,
-                labels=lab, title=st.title("One-step-ahead prediction errors", "paper Fig. 18")))
+        add_plot("fig18_one_step_errors", "Fig. 18 analogue: one-step-ahead prediction errors of "
+                 "ARMAX(1,2,1) (upper) and the noise-model Hammerstein of eq. 30 (lower).",
+                 figs.plot_residuals, t,
+                 {"ARMAX(1,2,1)": e_lin, "Hammerstein with noise model (eq. 30)": e_ham},
+                 title="One-step-ahead prediction errors", paper_part="paper Fig. 18")
     final = result.final
     if final is not None:
         e = _pred_error(final.model, result)
@@ -485,21 +489,16 @@ def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Fi
                                        ("hammerstein_oe", "final (eq. 27)"),
                                        ("hammerstein_armax", "noise model (eq. 30)")) if n in m]
     if gain_models and result.steps:
-        op = result.operating_point.operating_point
         mid = np.array([0.5 * (s.triac_before_pct + s.triac_after_pct) - op.triac_pct
                         for s in result.steps])
         r = np.array([s.gain_kw_per_pct for s in result.steps])
         grid = np.linspace(float(np.min(ds)), float(np.max(ds)), 101)
         curves_g = {f"{s}: b1 f'({st.in_sym})": _instant_gain(m[n].model, grid) for n, s in gain_models}
-        add("gain_curve", "Table 3 analogue: the instantaneous gain of each Hammerstein model "
-            "against the measured step gains r (at each step's midpoint, where a quadratic f's "
-            "secant slope equals f').",
-            lambda p: figs.plot_gain_curve(grid, curves_g, p, step_ds_pct=mid,
-                                           step_gain_kw_per_pct=r,
-                                           labels=lab,
-                                           title=st.title(f"Instantaneous gain f'({st.in_sym}) vs "
-                                                          "step gains r",
-                                                          "Table 3")))
+        add_plot("gain_curve", "Table 3 analogue: the instantaneous gain of each Hammerstein model "
+                 "against the measured step gains r (at each step's midpoint, where a quadratic f's "
+                 "secant slope equals f').",
+                 figs.plot_gain_curve, grid, curves_g, step_ds_pct=mid, step_gain_kw_per_pct=r,
+                 title=f"Instantaneous gain f'({st.in_sym}) vs step gains r", paper_part="Table 3")
     return drawn
 
 
