@@ -29,31 +29,15 @@ from matplotlib.figure import Figure
 
 from czmpc.reports.figure_style import PALETTE, FigureError, legend_above, save_figure, stacked_axes, vector
 
-#: Axis labels with units, shared by all figures (and by the tests that check them).
-AXIS_LABELS: dict[str, str] = {
-    "time": "time [s]",
-    "power": "power P [kW]",
-    "power_dev": "power deviation dP [kW]",
-    "triac": "TRIAC input s [%]",
-    "triac_dev": "TRIAC deviation ds [%]",
-    "residual": "residual e [kW]",
-    "sim_error": "simulation error [kW]",
-    "lag": "lag [samples]",
-    "autocorr": "autocorrelation of e [-]",
-    "crosscorr": "cross-correlation of ds and e [-]",
-    "gain": "gain [kW/%]",
-    "unit_out": "kW",
-}
-
-
 
 def axis_labels(*, input_name: str = "TRIAC input s", input_unit: str = "%",
                 output_name: str = "power P", output_unit: str = "kW",
                 input_symbol: str = "ds", output_symbol: str = "dP") -> dict[str, str]:
     """Axis labels for a log of any rig: its signal names and units.
 
-    The defaults give `AXIS_LABELS` (the CZ puller: TRIAC input in %, power in kW).
-    Pass the ``labels`` keyword of every ``plot_*`` function the result.
+    The defaults give the CZ puller's labels (TRIAC input in %, power in kW); `AXIS_LABELS`
+    are those with shorter names of the deviations. Pass the ``labels`` keyword of every
+    ``plot_*`` function the result.
     """
     return {
         "time": "time [s]",
@@ -69,6 +53,12 @@ def axis_labels(*, input_name: str = "TRIAC input s", input_unit: str = "%",
         "gain": f"gain [{output_unit}/{input_unit}]",
         "unit_out": output_unit,
     }
+
+
+#: Axis labels with units, shared by all figures (and by the tests that check them): the
+#: CZ puller's (the defaults of `axis_labels`), its deviations named shortly.
+AXIS_LABELS: dict[str, str] = {**axis_labels(), "power_dev": "power deviation dP [kW]",
+                               "triac_dev": "TRIAC deviation ds [%]"}
 
 
 def _labels(labels: Mapping[str, str] | None) -> Mapping[str, str]:
