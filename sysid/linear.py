@@ -466,30 +466,31 @@ class PemFit:
             object.__setattr__(self, name, arr)
 
 
-def _shifted(x: FloatArray, lag: int) -> FloatArray:
-    """``z[k] = x[k - lag]`` with zeros before the record (``lag >= 0``)."""
-    z = np.zeros_like(x)
-    z[lag:] = x[: x.size - lag]
-    return z
+def _shift_into(out: FloatArray, x: FloatArray, lags: range) -> FloatArray:
+    """Fill column ``i`` of `out` with ``q^-lags[i] x``: ``x`` delayed, zeros before the record.
+
+    Every lag of a sensitivity filter is such a shift of one filtering (lags ``>= 0``).
+    Returns `out`, shape ``(x.size, len(lags))``.
+    """
+    for col, lag in enumerate(lags):
+        out[:lag, col] = 0.0
+        out[lag:, col] = x[: x.size - lag]
+    return out
 
 
 def _held_lag_responses(x: FloatArray, den: FloatArray, lags: range,
-                        step: FloatArray) -> FloatArray:
+                        step: FloatArray, out: FloatArray) -> FloatArray:
     """Columns ``lagged(x, j) / den`` from a zero filter state, one per lag ``j``, by shifting.
 
     ``lagged(x, j) = x_0 + q^-j (x - x_0)`` (the past held at ``x_0``), and ``1/den``
     commutes with the delay ``q^-j`` from rest, so every column is ``x_0 g + q^-j v``
     with the step response ``g`` of ``1/den`` and ``v = (x - x_0)/den``: one filtering
     of the data for all lags (the sensitivity filters of the PEM, Ljung 1999, sec. 10.3).
+    The columns are written into `out`, shape ``(x.size, len(lags))``, and it is returned.
     """
     x0 = float(x[0])
-    v = lfilter([1.0], den, x - x0)
-    held = x0 * step
-    out = np.empty((x.size, len(lags)), order="F")
-    for col, lag in enumerate(lags):
-        out[:lag, col] = 0.0
-        out[lag:, col] = v[: x.size - lag]
-        out[:, col] += held
+    _shift_into(out, lfilter([1.0], den, x - x0), lags)
+    out += (x0 * step)[:, None]
     return out
 
 
@@ -605,16 +606,17 @@ def _oe_problem(
             h = impulse_response(f, n)
             step = np.cumsum(h)
             jac = np.empty((n, nb + nf + (nf if estimate else 0)), order="F")
-            np.negative(_held_lag_responses(u, f, range(nk, nk + nb), step), out=jac[:, :nb])
+            b_cols, f_cols, w_cols = jac[:, :nb], jac[:, nb : nb + nf], jac[:, nb + nf :]
+            np.negative(_held_lag_responses(u, f, range(nk, nk + nb), step, b_cols),
+                        out=b_cols)
             if nf:
                 # d eps/d f_i = (q^-i yhat)/F: zero past (estimated) or y_0 held
                 yf = lfilter([1.0], f, yhat if estimate else yhat - y0)
-                for i in range(1, nf + 1):
-                    col = _shifted(yf, i)
-                    jac[:, nb + i - 1] = col if estimate else col + y0 * step
+                _shift_into(f_cols, yf, range(1, nf + 1))
+                if not estimate:
+                    f_cols += (y0 * step)[:, None]
             if estimate:
-                for j in range(nf):
-                    np.negative(_shifted(h, j), out=jac[:, nb + nf + j])
+                np.negative(_shift_into(w_cols, h, range(nf)), out=w_cols)
             return jac
 
         return y - yhat, jacobian
@@ -647,17 +649,17 @@ def _armax_problem(
             h = impulse_response(c, n)
             step = np.cumsum(h)
             jac = np.empty((n, n_model + (nc if estimate else 0)), order="F")
+            a_cols, b_cols = jac[:, :na], jac[:, na : na + nb]
+            c_cols, w_cols = jac[:, na + nb : n_model], jac[:, n_model:]
             if na:
-                jac[:, :na] = _held_lag_responses(y, c, range(1, na + 1), step)
-            np.negative(_held_lag_responses(u, c, range(nk, nk + nb), step),
-                        out=jac[:, na : na + nb])
+                _held_lag_responses(y, c, range(1, na + 1), step, a_cols)
+            np.negative(_held_lag_responses(u, c, range(nk, nk + nb), step, b_cols),
+                        out=b_cols)
             if nc:
                 ef = lfilter([1.0], c, e)
-                for i in range(1, nc + 1):
-                    np.negative(_shifted(ef, i), out=jac[:, na + nb + i - 1])
+                np.negative(_shift_into(c_cols, ef, range(1, nc + 1)), out=c_cols)
             if estimate:
-                for j in range(nc):
-                    jac[:, n_model + j] = _shifted(h, j)
+                _shift_into(w_cols, h, range(nc))
             return jac
 
         return e, jacobian
