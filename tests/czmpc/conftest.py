@@ -1,4 +1,7 @@
-"""A user's own regression suite in tmp_path: model file, settings file, recipe scenario."""
+"""A user's own regression suite in tmp_path: model file, settings file, recipe scenario.
+
+Shared by the regression engine's tests, the CLI's and the pytest plugin's.
+"""
 
 from __future__ import annotations
 
