@@ -577,7 +577,7 @@ def _stacked_problem(problems: list[Problem], n_model: int, n_state: int) -> Pro
 
 def _oe_problem(
     y: FloatArray, u: FloatArray, nb: int, nf: int, nk: int, estimate: bool
-) -> Callable[[FloatArray], tuple[FloatArray, Callable[[], FloatArray]]]:
+) -> Problem:
     """Residuals ``eps = y - B/F u`` and their exact Jacobian via sensitivity filters.
 
     ``d yhat/d b_j = u_{k-j} / F`` (past input held: data), and ``d yhat/d f_i =
@@ -626,7 +626,7 @@ def _oe_problem(
 
 def _armax_problem(
     y: FloatArray, u: FloatArray, na: int, nb: int, nc: int, nk: int, estimate: bool
-) -> Callable[[FloatArray], tuple[FloatArray, Callable[[], FloatArray]]]:
+) -> Problem:
     """Prediction errors ``e = (A y - B u)/C`` and their exact Jacobian.
 
     ``de/da_i = y_{k-i}/C``, ``de/db_j = -u_{k-j}/C`` (pasts held: data),
@@ -833,6 +833,7 @@ def _oe_pem(
     max_iterations: int,
     segment_starts: tuple[int, ...] | list[int] | None = None,
 ) -> PemFit:
+    """`oe_pem` without its warning (`fit_oe` warns in its own name)."""
     nb = _check_order("nb", nb, 1)
     nf = _check_order("nf", nf, 0)
     nk = _check_order("nk", nk, 0)
@@ -945,6 +946,7 @@ def _armax_pem(
     max_iterations: int,
     segment_starts: tuple[int, ...] | list[int] | None = None,
 ) -> PemFit:
+    """`armax_pem` without its warning (`fit_armax` warns in its own name)."""
     na = _check_order("na", na, 0)
     nb = _check_order("nb", nb, 1)
     nc = _check_order("nc", nc, 0)
