@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -39,12 +39,18 @@ if TYPE_CHECKING:
 _Event = TypeVar("_Event", bound="DataclassInstance")
 
 
+def _is_finite_number(value: object) -> bool:
+    """True for a finite int or float (a bool is not a number here)."""
+    return (not isinstance(value, bool) and isinstance(value, (int, float))
+            and math.isfinite(value))
+
+
 def _check_time(obj: object, name: str, *, allow_none: bool = False, positive: bool = False) -> None:
     value = getattr(obj, name)
     where = f"{type(obj).__name__}.{name}"
     if value is None and allow_none:
         return
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not _is_finite_number(value):
         raise ScenarioError(f"{where}: expected a finite number [s]; got {value!r}")
     if positive and value <= 0:
         raise ScenarioError(f"{where}: expected a duration > 0 [s]; got {value!r}")
@@ -57,8 +63,7 @@ def _check_number(obj: object, name: str, *, lo: float = -math.inf, lo_open: boo
                   hi: float = math.inf, unit: str = "") -> None:
     value = getattr(obj, name)
     where = f"{type(obj).__name__}.{name}"
-    bad_type = isinstance(value, bool) or not isinstance(value, (int, float))
-    if bad_type or not math.isfinite(value) or value < lo or (lo_open and value == lo) or value > hi:
+    if not _is_finite_number(value) or value < lo or (lo_open and value == lo) or value > hi:
         bound = []
         if lo > -math.inf:
             bound.append(f"{'>' if lo_open else '>='} {lo:g}")
@@ -67,6 +72,24 @@ def _check_number(obj: object, name: str, *, lo: float = -math.inf, lo_open: boo
         rng_txt = (" " + " and ".join(bound)) if bound else ""
         raise ScenarioError(f"{where}: expected a finite number{rng_txt}{unit}; got {value!r}")
     object.__setattr__(obj, name, float(value))
+
+
+def _check_held_event(obj: object, value_name: str, **bounds: Any) -> None:
+    """Validate an event held from ``at_s`` for ``duration_s`` (None: for good).
+
+    Checks ``at_s``, then the held value ``value_name`` (``bounds`` as for
+    `_check_number`), then ``duration_s``.
+    """
+    _check_time(obj, "at_s")
+    _check_number(obj, value_name, **bounds)
+    _check_time(obj, "duration_s", allow_none=True, positive=True)
+
+
+def _check_end_after_start(obj: VoltageRamp | RandomSpikes) -> None:
+    """Refuse a window whose ``end_s`` (if given) is not after its ``start_s``."""
+    if obj.end_s is not None and obj.end_s <= obj.start_s:
+        raise ScenarioError(f"{type(obj).__name__}.end_s: expected a time > start_s = "
+                            f"{obj.start_s:g} s; got {obj.end_s:g}")
 
 
 def _active(time_s: FloatArray, start_s: float, end_s: float | None, ts_s: float) -> BoolArray:
@@ -78,8 +101,16 @@ def _active(time_s: FloatArray, start_s: float, end_s: float | None, ts_s: float
     return mask
 
 
-def _window_end(at_s: float, duration_s: float | None) -> float | None:
-    return None if duration_s is None else at_s + duration_s
+def _during(time_s: FloatArray, at_s: float, duration_s: float | None, ts_s: float) -> BoolArray:
+    """Boolean mask of an event from ``at_s`` for ``duration_s`` [s] (None: to the end)."""
+    return _active(time_s, at_s, None if duration_s is None else at_s + duration_s, ts_s)
+
+
+def _held_profile(time_s: FloatArray, ts_s: float, event: VoltageStep | PowerShift,
+                  value: float, idle: float) -> FloatArray:
+    """``value`` at the sample times ``time_s`` [s] where ``event`` is active, else ``idle``."""
+    t = np.asarray(time_s, dtype=float)
+    return np.where(_during(t, event.at_s, event.duration_s, ts_s), value, idle)
 
 
 # --- process disturbances ------------------------------------------------------------
@@ -102,15 +133,11 @@ class VoltageStep:
     duration_s: float | None = None
 
     def __post_init__(self) -> None:
-        _check_time(self, "at_s")
-        _check_number(self, "factor", lo=0.0, lo_open=True, hi=2.0)
-        _check_time(self, "duration_s", allow_none=True, positive=True)
+        _check_held_event(self, "factor", lo=0.0, lo_open=True, hi=2.0)
 
     def voltage_factor(self, time_s: FloatArray, ts_s: float) -> FloatArray:
         """Voltage factor [-] at the sample times ``time_s`` [s] (1 where inactive)."""
-        t = np.asarray(time_s, dtype=float)
-        mask = _active(t, self.at_s, _window_end(self.at_s, self.duration_s), ts_s)
-        return np.where(mask, self.factor, 1.0)
+        return _held_profile(time_s, ts_s, self, self.factor, 1.0)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -133,9 +160,7 @@ class VoltageRamp:
         _check_time(self, "start_s")
         _check_time(self, "end_s")
         _check_number(self, "factor", lo=0.0, lo_open=True, hi=2.0)
-        if self.end_s <= self.start_s:
-            raise ScenarioError(
-                f"VoltageRamp.end_s: expected a time > start_s = {self.start_s:g} s; got {self.end_s:g}")
+        _check_end_after_start(self)
 
     def voltage_factor(self, time_s: FloatArray, ts_s: float) -> FloatArray:
         """Voltage factor [-] at the sample times ``time_s`` [s]."""
@@ -166,15 +191,11 @@ class PowerShift:
     duration_s: float | None = None
 
     def __post_init__(self) -> None:
-        _check_time(self, "at_s")
-        _check_number(self, "offset_kw", unit=" [kW]")
-        _check_time(self, "duration_s", allow_none=True, positive=True)
+        _check_held_event(self, "offset_kw", unit=" [kW]")
 
     def power_offset_kw(self, time_s: FloatArray, ts_s: float) -> FloatArray:
         """Power offset [kW] at the sample times ``time_s`` [s] (0 where inactive)."""
-        t = np.asarray(time_s, dtype=float)
-        mask = _active(t, self.at_s, _window_end(self.at_s, self.duration_s), ts_s)
-        return np.where(mask, self.offset_kw, 0.0)
+        return _held_profile(time_s, ts_s, self, self.offset_kw, 0.0)
 
 
 Disturbance = VoltageStep | VoltageRamp | PowerShift
@@ -235,9 +256,7 @@ class RandomSpikes:
         _check_number(self, "spike_kw", unit=" [kW]")
         _check_time(self, "start_s")
         _check_time(self, "end_s", allow_none=True)
-        if self.end_s is not None and self.end_s <= self.start_s:
-            raise ScenarioError(f"RandomSpikes.end_s: expected a time > start_s = {self.start_s:g} s; "
-                                f"got {self.end_s:g}")
+        _check_end_after_start(self)
 
     def spike_profile_kw(
         self, time_s: FloatArray, ts_s: float, rng: np.random.Generator
@@ -277,7 +296,7 @@ class MissingSamples:
     def missing_mask(self, time_s: FloatArray, ts_s: float) -> BoolArray:
         """True at the sample times ``time_s`` [s] whose measurement is missing."""
         t = np.asarray(time_s, dtype=float)
-        return _active(t, self.at_s, self.at_s + self.duration_s, ts_s)
+        return _during(t, self.at_s, self.duration_s, ts_s)
 
 
 Fault = MeasurementSpike | RandomSpikes | MissingSamples
