@@ -374,8 +374,7 @@ def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Fi
 
     def add_plot(key: str, caption: str, plot: Callable[..., object], *arrays: Any, title: str,
                  paper_part: str, **options: Any) -> None:
-        """Draw ``plot(*arrays, path, **options)`` with the report's axis labels and a title
-        naming the paper's part (`_Style.title`)."""
+        """Draw ``plot(*arrays, path, **options)``: the report's axis labels, `_Style.title`'s title."""
         add(key, caption, lambda p: plot(*arrays, p, labels=lab, title=st.title(title, paper_part),
                                          **options))
 
