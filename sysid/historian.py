@@ -301,19 +301,25 @@ class _Raw:
     time_format: str = "seconds"
     time_origin: str | None = None
     sha256: str | None = None
-    n_missing_cells: int = 0
 
-    def where(self, row: int) -> tuple[int | None, str]:
-        """(file line, text) locating data row ``row`` (0-based) in messages."""
-        if self.lines is not None:
-            return int(self.lines[row]), ""
-        return None, f"row {row + 1}: "
+    @property
+    def n_missing_cells(self) -> int:
+        """Cells of the three columns that hold no value (NaN)."""
+        return int(sum(np.count_nonzero(np.isnan(a)) for a in (self.time, self.u, self.y)))
+
+
+def _row_error(message: str, row: int, *, lines: Sequence[int] | npt.NDArray[np.int64] | None,
+               path: str | None, column: str | None) -> DataFileError:
+    """An error at data row ``row`` (0-based): at its file line if ``lines`` are known,
+    else prefixed ``row N: `` (1-based)."""
+    if lines is not None:
+        return DataFileError(message, path=path, line=int(lines[row]), column=column)
+    return DataFileError(f"row {row + 1}: {message}", path=path, column=column)
 
 
 def _fail(raw: _Raw, row: int, column: str | None, message: str) -> DataFileError:
-    line, prefix = raw.where(row)
-    return DataFileError(prefix + message, path=raw.path, line=line,
-                         column=None if column is None else raw.names[column])
+    return _row_error(message, row, lines=raw.lines, path=raw.path,
+                      column=None if column is None else raw.names[column])
 
 
 # --- the policies (pure, on arrays) ----------------------------------------------------
@@ -332,21 +338,24 @@ def _fill_runs(values: FloatArray, max_run: int) -> tuple[FloatArray, npt.NDArra
     return out, filled
 
 
+def _first_bad_interval(bad: npt.NDArray[np.bool_]) -> int | None:
+    """Sample ending the first interval flagged in ``bad`` (``bad[j]``: samples ``j, j+1``)."""
+    hits = np.flatnonzero(bad)
+    return int(hits[0]) + 1 if hits.size else None
+
+
 def _grid_slots(raw: _Raw, time: FloatArray, ts_s: float, policy: LoadPolicy,
                 rows: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.int64], float]:
     """Grid index of each row (snap rule) and the largest jitter (fraction of Ts)."""
     dt = np.diff(time)
     m = np.rint(dt / ts_s)
     jitter = np.abs(dt - m * ts_s) / ts_s
-    short = np.flatnonzero(m < 1)
-    if short.size:
-        k = int(short[0]) + 1
+    if (k := _first_bad_interval(m < 1)) is not None:
         raise _fail(raw, int(rows[k]), "time_s",
                     f"interval of {dt[k - 1]:g} s from {time[k - 1]:g} s is shorter than half "
                     f"the sampling time {ts_s:g} s; pass --ts-s with the logger's period, or "
                     "--resample linear to interpolate onto a uniform grid")
-    if policy.resample == "snap" and jitter.size and float(np.max(jitter)) > SNAP_MAX_JITTER:
-        k = int(np.argmax(jitter > SNAP_MAX_JITTER)) + 1
+    if policy.resample == "snap" and (k := _first_bad_interval(jitter > SNAP_MAX_JITTER)) is not None:
         raise _fail(raw, int(rows[k]), "time_s",
                     f"interval of {dt[k - 1]:g} s from {time[k - 1]:g} s is {100 * jitter[k - 1]:.3g} "
                     f"% of Ts = {ts_s:g} s off a whole number of periods (snapping accepts up to "
@@ -390,9 +399,7 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
     if time.size < MIN_SAMPLES:
         raise DataFileError(f"expected at least {MIN_SAMPLES} samples; got {time.size}",
                             path=raw.path)
-    back = np.flatnonzero(np.diff(time) <= 0)
-    if back.size:
-        k = int(back[0]) + 1
+    if (k := _first_bad_interval(np.diff(time) <= 0)) is not None:
         raise _fail(raw, int(rows[k]), "time_s",
                     f"time must be strictly increasing; got {time[k]:g} s after {time[k - 1]:g} s "
                     "(sort the export by time and remove duplicated rows)")
@@ -476,15 +483,20 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
     return LoadedLog(data=data, report=report)
 
 
+def _file_bytes(path: str | os.PathLike[str]) -> tuple[Path, bytes, str]:
+    """The file's path, its bytes and their SHA-256 (hex), for the data set's provenance."""
+    p = Path(path)
+    blob = p.read_bytes()
+    return p, blob, hashlib.sha256(blob).hexdigest()
+
+
 # --- time cells ------------------------------------------------------------------------
 
 def _iso_seconds(cells: Sequence[str | None], raw_names: Mapping[str, str], path: str | None,
                  lines: Sequence[int] | None) -> tuple[FloatArray, str]:
     """Seconds from the first ISO-8601 stamp, and that stamp's text (NaN where missing)."""
     def fail(i: int, message: str) -> DataFileError:
-        return DataFileError(message if lines is not None else f"row {i + 1}: {message}",
-                             path=path, line=None if lines is None else lines[i],
-                             column=raw_names["time_s"])
+        return _row_error(message, i, lines=lines, path=path, column=raw_names["time_s"])
 
     stamps: list[datetime | None] = []
     zoned: bool | None = None
@@ -593,9 +605,7 @@ def read_log_csv(
         The file cannot be opened.
     """
     policy = LoadPolicy() if policy is None else policy
-    p = Path(path)
-    blob = p.read_bytes()
-    digest = hashlib.sha256(blob).hexdigest()
+    p, blob, digest = _file_bytes(path)
     text = decode_text(blob, p)
     lines = text.splitlines()
     while lines and not lines[-1].strip():
@@ -650,7 +660,6 @@ def read_log_csv(
         return row[index[c]] if len(row) > index[c] else ""
 
     values: dict[str, list[float]] = {"triac_pct": [], "power_kw": []}
-    n_missing = 0
     for i, row in enumerate(body):
         for c in ("triac_pct", "power_kw"):
             raw_cell = cell(row, c)
@@ -664,7 +673,6 @@ def read_log_csv(
             if math.isinf(v):
                 raise DataFileError(f"expected a finite number; got {raw_cell.strip()!r}",
                                     path=p, line=i + 2, column=names[c])
-            n_missing += math.isnan(v)
             values[c].append(v)
     time_cells = [cell(row, "time_s") for row in body]
     first = next((t.strip() for t in time_cells if t.strip().lower() not in MISSING_TOKENS), "")
@@ -688,13 +696,11 @@ def read_log_csv(
     else:
         time_format = "timestamp"
         time, origin = _iso_seconds(time_cells, names, str(p), line_numbers)
-    n_missing += int(np.count_nonzero(np.isnan(time)))
     raw = _Raw(time=time, u=np.asarray(values["triac_pct"], dtype=float),
                y=np.asarray(values["power_kw"], dtype=float),
                lines=np.asarray(line_numbers, dtype=np.int64), path=str(p), names=names,
                source_format="csv", separator=separator, decimal=decimal,
-               time_format=time_format, time_origin=origin, sha256=digest,
-               n_missing_cells=n_missing)
+               time_format=time_format, time_origin=origin, sha256=digest)
     return _regularize(raw, policy, input_unit=input_unit, output_unit=output_unit)
 
 
@@ -738,11 +744,16 @@ def _arrow_values(column: Any, name: str, path: str | None) -> FloatArray:
         raise DataFileError(f"expected a numeric column; got the Arrow type {column.type}",
                             path=path, column=name)
     out = np.asarray(pc.cast(column, pa.float64()).to_numpy(zero_copy_only=False), dtype=float)
-    bad = np.flatnonzero(np.isinf(out))
-    if bad.size:
-        raise DataFileError(f"row {bad[0] + 1}: expected a finite number; got {out[bad[0]]}",
-                            path=path, column=name)
+    _check_finite_values(out, name, path)
     return out
+
+
+def _check_finite_values(values: FloatArray, name: str, path: str | None) -> None:
+    """Refuse an infinite value in a signal column (NaN is a missing value), naming its row."""
+    bad = np.flatnonzero(np.isinf(values))
+    if bad.size:
+        raise _row_error(f"expected a finite number; got {values[bad[0]]}", int(bad[0]),
+                         lines=None, path=path, column=name)
 
 
 def read_log_parquet(
@@ -760,8 +771,7 @@ def read_log_parquet(
     import pyarrow.parquet as pq
 
     policy = LoadPolicy() if policy is None else policy
-    p = Path(path)
-    blob = p.read_bytes()
+    p, blob, digest = _file_bytes(path)
     try:
         table = pq.read_table(io.BytesIO(blob))
     except Exception as exc:  # pyarrow raises several types for a damaged file
@@ -772,9 +782,14 @@ def read_log_parquet(
     y = _arrow_values(table.column(names["power_kw"]), names["power_kw"], str(p))
     raw = _Raw(time=np.asarray(time, dtype=float), u=u, y=y, lines=None, path=str(p),
                names=names, source_format="parquet", time_format=fmt, time_origin=origin,
-               sha256=hashlib.sha256(blob).hexdigest(),
-               n_missing_cells=int(np.isnan(time).sum() + np.isnan(u).sum() + np.isnan(y).sum()))
+               sha256=digest)
     return _regularize(raw, policy, input_unit=input_unit, output_unit=output_unit)
+
+
+def _segment_numbers(data: Dataset) -> npt.NDArray[np.int64]:
+    """The ``segment`` column: each sample's segment number (0-based)."""
+    return np.repeat(np.arange(data.n_segments, dtype=np.int64),
+                     [hi - lo for lo, hi in data.segment_bounds()])
 
 
 def write_parquet(data: Dataset, path: str | os.PathLike[str]) -> None:
@@ -788,8 +803,7 @@ def write_parquet(data: Dataset, path: str | os.PathLike[str]) -> None:
 
     from sysid.atomic import atomic_write_bytes
 
-    segment = np.repeat(np.arange(data.n_segments, dtype=np.int64),
-                        [hi - lo for lo, hi in data.segment_bounds()])
+    segment = _segment_numbers(data)
     table = pa.table({"time_s": data.time_s, "triac_pct": data.triac_pct,
                       "power_kw": data.power_kw, "segment": segment})
     sink = pa.BufferOutputStream()
@@ -878,15 +892,11 @@ def read_frame(
             raise DataFileError(f"expected a numeric column; got dtype {col.dtype}",
                                 column=names[c])
         arr = col.to_numpy(dtype=float, na_value=np.nan)
-        if np.isinf(arr).any():
-            k = int(np.argmax(np.isinf(arr)))
-            raise DataFileError(f"row {k + 1}: expected a finite number; got {arr[k]}",
-                                column=names[c])
+        _check_finite_values(arr, names[c], None)
         signals.append(arr)
     raw = _Raw(time=np.asarray(time, dtype=float), u=signals[0], y=signals[1], lines=None,
                path=None, names=names, source_format="frame", time_format=fmt,
-               time_origin=origin,
-               n_missing_cells=int(sum(np.isnan(a).sum() for a in (time, *signals))))
+               time_origin=origin)
     return _regularize(raw, policy or LoadPolicy(), input_unit=input_unit,
                        output_unit=output_unit)
 
@@ -894,8 +904,7 @@ def read_frame(
 def to_frame(data: Dataset) -> Any:
     """The data set as a pandas DataFrame (contract columns and ``segment``; needs pandas)."""
     pd = _pandas()
-    segment = np.repeat(np.arange(data.n_segments, dtype=np.int64),
-                        [hi - lo for lo, hi in data.segment_bounds()])
+    segment = _segment_numbers(data)
     return pd.DataFrame({"time_s": np.array(data.time_s), "triac_pct": np.array(data.triac_pct),
                          "power_kw": np.array(data.power_kw), "segment": segment})
 
