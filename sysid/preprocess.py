@@ -62,6 +62,18 @@ LEVEL_WINDOW_SAMPLES = 5
 EVENT_GAP_SAMPLES = 2
 
 
+def _check_finite(where: str, name: str, value: float, *, positive: bool = False,
+                  none_ok: bool = False) -> None:
+    """Refuse ``value`` unless it is a finite number ``>= 0`` (``> 0`` if ``positive``).
+
+    ``none_ok``: the message adds that None is accepted (the caller lets None pass).
+    """
+    if math.isfinite(value) and (value > 0.0 if positive else value >= 0.0):
+        return
+    bound = ("> 0" if positive else ">= 0") + (" or None" if none_ok else "")
+    raise IdentificationError(f"{where}: {name} must be a finite number {bound}; got {value!r}")
+
+
 def _robust_scale(x: FloatArray) -> float:
     """``1.4826 * median(|x - median(x)|)``."""
     return MAD_TO_STD * float(np.median(np.abs(x - np.median(x))))
@@ -290,13 +302,10 @@ def find_operating_point(
             f"method={method!r} and given={given!r}")
     u, y = data.triac_pct, data.power_kw
     if method == "means":
-        op = OperatingPoint(triac_pct=float(u.mean()), power_kw=float(y.mean()))
-        return OperatingPointChoice(operating_point=op, method="means")
+        return OperatingPointChoice(operating_point=_mean_point(u, y), method="means")
     for name, value in (("input_tol", input_tol), ("drift_sigmas", drift_sigmas),
                         ("output_atol_kw", output_atol_kw)):
-        if not (math.isfinite(value) and value >= 0.0):
-            raise IdentificationError(
-                f"find_operating_point: {name} must be a finite number >= 0; got {value!r}")
+        _check_finite("find_operating_point", name, value)
     if isinstance(min_window_samples, bool) or not isinstance(min_window_samples, int) or \
             min_window_samples < 4:
         raise IdentificationError(
@@ -327,8 +336,12 @@ def find_operating_point(
         input_spread=float(np.ptp(uw)), output_spread_kw=float(np.ptp(yw)),
         output_std_kw=float(np.std(yw)), output_drift_kw=drift, final_level_kw=final,
         settle_limit_kw=limit)
-    op = OperatingPoint(triac_pct=float(uw.mean()), power_kw=float(yw.mean()))
-    return OperatingPointChoice(operating_point=op, method="steady", window=window)
+    return OperatingPointChoice(operating_point=_mean_point(uw, yw), method="steady", window=window)
+
+
+def _mean_point(u: FloatArray, y: FloatArray) -> OperatingPoint:
+    """The operating point at the mean input and mean output of ``u`` and ``y``."""
+    return OperatingPoint(triac_pct=float(u.mean()), power_kw=float(y.mean()))
 
 
 def to_deviation(data: Dataset, op: OperatingPoint) -> tuple[FloatArray, FloatArray]:
@@ -555,12 +568,9 @@ def find_outlier_candidates(
     nk = _check_int(where, "nk", nk, 0)
     step_guard_samples = _check_int(where, "step_guard_samples", step_guard_samples, 0)
     clip_min_run_samples = _check_int(where, "clip_min_run_samples", clip_min_run_samples, 2)
-    if not (math.isfinite(threshold) and threshold > 0.0):
-        raise IdentificationError(f"{where}: threshold must be a finite number > 0; got "
-                                  f"{threshold!r}")
-    if input_step_tol is not None and not (math.isfinite(input_step_tol) and input_step_tol >= 0):
-        raise IdentificationError(f"{where}: input_step_tol must be a finite number >= 0 or "
-                                  f"None; got {input_step_tol!r}")
+    _check_finite(where, "threshold", threshold, positive=True)
+    if input_step_tol is not None:
+        _check_finite(where, "input_step_tol", input_step_tol, none_ok=True)
     ds, dp = to_deviation(data, operating_point)
     fit = arx_least_squares(dp, ds, na=na, nb=nb, nk=nk, segment_starts=data.segment_starts)
     n0 = fit.first_sample
@@ -619,16 +629,29 @@ def find_outlier_candidates(
 # --------------------------------------------------------------------------- repairs
 
 
+def _record_error(data: Dataset, where: str, message: str) -> DataFileError:
+    """An error of the function ``where`` on `data` (naming the record's file)."""
+    return DataFileError(f"{where}: {message}", path=data.source)
+
+
+def _check_finite_argument(data: Dataset, where: str, name: str, value: float) -> None:
+    if not math.isfinite(value):
+        raise _record_error(data, where, f"{name} must be a finite number; got {value!r}")
+
+
+def _with_output(data: Dataset, power: FloatArray, what: str, **details: object) -> Dataset:
+    """`data` with the output ``power``, the repair recorded as ``{"what": what, ...}``."""
+    return data.with_signals(power_kw=power,
+                             change={"what": what, "signal": "power_kw", **details})
+
+
 def _sample_at(data: Dataset, time_s: float, where: str) -> int:
     """Index of the sample at `time_s` (within half a sampling interval)."""
-    if not math.isfinite(time_s):
-        raise DataFileError(f"{where}: time_s must be a finite number; got {time_s!r}",
-                            path=data.source)
+    _check_finite_argument(data, where, "time_s", time_s)
     k = int(np.argmin(np.abs(data.time_s - time_s)))
     if abs(data.time_s[k] - time_s) > 0.5 * data.ts_s:
-        raise DataFileError(
-            f"{where}: expected a time within the record [{data.time_s[0]:g}, "
-            f"{data.time_s[-1]:g}] s; got {time_s:g} s", path=data.source)
+        raise _record_error(data, where, f"expected a time within the record "
+                            f"[{data.time_s[0]:g}, {data.time_s[-1]:g}] s; got {time_s:g} s")
     return k
 
 
@@ -662,30 +685,26 @@ def interpolate_spike(
     """
     where = "interpolate_spike"
     if (sample is None) == (time_s is None):
-        raise DataFileError(f"{where}: give exactly one of sample and time_s; got sample="
-                            f"{sample!r}, time_s={time_s!r}", path=data.source)
+        raise _record_error(data, where, f"give exactly one of sample and time_s; got sample="
+                            f"{sample!r}, time_s={time_s!r}")
     if time_s is not None:
         k = _sample_at(data, time_s, where)
     else:
         if isinstance(sample, bool) or not isinstance(sample, (int, np.integer)):
-            raise DataFileError(f"{where}: sample must be an int; got {sample!r}",
-                                path=data.source)
+            raise _record_error(data, where, f"sample must be an int; got {sample!r}")
         k = int(sample)
     if not 1 <= k <= data.n_samples - 2:
-        raise DataFileError(
-            f"{where}: expected a sample with two neighbours, 1 <= sample <= "
-            f"{data.n_samples - 2}; got {k}", path=data.source)
+        raise _record_error(data, where, f"expected a sample with two neighbours, 1 <= sample "
+                            f"<= {data.n_samples - 2}; got {k}")
     if k in data.segment_starts or k + 1 in data.segment_starts:
-        raise DataFileError(
-            f"{where}: expected a sample with two neighbours in its own segment; got {k}, "
-            f"at a segment boundary (segments start at {list(data.segment_starts)})",
-            path=data.source)
+        raise _record_error(
+            data, where, f"expected a sample with two neighbours in its own segment; got {k}, "
+            f"at a segment boundary (segments start at {list(data.segment_starts)})")
     power = np.array(data.power_kw, copy=True)
     old = float(power[k])
     power[k] = 0.5 * (power[k - 1] + power[k + 1])
-    return data.with_signals(power_kw=power, change={
-        "what": "interpolate_spike", "signal": "power_kw", "sample": k,
-        "time_s": float(data.time_s[k]), "old_value": old, "new_value": float(power[k])})
+    return _with_output(data, power, "interpolate_spike", sample=k,
+                        time_s=float(data.time_s[k]), old_value=old, new_value=float(power[k]))
 
 
 def correct_level_shift(data: Dataset, *, from_time_s: float, shift_kw: float) -> Dataset:
@@ -718,18 +737,15 @@ def correct_level_shift(data: Dataset, *, from_time_s: float, shift_kw: float) -
     where = "correct_level_shift"
     t = data.time_s
     if not (math.isfinite(from_time_s) and t[0] < from_time_s <= t[-1]):
-        raise DataFileError(
-            f"{where}: expected from_time_s inside the record ({t[0]:g}, {t[-1]:g}] s; got "
-            f"{from_time_s!r} s", path=data.source)
-    if not math.isfinite(shift_kw):
-        raise DataFileError(f"{where}: shift_kw must be a finite number; got {shift_kw!r}",
-                            path=data.source)
+        raise _record_error(data, where, f"expected from_time_s inside the record "
+                            f"({t[0]:g}, {t[-1]:g}] s; got {from_time_s!r} s")
+    _check_finite_argument(data, where, "shift_kw", shift_kw)
     k0 = int(np.searchsorted(t, from_time_s, side="left"))
     power = np.array(data.power_kw, copy=True)
     power[k0:] -= shift_kw
-    return data.with_signals(power_kw=power, change={
-        "what": "correct_level_shift", "signal": "power_kw", "from_time_s": float(from_time_s),
-        "from_sample": k0, "shift_kw": float(shift_kw), "n_samples_changed": int(t.size - k0)})
+    return _with_output(data, power, "correct_level_shift", from_time_s=float(from_time_s),
+                        from_sample=k0, shift_kw=float(shift_kw),
+                        n_samples_changed=int(t.size - k0))
 
 
 @dataclass(frozen=True, kw_only=True)
