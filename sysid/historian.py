@@ -492,6 +492,11 @@ def _file_bytes(path: str | os.PathLike[str]) -> tuple[Path, bytes, str]:
 
 # --- time cells ------------------------------------------------------------------------
 
+def _no_time_stamp(path: str | None, column: str) -> DataFileError:
+    """The error for a time column whose every cell is missing."""
+    return DataFileError("the time column holds no time stamp", path=path, column=column)
+
+
 def _iso_seconds(cells: Sequence[str | None], raw_names: Mapping[str, str], path: str | None,
                  lines: Sequence[int] | None) -> tuple[FloatArray, str]:
     """Seconds from the first ISO-8601 stamp, and that stamp's text (NaN where missing)."""
@@ -520,8 +525,7 @@ def _iso_seconds(cells: Sequence[str | None], raw_names: Mapping[str, str], path
         stamps.append(stamp.astimezone(UTC) if has_zone else stamp)
     first = next((s for s in stamps if s is not None), None)
     if first is None:
-        raise DataFileError("the time column holds no time stamp", path=path,
-                            column=raw_names["time_s"])
+        raise _no_time_stamp(path, raw_names["time_s"])
     seconds = np.array([math.nan if s is None else (s - first).total_seconds() for s in stamps])
     return seconds, first.isoformat()
 
@@ -720,7 +724,7 @@ def _arrow_time(column: Any, name: str, path: str | None) -> tuple[FloatArray, s
         ns = ns * _NS_PER_UNIT[kind.unit]
         valid = ns[~np.isnan(ns)]
         if valid.size == 0:
-            raise DataFileError("the time column holds no time stamp", path=path, column=name)
+            raise _no_time_stamp(path, name)
         first_ns = int(valid[0])
         zone = UTC if kind.tz is not None else None
         origin = datetime.fromtimestamp(first_ns / 1e9, tz=UTC)
@@ -873,7 +877,7 @@ def read_frame(
         stamps = utc.to_numpy(dtype="datetime64[ns]")
         valid = ~np.isnat(stamps)
         if not valid.any():
-            raise DataFileError("the time column holds no time stamp", column=time_name)
+            raise _no_time_stamp(None, time_name)
         first = stamps[valid][0]
         secs = np.where(valid, (stamps - first) / np.timedelta64(1, "ns") / 1e9, np.nan)
         origin = pd.Timestamp(first).tz_localize("UTC" if zoned else None).isoformat()
