@@ -71,6 +71,7 @@ from sysid.preprocess import (
 from sysid.rest_oe import (
     BURN_IN_SHARE,
     NK_VALUES,
+    RestOESearch,
     RestPoint,
     rest_mse,
     rest_oe_model,
@@ -301,6 +302,9 @@ class PipelineResult:
     structure :
         With ``orders="auto"``: the delay estimate, every structure scored on
         validation data, the choice and why (`sysid.structure.StructureChoice`).
+    rest_search :
+        With ``orders="auto"`` on a log of one segment: every structure of the OE
+        search from rest and its choice (`sysid.rest_oe.RestOESearch`).
     """
 
     raw_data: Dataset = field(repr=False)
@@ -319,6 +323,7 @@ class PipelineResult:
     warnings: tuple[str, ...] = ()
     initial_state: InitialState = "estimate"
     structure: StructureChoice | None = field(default=None, repr=False)
+    rest_search: RestOESearch | None = field(default=None, repr=False)
 
     @property
     def models(self) -> tuple[NamedModel, ...]:
@@ -903,11 +908,12 @@ def _run_stages(
         clock.start("Hammerstein models at the paper's orders")
         hammerstein += _paper_models(clean, op, paper_orders, initial_state, clock, skipped)
     rest: NamedModel | None = None
+    search: RestOESearch | None = None
     if orders == "auto":
         clock.start("OE from rest (multistart over orders and delay)")
         at = None if operating_point is None else RestPoint(
             input=operating_point.triac_pct, output=operating_point.power_kw)
-        rest = _rest_model(data, op, at, min_nk, skipped)
+        rest, search = _rest_model(data, op, at, min_nk, skipped)
         if rest is not None:
             linear += (rest,)
     clock.stop()
@@ -938,12 +944,14 @@ def _run_stages(
         skipped=tuple(skipped),
         initial_state=initial_state,
         structure=structure,
+        rest_search=search,
     )
 
 
 def _rest_model(data: Dataset, op: OperatingPoint, at: RestPoint | None, min_nk: int,
-                skipped: list[str]) -> NamedModel | None:
-    """The best linear OE simulated from rest (`sysid.rest_oe`), or None with the reason.
+                skipped: list[str]) -> tuple[NamedModel | None, RestOESearch | None]:
+    """The best linear OE simulated from rest (`sysid.rest_oe`) and its search, or Nones
+    with the reason.
 
     It is fitted on the log as recorded (no repairs): the model a user checks first. Its
     rest is `at` (an operating point the user gave: the rest before the record), else
@@ -951,7 +959,7 @@ def _rest_model(data: Dataset, op: OperatingPoint, at: RestPoint | None, min_nk:
     """
     if data.n_segments > 1:
         skipped.append("OE from rest not searched: the log holds several segments")
-        return None
+        return None, None
     try:
         rest = at or RestPoint.first_sample(data.triac_pct, data.power_kw)
         search = search_oe_from_rest(data.power_kw, data.triac_pct, rest=rest,
@@ -960,12 +968,13 @@ def _rest_model(data: Dataset, op: OperatingPoint, at: RestPoint | None, min_nk:
         model = rest_oe_model(fit, data, operating_triac_pct=op.triac_pct, rest=rest)
     except SysidError as exc:
         skipped.append(f"OE from rest not searched: {exc}")
-        return None
+        return None, None
     return NamedModel(
         name="oe_rest", label=f"OE(nb={fit.nb}, nf={fit.nf}, nk={fit.nk}) from rest, best of "
         f"{len(search.candidates)} structures on the log as recorded", model=model,
         n_parameters=fit.n_parameters, n_iterations=fit.n_iterations, converged=fit.converged,
-        message=f"V from rest {fit.v_rest:.6g} after a burn-in of {fit.burn_in_steps} samples")
+        message=f"V from rest {fit.v_rest:.6g} after a burn-in of {fit.burn_in_steps} samples"
+    ), search
 
 
 def _better_from_rest(final: NamedModel, rest: NamedModel, data: Dataset,

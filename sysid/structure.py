@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from scipy.signal import lfilter
@@ -296,6 +297,13 @@ class StructureChoice:
     chosen_parameters :
         The chosen structure's parameters fitted on the (first) estimation block, by
         name: a start for the fit on the whole record.
+    estimation_samples :
+        Samples of the shortest fold's estimation blocks: a candidate whose slowest time
+        constant is longer is not chosen (it cannot be told from an integrator there).
+    criterion :
+        What the choice compared: ``"validation"`` (`CandidateScore.validation_v_kw2`) or,
+        when every candidate's time constant is longer than the estimation record,
+        ``"free_state"`` (`CandidateScore.validation_v_free_state_kw2`).
     """
 
     delay: DelayEstimate
@@ -308,6 +316,13 @@ class StructureChoice:
     residual_input_correlation: CorrelationResult | None = field(repr=False)
     validation_fit_percent: float
     chosen_parameters: dict[str, float] = field(default_factory=dict)
+    estimation_samples: int = 0
+    criterion: Literal["validation", "free_state"] = "validation"
+
+    def v(self, score: CandidateScore) -> float:
+        """``score``'s V on the criterion of this choice [output unit^2]."""
+        return (score.validation_v_kw2 if self.criterion == "validation"
+                else score.validation_v_free_state_kw2)
 
 
 @dataclass(frozen=True, eq=False)
@@ -704,6 +719,8 @@ def select_structure(
         validation_fit_percent=fit_pct,
         chosen_parameters=dict(zip(_oe_orders(*chosen.orders).parameter_names(),
                                    (float(v) for v in grid.fits[chosen.orders][0]), strict=True)),
+        estimation_samples=record,
+        criterion="validation" if admissible else "free_state",
     )
 
 

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from czmpc.reports import identification_figures as figs
+from czmpc.reports.structure_report import draw_structure_choice, structure_section
 from czmpc.reports.tables import format_table
 from sim.experiment import PAPER_TABLE3, PAPER_TRIAC_NOM_PCT
 from sysid._version import SOFTWARE
@@ -138,6 +139,10 @@ class _Style:
     @property
     def v_unit(self) -> str:
         return f"{self.out_unit}^2"
+
+    @property
+    def gain_unit(self) -> str:
+        return f"{self.out_unit}/{self.in_unit}"
 
     def title(self, text: str, paper_part: str) -> str:
         """A figure title or section heading, with the paper's part named only when the paper is shown."""
@@ -429,6 +434,13 @@ def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Fi
         add_plot(key, caption, figs.plot_simulation_errors, t, errors, title=title,
                  paper_part=paper_fig)
 
+    choice = result.structure
+    if choice is not None:
+        add("structure_choice", "Structure selection: the delay's evidence (the ARX input "
+            "coefficients against their significance band) and each search's V against its "
+            "number of parameters, the chosen structure ringed.",
+            lambda p: draw_structure_choice(choice, result.rest_search, p,
+                                            gain_unit=st.gain_unit, v_unit=st.v_unit))
     lin = [(n, s) for n, s in (("arx_1_2", "ARX(1,2)"), ("armax_1_2_1", "ARMAX(1,2,1)"),
                                ("oe_2_1", "OE(2,1)")) if n in m]
     if lin:
@@ -806,7 +818,7 @@ def _timing_section(result: PipelineResult) -> str:
 
 #: Report section each figure belongs to, by the start of its file name.
 _FIGURE_SECTIONS: tuple[tuple[str, str], ...] = (
-    ("fig02", "data"), ("fig03", "preprocessing"), ("fig04", "preprocessing"),
+    ("fig02", "data"), ("structure", "structure"), ("fig03", "preprocessing"), ("fig04", "preprocessing"),
     ("fig06", "preprocessing"), ("fig07", "preprocessing"), ("fig08", "linear"),
     ("fig09", "linear"), ("gain_curve", "steps"), ("fig12", "route"), ("fig13", "route"),
     ("fig15", "route"), ("fig16", "route"), ("fig18", "route"), ("residual_tests", "final"),
@@ -889,11 +901,15 @@ def render_report(
     parts.append(_findings_section(findings, st.paper))
     sections = (("data", _data_section(result, st)),
                 ("preprocessing", _preprocessing_section(result, st)),
+                ("structure", structure_section(result.structure, result.rest_search,
+                                                v_unit=st.v_unit, gain_unit=st.gain_unit)),
                 ("linear", _table2_section(result, st)), ("steps", _table3_section(result, st)),
                 ("route", _route_section(result, st)),
                 ("final", _final_section(result, model_file, st)))
     placed: set[str] = set()
     for key, text in sections:
+        if not text:
+            continue
         parts.append(text)
         for caption, rel in figures:
             if _section_of(rel) == key:
