@@ -63,14 +63,15 @@ EVENT_GAP_SAMPLES = 2
 
 
 def _check_finite(where: str, name: str, value: float, *, positive: bool = False,
-                  none_ok: bool = False) -> None:
+                  or_none: bool = False) -> None:
     """Refuse ``value`` unless it is a finite number ``>= 0`` (``> 0`` if ``positive``).
 
-    ``none_ok``: the message adds that None is accepted (the caller lets None pass).
+    ``or_none``: the parameter also takes None (the caller lets None pass); the message
+    says so.
     """
     if math.isfinite(value) and (value > 0.0 if positive else value >= 0.0):
         return
-    bound = ("> 0" if positive else ">= 0") + (" or None" if none_ok else "")
+    bound = ("> 0" if positive else ">= 0") + (" or None" if or_none else "")
     raise IdentificationError(f"{where}: {name} must be a finite number {bound}; got {value!r}")
 
 
@@ -570,7 +571,7 @@ def find_outlier_candidates(
     clip_min_run_samples = _check_int(where, "clip_min_run_samples", clip_min_run_samples, 2)
     _check_finite(where, "threshold", threshold, positive=True)
     if input_step_tol is not None:
-        _check_finite(where, "input_step_tol", input_step_tol, none_ok=True)
+        _check_finite(where, "input_step_tol", input_step_tol, or_none=True)
     ds, dp = to_deviation(data, operating_point)
     fit = arx_least_squares(dp, ds, na=na, nb=nb, nk=nk, segment_starts=data.segment_starts)
     n0 = fit.first_sample
@@ -635,6 +636,7 @@ def _record_error(data: Dataset, where: str, message: str) -> DataFileError:
 
 
 def _check_finite_argument(data: Dataset, where: str, name: str, value: float) -> None:
+    """Refuse a repair's argument ``name`` that is not a finite number."""
     if not math.isfinite(value):
         raise _record_error(data, where, f"{name} must be a finite number; got {value!r}")
 
