@@ -9,7 +9,14 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from benchmarks.identify import main, run_sippy_comparison, write_benchmarks_section
+from benchmarks.identify import (
+    RealLogRow,
+    _nb_nf_nk,
+    format_real_logs,
+    main,
+    run_sippy_comparison,
+    write_benchmarks_section,
+)
 from sysid.data import Dataset, write_csv
 
 
@@ -99,3 +106,15 @@ def test_sippy_arx_scores_like_our_least_squares_arx_on_the_same_data(tmp_path: 
     # enter the regression (SIPPY drops max(na, nb) rows), which moves V and W by < 0.1 %.
     np.testing.assert_allclose(arx.sippy_v_kw2, ours.ballistic_mse_kw2, rtol=1e-3, atol=0)
     np.testing.assert_allclose(arx.sippy_w_kw2, ours.one_step_mse_kw2, rtol=1e-3, atol=0)
+
+
+def test_the_real_log_table_shows_each_models_structure_and_how_many_structures_are_near(
+) -> None:
+    rows = (RealLogRow(log="a.dat", n_samples=599, pipeline_s=4.2, final_name="oe_rest",
+                       converged=True, v_model_json=0.11, v_reference=0.10, output_unit="degC",
+                       structure=_nb_nf_nk(np.array([0.0, 0.0, 0.0, 1.0, 0.5, 0.2, 0.1]),
+                                           np.array([1.0, -1.5, 0.7, -0.1])), n_near=6),)
+    table = format_real_logs(rows)
+    assert "| `a.dat` | 599 | 4.20 | oe_rest | 4, 3, 3 | 6 | yes | 0.11 degC^2 | 0.1 | 1.100 |" \
+        in table
+    assert "**met**" in table
