@@ -11,7 +11,7 @@ import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 if TYPE_CHECKING:
     from czmpc.settings import MPCSettings
@@ -24,19 +24,45 @@ if TYPE_CHECKING:
 #: (a test holds the two equal).
 TEST_SIGNAL_KINDS = ("steps", "gbn", "mixed", "multilevel")
 
-def integer(minimum: int, what: str = "an integer") -> Callable[[str], int]:
-    """Converter to an int >= ``minimum``."""
+#: What a `checked` converter returns.
+Value = TypeVar("Value")
 
-    def convert(text: str) -> int:
+
+def checked(parse: Callable[[str], Value], accept: Callable[[Value], bool],
+            expected: str) -> Callable[[str], Value]:
+    """Converter that parses a text and accepts only some of its values.
+
+    Parameters
+    ----------
+    parse :
+        Turns the text into a value; a `ValueError` means the text is not one.
+    accept :
+        True for the values that may be used.
+    expected :
+        What a usable text is, for the message: ``expected EXPECTED; got 'TEXT'``.
+
+    Returns
+    -------
+    Callable[[str], Value]
+        The converter; it raises `argparse.ArgumentTypeError` for a text it refuses.
+    """
+
+    def convert(text: str) -> Value:
         try:
-            value = int(text)
+            value = parse(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {what} >= {minimum}; got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"expected {what} >= {minimum}; got {text!r}")
-        return value
+            pass
+        else:
+            if accept(value):
+                return value
+        raise argparse.ArgumentTypeError(f"expected {expected}; got {text!r}")
 
     return convert
+
+
+def integer(minimum: int, what: str = "an integer") -> Callable[[str], int]:
+    """Converter to an int >= ``minimum``."""
+    return checked(int, lambda value: value >= minimum, f"{what} >= {minimum}")
 
 
 def number(
@@ -48,19 +74,13 @@ def number(
                       if v is not None)
     expected = " ".join(part for part in ("a finite number", bounds, unit and f"[{unit}]") if part)
 
-    def convert(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {expected}; got {text!r}") from None
-        if not (math.isfinite(value)
+    def accept(value: float) -> bool:
+        return (math.isfinite(value)
                 and (above is None or value > above)
                 and (at_least is None or value >= at_least)
-                and (at_most is None or value <= at_most)):
-            raise argparse.ArgumentTypeError(f"expected {expected}; got {text!r}")
-        return value
+                and (at_most is None or value <= at_most))
 
-    return convert
+    return checked(float, accept, expected)
 
 
 #: A seed for the random number generators (any int >= 0).
@@ -72,6 +92,12 @@ positive_float = number(above=0.0)
 non_negative_float = number(at_least=0.0)
 #: A shortening factor for scenarios: times x FACTOR, 0 < FACTOR <= 1.
 shortening_factor = number(above=0.0, at_most=1.0)
+#: A duration or time constant [s] (> 0).
+seconds = number(above=0.0, unit="s")
+#: A TRIAC input level [%], 0..100.
+percent = number(at_least=0.0, at_most=100.0, unit="%")
+#: A TRIAC input change [%] (> 0).
+percent_step = number(above=0.0, unit="%")
 
 
 #: The data contract's column names (docs/reference/data_file.rst).

@@ -57,10 +57,10 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="the run log to write (and LOG.meta.json beside it)")
     parser.add_argument("--force", action="store_true",
                         help="replace an existing LOG.csv and LOG.meta.json")
-    parser.add_argument("--page-values", metavar="N", type=_argtypes.integer(1), default=None,
+    parser.add_argument("--page-values", metavar="N", type=_argtypes.positive_int, default=None,
                         help="most values per HistoryRead request (NumValuesPerNode; default: "
                              "1000)")
-    parser.add_argument("--timeout-s", metavar="S", type=_argtypes.number(above=0.0, unit="s"),
+    parser.add_argument("--timeout-s", metavar="S", type=_argtypes.seconds,
                         default=None, help="hard deadline of each OPC UA call [s] (default: "
                                            "four [plant] connect_timeout_s)")
     parser.add_argument("--closed-loop", action="store_true",

@@ -13,12 +13,12 @@ if TYPE_CHECKING:
 def add_variation_options(p: argparse.ArgumentParser) -> None:
     """The plant's deviation from its model and its drift in time (sim.drift)."""
     g = p.add_argument_group("plant variation (a plant that differs from its model)")
-    g.add_argument("--gain-factor", metavar="F", type=_argtypes.number(above=0.0), default=1.0,
+    g.add_argument("--gain-factor", metavar="F", type=_argtypes.positive_float, default=1.0,
                    help="multiply every gain of the plant by F from the start (default: 1)")
-    g.add_argument("--tau-s", metavar="T", type=_argtypes.number(above=0.0, unit="s"),
+    g.add_argument("--tau-s", metavar="T", type=_argtypes.seconds,
                    default=None, help="time constant of the plant's slow mode [s] (the "
                                       "heater's power sag; default: the plant's own)")
-    g.add_argument("--extra-delay-samples", metavar="N", type=_argtypes.integer(0), default=0,
+    g.add_argument("--extra-delay-samples", metavar="N", type=_argtypes.non_negative_int, default=0,
                    help="samples of input delay added to the plant's own (default: 0)")
     g.add_argument("--drift", metavar="Q=V@T", action="append", default=[],
                    help="at plant time T [s] the gain factor (Q=gain, V a factor) or the "

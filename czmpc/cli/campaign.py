@@ -41,21 +41,15 @@ HELP = "run a campaign spec on serial, process or Dask executors; summarise its 
 _workers = _argtypes.integer(1, "a whole number")
 
 
-def _names(text: str) -> list[str]:
-    names = [n.strip() for n in text.split(",") if n.strip()]
-    if not names:
-        raise argparse.ArgumentTypeError(f"expected comma-separated controller names; got {text!r}")
-    return names
+def _split_names(text: str) -> list[str]:
+    """The names of a comma-separated list, without blanks and empty items."""
+    return [name.strip() for name in text.split(",") if name.strip()]
 
 
-def _time_scale(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1]; got {text!r}") from None
-    if not 0.0 < value <= 1.0:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1]; got {text!r}")
-    return value
+#: --controllers: at least one name.
+_names = _argtypes.checked(_split_names, bool, "comma-separated controller names")
+#: --time-scale: 0 < X <= 1.
+_time_scale = _argtypes.checked(float, lambda value: 0.0 < value <= 1.0, "a number in (0, 1]")
 
 
 def _add_overrides(parser: argparse.ArgumentParser) -> None:

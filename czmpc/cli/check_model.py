@@ -31,10 +31,10 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "the fit and residual checks (default: none, a condition)")
     _argtypes.add_log_options(parser)
     _argtypes.add_settings_options(parser)
-    parser.add_argument("--mc-runs", metavar="N", type=_argtypes.integer(0), default=10,
+    parser.add_argument("--mc-runs", metavar="N", type=_argtypes.non_negative_int, default=10,
                         help="plants of the closed-loop Monte Carlo, 0 skips it (about 1-3 s "
                              "each) (default: 10)")
-    parser.add_argument("--seed", metavar="N", type=_argtypes.integer(0), default=0,
+    parser.add_argument("--seed", metavar="N", type=_argtypes.non_negative_int, default=0,
                         help="seed of the Monte Carlo draws (default: 0)")
     parser.add_argument("--no-write", action="store_true",
                         help="print the verdict only; do not write MODEL.check.json")

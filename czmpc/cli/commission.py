@@ -32,10 +32,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", metavar="CONFIG.toml", type=Path,
                         help="run configuration with [plant], [nodes], [test], [safety] "
                              "(see czmpc run --help)")
-    parser.add_argument("--range-pct", type=t.number(at_least=0, at_most=100, unit="%"), nargs=2,
+    parser.add_argument("--range-pct", type=t.percent, nargs=2,
                         metavar=("LO", "HI"), required=True,
                         help="band of TRIAC inputs the test may visit [%%]")
-    parser.add_argument("--tau-s", type=t.number(above=0, unit="s"), default=None,
+    parser.add_argument("--tau-s", type=t.seconds, default=None,
                         help="guess of the dominant time constant [s] (default: from the "
                              "config's [controller] model)")
     parser.add_argument("--out", metavar="DIR", type=Path, required=True,
@@ -43,16 +43,16 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "identification/, commissioning.md, figures/, run.csv")
     parser.add_argument("--switch-on", action="store_true",
                         help="run the MPC with the new model if the verdict is 'ready'")
-    parser.add_argument("--duration-s", type=t.number(above=0, unit="s"), default=None,
+    parser.add_argument("--duration-s", type=t.seconds, default=None,
                         help="test length [plant s] (default: the shortest the design accepts)")
     parser.add_argument("--kind", choices=t.TEST_SIGNAL_KINDS, default="mixed",
                         help="test signal (default: mixed = staircase + GBN; multilevel: "
                              "the short test for a slow plant)")
-    parser.add_argument("--max-step-pct", type=t.number(above=0, unit="%"), default=100.0,
+    parser.add_argument("--max-step-pct", type=t.percent_step, default=100.0,
                         help="largest designed move per sample [%%] (default: no limit)")
     parser.add_argument("--seed", type=t.integer(0, "a seed"), default=0,
                         help="seed of the GBN or multilevel part (default: 0)")
-    parser.add_argument("--run-duration-s", type=t.number(above=0, unit="s"), default=None,
+    parser.add_argument("--run-duration-s", type=t.seconds, default=None,
                         help="plant time the MPC runs after switch-on [s] (default: the "
                              "config's [run] duration_s, else until Ctrl-C)")
     parser.add_argument("--mc-runs", type=t.integer(0, "a count"), default=20,

@@ -23,18 +23,18 @@ HELP = "design an identification test signal (staircase + GBN) and write TEST.cs
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
-    parser.add_argument("--ts-s", type=t.number(above=0, unit="s"), required=True,
+    parser.add_argument("--ts-s", type=t.seconds, required=True,
                         help="sampling time of the test [s]")
-    parser.add_argument("--range-pct", type=t.number(at_least=0, at_most=100, unit="%"), nargs=2,
+    parser.add_argument("--range-pct", type=t.percent, nargs=2,
                         metavar=("LO", "HI"), required=True, help="band of triac set-points to visit [%%]")
     prior = parser.add_mutually_exclusive_group(required=True)
-    prior.add_argument("--tau-s", type=t.number(above=0, unit="s"),
+    prior.add_argument("--tau-s", type=t.seconds,
                        help="prior guess of the dominant plant time constant [s]")
     prior.add_argument("--prior", metavar="MODEL.json",
                        help="prior model; its slowest real pole gives the time constant")
-    parser.add_argument("--duration-s", type=t.number(above=0, unit="s"), required=True,
+    parser.add_argument("--duration-s", type=t.seconds, required=True,
                         help="length of the test [s]")
-    parser.add_argument("--max-step-pct", type=t.number(above=0, unit="%"), default=100.0,
+    parser.add_argument("--max-step-pct", type=t.percent_step, default=100.0,
                         help="largest jump between consecutive samples [%%] (default: no limit)")
     parser.add_argument("--kind", choices=t.TEST_SIGNAL_KINDS, default="mixed",
                         help="staircase, generalized binary noise, both (default mixed), or "

@@ -56,20 +56,20 @@ def register(parser: argparse.ArgumentParser) -> None:
                    default=1.0, help="plant samples per Ts of wall time (default: 1)")
     p.add_argument("--scenario", metavar="NAME|FILE.toml", default=None,
                    help="publish its setpoints and apply its grid events and sensor faults")
-    p.add_argument("--seed", metavar="N", type=_argtypes.integer(0), default=0,
+    p.add_argument("--seed", metavar="N", type=_argtypes.non_negative_int, default=0,
                    help="seed of the plant noise and random faults (default: 0)")
     p.add_argument("--no-noise", action="store_true", help="noise-free plant")
     p.add_argument("--initial-triac-pct", metavar="PCT",
-                   type=_argtypes.number(at_least=0.0, at_most=100.0, unit="%"), default=None,
+                   type=_argtypes.percent, default=None,
                    help="start in steady state at this TRIAC input [%%] (default: the "
                         "model's operating point for --plant model, 45 %% for the heater)")
-    p.add_argument("--watchdog-s", metavar="S", type=_argtypes.number(above=0.0, unit="s"),
+    p.add_argument("--watchdog-s", metavar="S", type=_argtypes.seconds,
                    default=10.0, help="heartbeat silence [plant s] that trips the watchdog "
                                       "(default: 10)")
     p.add_argument("--safe-triac-pct", metavar="PCT",
-                   type=_argtypes.number(at_least=0.0, at_most=100.0, unit="%"), default=0.0,
+                   type=_argtypes.percent, default=0.0,
                    help="TRIAC input [%%] the watchdog applies (default: 0)")
-    p.add_argument("--duration-s", metavar="S", type=_argtypes.number(above=0.0, unit="s"),
+    p.add_argument("--duration-s", metavar="S", type=_argtypes.seconds,
                    default=None, help="stop after this plant time [s] (default: run until Ctrl-C)")
     p.add_argument("--setpoint-kw", metavar="KW", type=_argtypes.number(unit="kW"),
                    default=45.0, help="initial value of Heater.PowerSetpoint [kW] (default: 45)")
@@ -86,7 +86,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                    const=True, default=None,
                    help="historize Heater.Power and Heater.TriacApplied for OPC UA HistoryRead "
                         "('czmpc plant history'): in memory, or in SQLITE_FILE when given")
-    p.add_argument("--history-page-values", metavar="N", type=_argtypes.integer(1),
+    p.add_argument("--history-page-values", metavar="N", type=_argtypes.positive_int,
                    default=10000, help="most values one HistoryRead returns before a "
                                        "continuation point (default: 10000)")
     sec = p.add_argument_group("security (see above)")

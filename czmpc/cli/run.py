@@ -48,7 +48,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", metavar="CONFIG.toml", type=Path,
                         help="run configuration: [plant], [nodes], [controller], [run], [safety], "
                              "[test]")
-    parser.add_argument("--duration-s", metavar="S", type=_argtypes.number(above=0.0, unit="s"),
+    parser.add_argument("--duration-s", metavar="S", type=_argtypes.seconds,
                         default=None, help="plant time to run [s] (overrides [run].duration_s)")
     parser.add_argument("--log", metavar="RUN.csv", type=Path, default=None,
                         help="step log (overrides [run].log)")
@@ -60,7 +60,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                       type=_argtypes.number(above=0.0, at_most=10.0, unit="%"),
                       help="closed-loop test: add a +-A %% GBN dither to the MPC's input "
                            "(0 < A <= 10)")
-    parser.add_argument("--dither-seed", metavar="N", type=_argtypes.integer(0), default=0,
+    parser.add_argument("--dither-seed", metavar="N", type=_argtypes.non_negative_int, default=0,
                         help="seed of the dither's switching (default: 0)")
     add_logging_options(parser)
     parser.add_argument("--check", action="store_true",

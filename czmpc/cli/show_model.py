@@ -33,7 +33,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                         nargs="+", default=None,
                         help="input levels to linearize at (default: the ends and the middle "
                              "of the identified input range)")
-    parser.add_argument("--draws", metavar="N", type=_argtypes.integer(0), default=200,
+    parser.add_argument("--draws", metavar="N", type=_argtypes.non_negative_int, default=200,
                         help="models drawn from the parameter covariance for the bands "
                              "(default: 200; 0: no bands)")
     parser.add_argument("--export-mat", metavar="FILE.mat", type=Path, default=None,
