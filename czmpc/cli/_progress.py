@@ -8,13 +8,16 @@ Library functions take plain callbacks (``progress(message)`` or
     [   12.3 s] simulating: 40 % (1560/3900), ETA 8 s   (`Progress.fraction`)
 
 Lines go to stderr so that stdout keeps only results. On a terminal the fraction line
-rewrites itself in place; in a log file it is printed every 10 % only.
+rewrites itself in place; in a log file it is printed every 10 % only. The one result
+line every writing command ends with, ``wrote FILE, FILE``, is `print_written`'s (stdout).
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Iterable
+from pathlib import Path
 from typing import TextIO
 
 
@@ -93,4 +96,9 @@ class Progress:
             self._print(text)
 
 
-__all__ = ["Progress"]
+def print_written(files: Iterable[Path | str]) -> None:
+    """Print ``wrote FILE, FILE, ...`` on stdout: the files a command wrote, in order."""
+    print(f"wrote {', '.join(str(f) for f in files)}")
+
+
+__all__ = ["Progress", "print_written"]

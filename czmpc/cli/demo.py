@@ -17,7 +17,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from czmpc.cli._progress import Progress
+from czmpc.cli._progress import Progress, print_written
 from czmpc.shipped import EXPERIMENT_CSV, shipped_path
 
 NAME = "demo"
@@ -77,6 +77,6 @@ def run(args: argparse.Namespace) -> int:
         sim_outcome = run_simulation(model, scenario, plant=plant, seed=1)
         files = write_outputs(sim_outcome, out / f"simulate-{plant}", model_path=outcome.model_path)
         print(sim_outcome.metrics_table())
-        print(f"wrote {', '.join(str(f) for f in files)}")
+        print_written(files)
     print(f"\nall outputs under {out}/", file=sys.stderr)
     return 0 if not outcome.unconverged else 1

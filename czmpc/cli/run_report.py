@@ -14,6 +14,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from czmpc.cli._progress import print_written
+
 NAME = "run-report"
 HELP = "draw a 'czmpc run' log: power, input, quality, timing, model health and alarms"
 
@@ -35,5 +37,5 @@ def run(args: argparse.Namespace) -> int:
     from czmpc.runtime.runlog import read_run_record
 
     files = write_run_report(read_run_record(args.log), args.out)
-    print(f"wrote {', '.join(str(f) for f in files)}")
+    print_written(files)
     return 0

@@ -55,7 +55,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from czmpc.cli import _argtypes, _variation
-from czmpc.cli._progress import Progress
+from czmpc.cli._progress import Progress, print_written
 from czmpc.errors import SettingsError
 
 if TYPE_CHECKING:
@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
                                               what="simulating"))
     files = write_outputs(outcome, args.out, model_path=args.model)
     print(outcome.metrics_table())
-    print(f"wrote {', '.join(str(f) for f in files)}")
+    print_written(files)
     return 0
 
 
@@ -165,5 +165,5 @@ def _compare(args: argparse.Namespace, model: HammersteinModel, scenario: Scenar
     print(comparison_table(summaries, title=(
         f"scenario '{scenario.name}', plant '{args.plant}', seed {args.seed}, noise "
         f"{'on' if noise else 'off'}; table {args.controller}")))
-    print(f"wrote {', '.join(str(f) for f in files)}")
+    print_written(files)
     return 0

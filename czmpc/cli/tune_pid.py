@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 
 from czmpc.cli import _argtypes
+from czmpc.cli._progress import print_written
 
 NAME = "tune-pid"
 HELP = "tune a gain-scheduled PI/PID from a model; write pid_table.csv, vendor forms, report"
@@ -116,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
               + ", ".join(f"{p:g}" for p in schedule.added_breakpoints_pct))
     for warning in schedule.warnings:
         print(f"czmpc: warning: {warning}", file=sys.stderr)
-    print(f"wrote {', '.join(str(f) for f in files)}")
+    print_written(files)
     return 0
 
 
