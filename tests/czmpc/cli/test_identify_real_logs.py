@@ -448,3 +448,23 @@ def test_data_scaled_by_1e200_is_a_clean_refusal_with_exit_2(
     assert code == 2
     assert re.search(r"czmpc: error: identify .*log.csv: " + pattern, err), err
     assert "Traceback" not in err and not (tmp_path / "id").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(READERS))
+def test_the_report_shows_which_structures_the_log_does_not_tell_apart(
+    name: str, identified: Identified,
+) -> None:
+    _, _, out = identified(name)
+    report = (out / "report.md").read_text(encoding="utf-8")
+    section = report[report.index("## Structure selection"):report.index("## Linear models")]
+    rest = section[section.index("**Linear OE from rest**"):].split("\n\n")[1].splitlines()[2:]
+    ratios = [float(line.split("|")[4]) for line in rest]
+    assert ratios == sorted(ratios) and ratios[0] == 1.0 and ratios[-1] <= 1.10
+    chosen = [line.split("|")[1].strip() for line in rest if "**chosen**" in line]
+    assert len(chosen) == 1
+    meta = json.loads((out / "model.json").read_text(encoding="utf-8"))
+    if meta["provenance"]["method"].startswith("sysid.rest_oe"):   # model.json is that OE
+        assert chosen[0] == ", ".join(str(x) for x in _structure(out / "model.json"))
+    assert ("the record does not single out one structure" in section) is (len(rest) > 1)
+    assert (out / "figures" / "structure_choice.png").stat().st_size > 10_000
