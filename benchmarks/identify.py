@@ -62,6 +62,8 @@ PIPELINE_GOAL_S = 2.0
 #: Goal of issue 9: the pipeline within this multiple of one bare scipy fit of the final
 #: Hammerstein, both measured in the same run.
 BARE_FIT_RATIO_GOAL = 15.0
+#: Bare fits timed after each pipeline run; the run's ratio divides by their median.
+BARE_FITS_PER_RUN = 5
 #: Goal of issue 9: the auto-order search on the shipped 12,000 samples [s].
 AUTO_SEARCH_GOAL_S = 10.0
 #: Heading of this benchmark's section in BENCHMARKS.md (other sections are kept).
@@ -396,7 +398,8 @@ def format_report(result: BenchmarkResult) -> str:
             "Bare fit: `scipy.optimize.least_squares` (trust-region reflective, finite-"
             "difference Jacobian, lfilter residuals, held past) of the final Hammerstein-OE at "
             "the paper's orders on the same preprocessed data, from the route's start values, "
-            "right after each pipeline run. CPU time (a loaded machine stretches wall times); "
+            f"right after each pipeline run, the median of {BARE_FITS_PER_RUN} such fits. CPU time "
+            "(a loaded machine stretches wall times); "
             f"OPENBLAS_NUM_THREADS={threads} (with BLAS threads the bare fit's SVDs wait for "
             f"cores others hold: set it to 1). Bare fit median {b.median_s * 1e3:.1f} ms "
             f"[{b.min_s * 1e3:.1f} .. {b.max_s * 1e3:.1f}]; pipeline median {c.median_s:.3f} s "
@@ -552,8 +555,11 @@ def run_benchmark(
         for st in result.timings:
             stage_s.setdefault(st.name, []).append(st.wall_time_s)
         # the bare fit right after each run: both then come from the same stretch of
-        # load, and their ratio is what the goal judges
-        bare_s += _time_bare_fit(result, result.operating_point.operating_point, 1)
+        # load, and their ratio is what the goal judges. The median of a few bare fits:
+        # one 9 ms fit alone swings by 30 % on a shared machine, the 0.13 s pipeline less.
+        bare = _time_bare_fit(result, result.operating_point.operating_point, BARE_FITS_PER_RUN)
+        if bare:
+            bare_s.append(statistics.median(bare))
     if result is None or data is None:  # pragma: no cover - repeats >= 1 is checked above
         raise CzmpcError("run_benchmark: no run completed")
     sippy = None
@@ -822,6 +828,7 @@ def format_real_logs(rows: tuple[RealLogRow, ...]) -> str:
 
 __all__ = [
     "AUTO_SEARCH_GOAL_S",
+    "BARE_FITS_PER_RUN",
     "BARE_FIT_RATIO_GOAL",
     "N_STARTS",
     "PIPELINE_GOAL_S",
