@@ -92,6 +92,8 @@ positive_float = number(above=0.0)
 non_negative_float = number(at_least=0.0)
 #: A shortening factor for scenarios: times x FACTOR, 0 < FACTOR <= 1.
 shortening_factor = number(above=0.0, at_most=1.0)
+#: The seed of a designed test signal's random part (design-test, commission).
+signal_seed = integer(0, "a seed")
 #: A duration or time constant [s] (> 0).
 seconds = number(above=0.0, unit="s")
 #: A TRIAC input level [%], 0..100.

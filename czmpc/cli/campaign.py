@@ -88,10 +88,6 @@ def register(parser: argparse.ArgumentParser) -> None:
     rep_p.add_argument("dir", metavar="DIR", type=Path, help="a finished campaign directory")
 
 
-def _spec_path(text: str) -> Path:
-    return _argtypes.file_or_shipped(text, "campaign spec")
-
-
 def _run(args: argparse.Namespace) -> int:
     import sys
 
@@ -99,8 +95,8 @@ def _run(args: argparse.Namespace) -> int:
     from czmpc.campaigns.runner import run_campaign, save_trajectories, worst_runs
     from czmpc.cli._progress import Progress
 
-    spec = load_spec(_spec_path(args.spec), samples=args.samples, time_scale=args.time_scale,
-                     controllers=args.controllers)
+    spec = load_spec(_argtypes.file_or_shipped(args.spec, "campaign spec"), samples=args.samples,
+                     time_scale=args.time_scale, controllers=args.controllers)
     for message in spec.warnings:
         print(f"czmpc: warning: {message}", file=sys.stderr)
     progress = Progress()

@@ -50,7 +50,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "the short test for a slow plant)")
     parser.add_argument("--max-step-pct", type=t.percent_step, default=100.0,
                         help="largest designed move per sample [%%] (default: no limit)")
-    parser.add_argument("--seed", type=t.integer(0, "a seed"), default=0,
+    parser.add_argument("--seed", type=t.signal_seed, default=0,
                         help="seed of the GBN or multilevel part (default: 0)")
     parser.add_argument("--run-duration-s", type=t.seconds, default=None,
                         help="plant time the MPC runs after switch-on [s] (default: the "

@@ -40,7 +40,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="staircase, generalized binary noise, both (default mixed), or "
                              "multilevel noise: the short test for a slow plant (2 rounds of "
                              "degree + 2 levels at one tau each)")
-    parser.add_argument("--seed", type=t.integer(0, "a seed"), default=0,
+    parser.add_argument("--seed", type=t.signal_seed, default=0,
                         help="seed of the GBN or multilevel random switching (default 0)")
     parser.add_argument("--out", metavar="TEST.csv", required=True,
                         help="output CSV with header time_s,triac_pct")

@@ -175,22 +175,23 @@ class IdentifyOutcome:
     notes: tuple[str, ...] = ()
 
 
-def _orders(text: str) -> str | tuple[int, ...]:
-    """``auto``, ``paper`` or ``NB,NF,NK[,NC]`` (argparse type)."""
+def _order_values(text: str) -> str | tuple[int, ...]:
+    """``auto`` or ``paper`` as given, else the integers of NB,NF,NK[,NC] (ValueError if not)."""
     if text in ("auto", "paper"):
         return text
-    parts = text.split(",")
-    try:
-        values = tuple(int(p) for p in parts)
-    except ValueError:
-        values = ()
-    minimum = (1, 0, 0, 0)
-    if len(values) not in (3, 4) or any(v < m for v, m in zip(values, minimum, strict=False)):
-        raise argparse.ArgumentTypeError(
-            f"expected 'auto', 'paper' or NB,NF,NK[,NC] with NB >= 1 and NF, NK, NC >= 0 "
-            f"(for example 2,1,1); got {text!r}"
-        )
-    return values
+    return tuple(int(part) for part in text.split(","))
+
+
+def _usable_orders(orders: str | tuple[int, ...]) -> bool:
+    """A name, or three or four orders with NB >= 1 and NF, NK, NC >= 0."""
+    return isinstance(orders, str) or (len(orders) in (3, 4) and orders[0] >= 1
+                                       and min(orders) >= 0)
+
+
+#: --orders: ``auto``, ``paper`` or ``(nb, nf, nk[, nc])``.
+_orders = _argtypes.checked(
+    _order_values, _usable_orders,
+    "'auto', 'paper' or NB,NF,NK[,NC] with NB >= 1 and NF, NK, NC >= 0 (for example 2,1,1)")
 
 
 def identify_to_directory(

@@ -108,15 +108,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                           "'rate limit off', 'disturbance model' (default: all)")
 
 
-def _suite_path(text: str) -> Path:
-    return _argtypes.file_or_shipped(text, "suite")
-
-
 def _record(args: argparse.Namespace) -> int:
     from czmpc.campaigns.regression import RegressRunError, load_suite, record_suite
     from czmpc.cli._progress import Progress
 
-    path = _suite_path(args.suite)
+    path = _argtypes.file_or_shipped(args.suite, "suite")
     suite = load_suite(path)
     progress = Progress()
     n = len(suite.expand())
