@@ -324,7 +324,7 @@ def identify_to_directory(
     save_model(final.with_updates(units=units, provenance=provenance), model_path)
     if reference is None:
         reference = "paper" if (data.input_unit, data.output_unit) == ("%", "kW") else "none"
-    notes += model_kind_notes(result)
+    notes += model_kind_notes(result) + structure_notes(result)
     files = write_report(
         result, out, model_file="model.json",
         model_files=[p.relative_to(out).as_posix() for p in model_files], command=command,
@@ -355,6 +355,25 @@ def segments_note(data: Dataset) -> str:
              for a, b in bounds]
     return (f"the log holds {len(bounds)} segments; all are used, each with its own initial "
             f"state ({data.n_samples} samples: " + "; ".join(parts) + ")")
+
+
+def structure_notes(result: Any) -> list[str]:
+    """A sentence when model.json is the OE from rest and the log does not single out its
+    structure: other structures lie within `sysid.rest_oe.NEAR_V_SHARE` of its V."""
+    from sysid.rest_oe import NEAR_V_SHARE
+
+    search = result.rest_search
+    if search is None or result.final is None or result.final.name != "oe_rest":
+        return []
+    near = search.near()
+    if len(near) < 2:
+        return []
+    c = search.chosen
+    return [f"model.json's structure (nb, nf, nk = {c.nb}, {c.nf}, {c.nk}) is one of "
+            f"{len(near)} of the {len(search.candidates)} OE structures within "
+            f"{100 * NEAR_V_SHARE:.0f} % of the lowest V from rest: the log does not single "
+            "out one, and a few samples more or fewer at its ends can change it while the "
+            "model predicts alike (report.md: Structure selection)"]
 
 
 def model_kind_notes(result: Any) -> list[str]:

@@ -58,7 +58,7 @@ HELP = "record a regression suite of your controller, check it after a change, a
 def _executor_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--executor", choices=("serial", "processes", "dask"), default="serial",
                    help="where cases run (default: serial, this process)")
-    p.add_argument("--workers", metavar="N", type=_argtypes.integer(1, "a whole number >= 1"),
+    p.add_argument("--workers", metavar="N", type=_argtypes.integer(1, "a whole number"),
                    default=2, help="worker processes of 'processes' and '--dask local' (default: 2)")
     p.add_argument("--dask", metavar="local|ADDRESS", default="local",
                    help="'local': a LocalCluster on 127.0.0.1; or a scheduler address "

@@ -455,7 +455,7 @@ def test_data_scaled_by_1e200_is_a_clean_refusal_with_exit_2(
 def test_the_report_shows_which_structures_the_log_does_not_tell_apart(
     name: str, identified: Identified,
 ) -> None:
-    _, _, out = identified(name)
+    _, err, out = identified(name)
     report = (out / "report.md").read_text(encoding="utf-8")
     section = report[report.index("## Structure selection"):report.index("## Linear models")]
     rest = section[section.index("**Linear OE from rest**"):].split("\n\n")[1].splitlines()[2:]
@@ -464,7 +464,10 @@ def test_the_report_shows_which_structures_the_log_does_not_tell_apart(
     chosen = [line.split("|")[1].strip() for line in rest if "**chosen**" in line]
     assert len(chosen) == 1
     meta = json.loads((out / "model.json").read_text(encoding="utf-8"))
-    if meta["provenance"]["method"].startswith("sysid.rest_oe"):   # model.json is that OE
+    from_rest = meta["provenance"]["method"].startswith("sysid.rest_oe")
+    if from_rest:                                                  # model.json is that OE
         assert chosen[0] == ", ".join(str(x) for x in _structure(out / "model.json"))
+    said = f"is one of {len(rest)} of the 48 OE structures within 10 %" in err
+    assert said is (from_rest and len(rest) > 1)
     assert ("the record does not single out one structure" in section) is (len(rest) > 1)
     assert (out / "figures" / "structure_choice.png").stat().st_size > 10_000
