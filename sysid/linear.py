@@ -41,6 +41,8 @@ from sysid.model import (
     normalize_input_gain,
 )
 from sysid.optimize import (
+    DEFAULT_FTOL,
+    DEFAULT_XTOL,
     MAX_ITERATIONS,
     LMResult,
     levenberg_marquardt,
@@ -755,6 +757,7 @@ def _pem_fit(
     polynomials: Callable[[FloatArray], tuple[FloatArray, FloatArray, FloatArray]],
     names: tuple[str, ...],
     max_iterations: int,
+    tolerance: float | None = None,
 ) -> PemFit:
     """Minimize the stacked residuals of the segments from `start` and make the `PemFit`.
 
@@ -780,13 +783,17 @@ def _pem_fit(
         `PemFit.parameter_names`.
     max_iterations :
         Levenberg-Marquardt iteration limit.
+    tolerance :
+        Levenberg-Marquardt's ``ftol`` and ``xtol`` both; None: its tight defaults.
     """
     if setup.estimate:
         start = np.concatenate([start, held_state(project(start))])
     problem = _stacked_problem(
         [segment_problem(setup.y[lo:hi], setup.u[lo:hi]) for lo, hi in setup.bounds],
         setup.n_model, setup.n_searched_state)
-    lm = levenberg_marquardt(problem, start, project=project, max_iterations=max_iterations)
+    lm = levenberg_marquardt(problem, start, project=project, max_iterations=max_iterations,
+                             ftol=DEFAULT_FTOL if tolerance is None else tolerance,
+                             xtol=DEFAULT_XTOL if tolerance is None else tolerance)
     n_model = setup.n_model
     n_theta = lm.theta.size
     std = parameter_std_errors(lm.jacobian, lm.residuals,
@@ -832,6 +839,7 @@ def _oe_pem(
     initial_conditions: object,
     max_iterations: int,
     segment_starts: tuple[int, ...] | list[int] | None = None,
+    tolerance: float | None = None,
 ) -> PemFit:
     """`oe_pem` without its warning (`fit_oe` warns in its own name)."""
     nb = _check_order("nb", nb, 1)
@@ -864,7 +872,7 @@ def _oe_pem(
         project=_stabilizer((slice(nb, nb + nf),)), held_state=held_state,
         polynomials=polynomials,
         names=_indexed_names("b", range(nk, nk + nb)) + _indexed_names("f", range(1, nf + 1)),
-        max_iterations=max_iterations)
+        max_iterations=max_iterations, tolerance=tolerance)
 
 
 def oe_pem(
@@ -945,6 +953,7 @@ def _armax_pem(
     initial_conditions: object,
     max_iterations: int,
     segment_starts: tuple[int, ...] | list[int] | None = None,
+    tolerance: float | None = None,
 ) -> PemFit:
     """`armax_pem` without its warning (`fit_armax` warns in its own name)."""
     na = _check_order("na", na, 0)
@@ -969,7 +978,7 @@ def _armax_pem(
         polynomials=lambda theta: _armax_polynomials(theta, na, nb, nc, nk),
         names=(_indexed_names("a", range(1, na + 1)) + _indexed_names("b", range(nk, nk + nb))
                + _indexed_names("c", range(1, nc + 1))),
-        max_iterations=max_iterations)
+        max_iterations=max_iterations, tolerance=tolerance)
 
 
 def armax_pem(
@@ -1214,6 +1223,7 @@ def fit_oe(
     nk: int = 1,
     initial_conditions: InitialConditions = "held",
     max_iterations: int = MAX_ITERATIONS,
+    tolerance: float | None = None,
 ) -> IdentificationResult:
     """Fit a linear OE model ``dP = B/F ds + eps`` minimizing V (paper eqs. 7, 9, sec. 6).
 
@@ -1233,6 +1243,9 @@ def fit_oe(
         ``"held"`` or ``"estimated"`` (see `oe_pem`).
     max_iterations :
         Levenberg-Marquardt iteration limit.
+    tolerance :
+        Levenberg-Marquardt's ``ftol`` and ``xtol``; None: its tight defaults (a final
+        fit). A comparison fit may stop sooner (`sysid.pipeline.COMPARISON_TOLERANCE`).
 
     Returns
     -------
@@ -1248,7 +1261,8 @@ def fit_oe(
         See `oe_pem`.
     """
     kernel = partial(_oe_pem, nb=nb, nf=nf, nk=nk, theta0=None,
-                     initial_conditions=initial_conditions, max_iterations=max_iterations)
+                     initial_conditions=initial_conditions, max_iterations=max_iterations,
+                     tolerance=tolerance)
     return _pem_result(data, operating_point, kernel, block="oe", criterion="ballistic",
                        method="oe-pem-ballistic", where="fit_oe")
 
@@ -1263,6 +1277,7 @@ def fit_armax(
     nk: int = 1,
     initial_conditions: InitialConditions = "held",
     max_iterations: int = MAX_ITERATIONS,
+    tolerance: float | None = None,
 ) -> IdentificationResult:
     """Fit a linear ARMAX model ``A dP = B ds + C e`` minimizing W (eqs. 6, 10, sec. 6).
 
@@ -1284,6 +1299,9 @@ def fit_armax(
         ``"held"`` or ``"estimated"`` (see `armax_pem`).
     max_iterations :
         Levenberg-Marquardt iteration limit.
+    tolerance :
+        Levenberg-Marquardt's ``ftol`` and ``xtol``; None: its tight defaults (a final
+        fit). A comparison fit may stop sooner (`sysid.pipeline.COMPARISON_TOLERANCE`).
 
     Returns
     -------
@@ -1298,7 +1316,8 @@ def fit_armax(
         See `armax_pem`.
     """
     kernel = partial(_armax_pem, na=na, nb=nb, nc=nc, nk=nk, theta0=None,
-                     initial_conditions=initial_conditions, max_iterations=max_iterations)
+                     initial_conditions=initial_conditions, max_iterations=max_iterations,
+                     tolerance=tolerance)
     return _pem_result(data, operating_point, kernel, block="armax", criterion="one_step",
                        method="armax-pem-one-step", where="fit_armax")
 

@@ -82,6 +82,17 @@ from sysid.scale import check_representable
 from sysid.steps import InputStep, detect_steps
 from sysid.structure import StructureChoice, select_structure
 
+#: LM's ``ftol`` and ``xtol`` of the linear OE and ARMAX fits of Table 2, which serve as
+#: comparisons (their V and W beside the Hammerstein's, paper secs. 6-7): they stop once a
+#: step improves the cost by under 1e-6 relative, as the structure grid's fits do
+#: (`sysid.structure.RANKING_TOLERANCE`), instead of crawling on to a final fit's 1e-12;
+#: MATLAB's ``pem`` stops at 0.01 % expected improvement. Measured against the tight fits on
+#: the shipped experiment and the four real logs: V and W within 1.1e-4 relative (the
+#: report prints four digits), parameters within 4e-3 relative (in the directions the
+#: data barely determine); the shipped experiment's four fits take 41 iterations instead
+#: of 51, a tenth of the pipeline. The Hammerstein route's fits keep the tight defaults.
+COMPARISON_TOLERANCE = 1e-6
+
 #: The final model gives way to the OE from rest (orders "auto") when its own simulation
 #: from rest has more than this times the OE's mean squared error (issue 29's bar).
 REST_V_RATIO = 1.1
@@ -518,15 +529,18 @@ def _linear_models(
     # the OE fits estimate the initial state unless told to hold the past; the linear
     # ARMAX keeps the held past (with estimated C-states it needs > 100 iterations on the
     # shipped experiment and only serves as Table 2's comparison)
-    ic = {"initial_conditions": "estimated" if initial_state == "estimate" else "held"}
+    ic: dict[str, object] = {
+        "initial_conditions": "estimated" if initial_state == "estimate" else "held",
+        "tolerance": COMPARISON_TOLERANCE}
     specs = [
         (f"arx_{na}_{nb}", f"ARX(na={na}, nb={nb})", fit_arx, {"na": na, "nb": nb}),
         (f"arx_{na + 1}_{nb + 1}", f"ARX(na={na + 1}, nb={nb + 1})", fit_arx,
          {"na": na + 1, "nb": nb + 1}),
         (f"armax_{na}_{nb}_{na}", f"ARMAX(na={na}, nb={nb}, nc={na})", fit_armax,
-         {"na": na, "nb": nb, "nc": na}),
+         {"na": na, "nb": nb, "nc": na, "tolerance": COMPARISON_TOLERANCE}),
         (f"armax_{na + 1}_{nb + 1}_{na + 1}", f"ARMAX(na={na + 1}, nb={nb + 1}, nc={na + 1})",
-         fit_armax, {"na": na + 1, "nb": nb + 1, "nc": na + 1}),
+         fit_armax, {"na": na + 1, "nb": nb + 1, "nc": na + 1,
+                     "tolerance": COMPARISON_TOLERANCE}),
         (f"oe_{nb}_{nf}", f"OE(nb={nb}, nf={nf})", fit_oe, {"nb": nb, "nf": nf, **ic}),
         (f"oe_{nb + 1}_{nf + 1}", f"OE(nb={nb + 1}, nf={nf + 1})", fit_oe,
          {"nb": nb + 1, "nf": nf + 1, **ic}),

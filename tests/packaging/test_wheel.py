@@ -284,7 +284,7 @@ def test_a_users_regression_suite_records_and_checks_from_the_wheel(
     import importlib.util
 
     spec = importlib.util.spec_from_file_location(
-        "_regress_user_files", REPO / "tests" / "czmpc" / "testing" / "conftest.py")
+        "_regress_user_files", REPO / "tests" / "czmpc" / "conftest.py")
     assert spec is not None and spec.loader is not None
     files = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(files)
