@@ -232,15 +232,12 @@ def check_node(key: str, spec: NodeSpec, values: Mapping[str, Any], *,
     if not info.scalar:
         return fail("BadTypeMismatch", f"{node} is an array (ValueRank {rank}): point {key} at a "
                                        "scalar tag")
-    if role.writes and not node_writable:
-        return fail("BadNotWritable", "BadNotWritable: " + refusals.fix_for(
-            "BadNotWritable", key=key, node=node))
-    if role.writes and not writable:
-        return fail("BadUserAccessDenied", "BadUserAccessDenied: " + refusals.fix_for(
-            "BadUserAccessDenied", key=key, node=node, user=user))
-    if (role.reads or command_readable_needed) and not readable:
-        return fail("BadNotReadable", "BadNotReadable: " + refusals.fix_for(
-            "BadNotReadable", key=key, node=node, user=user))
+    for code, refused, who in (("BadNotWritable", role.writes and not node_writable, None),
+                               ("BadUserAccessDenied", role.writes and not writable, user),
+                               ("BadNotReadable", (role.reads or command_readable_needed)
+                                and not readable, user)):
+        if refused:
+            return fail(code, f"{code}: " + refusals.fix_for(code, key=key, node=node, user=who))
     reason = _carry_problem(role, info, spec)
     if reason is not None:
         return fail("BadTypeMismatch", f"{type_name} cannot carry the {role.what}: {reason}")
@@ -255,6 +252,14 @@ def check_node(key: str, spec: NodeSpec, values: Mapping[str, Any], *,
     return NodeCheck(**common, note=note), info
 
 
+#: The non-integer types an enumeration kind accepts, and what to say when a node is neither.
+_ENUM_TYPES = {
+    "word": (("String",), "a STRING or INT tag is needed"),
+    "flag": (("String", "Boolean"), "a BOOL or INT tag is needed"),
+    "mode": (("String", "Boolean"), "a mode is text (OFF/PREDICT/ON), an integer 0/1/2 or a bool"),
+}
+
+
 def _carry_problem(role: NodeRole, info: NodeType, spec: NodeSpec) -> str | None:
     """Why a node of this type cannot carry the role's values, or None."""
     if role.kind == "counter":
@@ -267,18 +272,9 @@ def _carry_problem(role: NodeRole, info: NodeType, spec: NodeSpec) -> str | None
         return None
     if role.kind == "text":
         return None if info.type_name == "String" else "a STRING tag is needed"
-    if role.kind in ("word", "flag"):
-        if info.type_name in ("String", "Boolean") and (role.kind == "flag"
-                                                        or info.type_name == "String"):
-            return None
-        if info.type_name in INTEGER_RANGES:
-            return None
-        return ("a STRING or INT tag is needed" if role.kind == "word"
-                else "a BOOL or INT tag is needed")
-    if role.kind == "mode":
-        if info.type_name in ("String", "Boolean") or info.type_name in INTEGER_RANGES:
-            return None
-        return "a mode is text (OFF/PREDICT/ON), an integer 0/1/2 or a bool"
+    if role.kind in _ENUM_TYPES:
+        texts, needed = _ENUM_TYPES[role.kind]
+        return None if info.type_name in texts or info.type_name in INTEGER_RANGES else needed
     if not info.numeric:
         return "a number is needed: point it at a REAL (Float) or INT tag"
     for value in role.carries:
@@ -338,9 +334,7 @@ class PlantLink:
             self.client = await within(
                 secure_connect(cfg.endpoint, cfg.security, timeout_s=cfg.connect_timeout_s),
                 deadline_s, f"connect to {cfg.endpoint}")
-        except CallDeadlineError as exc:
-            raise LinkLostError(str(exc)) from None
-        except ConnectionError as exc:
+        except (CallDeadlineError, ConnectionError) as exc:
             raise LinkLostError(str(exc)) from None
         ua = asyncua().ua
         try:
@@ -348,14 +342,8 @@ class PlantLink:
         except Exception as exc:  # noqa: BLE001 - asyncua raises several types for bad ids
             self.abort()
             raise NodeValueError(f"[nodes]: a node id cannot be parsed: {exc}") from None
-        params = ua.ReadParameters()
-        params.TimestampsToReturn = ua.TimestampsToReturn.Both
-        for key in self.specs:
-            for attr in self._ATTRIBUTES:
-                rv = ua.ReadValueId()
-                rv.NodeId = self._ids[key]
-                rv.AttributeId = getattr(ua.AttributeIds, attr)
-                params.NodesToRead.append(rv)
+        params = self._read_params([(key, attr) for key in self.specs
+                                    for attr in self._ATTRIBUTES])
         results = await self._call(self.client.uaclient.read(params), "read the nodes' attributes",
                                    deadline_s)
         checks: list[NodeCheck] = []
@@ -391,16 +379,22 @@ class PlantLink:
                                 else "the connection closed")
             raise LinkLostError(f"{what}: {text} ({type(exc).__name__})") from None
 
-    async def read(self, keys: tuple[str, ...], deadline_s: float) -> dict[str, Any]:
-        """One Read request of the nodes' values (with both timestamps); key -> DataValue."""
+    def _read_params(self, reads: list[tuple[str, str]]) -> Any:
+        """ReadParameters of (key, attribute name) pairs, with both timestamps."""
         ua = asyncua().ua
         params = ua.ReadParameters()
         params.TimestampsToReturn = ua.TimestampsToReturn.Both
-        for key in keys:
+        for key, attr in reads:
             rv = ua.ReadValueId()
             rv.NodeId = self._ids[key]
-            rv.AttributeId = ua.AttributeIds.Value
+            rv.AttributeId = getattr(ua.AttributeIds, attr)
             params.NodesToRead.append(rv)
+        return params
+
+    async def read(self, keys: tuple[str, ...], deadline_s: float) -> dict[str, Any]:
+        """One Read request of the nodes' values (with both timestamps); key -> DataValue."""
+        ua = asyncua().ua
+        params = self._read_params([(key, "Value") for key in keys])
         try:
             results = await self._call(self.client.uaclient.read(params), "read", deadline_s)
         except ua.UaStatusCodeError as exc:   # a service-level refusal of the whole read
@@ -415,10 +409,12 @@ class PlantLink:
         NodeValueError
             The node's type cannot carry the value.
         """
+        return self._variant(key, encode(value, self.types[key].type_name, self.specs[key].scale))
+
+    def _variant(self, key: str, raw: Any) -> Any:
+        """A Variant of node ``key``'s own type holding ``raw`` as is."""
         ua = asyncua().ua
-        type_name = self.types[key].type_name
-        return ua.Variant(encode(value, type_name, self.specs[key].scale),
-                          getattr(ua.VariantType, type_name))
+        return ua.Variant(raw, getattr(ua.VariantType, self.types[key].type_name))
 
     async def write(self, values: Mapping[str, Any], deadline_s: float) -> dict[str, str | None]:
         """One Write request: key -> Variant; returns key -> None (accepted) or a Bad code name.
@@ -450,19 +446,16 @@ class PlantLink:
 
     def next_count(self, key: str, current: Any) -> Any:
         """The Variant of counter ``key`` (heartbeat, watchdog) after ``current``, in its type."""
-        ua = asyncua().ua
-        type_name = self.types[key].type_name
-        return ua.Variant(next_heartbeat(current, type_name), getattr(ua.VariantType, type_name))
+        return self._variant(key, next_heartbeat(current, self.types[key].type_name))
 
     def word(self, key: str, name: str, codes: Mapping[str, int]) -> Any:
         """The Variant of an enumeration node ``key``: ``name`` on a String node, else its code
         (``codes``, -1 for a name not in it) in the node's integer type, or a bool."""
-        ua = asyncua().ua
         type_name = self.types[key].type_name
         value: float | bool | str = name if type_name == "String" else codes.get(name, -1)
         if type_name == "Boolean":
             value = bool(codes.get(name, 0))
-        return ua.Variant(encode(value, type_name), getattr(ua.VariantType, type_name))
+        return self._variant(key, encode(value, type_name))
 
     def abort(self) -> None:
         """Close the session's socket at once and stop the client's tasks (no goodbye)."""

@@ -90,6 +90,27 @@ OVERRUN_REPORT_S = 60.0
 RECENT_STEPS = 200
 #: Read-phase estimates a run keeps (one per `alignment.WINDOW` good samples).
 RECENT_PHASES = 1000
+#: The counters czmpc increments each step (the plant's watchdog and its own).
+_COUNTERS = ("heartbeat", "watchdog")
+
+
+def _good_values(reads: Mapping[str, Any], keys: tuple[str, ...]) -> dict[str, Any]:
+    """The values of the Good DataValues among ``keys``."""
+    return {key: dv.Value.Value for key, dv in reads.items() if key in keys
+            and dv.Value is not None and (dv.StatusCode is None or dv.StatusCode.is_good())}
+
+
+def _signal_handlers(loop: asyncio.AbstractEventLoop, handler: Callable[[str], None] | None,
+                     ) -> None:
+    """Install ``handler`` (None: remove it) for SIGINT and SIGTERM where the platform can."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            if handler is None:
+                loop.remove_signal_handler(sig)
+            else:
+                loop.add_signal_handler(sig, handler, sig.name)
+        except (NotImplementedError, RuntimeError, ValueError):
+            pass
 
 
 class MPCDriver:
@@ -282,8 +303,7 @@ class ControlLoop:
         self._status = status
         self._delay = dict(step_delay_s or {})
         self._stop = asyncio.Event()
-        self._heartbeat_value: Any = None   # what the heartbeat node holds (our last write)
-        self._watchdog_value: Any = None    # the same for czmpc's own watchdog counter
+        self._counts: dict[str, Any] = {}     # what the counter nodes hold (our last writes)
         self._events: list[str] = []          # events of this step, for the log's event column
         self._refused_in_row = 0              # command writes refused in a row
         self._lost_at: float | None = None    # monotonic time the link was lost (None: up)
@@ -373,8 +393,7 @@ class ControlLoop:
             if note:
                 self._event(f"power_kw: {note}")
                 self._said_timestamps = True
-        self._heartbeat_value = self.link.initial.get("heartbeat")
-        self._watchdog_value = self.link.initial.get("watchdog")
+        self._counts = {key: self.link.initial.get(key) for key in _COUNTERS}
         self.watch.reset()      # a new session: watch from czmpc's next writes on
         # bumpless: start from the input the plant applies now
         key = "applied_triac_pct" if "applied_triac_pct" in self.link.specs else "triac_pct"
@@ -397,11 +416,7 @@ class ControlLoop:
         """Run until the duration (plant time) or a stop request; return the summary."""
         cfg = self.config
         loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            try:
-                loop.add_signal_handler(sig, self.request_stop, sig.name)
-            except (NotImplementedError, RuntimeError, ValueError):
-                pass
+        _signal_handlers(loop, self.request_stop)
         refuse_overwrite(cfg.log_path, self.log_policy, per_run=cfg.log_per_run)  # first of all
         lock = PlantLock(cfg.endpoint, cfg.nodes.triac_pct, self.identity)
         lock.acquire()     # a second controller for this plant on this machine stops here
@@ -444,11 +459,7 @@ class ControlLoop:
             lock.release()
             _log.log(logging.ERROR if self.summary.failed else logging.INFO, "run ended: %s",
                      self.summary.closing_line())
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                try:
-                    loop.remove_signal_handler(sig)
-                except (NotImplementedError, RuntimeError, ValueError):
-                    pass
+            _signal_handlers(loop, None)
         return self.summary
 
     def _meta(self) -> dict[str, object]:
@@ -488,9 +499,7 @@ class ControlLoop:
             second = await self.link.read(keys, deadline)
         except LinkLostError:
             return      # the loop reconnects; the read-back watch still guards every step
-        values = [{k: dv.Value.Value for k, dv in reads.items()
-                   if dv.Value is not None and (dv.StatusCode is None or dv.StatusCode.is_good())}
-                  for reads in (first, second)]
+        values = [_good_values(reads, keys) for reads in (first, second)]
         reason = moved(values[0], values[1])
         lease = values[1].get("owner")
         if reason is None and isinstance(lease, str) and lease and lease != self.identity:
@@ -540,10 +549,10 @@ class ControlLoop:
                 self.summary.n_overruns += 1
                 self.summary.n_skipped += next_k - k - 1
             self._say_overruns()
-            row["skipped"] = next_k - k - 1
-            if next_k - k - 1 > 0:
-                self.ctrl.skipped(next_k - k - 1)
-                self._monitors_skipped(next_k - k - 1)
+            row["skipped"] = skipped = next_k - k - 1
+            if skipped > 0:
+                self.ctrl.skipped(skipped)
+                self._monitors_skipped(skipped)
             row["step_latency_s"] = end - woke
             self._check_limits(row, next_k - k)
             t0 += self._align(row)
@@ -631,10 +640,7 @@ class ControlLoop:
         """Judge the read, step the controller and the monitors (no I/O; `czmpc.runtime.step`)."""
         cfg = self.config
         if values is not None:
-            watched = self._watched()
-            reason = self.watch.other_writer(
-                {key: dv.Value.Value for key, dv in values.items() if key in watched
-                 and dv.Value is not None and (dv.StatusCode is None or dv.StatusCode.is_good())})
+            reason = self.watch.other_writer(_good_values(values, self._watched()))
             if reason is not None:
                 self._another_writer(reason)
         sample = judge(values, self.link.specs, max_age_s=cfg.max_sample_age_s,
@@ -713,7 +719,7 @@ class ControlLoop:
         if "target_triac_pct" in present and math.isfinite(target):
             out["target_triac_pct"] = link.variant("target_triac_pct", target)
         if "watchdog" in present:
-            out["watchdog"] = link.next_count("watchdog", self._watchdog_value)
+            out["watchdog"] = link.next_count("watchdog", self._counts.get("watchdog"))
         return out
 
     async def _read(self, end: float) -> dict[str, Any] | None:
@@ -748,7 +754,7 @@ class ControlLoop:
             if command is not None:
                 values["triac_pct"] = self.link.variant("triac_pct", float(command))
             if "heartbeat" in self.link.specs:
-                values["heartbeat"] = self.link.next_count("heartbeat", self._heartbeat_value)
+                values["heartbeat"] = self.link.next_count("heartbeat", self._counts.get("heartbeat"))
             if "model_health" in self.link.specs and health is not None:
                 values["model_health"] = self.link.variant(
                     "model_health", min(HEALTH_TOP, max(0.0, health.health)))
@@ -764,7 +770,7 @@ class ControlLoop:
         for key, code in results.items():
             if code is None:
                 continue
-            self.summary.refused_writes[code] = self.summary.refused_writes.get(code, 0) + 1
+            self._refused(code)
             spec = self.link.specs[key]
             if refusals.kind_of(code) == "configuration":
                 info = self.link.types.get(key)
@@ -777,10 +783,7 @@ class ControlLoop:
         for key, variant in values.items():
             if results.get(key) is None and key in ("triac_pct", "heartbeat", "owner"):
                 self.watch.wrote(key, variant.Value, self.link.types[key].type_name)
-        if "heartbeat" in values and results.get("heartbeat") is None:
-            self._heartbeat_value = values["heartbeat"].Value
-        if "watchdog" in values and results.get("watchdog") is None:
-            self._watchdog_value = values["watchdog"].Value
+        self._counted(values, results)
         if command is None:
             self.watch.forget("triac_pct")   # the operator may drive the TRIAC outside ON
             return False
@@ -798,6 +801,15 @@ class ControlLoop:
             self._event(f"ABORT: {abort}", logging.ERROR)
             self.request_stop("abort")
         return False
+
+    def _refused(self, code: str) -> None:
+        self.summary.refused_writes[code] = self.summary.refused_writes.get(code, 0) + 1
+
+    def _counted(self, values: Mapping[str, Any], results: Mapping[str, str | None]) -> None:
+        """Remember the counters the plant accepted."""
+        for key in _COUNTERS:
+            if key in values and results.get(key) is None:
+                self._counts[key] = values[key].Value
 
     def _health(self, k: int, power: float, applied_before: float) -> ModelHealth | None:
         """Feed the model-health monitor; say the stale alarm once when it comes."""
@@ -883,17 +895,16 @@ class ControlLoop:
             end = time.monotonic() + self._step_budget_s
             values: dict[str, Any] = {"triac_pct": self.link.variant("triac_pct", u)}
             if "heartbeat" in self.link.types:  # the plant's watchdog still sees us
-                values["heartbeat"] = self.link.next_count("heartbeat", self._heartbeat_value)
+                values["heartbeat"] = self.link.next_count("heartbeat", self._counts.get("heartbeat"))
             try:
                 results = await self.link.write(values, end - time.monotonic())
             except LinkLostError as exc:
                 self._lost(exc)
                 break
-            if results.get("heartbeat") is None and "heartbeat" in values:
-                self._heartbeat_value = values["heartbeat"].Value
+            self._counted(values, results)
             code = results["triac_pct"]
             if code is not None:
-                self.summary.refused_writes[code] = self.summary.refused_writes.get(code, 0) + 1
+                self._refused(code)
                 _log.error("safe ramp: command write refused with %s; the TRIAC stays where the "
                            "plant holds it", code)
                 break
