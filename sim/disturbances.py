@@ -2,17 +2,16 @@
 
 Two families act on a closed loop:
 
-* **process disturbances** change what the heater really does and reach the plant as
-  `sim.protocols.Exogenous` values: `VoltageStep` and `VoltageRamp` (grid voltage
-  factor, combined by product) and `PowerShift` (additive power offset [kW], combined
-  by sum; the paper's grid event of sec. 5.2 is a +0.15 kW shift);
-* **sensor faults** corrupt only the measurement the controller sees:
-  `MeasurementSpike` (one sample), `RandomSpikes` (seeded) and `MissingSamples` (NaN).
+* **process disturbances** reach the plant as `sim.protocols.Exogenous` values:
+  `VoltageStep` and `VoltageRamp` (grid voltage factor, multiplied) and `PowerShift`
+  (power offset [kW], added);
+* **sensor faults** corrupt only the measurement: `MeasurementSpike` (one sample),
+  `RandomSpikes` (seeded) and `MissingSamples` (NaN).
 
-Time convention: sample ``k`` is at ``t_k = k * ts_s``. An event "at ``at_s``" acts on
-every sample with ``t_k >= at_s`` (up to ``at_s + duration_s`` exclusive when a
-duration is given); a window ``[start_s, end_s]`` likewise. Every class validates
-itself on construction and raises `ScenarioError` naming the class and field.
+Sample ``k`` is at ``t_k = k * ts_s``; an event "at ``at_s``" acts on every sample with
+``t_k >= at_s`` (before ``at_s + duration_s`` if a duration is given), a window
+``[start_s, end_s]`` likewise. Each class validates itself, raising `ScenarioError`
+that names the class and field.
 """
 
 from __future__ import annotations
@@ -29,8 +28,7 @@ from sim.errors import ScenarioError
 from sim.protocols import Exogenous
 from sysid._typing import FloatArray
 
-#: Tolerance [s, relative to ts_s] when comparing sample times with event times, so
-#: that an event at 600 s still hits sample 300 at ts_s = 2 s despite rounding.
+#: Tolerance [relative to ts_s] comparing sample with event times (600 s hits sample 300 at 2 s).
 TIME_RTOL = 1e-9
 
 BoolArray = npt.NDArray[np.bool_]
@@ -75,11 +73,7 @@ def _check_number(obj: object, name: str, *, lo: float = -math.inf, lo_open: boo
 
 
 def _check_held_event(obj: object, value_name: str, **bounds: Any) -> None:
-    """Validate an event held from ``at_s`` for ``duration_s`` (None: for good).
-
-    Checks ``at_s``, then the held value ``value_name`` (``bounds`` as for
-    `_check_number`), then ``duration_s``.
-    """
+    """Check ``at_s``, the held ``value_name`` (``bounds`` of `_check_number`), ``duration_s``."""
     _check_time(obj, "at_s")
     _check_number(obj, value_name, **bounds)
     _check_time(obj, "duration_s", allow_none=True, positive=True)
@@ -173,8 +167,7 @@ class VoltageRamp:
 class PowerShift:
     """The true heater power shifts by ``offset_kw`` from ``at_s`` (for ``duration_s``, or for good).
 
-    The paper's grid event (sec. 5.2) is ``PowerShift(at_s=..., offset_kw=0.15)``: a large
-    grid load switched off and the power settled 0.15 kW higher.
+    The paper's grid event (sec. 5.2) is ``PowerShift(at_s=..., offset_kw=0.15)``.
 
     Parameters
     ----------
@@ -233,8 +226,8 @@ class MeasurementSpike:
 class RandomSpikes:
     """Each sample in ``[start_s, end_s)`` is hit with probability ``probability_per_sample``.
 
-    A hit adds ``+spike_kw`` or ``-spike_kw`` (equally likely) to that one measurement.
-    The draws come from the run's fault stream, so they are reproducible by seed.
+    A hit adds ``+spike_kw`` or ``-spike_kw`` (equally likely) to that measurement, drawn
+    from the run's fault stream (reproducible by seed).
 
     Parameters
     ----------
@@ -261,11 +254,7 @@ class RandomSpikes:
     def spike_profile_kw(
         self, time_s: FloatArray, ts_s: float, rng: np.random.Generator
     ) -> FloatArray:
-        """Additive measurement error [kW] at ``time_s`` [s], drawn from ``rng``.
-
-        Draws exactly ``2 * len(time_s)`` uniforms whatever the window, so the fault
-        stream advances the same way for any window.
-        """
+        """Additive error [kW] at ``time_s`` [s]; draws ``2 * len(time_s)`` uniforms whatever the window."""
         t = np.asarray(time_s, dtype=float)
         hit = rng.random(t.size) < self.probability_per_sample
         sign = np.where(rng.random(t.size) < 0.5, -1.0, 1.0)
@@ -295,8 +284,7 @@ class MissingSamples:
 
     def missing_mask(self, time_s: FloatArray, ts_s: float) -> BoolArray:
         """True at the sample times ``time_s`` [s] whose measurement is missing."""
-        t = np.asarray(time_s, dtype=float)
-        return _during(t, self.at_s, self.duration_s, ts_s)
+        return _during(np.asarray(time_s, dtype=float), self.at_s, self.duration_s, ts_s)
 
 
 Fault = MeasurementSpike | RandomSpikes | MissingSamples

@@ -2,32 +2,24 @@
 
 A `PlantVariation` says how the plant differs from its nominal self from the start
 (``gain_factor``, ``tau_s``, ``extra_delay_samples``) and how it drifts later
-(`DriftEvent`: at a plant time the gain factor or the time constant moves to a new
-value, a step change such as a new crucible or an aged element). `vary_model_plant` and
-`vary_heater` build a `DriftingPlant` (the `sim.protocols.Plant` protocol) from a model
-plant or the virtual heater; `czmpc plant serve` and the stale-model tests use them.
+(`DriftEvent`: a step change of the gain factor or the time constant, such as a new
+crucible or an aged element). `vary_model_plant` and `vary_heater` build a
+`DriftingPlant` (a `sim.protocols.Plant`) from a model plant or the virtual heater.
 
-On a model plant the gain and the time constant move as `sim.perturbed.perturb_model`
-says (every gain times ``g`` exactly; the slow pole moved to ``exp(-Ts / tau_s)``,
-holding the instantaneous jump and the static gain). On the virtual heater:
+On a model plant the gain and time constant move as `sim.perturbed.perturb_model`
+says. On the virtual heater:
 
-* **gain factor** ``g``: the rated power ``P_rated = V^2 / R_ref`` is multiplied by
-  ``g`` (an element whose cold resistance ``R_ref`` has changed by ``1/g``, as an aged
-  element's does). The power the TRIAC passes at the element's present temperature
-  scales by ``g``; because a different power moves the element's temperature, the
-  static gain of a small step scales by ``g`` only to within a few per cent (stated in
-  the tests).
-* **time constant** ``tau_s`` [s] (None: the plant's own): the heat capacity ``C`` is
-  scaled so that the linearized sag time constant ``C / (4 eps A sigma T^3 + P alpha /
-  rho)`` at the heater's initial input (`heater_time_constant_s`) equals ``tau_s``.
+* **gain factor** ``g``: ``P_rated = V^2 / R_ref`` is multiplied by ``g`` (an aged
+  element's ``R_ref`` changed by ``1/g``); as the power moves the temperature, a small
+  step's static gain scales by ``g`` only to within a few per cent.
+* **time constant** ``tau_s`` [s] (None: the plant's own): ``C`` is scaled so that the
+  linearized sag time constant at the initial input (`heater_time_constant_s`) is
+  ``tau_s``.
 
-An **extra delay** of ``n`` samples holds the input, on either plant, in a first-in
-first-out line of ``n`` samples (it starts full of the initial input): the response is
-that of the undelayed plant shifted by exactly ``n`` samples.
-
-A drift changes the plant's parameters between samples, keeping its state (the model
-plant's histories, the heater's temperature): the first sample whose start time
-``k * ts_s`` is at or after ``at_s`` runs with the new value.
+An **extra delay** of ``n`` samples holds the input in a first-in first-out line that
+starts full of the initial input: the undelayed response shifted by exactly ``n``.
+A drift changes the parameters between samples, keeping the plant's state: the first
+sample with ``k * ts_s >= at_s`` runs with the new value.
 """
 
 from __future__ import annotations
@@ -65,8 +57,8 @@ class DriftEvent:
     Parameters
     ----------
     quantity :
-        ``"gain"`` (``value`` is the new gain factor relative to the nominal plant
-        [-]) or ``"tau"`` (``value`` is the new time constant [s]).
+        ``"gain"`` (``value``: gain factor relative to nominal [-]) or ``"tau"``
+        (``value``: time constant [s]).
     value :
         The new value (> 0, finite).
     at_s :
@@ -97,8 +89,8 @@ def parse_drift(text: str) -> DriftEvent:
     Parameters
     ----------
     text :
-        ``gain=0.75@3600`` (the gain moves to x0.75 of nominal at 3600 s of plant
-        time) or ``tau=1200@3600`` (the time constant moves to 1200 s at 3600 s).
+        ``gain=0.75@3600`` (gain x0.75 of nominal from 3600 s of plant time) or
+        ``tau=1200@3600`` (time constant 1200 s from 3600 s).
 
     Returns
     -------
@@ -297,7 +289,7 @@ def vary_model_plant(model: HammersteinModel, variation: PlantVariation, *, nois
     Parameters
     ----------
     model :
-        The nominal model (the plant's equation with no variation).
+        The nominal model.
     variation :
         Gain, time constant, delay and drifts.
     noise :

@@ -1,23 +1,18 @@
 """The paper's identification experiment on the virtual heater -> Dataset (paper Fig. 2).
 
-About 24,000 s at 2 s sampling. The TRIAC input rises as a staircase of +3 % steps
-from 33 % to 45 %, rests at 45 % over ``t in [8700, 10300]`` s (the steady operating point of paper
-sec. 5.1, ``s = 45 %``, ``P = 45 kW``), then takes the four +5 % steps of paper Table 3,
-the last at ``t = 22170`` s (sec. 6.2). Two grid events of paper sec. 5.2 are replayed:
-a one-sample voltage dip after which the voltage does not fully recover (Fig. 4), and a
-+0.15 kW level shift of the power from ``t = 20714`` s (Fig. 5). `table3_comparison`
-puts the measured step gains beside the paper's Table 3.
+About 24,000 s at 2 s sampling: +3 % steps from 33 % to 45 %, a rest at the operating
+point of paper sec. 5.1 (45 %, 45 kW) over ``t in [8700, 10300]`` s, then the four +5 %
+steps of Table 3, the last at ``t = 22170`` s (sec. 6.2). The grid events of sec. 5.2
+are replayed: a one-sample voltage dip without full recovery (Fig. 4) and a +0.15 kW
+level shift from ``t = 20714`` s (Fig. 5). ``data/cz_heater_experiment.csv`` is
+``identification_experiment()`` written with `sysid.data.write_csv` (a test regenerates
+it byte for byte).
 
-The file ``data/cz_heater_experiment.csv`` is ``identification_experiment()`` written
-with `sysid.data.write_csv`; a test regenerates it byte for byte.
-
-Why the staircase starts at 33 %: the heater's steady map is concave (the quadratic f of
-eq. 17 is its local picture). Started from 21 %, the curvature over 21..65 % leaves a
-steady equation error comparable to the sensor noise, least squares answers it with
-a1 -> -1, and the linear ARX/ARMAX models of Table 2 become near-integrators whose
-ballistic V is 60x the paper's. From 33 % the paper's Table 2 pattern holds (OE best,
-one order more changes V by less than 10 %) on seeds 2010, 1, 2 and 3, as do the
-Hammerstein findings; the paper says only that s "tends to increase" through its run.
+Why 33 %: the steady map is concave (eq. 17's quadratic is its local picture); from
+21 % the curvature leaves a steady equation error comparable to the noise, least
+squares answers with a1 -> -1, and Table 2's ARX/ARMAX models become near-integrators
+with 60x the paper's V. From 33 % Table 2's pattern (OE best, one order more changes V
+by less than 10 %) and the Hammerstein findings hold on seeds 2010, 1, 2 and 3.
 """
 
 from __future__ import annotations
@@ -74,11 +69,9 @@ class ExperimentSpec:
     dip_voltage_factor :
         Relative grid voltage during the dip [-].
     after_dip_voltage_factor :
-        Relative grid voltage after the dip: a larger load stays on the grid, so the
-        power does not fully recover [-].
+        Relative grid voltage after the dip (the power does not fully recover) [-].
     level_shift_time_s :
-        From this time on the power is shifted by `level_shift_kw` (paper Fig. 5:
-        a large load on the grid was shut down) [s].
+        From this time on the power is shifted by `level_shift_kw` (paper Fig. 5) [s].
     level_shift_kw :
         Size of the level shift [kW]; the paper subtracts 0.15 kW in preprocessing.
     power_decimals :
@@ -173,10 +166,9 @@ def identification_experiment(
     Returns
     -------
     Dataset
-        ``time_s = k * ts_s``, the input ``triac_pct`` and the measured ``power_kw``
-        rounded to the logger's resolution; the same seed gives the same data bit for
-        bit. The measured power at sample ``k`` responds to the input of sample
-        ``k - 1``; the grid events act on the power sample at their time.
+        ``time_s = k * ts_s``, ``triac_pct`` and ``power_kw`` rounded to the logger's
+        resolution, bit for bit per seed; ``power_kw[k]`` responds to ``triac_pct[k - 1]``
+        and the grid events act on the power sample at their time.
 
     Raises
     ------
@@ -239,12 +231,9 @@ def table3_comparison(
 ) -> tuple[Table3Row, ...]:
     """Measure the paper's Table 3 in an experiment record.
 
-    The paper computed Table 3 on its preprocessed data, in which 0.15 kW had been
-    subtracted from every power sample at ``t >= 20714`` s (sec. 5.2). The same
-    correction (`ExperimentSpec.level_shift_kw` from `level_shift_time_s`) is applied
-    here before the steps after ``t = 1.0e4`` s are found with
-    `sysid.steps.detect_steps` (default threshold, one sample of delay). The
-    correction changes the levels of the last step, not its gain.
+    As in the paper's preprocessing (sec. 5.2), `ExperimentSpec.level_shift_kw` is
+    subtracted from `level_shift_time_s` on (it moves the last step's levels, not its
+    gain); then the steps after ``t = 1.0e4`` s are found with `sysid.steps.detect_steps`.
 
     Parameters
     ----------

@@ -1,14 +1,10 @@
 """VirtualHeater: grey-box physics stand-in for the CZ puller's heating element.
 
-The plant the paper could not share: a TRIAC power controller feeding a graphite
-heating element whose resistance rises as it heats (paper sec. 3: "as the temperature
-increases, the electric resistance of the heating element increases, causing
-decreased P"). A step up in ``s`` steps the power up at once; the element then heats,
-its resistance rises and the power sags by about 12 % of the step with a time
-constant of about 200 s (at 45 kW); the instantaneous gain falls as the operating
-point rises (paper Table 3). The default parameters are calibrated to the paper:
-``s = 45 %`` held gives ``P = 45 kW``, and the steps of the identification experiment
-(`sim.experiment`) reproduce Table 3.
+A TRIAC power controller feeds a graphite element whose resistance rises as it heats
+(paper sec. 3): a step up in ``s`` steps the power up at once, then it sags by about
+12 % of the step with a time constant of about 200 s (at 45 kW). Defaults are
+calibrated to the paper: ``s = 45 %`` gives ``P = 45 kW``, and the steps of
+`sim.experiment` reproduce Table 3.
 
 Notation
 --------
@@ -38,32 +34,23 @@ The model, with the input held constant over each sample (zero-order hold)::
     C dT/dt = P(T) - eps A sigma (T^4 - T_wall^4)
     y_{k+1} = max(0, P(t_{k+1}) + n_{k+1}),     n ~ N(0, sensor_noise_std_kw^2)
 
-``phi`` is the TRIAC controller's power characteristic: a power-linearized firing
-unit (power roughly proportional to its input) that does not fire below the threshold
-``s_0``, starts softly (``gamma``) and droops below proportional as the load rises
-(``kappa``). It is the empirical part of the grey box, calibrated so that the
-instantaneous gain falls linearly with ``s`` as the paper's quadratic ``f(ds)``
-implies (eqs. 14-17). The element loses its heat by radiation to the water-cooled
-chamber.
+``phi`` is the empirical part of the grey box: a firing unit that does not fire below
+``s_0``, starts softly (``gamma``) and droops below proportional (``kappa``), so that
+the instantaneous gain falls linearly with ``s`` as the paper's quadratic ``f(ds)``
+implies (eqs. 14-17). The element radiates to the water-cooled chamber.
 
-``s_k`` and the exogenous inputs of sample ``k`` act over ``(t_k, t_{k+1}]``, so the
-input applied at sample ``k`` first shows in the power measured at ``k + 1`` (one
-sample of delay, paper sec. 6.1). Because ``T`` cannot jump, a step in ``s`` steps
-``P`` at once by ``v^2 P_rated dphi / rho(T)``: the instantaneous gain ``r`` of paper
-Table 3. Linearized, the sag is first order with time constant
-``C / (4 eps A sigma T^3 + P alpha / rho)`` and the steady-state gain is
+The inputs of sample ``k`` act over ``(t_k, t_{k+1}]``: one sample of delay (paper
+sec. 6.1). ``T`` cannot jump, so a step in ``s`` steps ``P`` at once by
+``v^2 P_rated dphi / rho(T)`` (the gain ``r`` of Table 3). Linearized, the sag has time
+constant ``C / (4 eps A sigma T^3 + P alpha / rho)`` and the static gain is
 ``1 / (1 + P alpha / (rho 4 eps A sigma T^3))``, about 0.88, of the instantaneous one.
 
-The grid-voltage wander ``w`` is an Ornstein-Uhlenbeck process (exactly discretized)
-with standard deviation `HeaterParams.grid_wander_std` and correlation time
-`HeaterParams.grid_wander_time_s`. It makes the true power wander by a few tenths of
-a percent, so that even a perfect model leaves ballistic simulation errors (the
-paper's best model has ``V = 0.007 kW^2`` while its one-step errors have a standard
-deviation of about 0.013 kW).
-
-Randomness: `VirtualHeater.reset` spawns two independent streams from one seed, one
-for the sensor noise and one for the grid wander, so changing one (for example
-switching the wander off) never shifts the other.
+The wander ``w`` is an exactly discretized Ornstein-Uhlenbeck process
+(`HeaterParams.grid_wander_std`, `HeaterParams.grid_wander_time_s`): a few tenths of a
+percent of power, so even a perfect model leaves ballistic errors (the paper's best
+``V = 0.007 kW^2`` against one-step errors of std 0.013 kW). `VirtualHeater.reset`
+spawns independent streams for the sensor noise and the wander, so switching one off
+never shifts the other.
 """
 
 from __future__ import annotations
@@ -96,11 +83,9 @@ class HeaterParams:
     firing_threshold_pct :
         ``s_0``: input below which the TRIAC controller does not fire [%].
     firing_droop :
-        ``kappa``: how far the controller's power characteristic droops below
-        proportional at full input, ``0 <= kappa < 1`` [-].
+        ``kappa``: droop below proportional at full input, ``0 <= kappa < 1`` [-].
     firing_exponent :
-        ``gamma >= 1``: softness of the characteristic's start above the threshold
-        (1 with ``kappa = 0``: power proportional to ``s - s_0``) [-].
+        ``gamma >= 1``: softness of the start above the threshold [-].
     resistance_tc_per_k :
         ``alpha``: temperature coefficient of the element's resistance, relative to
         ``R_ref`` [1/K].
@@ -109,15 +94,13 @@ class HeaterParams:
     wall_temp_k :
         ``T_wall``: temperature of the water-cooled chamber the element radiates to [K].
     emissivity_area_m2 :
-        ``eps A``: emissivity times effective radiating area of the element [m^2]
-        (with the defaults the element runs at about 1500 K at 45 kW).
+        ``eps A``: emissivity times radiating area [m^2] (about 1500 K at 45 kW).
     heat_capacity_kj_per_k :
         ``C``: lumped heat capacity of the element [kJ/K]; sets the sag time constant.
     sensor_noise_std_kw :
-        Standard deviation of the white noise of the power transducer [kW].
+        Std of the power transducer's white noise [kW].
     grid_wander_std :
-        Standard deviation of the slow relative grid-voltage wander ``w`` [-]
-        (0 switches the wander off).
+        Std of the relative grid-voltage wander ``w`` [-] (0: off).
     grid_wander_time_s :
         Correlation time of the wander [s].
     initial_triac_pct :
@@ -126,7 +109,7 @@ class HeaterParams:
     Raises
     ------
     PlantError
-        A parameter that is not a finite number or is outside its physical range.
+        A parameter not finite or outside its physical range.
     """
 
     ts_s: float = 2.0
@@ -156,22 +139,17 @@ class HeaterParams:
             if not math.isfinite(value):
                 raise PlantError(f"HeaterParams.{name} must be finite; got {value!r}")
             object.__setattr__(self, name, float(value))
-        for name in positive:
-            if getattr(self, name) <= 0:
-                raise PlantError(f"HeaterParams.{name} must be > 0; got {getattr(self, name)!r}")
-        for name in non_negative:
-            if getattr(self, name) < 0:
-                raise PlantError(f"HeaterParams.{name} must be >= 0; got {getattr(self, name)!r}")
-        if not 0.0 <= self.firing_threshold_pct < 100.0:
-            raise PlantError(
-                f"HeaterParams.firing_threshold_pct must be in [0, 100); got {self.firing_threshold_pct!r}")
-        if self.firing_exponent < 1.0:
-            raise PlantError(f"HeaterParams.firing_exponent must be >= 1; got {self.firing_exponent!r}")
-        if not 0.0 <= self.firing_droop < 1.0:
-            raise PlantError(f"HeaterParams.firing_droop must be in [0, 1); got {self.firing_droop!r}")
-        if not 0.0 <= self.initial_triac_pct <= 100.0:
-            raise PlantError(
-                f"HeaterParams.initial_triac_pct must be in [0, 100]; got {self.initial_triac_pct!r}")
+        ranges = [(name, getattr(self, name) > 0, "> 0") for name in positive]
+        ranges += [(name, getattr(self, name) >= 0, ">= 0") for name in non_negative]
+        ranges += [
+            ("firing_threshold_pct", 0.0 <= self.firing_threshold_pct < 100.0, "in [0, 100)"),
+            ("firing_exponent", self.firing_exponent >= 1.0, ">= 1"),
+            ("firing_droop", 0.0 <= self.firing_droop < 1.0, "in [0, 1)"),
+            ("initial_triac_pct", 0.0 <= self.initial_triac_pct <= 100.0, "in [0, 100]"),
+        ]
+        for name, inside, expected in ranges:
+            if not inside:
+                raise PlantError(f"HeaterParams.{name} must be {expected}; got {getattr(self, name)!r}")
         rho_wall = 1.0 + self.resistance_tc_per_k * (self.wall_temp_k - self.reference_temp_k)
         if rho_wall <= 0.0:
             raise PlantError("HeaterParams: the relative resistance at the wall temperature, 1 + "
@@ -187,14 +165,12 @@ def power_fraction(triac_pct: float, params: HeaterParams) -> float:
     triac_pct :
         TRIAC input ``s`` [%], in ``[0, 100]``.
     params :
-        Heater parameters (firing threshold ``s_0``, droop ``kappa``, exponent
-        ``gamma``).
+        Heater parameters (``s_0``, ``kappa``, ``gamma``).
 
     Returns
     -------
     float
-        ``phi = u^gamma (1 - kappa u) / (1 - kappa)`` with ``u = (s - s_0) / (100 -
-        s_0)`` for ``s > s_0``, and 0 below the threshold [-]; ``phi(100) = 1``.
+        ``phi`` of the module notes [-]; ``phi(100) = 1``.
     """
     s0 = params.firing_threshold_pct
     if triac_pct <= s0:
@@ -245,8 +221,8 @@ def steady_state(
     Returns
     -------
     tuple of float
-        ``(power_kw, temp_k)``: the root of ``P(T) = eps A sigma (T^4 - T_wall^4)``
-        [kW], [K] (unique: the left side falls and the right side rises with ``T``).
+        ``(power_kw, temp_k)`` [kW], [K]: the unique root of
+        ``P(T) = eps A sigma (T^4 - T_wall^4)``.
 
     Raises
     ------
@@ -333,15 +309,14 @@ class VirtualHeater:
         Parameters
         ----------
         rng :
-            Seed or generator; two independent streams (sensor noise, grid wander)
-            are spawned from it. None draws fresh entropy (SPEC 7).
+            Seed or generator of the two streams (module notes); None: fresh entropy.
 
         Returns
         -------
         float
             The first measured power ``y_0`` [kW].
         """
-        _, self._noise_rng, self._wander_rng = spawn_streams(rng)  # sensor noise, grid wander
+        _, self._noise_rng, self._wander_rng = spawn_streams(rng)
         p = self.params
         self._wander = p.grid_wander_std * float(self._wander_rng.standard_normal())
         self._true_power_kw, self._temp_k = steady_state(p.initial_triac_pct, p,
@@ -366,8 +341,7 @@ class VirtualHeater:
         Raises
         ------
         PlantError
-            `triac_pct` not a number in ``[0, 100]``, a non-positive or non-finite
-            voltage factor, or a non-finite offset.
+            `triac_pct` not in ``[0, 100]``, or a non-finite or non-positive exogenous.
         """
         _check_input(triac_pct, exogenous)
         p = self.params
@@ -395,10 +369,7 @@ class VirtualHeater:
         return max(0.0, self._true_power_kw + noise_kw)
 
     def _integrate_temp(self, temp_k: float, drive_kw: float, offset_kw: float) -> float:
-        """One classical Runge-Kutta step of ``C dT/dt = P(T) - loss(T)`` over ts_s.
-
-        A sample is about 1 % of the sag time constant, so the local error is ~1e-10 K.
-        """
+        """One RK4 step of ``C dT/dt = P(T) - loss(T)`` (ts_s is 1 % of the sag: ~1e-10 K)."""
         p = self.params
 
         def rate(temp: float) -> float:

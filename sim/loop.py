@@ -2,18 +2,16 @@
 
 One sample ``k`` (time ``t_k = k * ts_s``):
 
-1. the plant's measured power ``y_k`` gets the scenario's sensor faults (NaN while a
-   sample is missing, plus any spike) and goes, with the setpoint ``r_k``, to
-   ``controller.step`` (timed with `time.perf_counter`);
-2. the returned TRIAC input ``s_k`` goes to ``plant.step`` with the scenario's
-   `Exogenous` value for sample ``k``, which acts over ``[t_k, t_{k+1})`` and returns
-   ``y_{k+1}``;
-3. the runner records ``t_k``, ``r_k``, the measurement as delivered, the plant's true
-   power at ``t_k``, ``s_k``, the step time and the controller's ``last_step`` (if it
-   has one). Controllers never keep their own history; the runner does.
+1. the measured power ``y_k`` gets the sensor faults (NaN while missing, plus any
+   spike) and goes with the setpoint ``r_k`` to ``controller.step`` (timed with
+   `time.perf_counter`);
+2. the returned input ``s_k`` goes to ``plant.step`` with sample ``k``'s `Exogenous`
+   value, acting over ``[t_k, t_{k+1})``; it returns ``y_{k+1}``;
+3. the runner records ``t_k``, ``r_k``, the measurement as delivered, the true power at
+   ``t_k``, ``s_k``, the step time and the controller's ``last_step`` (if any).
 
-Randomness: one seed is split (`numpy.random.SeedSequence.spawn`) into independent
-plant-noise and sensor-fault streams, so adding a fault does not change the noise.
+One seed is split (`numpy.random.SeedSequence.spawn`) into independent plant-noise and
+sensor-fault streams, so adding a fault does not change the noise.
 """
 
 from __future__ import annotations
@@ -34,15 +32,13 @@ from sysid._typing import FloatArray
 from sysid.atomic import atomic_write_text
 from sysid.errors import SamplingTimeError
 
-#: CSV columns written by `ClosedLoopResult.to_csv` (a disturbance estimate column
-#: ``disturbance_estimate_kw`` follows when the diagnostics carry one, then the
+#: CSV columns of `ClosedLoopResult.to_csv` (then ``disturbance_estimate_kw`` and the
 #: `STATUS_COLUMNS` the diagnostics carry).
 CSV_COLUMNS = (
     "time_s", "setpoint_kw", "power_measured_kw", "power_true_kw", "triac_pct", "step_time_s",
 )
-#: Per-sample controller status written by `ClosedLoopResult.to_csv` where every step's
-#: diagnostics carry it (the offset-free MPC's: its mode in effect, what the step did,
-#: the QP solver's status and the fallback taken, as `czmpc.controller.StepDiagnostics`).
+#: Per-sample controller status columns of `ClosedLoopResult.to_csv`, where every step's
+#: diagnostics carry them (as `czmpc.controller.StepDiagnostics` does).
 STATUS_COLUMNS = ("mode", "status", "solver_status", "fallback")
 
 ProgressCallback = Callable[[int, int], None]
@@ -66,16 +62,14 @@ class ClosedLoopResult:
     scenario :
         The scenario that was run.
     seed :
-        The integer seed the noise and fault streams were spawned from (the fresh
-        entropy when none was given, so the run can be repeated); None when a
-        `numpy.random.Generator` was passed.
+        The int seed of the noise and fault streams (the fresh entropy when none was
+        given); None when a `numpy.random.Generator` was passed.
     time_s :
         Sample times ``k * ts_s`` [s], shape ``(n_steps,)``.
     setpoint_kw :
         Setpoint given to the controller [kW].
     power_measured_kw :
-        Measured power as delivered to the controller [kW]: NaN for missing samples,
-        spikes included.
+        Measured power as delivered to the controller, faults included [kW].
     power_true_kw :
         The plant's true (noise-free) power at the same sample [kW].
     triac_pct :
@@ -125,11 +119,7 @@ class ClosedLoopResult:
 
     @property
     def disturbance_estimate_kw(self) -> FloatArray | None:
-        """The controller's disturbance estimate per sample [kW], if its diagnostics have one.
-
-        Read from the ``disturbance_estimate`` attribute of each ``last_step``; None when
-        there are no diagnostics or they lack that attribute.
-        """
+        """Each ``last_step.disturbance_estimate`` [kW]; None if the diagnostics have none."""
         diags = self.diagnostics
         if not diags or not all(hasattr(d, "disturbance_estimate") for d in diags):
             return None
@@ -138,12 +128,10 @@ class ClosedLoopResult:
         return arr
 
     def to_csv(self, path: str | os.PathLike[str]) -> None:
-        """Write the run as CSV (columns `CSV_COLUMNS`, units in the names, then the
-        controller's `STATUS_COLUMNS` as text), atomically.
+        """Write the run as CSV (`CSV_COLUMNS`, then `STATUS_COLUMNS` as text), atomically.
 
-        The file is written to a temporary name next to ``path`` and renamed
-        (`sysid.atomic`), so a reader never sees half a file. NaN (missing samples) is written as ``nan``;
-        numbers use Python's shortest round-trip form.
+        Written by `sysid.atomic` (a reader never sees half a file); NaN as ``nan``,
+        numbers in Python's shortest round-trip form.
 
         Parameters
         ----------
@@ -163,8 +151,7 @@ class ClosedLoopResult:
         header = ",".join(name for name, _ in columns)
         rows = (",".join(v if isinstance(v, str) else repr(v) for v in row)
                 for row in zip(*(vals for _, vals in columns), strict=True))
-        text = header + "\n" + "\n".join(rows) + "\n"
-        atomic_write_text(path, text)
+        atomic_write_text(path, header + "\n" + "\n".join(rows) + "\n")
 
 
 def _check_sampling_times(plant: Plant, controller: Controller, scenario: Scenario) -> None:
@@ -226,8 +213,7 @@ def run_closed_loop(
 ) -> ClosedLoopResult:
     """Run ``controller`` on ``plant`` through ``scenario`` and record every sample.
 
-    Both are reset first (``controller.reset()``, ``plant.reset(noise_rng)``), so an
-    instance can be reused and two runs with the same int seed are identical.
+    Both are reset first, so two runs with the same int seed are identical.
 
     Parameters
     ----------

@@ -33,8 +33,7 @@ from sysid._typing import FloatArray
 STEADY_STATE_FRACTION = 0.25
 #: Settling band, as a fraction of the step size.
 SETTLING_BAND = 0.02
-#: Slack on input and rate limits [%]: QP solutions meet bounds to about 1e-5 of the
-#: input scale, so smaller excursions are solver tolerance, not violations.
+#: Slack on input and rate limits [%]: QP solutions meet bounds to about 1e-5 of the scale.
 LIMIT_ATOL_PCT = 1e-6
 
 
@@ -260,14 +259,12 @@ def compute_metrics(
     result :
         The run; its scenario gives the setpoint changes.
     triac_limits_pct :
-        ``(min, max)`` input [%] to check; None: the scenario's ``triac_limits_pct``
-        (0..100 % unless the scenario says otherwise).
+        ``(min, max)`` input [%] to check; None: the scenario's ``triac_limits_pct``.
     max_move_pct_per_step :
         Rate limit to check [%]; None: the scenario's (which may be None: no check).
     power_signal :
-        ``"true"`` (default): errors of the plant's noise-free power, so sensor noise,
-        spikes and missing samples do not count as control error; ``"measured"``: of the
-        power as delivered to the controller (NaN samples skipped).
+        ``"true"``: errors of the plant's noise-free power (sensor noise and faults are
+        no control error); ``"measured"``: of the power the controller got (NaN skipped).
 
     Raises
     ------
@@ -281,11 +278,8 @@ def compute_metrics(
     move = scenario.max_move_pct_per_step if max_move_pct_per_step is None else max_move_pct_per_step
     if move is not None and not move > 0:
         raise ScenarioError(f"compute_metrics: expected max_move_pct_per_step > 0; got {move!r}")
-    if power_signal == "true":
-        power = result.power_true_kw
-    elif power_signal == "measured":
-        power = result.power_measured_kw
-    else:
+    power = {"true": result.power_true_kw, "measured": result.power_measured_kw}.get(power_signal)
+    if power is None:
         raise ScenarioError(
             f"compute_metrics: expected power_signal 'true' or 'measured'; got {power_signal!r}")
     ts_s = result.ts_s

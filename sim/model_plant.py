@@ -8,28 +8,22 @@ Deviation variables about the model's operating point ``(s_nom, P_nom)``:
 
     A(q) y_k = B(q) w_k + C(q) e_k,        e_k ~ N(0, noise_std_kw^2) white
 
-The plant splits ``y = y_det + v`` exactly (linearity): ``A y_det = B w`` is the
-noise-free heater response and ``A v = C e`` the noise. ``y_det`` gives the true power,
-``y_det + v`` the measured power; their sum satisfies the model's equation exactly, so
-the model's one-step predictor run on the plant's data returns the injected ``e``.
+The plant splits ``y = y_det + v`` exactly: ``A y_det = B w`` gives the true power,
+``A v = C e`` the noise, and their sum satisfies the model's equation, so the model's
+one-step predictor on the plant's data returns the injected ``e``. ``step(s_k)``
+applies ``s_k`` over ``[t_k, t_{k+1})`` and returns the power measured at ``t_{k+1}``
+(causal: the input delay ``nk >= 1``).
 
-One sample: ``step(s_k)`` applies ``s_k`` over ``[t_k, t_{k+1})`` and returns the
-measured power at ``t_{k+1}``. The model's input delay ``nk >= 1`` makes this causal.
+Approximations:
 
-Approximations (document, do not hide):
-
-* **Negative power.** The quadratic ``f`` extrapolates badly (it predicts negative
-  power near ``s = 0``), so the true power is clamped at 0 kW. The clamp acts on the
-  output only; the model's internal state is left as the equation gives it.
-* **Grid voltage.** Heater power is ``V^2 / R``; the plant multiplies the *absolute*
-  noise-free power by ``grid_voltage_factor^2`` at that sample. It ignores that a
-  different power changes the element's temperature and so its resistance, i.e. the
-  voltage does not enter the model's dynamics (the slow "sag" after a power change is
-  not replayed for voltage changes).
-* **Power offset.** ``power_offset_kw`` is added to the true power after the voltage
-  scaling (a level shift such as the paper's +0.15 kW grid event, sec. 5.2).
-* **Actuator.** The TRIAC cannot leave ``triac_limits_pct`` (default 0..100 %): inputs
-  outside are saturated there, as the physical actuator would.
+* **Negative power.** ``f`` predicts negative power near ``s = 0``: the true power is
+  clamped at 0 kW (the output only, not the model's state).
+* **Grid voltage.** The absolute noise-free power is multiplied by
+  ``grid_voltage_factor^2`` at that sample; the voltage does not enter the dynamics
+  (no sag after a voltage change).
+* **Power offset.** ``power_offset_kw`` is added after the voltage scaling (a level
+  shift such as the paper's +0.15 kW grid event, sec. 5.2).
+* **Actuator.** Inputs are saturated to ``triac_limits_pct`` (default 0..100 %).
 """
 
 from __future__ import annotations
@@ -44,8 +38,7 @@ from sim.protocols import NOMINAL, Exogenous
 from sim.scenario import Scenario
 from sysid.model import HammersteinModel
 
-#: Standard normals drawn per refill of the noise buffer (fixed, so runs are
-#: reproducible bit for bit; large enough that refills cost nothing per step).
+#: Standard normals per refill of the noise buffer (fixed: runs reproduce bit for bit).
 NOISE_BLOCK_STEPS = 4096
 
 
@@ -116,12 +109,6 @@ class ModelPlant:
         A model without input delay, an initial input outside ``triac_limits_pct``, or
         inverted limits.
 
-    Notes
-    -----
-    Implements ``A(q) dP = B(q) f(ds) + C(q) e`` (docs/reference/model_file.rst;
-    paper eq. 30, or eq. 27 with ``C = A``) per sample in plain floats; see the module docstring for the
-    exogenous inputs and the clamp at 0 kW.
-
     Examples
     --------
     >>> from sysid.model import HammersteinModel, OperatingPoint
@@ -178,15 +165,13 @@ class ModelPlant:
     def for_scenario(cls, model: HammersteinModel, scenario: Scenario) -> ModelPlant:
         """Build the plant a scenario recommends: its noise setting and initial state.
 
-        The plant starts at ``scenario.initial_triac_pct``, or, if that is None, at the
-        input whose steady-state power is ``scenario.initial_setpoint_kw``.
-
         Parameters
         ----------
         model :
             The model to run as the plant.
         scenario :
-            Supplies ``plant_noise`` and the initial state; its ``ts_s`` must match.
+            Supplies ``plant_noise`` and ``initial_triac_pct`` (None: the input whose
+            steady-state power is ``initial_setpoint_kw``); its ``ts_s`` must match.
 
         Raises
         ------
@@ -207,9 +192,8 @@ class ModelPlant:
         Parameters
         ----------
         model :
-            The new equation: same sampling time, operating point, delay and polynomial
-            lengths as the current one (so the histories carry over), e.g. from
-            `sim.perturbed.perturb_model` with a gain or time-constant factor.
+            Same sampling time, operating point, delay and polynomial lengths (the
+            histories carry over), e.g. from `sim.perturbed.perturb_model`.
 
         Raises
         ------
@@ -229,7 +213,6 @@ class ModelPlant:
                 f"B {len(old.b)}, C {len(old.c)}, delay {old.delay_steps}")
         self._use(model)
 
-    # --- internals ----------------------------------------------------------------------
     def _use(self, model: HammersteinModel) -> None:
         self.model = model
         self._neg_a = tuple(-float(v) for v in model.a[1:])      # -a_1 .. -a_na
@@ -264,7 +247,6 @@ class ModelPlant:
         self._true_kw = true_kw
         return true_kw + v
 
-    # --- the Plant protocol ---------------------------------------------------------------
     def reset(self, rng: np.random.Generator | int | None = None) -> float:
         """Start a new run in steady state at ``initial_triac_pct``.
 

@@ -1,33 +1,26 @@
 """Perturbed plants: a model with its gain, slow time constant or delay moved, for robustness runs.
 
 `perturb_model` returns a new `HammersteinModel` to run as a `ModelPlant`, so the
-controller (built from the unperturbed model) meets a plant that differs from its model
-in one controlled way:
+controller (built from the unperturbed model) meets a plant that differs in one
+controlled way:
 
-* **gain** ``g``: ``f(ds) -> g f(ds)`` (the input polynomial is scaled). Both the
-  instantaneous gain ``f'(ds)`` (paper Table 3) and the static gain
-  ``B(1)/A(1) f'(ds)`` change by ``g``; the dynamics do not.
+* **gain** ``g``: ``f(ds) -> g f(ds)``: the instantaneous gain ``f'(ds)`` (paper
+  Table 3) and the static gain ``B(1)/A(1) f'(ds)`` change by ``g``, the dynamics not.
 * **slow time constant** ``m``: the slow pole ``p`` of ``A(q)`` (its real root in
-  ``(0, 1)`` of largest modulus) has the time constant ``tau = -Ts / ln p`` [s]
-  (for first order ``A = 1 + a1 q^-1``: ``p = -a1``, ``tau = -Ts / ln(-a1)``). It is moved
-  to ``p' = exp(-Ts / (m tau))``, i.e. ``a1' = -exp(-Ts / (m tau))``;
-  ``A'(q) = A(q) (1 - p' q^-1) / (1 - p q^-1)`` keeps every other root of ``A``.
-  Held exactly (up to rounding):
+  ``(0, 1)`` of largest modulus, ``tau = -Ts / ln p`` [s]; ``p = -a1`` in first order)
+  moves to ``p' = exp(-Ts / (m tau))``; ``A'(q) = A(q) (1 - p' q^-1) / (1 - p q^-1)``
+  keeps every other root. Held exactly (up to rounding):
 
-  - the delay and ``B``'s first non-zero coefficient ``b_1 = 1``, so the instantaneous
-    response to an input step (``f(ds)`` one delay later) is unchanged;
-  - the static gain ``B(1)/A(1)``, so the steady-state map ``s -> P`` is unchanged;
-    to do so ``B``'s tail ``[b_2, ..., b_nb]`` is multiplied by one common factor
-    ``lambda = (B(1)/A(1) * A'(1) - 1) / (b_2 + ... + b_nb)`` (for ``nb = 2``, the
-    paper's structure, ``b_2' = B(1)/A(1) * (1 + a1') - 1`` is the only choice);
-  - ``C(q)`` and ``noise_std_kw`` of an ARX or ARMAX model (the noise model's own
-    zeros); an OE model keeps ``C = A'`` (docs/reference/model_file.rst: OE is stored with
-    ``C = A``).
+  - the delay and ``b_1 = 1`` (``B``'s first non-zero coefficient), so the
+    instantaneous response to an input step is unchanged;
+  - the static gain ``B(1)/A(1)``: ``B``'s tail ``[b_2, ..., b_nb]`` is multiplied by
+    ``lambda = (B(1)/A(1) * A'(1) - 1) / (b_2 + ... + b_nb)`` (for the paper's
+    ``nb = 2``: ``b_2' = B(1)/A(1) * (1 + a1') - 1``);
+  - ``C(q)`` and ``noise_std_kw`` of an ARX or ARMAX model; an OE model keeps
+    ``C = A'`` (OE is stored with ``C = A``, docs/reference/model_file.rst).
 
-  What moves: the speed of the sag after a step (paper Fig. 9), i.e. how long the
-  power takes from its instantaneous jump to its steady state.
-* **extra delay** ``n``: ``n`` zeros are prepended to ``B`` (``q^-n B(q)``), so the input
-  acts ``n`` samples later; gains and dynamics are unchanged.
+  What moves: the speed of the sag after a step (paper Fig. 9).
+* **extra delay** ``n``: ``B -> q^-n B(q)``; gains and dynamics are unchanged.
 
 The three perturbations commute; the result records them in
 ``provenance.extra["perturbation"]``.
@@ -77,8 +70,7 @@ def slow_pole(a: FloatArray, *, ts_s: float) -> tuple[float, float]:
     Raises
     ------
     PlantError
-        ``A`` has no root, or its root of largest modulus is not real and in ``(0, 1)``
-        (no single slow exponential mode whose time constant could be scaled).
+        ``A`` has no root, or its root of largest modulus is not real in ``(0, 1)``.
     """
     roots = roots_z(np.asarray(a, dtype=float))
     if roots.size == 0:
@@ -123,7 +115,7 @@ def scale_slow_time_constant(
         return a.copy(), b.copy()
     pole, tau_s = slow_pole(a, ts_s=ts_s)
     new_pole = math.exp(-ts_s / (factor * tau_s))
-    # A(q) <-> z^n + a1 z^(n-1) + ... : deflate by (z - p), multiply by (z - p')
+    # As z^n + a1 z^(n-1) + ...: deflate by (z - p), multiply by (z - p').
     quotient, _ = np.polydiv(a, np.array([1.0, -pole]))
     a_new = np.polymul(quotient, np.array([1.0, -new_pole]))
     a_new[0] = 1.0
@@ -148,16 +140,14 @@ def perturb_model(
     time_constant_factor: float = 1.0,
     extra_delay_steps: int = 0,
 ) -> HammersteinModel:
-    """Return ``model`` with its gain, slow time constant and delay perturbed.
+    """Return ``model`` with its gain, slow time constant and delay perturbed (module notes).
 
-    See the module docstring for exactly what each perturbation changes and holds.
-    With all arguments at their defaults the result equals ``model`` coefficient for
-    coefficient.
+    At the defaults the result equals ``model`` coefficient for coefficient.
 
     Parameters
     ----------
     model :
-        The model to perturb (for example the one the controller is built from).
+        The model to perturb.
     gain_factor :
         ``g`` > 0: multiplies the input polynomial ``f`` (so every gain) [-].
     time_constant_factor :

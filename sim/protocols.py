@@ -1,9 +1,6 @@
 """Controller and Plant protocols, and the exogenous inputs a plant receives each sample.
 
-The closed loop talks to any controller and any plant only through these. The order
-of one sample lives in `sim.loop` alone: the plant's measured power and the setpoint
-go to ``controller.step``, whose TRIAC input goes to ``plant.step`` together with that
-sample's `Exogenous` disturbances.
+The closed loop (`sim.loop`) talks to any controller and plant only through these.
 """
 
 from __future__ import annotations
@@ -23,8 +20,7 @@ class Exogenous:
     grid_voltage_factor :
         Grid voltage relative to nominal [-]; heater power scales with its square.
     power_offset_kw :
-        Additive shift of the true heater power [kW] (for example the paper's
-        +0.15 kW grid event).
+        Additive shift of the true heater power [kW].
     """
 
     grid_voltage_factor: float = 1.0

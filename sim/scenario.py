@@ -155,9 +155,8 @@ def _first_sample_at(time_s: float, ts_s: float) -> int:
 
 
 # --- the scenario ----------------------------------------------------------------------
-#: Memory a closed-loop run holds per sample [byte], measured (`tests/sim/test_scenario.py`
-#: checks the estimate stays an upper bound on a short run): trajectory arrays, the
-#: controller's diagnostics record and per-step result.
+#: Memory a closed-loop run holds per sample [byte] (arrays, diagnostics, step result),
+#: measured; `tests/sim/test_scenario.py` checks it stays an upper bound.
 BYTES_PER_STEP = 4_000
 #: Most samples in one run: ``MAX_N_STEPS * BYTES_PER_STEP`` = 4 GB, a share of a small machine.
 MAX_N_STEPS = 1_000_000
@@ -283,14 +282,12 @@ class Scenario:
             )
         self._check_setpoints()
         for event in (*self.disturbances, *self.faults):
-            for key in ("at_s", "start_s", "end_s", "duration_s"):
+            for key, bounded in (("at_s", _bounded_time), ("start_s", _bounded_time),
+                                 ("end_s", _bounded_time), ("duration_s", _bounded_time),
+                                 ("offset_kw", _bounded_power), ("spike_kw", _bounded_power)):
                 value = getattr(event, key, None)
                 if isinstance(value, float):
-                    _bounded_time(value, f"Scenario: {type(event).__name__}.{key}")
-            for key in ("offset_kw", "spike_kw"):
-                value = getattr(event, key, None)
-                if isinstance(value, float):
-                    _bounded_power(value, f"Scenario: {type(event).__name__}.{key}")
+                    bounded(value, f"Scenario: {type(event).__name__}.{key}")
             start = event.start_s if isinstance(event, (VoltageRamp, RandomSpikes)) else event.at_s
             if start >= duration_s:
                 raise ScenarioError(
@@ -370,9 +367,8 @@ class Scenario:
     def shortened(self, factor: float) -> Scenario:
         """Return the scenario with every time (duration, events) multiplied by ``factor``.
 
-        For fast tests: ``factor = 0.1`` turns a 2 h run into 12 min. The duration is
-        rounded up to whole samples; the sampling time is unchanged, so the plant's
-        dynamics do not scale and responses may not settle.
+        For fast tests (0.1: 2 h -> 12 min). The duration is rounded up to whole samples;
+        ``ts_s`` and so the plant's dynamics do not scale: responses may not settle.
 
         Parameters
         ----------
@@ -454,9 +450,8 @@ def _typed(value: Any, kind: str, key: str, src: str) -> Any:
     if not ok:
         raise ScenarioError(f"{src}: key '{key}': expected a {kind}; got {value!r}")
     if kind == _NUM:
-        if isinstance(value, int) and not -_MAX_INT_FLOAT <= value <= _MAX_INT_FLOAT:
-            raise ScenarioError(f"{src}: key '{key}': expected a finite number; got {value!r}")
-        if not math.isfinite(value):
+        if (isinstance(value, int) and not -_MAX_INT_FLOAT <= value <= _MAX_INT_FLOAT
+                or not math.isfinite(value)):
             raise ScenarioError(f"{src}: key '{key}': expected a finite number; got {value!r}")
         return float(value)
     return value
