@@ -31,7 +31,7 @@ from sysid.hammerstein.model import (
     _poly_eval,
     hammerstein_model,
 )
-from sysid.linear import arx_least_squares, arx_oe_start, oe_pem, segment_bounds, sriv_oe
+from sysid.linear import ArxFit, PemFit, arx_least_squares, arx_oe_start, oe_pem, segment_bounds, sriv_oe
 from sysid.model import OperatingPoint
 from sysid.optimize import MAX_ITERATIONS, parameter_std_errors
 from sysid.result import IdentificationResult
@@ -112,23 +112,18 @@ def initial_input_poly(
 
     Notes
     -----
-    Reading of eqs. 15-21. Eq. 20 at the sample ``k`` where a step of the input from
-    ``ds_before`` to ``ds_after`` first shows in the output (``k = k_step + nk``) reads,
-    with every earlier output at ``dP_before`` (the output just before the jump) and
-    the input at ``ds_after`` for lag ``nk`` and ``ds_before`` for longer lags::
+    Eq. 20 at the sample ``k = k_step + nk`` where a step from ``ds_before`` to
+    ``ds_after`` first shows, with every earlier output at ``dP_before`` and the input at
+    ``ds_after`` for lag ``nk`` and ``ds_before`` for longer lags, gives one row per step
+    of Table 3 (``row_form = "eq21"``)::
 
         dP_after + (a_1 + .. + a_na) dP_before
             = sum_i d_i (b_nk ds_after^i + (b_{nk+1} + .. ) ds_before^i)       (eq. 21)
 
-    one row per step of Table 3 (for the paper's ``na = 1, nb = 2, nk = 1`` exactly the
-    row ``dP_k + f_1 dP_{k-1} = [b_1 ds_{k-1}^2 + b_2 ds_{k-2}^2, b_1 ds_{k-1} + b_2
-    ds_{k-2}] [d_2, d_1]'``). This is ``row_form = "eq21"``. If the output was at rest
-    before the step under the ARX model, ``A(1) dP_before = (B(1) - ..)``, subtracting
-    the rest equation leaves the instantaneous jump of eq. 18:
-    ``dP_after - dP_before = b_nk (f(ds_after) - f(ds_before))``, which is
-    ``row_form = "jump"`` (it ignores how far from rest the output was). The two agree
-    when the steps start from rest. Solved by ordinary least squares (``n``
-    unknowns, one row per step; the paper: four rows, two unknowns).
+    Subtracting the rest equation of the ARX model leaves the jump of eq. 18,
+    ``dP_after - dP_before = b_nk (f(ds_after) - f(ds_before))`` (``row_form = "jump"``,
+    blind to how far from rest the output was); the two agree when the steps start from
+    rest. Solved by ordinary least squares (the paper: four rows, two unknowns).
     """
     where = "initial_input_poly"
     degree = _check_int("degree", degree, 1, where)
@@ -185,22 +180,10 @@ def initial_input_poly(
         if len(steps) > degree
         else np.full(degree, np.inf)
     )
-    fit = HammersteinFit(
-        linear_block="arx",
-        a=a,
-        b=b / b_first,
-        c=np.array([1.0]),
-        input_poly=d * b_first,
-        parameter_names=tuple(f"d{i}" for i in powers),
-        parameters=d * b_first,
-        std_errors=np.asarray(std) * abs(b_first),
-        residuals=residuals,
-        criterion="least_squares",
-        cost=float(np.mean(residuals**2)),
-        n_iterations=0,
-        converged=True,
-        message="least squares on the step rows of eq. 21",
-        method=f"hammerstein-eq21-{row_form}",
+    fit = _normalized_fit(
+        "arx", a, b / b_first, d * b_first, tuple(f"d{i}" for i in powers), d * b_first,
+        np.asarray(std) * abs(b_first), residuals,
+        message="least squares on the step rows of eq. 21", method=f"hammerstein-eq21-{row_form}",
     )
     return InputPolyInit(
         input_poly=_readonly(d),
@@ -210,6 +193,43 @@ def initial_input_poly(
         residuals=_readonly(residuals),
         row_form=row_form,
         fit=fit,
+    )
+
+
+def _normalized_fit(
+    linear_block: Literal["arx", "oe"],
+    a: FloatArray,
+    b: FloatArray,
+    input_poly: FloatArray,
+    names: tuple[str, ...],
+    theta: FloatArray,
+    std: FloatArray,
+    residuals: FloatArray,
+    *,
+    c: FloatArray | None = None,
+    criterion: Literal["ballistic", "least_squares"] = "least_squares",
+    n_iterations: int = 0,
+    converged: bool = True,
+    message: str,
+    method: str,
+) -> HammersteinFit:
+    """A step's `HammersteinFit` (``C = [1]`` by default); ``cost`` is the mean square of `residuals`."""
+    return HammersteinFit(
+        linear_block=linear_block,
+        a=a,
+        b=b,
+        c=np.array([1.0]) if c is None else c,
+        input_poly=input_poly,
+        parameter_names=names,
+        parameters=theta,
+        std_errors=std,
+        residuals=residuals,
+        criterion=criterion,
+        cost=float(np.mean(np.asarray(residuals) ** 2)),
+        n_iterations=n_iterations,
+        converged=converged,
+        message=message,
+        method=method,
     )
 
 
@@ -230,10 +250,8 @@ def reidentify_linear_block(
 
     Parameters
     ----------
-    y :
-        Output deviation ``dP`` [kW], shape ``(N,)``.
-    ds :
-        Input deviation [%], shape ``(N,)``.
+    y, ds :
+        Output deviation ``dP`` [kW] and input deviation [%], shape ``(N,)``.
     input_poly :
         ``[d_1, ..., d_n]`` of the fixed ``f`` (for example `InputPolyInit.input_poly`).
     method :
@@ -272,52 +290,31 @@ def reidentify_linear_block(
         raise IdentificationError(f"{where}: method must be 'arx' or 'oe'; got {method!r}")
     w = _poly_eval(poly, ds_arr)
     starts = None if segment_starts is None else tuple(int(v) for v in segment_starts)
+    est: ArxFit | PemFit
     if method == "arx":
-        arx = arx_least_squares(y_arr, w, na=nf, nb=nb, nk=nk, segment_starts=starts)
-        a, b, c = arx.a, arx.b, np.array([1.0])
-        names = arx.parameter_names
-        theta, std, residuals = arx.theta, arx.std_errors, arx.residuals
-        n_it, converged, message = 0, True, "least squares: exact solution"
-        criterion: Literal["ballistic", "least_squares"] = "least_squares"
+        est = arx_least_squares(y_arr, w, na=nf, nb=nb, nk=nk, segment_starts=starts)
+        c, n_it, converged, message = np.array([1.0]), 0, True, "least squares: exact solution"
     else:
-        pem = oe_pem(y_arr, w, nb=nb, nf=nf, nk=nk, max_iterations=max_iterations,
+        est = oe_pem(y_arr, w, nb=nb, nf=nf, nk=nk, max_iterations=max_iterations,
                      segment_starts=starts)
-        a, b, c = pem.a, pem.b, pem.c
-        names = pem.parameter_names
-        theta, std, residuals = pem.theta, pem.std_errors, pem.residuals
-        n_it, converged, message = pem.n_iterations, pem.converged, pem.message
-        criterion = "ballistic"
-    b_first = float(b[np.flatnonzero(b)[0]]) if np.any(b) else 0.0
+        c, n_it, converged, message = est.c, est.n_iterations, est.converged, est.message
+    b_first = float(est.b[np.flatnonzero(est.b)[0]]) if np.any(est.b) else 0.0
     if b_first == 0.0:
         raise IdentificationError(f"{where}: the estimated B(q) is zero; f(ds) has no effect")
-    return HammersteinFit(
-        linear_block=method,
-        a=a,
-        b=b / b_first,
-        c=c,
-        input_poly=poly * b_first,
-        parameter_names=names,
-        parameters=theta,
-        std_errors=std,
-        residuals=residuals,
-        criterion=criterion,
-        cost=float(np.mean(np.asarray(residuals) ** 2)),
-        n_iterations=n_it,
-        converged=converged,
-        message=message,
-        method=f"hammerstein-reidentified-{method}",
+    return _normalized_fit(
+        method, est.a, est.b / b_first, poly * b_first, est.parameter_names, est.theta,
+        est.std_errors, est.residuals, c=c,
+        criterion="least_squares" if method == "arx" else "ballistic", n_iterations=n_it,
+        converged=converged, message=message, method=f"hammerstein-reidentified-{method}",
     )
 
 
-
 # =========================================================================== multistart
-#: Fixed-pole starts of the final OE fit when the caller asks for them (``czmpc identify
-#: --orders auto``): this many time constants, spaced geometrically from one sample to a
-#: tenth of the record (a ratio of about 2 between neighbours on a 1000-sample log).
+#: Fixed-pole starts of the final OE fit on request (``czmpc identify --orders auto``): time
+#: constants geometric from 1 sample to a tenth of the record (ratio ~2 on 1000 samples).
 N_POLE_STARTS = 8
-#: A multistart fit replaces the fit from the route's own start only if its V is lower by
-#: more than this share: equal minima reached from two starts differ by the searches'
-#: tolerances (ftol 1e-12), and the route's own fit (its iterations) is then kept.
+#: A multistart fit replaces the route's own only if its V is lower by more than this share:
+#: equal minima from two starts differ by the searches' tolerances (ftol 1e-12).
 MULTISTART_V_RTOL = 1e-6
 
 
@@ -327,8 +324,7 @@ def pole_start_time_constants(n_samples: int, n_starts: int = N_POLE_STARTS) -> 
     Parameters
     ----------
     n_samples :
-        Samples in the record; a time constant longer than a tenth of it is not started
-        from (the record shows too little of its settling).
+        Samples in the record (it shows too little of a longer time constant's settling).
     n_starts :
         Number of time constants (>= 1; 1 gives one sample).
 
@@ -361,13 +357,11 @@ def fixed_pole_starts(
 ) -> tuple[dict[str, float], ...]:
     """Starts of a Hammerstein-OE fit with ``F`` fixed at repeated poles and ``B`` by least squares.
 
-    The OE search is not convex, and its usual start, the ARX least squares, is biased
-    when the noise is not white (on the cascaded tanks the ARX puts a pole on ``z = 1``
-    and two at 0.36; the OE search from there ends at 1.08 against 0.48 from a
+    The OE search is not convex and its usual start, the ARX, is biased under coloured
+    noise (cascaded tanks: the OE search ends at 1.08 from the ARX, at 0.48 from a
     fixed-pole start). For each time constant ``tau``, ``F = (1 - z q^-1)^nf`` with
-    ``z = exp(-1 / tau)``; with ``F`` fixed, ``y = B/F ds`` is linear in ``B``, so ``B``
-    is the least-squares fit of ``y`` on the lagged ``ds / F`` (zero initial state).
-    ``f(ds) = b_nk ds`` (degree 1; higher ``d_i`` start at zero).
+    ``z = exp(-1 / tau)``, and ``B`` is the least-squares fit of ``y`` on the lagged
+    ``ds / F`` (zero initial state); ``f(ds) = b_nk ds`` (higher ``d_i`` start at zero).
 
     Parameters
     ----------
@@ -429,9 +423,9 @@ def sriv_start(
 ) -> dict[str, float] | None:
     """Start of a Hammerstein-OE fit from the SRIV estimate of its linear block.
 
-    With ``f`` fixed at `input_poly`, ``y = B/F w`` with ``w = f(ds)`` is a linear OE
-    problem; `sysid.linear.sriv_oe` from the ARX estimate solves it without the ARX's
-    noise bias (a multi-segment record is treated as one here: this is a start only).
+    With ``f`` fixed at `input_poly`, ``y = B/F f(ds)`` is a linear OE problem that
+    `sysid.linear.sriv_oe` solves without the ARX's noise bias (several segments are
+    treated as one: this is a start only).
 
     Returns
     -------
@@ -468,14 +462,11 @@ def _multistart(
 ) -> HammersteinFit:
     """The best of `final` and the OE fits from `sriv_start` and `fixed_pole_starts`.
 
-    A start's fit replaces `final` only if its V is lower by more than `MULTISTART_V_RTOL`.
-
-    The losing searches' non-convergence warnings are dropped (they are not kept); the
-    winner's is issued again.
+    A start's fit replaces `final` only if its V is lower by more than `MULTISTART_V_RTOL`;
+    only the winner's non-convergence warnings are issued.
     """
     best = final
     kept: list[warnings.WarningMessage] = []
-    # the longest segment bounds the time constants its settling can show
     longest = max(hi - lo for lo, hi in segment_bounds(
         y.size, None if segment_starts is None else tuple(segment_starts), "_multistart"))
     iv = sriv_start(y, ds, final.input_poly, nb=nb, nf=nf, nk=nk)
@@ -621,22 +612,10 @@ def run_hammerstein_route(
     seg = None if segment_starts is None else tuple(int(v) for v in segment_starts)
     arx_fit = arx_least_squares(y_arr, ds_arr, na=nf, nb=nb, nk=nk, segment_starts=seg)
     b_first = float(arx_fit.b[nk])
-    arx = HammersteinFit(
-        linear_block="arx",
-        a=arx_fit.a,
-        b=arx_fit.b / b_first,
-        c=np.array([1.0]),
-        input_poly=np.array([b_first]),
-        parameter_names=arx_fit.parameter_names,
-        parameters=arx_fit.theta,
-        std_errors=arx_fit.std_errors,
-        residuals=arx_fit.residuals,
-        criterion="least_squares",
-        cost=float(np.mean(arx_fit.residuals**2)),
-        n_iterations=0,
-        converged=True,
-        message="least squares: exact solution",
-        method="arx-least-squares",
+    arx = _normalized_fit(
+        "arx", arx_fit.a, arx_fit.b / b_first, np.array([b_first]), arx_fit.parameter_names,
+        arx_fit.theta, arx_fit.std_errors, arx_fit.residuals,
+        message="least squares: exact solution", method="arx-least-squares",
     )
     steps = tuple(steps)
     init: InputPolyInit | None = None
@@ -656,22 +635,22 @@ def run_hammerstein_route(
         y_arr, ds_arr, poly, method="oe", nb=nb, nf=nf, nk=nk, max_iterations=max_iterations,
         segment_starts=seg,
     )
+
     def report(step: str) -> Callable[[int, float], None] | None:
         if progress is None:
             return None
         return lambda iteration, cost: progress(step, iteration, cost)
 
-    final = fit_hammerstein_oe(
-        y_arr, ds_arr, initial=oe_re, degree=degree, nb=nb, nf=nf, nk=nk,
-        max_iterations=max_iterations, initial_state=initial_state, segment_starts=seg,
-        progress=report("joint PEM of the OE block (V)"),
-    )
-    if extra_start is not None:
-        other = fit_hammerstein_oe(
-            y_arr, ds_arr, initial=extra_start, degree=degree, nb=nb, nf=nf, nk=nk,
+    def joint_oe(initial: HammersteinFit | Mapping[str, float] | None, step: str) -> HammersteinFit:
+        return fit_hammerstein_oe(
+            y_arr, ds_arr, initial=initial, degree=degree, nb=nb, nf=nf, nk=nk,
             max_iterations=max_iterations, initial_state=initial_state, segment_starts=seg,
-            progress=report("joint PEM of the OE block from the structure search (V)"),
+            progress=report(step),
         )
+
+    final = joint_oe(oe_re, "joint PEM of the OE block (V)")
+    if extra_start is not None:
+        other = joint_oe(extra_start, "joint PEM of the OE block from the structure search (V)")
         if other.cost < final.cost:
             final = other
     if pole_starts:
@@ -681,13 +660,7 @@ def run_hammerstein_route(
             max_iterations=max_iterations, initial_state=initial_state, segment_starts=seg,
             progress=report("joint PEM of the OE block from fixed poles (V)"),
         )
-    zeros = None
-    if from_zeros:
-        zeros = fit_hammerstein_oe(
-            y_arr, ds_arr, initial=None, degree=degree, nb=nb, nf=nf, nk=nk,
-            max_iterations=max_iterations, initial_state=initial_state, segment_starts=seg,
-            progress=report("joint PEM of the OE block from zeros (V)"),
-        )
+    zeros = joint_oe(None, "joint PEM of the OE block from zeros (V)") if from_zeros else None
     noise = None
     if noise_model:
         noise = fit_hammerstein_armax(
