@@ -1,38 +1,32 @@
 """Logs as process historians export them, loaded under explicit, recorded policies.
 
 The strict reader (`sysid.data.read_csv`) refuses anything outside the data contract.
-Real exports break it in a few well-known ways; this module accepts each of them under
-a stated policy and records what it did in a frozen `LoadReport` (which also goes into
-the data set's ``preprocessing``, hence into every model file's provenance):
+This module accepts the usual breaks of real exports, each under a stated policy, and
+records what it did in a `LoadReport` (also in the data set's ``preprocessing``, hence
+in every model file's provenance):
 
-* **Time column**: seconds (numbers) or ISO-8601 timestamps, with or without a zone
+* **Time column**: seconds or ISO-8601 timestamps, with or without a zone
   (``2024-05-01T12:00:00``, ``2024-05-01 12:00:00.5+02:00``, ``...Z``). Zoned stamps are
   converted to UTC; naive ones are taken as written (a daylight-saving step backwards
-  is then refused as time going backwards). ``time_s`` counts seconds from the first
-  stamp, which is recorded (`LoadReport.time_origin`).
+  is refused as time going backwards). ``time_s`` counts seconds from the first
+  stamp (`LoadReport.time_origin`).
 * **Separators and decimal comma** (CSV): ``,``, ``;`` or tab, detected from the
-  header line unless given; decimal comma detected in the data (``;`` or tab files)
-  unless given.
+  header unless given; a decimal comma detected in ``;`` or tab files unless given.
 * **Missing data**: NaN, ``NA``, ``null`` or empty cells, rows without a time stamp,
-  and gaps in time (missing sampling instants) follow `LoadPolicy.gaps`:
-  ``"refuse"`` (default; the error names ``--gaps split`` and ``--gaps fill``),
-  ``"split"`` (the record is cut into segments of complete samples, each fitted
-  with its own initial state) or ``"fill"`` (runs of at most
-  `LoadPolicy.fill_max_samples` missing samples are interpolated linearly, per
-  signal; longer runs split).
-* **Jitter**: every interval ``dt`` is taken as ``m = round(dt / Ts)`` sampling
-  periods (``m > 1``: ``m - 1`` missing samples, a gap). If every interval is within
-  `LoadPolicy.sampling_rtol` (default 1 %) of ``m Ts`` the logged times are kept;
-  otherwise, if every interval is within `SNAP_MAX_JITTER` (25 % of Ts), every sample
-  is **snapped** onto the grid ``t0 + k Ts`` (its value kept, its time replaced); a
-  larger deviation is refused with an error naming ``--resample linear``, which
-  interpolates the signals linearly onto the grid ``t0 + k Ts`` (grid instants inside
-  an interval longer than `LINEAR_GAP_PERIODS` periods are missing samples).
-* **Parquet** files (pyarrow, a core dependency) and **pandas DataFrames**
-  (`read_frame`, ``pip install czmpc[pandas]``); `write_parquet` and `to_frame`
-  write a data set back.
-
-Every function here is pure: it reads its arguments and returns new values.
+  and gaps in time follow `LoadPolicy.gaps`: ``"refuse"`` (default; the error names
+  ``--gaps split`` and ``--gaps fill``), ``"split"`` (segments of complete samples,
+  each fitted with its own initial state) or ``"fill"`` (runs of at most
+  `LoadPolicy.fill_max_samples` missing samples interpolated linearly, per signal;
+  longer runs split).
+* **Jitter**: an interval ``dt`` is ``m = round(dt / Ts)`` periods (``m > 1``: a gap of
+  ``m - 1`` samples). If every interval is within `LoadPolicy.sampling_rtol` (1 %) of
+  ``m Ts`` the logged times are kept; else, if every one is within `SNAP_MAX_JITTER`
+  (25 % of Ts), every sample is **snapped** onto the grid ``t0 + k Ts`` (value kept);
+  a larger deviation is refused, naming ``--resample linear``, which interpolates the
+  signals onto that grid (instants inside an interval longer than
+  `LINEAR_GAP_PERIODS` periods are missing samples).
+* **Parquet** files and **pandas DataFrames** (`read_frame`, ``pip install
+  czmpc[pandas]``); `write_parquet` and `to_frame` write a data set back.
 """
 
 from __future__ import annotations
@@ -71,18 +65,17 @@ ResamplePolicy = Literal["snap", "linear"]
 GAP_POLICIES: tuple[str, ...] = ("refuse", "split", "fill")
 #: The resampling policies, default first.
 RESAMPLE_POLICIES: tuple[str, ...] = ("snap", "linear")
-#: Longest run of missing samples ``--gaps fill`` interpolates by default: 5 samples
-#: (10 s at the puller's Ts = 2 s) is short against the heater's time constants.
+#: Longest run of missing samples ``--gaps fill`` interpolates by default (10 s at the
+#: puller's Ts = 2 s: short against the heater's time constants).
 DEFAULT_FILL_MAX_SAMPLES = 5
-#: Largest deviation of an interval from a whole number of periods that is snapped
-#: onto the grid, as a fraction of Ts: past a quarter period a sample's slot is no
-#: longer clear, so it is interpolated (``--resample linear``) or refused.
+#: Largest deviation of an interval from a whole number of periods snapped onto the
+#: grid [fraction of Ts]: past a quarter period a sample's slot is no longer clear.
 SNAP_MAX_JITTER = 0.25
 #: With ``--resample linear``, a grid instant inside an interval longer than this many
 #: periods has no measurement near it: it is a missing sample (gap policy applies).
 LINEAR_GAP_PERIODS = 2.0
-#: Shortest segment kept by ``--gaps split``/``fill``: a shorter run of complete samples
-#: cannot carry its own initial state and a model's lags; it is dropped (and counted).
+#: Shortest segment kept by ``--gaps split``/``fill`` (a shorter one cannot carry its own
+#: initial state and a model's lags; it is dropped and counted).
 MIN_SEGMENT_SAMPLES = 10
 #: Cell texts read as a missing value (compared in lower case, stripped).
 MISSING_TOKENS = frozenset({"", "nan", "na", "n/a", "#n/a", "null", "none"})
@@ -178,8 +171,8 @@ class LoadReport:
     n_filled :
         Samples of the result in which at least one signal was interpolated.
     n_dropped :
-        Grid samples (rows or gap instants) left out of the result: incomplete
-        samples at a split, at the record's ends, or in segments that were too short.
+        Grid samples (rows or gap instants) left out: incomplete samples at a split or
+        at the record's ends, and segments too short.
     n_snapped :
         Samples whose time was moved onto the grid (0 when times are kept).
     max_jitter :
@@ -310,14 +303,14 @@ class _Raw:
 
 def _row_error(message: str, row: int, *, lines: Sequence[int] | npt.NDArray[np.int64] | None,
                path: str | None, column: str | None) -> DataFileError:
-    """An error at data row ``row`` (0-based): at its file line if ``lines`` are known,
-    else prefixed ``row N: `` (1-based)."""
+    """An error at data row ``row`` (0-based): at its file line, else prefixed ``row N: ``."""
     if lines is not None:
         return DataFileError(message, path=path, line=int(lines[row]), column=column)
     return DataFileError(f"row {row + 1}: {message}", path=path, column=column)
 
 
 def _fail(raw: _Raw, row: int, column: str | None, message: str) -> DataFileError:
+    """`_row_error` at row ``row`` of ``raw``, in the log's own name of ``column``."""
     return _row_error(message, row, lines=raw.lines, path=raw.path,
                       column=None if column is None else raw.names[column])
 
@@ -406,18 +399,16 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
     ts_s = float(np.median(np.diff(time))) if policy.ts_s is None else float(policy.ts_s)
     n_snapped = 0
     if policy.resample == "linear":
-        grid, gu, gy = _linear_grid(time, u, y, ts_s)
-        n_slots = grid.size
-        t_slot, u_slot, y_slot = grid, gu, gy
-        slot_row = np.searchsorted(time, grid, side="left").clip(0, time.size - 1)
-        line_rows = rows[slot_row]
+        t_slot, u_slot, y_slot = _linear_grid(time, u, y, ts_s)
+        n_slots = t_slot.size
+        line_rows = rows[np.searchsorted(time, t_slot, side="left").clip(0, time.size - 1)]
         absent = np.zeros(n_slots, dtype=bool)
-        max_jitter = float(np.max(np.abs(np.diff(time) / ts_s - np.rint(np.diff(time) / ts_s))))
+        periods = np.diff(time) / ts_s
+        max_jitter = float(np.max(np.abs(periods - np.rint(periods))))
     else:
         slots, max_jitter = _grid_slots(raw, time, ts_s, policy, rows)
         if policy.ts_s is None and max_jitter > policy.sampling_rtol:
-            # jittered stamps: the mean period over the record is a better Ts than the
-            # median interval (which a skewed jitter biases)
+            # jittered stamps: the mean period is a better Ts than the (biased) median
             ts_s = float(time[-1] - time[0]) / float(slots[-1])
             slots, max_jitter = _grid_slots(raw, time, ts_s, policy, rows)
         n_slots = int(slots[-1]) + 1
@@ -449,11 +440,10 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
         raise _fail(raw, int(line_rows[k]), column, what + "; " + _gap_hint(policy))
     filled = np.zeros(n_slots, dtype=bool)
     if policy.gaps == "fill":
-        t_fill, _ = _fill_runs(t_slot, n_slots)
+        t_slot = _fill_runs(t_slot, n_slots)[0]
         u_slot, fu = _fill_runs(u_slot, policy.fill_max_samples)
         y_slot, fy = _fill_runs(y_slot, policy.fill_max_samples)
         filled = fu | fy
-        t_slot = t_fill
     keep = ~(np.isnan(u_slot) | np.isnan(y_slot))
     if keep.all():   # nothing cut: the strict reader's minimum applies, not the segments'
         segments = [(0, n_slots)]
@@ -466,12 +456,11 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
             "--fill-max)", path=raw.path)
     index = np.concatenate([np.arange(a, b) for a, b in segments])
     starts = tuple(int(v) for v in np.cumsum([0] + [b - a for a, b in segments[:-1]]))
-    kept_filled = int(np.count_nonzero(filled[index]))
     report = LoadReport(
         source_format=raw.source_format, separator=raw.separator, decimal=raw.decimal,
         time_format=raw.time_format, time_origin=raw.time_origin, ts_s=ts_s,
-        columns=dict(raw.names), policy=policy, n_rows=n_rows,
-        n_missing_cells=raw.n_missing_cells, n_gap_samples=n_gap, n_filled=kept_filled,
+        columns=dict(raw.names), policy=policy, n_rows=n_rows, n_missing_cells=raw.n_missing_cells,
+        n_gap_samples=n_gap, n_filled=int(np.count_nonzero(filled[index])),
         n_dropped=n_slots - index.size, n_snapped=n_snapped, max_jitter=max_jitter,
         resampled=policy.resample == "linear", segment_starts=starts, n_samples=int(index.size))
     rtol = max(policy.sampling_rtol, DEFAULT_SAMPLING_RTOL)
@@ -484,7 +473,7 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
 
 
 def _file_bytes(path: str | os.PathLike[str]) -> tuple[Path, bytes, str]:
-    """The file's path, its bytes and their SHA-256 (hex), for the data set's provenance."""
+    """The file's path, its bytes and their SHA-256 (hex)."""
     p = Path(path)
     blob = p.read_bytes()
     return p, blob, hashlib.sha256(blob).hexdigest()
@@ -493,7 +482,6 @@ def _file_bytes(path: str | os.PathLike[str]) -> tuple[Path, bytes, str]:
 # --- time cells ------------------------------------------------------------------------
 
 def _no_time_stamp(path: str | None, column: str) -> DataFileError:
-    """The error for a time column whose every cell is missing."""
     return DataFileError("the time column holds no time stamp", path=path, column=column)
 
 
@@ -541,7 +529,7 @@ def _looks_numeric(text: str) -> bool:
 # --- CSV -------------------------------------------------------------------------------
 
 def detect_separator(header_line: str) -> str:
-    """The separator of a CSV header: the most frequent of ``,``, ``;`` and tab.
+    """The most frequent of ``,``, ``;`` and tab in a CSV header line.
 
     Raises
     ------
@@ -592,7 +580,7 @@ def read_log_csv(
         ``","``, ``";"`` or ``"\\t"``; default detected from the header.
     decimal :
         ``"."`` or ``","``; default ``","`` if the separator is not a comma and a value
-        cell looks like ``12,5``, else ``"."``.
+        cell looks like ``12,5``.
     input_unit, output_unit :
         Units of the input and output columns.
 
@@ -603,8 +591,8 @@ def read_log_csv(
     Raises
     ------
     DataFileError
-        A malformed file, or data the policy refuses; the message names the file, the
-        line, the column and the option that would accept the data, if one would.
+        A malformed file, or data the policy refuses; the message names the file, line,
+        column and the option that would accept the data, if any.
     OSError
         The file cannot be opened.
     """
@@ -753,7 +741,7 @@ def _arrow_values(column: Any, name: str, path: str | None) -> FloatArray:
 
 
 def _check_finite_values(values: FloatArray, name: str, path: str | None) -> None:
-    """Refuse an infinite value in a signal column (NaN is a missing value), naming its row."""
+    """Refuse an infinite value in a signal column (NaN is a missing value)."""
     bad = np.flatnonzero(np.isinf(values))
     if bad.size:
         raise _row_error(f"expected a finite number; got {values[bad[0]]}", int(bad[0]),
@@ -790,10 +778,12 @@ def read_log_parquet(
     return _regularize(raw, policy, input_unit=input_unit, output_unit=output_unit)
 
 
-def _segment_numbers(data: Dataset) -> npt.NDArray[np.int64]:
-    """The ``segment`` column: each sample's segment number (0-based)."""
-    return np.repeat(np.arange(data.n_segments, dtype=np.int64),
-                     [hi - lo for lo, hi in data.segment_bounds()])
+def _columns(data: Dataset) -> dict[str, Any]:
+    """The contract's columns of ``data`` and ``segment`` (each sample's, 0-based)."""
+    segment = np.repeat(np.arange(data.n_segments, dtype=np.int64),
+                        [hi - lo for lo, hi in data.segment_bounds()])
+    return {"time_s": np.array(data.time_s), "triac_pct": np.array(data.triac_pct),
+            "power_kw": np.array(data.power_kw), "segment": segment}
 
 
 def write_parquet(data: Dataset, path: str | os.PathLike[str]) -> None:
@@ -807,11 +797,8 @@ def write_parquet(data: Dataset, path: str | os.PathLike[str]) -> None:
 
     from sysid.atomic import atomic_write_bytes
 
-    segment = _segment_numbers(data)
-    table = pa.table({"time_s": data.time_s, "triac_pct": data.triac_pct,
-                      "power_kw": data.power_kw, "segment": segment})
     sink = pa.BufferOutputStream()
-    pq.write_table(table, sink)
+    pq.write_table(pa.table(_columns(data)), sink)
     atomic_write_bytes(path, sink.getvalue().to_pybytes())
 
 
@@ -907,10 +894,7 @@ def read_frame(
 
 def to_frame(data: Dataset) -> Any:
     """The data set as a pandas DataFrame (contract columns and ``segment``; needs pandas)."""
-    pd = _pandas()
-    segment = _segment_numbers(data)
-    return pd.DataFrame({"time_s": np.array(data.time_s), "triac_pct": np.array(data.triac_pct),
-                         "power_kw": np.array(data.power_kw), "segment": segment})
+    return _pandas().DataFrame(_columns(data))
 
 
 def load_log(
@@ -923,10 +907,8 @@ def load_log(
     input_unit: str = "%",
     output_unit: str = "kW",
 ) -> LoadedLog:
-    """Read a CSV or Parquet log (by the file's first bytes) under `policy`.
-
-    See `read_log_csv` and `read_log_parquet`.
-    """
+    """Read a CSV or Parquet log (told by the file's first bytes): see `read_log_csv` and
+    `read_log_parquet`."""
     p = Path(path)
     with p.open("rb") as fh:
         magic = fh.read(4)

@@ -1,10 +1,9 @@
 """Data preprocessing (paper sec. 5): operating point, deviation variables, outliers.
 
-Every function that changes data returns a *new* `Dataset` made by
-`Dataset.with_signals` with one more entry in ``Dataset.preprocessing`` (what, where,
-old and new values), so each repair travels into the model's provenance. Nothing is
-changed silently: outlier detection only *reports* candidates; the user decides and
-applies `interpolate_spike` or `correct_level_shift`, as the paper's authors did.
+Each repair returns a *new* `Dataset` (`Dataset.with_signals`) with one more
+``preprocessing`` entry (what, where, old and new values), carried into the model's
+provenance. Outlier detection only *reports* candidates; the user applies
+`interpolate_spike` or `correct_level_shift`, as the paper's authors did.
 
 Notation
 --------
@@ -13,8 +12,8 @@ Notation
 ``_kw`` carry the output unit of the data set (kW for the CZ heater).
 ``(s_nom, P_nom)`` : operating point (sec. 5.1); ``ds = s - s_nom``, ``dP = P - P_nom``.
 ``e`` : one-step-ahead residuals of a high-order ARX model (paper Fig. 3, eq. 5).
-``sigma`` : robust residual scale ``1.4826 * median(|e - median(e)|)`` (MAD; equals the
-standard deviation for Gaussian residuals but ignores the outliers being sought).
+``sigma`` : robust residual scale ``1.4826 * median(|e - median(e)|)`` (MAD: the
+standard deviation of Gaussian residuals, blind to the outliers sought).
 """
 
 from __future__ import annotations
@@ -45,9 +44,8 @@ MAD_TO_STD = 1.4826
 #: 2 s) yields about 0.007 false candidates.
 DEFAULT_OUTLIER_THRESHOLD = 5.0
 
-#: Default input-step threshold [robust scales of the input's first differences]
-#: when the input moves at most samples (a smooth input); for a staircase input
-#: that scale is 0 and every change is a step.
+#: Default input-step threshold [robust scales of the input's first differences]; for
+#: a staircase input that scale is 0 and every change is a step.
 INPUT_STEP_SIGMAS = 5.0
 
 #: Residual scale (MAD) at or below this fraction of the output's standard deviation
@@ -64,11 +62,8 @@ EVENT_GAP_SAMPLES = 2
 
 def _check_finite(where: str, name: str, value: float, *, positive: bool = False,
                   or_none: bool = False) -> None:
-    """Refuse ``value`` unless it is a finite number ``>= 0`` (``> 0`` if ``positive``).
-
-    ``or_none``: the parameter also takes None (the caller lets None pass); the message
-    says so.
-    """
+    """Refuse ``value`` unless finite and ``>= 0`` (``> 0`` if ``positive``); ``or_none``
+    adds "or None" to the message (the caller lets None pass)."""
     if math.isfinite(value) and (value > 0.0 if positive else value >= 0.0):
         return
     bound = ("> 0" if positive else ">= 0") + (" or None" if or_none else "")
@@ -152,10 +147,7 @@ class OperatingPointChoice:
 
 
 def _constant_input_runs(u: FloatArray, tol: float) -> list[tuple[int, int]]:
-    """Maximal runs ``[a, b)`` in which every input lies within ``tol`` of ``u[a]``.
-
-    On Python floats (a third of the time of indexing the array sample by sample).
-    """
+    """Maximal runs ``[a, b)`` in which every input lies within ``tol`` of ``u[a]``."""
     runs: list[tuple[int, int]] = []
     values = u.tolist()
     start, first = 0, values[0] if values else 0.0
@@ -170,14 +162,8 @@ def _constant_input_runs(u: FloatArray, tol: float) -> list[tuple[int, int]]:
 def _settled_start(
     y: FloatArray, a: int, b: int, width: int, limit: float
 ) -> tuple[int, float, float] | None:
-    """Settled part ``[m, b)`` of a constant-input stretch ``[a, b)``, or None.
-
-    Returns ``(m, drift, final)``: the first sample after which every ``width``-sample
-    moving average stays within ``limit`` of the final level ``final`` (the mean of
-    the stretch's last ``max(width, (b - a) // 4)`` samples), provided the window
-    holds at least ``width`` samples and the straight line fitted to it drifts by
-    ``|slope| (L - 1) <= limit``.
-    """
+    """``(m, drift, final)`` of the settled part ``[m, b)`` of a constant-input stretch
+    ``[a, b)``, or None (the rule of `find_operating_point`'s Notes)."""
     n = b - a
     if n < width:
         return None
@@ -196,18 +182,13 @@ def _settled_start(
 
 
 #: A steady window competes for the operating point only if it holds at least this
-#: share of the longest steady window's samples: its mean is then nearly as well
-#: averaged (standard error at most sqrt(2) times the longest's).
+#: share of the longest one's samples (standard error of its mean at most sqrt(2) times).
 MIN_WINDOW_SHARE_OF_LONGEST = 0.5
 
 
 def _central_window(windows: list[tuple[int, int, float, float]], u: FloatArray
                     ) -> tuple[int, int, float, float]:
-    """The window whose mean input is nearest the middle of the input's range.
-
-    Only windows with at least `MIN_WINDOW_SHARE_OF_LONGEST` of the longest one's
-    samples compete; the longer wins a tie, then the earlier.
-    """
+    """The eligible window whose mean input is nearest the middle of the input's range."""
     longest = max(stop - start for start, stop, _, _ in windows)
     middle = 0.5 * (float(u.min()) + float(u.max()))
     eligible = [w for w in windows if w[1] - w[0] >= MIN_WINDOW_SHARE_OF_LONGEST * longest]
@@ -233,9 +214,8 @@ def find_operating_point(
         The record.
     method :
         ``"given"``: use `given` (a known steady state, e.g. the input before the
-        experiment). ``"means"``: sample means of input and output over the record
-        (the paper's fallback). ``"steady"``: means over the most central long steady window
-        (the paper found ``t in [8700, 10300] s`` at (45 %, 45 kW)).
+        experiment). ``"means"``: sample means over the record (the paper's fallback).
+        ``"steady"``: means over the most central long steady window (Notes).
     given :
         The operating point for ``method="given"``; must be None otherwise.
     input_tol :
@@ -247,12 +227,11 @@ def find_operating_point(
     drift_sigmas :
         ``"steady"``: the settling band in units of the output's white-noise scale
         ``sigma_y = 1.4826 median|d y - median(d y)| / sqrt(2)`` (``d y`` the first
-        differences over the whole record; robust to steps).
+        differences within segments; robust to steps).
     output_atol_kw :
-        ``"steady"``: the settling band never goes below this [output unit]. Set it
-        for an output with slow disturbances (the virtual CZ heater's grid wander
-        moves 200-s means by about 0.1 kW: ``output_atol_kw=0.1`` finds its 45 % rest)
-        or a quantized output whose differences are mostly 0.
+        ``"steady"``: the settling band's floor [output unit], for slow disturbances
+        (the virtual CZ heater's grid wander moves 200-s means by about 0.1 kW:
+        ``output_atol_kw=0.1`` finds its 45 % rest) or a quantized output.
 
     Returns
     -------
@@ -267,27 +246,23 @@ def find_operating_point(
 
     Notes
     -----
-    The ``"steady"`` rule (a settling-time test): split the record into maximal
-    stretches of constant input (within `input_tol`), within each segment (a window
-    never reaches across a segment boundary; ``sigma_y`` uses differences within
-    segments only). In a stretch, the final level
-    is the mean of its last quarter (at least ``W = min_window_samples`` samples);
-    the window starts at the first sample ``m`` after which every ``W``-sample moving
-    average of the output stays within ``limit`` of that final level, and runs to the
-    stretch's end. It counts if it holds at least ``W`` samples and the least-squares
-    straight line through its output changes by at most ``limit`` across it (no
-    trend beyond noise). ``limit = max(drift_sigmas * sigma_y, output_atol_kw)``.
+    The ``"steady"`` rule (a settling-time test): split each segment into maximal
+    stretches of constant input (within `input_tol`). In a stretch the final level is
+    the mean of its last quarter (at least ``W = min_window_samples`` samples); the
+    window runs from the first sample ``m`` after which every ``W``-sample moving
+    average of the output stays within ``limit`` of that level to the stretch's end.
+    It counts if it holds at least ``W`` samples and its least-squares straight line
+    changes by at most ``limit`` across it, with
+    ``limit = max(drift_sigmas * sigma_y, output_atol_kw)``.
 
-    Of the steady windows holding at least half as many samples as the longest
-    (`MIN_WINDOW_SHARE_OF_LONGEST`), the one whose mean input lies nearest the middle
-    of the record's input range wins (the longer, then the earlier, on a tie). The
-    linear models are first-order expansions about this point (sec. 5.1) and their
-    errors grow away from it (Fig. 8), so a central point serves the whole record;
-    and a record that starts at rest (the usual test) would otherwise put the
-    operating point at its edge. The operating point is the mean input and mean
-    output in the window. On the shipped experiment (33 .. 65 %, middle 49 %) the
-    windows at 33 % (t 0 .. 1998 s), 42 %, 45 % (t 8418 .. 10298 s) and 65 % qualify
-    and 45 % wins: the paper's (45 %, 45 kW) from t in [8700, 10300] s.
+    Of the windows holding at least `MIN_WINDOW_SHARE_OF_LONGEST` of the longest
+    one's samples, the one whose mean input lies nearest the middle of the input
+    range wins (the longer, then the earlier, on a tie): the linear models are
+    expansions about this point (sec. 5.1) whose errors grow away from it (Fig. 8),
+    and a record that starts at rest would otherwise put it at its edge. The point is
+    the window's mean input and output. On the shipped experiment (33 .. 65 %) the
+    windows at 33 %, 42 %, 45 % (t 8418 .. 10298 s) and 65 % qualify and 45 % wins:
+    the paper's (45 %, 45 kW) from t in [8700, 10300] s.
     """
     if method not in ("given", "means", "steady"):
         raise IdentificationError(
@@ -313,7 +288,6 @@ def find_operating_point(
             f"find_operating_point: min_window_samples must be an int >= 4; got "
             f"{min_window_samples!r}")
     bounds = data.segment_bounds()
-    # differences and constant-input runs within each segment, never across a boundary
     diffs = np.concatenate([np.diff(y[lo:hi]) for lo, hi in bounds])
     sigma_y = _robust_scale(diffs) / math.sqrt(2.0)
     limit = max(drift_sigmas * sigma_y, output_atol_kw)
@@ -322,14 +296,13 @@ def find_operating_point(
     windows = [(found[0], b, found[1], found[2])
                for a, b in runs
                if (found := _settled_start(y, a, b, min_window_samples, limit)) is not None]
-    best = _central_window(windows, u) if windows else None
-    if best is None:
+    if not windows:
         raise IdentificationError(
             f"find_operating_point(method='steady'), {data.source or '<memory>'}: expected a "
             f"window of at least {min_window_samples} samples with the input constant within "
             f"{input_tol:g} and the output settled (within {limit:.4g} {data.output_unit}); "
             "got none. Use method='means' or 'given', or relax the tolerances")
-    start, stop, drift, final = best
+    start, stop, drift, final = _central_window(windows, u)
     yw, uw = y[start:stop], u[start:stop]
     window = SteadyWindow(
         start_sample=start, stop_sample=stop,
@@ -341,7 +314,7 @@ def find_operating_point(
 
 
 def _mean_point(u: FloatArray, y: FloatArray) -> OperatingPoint:
-    """The operating point at the mean input and mean output of ``u`` and ``y``."""
+    """The operating point ``(mean(u), mean(y))``."""
     return OperatingPoint(triac_pct=float(u.mean()), power_kw=float(y.mean()))
 
 
@@ -353,7 +326,7 @@ def to_deviation(data: Dataset, op: OperatingPoint) -> tuple[FloatArray, FloatAr
     data :
         The record (absolute units).
     op :
-        The operating point ``(s_nom, P_nom)``.
+        ``(s_nom, P_nom)``.
 
     Returns
     -------
@@ -384,18 +357,18 @@ class OutlierCandidate:
         The event's residual of largest magnitude, with its sign [output unit].
     opposite_residual_follows :
         True if a residual of opposite sign beyond half the threshold follows within
-        2 samples of the onset (the signature of a spike the ARX predicted from).
+        2 samples of the onset (a spike the ARX predicted from).
     output_jump_kw :
         Output deviation of largest magnitude over ``sample .. min(last_sample,
         sample + 2)`` from the level before (median of the 5 samples before; the first
-        sample itself for an event at the record's start) [output unit].
+        sample itself at the record's start) [output unit].
     persisting_change_kw :
         Level after the event (median of the 5 samples after `last_sample`) minus
         the level before [output unit].
     kind :
-        ``"spike"`` if the output comes back (``|persisting| < |jump| / 2``): repair
-        with `interpolate_spike`. ``"level_shift"`` if it stays: measure with
-        `estimate_level_shift`, repair with `correct_level_shift`.
+        ``"spike"`` if the output comes back (``|persisting| < |jump| / 2``; repair with
+        `interpolate_spike`), else ``"level_shift"`` (measure with
+        `estimate_level_shift`, repair with `correct_level_shift`).
     """
 
     sample: int
@@ -436,11 +409,9 @@ class OutlierReport:
     ----------
     residuals_kw :
         One-step-ahead ARX residuals aligned with the data's samples, shape
-        ``(n_samples,)`` [output unit]; NaN (no prediction) before `first_sample`
-        (of each segment: the ARX regressors never reach across a segment boundary).
+        ``(n_samples,)`` [output unit]; NaN before `first_sample` of each segment.
     first_sample :
-        First sample with a residual, ``max(na, nk + nb - 1)`` (counted from the start
-        of each segment).
+        First sample of each segment with a residual, ``max(na, nk + nb - 1)``.
     scale_kw :
         Robust residual scale ``sigma`` (MAD) [output unit].
     threshold :
@@ -458,9 +429,9 @@ class OutlierReport:
     step_residuals :
         Events within the guard after an input step (excluded from `candidates`).
     clipped_samples :
-        Samples where the output sits at its record maximum or minimum in an exactly
-        constant run of at least ``clip_min_run_samples`` samples (a saturated
-        sensor or overflow, e.g. the cascaded tanks at 10 V): reported, never repaired.
+        Samples in an exactly constant run of at least ``clip_min_run_samples`` at the
+        output's record maximum or minimum (a saturated sensor, e.g. the cascaded tanks
+        at 10 V): reported, never repaired.
     """
 
     residuals_kw: FloatArray = field(repr=False)
@@ -493,6 +464,7 @@ def _events(flagged: npt.NDArray[np.intp]) -> list[tuple[int, int]]:
 
 
 def _clipped_samples(y: FloatArray, min_run: int) -> tuple[int, ...]:
+    """Samples in constant runs of at least ``min_run`` at the output's max or min."""
     return tuple(sorted(k for extreme in {float(y.max()), float(y.min())}
                         for a, b in true_runs(y == extreme) if b - a >= min_run for k in range(a, b)))
 
@@ -517,10 +489,9 @@ def find_outlier_candidates(
 ) -> OutlierReport:
     """Flag outlier candidates by the residuals of a high-order ARX model (paper sec. 5.2).
 
-    The method of Komperod et al. (2008) as used in the paper: fit ARX(na, nb, nk)
-    (default 10, 10, 1) to the deviation data by least squares, flag samples whose
-    one-step-ahead residual exceeds ``threshold * sigma``, drop those right after an
-    input step (model imperfection), and guess each remaining event's kind.
+    The method of Komperod et al. (2008): fit ARX(na, nb, nk) to the deviation data by
+    least squares, flag samples whose one-step-ahead residual exceeds ``threshold *
+    sigma``, drop those right after an input step, and guess each event's kind.
 
     Parameters
     ----------
@@ -531,15 +502,13 @@ def find_outlier_candidates(
     na, nb, nk :
         ARX orders (paper: ``na = nb = 10``).
     threshold :
-        Flag ``|e_k| > threshold * sigma`` with ``sigma`` the MAD scale of the
-        residuals (module Notation) [dimensionless, > 0].
+        Flag ``|e_k| > threshold * sigma`` (``sigma``: module Notation) [-, > 0].
     step_guard_samples :
         An event whose onset lies ``nk .. nk + step_guard_samples`` samples after an
         input step is a `StepResidual`, not a candidate (>= 0).
     input_step_tol :
-        An input change ``|u_j - u_{j-1}|`` above this is a step [input unit]. Default:
-        ``5 * 1.4826 * MAD(diff(u))``, i.e. any change of a staircase input, and only
-        unusual jumps of a smooth input.
+        An input change ``|u_j - u_{j-1}|`` above this is a step [input unit]; default
+        ``5 * 1.4826 * MAD(diff(u))`` (any change of a staircase input).
     clip_min_run_samples :
         Shortest exactly constant run at the output's extreme reported as clipping (>= 2).
 
@@ -551,17 +520,15 @@ def find_outlier_candidates(
     ------
     IdentificationError
         Bad orders or options; a record too short or unexciting for the ARX orders;
-        residuals with zero robust scale (an exact fit, up to rounding, leaves nothing
-        to compare with; see `EXACT_FIT_RTOL`).
+        residuals with zero robust scale (an exact fit; see `EXACT_FIT_RTOL`).
 
     Notes
     -----
-    Kind guess (paper Figs. 4-5): a spike returns to its level (Fig. 4: one low
-    sample, the ARX then predicts from it, so an opposite residual follows); a level
-    shift has same-sign residuals for 1-3 samples and the output stays (Fig. 5). The
-    rule used is ``|persisting_change| < |output_jump| / 2`` for a spike, computed from
-    the output levels 5 samples either side, which assumes a steady output there.
-    An event at the very end of the record has no "after" and counts as a level shift.
+    Kind guess (paper Figs. 4-5): a spike returns to its level, and the ARX predicting
+    from it leaves an opposite residual; a level shift has same-sign residuals for 1-3
+    samples and the output stays. The rule, ``|persisting_change| < |output_jump| / 2``
+    for a spike, assumes a steady output 5 samples either side; an event at the very
+    end of the record has no "after" and counts as a level shift.
     """
     where = "find_outlier_candidates"
     na = _check_int(where, "na", na, 0)
@@ -576,7 +543,6 @@ def find_outlier_candidates(
     fit = arx_least_squares(dp, ds, na=na, nb=nb, nk=nk, segment_starts=data.segment_starts)
     n0 = fit.first_sample
     e = fit.residuals
-    # the sample index of each residual: those of each segment from its own n0 on
     rows = np.concatenate([np.arange(lo + n0, hi) for lo, hi in data.segment_bounds()])
     scale = _robust_scale(e)
     if scale <= EXACT_FIT_RTOL * float(np.std(dp)):
@@ -674,7 +640,7 @@ def interpolate_spike(
     Returns
     -------
     Dataset
-        A new data set with ``P[k] = (P[k-1] + P[k+1]) / 2``; the change is recorded in
+        A new data set with ``P[k] = (P[k-1] + P[k+1]) / 2``, recorded in
         ``preprocessing`` as ``{"what": "interpolate_spike", "sample", "time_s",
         "old_value", "new_value"}``.
 
@@ -682,8 +648,7 @@ def interpolate_spike(
     ------
     DataFileError
         Neither or both of `sample` and `time_s`; a time outside the record; a sample
-        outside the record or at its first or last sample, or at the first or last
-        sample of a segment (one neighbour only: none across a segment boundary).
+        without two neighbours in its own segment.
     """
     where = "interpolate_spike"
     if (sample is None) == (time_s is None):
@@ -721,14 +686,13 @@ def correct_level_shift(data: Dataset, *, from_time_s: float, shift_kw: float) -
     from_time_s :
         First time affected [s]; ``time_s[0] < from_time_s <= time_s[-1]``.
     shift_kw :
-        Size of the shift to remove [output unit]; ``P[k] -= shift_kw`` for
-        ``t_k >= from_time_s``.
+        Shift removed [output unit]: ``P[k] -= shift_kw`` for ``t_k >= from_time_s``.
 
     Returns
     -------
     Dataset
-        A new data set; the change is recorded as ``{"what": "correct_level_shift",
-        "from_time_s", "from_sample", "shift_kw", "n_samples_changed"}``.
+        A new data set, recorded as ``{"what": "correct_level_shift", "from_time_s",
+        "from_sample", "shift_kw", "n_samples_changed"}``.
 
     Raises
     ------
@@ -765,8 +729,8 @@ class LevelShiftEstimate:
     before_samples, after_samples :
         ``(start, stop)`` sample ranges used before and after the onset.
     input_constant :
-        True if the input did not change over the samples used (otherwise the
-        process response to the input biases the estimate).
+        True if the input did not change over the samples used (else the response to
+        it biases the estimate).
     """
 
     shift_kw: float
@@ -794,11 +758,9 @@ def estimate_level_shift(
     from_time_s :
         Onset of the shift [s] (e.g. `OutlierCandidate.time_s`).
     window_samples :
-        Samples used on each side (>= 2; fewer near the record's ends; the windows
-        never reach outside the onset's segment).
+        Samples used on each side (>= 2; fewer near the ends of the onset's segment).
     transition_samples :
-        Samples from the onset left out (the shift may take 1-3 samples, paper
-        Fig. 5) (>= 0).
+        Samples from the onset left out (>= 0; a shift may take 1-3 samples, Fig. 5).
 
     Returns
     -------
@@ -815,14 +777,13 @@ def estimate_level_shift(
     -----
     Fits ``P_k = alpha + beta (k - k0) + delta [k >= k0] + eps_k`` by least squares
     on ``k0 - w .. k0 - 1`` and ``k0 + m .. k0 + m + w - 1`` (``w`` window, ``m``
-    transition); ``delta`` is the shift. The common slope absorbs a slow drift, such
-    as the heater's sag.
+    transition); ``delta`` is the shift. The common slope absorbs a slow drift (the
+    heater's sag).
     """
     where = "estimate_level_shift"
     w = _check_int(where, "window_samples", window_samples, 2)
     m = _check_int(where, "transition_samples", transition_samples, 0)
     k0 = _sample_at(data, from_time_s, where)
-    # the windows stay inside the onset's segment
     lo, hi = next((a, b) for a, b in data.segment_bounds() if a <= k0 < b)
     before = (max(k0 - w, lo), k0)
     after = (min(k0 + m, hi), min(k0 + m + w, hi))
