@@ -1,17 +1,13 @@
 """Read a plant's power and applied-input history over OPC UA and put it on the Ts grid.
 
-Reading (`read_node_history`): HistoryRead of raw values, at most ``page_values`` per
-request, following the server's continuation points (and asking again from the last
-time stamp after a full page without one, so a page limit never truncates silently);
-every call has a hard deadline; a node without the ``HistoryRead`` access bit is
-refused at once (`HistoryUnavailableError`) with the fix.
-
-Aligning (`align_history`, pure): the power's time stamps define the grid, one slot per
-``ts_s / time_scale`` of wall time; each slot is ``good``, ``bad``, ``uncertain`` or
-``missing``, and the inputs are placed as a `czmpc run` log has them (the applied input
-held between changes; the command only without an applied node). Writing
-(`write_history_log`): a run log with ``<log>.meta.json``. The columns and their
-meaning: docs/guides/history.rst.
+Reading (`read_node_history`): HistoryRead of raw values, ``page_values`` per request,
+following continuation points (and asking again from the last time stamp after a full
+page without one, so a page limit never truncates silently), each call under a hard
+deadline; a node without the ``HistoryRead`` access bit is refused at once
+(`HistoryUnavailableError`). Aligning (`align_history`, pure): the power's time stamps
+define the grid, one slot per ``ts_s / time_scale`` of wall time, each ``good``, ``bad``,
+``uncertain`` or ``missing``, the inputs placed as a `czmpc run` log has them. Writing
+(`write_history_log`): a run log with ``<log>.meta.json`` (docs/guides/history.rst).
 """
 
 from __future__ import annotations
@@ -20,6 +16,7 @@ import csv
 import datetime as dt
 import hashlib
 import io
+import itertools
 import json
 import math
 from collections.abc import Callable, Sequence
@@ -41,8 +38,7 @@ from sysid.atomic import atomic_write_text
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
-#: Default ``NumValuesPerNode`` of one HistoryRead request (a day at Ts = 2 s is 43,200
-#: values: 44 requests of a few hundred kB each).
+#: Default ``NumValuesPerNode`` of one HistoryRead request (a day at Ts = 2 s: 44 requests).
 DEFAULT_PAGE_VALUES = 1000
 #: Words of the ``quality`` column (`czmpc.runtime.runlog` takes all but "good" as gaps).
 QUALITY_WORDS = ("good", "bad", "uncertain", "missing")
@@ -127,8 +123,10 @@ class AlignedHistory:
         return sum(q == word for q in self.quality)
 
 
-def _fix(code: str) -> str:
-    return _FIXES.get(code, _ENABLE)
+def _refused(key: str, spec: NodeSpec, code: str, what: str = "{code}") -> HistoryUnavailableError:
+    """The refusal of node ``key`` with ``code``: ``what`` (formatted with it) and the fix."""
+    return HistoryUnavailableError(f"nodes.{key} = {spec.node_id!r}: {what.format(code=code)}: "
+                                   f"{_FIXES.get(code, _ENABLE)}")
 
 
 async def check_history_access(client: Any, key: str, spec: NodeSpec, *,
@@ -149,12 +147,9 @@ async def check_history_access(client: Any, key: str, spec: NodeSpec, *,
                                               raise_on_bad_status=False),
                           deadline_s, f"reading the access level of {key}")
     except ua.UaStatusCodeError as exc:
-        code = type(exc).__name__
-        raise HistoryUnavailableError(f"nodes.{key} = {spec.node_id!r}: {code}: {_fix(code)}"
-                                      ) from None
+        raise _refused(key, spec, type(exc).__name__) from None
     if dv.StatusCode is not None and not dv.StatusCode.is_good():
-        code = dv.StatusCode.name
-        raise HistoryUnavailableError(f"nodes.{key} = {spec.node_id!r}: {code}: {_fix(code)}")
+        raise _refused(key, spec, dv.StatusCode.name)
     level = int(dv.Value.Value or 0)
     if not level & (1 << int(ua.AccessLevel.HistoryRead)):
         raise HistoryUnavailableError(
@@ -210,12 +205,9 @@ async def read_node_history(client: Any, key: str, spec: NodeSpec, *, start: dt.
     resumed_at: float | None = None   # a resumed request reads the values at this time again
     try:
         while True:
-            details = ua.ReadRawModifiedDetails()
-            details.IsReadModified = False
-            details.StartTime = page_start
-            details.EndTime = end
-            details.NumValuesPerNode = page_values
-            details.ReturnBounds = bounds
+            details = ua.ReadRawModifiedDetails(IsReadModified=False, StartTime=page_start,
+                                                EndTime=end, NumValuesPerNode=page_values,
+                                                ReturnBounds=bounds)
             result = await _history_read(client, key, spec, details, point, deadline_s)
             n_requests += 1
             n_continuations += point is not None
@@ -258,11 +250,7 @@ def _skip_repeats(page: Sequence[Any], epoch: Sequence[float], last: float | Non
     """The page without the values a resumed request read again (those at time ``last``)."""
     if last is None:
         return list(page)
-    already = 0
-    for t in reversed(epoch):
-        if t != last:
-            break
-        already += 1
+    already = sum(1 for _ in itertools.takewhile(lambda t: t == last, reversed(epoch)))
     kept: list[Any] = []
     for dv in page:
         when, _ = sample_time(dv)
@@ -276,44 +264,35 @@ def _skip_repeats(page: Sequence[Any], epoch: Sequence[float], last: float | Non
     return kept
 
 
+def _history_params(spec: NodeSpec, details: Any, point: bytes | None, *,
+                    release: bool) -> Any:
+    """HistoryReadParameters of one node, with its continuation point."""
+    ua = asyncua().ua
+    return ua.HistoryReadParameters(
+        HistoryReadDetails=details, TimestampsToReturn=ua.TimestampsToReturn.Both,
+        ReleaseContinuationPoints=release, NodesToRead=[ua.HistoryReadValueId(
+            NodeId=ua.NodeId.from_string(spec.node_id), ContinuationPoint=point)])
+
+
 async def _history_read(client: Any, key: str, spec: NodeSpec, details: Any,
                         point: bytes | None, deadline_s: float) -> Any:
     ua = asyncua().ua
-    params = ua.HistoryReadParameters()
-    params.HistoryReadDetails = details
-    params.TimestampsToReturn = ua.TimestampsToReturn.Both
-    params.ReleaseContinuationPoints = False
-    rv = ua.HistoryReadValueId()
-    rv.NodeId = ua.NodeId.from_string(spec.node_id)
-    rv.ContinuationPoint = point
-    params.NodesToRead.append(rv)
+    params = _history_params(spec, details, point, release=False)
+    refused = "the server refused HistoryRead ({code})"
     try:
         results = await within(client.uaclient.history_read(params), deadline_s,
                                f"HistoryRead of {key}")
     except ua.UaStatusCodeError as exc:
-        code = type(exc).__name__
-        raise HistoryUnavailableError(
-            f"nodes.{key} = {spec.node_id!r}: the server refused HistoryRead ({code}): "
-            f"{_fix(code)}") from None
+        raise _refused(key, spec, type(exc).__name__, refused) from None
     result = results[0]
     if result.StatusCode is not None and not result.StatusCode.is_good():
-        code = result.StatusCode.name
-        raise HistoryUnavailableError(
-            f"nodes.{key} = {spec.node_id!r}: the server refused HistoryRead ({code}): "
-            f"{_fix(code)}")
+        raise _refused(key, spec, result.StatusCode.name, refused)
     return result
 
 
 async def _release(client: Any, spec: NodeSpec, point: bytes, deadline_s: float) -> None:
     """Release a continuation point the read no longer needs (the server frees it)."""
-    ua = asyncua().ua
-    params = ua.HistoryReadParameters()
-    params.HistoryReadDetails = ua.ReadRawModifiedDetails()
-    params.ReleaseContinuationPoints = True
-    rv = ua.HistoryReadValueId()
-    rv.NodeId = ua.NodeId.from_string(spec.node_id)
-    rv.ContinuationPoint = point
-    params.NodesToRead.append(rv)
+    params = _history_params(spec, asyncua().ua.ReadRawModifiedDetails(), point, release=True)
     try:
         await within(client.uaclient.history_read(params), deadline_s,
                      "releasing a continuation point")

@@ -382,14 +382,9 @@ class PlantLink:
     def _read_params(self, reads: list[tuple[str, str]]) -> Any:
         """ReadParameters of (key, attribute name) pairs, with both timestamps."""
         ua = asyncua().ua
-        params = ua.ReadParameters()
-        params.TimestampsToReturn = ua.TimestampsToReturn.Both
-        for key, attr in reads:
-            rv = ua.ReadValueId()
-            rv.NodeId = self._ids[key]
-            rv.AttributeId = getattr(ua.AttributeIds, attr)
-            params.NodesToRead.append(rv)
-        return params
+        return ua.ReadParameters(TimestampsToReturn=ua.TimestampsToReturn.Both, NodesToRead=[
+            ua.ReadValueId(NodeId=self._ids[key], AttributeId=getattr(ua.AttributeIds, attr))
+            for key, attr in reads])
 
     async def read(self, keys: tuple[str, ...], deadline_s: float) -> dict[str, Any]:
         """One Read request of the nodes' values (with both timestamps); key -> DataValue."""
@@ -429,14 +424,11 @@ class PlantLink:
         if not values:
             return {}
         ua = asyncua().ua
-        params = ua.WriteParameters()
-        for key, variant in values.items():
-            wv = ua.WriteValue()
-            wv.NodeId = self._ids[key]
-            wv.AttributeId = ua.AttributeIds.Value
-            # the value alone: no status code and no timestamps (S7 servers refuse those)
-            wv.Value = ua.DataValue(variant, StatusCode=None)
-            params.NodesToWrite.append(wv)
+        # the value alone: no status code and no timestamps (S7 servers refuse those)
+        params = ua.WriteParameters(NodesToWrite=[
+            ua.WriteValue(NodeId=self._ids[key], AttributeId=ua.AttributeIds.Value,
+                          Value=ua.DataValue(variant, StatusCode=None))
+            for key, variant in values.items()])
         try:
             codes = await self._call(self.client.uaclient.write(params), "write", deadline_s)
         except ua.UaStatusCodeError as exc:

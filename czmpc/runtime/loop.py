@@ -1,23 +1,19 @@
 """The soft real-time MPC loop over OPC UA (`czmpc run`).
 
-Each period (``ts_s / time_scale`` wall seconds on a monotonic schedule
-``t0 + k * period``, so no drift accumulates) the loop
-
-1. reads (I/O only) the power with its status and source timestamp, and the optional
-   setpoint, mode and applied-input nodes;
-2. decides without I/O (`czmpc.runtime.step`): a Bad, Uncertain, stale, repeated or
-   disconnected sample is missing, and the controller predicts, then sheds;
-3. writes the command (mode ON only) and the heartbeat, and the optional state nodes;
-4. records the row (`czmpc.runtime.logfiles`; ``<log>.meta.json`` holds the provenance)
-   and feeds the model-health monitor (`czmpc.health`).
+Each period (``ts_s / time_scale`` wall seconds at ``t0 + k * period``, no drift) the
+loop reads the power (status, source timestamp) and the optional setpoint, mode and
+applied-input nodes; decides without I/O (`czmpc.runtime.step`: a Bad, Uncertain, stale,
+repeated or disconnected sample is missing, the controller predicts, then sheds); writes
+the command (mode ON only), the heartbeat and the optional state nodes; records the row
+(`czmpc.runtime.logfiles`) and feeds the model-health monitor (`czmpc.health`).
 
 Reads are kept just after the plant publishes (`czmpc.runtime.alignment`). An overrun
 skips periods, never catches up. A lost link keeps the controller predicting and
 reconnects with a doubling backoff (up to `MAX_BACKOFF_S`), bumpless from the applied
 input. A stop writes the ``[safety]`` action; a ``[test]`` limit left aborts the run to
 ``safe_triac_pct``. The loop drives any `LoopController`: the MPC (`MPCDriver`), a test
-schedule or a dithered MPC (`czmpc.commissioning`). What each case looks like to a
-user: docs/guides/plant_link.rst and docs/guides/service.rst.
+schedule or a dithered MPC (`czmpc.commissioning`); docs/guides/plant_link.rst and
+docs/guides/service.rst show each case.
 """
 
 from __future__ import annotations
@@ -64,19 +60,18 @@ from sysid._version import __version__
 from sysid.atomic import file_sha256
 from sysid.modelfile import load_model
 
-#: The run's events (link lost and restored, refused writes, aborts, alarms): the CLI
-#: sends them to stderr with UTC times; they also go into the log's event column.
+#: The run's events (link lost and restored, refused writes, aborts, alarms), also in the
+#: log's event column.
 _log = logging.getLogger("czmpc.runtime.loop")
 
-#: Longest wait between reconnect attempts [s wall] (also at most `MAX_BACKOFF_PERIODS`
-#: loop periods; the first wait is one period).
+#: Longest wait between reconnect attempts [s wall] (the first is one period).
 MAX_BACKOFF_S = 5.0
 #: Longest wait between reconnect attempts in loop periods.
 MAX_BACKOFF_PERIODS = 25
 #: How long the start waits for the server [s wall] before giving up (exit 1).
 STARTUP_WAIT_S = 15.0
-#: Deadline of a connection attempt outside a step (the start, the safe action), in
-#: connect timeouts: discovery and the session each get up to two (`secure_client`).
+#: Deadline of a connection outside a step (start, safe action) in connect timeouts:
+#: discovery and the session each get two (`secure_client`).
 STARTUP_CONNECT_FACTOR = 4.0
 #: Integer codes of the ``status`` and ``mode_in_effect`` nodes when they are INT tags.
 STATUS_CODES = {"GOOD": 0, "PREDICTED": 1, "CLAMPED": 2, "HELD": 3, "SHED": 4, "LEAD_IN": 5,
@@ -194,16 +189,13 @@ class RunSummary:
     n_writes: int = 0
     n_overruns: int = 0
     n_skipped: int = 0
-    #: Links lost (a transport fault, a missed deadline or a session code) and links
-    #: restored after one; a link that never came back has more losses than reconnects.
+    #: Links lost (a transport fault, a missed deadline or a session code) and restored.
     n_link_losses: int = 0
     n_reconnects: int = 0
     n_missing: int = 0
-    #: Reads of a sample already read (sample time not later than the previous
-    #: read's: the plant's step was late); also counted in `n_missing`.
+    #: Reads of a sample already read (the plant's step was late); also in `n_missing`.
     n_repeated: int = 0
-    #: Steps in which the controller meant to write a command (mode ON), and how many of
-    #: those commands the plant accepted: a run that meant to and moved nothing failed.
+    #: Steps meant to write a command (mode ON), and commands the plant accepted.
     n_commands_meant: int = 0
     n_commands_accepted: int = 0
     #: Refused writes by status code name (every node), e.g. ``{"BadResourceUnavailable": 5}``.
@@ -214,22 +206,17 @@ class RunSummary:
     stopped_by: str = "duration"
     stale_alarm_at_s: float | None = None
     stale_alarm_reason: str = ""
-    #: RMS one-step prediction error [kW] of the active model and of the shadow candidate
-    #: (`RunConfig.candidate_path`) over the samples where both have a residual (none while
-    #: a gap's transient settles, `ModelHealth.residual_kw`); NaN without a candidate.
+    #: RMS one-step prediction error [kW] of the active and the shadow candidate model
+    #: (`RunConfig.candidate_path`) where both have a residual; NaN without a candidate.
     active_rms_kw: float = math.nan
     candidate_rms_kw: float = math.nan
     candidate_stale_alarm_at_s: float | None = None
-    #: Why the run was aborted (a test limit, refused commands, the controller); None: it
-    #: was not (exit 1).
+    #: Why the run was aborted (a test limit, refused commands, the controller; exit 1).
     abort_reason: str | None = None
-    #: A node the server will not accept as configured (its check failed, or a write came
-    #: back with a code that does not clear by itself): the node, the code and the fix
-    #: (exit 2).
+    #: A node the server will not accept as configured: the node, the code, the fix (exit 2).
     configuration_error: str | None = None
-    #: Read phases estimated (`czmpc.runtime.alignment.read_phase`; the last
-    #: `RECENT_PHASES`) and the delays [wall s] the schedule took to read just after the
-    #: plant publishes.
+    #: The last `RECENT_PHASES` read phases (`czmpc.runtime.alignment.read_phase`) and
+    #: schedule delays [wall s] taken to read just after the plant publishes.
     read_phases: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT_PHASES))
     alignment_delays_s: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT_PHASES))
 
@@ -278,12 +265,10 @@ class ControlLoop:
         Testing hook: extra wall time [s] spent in the step at the given sample indices
         (injects overruns).
     health_settings :
-        Window, reference and false-alarm rate of the model-health monitor (None:
-        `czmpc.health.RUNTIME_HEALTH`, the change test against the run's first 30 min).
+        The model-health monitor's settings (None: `czmpc.health.RUNTIME_HEALTH`).
     provenance :
-        What drives the input and where it came from (for example the test schedule
-        and its SHA-256), written with the czmpc version, the config's and the model's
-        paths and SHA-256 and the start time into ``<log>.meta.json``.
+        What drives the input and where it came from (e.g. the test schedule and its
+        SHA-256), for ``<log>.meta.json``.
     """
 
     def __init__(self, config: RunConfig, controller: OffsetFreeMPC | LoopController, *,
@@ -304,18 +289,17 @@ class ControlLoop:
         self._delay = dict(step_delay_s or {})
         self._stop = asyncio.Event()
         self._counts: dict[str, Any] = {}     # what the counter nodes hold (our last writes)
-        self._events: list[str] = []          # events of this step, for the log's event column
-        self._refused_in_row = 0              # command writes refused in a row
+        self._events: list[str] = []          # this step's, for the log's event column
+        self._refused_in_row = 0
         self._lost_at: float | None = None    # monotonic time the link was lost (None: up)
-        self._transitions = Transitions()     # shedding and mode as of the last step
+        self._transitions = Transitions()
         #: One writer per plant (`czmpc.runtime.ownership`): what czmpc wrote, read back.
         self.watch = WriterWatch()
         self.identity = identity(config.log_path)
         self._other_writer = False            # another writer seen: czmpc writes nothing more
         self._overruns_said = (0, 0, time.monotonic())   # overruns, skipped, when last said
         self._said_timestamps = False
-        #: Longest a step may spend on I/O [wall s]: the connect timeout and half a period,
-        #: so that no step lasts longer than one period plus the connect timeout.
+        # no step lasts longer than one period plus the connect timeout
         self._step_budget_s = config.connect_timeout_s + 0.5 * config.period_s
         self._last_cmd = math.nan
         self._applied = math.nan
@@ -323,8 +307,8 @@ class ControlLoop:
         self._max_backoff_s = min(MAX_BACKOFF_S, MAX_BACKOFF_PERIODS * config.period_s)
         self._next_try = 0.0
         self._ages_s: list[float] = []   # good samples' ages since the last phase estimate
-        self._last_time: dt.datetime | None = None   # the power's last sample time
-        # The MPC inside the controller (a test schedule has none: no health monitor).
+        self._last_time: dt.datetime | None = None
+        # a test schedule has no MPC, so no health monitor
         self._mpc: OffsetFreeMPC | None = getattr(self.ctrl, "mpc", None)
         self.health = (None if self._mpc is None
                        else ModelHealthMonitor(self._mpc.model, health_settings or RUNTIME_HEALTH))
@@ -333,7 +317,7 @@ class ControlLoop:
         self.shadow = (None if self._mpc is None or config.candidate_path is None
                        else ModelHealthMonitor(load_model(config.candidate_path),
                                                health_settings or RUNTIME_HEALTH))
-        self._sq_active_kw2 = 0.0      # sums of squared one-step errors where both predicted
+        self._sq_active_kw2 = 0.0      # sums of squared one-step errors
         self._sq_candidate_kw2 = 0.0
         self._n_compared = 0
         #: False: the model was judged not ready (check-model); requests for ON are refused.
@@ -351,7 +335,7 @@ class ControlLoop:
         self._stop.set()
 
     def _event(self, text: str, level: int = logging.WARNING) -> None:
-        """A link or run event: a log record now (stderr, UTC time) and the log's event column."""
+        """A link or run event: a log record now and the log's event column."""
         _log.log(level, text)
         self._events.append(text)
 
@@ -367,10 +351,8 @@ class ControlLoop:
         self.request_stop("configuration error")
 
     async def _try_connect(self, now: float, deadline_s: float) -> bool:
-        """Open a session and check the nodes; False (retry later) on a network fault.
-
-        A failed check is a configuration error: nothing is written, the run stops.
-        """
+        """Open a session and check the nodes; False (retry later) on a network fault or a
+        failed check (a configuration error: the run stops)."""
         if now < self._next_try:
             return False
         try:
@@ -483,12 +465,8 @@ class ControlLoop:
                      if key in self.link.types and self.link.types[key].user_readable)
 
     async def _check_not_driven(self) -> None:
-        """Before the first write: refuse a plant whose watched nodes move (exit 2).
-
-        Reads the command, heartbeat and owner lease, waits one period, reads them again;
-        any change, or a lease of another controller newer than `LEASE_PERIODS` periods,
-        means another writer (`PlantBusyError`).
-        """
+        """Before the first write: `PlantBusyError` when the watched nodes change over one
+        period, or another controller's lease is newer than `LEASE_PERIODS` periods."""
         keys = self._watched()
         if not keys:
             return
@@ -561,12 +539,8 @@ class ControlLoop:
         self.summary.n_steps = k
 
     def _align(self, row: dict[str, object]) -> float:
-        """Delay [wall s] that moves the reads to just after the plant's publication.
-
-        Once `alignment.WINDOW` good samples' ages are in, their read phase is
-        estimated; outside `alignment.BAND` the schedule is delayed (less than a
-        period) and the row says so. 0 otherwise (`czmpc.runtime.alignment`).
-        """
+        """Delay [wall s] moving the reads to just after the plant publishes, said in the
+        row; 0 until `alignment.WINDOW` good samples are in, or inside `alignment.BAND`."""
         if not self.config.align_to_plant or len(self._ages_s) < alignment.WINDOW:
             return 0.0
         period = self.config.period_s
@@ -694,10 +668,8 @@ class ControlLoop:
     def _state_values(self, command: float | None, health: ModelHealth | None) -> dict[str, Any]:
         """The controller's state for the optional state nodes (HMI, historian), as Variants.
 
-        ``status`` and ``mode_in_effect`` are text on a String node and `STATUS_CODES` /
-        `MODE_CODES` on an integer one; ``predicted_power_kw`` is the model's prediction
-        of the next sample with this step's input acting; ``target_triac_pct`` the MPC's
-        steady-state target input.
+        ``status`` and ``mode_in_effect``: text, or `STATUS_CODES` / `MODE_CODES` on an
+        integer node; ``predicted_power_kw``: the next sample with this step's input acting.
         """
         link, out = self.link, {}
         present = link.types
@@ -738,13 +710,8 @@ class ControlLoop:
 
     async def _write(self, command: float | None, health: ModelHealth | None,
                      end: float) -> bool:
-        """One Write of the command (None: none meant), heartbeat and model health.
-
-        Returns True when the plant accepted the command. A refusal is counted and said
-        with its code; a code that does not clear by itself is a configuration error
-        (`czmpc.runtime.refusals`), ``max_refused_writes`` refused commands in a row abort
-        the run.
-        """
+        """One Write of the command (None: none meant), heartbeat and model health; True
+        when the plant accepted the command. Refusals: `czmpc.runtime.refusals`."""
         if not self.link.connected or self._other_writer:
             return False
         values: dict[str, Any] = {}
@@ -815,8 +782,7 @@ class ControlLoop:
         """Feed the model-health monitor; say the stale alarm once when it comes."""
         if self.health is None or self._mpc is None:
             return None
-        diag = self._mpc.last_step
-        d = float(getattr(diag, "disturbance_power_kw", math.nan)) if diag is not None else math.nan
+        d = float(getattr(self._mpc.last_step, "disturbance_power_kw", math.nan))
         health = self.health.update(power, applied_before, d)
         if health.stale_alarm and self.summary.stale_alarm_at_s is None:
             self.summary.stale_alarm_at_s = k * self.config.ts_s
@@ -825,13 +791,8 @@ class ControlLoop:
         return health
 
     def _monitors_skipped(self, n_periods: int) -> None:
-        """Carry the one-step predictors over skipped periods as missing samples.
-
-        Without this the next sample, ``n_periods + 1`` periods after the last one, would be
-        scored against a prediction one period ahead. The command is taken as held over
-        the skipped periods; when the late write really landed is not known, so no
-        residual counts until the gap's transient has settled (`ModelHealth.residual_kw`).
-        """
+        """Carry the one-step predictors over skipped periods as missing samples, the command
+        held (no residual counts until the gap's transient settles, `ModelHealth.residual_kw`)."""
         for monitor in (self.health, self.shadow):
             if monitor is None:
                 continue
@@ -845,7 +806,6 @@ class ControlLoop:
             return {"candidate_predicted_kw": math.nan, "candidate_health": math.nan,
                     "candidate_stale_alarm": ""}
         cand = self.shadow.update(power, applied_before)
-        # one-step residuals: none for a missing sample or while a gap's transient settles
         if math.isfinite(health.residual_kw) and math.isfinite(cand.residual_kw):
             self._sq_active_kw2 += health.residual_kw ** 2
             self._sq_candidate_kw2 += cand.residual_kw ** 2
@@ -880,7 +840,6 @@ class ControlLoop:
             return
         rate = self.ctrl.rate_limit_pct_per_step
         step = math.inf if rate is None else float(rate)
-        u = self._last_cmd
         target = cfg.safe_triac_pct
         if not self.link.connected and self.summary.configuration_error is None:
             await self._try_connect(0.0, STARTUP_CONNECT_FACTOR * cfg.connect_timeout_s)
@@ -888,8 +847,7 @@ class ControlLoop:
             _log.error("stopped (%s): the safe ramp cannot be written (no usable link to %s)",
                        self.summary.stopped_by, cfg.nodes.triac_pct)
             return
-        if not math.isfinite(u):
-            u = target
+        u = self._last_cmd if math.isfinite(self._last_cmd) else target
         while self.link.connected:
             u = u + max(-step, min(step, target - u))
             end = time.monotonic() + self._step_budget_s

@@ -259,26 +259,19 @@ class ServedPlant:
         if security is not None:
             await _secure(server, security, idx, self._log)
         folder = await server.nodes.objects.add_object(ua.NodeId("Heater", idx), "Heater")
-        power0 = float(self.plant.true_power_kw)
         sp0 = float(self._setpoints[0]) if self.scenario is not None else self.options.setpoint_kw
-        await self._add(folder, idx, "Power", power0, False)
-        await self._add(folder, idx, "TriacCommand", self._triac_pct, True)
-        await self._add(folder, idx, "TriacApplied", self._triac_pct, False)
-        await self._add(folder, idx, "PowerSetpoint", sp0, True)
-        await self._add(folder, idx, "Heartbeat", 0, True)
-        await self._add(folder, idx, "Mode", "ON", True)
-        await self._add(folder, idx, "WatchdogTripped", False, False)
-        await self._add(folder, idx, "PlantTime_s", 0.0, False)
-        await self._add(folder, idx, "ModelHealth", 0.0, True)
-        # the controller's state, written by czmpc run for the HMI (its [nodes] state keys)
         plc = self.options.node_types == "plc"
-        await self._add(folder, idx, "Owner", "", True)
-        await self._add(folder, idx, "MPCStatus", 7 if plc else "", True)
-        await self._add(folder, idx, "MPCMode", "OFF", True)
-        await self._add(folder, idx, "StaleAlarm", False, True)
-        await self._add(folder, idx, "Predicted", 0.0, True)
-        await self._add(folder, idx, "TargetTriac", 0.0, True)
-        await self._add(folder, idx, "MPCWatchdog", 0, True)
+        for name, value, writable in (
+                ("Power", float(self.plant.true_power_kw), False),
+                ("TriacCommand", self._triac_pct, True), ("TriacApplied", self._triac_pct, False),
+                ("PowerSetpoint", sp0, True), ("Heartbeat", 0, True), ("Mode", "ON", True),
+                ("WatchdogTripped", False, False), ("PlantTime_s", 0.0, False),
+                ("ModelHealth", 0.0, True),
+                # the controller's state, written by czmpc run for the HMI ([nodes] state keys)
+                ("Owner", "", True), ("MPCStatus", 7 if plc else "", True),
+                ("MPCMode", "OFF", True), ("StaleAlarm", False, True), ("Predicted", 0.0, True),
+                ("TargetTriac", 0.0, True), ("MPCWatchdog", 0, True)):
+            await self._add(folder, idx, name, value, writable)
         self._server = server
         log_file: IO[str] | None = None
         if self.options.log_path is not None:
@@ -290,13 +283,13 @@ class ServedPlant:
                     await server.historize_node_data_change(
                         [self._nodes[name] for name in HISTORIZED_NODES], period=None, count=0)
                 self.ready.set()
-                await self._run_clock(None if log_file is None else csv.writer(log_file),
-                                      log_file)
+                await self._run_clock(log_file)
         finally:
             if log_file is not None:
                 log_file.close()
 
-    async def _run_clock(self, log: Any, log_file: IO[str] | None) -> None:
+    async def _run_clock(self, log_file: IO[str] | None) -> None:
+        log = None if log_file is None else csv.writer(log_file)
         if log is not None and log_file is not None:
             log.writerow(PLANT_LOG_COLUMNS)
             log.writerow(self._log_row(float(self.plant.true_power_kw), good=True))
@@ -316,12 +309,9 @@ class ServedPlant:
             await asyncio.sleep(max(0.0, t0 + (self.k + 1) * period - loop.time()))
             hb = await self._read("Heartbeat")
             cmd = float(await self._read("TriacCommand"))
-            if hb != last_hb:
-                silent = 0
-                armed = True
-                last_hb = hb
-            else:
-                silent += 1
+            silent = 0 if hb != last_hb else silent + 1
+            armed = armed or hb != last_hb
+            last_hb = hb
             if armed and wd_samples is not None and silent >= wd_samples and not self.watchdog_tripped:
                 self.watchdog_tripped = True
                 self.n_watchdog_trips += 1
