@@ -37,6 +37,8 @@ from sysid.structure import MAX_GAIN_RSD
 from sysid.uncertainty import ParameterError, model_with_parameters, parameter_distribution
 
 ItemStatus = Literal["pass", "condition", "fail", "skipped"]
+#: Parameter names, values and covariance of a model (`_covariance`).
+_Covariance = tuple[tuple[str, ...], np.ndarray, np.ndarray]
 
 #: Input range [%] narrower than this: the MPC could hardly move (fail).
 MIN_RANGE_PCT = 5.0
@@ -204,6 +206,10 @@ def _stability(model: HammersteinModel) -> CheckItem:
                             f"{tau:.0f} s), C's {top_c:.4f}")
 
 
+def _grade(fail: bool, condition: bool) -> ItemStatus:
+    return "fail" if fail else "condition" if condition else "pass"
+
+
 def _static_gain(model: HammersteinModel) -> CheckItem:
     lo, hi = model.input_range_pct
     s = np.linspace(lo, hi, 201)
@@ -228,8 +234,7 @@ def _static_gain(model: HammersteinModel) -> CheckItem:
 def _input_range(model: HammersteinModel) -> CheckItem:
     lo, hi = model.input_range_pct
     width = hi - lo
-    status: ItemStatus = ("fail" if width < MIN_RANGE_PCT
-                          else "condition" if width < GOOD_RANGE_PCT else "pass")
+    status = _grade(width < MIN_RANGE_PCT, width < GOOD_RANGE_PCT)
     words = {"fail": "too narrow for the MPC to move (the model is valid only there)",
              "condition": "narrow: the MPC is confined to it",
              "pass": "the MPC keeps to it"}[status]
@@ -256,8 +261,7 @@ def _data_checks(model: HammersteinModel, data: Dataset | None) -> list[CheckIte
     # cut from a test mid-ramp does not start at rest
     eps = np.asarray(errors_with_fitted_state(model, data), dtype=float)
     fit = fit_percent(measured, measured - eps)
-    status: ItemStatus = ("fail" if fit < FAIL_FIT_PCT
-                          else "condition" if fit < GOOD_FIT_PCT else "pass")
+    status = _grade(fit < FAIL_FIT_PCT, fit < GOOD_FIT_PCT)
     items = [CheckItem(name="validation fit", status=status, value=fit,
                        detail=f"simulation fit {fit:.1f} % on {data.source or 'the held-out data'} "
                               f"({data.n_samples} samples, initial state fitted; pass >= "
@@ -283,8 +287,7 @@ def _data_checks(model: HammersteinModel, data: Dataset | None) -> list[CheckIte
     ratio = worst / family
     missed, missed_lag = missed_response_pct(e, du, largest_move_response(model))
     matters = missed >= NEGLIGIBLE_MISSED_PCT
-    cross: ItemStatus = ("fail" if matters and worst > FAIL_CROSS_BOUNDS * cc.bound
-                         else "condition" if matters and ratio > 1.0 else "pass")
+    cross = _grade(matters and worst > FAIL_CROSS_BOUNDS * cc.bound, matters and ratio > 1.0)
     items.append(CheckItem(
         name="input-residual correlation", status=cross, value=ratio,
         detail=f"largest |r(e, ds moves)| at lags 0..{MAX_LAG} is {ratio:.2f} x the 99 % bound "
@@ -356,9 +359,8 @@ def family_bound(n_lags: int, n_samples: int, confidence: float = 0.99) -> float
     return float(norm.ppf(0.5 * (1.0 + per_lag))) / math.sqrt(n_samples)
 
 
-def _covariance(model: HammersteinModel) -> tuple[tuple[str, ...], np.ndarray, np.ndarray] | None:
-    """Parameter names, values and covariance (`sysid.uncertainty`: the file's covariance,
-    else its standard errors), or None when the model records neither."""
+def _covariance(model: HammersteinModel) -> _Covariance | None:
+    """`sysid.uncertainty.parameter_distribution` as a tuple, None when it has none or NaN."""
     try:
         dist = parameter_distribution(model)
     except ParameterError:
@@ -377,15 +379,13 @@ def _with_parameters(model: HammersteinModel, names: tuple[str, ...],
         return None
 
 
-def _gain_uncertainty(model: HammersteinModel,
-                      cov: tuple[tuple[str, ...], np.ndarray, np.ndarray] | None) -> CheckItem:
+def _gain_uncertainty(model: HammersteinModel, cov: _Covariance | None) -> CheckItem:
     if cov is None:
         return CheckItem(name="parameter uncertainty", status="condition",
                          detail="no parameter covariance or standard errors recorded: the "
                                 "uncertainty is unknown and the Monte Carlo is skipped")
     names, theta, sigma = cov
-    slope0 = float(model.input_nonlinearity_slope(0.0))
-    base = model.linear_static_gain * slope0
+    base = model.linear_static_gain * float(model.input_nonlinearity_slope(0.0))
     grad = np.zeros(len(theta))
     for i in range(len(theta)):
         h = 1e-6 * max(1.0, abs(theta[i]))
@@ -399,8 +399,7 @@ def _gain_uncertainty(model: HammersteinModel,
         grad[i] = (m.linear_static_gain * float(m.input_nonlinearity_slope(0.0)) - base) / h
     var = float(grad @ sigma @ grad)
     rsd = math.sqrt(max(var, 0.0)) / abs(base) if base != 0.0 else math.inf
-    status: ItemStatus = ("fail" if rsd > FAIL_GAIN_RSD
-                          else "condition" if rsd > GOOD_GAIN_RSD else "pass")
+    status = _grade(rsd > FAIL_GAIN_RSD, rsd > GOOD_GAIN_RSD)
     return CheckItem(name="parameter uncertainty", status=status, value=rsd,
                      detail=f"static gain at the operating point {base:.3g} kW/% +- {rsd:.1%} "
                             f"(1 std; condition above {GOOD_GAIN_RSD:.0%}, fail above "
@@ -440,10 +439,8 @@ def _closed_loop(model: HammersteinModel, plant_model: HammersteinModel, scenari
     return offset_free, float(np.sum(np.abs(err)) * model.ts_s)
 
 
-def _monte_carlo(model: HammersteinModel,
-                 cov: tuple[tuple[str, ...], np.ndarray, np.ndarray] | None,
-                 settings: MPCSettings | None, n_runs: int,
-                 seed: int) -> tuple[CheckItem, MonteCarloSummary | None]:
+def _monte_carlo(model: HammersteinModel, cov: _Covariance | None, settings: MPCSettings | None,
+                 n_runs: int, seed: int) -> tuple[CheckItem, MonteCarloSummary | None]:
     from czmpc.errors import CzmpcError
     from sim.errors import SimError
 
@@ -529,12 +526,9 @@ def check_model(model: HammersteinModel, data: Dataset | None = None,
              *_data_checks(model, data), _gain_uncertainty(model, cov)]
     hopeless = any(i.status == "fail" and i.name in ("stability", "static gain", "input range")
                    for i in items)
-    if hopeless:
-        mc_item = CheckItem(name="closed-loop Monte Carlo", status="skipped",
-                            detail="skipped (the model already fails a structural check)")
-        mc = None
-    else:
-        mc_item, mc = _monte_carlo(model, cov, settings, mc_runs, seed)
+    mc_item, mc = ((CheckItem(name="closed-loop Monte Carlo", status="skipped",
+                              detail="skipped (the model already fails a structural check)"), None)
+                   if hopeless else _monte_carlo(model, cov, settings, mc_runs, seed))
     items.append(mc_item)
     order = {"fail": 0, "condition": 1, "skipped": 2, "pass": 3}
     reasons = tuple(f"{i.name}: {i.detail}" for i in sorted(items, key=lambda i: order[i.status])

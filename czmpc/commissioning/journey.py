@@ -7,16 +7,12 @@ Stages, each reported and each leaving its files in the output directory:
 2. run it through the plant link (`czmpc.commissioning.test_run`, the same loop as
    the MPC, with the config's ``[test]`` safety band) -> ``test_run.csv`` and
    ``test_run.meta.json``; an aborted test ends the journey (exit 1);
-3. identify from the log (`czmpc.runtime.runlog.read_run_log`, then the paper's
-   pipeline with orders chosen automatically, no level-shift repair: the designed
-   steps are not sensor faults) on the first `ESTIMATION_FRACTION` of the samples
+3. identify from the first `ESTIMATION_FRACTION` of the log (`identify_test`)
    -> ``model.json`` and ``identification/report.md``;
-4. check the model (`czmpc.commissioning.check.check_model`, with the last samples as
-   held-out validation data and the settings the MPC will run with) -> the verdict
-   beside the model;
-5. write ``commissioning.md`` with its figures: the test and the measured response,
-   the fit on held-out data, the verdict with every reason and the Monte Carlo
-   distribution, the chosen settings;
+4. check the model (`czmpc.commissioning.check.check_model`) on the held-out rest, with
+   the settings the MPC will run with -> the verdict beside the model;
+5. write ``commissioning.md`` with its figures: the test, the held-out fit, the verdict
+   with every reason and the Monte Carlo distribution, the chosen settings;
 6. only with ``switch_on`` and the verdict ``ready``: run the MPC with the new model,
    starting bumplessly from the input the plant applies then (`czmpc run`).
 """
@@ -119,11 +115,8 @@ class JourneyPlan:
 
 @dataclass(frozen=True, kw_only=True, eq=False)
 class JourneyResult:
-    """What the journey did; ``stage`` says where it ended.
-
-    ``stage`` is ``"test aborted"``, ``"checked"`` (no switch-on asked or verdict not
-    ready) or ``"switched on"``.
-    """
+    """What the journey did; ``stage`` says where it ended: ``"test aborted"``,
+    ``"checked"`` (no switch-on asked or verdict not ready) or ``"switched on"``."""
 
     stage: str
     out_dir: Path
@@ -201,14 +194,13 @@ def identify_test(data: Dataset, *,
                   progress: Callable[[str], None] | None = None) -> IdentifiedTest:
     """Identify a model from an open-loop test's log as the journey does (stage 3).
 
-    The first `ESTIMATION_FRACTION` of the samples, the paper's pipeline with orders
-    chosen on validation data (``orders="auto"``, degree `DESIGN_DEGREE`), at least one
-    sample of delay (the loop reads the power before it writes the input), no
-    level-shift repair (the designed steps are not sensor faults), and, where the test
-    holds no steady window, the sample-mean operating point moved onto the steady-state
-    curve (`sysid.offset`: the mean power of a staircase over a curved ``f`` misses it,
-    and the order search then chose structures with a pole-zero pair near z = 1 whose
-    static gain was +-80 %); the rest is held out for the fit.
+    The paper's pipeline on the first `ESTIMATION_FRACTION` of the samples (the rest is
+    held out for the fit), with orders chosen on validation data (``orders="auto"``,
+    degree `DESIGN_DEGREE`), at least one sample of delay (the loop reads the power
+    before it writes the input), no level-shift repair (the designed steps are not
+    sensor faults) and, without a steady window, the sample-mean operating point moved
+    onto the steady-state curve (`sysid.offset`; unmoved, the order search chose
+    pole-zero pairs near z = 1 with a static gain +-80 %).
 
     Raises
     ------
@@ -308,14 +300,13 @@ def commission(config: RunConfig, plan: JourneyPlan, *,
     say(f"3/5 identifying (orders auto) from {est.n_samples} samples; {val.n_samples} held out")
     identified = identify_test(data, progress=lambda m: say(f"    {m}"))
     messages += list(identified.messages)
-    model = identified.model
+    model, simulated, fit = identified.model, identified.simulated_kw, identified.fit_pct
     model_path = out / "model.json"
     save_model(model, model_path)
     from czmpc.reports.identification import write_report
 
     write_report(identified.pipeline, out / "identification", model_file="../model.json",
                  command=command)
-    simulated, fit = identified.simulated_kw, identified.fit_pct
     # 4. check
     settings = (MPCSettings.default_for(model) if config.settings_path is None
                 else load_settings(config.settings_path, model))

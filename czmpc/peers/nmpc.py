@@ -18,14 +18,12 @@ Notation as in `czmpc.qp`: ``dx_j = x_j - x_s``, ``h = A (x_{k|k} - x_s) + G_x e
           P_min - v <= P_nom + y_s + C dx_j <= P_max + v, j = 1..N, v >= 0   (soft)
 
 The rate limit is exact on every move here; the QP bounds later moves conservatively
-(`czmpc.qp.MoveBounds`). Everything else is the same optimization problem written in
-another variable, so without a rate limit the two controllers should agree to the
-solvers' tolerances.
+(`czmpc.qp.MoveBounds`). Otherwise it is the same problem in another variable: without a
+rate limit the two controllers agree to the solvers' tolerances.
 
 The NLP is built once (``nlpsol`` with parameters ``[h, w_s, w_prev, y_s]``); each step
-passes new parameters and bounds and warm-starts from the previous plan shifted by one
-sample. IPOPT prints nothing (``print_level 0``, ``sb``), and a failed solve falls back
-like the MPC (shifted previous plan, then the target), counted in `n_fallbacks`.
+warm-starts from the previous plan shifted by one sample. A failed solve falls back like
+the MPC (shifted previous plan, then the target), counted in `n_fallbacks`.
 """
 
 from __future__ import annotations
@@ -205,17 +203,14 @@ class NonlinearMPC:
         cost = 0
         constraints: list[Any] = []
         self._g_kinds: list[str] = []
-        dx = h + Bm * (w[0] - w_s)
-        w_before = w_prev
+        dxs = [h + Bm * (w[0] - w_s)]   # dx_1 .. dx_N
         for j in range(N):
             if j >= 1:
-                cost += st.output_weight * (Cm @ dx) ** 2
-                dx = Am @ dx + Bm * (w[j] - w_s)
+                cost += st.output_weight * (Cm @ dxs[-1]) ** 2
+                dxs.append(Am @ dxs[-1] + Bm * (w[j] - w_s))
             cost += st.input_target_weight * (w[j] - w_s) ** 2
-            cost += st.move_weight * (w[j] - w_before) ** 2
-            w_before = w[j]
-        # dx now is dx_N; the outputs y_j = y_s + C dx_j for the soft rows, j = 1..N.
-        xi = ca.vertcat(dx, w[N - 1] - w_s)
+            cost += st.move_weight * (w[j] - (w[j - 1] if j else w_prev)) ** 2
+        xi = ca.vertcat(dxs[-1], w[N - 1] - w_s)
         cost += ca.mtimes([xi.T, ca.DM(P_f), xi])
         if st.has_rate_limit:
             for j in range(1, N):
@@ -223,17 +218,14 @@ class NonlinearMPC:
                 self._g_kinds.append("rate")
         if has_soft:
             cost += st.soft_limit_weight * v[0] ** 2 + st.soft_limit_linear_weight * v[0]
-            dxj = h + Bm * (w[0] - w_s)
-            for j in range(N):
-                y = y_s + Cm @ dxj
+            for dx in dxs:
+                y = y_s + Cm @ dx
                 if self._soft_max_rel is not None:
                     constraints.append(y - v[0])
                     self._g_kinds.append("soft_max")
                 if self._soft_min_rel is not None:
                     constraints.append(y + v[0])
                     self._g_kinds.append("soft_min")
-                if j + 1 < N:
-                    dxj = Am @ dxj + Bm * (w[j + 1] - w_s)
         nlp = {"x": ca.vertcat(ds, v), "p": p, "f": cost, "g": ca.vertcat(*constraints)}
         opts: dict[str, Any] = {
             "print_time": False,
@@ -278,11 +270,23 @@ class NonlinearMPC:
         self._k = 0
         self._plan: FloatArray | None = None
         self._plan_k = 0
-        self._x0 = np.full(self._n_var, self._ds_init)
-        if self._n_var > self.settings.horizon_steps:
-            self._x0[-1] = 0.0
+        self._x0 = self._start_guess(self._ds_init)
         self._n_fallbacks = 0
         self._last: NMPCStep | None = None
+
+    def _start_guess(self, ds: float) -> FloatArray:
+        """Every planned input at ``ds``, the soft-limit slack (if any) at 0."""
+        x0 = np.full(self._n_var, ds)
+        if self._n_var > self.settings.horizon_steps:
+            x0[-1] = 0.0
+        return x0
+
+    def _move_range(self, ds_prev: float) -> tuple[float, float]:
+        """The allowed range of ``ds`` one move from ``ds_prev`` (rate limit included) [%]."""
+        im, delta = self._input_map, self.settings.max_move_pct_per_step
+        if delta is None:
+            return im.ds_min_pct, im.ds_max_pct
+        return max(im.ds_min_pct, ds_prev - delta), min(im.ds_max_pct, ds_prev + delta)
 
     # --- the step ------------------------------------------------------------------------
     def step(self, power_kw: float, setpoint_kw: float) -> float:
@@ -322,9 +326,7 @@ class NonlinearMPC:
         ds_prev = self._ds_prev
         lbx = np.full(self._n_var, im.ds_min_pct)
         ubx = np.full(self._n_var, im.ds_max_pct)
-        if st.max_move_pct_per_step is not None:
-            lbx[0] = max(im.ds_min_pct, ds_prev - st.max_move_pct_per_step)
-            ubx[0] = min(im.ds_max_pct, ds_prev + st.max_move_pct_per_step)
+        lbx[0], ubx[0] = self._move_range(ds_prev)
         if self._n_var > N:
             lbx[N], ubx[N] = 0.0, math.inf
         lbg = self._lbg_fixed.copy()
@@ -361,15 +363,10 @@ class NonlinearMPC:
                 ds = im.inverse(tgt.w_s)
                 fallback = "target"
                 self._plan = None
-            self._x0 = np.full(self._n_var, ds)
-            if self._n_var > N:
-                self._x0[-1] = 0.0
+            self._x0 = self._start_guess(ds)
 
         # 4. apply within the allowed range and the rate limit
-        lo, hi = im.ds_min_pct, im.ds_max_pct
-        if st.max_move_pct_per_step is not None:
-            lo = max(lo, ds_prev - st.max_move_pct_per_step)
-            hi = min(hi, ds_prev + st.max_move_pct_per_step)
+        lo, hi = self._move_range(ds_prev)
         if not math.isfinite(ds):
             ds = ds_prev
         ds = min(hi, max(lo, ds))

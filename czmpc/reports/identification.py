@@ -1,14 +1,10 @@
 """Assemble the identification report (report.md and its figures) from a pipeline result.
 
 `write_report` draws the paper's figures from a `sysid.pipeline.PipelineResult` with
-`czmpc.reports.identification_figures`, then writes report.md: the data, the preprocessing choices and
-repairs, the analogues of Tables 2 and 3, the Hammerstein route, the final model's
-parameters and equation, and a checklist of the paper's findings, each time with the
-paper's value beside ours. `findings_checklist` computes that checklist on its own so
-that tests and other tools can read the verdicts without parsing Markdown.
-
-The paper's numbers (Komperød et al.) live in the ``PAPER_*`` constants below, each
-with the table, figure or section it comes from.
+`czmpc.reports.identification_figures`, then writes report.md: the data, the preprocessing
+and repairs, the analogues of Tables 2 and 3, the Hammerstein route, the final model and a
+checklist of the paper's findings (`findings_checklist`, also for tools that read the
+verdicts), each with the paper's value (the ``PAPER_*`` constants, Komperød et al.) beside ours.
 """
 
 from __future__ import annotations
@@ -192,13 +188,6 @@ def _md_table(header: Sequence[str], rows: Sequence[Sequence[str]], align: str |
     return format_table(header, rows, align=align, markdown=True)
 
 
-def _deviation(result: PipelineResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    op = result.operating_point.operating_point
-    data = result.data
-    return (np.asarray(data.time_s), np.asarray(data.triac_pct) - op.triac_pct,
-            np.asarray(data.power_kw) - op.power_kw)
-
-
 def _lagged_sum(coefs: Sequence[float] | np.ndarray, term: Callable[[str], str]) -> str:
     """``sum_i coefs[i] term(k-i)`` as text, e.g. ``dP_k - 0.99 dP_{k-1}``."""
     parts: list[str] = []
@@ -343,32 +332,24 @@ class _Figure:
     path: Path
 
 
-def _sim_dev(model: HammersteinModel, result: PipelineResult) -> np.ndarray:
-    from sysid.simulate import simulate
-
-    sim: np.ndarray = np.asarray(simulate(model, result.data), dtype=float)
-    return sim - float(model.operating_point.power_kw)
-
-
 def _pred_error(model: HammersteinModel, result: PipelineResult) -> np.ndarray:
     from sysid.simulate import predict_one_step
 
     return np.asarray(result.data.power_kw) - np.asarray(predict_one_step(model, result.data))
 
 
-def _label(named: NamedModel, short: str, v_unit: str = "kW^2") -> str:
-    return f"{short}, V = {named.ballistic_mse_kw2:.3g} {v_unit}"
-
-
 def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Figure]:
     """Draw every figure the result supports; return them in report order."""
     from sysid.errors import SysidError
     from sysid.residuals import CorrelationResult, autocorrelation, cross_correlation
+    from sysid.simulate import simulate
 
     m = _models(result)
     raw = result.raw_data
-    t, ds, dp = _deviation(result)
     op = result.operating_point.operating_point
+    t = np.asarray(result.data.time_s)
+    ds = np.asarray(result.data.triac_pct) - op.triac_pct
+    dp = np.asarray(result.data.power_kw) - op.power_kw
     drawn: list[_Figure] = []
     lab = st.labels
 
@@ -421,8 +402,10 @@ def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Fi
              marked_label="repair", title="Preprocessed data", paper_part="paper Fig. 7")
 
     def sims(pairs: Sequence[tuple[str, str]]) -> dict[str, np.ndarray]:
-        """Legend label -> ballistic simulation [kW, deviation] of each named model."""
-        return {_label(m[n], short, st.v_unit): _sim_dev(m[n].model, result) for n, short in pairs}
+        """Legend label (with V) -> ballistic simulation [kW, deviation] of each named model."""
+        return {f"{short}, V = {m[n].ballistic_mse_kw2:.3g} {st.v_unit}":
+                np.asarray(simulate(m[n].model, result.data), dtype=float)
+                - float(m[n].model.operating_point.power_kw) for n, short in pairs}
 
     def add_sims(key: str, caption: str, curves: dict[str, np.ndarray], title: str,
                  paper_fig: str) -> None:
@@ -666,12 +649,9 @@ def _criteria_table(first_column: str, rows: Sequence[Sequence[str]], st: _Style
 
 
 def _table2_section(result: PipelineResult, st: _Style) -> str:
-    rows = []
-    for nm in result.linear:
-        row = [nm.label, *_criteria_cells(nm)]
-        if st.paper:
-            row.append(_num(PAPER_TABLE2_V.get(nm.name), ".3f"))
-        rows.append(row)
+    rows = [[nm.label, *_criteria_cells(nm)]
+            + ([_num(PAPER_TABLE2_V.get(nm.name), ".3f")] if st.paper else [])
+            for nm in result.linear]
     nk = result.final.model.delay_steps if result.final is not None else 1
     return (st.title("## Linear models", "paper Table 2")
             + f"\n\nAll with a delay of {nk} sample(s). V: mean squared "
@@ -685,10 +665,8 @@ def _match_paper_step(step: InputStep) -> tuple[float, float, float, float, floa
     """The paper's Table 3 row of the same absolute input step (the paper's s_nom = 45 %)."""
     before = step.triac_before_pct - PAPER_TRIAC_NOM_PCT
     after = step.triac_after_pct - PAPER_TRIAC_NOM_PCT
-    for row in PAPER_TABLE3:
-        if abs(before - row[0]) < 0.5 and abs(after - row[1]) < 0.5:
-            return row
-    return None
+    return next((row for row in PAPER_TABLE3
+                 if abs(before - row[0]) < 0.5 and abs(after - row[1]) < 0.5), None)
 
 
 def _table3_section(result: PipelineResult, st: _Style) -> str:
@@ -741,10 +719,8 @@ def _route_section(result: PipelineResult, st: _Style) -> str:
         paper_it = PAPER_ITERATIONS.get(name)
         paper = [_num(PAPER_ROUTE_V[name], ".3f"), _num(PAPER_W.get(name), ".2g"),
                  "-" if paper_it is None else str(paper_it)] if st.paper else []
-        if name not in m:
-            rows.append([label, "skipped", "-", "-", "-", *paper])
-            continue
-        rows.append([label, *_criteria_cells(m[name]), *paper])
+        cells = _criteria_cells(m[name]) if name in m else ["skipped", "-", "-", "-"]
+        rows.append([label, *cells, *paper])
     text = ("## The Hammerstein route (paper secs. 7.4-7.6)\n\n"
             + _criteria_table("step", rows, st, ["paper V [kW^2]", "paper W [kW^2]", "paper iterations"]))
     arx_like = [n for n in m if n.startswith("armax_")]
