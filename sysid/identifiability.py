@@ -1,17 +1,15 @@
 """Judge whether a log, and the model fitted to it, carry information about the input.
 
-Identification is general: a negative gain, a long delay or an integrating process are
-legitimate properties of a process, and are *warnings* (the model may be right; the
-user decides). What no fit can repair is a log that carries no information about the
-input: those are *refusals*. docs/theory.rst, "Facts that bite", draws this line.
+A negative gain, a long delay or an integrating process can be the process: *warnings*
+(the user decides). A log that carries no information about the input no fit can
+repair: *refusals* (docs/theory.rst, "Facts that bite").
 
 Checks on the data (before a fit, `assess_data`, and again with the fitted model's
 orders in `assess_model`), each a refusal when it fails:
 
 * ``input_excitation``: the input's standard deviation against its scale;
-* ``input_levels``: distinct input levels: fewer than 2 is a refusal (nothing about the
-  input can be learned); fewer than the polynomial degree + 1 only a warning (the
-  input polynomial cannot be fitted and the pipeline writes a lower-order model, which
+* ``input_levels``: distinct input levels: fewer than 2 is a refusal; fewer than the
+  polynomial degree + 1 only a warning (the pipeline writes a lower-order model, which
   the data do support);
 * ``persistent_excitation``: the input's order of persistent excitation against the
   number of ``B`` coefficients;
@@ -23,11 +21,11 @@ Checks on the fitted model (`assess_model`), each a warning when it fails:
 
 * ``gain_significance``: the static gain over the input range against its standard
   deviation (delta method on the stored covariance);
-* ``pole_at_one``: the pole nearest to z = 1 against its standard deviation (a model
-  the data cannot tell from an integrator);
+* ``pole_at_one``: the distance of the pole nearest to z = 1 against its standard
+  deviation (a model the data cannot tell from an integrator);
 * ``slow_pole``: the slowest time constant against the record (steady gain extrapolated);
-* ``gain_sign``: a static gain over the input range that is not positive (the MPC
-  refuses it), and a local gain that changes sign inside the range;
+* ``gain_sign``: a static gain that is not positive (the MPC refuses it), or a local
+  gain that changes sign inside the input range;
 * ``long_delay``: the delay against the record and against the time constant.
 
 Notation
@@ -70,26 +68,24 @@ from sysid.model import HammersteinModel
 Severity = Literal["refusal", "warning"]
 
 #: The input's standard deviation must be at least this share of its largest magnitude
-#: (0.1 %: about one step of a 10-bit actuator). Below it the input is constant but for
-#: noise or quantization, and no output change can be attributed to it.
+#: (0.1 %: about one step of a 10-bit actuator); below it the input is constant but for
+#: noise or quantization.
 INPUT_STD_RTOL = 1e-3
-#: The order of persistent excitation is measured up to ``nb`` plus this (so a report
-#: shows the margin, not only "enough").
+#: The order of persistent excitation is measured up to ``nb`` plus this (a report shows
+#: the margin).
 PE_ORDER_MARGIN = 2
 #: Samples per estimated parameter, at least ([3]; `sysid.hammerstein` applies the same).
 SAMPLES_PER_PARAMETER = 10
-#: A singular value of the input's lag matrix below this share of the largest counts as
-#: zero when the order of persistent excitation is read off its numerical rank (far
-#: above rounding, ~1e-16 N, and far below any real excitation, ~1/sqrt(N) for one step).
+#: A singular value of the input's lag matrix below this share of the largest is zero in
+#: its numerical rank (far above rounding, ~1e-16 N; far below one step's ~1/sqrt(N)).
 PE_RANK_RTOL = 1e-8
-#: Largest p-value of the F-test "the input terms explain nothing" that still counts as
-#: information about the input (0.1 %: a log of pure noise passes it once in 1000).
+#: Largest p-value of the F-test "the input terms explain nothing" that counts as
+#: information about the input (a log of pure noise passes once in 1000).
 INFORMATION_P_VALUE = 1e-3
-#: Smallest ``|g| / std(g)`` of a significant static gain (3 standard deviations: a
-#: zero gain gives this by chance with probability 0.27 % under the normal approximation).
+#: Smallest ``|g| / std(g)`` of a significant static gain (a zero gain exceeds it by
+#: chance with probability 0.27 %, normal approximation).
 GAIN_Z_MIN = 3.0
-#: A pole closer to z = 1 than this many of its standard deviations cannot be told from
-#: an integrator by these data.
+#: A pole closer to z = 1 than this many standard deviations is an integrator's.
 POLE_Z_MIN = 3.0
 #: Distance to z = 1 below which a pole is at z = 1 whatever its covariance says.
 POLE_AT_ONE_ATOL = 1e-9
@@ -113,19 +109,16 @@ class Check:
     Parameters
     ----------
     name :
-        The check (see the module docstring), e.g. ``"gain_significance"``.
+        The check (module docstring), e.g. ``"gain_significance"``.
     passed :
         Whether the measurement met the threshold.
     severity :
         What a failure means: ``"refusal"`` (the data cannot support a model) or
         ``"warning"`` (the model may be right but is unusual).
-    measured :
-        The measured value (units in `message`).
-    threshold :
-        The threshold it was compared with.
+    measured, threshold :
+        The measured value (units in `message`) and the threshold it was compared with.
     message :
-        Plain words: what was checked, the value, the threshold, and (when failed)
-        what to do.
+        What was checked, the value, the threshold, and (when failed) what to do.
     """
 
     name: str
@@ -160,8 +153,7 @@ class IdentifiabilityAssessment:
     Parameters
     ----------
     checks :
-        The checks in the order run; a later check of the same name (the same check
-        with the fitted model's orders) replaces an earlier one in `check`.
+        The checks in the order run; a later check of a name replaces an earlier one.
     """
 
     checks: tuple[Check, ...]
@@ -248,12 +240,11 @@ def persistent_excitation_order(
 ) -> int:
     """Order of persistent excitation of an input, up to `max_order` ([1] ch. 13, [2] 5.4).
 
-    The input is persistently exciting of order ``n`` when its ``n x n`` covariance
-    matrix of lagged values is positive definite. Here that matrix is the Gram matrix of
-    the lag matrix ``[u_t, u_{t-1}, .., u_{t-n+1}]`` of the centred input, rows taken
-    inside each segment only (no padding, which would add spurious excitation at the
-    edges); the order is the numerical rank of that lag matrix (singular values above
-    `rtol` times the largest). A constant input has order 0, a sinusoid order 2.
+    The input is persistently exciting of order ``n`` when the ``n x n`` covariance of its
+    lagged values is positive definite: here the numerical rank (singular values above
+    `rtol` times the largest) of the lag matrix ``[u_t, u_{t-1}, .., u_{t-n+1}]`` of the
+    centred input, rows inside each segment only (padding would add excitation). A
+    constant input has order 0, a sinusoid order 2.
 
     Parameters
     ----------
@@ -297,11 +288,11 @@ def input_information_test(
 ) -> tuple[float, float]:
     """F-test that the input explains the output at all ([2] ch. 11).
 
-    Least squares of the output on a constant and its own past ``y_{t-1..t-na}``
-    (restricted model) against the same plus the input features ``ds^i_{t-nk-j}``,
-    ``i = 1..degree``, ``j = 0..nb-1`` (full model), rows inside each segment with every
-    value finite. Under "the input terms are all zero" with white equation errors,
-    ``F = ((RSS_r - RSS_f) / q) / (RSS_f / (n - p_f))`` follows ``F(q, n - p_f)``.
+    Least squares of the output on a constant and ``y_{t-1..t-na}`` (restricted) against
+    the same plus ``ds^i_{t-nk-j}``, ``i = 1..degree``, ``j = 0..nb-1`` (full), on the
+    rows inside each segment with every value finite. If the input terms are all zero
+    and the equation errors white, ``F = ((RSS_r - RSS_f) / q) / (RSS_f / (n - p_f))``
+    follows ``F(q, n - p_f)``.
 
     Parameters
     ----------
@@ -358,16 +349,15 @@ def input_information_test(
 def static_gain(model: HammersteinModel) -> tuple[float, float]:
     """Static gain over the input range and its standard deviation (delta method, [1] ch. 9).
 
-    ``g = K (f(ds_hi) - f(ds_lo)) / (ds_hi - ds_lo)`` with ``K = B(1)/A(1)`` and the
-    model's input range; ``std(g) = sqrt(grad' Sigma grad)`` with the analytic gradient
-    of ``g`` in the model's parameters (``b_j``, ``d_i``, ``a_i``/``f_i``; the noise
-    parameters ``k_i`` do not enter ``g``) and ``Sigma`` the stored covariance
+    ``g`` as in the module Notation over the model's input range; ``std(g) = sqrt(grad'
+    Sigma grad)`` with the analytic gradient of ``g`` in ``b_j``, ``d_i``, ``a_i``/``f_i``
+    (the noise parameters ``k_i`` do not enter) and ``Sigma`` the stored covariance
     (`HammersteinModel.covariance`, in the order of ``provenance.parameter_names``).
 
     Parameters
     ----------
     model :
-        A model; its covariance and parameter names are needed for the deviation.
+        The model (its covariance and parameter names give the deviation).
 
     Returns
     -------
@@ -454,6 +444,7 @@ def slowest_time_constant_s(model: HammersteinModel) -> float:
 
 # =========================================================================== the checks
 def _n_parameters(model: HammersteinModel) -> int:
+    """The model's estimated parameters (its names, else counted from its orders)."""
     names = model.provenance.parameter_names
     if names is not None:
         return len(names)
@@ -478,19 +469,17 @@ def _data_checks(data: Dataset, *, degree: int, nb: int, n_parameters: int,
                         f"{INPUT_STD_RTOL:g} needed (the input must move by more than 0.1 % "
                         f"of its scale [{unit}])"),
                advice=f"; the input is constant but for noise: {_ADVICE_TEST}"),
-        Check(name="input_levels", passed=levels >= degree + 1,
-              severity="refusal" if levels < 2 else "warning",
-              measured=float(levels), threshold=float(degree + 1),
-              message=(f"input levels: {levels} distinct input value(s), at least "
-                       f"{degree + 1} needed for the degree-{degree} input polynomial of "
-                       f"{what} ({degree} coefficient(s) of f and the output at the operating "
-                       "point)"
-                       + ("" if levels >= degree + 1 else
-                          (f"; {_ADVICE_TEST}" if levels < 2 else
-                           "; the input polynomial cannot be fitted from these levels, so the "
-                           "model written is of lower order (the terminal says which); for "
-                           f"the nonlinearity, {_ADVICE_TEST}")
-                          + (", or a lower degree (--orders)" if degree > 1 else "")))),
+        _check("input_levels", levels >= degree + 1, "refusal" if levels < 2 else "warning",
+               measured=float(levels), threshold=float(degree + 1),
+               finding=(f"input levels: {levels} distinct input value(s), at least "
+                        f"{degree + 1} needed for the degree-{degree} input polynomial of "
+                        f"{what} ({degree} coefficient(s) of f and the output at the operating "
+                        "point)"),
+               advice=((f"; {_ADVICE_TEST}" if levels < 2 else
+                        "; the input polynomial cannot be fitted from these levels, so the "
+                        "model written is of lower order (the terminal says which); for "
+                        f"the nonlinearity, {_ADVICE_TEST}")
+                       + (", or a lower degree (--orders)" if degree > 1 else ""))),
         _check("persistent_excitation", pe >= nb, "refusal", measured=float(pe),
                threshold=float(nb),
                finding=(f"persistent excitation: the input is persistently exciting of order "
@@ -542,18 +531,17 @@ def assess_data(
 
 
 def assess_model(model: HammersteinModel, data: Dataset) -> IdentifiabilityAssessment:
-    """Every check on a fitted model and the log it was fitted to.
+    """Every check of the module docstring on a fitted model and the log it was fitted to.
 
-    The data checks of `assess_data` with the model's own orders, the F-test
-    ``input_information`` (refusal: the data carry no information about the input),
-    and the warnings ``gain_significance``, ``pole_at_one``, ``slow_pole``,
-    ``gain_sign`` and ``long_delay`` (see the module docstring for each rule).
+    The data checks of `assess_data` with the model's orders, the refusal
+    ``input_information`` and the warnings ``gain_significance``, ``pole_at_one``,
+    ``slow_pole``, ``gain_sign`` and ``long_delay``.
 
     Parameters
     ----------
     model :
-        The fitted model (with its covariance for the significance checks; without it
-        those checks are warnings that say they could not be judged).
+        The fitted model (without its covariance the significance checks are warnings
+        that say they could not be judged).
     data :
         The (preprocessed) log the model was fitted to.
 
@@ -686,9 +674,9 @@ def structure_before_fit(
     Parameters
     ----------
     orders :
-        ``"auto"`` (the smallest structure of the search: degree 1, ``nb = 1``, one pole
-        and its noise model), ``"paper"`` (degree 2, ``nb = 2``, ``nf = nc = 1``) or
-        ``(nb, nf, nk[, nc])`` with ``nc = nf`` by default (`czmpc identify --orders`).
+        ``"auto"`` (the search's smallest: degree 1, ``nb = 1``, one pole and its noise
+        model), ``"paper"`` (degree 2, ``nb = 2``, ``nf = nc = 1``) or
+        ``(nb, nf, nk[, nc])``, ``nc = nf`` by default (`czmpc identify --orders`).
     degree :
         Input-polynomial degree used with ``"paper"`` and explicit orders.
 
