@@ -49,6 +49,15 @@ def _frozen_array(values: Any, name: str) -> FloatArray:
     return arr
 
 
+def _poly_eval(input_poly: FloatArray, ds: FloatArray | float) -> FloatArray:
+    """``f(ds) = sum_i p_i ds^i`` (no constant term) by Horner's rule."""
+    ds = np.asarray(ds, dtype=float)
+    out = np.zeros_like(ds)
+    for coef in np.asarray(input_poly)[::-1]:
+        out = (out + coef) * ds
+    return out
+
+
 @dataclass(frozen=True, kw_only=True)
 class OperatingPoint:
     """Steady operating point the deviation variables are taken about (paper sec. 5.1).
@@ -316,11 +325,7 @@ class HammersteinModel:
         ds_pct :
             TRIAC deviation from the operating point [%], scalar or array.
         """
-        ds = np.asarray(ds_pct, dtype=float)
-        out = np.zeros_like(ds)
-        for coef in self.input_poly[::-1]:
-            out = (out + coef) * ds
-        return out
+        return _poly_eval(self.input_poly, ds_pct)
 
     def input_nonlinearity_slope(self, ds_pct: FloatArray | float) -> FloatArray:
         """Evaluate ``f'(ds)`` [kW/%] (the instantaneous gain of the paper's sec. 7.3)."""

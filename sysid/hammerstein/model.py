@@ -9,7 +9,7 @@ into a `HammersteinModel`. Notation as in `sysid.hammerstein`.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -24,8 +24,8 @@ from sysid.criteria import model_criteria
 from sysid.data import Dataset
 from sysid.errors import IdentificationError, UnstableModelError
 from sysid.greybox import GreyBoxResult, GreyBoxStructure
-from sysid.hammerstein.filtering import HammersteinOrders, mean_square_criterion
-from sysid.model import Criteria, HammersteinModel, OperatingPoint, Provenance
+from sysid.hammerstein.filtering import HammersteinOrders, _powers, mean_square_criterion
+from sysid.model import Criteria, HammersteinModel, OperatingPoint, Provenance, _poly_eval
 from sysid.polynomials import reflect_unstable_roots
 
 HammersteinBlock = Literal["arx", "oe", "armax"]
@@ -130,19 +130,6 @@ class HammersteinFit:
         return _poly_eval(self.input_poly, np.asarray(ds_pct, dtype=float))
 
 
-def _poly_eval(input_poly: FloatArray, ds: FloatArray) -> FloatArray:
-    out = np.zeros_like(ds, dtype=float)
-    for coef in np.asarray(input_poly)[::-1]:
-        out = (out + coef) * ds
-    return out
-
-
-def _features(ds: FloatArray, degree: int) -> FloatArray:
-    """``[ds, ds^2, ..., ds^n]``, shape ``(N, n)``: the model input of eq. 26."""
-    ds = np.asarray(ds, dtype=float)
-    return np.column_stack([ds**i for i in range(1, degree + 1)])
-
-
 def _check_int(name: str, value: object, minimum: int, where: str) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
         raise IdentificationError(f"{where}: {name} must be an int >= {minimum}; got {value!r}")
@@ -165,11 +152,8 @@ def _check_arrays(y: Any, ds: Any, where: str) -> tuple[FloatArray, FloatArray]:
 def _check_excitation(ds: FloatArray, degree: int, n_parameters: int, where: str) -> None:
     """Refuse an input that cannot determine ``f`` or data too short for the parameters.
 
-    ``f(ds) = d1 ds + ... + dn ds^n`` has no constant term (``f(0) = 0``), so its ``n``
-    coefficients are fixed by its values at ``n`` distinct non-zero deviations
-    (a Vandermonde system without the column of ones): a quadratic needs the input at
-    2 levels other than the operating point, not 3. The operating-point level itself
-    (``ds = 0``) carries no information on ``f``.
+    ``f`` has no constant term, so its ``n`` coefficients need its values at ``n`` distinct
+    non-zero deviations: a quadratic needs 2 input levels besides the operating point.
     """
     levels = np.unique(ds[ds != 0.0])
     if levels.size < degree:
@@ -207,10 +191,6 @@ def _observer_form(
         b_col[i - 1] = beta_full[i] - a_full[i] * beta_full[0]
         K[i - 1] = kgain[i - 1] if i - 1 < len(kgain) else 0
     return A, b_col, ca.SX(beta_full[0]), K
-
-
-def _names_b(nb: int, nk: int) -> tuple[str, ...]:
-    return tuple(f"b{j}" for j in range(nk + 1, nk + nb))
 
 
 def _check_orders(degree: int, nb: int, nf: int, nk: int, where: str) -> tuple[int, int, int, int]:
@@ -263,21 +243,8 @@ def hammerstein_oe_structure(
     """
     where = "hammerstein_oe_structure"
     degree, nb, nf, nk = _check_orders(degree, nb, nf, nk, where)
-    names_b = _names_b(nb, nk)
-    names_d = tuple(f"d{i}" for i in range(1, degree + 1))
-    names_f = tuple(f"f{i}" for i in range(1, nf + 1))
-    names = names_b + names_d + names_f
-    n = max(nf, nk + nb - 1, 1)
-
-    def matrices(p: Mapping[str, Any]) -> tuple[Any, Any, Any, Any, Any]:
-        beta = [0] * nk + [1] + [p[name] for name in names_b]
-        a = [1] + [p[name] for name in names_f]
-        A, b_col, D, K = _observer_form(a, beta, [], n)
-        d_row = ca.horzcat(*[p[name] for name in names_d])
-        C = ca.horzcat(ca.SX(1), ca.SX.zeros(1, n - 1))
-        return A, b_col @ d_row, C, D @ d_row, None
-
-    i_f = slice(len(names_b) + degree, len(names))
+    orders = HammersteinOrders(block="oe", degree=degree, nb=nb, na=nf, nc=0, nk=nk)
+    i_f = slice(nb - 1 + degree, orders.n_model)
 
     def project(theta: FloatArray) -> FloatArray:
         out = np.array(theta, dtype=float, copy=True)
@@ -286,7 +253,7 @@ def hammerstein_oe_structure(
         return out
 
     return _structure(
-        names, initial_values, matrices, degree, project, f"hammerstein-oe(nb={nb},nf={nf},"
+        orders, initial_values, None, project, f"hammerstein-oe(nb={nb},nf={nf},"
         f"nk={nk},degree={degree})"
     )
 
@@ -332,28 +299,17 @@ def hammerstein_armax_structure(
     degree, nb, _, nk = _check_orders(degree, nb, 0, nk, where)
     na = _check_int("na", na, 0, where)
     nc = _check_int("nc", nc, 0, where)
-    names_b = _names_b(nb, nk)
-    names_d = tuple(f"d{i}" for i in range(1, degree + 1))
-    names_a = tuple(f"a{i}" for i in range(1, na + 1))
-    names_k = tuple(f"k{i}" for i in range(1, nc + 1))
-    names = names_b + names_d + names_a + names_k
-    n = max(na, nk + nb - 1, nc, 1)
+    orders = HammersteinOrders(block="armax", degree=degree, nb=nb, na=na, nc=nc, nk=nk)
 
-    def matrices(p: Mapping[str, Any]) -> tuple[Any, Any, Any, Any, Any]:
-        beta = [0] * nk + [1] + [p[name] for name in names_b]
-        a = [1] + [p[name] for name in names_a]
+    def kgain(p: Mapping[str, Any], n: int) -> list[Any]:
         # K_i = c_i - a_i; c_i = a_i + k_i for i <= nc, c_i = 0 beyond
-        kgain = [
+        return [
             p[f"k{i}"] if i <= nc else (-p[f"a{i}"] if i <= na else 0)
             for i in range(1, n + 1)
         ]
-        A, b_col, D, K = _observer_form(a, beta, kgain, n)
-        d_row = ca.horzcat(*[p[name] for name in names_d])
-        C = ca.horzcat(ca.SX(1), ca.SX.zeros(1, n - 1))
-        return A, b_col @ d_row, C, D @ d_row, K
 
-    i_a = slice(len(names_b) + degree, len(names_b) + degree + na)
-    i_k = slice(len(names_b) + degree + na, len(names))
+    i_a = slice(nb - 1 + degree, nb - 1 + degree + na)
+    i_k = slice(nb - 1 + degree + na, orders.n_model)
 
     def project(theta: FloatArray) -> FloatArray:
         out = np.array(theta, dtype=float, copy=True)
@@ -370,19 +326,32 @@ def hammerstein_armax_structure(
         return out
 
     return _structure(
-        names, initial_values, matrices, degree, project,
+        orders, initial_values, kgain, project,
         f"hammerstein-armax(na={na},nb={nb},nc={nc},nk={nk},degree={degree})",
     )
 
 
 def _structure(
-    names: tuple[str, ...],
+    orders: HammersteinOrders,
     initial_values: Mapping[str, float] | None,
-    matrices: Any,
-    degree: int,
-    project: Any,
+    kgain: Callable[[Mapping[str, Any], int], list[Any]] | None,
+    project: Callable[[FloatArray], FloatArray],
     label: str,
 ) -> GreyBoxStructure:
+    """The observer canonical form of `orders` with input ``[ds, .., ds^n]`` (``K`` from `kgain`)."""
+    names = orders.parameter_names()
+    nk, nb1, degree, n = orders.nk, orders.nb - 1, orders.degree, max(orders.n_state, 1)
+    names_b, names_d = names[:nb1], names[nb1 : nb1 + degree]
+    names_a = names[nb1 + degree : nb1 + degree + orders.na]
+
+    def matrices(p: Mapping[str, Any]) -> tuple[Any, Any, Any, Any, Any]:
+        beta = [0] * nk + [1] + [p[name] for name in names_b]
+        a = [1] + [p[name] for name in names_a]
+        A, b_col, D, K = _observer_form(a, beta, [] if kgain is None else kgain(p, n), n)
+        d_row = ca.horzcat(*[p[name] for name in names_d])
+        C = ca.horzcat(ca.SX(1), ca.SX.zeros(1, n - 1))
+        return A, b_col @ d_row, C, D @ d_row, None if kgain is None else K
+
     given = dict(initial_values or {})
     unknown = set(given) - set(names)
     if unknown:
@@ -396,7 +365,7 @@ def _structure(
         parameter_names=names,
         initial_values=tuple(float(v) for v in start),
         matrices=matrices,
-        input_map=lambda ds: _features(ds, degree),
+        input_map=lambda ds: _powers(np.asarray(ds, dtype=float), degree),
         project=project,
         name=label,
     )

@@ -28,11 +28,10 @@ from sysid.hammerstein.model import (
     _check_arrays,
     _check_int,
     _check_orders,
-    _poly_eval,
     hammerstein_model,
 )
 from sysid.linear import ArxFit, PemFit, arx_least_squares, arx_oe_start, oe_pem, segment_bounds, sriv_oe
-from sysid.model import OperatingPoint
+from sysid.model import OperatingPoint, _poly_eval
 from sysid.optimize import MAX_ITERATIONS, parameter_std_errors
 from sysid.result import IdentificationResult
 from sysid.steps import InputStep, detect_steps
@@ -746,7 +745,7 @@ def fit_hammerstein(
     --------
     >>> import numpy as np
     >>> from sysid.data import Dataset
-    >>> from sysid.model import OperatingPoint
+    >>> from sysid.model import OperatingPoint, _poly_eval
     >>> rng = np.random.default_rng(0)
     >>> s = 45.0 + np.repeat(rng.uniform(-10, 15, 20), 100)
     >>> ds = s - 45.0
