@@ -29,6 +29,7 @@ import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.signal import lfilter
 
+from sysid._arrays import readonly_array
 from sysid._typing import FloatArray
 from sysid.criteria import model_criteria
 from sysid.data import Dataset
@@ -189,9 +190,7 @@ class ArxFit:
 
     def __post_init__(self) -> None:
         for name in ("a", "b", "theta", "std_errors", "residuals"):
-            arr = np.array(getattr(self, name), dtype=float, copy=True)
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
+            object.__setattr__(self, name, readonly_array(getattr(self, name)))
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -400,8 +399,6 @@ def arx_least_squares(
     )
 
 
-
-
 # --- prediction-error method: OE (V, eq. 9) and ARMAX (W, eq. 10) -------------------
 
 
@@ -463,9 +460,7 @@ class PemFit:
 
     def __post_init__(self) -> None:
         for name in ("a", "b", "c", "theta", "std_errors", "residuals", "initial_state"):
-            arr = np.array(getattr(self, name), dtype=float, copy=True)
-            arr.setflags(write=False)
-            object.__setattr__(self, name, arr)
+            object.__setattr__(self, name, readonly_array(getattr(self, name)))
 
 
 def _shift_into(out: FloatArray, x: FloatArray, lags: range) -> FloatArray:
@@ -511,13 +506,11 @@ def _stabilizer(blocks: tuple[slice, ...]) -> Callable[[FloatArray], FloatArray]
 
 
 def _check_initial_conditions(value: object) -> InitialConditions:
-    if value == "held":
-        return "held"
-    if value == "estimated":
-        return "estimated"
-    raise IdentificationError(
-        f"initial_conditions must be 'held' or 'estimated'; got {value!r}"
-    )
+    if value not in ("held", "estimated"):
+        raise IdentificationError(
+            f"initial_conditions must be 'held' or 'estimated'; got {value!r}"
+        )
+    return value
 
 
 def _check_theta0(theta0: FloatArray | None, n_model: int, where: str) -> FloatArray | None:
@@ -673,19 +666,8 @@ def _armax_problem(
 class _PemSetup:
     """The checked data and options of one OE or ARMAX fit (what `_pem_fit` runs on).
 
-    Parameters
-    ----------
-    y, u :
-        Output and input, 1-D of one length, finite, the input not constant.
-    bounds :
-        ``(start, stop)`` of each segment (`segment_bounds`).
-    initial_conditions :
-        ``"held"`` or ``"estimated"``.
-    n_model :
-        Model parameters (`PemFit.theta`).
-    n_state :
-        Initial-state parameters of one segment when they are estimated: the order of
-        the denominator, ``nf`` (OE) or ``nc`` (ARMAX).
+    ``bounds``: `segment_bounds`; ``n_model``: the size of `PemFit.theta`; ``n_state``: a
+    segment's initial-state parameters when estimated, ``nf`` (OE) or ``nc`` (ARMAX).
     """
 
     y: FloatArray
@@ -717,25 +699,9 @@ def _pem_setup(
     max_lag: int,
     where: str,
 ) -> _PemSetup:
-    """Check the options and data of an OE or ARMAX fit whose orders are checked.
+    """Check the data and options of an OE or ARMAX fit (orders already checked).
 
-    Parameters
-    ----------
-    y, u, initial_conditions, segment_starts :
-        As given to `oe_pem` / `armax_pem`.
-    n_model, n_state :
-        See `_PemSetup`.
-    max_lag :
-        The longest lag of the structure [samples].
-    where :
-        The public function named in the messages.
-
-    Raises
-    ------
-    IdentificationError
-        Bad `initial_conditions`; non-finite, mismatched or constant signals; bad
-        `segment_starts`; fewer samples than the parameters (with every segment's
-        estimated initial state) and lags need.
+    `max_lag`: the structure's longest lag [samples]; `where`: the public name in messages.
     """
     ic = _check_initial_conditions(initial_conditions)
     y, u = _check_signals(y, u, where)
@@ -761,30 +727,11 @@ def _pem_fit(
 ) -> PemFit:
     """Minimize the stacked residuals of the segments from `start` and make the `PemFit`.
 
-    Parameters
-    ----------
-    structure :
-        ``"oe"`` or ``"armax"``.
-    setup :
-        The checked data and options.
-    start :
-        Model parameters to start from, shape ``(n_model,)``.
-    segment_problem :
-        ``(y, u) -> Problem`` of one segment (`_oe_problem`, `_armax_problem`).
-    project :
-        The stabilizing projection applied at every trial point (`_stabilizer`).
-    held_state :
-        ``theta -> w``: every segment's initial state under held initial conditions,
-        concatenated; with estimated ones, the search starts from it (of the projected
-        `start`).
-    polynomials :
-        ``theta -> (a, b, c)`` as stored in `PemFit`.
-    names :
-        `PemFit.parameter_names`.
-    max_iterations :
-        Levenberg-Marquardt iteration limit.
-    tolerance :
-        Levenberg-Marquardt's ``ftol`` and ``xtol`` both; None: its tight defaults.
+    `segment_problem`: ``(y, u) -> Problem`` of one segment; `project`: the stabilizing
+    projection of every trial point; `held_state`: ``theta -> w``, every segment's held
+    initial state, concatenated (with estimated ones the search starts there, from the
+    projected `start`); `polynomials`: ``theta -> (a, b, c)``; `tolerance`: LM's ``ftol``
+    and ``xtol`` both, None for its tight defaults.
     """
     if setup.estimate:
         start = np.concatenate([start, held_state(project(start))])
@@ -919,8 +866,8 @@ def oe_pem(
     Returns
     -------
     PemFit
-        ``structure = "oe"``, ``a = c = F``. If the search did not converge, the best
-        iterate with ``converged = False``, and an `IdentificationWarning` is issued.
+        ``structure = "oe"``, ``a = c = F``; not converged: the best iterate,
+        ``converged = False`` and an `IdentificationWarning`.
 
     Raises
     ------
@@ -998,16 +945,12 @@ def armax_pem(
 
     Parameters
     ----------
-    y :
-        Output samples (deviation variables), shape ``(N,)``.
-    u :
-        Input samples (``ds`` or a Hammerstein input ``f(ds)``), shape ``(N,)``.
-    na :
-        Order of ``A`` (>= 0).
+    y, u :
+        Output and input samples, shape ``(N,)``, as in `oe_pem`.
+    na, nc :
+        Orders of ``A`` and ``C`` (>= 0).
     nb :
         Number of ``B`` coefficients (>= 1).
-    nc :
-        Order of ``C`` (>= 0).
     nk :
         Input delay [samples] (>= 0).
     theta0 :
@@ -1019,24 +962,19 @@ def armax_pem(
         zero (`sysid.simulate`). ``"estimated"``: past ``y``, ``u`` held, and the ``nc``
         states of ``1/C`` that the past prediction errors leave
         (`PemFit.initial_state`) are extra parameters.
-    max_iterations :
-        Levenberg-Marquardt iteration limit.
-    segment_starts :
-        First sample of each segment (experiment), starting with 0; default one
-        segment. Each segment is filtered from its own start (held past, or its own
-        estimated initial state); `PemFit.initial_state` then holds each segment's.
+    max_iterations, segment_starts :
+        As in `oe_pem`.
 
     Returns
     -------
     PemFit
-        ``structure = "armax"``. If the search did not converge, the best iterate with
-        ``converged = False``, and an `IdentificationWarning` is issued.
+        ``structure = "armax"``; not converged: the best iterate, ``converged = False``
+        and an `IdentificationWarning`.
 
     Raises
     ------
     IdentificationError
-        Bad orders or options, non-finite or mismatched arrays, a constant input, too
-        few samples for the orders, or a rank-deficient ARX start.
+        As `oe_pem`.
 
     Notes
     -----
@@ -1229,20 +1167,10 @@ def fit_oe(
 
     Parameters
     ----------
-    data :
-        The identification record (absolute units).
-    operating_point :
-        ``(s_nom, P_nom)`` for the deviation variables (paper sec. 5.1).
-    nb :
-        Number of ``B`` coefficients (>= 1).
-    nf :
-        Order of ``F`` (>= 0).
-    nk :
-        Input delay [samples] (>= 0).
-    initial_conditions :
-        ``"held"`` or ``"estimated"`` (see `oe_pem`).
-    max_iterations :
-        Levenberg-Marquardt iteration limit.
+    data, operating_point :
+        As in `fit_arx`.
+    nb, nf, nk, initial_conditions, max_iterations :
+        As in `oe_pem`.
     tolerance :
         Levenberg-Marquardt's ``ftol`` and ``xtol``; None: its tight defaults (a final
         fit). A comparison fit may stop sooner (`sysid.pipeline.COMPARISON_TOLERANCE`).
@@ -1252,8 +1180,7 @@ def fit_oe(
     IdentificationResult
         ``kind = "linear"``, ``linear_block = "oe"`` stored with ``A = C = F``, ``B``
         normalized, criteria V and W (equal for OE with held initial conditions),
-        ``criterion = "ballistic"``. Not converged: ``converged = False``, the best
-        iterate, and an `IdentificationWarning`.
+        ``criterion = "ballistic"``; not converged as `oe_pem`.
 
     Raises
     ------
@@ -1283,32 +1210,18 @@ def fit_armax(
 
     Parameters
     ----------
-    data :
-        The identification record (absolute units).
-    operating_point :
-        ``(s_nom, P_nom)`` for the deviation variables (paper sec. 5.1).
-    na :
-        Order of ``A`` (>= 0).
-    nb :
-        Number of ``B`` coefficients (>= 1).
-    nc :
-        Order of ``C`` (>= 0); the paper takes ``nc = na``.
-    nk :
-        Input delay [samples] (>= 0).
-    initial_conditions :
-        ``"held"`` or ``"estimated"`` (see `armax_pem`).
-    max_iterations :
-        Levenberg-Marquardt iteration limit.
+    data, operating_point :
+        As in `fit_arx`.
+    na, nb, nc, nk, initial_conditions, max_iterations :
+        As in `armax_pem`; the paper takes ``nc = na``.
     tolerance :
-        Levenberg-Marquardt's ``ftol`` and ``xtol``; None: its tight defaults (a final
-        fit). A comparison fit may stop sooner (`sysid.pipeline.COMPARISON_TOLERANCE`).
+        As in `fit_oe`.
 
     Returns
     -------
     IdentificationResult
         ``kind = "linear"``, ``linear_block = "armax"``, ``B`` normalized, criteria V
-        and W, ``criterion = "one_step"``. Not converged: ``converged = False``, the
-        best iterate, and an `IdentificationWarning`.
+        and W, ``criterion = "one_step"``; not converged as `armax_pem`.
 
     Raises
     ------

@@ -430,29 +430,9 @@ def _segments(data: Dataset, op: OperatingPoint) -> list[tuple[FloatArray, Float
 
 
 def _named(
-    name: str, label: str, result: IdentificationResult, data: Dataset | None = None
+    name: str, label: str, fit: IdentificationResult | HammersteinFit, model: HammersteinModel
 ) -> NamedModel:
-    model = result.model
-    note = {} if data is None else _segments_note(data)
-    if note:
-        model = model.with_updates(provenance=replace(
-            model.provenance, extra={**model.provenance.extra, **note}))
-    return NamedModel(
-        name=name,
-        label=label,
-        model=model,
-        n_parameters=len(result.parameter_names),
-        n_iterations=result.n_iterations,
-        converged=result.converged,
-        message=result.message,
-    )
-
-
-def _named_fit(
-    name: str, label: str, fit: HammersteinFit, data: Dataset, op: OperatingPoint
-) -> NamedModel:
-    model = hammerstein_model(fit, data, operating_point=op,
-                              extra={"pipeline_name": name, **_segments_note(data)})
+    """`model` named, with the search record of `fit`."""
     return NamedModel(
         name=name,
         label=label,
@@ -462,6 +442,13 @@ def _named_fit(
         converged=fit.converged,
         message=fit.message,
     )
+
+
+def _named_fit(
+    name: str, label: str, fit: HammersteinFit, data: Dataset, op: OperatingPoint
+) -> NamedModel:
+    return _named(name, label, fit, hammerstein_model(
+        fit, data, operating_point=op, extra={"pipeline_name": name, **_segments_note(data)}))
 
 
 def _check_level_shift(level_shift: object) -> LevelShiftOption:
@@ -525,34 +512,32 @@ def _linear_models(
     data: Dataset, op: OperatingPoint, nb: int, nf: int, nk: int, skipped: list[str],
     initial_state: InitialState,
 ) -> tuple[NamedModel, ...]:
-    na = nf
+    """ARX, ARMAX and OE at the base orders (``na = nc = nf``) and one higher (Table 2)."""
     # the OE fits estimate the initial state unless told to hold the past; the linear
     # ARMAX keeps the held past (with estimated C-states it needs > 100 iterations on the
     # shipped experiment and only serves as Table 2's comparison)
-    ic: dict[str, object] = {
-        "initial_conditions": "estimated" if initial_state == "estimate" else "held",
-        "tolerance": COMPARISON_TOLERANCE}
-    specs = [
-        (f"arx_{na}_{nb}", f"ARX(na={na}, nb={nb})", fit_arx, {"na": na, "nb": nb}),
-        (f"arx_{na + 1}_{nb + 1}", f"ARX(na={na + 1}, nb={nb + 1})", fit_arx,
-         {"na": na + 1, "nb": nb + 1}),
-        (f"armax_{na}_{nb}_{na}", f"ARMAX(na={na}, nb={nb}, nc={na})", fit_armax,
-         {"na": na, "nb": nb, "nc": na, "tolerance": COMPARISON_TOLERANCE}),
-        (f"armax_{na + 1}_{nb + 1}_{na + 1}", f"ARMAX(na={na + 1}, nb={nb + 1}, nc={na + 1})",
-         fit_armax, {"na": na + 1, "nb": nb + 1, "nc": na + 1,
-                     "tolerance": COMPARISON_TOLERANCE}),
-        (f"oe_{nb}_{nf}", f"OE(nb={nb}, nf={nf})", fit_oe, {"nb": nb, "nf": nf, **ic}),
-        (f"oe_{nb + 1}_{nf + 1}", f"OE(nb={nb + 1}, nf={nf + 1})", fit_oe,
-         {"nb": nb + 1, "nf": nf + 1, **ic}),
-    ]
+    tol: dict[str, object] = {"tolerance": COMPARISON_TOLERANCE}
+    ic = {"initial_conditions": "estimated" if initial_state == "estimate" else "held", **tol}
+    note = _segments_note(data)
     out = []
-    for name, label, fit, orders in specs:
-        try:
-            result = fit(data, operating_point=op, nk=nk, **orders)  # type: ignore[operator, arg-type]
-        except SysidError as exc:
-            skipped.append(f"{label} skipped: {exc}")
-            continue
-        out.append(_named(name, label, result, data))
+    for family, fit, options in (("ARX", fit_arx, {}), ("ARMAX", fit_armax, tol),
+                                 ("OE", fit_oe, ic)):
+        for up in (0, 1):
+            na, b = nf + up, nb + up
+            orders = {"ARX": {"na": na, "nb": b}, "ARMAX": {"na": na, "nb": b, "nc": na},
+                      "OE": {"nb": b, "nf": na}}[family]
+            name = "_".join([family.lower(), *(str(v) for v in orders.values())])
+            label = f"{family}({', '.join(f'{k}={v}' for k, v in orders.items())})"
+            try:
+                result = fit(data, operating_point=op, nk=nk, **orders, **options)  # type: ignore[arg-type]
+            except SysidError as exc:
+                skipped.append(f"{label} skipped: {exc}")
+                continue
+            model = result.model
+            if note:
+                model = model.with_updates(provenance=replace(
+                    model.provenance, extra={**model.provenance.extra, **note}))
+            out.append(_named(name, label, result, model))
     return tuple(out)
 
 
@@ -637,14 +622,12 @@ OrdersOption = Literal["auto", "paper"]
 
 
 def _check_orders_option(value: object) -> OrdersOption:
-    if value == "auto":
-        return "auto"
-    if value == "paper":
-        return "paper"
-    raise IdentificationError(
-        f"run_paper_pipeline: orders must be 'auto' or 'paper' (explicit orders go in nb, "
-        f"nf, nk); got {value!r}"
-    )
+    if value not in ("auto", "paper"):
+        raise IdentificationError(
+            f"run_paper_pipeline: orders must be 'auto' or 'paper' (explicit orders go in "
+            f"nb, nf, nk); got {value!r}"
+        )
+    return value
 
 
 def _paper_models(

@@ -1,32 +1,27 @@
 """Structure selection: delay estimation with its evidence, then an order grid chosen on validation data.
 
-Kernels on plain arrays: a record is a sequence of segments ``(y, ds)`` of deviation
-arrays (`sysid.hammerstein.filtering`).
+A record is a sequence of segments ``(y, ds)`` of deviation arrays
+(`sysid.hammerstein.filtering`).
 
-1. `estimate_delay`: a high-order ARX with ``nk = 0`` (``na`` small, ``nb`` long), whose
-   ``B`` coefficients estimate the first samples of the impulse response; the delay is
-   the first lag whose coefficient exceeds `threshold_sigma` standard errors. The
-   coefficients, their standard errors and the ARX impulse response are returned so a
-   figure can draw the evidence.
-2. `select_structure`: every segment is cut into an estimation block (the first
-   ``1 - validation_fraction``) and a validation block (the rest); a log shorter than
-   `SHORT_LOG_SAMPLES` is scored by two-fold contiguous cross-validation instead (each
-   half estimates, the other validates). The grid: Hammerstein-OE at degree 1 (linear)
-   and at the paper's degree of f (2) over ``nb``, ``nf``, ``nk`` (around the estimated
-   delay, and the paper's ``nk``), then every degree 1..3 on the best dynamics of the
-   grid and the paper's.
-   Every fit is the Hammerstein-OE PEM with the initial state estimated per segment,
-   run from two starts, keeping the better: an ARX least-squares start, and the best of
-   its nested lower-order fits padded with zeros (so a higher order never ends worse
-   than the order it contains, on the estimation data). A candidate's validation V is
-   its simulation error on the validation blocks, with no initial state fitted to the
-   scored samples (`_validation_errors`: the simulation continues from the estimation
-   block, or starts from a state fitted to a burn-in that is not scored).
-   The choice is the lowest validation V (the fewest parameters within
-   `PARSIMONY_MARGIN` of it) among the candidates whose time constants fit in the
-   estimation record, whose static gain is determined (`MAX_GAIN_RSD`) and none of
-   whose poles a zero nearly cancels (`MIN_POLE_ZERO_SHARE`); the paper's structure is
-   kept unless the choice beats it on validation by more than `PAPER_MARGIN`.
+1. `estimate_delay`: an ARX with ``nk = 0``, ``na`` small and ``nb`` long, whose ``B``
+   estimates the early impulse response; the delay is the first lag whose coefficient
+   exceeds `threshold_sigma` standard errors (the evidence is returned for a figure).
+2. `select_structure`: each segment is cut into an estimation block (the first
+   ``1 - validation_fraction``) and a validation block; a log shorter than
+   `SHORT_LOG_SAMPLES` is scored by two-fold contiguous cross-validation instead. The
+   grid: Hammerstein-OE at degree 1 and at the paper's degree over ``nb``, ``nf``,
+   ``nk`` (around the estimated delay, and the paper's), then every degree 1..3 on the
+   best dynamics and the paper's. Each fit is the Hammerstein-OE PEM with the initial
+   state estimated per segment, from an ARX start and from the best nested lower-order
+   fit padded with zeros (so a higher order never ends worse than one it contains),
+   keeping the better. A candidate's validation V is its simulation error on the
+   validation blocks with no initial state fitted to the scored samples
+   (`_validation_errors`). The choice is the lowest validation V (the fewest
+   parameters within `PARSIMONY_MARGIN` of it) among the candidates whose time
+   constants fit in the estimation record, whose static gain is determined
+   (`MAX_GAIN_RSD`) and none of whose poles a zero nearly cancels
+   (`MIN_POLE_ZERO_SHARE`); the paper's structure is kept unless the choice beats it on
+   validation by more than `PAPER_MARGIN`.
 """
 
 from __future__ import annotations
@@ -59,33 +54,25 @@ from sysid.residuals import CorrelationResult, autocorrelation, cross_correlatio
 SHORT_LOG_SAMPLES = 1500
 #: The paper's structure is kept unless the best beats its validation V by this share.
 PAPER_MARGIN = 0.05
-#: Among candidates whose validation V is within this share of the lowest, the one with
-#: the fewest parameters is the best (then the lowest V): a structure one order too
-#: large fits the noise as well as the plant, and its extra pole and zero can nearly
-#: cancel (seen: a double pole at z = 0.998 over a double zero 1e-5 away, whose
-#: static gain is the ratio of two numbers near zero).
+#: Among candidates within this share of the lowest validation V, the fewest parameters
+#: win (then the lowest V): one order too many fits the noise, and its extra pole and
+#: zero can nearly cancel (seen: a double pole at z = 0.998 over a double zero 1e-5 away).
 PARSIMONY_MARGIN = 0.02
 #: Share of a validation block that precedes its estimation block (the second of two
 #: folds) used to fit its initial state and left out of its score (`_validation_errors`).
 BURN_IN_FRACTION = 0.25
-#: Largest relative standard deviation of a candidate's static gain (from its
-#: estimation fit's covariance) for it to be chosen; also check-model's fail bound, so
-#: the search does not choose what the check must refuse.
+#: Largest relative standard deviation of a chosen candidate's static gain; also
+#: check-model's fail bound, so the search does not choose what the check refuses.
 MAX_GAIN_RSD = 0.5
-#: A pole ``p`` of ``F`` with a zero ``z`` of ``B`` so near that ``|p - z|`` is below
-#: this share of ``|1 - p|`` nearly cancels: its mode carries that share of its
-#: pole-zero pair's static gain (``(p - z) / (1 - p)``), so the structure has one order
-#: too many and the extra mode only fits initial states. Such candidates are not chosen
-#: (seen on the paper's 24,000 s experiment of a heater with ``nk = 3``: nb 3, nf 2 put a
-#: pole at 0.97014 over a zero at 0.97011 and scored 2.8 % below nb 2, nf 1 on
-#: validation; refitted on the whole record, the pair moved onto z = 1, an integrator
-#: that the MPC's disturbance model cannot tell from the disturbance).
+#: A pole ``p`` of ``F`` with a zero ``z`` of ``B`` within this share of ``|1 - p|``
+#: nearly cancels (its mode carries ``(p - z) / (1 - p)`` of the pair's static gain): one
+#: order too many, not chosen. Seen with ``nk = 3``: nb 3, nf 2 put a pole at 0.97014 over
+#: a zero at 0.97011, scored 2.8 % below nb 2, nf 1, and refitted on the whole record
+#: became an integrator the MPC's disturbance model cannot tell from the disturbance.
 MIN_POLE_ZERO_SHARE = 0.01
-#: LM's ``ftol`` and ``xtol`` for the grid's fits, which only rank structures: the
-#: choice's margins are 2 % and 5 % of V, so the search stops once an iteration improves
-#: the cost by under 1e-6 relative instead of crawling on to the final fit's 1e-12 (the
-#: chosen structure is refitted on the whole record at full tolerance). On the shipped
-#: experiment: the same choice in about half the time.
+#: LM's ``ftol`` and ``xtol`` for the grid's fits, which only rank structures (margins of
+#: 2 % and 5 % of V; the choice is refitted at full tolerance). Measured on the shipped
+#: experiment: the same choice in about half the time of 1e-12.
 RANKING_TOLERANCE = 1e-6
 #: The paper's structure: (degree, nb, nf, nk).
 PAPER_ORDERS: tuple[int, int, int, int] = (2, 2, 1, 1)
@@ -130,6 +117,15 @@ def _lag_matrix(x: FloatArray, lags: Sequence[int]) -> FloatArray:
     return out
 
 
+def _arx_rows(segments: Sequence[Segment], na: int, b_lags: Sequence[int],
+              start: int) -> tuple[list[FloatArray], list[FloatArray]]:
+    """Rows ``[-y_{k-1}..-y_{k-na}, ds_{k-j} (j in b_lags)]`` and targets ``y_k``, ``k >= start``,
+    of each segment."""
+    rows = [np.hstack([-_lag_matrix(y, range(1, na + 1)), _lag_matrix(ds, b_lags)])[start:]
+            for y, ds in segments]
+    return rows, [y[start:] for y, _ in segments]
+
+
 def estimate_delay(
     segments: Sequence[Segment],
     *,
@@ -169,19 +165,12 @@ def estimate_delay(
     IdentificationError
         Too few samples for the regression.
     """
-    start = max(na, n_coefficients)
-    rows, targets = [], []
-    for y, ds in segments:
-        if y.size <= start:
-            continue
-        phi = np.hstack([-_lag_matrix(y, range(1, na + 1)), _lag_matrix(ds, range(n_coefficients))])
-        rows.append(phi[start:])
-        targets.append(y[start:])
-    if not rows or sum(r.shape[0] for r in rows) < 4 * (na + n_coefficients):
+    rows, targets = _arx_rows(segments, na, range(n_coefficients), max(na, n_coefficients))
+    n_rows = sum(r.shape[0] for r in rows)
+    if n_rows < 4 * (na + n_coefficients):
         raise IdentificationError(
             f"estimate_delay: need at least {4 * (na + n_coefficients)} usable samples for "
-            f"an ARX({na}, {n_coefficients}) delay search; got "
-            f"{sum(r.shape[0] for r in rows)}"
+            f"an ARX({na}, {n_coefficients}) delay search; got {n_rows}"
         )
     phi = np.vstack(rows)
     target = np.concatenate(targets)
@@ -341,36 +330,27 @@ class _Fold:
 
 def _split(segments: Sequence[Segment], validation_fraction: float) -> list[_Fold]:
     """Estimation/validation folds of contiguous blocks."""
-    total = sum(y.size for y, _ in segments)
-    if total >= SHORT_LOG_SAMPLES:
-        est, val = [], []
-        for y, ds in segments:
-            cut = int(round(y.size * (1.0 - validation_fraction)))
-            est.append((y[:cut], ds[:cut]))
-            val.append((y[cut:], ds[cut:]))
-        return [_Fold(est, val, lead_in=True)]
+    holdout = sum(y.size for y, _ in segments) >= SHORT_LOG_SAMPLES
     first, second = [], []
     for y, ds in segments:
-        half = y.size // 2
-        first.append((y[:half], ds[:half]))
-        second.append((y[half:], ds[half:]))
+        cut = int(round(y.size * (1.0 - validation_fraction))) if holdout else y.size // 2
+        first.append((y[:cut], ds[:cut]))
+        second.append((y[cut:], ds[cut:]))
+    if holdout:
+        return [_Fold(first, second, lead_in=True)]
     return [_Fold(first, second, lead_in=True), _Fold(second, first, lead_in=False)]
 
 
 def _validation_errors(orders: HammersteinOrders, theta: FloatArray, fold: _Fold) -> FloatArray:
     """Simulation errors on the validation blocks of a fold, none of their data fitted.
 
-    ``theta`` holds the model parameters and the estimation blocks' initial transients
-    (as fitted with the initial state estimated). A validation block that follows its
-    estimation block is scored by simulating on from that block's fitted start. One that
-    precedes it (the second of two folds) has no fitted start: its initial state is
-    fitted to its first `BURN_IN_FRACTION` of samples, which are then left out of the
-    score. A state fitted to the scored samples lets extra slow modes (a nearly
-    cancelling pole-zero pair) fit the block's low-frequency noise, which made such
-    structures win on validation V (a commissioning log: degree 2, nb 3, nf 2 beat the
-    true nb 2, nf 1 by 23 %). A past held at the block's first sample (the rule of
-    `sysid.simulate`) is no start either: a log whose first sample already carries a
-    move (a test that starts by ramping) begins with a transient of several kW.
+    ``theta``: the model parameters, then the estimation blocks' initial transients. A
+    block after its estimation block continues that block's simulation; one before it
+    (the second of two folds) gets a state fitted to its first `BURN_IN_FRACTION`, left
+    out of the score. A state fitted to the scored samples let a nearly cancelling
+    pole-zero pair fit low-frequency noise (a commissioning log: nb 3, nf 2 beat the true
+    nb 2, nf 1 by 23 %); a past held at the first sample starts a ramping test with a
+    transient of several kW.
     """
     p, n = orders.n_model, orders.n_state
     out = []
@@ -530,16 +510,12 @@ def _parsimony_order(
     scores: Iterable[CandidateScore],
     v: Callable[[CandidateScore], float] = lambda s: s.validation_v_kw2,
 ) -> list[CandidateScore]:
-    """Candidates within `PARSIMONY_MARGIN` of the lowest V, fewest parameters first, then
-    the rest by V (``v``: the validation V, or another criterion).
+    """Candidates within `PARSIMONY_MARGIN` of the lowest ``v``, fewest parameters first,
+    then the rest by ``v`` (default the validation V).
 
-    The first is the choice's best (a structure one order too large fits the noise as
-    well as the plant). The refinement's bases: by V alone they are the supersets of the true dynamics (a
-    delay one sample short with one ``B`` coefficient more fits as well), which bury it
-    (seen on the paper's experiment of a heater with ``nk = 3``: the three best were nk 1
-    and 2 with nb 3 and 4, the true nb 2, nk 3 fourth by 0.1 %, so its cubic ``f`` was
-    never fitted and the choice was nb 3, nk 2 with a first coefficient near zero, f'(0)
-    of the wrong sign).
+    The first is the choice; the leading ones are the refinement's bases. By V alone the
+    bases were supersets of the true dynamics (with ``nk = 3``: nk 1 and 2 with nb 3 and
+    4 led, the true nb 2, nk 3 fourth by 0.1 %, so its cubic ``f`` was never fitted).
     """
     ranked = sorted(scores, key=v)
     if not ranked:
@@ -555,12 +531,7 @@ def _oe_orders(degree: int, nb: int, nf: int, nk: int) -> HammersteinOrders:
 
 def _linear_start(segments: Sequence[Segment], nb: int, nf: int, nk: int) -> dict[str, float]:
     """Normalized start from an ARX(nf, nb, nk) on the segments: ``d1 = b_nk``, ``b_j / b_nk``."""
-    start = max(nf, nk + nb - 1)
-    rows, targets = [], []
-    for y, ds in segments:
-        phi = np.hstack([-_lag_matrix(y, range(1, nf + 1)), _lag_matrix(ds, range(nk, nk + nb))])
-        rows.append(phi[start:])
-        targets.append(y[start:])
+    rows, targets = _arx_rows(segments, nf, range(nk, nk + nb), max(nf, nk + nb - 1))
     theta, *_ = np.linalg.lstsq(np.vstack(rows), np.concatenate(targets), rcond=None)
     a = theta[:nf]
     b = theta[nf:]
@@ -632,12 +603,10 @@ def select_structure(
                                               delay.delay_steps + 1, paper_orders[3])})
     folds = _split(segments, validation_fraction)
     grid = _Grid(folds, max_iterations)
-    # The dynamics grid at degree 1 and at the paper's degree of f: over a band where f is
-    # curved a linear grid alone ranks the dynamics wrongly, its slow mode bending to
-    # mimic f (seen on a 2 h multilevel test of a heater with nk = 3: every linear fit at
-    # nk = 3 ranked below fast wrong-delay ones, V 1.3 against 0.54, while at degree 2
-    # the nk = 3 structure scored 0.052 against 0.19); where f is nearly linear the
-    # degree-2 grid alone extrapolates f on validation (TCLab: V 0.50 against 0.12).
+    # The dynamics grid at degree 1 and at the paper's degree: where f is curved a linear
+    # grid alone ranks the dynamics wrongly (a 2 h test with nk = 3: nk = 3 scored V 1.3
+    # against 0.54 at degree 1, 0.052 against 0.19 at degree 2); where f is nearly linear
+    # the degree-2 grid alone extrapolates f (TCLab: V 0.50 against 0.12).
     grid_degrees = sorted({1, min(paper_orders[0], degree_max)})
     for degree in grid_degrees:
         for nk in nks:
@@ -653,16 +622,13 @@ def select_structure(
     if not grid.scores:
         raise IdentificationError("select_structure: no structure of the grid could be fitted")
     # A time constant longer than the estimation record cannot be told from an integrator
-    # (a slow drift of the output fits as one): such candidates fit well over a short
-    # validation block and have a meaningless static gain. They stay in the table but
-    # are not chosen, unless nothing else could be fitted.
+    # (its static gain is meaningless): such candidates are listed, not chosen, unless
+    # nothing else could be fitted.
     record = min(sum(y.size for y, _ in fold.est) for fold in folds)
     admissible = {k: s for k, s in grid.scores.items() if s.slowest_tau_samples <= record}
     excluded = len(grid.scores) - len(admissible)
-    # Nor is a candidate whose static gain the estimation data leave undetermined (a
-    # pole and a zero near z = 1 that nearly cancel: B(1) / F(1) is a ratio of two small,
-    # uncertain numbers; seen: +-3,900 % on a 2 h test, which check-model then refuses),
-    # unless every candidate's is.
+    # Nor one whose static gain is undetermined (B(1) / F(1) a ratio of two small,
+    # uncertain numbers: +-3,900 % on a 2 h test), unless every candidate's is.
     determined = {k: s for k, s in admissible.items() if s.static_gain_rsd <= MAX_GAIN_RSD}
     undetermined = len(admissible) - len(determined) if determined else 0
     # Nor one with a pole that a zero cancels (`MIN_POLE_ZERO_SHARE`), unless all have one.
