@@ -9,6 +9,7 @@ the config file's directory.
 
 from __future__ import annotations
 
+import bisect
 import csv
 import dataclasses
 import math
@@ -90,13 +91,7 @@ class Schedule:
 
     def setpoint_at(self, time_s: float) -> float:
         """The setpoint [kW] in force at run time ``time_s`` [s] (the first before it starts)."""
-        value = self.setpoints_kw[0]
-        for t, sp in zip(self.times_s, self.setpoints_kw, strict=True):
-            if t <= time_s:
-                value = sp
-            else:
-                break
-        return value
+        return self.setpoints_kw[max(0, bisect.bisect_right(self.times_s, time_s) - 1)]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -264,9 +259,8 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
         tables[name] = table
     plant, nodes, ctrl, run, safety, test, logging_table = (tables[n] for n in _TABLES)
     syslog, facility = _syslog(logging_table)
-    endpoint = _str(plant, "endpoint", "plant", required=True)
-    assert_endpoint = endpoint or ""
-    if not assert_endpoint.startswith("opc.tcp://"):
+    endpoint = _str(plant, "endpoint", "plant", required=True) or ""
+    if not endpoint.startswith("opc.tcp://"):
         raise RunConfigError(f"plant.endpoint: expected opc.tcp://HOST:PORT/...; got {shown(endpoint)}")
     ts_s = _num(plant, "ts_s", "plant", positive=True)
     if ts_s is None:
@@ -314,9 +308,9 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
     security_table = plant.get("security")
     if security_table is not None and not isinstance(security_table, dict):
         raise RunConfigError(f"plant.security: expected a table; got {shown(security_table)}")
-    security = parse_security(security_table, endpoint=assert_endpoint, base_dir=base_dir)
+    security = parse_security(security_table, endpoint=endpoint, base_dir=base_dir)
     return RunConfig(
-        endpoint=assert_endpoint, ts_s=ts_s, time_scale=float(time_scale or 1.0),
+        endpoint=endpoint, ts_s=ts_s, time_scale=float(time_scale or 1.0),
         max_sample_age_s=float(max_age or 2.0 * ts_s), connect_timeout_s=float(conn_to or 2.0),
         nodes=node_ids, model_path=None if model is None else base_dir / model,
         settings_path=None if settings is None else base_dir / settings,

@@ -1,17 +1,12 @@
 """What a PLC's OPC UA variable can carry, and the value czmpc writes into it.
 
-A PLC types its variables as its program does: an S7 ``REAL`` is served as ``Float``
-(float32), a ``WORD`` as ``UInt16``, an ``INT`` as ``Int16``, a ``BOOL`` as ``Boolean``.
-A server refuses a write whose Variant has another type (``BadTypeMismatch``), so
-czmpc reads each configured node's ``DataType`` once per session (`NodeType`) and
-writes a Variant of that type (`encode`): floats range-checked, integers rounded half
-away from zero and range-checked, never silently clipped.
-
-A node may carry a scaled value (`LinearScale`): a raw integer tag of 0..27648 for
-0..100 % (an S7 analog output), applied both ways (`encode` and `decode`); the run
-config's two forms of a node (`parse_node_spec`) are in docs/reference/run_config.rst.
-
-Pure functions and frozen records only: no server is needed to test them.
+A PLC serves an S7 ``REAL`` as ``Float`` (float32), a ``WORD`` as ``UInt16``, an ``INT``
+as ``Int16``, a ``BOOL`` as ``Boolean``, and refuses a write of another type
+(``BadTypeMismatch``). So czmpc reads each node's ``DataType`` once per session
+(`NodeType`) and writes a Variant of that type (`encode`): floats range-checked, integers
+rounded half away from zero and range-checked, never silently clipped. A node may carry
+a scaled value (`LinearScale`, e.g. raw 0..27648 for 0..100 %), applied both ways; the
+run config's two forms of a node (`parse_node_spec`): docs/reference/run_config.rst.
 """
 
 from __future__ import annotations
@@ -226,13 +221,9 @@ def decode(raw: Any, scale: LinearScale | None = None) -> float:
     NodeValueError
         Text, None or another non-number.
     """
-    if isinstance(raw, bool):
-        x = float(raw)
-    elif isinstance(raw, int | float):
-        x = float(raw)
-    else:
+    if not isinstance(raw, int | float):   # a bool is an int
         raise NodeValueError(f"expected a number; the node holds {raw!r}")
-    return x if scale is None else scale.from_raw(x)
+    return float(raw) if scale is None else scale.from_raw(float(raw))
 
 
 def next_heartbeat(current: Any, type_name: str) -> int | float | bool:

@@ -1,23 +1,19 @@
 """Read a `czmpc run` log (and its ``<log>.meta.json``) as identification data or a report's record.
 
-The log of `czmpc run` (an open-loop test, a dithered MPC or a plain MPC run) is read
-directly by `czmpc identify`. The rules:
+`czmpc identify` reads the log of `czmpc run` (an open-loop test, a dithered or a plain
+MPC run) directly. The rules:
 
 - rows without a sample index (the safe ramp after a stop) are not data;
-- the input of row ``j`` is the input that acted from sample ``j`` to ``j + 1``: the
-  applied input the plant publishes at row ``j + 1`` where it does, else the command
-  written at row ``j`` (the plant applies a command over the sample after it arrives
-  and publishes it with the power it produced);
-- a sample whose quality is not Good (Bad, Uncertain, stale, repeated, disconnected) is a gap,
-  and so is every period the loop skipped after an overrun (nothing was read there;
-  the heater's power jumps at a step, so no interpolation is right just after one: on a
-  loopback journey whose overruns fell just after steps, filling them by
-  interpolation gave a held-out fit of 53 %, gaps 95 %); the data are split into
-  segments at the gaps (`sysid.data.Dataset.segment_starts`), each identified
-  with its own initial state; segments shorter than `MIN_SEGMENT_SAMPLES` are dropped;
-- the provenance (config and its SHA-256, schedule and its SHA-256, start time, what
-  drove the input, closed loop or not) goes into the data set's ``preprocessing`` and
-  from there into the model file.
+- the input of row ``j`` acted from sample ``j`` to ``j + 1``: the applied input the
+  plant publishes at row ``j + 1`` where it does, else the command written at row ``j``;
+- a sample that is not Good (Bad, Uncertain, stale, repeated, disconnected) is a gap, and
+  so is every period skipped after an overrun (the power jumps at a step, so no
+  interpolation is right there; measured on a loopback journey: held-out fit 53 %
+  interpolated, 95 % with gaps); the data are split into segments at the gaps
+  (`sysid.data.Dataset.segment_starts`), each with its own initial state; segments
+  shorter than `MIN_SEGMENT_SAMPLES` are dropped;
+- the provenance (config, schedule and their SHA-256, start time, what drove the input,
+  closed loop or not) goes into the data set's ``preprocessing``, then the model file.
 """
 
 from __future__ import annotations
@@ -37,9 +33,11 @@ from czmpc.runtime.logfiles import RUN_META_FORMAT, is_log_file, log_parts, meta
 from sysid._typing import FloatArray
 from sysid.data import Dataset
 
-#: Shortest segment kept between gaps [samples]: shorter ones carry too little to fit
-#: an initial state and a model (a model of the paper's orders has 5 parameters).
+#: Shortest segment kept between gaps [samples] (a model of the paper's orders has 5
+#: parameters, and each segment its initial state).
 MIN_SEGMENT_SAMPLES = 10
+
+
 def is_run_log(path: str | Path) -> bool:
     """True if the file's header is the one of a `czmpc run` log, or a directory or glob
     names such files (a rotated log, several runs: `czmpc.runtime.logfiles.log_parts`)."""
@@ -76,8 +74,8 @@ def read_run_log(path: str | Path) -> Dataset:
         Not a run log, missing columns, or fewer than `MIN_SEGMENT_SAMPLES` usable
         samples in a row anywhere.
     """
-    parts = _parts(path)
-    rows, slots, meta, digest, _ = _joined_rows(parts)
+    parts = log_parts(path)
+    rows, slots, meta, digest, _ = _joined_rows(path, parts)
     if len(rows) < MIN_SEGMENT_SAMPLES:
         raise RunConfigError(f"{path}: expected at least {MIN_SEGMENT_SAMPLES} rows with a "
                              "sample index k")
@@ -86,15 +84,13 @@ def read_run_log(path: str | Path) -> Dataset:
     # one slot per sample period k, also for the periods the loop skipped after an overrun
     n = int(ks[-1] - ks[0]) + 1
     slot = ks - ks[0]
-    power = np.full(n, np.nan)
-    command = np.full(n, np.nan)
-    applied = np.full(n, np.nan)
-    logged = np.zeros(n, dtype=bool)
-    logged[slot] = True
+    power, command, applied = np.full((3, n), np.nan)
     power[slot] = [_float(r["power_kw"]) if r["quality"] == "good" else math.nan for r in rows]
     command[slot] = [_float(r["triac_pct"]) for r in rows]
     applied[slot] = [_float(r["applied_triac_pct"]) for r in rows]
     # the command stays written through skipped periods: hold it there
+    logged = np.zeros(n, dtype=bool)
+    logged[slot] = True
     for i in range(1, n):
         if not logged[i]:
             command[i] = command[i - 1]
@@ -102,20 +98,10 @@ def read_run_log(path: str | Path) -> Dataset:
     nxt = applied[1:]
     triac[:-1] = np.where(np.isfinite(nxt), nxt, command[:-1])
     usable = np.isfinite(power) & np.isfinite(triac)
-    starts: list[int] = []
-    stops: list[int] = []
-    i = 0
-    while i < n:
-        if not usable[i]:
-            i += 1
-            continue
-        j = i
-        while j < n and usable[j]:
-            j += 1
-        starts.append(i)
-        stops.append(j)
-        i = j
-    kept = [(a, b) for a, b in zip(starts, stops, strict=True) if b - a >= MIN_SEGMENT_SAMPLES]
+    # the runs of usable samples: [start, stop) pairs between the edges of `usable`
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], usable.astype(int), [0]))))
+    kept = [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)
+            if b - a >= MIN_SEGMENT_SAMPLES]
     if not kept:
         raise RunConfigError(
             f"{path}: no stretch of {MIN_SEGMENT_SAMPLES} or more usable samples in a row "
@@ -162,8 +148,8 @@ def read_run_record(path: str | Path) -> RunRecord:
     RunConfigError
         Not a run log (missing columns), or no step row.
     """
-    parts = _parts(path)
-    rows, slots, meta, _, n_safe = _joined_rows(parts)
+    parts = log_parts(path)
+    rows, slots, meta, _, n_safe = _joined_rows(path, parts)
     if not rows:
         raise RunConfigError(f"{path}: expected at least one step row; got none")
 
@@ -186,14 +172,6 @@ def read_run_record(path: str | Path) -> RunRecord:
         event=words("event"))
 
 
-def _parts(path: str | Path) -> list[Path]:
-    parts = log_parts(path)
-    if not parts:
-        raise RunConfigError(f"{path}: no czmpc run log there (a file, a directory or a glob "
-                             "of run logs)")
-    return parts
-
-
 def _ts_s(rows: list[dict[str, str]], meta: dict[str, Any]) -> float:
     """The run's sampling time [s]: from its meta file, else from the rows' time and index."""
     if meta.get("ts_s"):
@@ -202,16 +180,19 @@ def _ts_s(rows: list[dict[str, str]], meta: dict[str, Any]) -> float:
     return next((_float(r["time_s"]) for r in rows if _float(r["k"]) == k), 1.0) / k
 
 
-def _joined_rows(parts: list[Path],
+def _joined_rows(path: str | Path, parts: list[Path],
                  ) -> tuple[list[dict[str, str]], list[int], dict[str, Any], str, int]:
-    """The step rows of the parts as one log: (rows, slot of each row, first meta, SHA-256,
-    rows without a sample index: the safe action's).
+    """The step rows of ``path``'s parts as one log: (rows, slot of each row, first meta,
+    SHA-256, rows without a sample index: the safe action's).
 
     A row's slot is its sample period on one axis. The parts of one run (meta ``part`` >
     1) continue its sample index; a new run (a part without ``part``, or the index
     starting again within a file appended to) begins after a gap of at least one empty
     slot, as long as the wall time between the runs at the run's period.
     """
+    if not parts:
+        raise RunConfigError(f"{path}: no czmpc run log there (a file, a directory or a glob "
+                             "of run logs)")
     rows: list[dict[str, str]] = []
     slots: list[int] = []
     n_unindexed = 0
@@ -265,9 +246,8 @@ def describe_run_data(data: Dataset) -> str:
     info = next((p for p in data.preprocessing if p.get("what") == "czmpc run log"), None)
     if info is None:
         return ""
-    empty: dict[str, Any] = {}
     split = next((p for p in data.preprocessing if p.get("what") == "split at unusable samples"),
-                 empty)
+                 {})
     text = (f"{data.source} is a czmpc run log ({info.get('kind')}): {data.n_samples} samples in "
             f"{data.n_segments} segment(s) of {split.get('samples_in_log', '?')} logged; the input "
             f"is the plant's applied input where published.")

@@ -1,11 +1,9 @@
 """One loop step's decisions, without I/O: judge a read, step the controller, name what changed.
 
-`czmpc.runtime.loop.ControlLoop` reads the plant (I/O only), hands the values to
-`judge` and `decide` here, writes what they decided and records the row; so every
-rule of a step (which sample is usable, which mode request is refused, which input
-the controller is told was applied, when a write is meant, when shedding starts and
-ends, when refused commands abort the run) can be tested with DataValues built in
-memory and no server.
+`czmpc.runtime.loop.ControlLoop` reads the plant, hands the values to `judge` and
+`decide`, and writes what they decided; so every rule of a step (usable samples, refused
+mode requests, the applied input, writes, shedding, aborts on refused commands) is tested
+with DataValues built in memory and no server.
 """
 
 from __future__ import annotations
@@ -82,10 +80,8 @@ class Sample:
         The power's sample time (the previous one when this read carried none).
     age_s :
         Age of a good sample [wall s] (for the read alignment), else None.
-    setpoint_kw :
-        A Good setpoint node's value [kW], None when there is none.
-    mode :
-        The operator's mode (mode node), None when there is none or it is unreadable.
+    setpoint_kw, mode :
+        A Good setpoint node's value [kW] and the operator's mode; None when absent.
     applied_triac_pct :
         The input the plant reports applied [%] (the value read at a (re)connect first),
         None when unknown.
@@ -126,7 +122,6 @@ def judge(values: Mapping[str, Any] | None, specs: Mapping[str, NodeSpec], *, ma
     dv = values["power_kw"]
     power, quality = measurement(dv, max_age_s, previous_time if reject_repeated else None,
                                  specs["power_kw"].scale)
-    age = age_s(dv)
 
     def good(key: str) -> float | None:
         if key not in values:
@@ -135,12 +130,11 @@ def judge(values: Mapping[str, Any] | None, specs: Mapping[str, NodeSpec], *, ma
         return value if q == "good" else None
 
     mode_dv = values.get("mode")
-    applied = good("applied_triac_pct")
     return Sample(power_kw=power, quality=quality, time=sample_time(dv)[0] or previous_time,
-                  age_s=age if quality == "good" else None, setpoint_kw=good("setpoint_kw"),
+                  age_s=age_s(dv) if quality == "good" else None, setpoint_kw=good("setpoint_kw"),
                   mode=None if mode_dv is None or mode_dv.Value is None
                   else mode_of(mode_dv.Value.Value),
-                  applied_triac_pct=applied if math.isnan(connect_applied_pct)
+                  applied_triac_pct=good("applied_triac_pct") if math.isnan(connect_applied_pct)
                   else connect_applied_pct)
 
 
@@ -158,10 +152,8 @@ class Decision:
         The input the controller was told is applied [%], None when not known.
     applied_before_pct :
         The input acting over the period that ends now [%] (the monitors' input).
-    status, verdict :
-        The controller's words for the log.
-    mode :
-        The controller's mode after the step.
+    status, verdict, mode :
+        The controller's words for the log, and its mode after the step.
     """
 
     command_pct: float
@@ -177,9 +169,8 @@ def decide(ctrl: LoopController, sample: Sample, *, setpoint_kw: float, last_com
            allow_on: bool) -> Decision:
     """Pass the operator's mode request, step the controller, decide whether to write.
 
-    A request for ON is refused while ``allow_on`` is False (the switch-on rule,
-    `czmpc.runtime.session`). Outside ON, where the operator drives the TRIAC, an
-    applied input the plant does not report is taken as the last command.
+    Outside ON, where the operator drives the TRIAC, an applied input the plant does not
+    report is taken as the last command.
 
     Parameters
     ----------
@@ -192,7 +183,7 @@ def decide(ctrl: LoopController, sample: Sample, *, setpoint_kw: float, last_com
     last_command_pct :
         The last command accepted by the plant, or the last input outside ON [%]; NaN: none.
     allow_on :
-        The switch-on rule's answer.
+        False: a request for ON is refused (the switch-on rule, `czmpc.runtime.session`).
     """
     mode = sample.mode
     if mode is not None and mode is not ctrl.mode and (mode is not Mode.ON or allow_on):
@@ -214,10 +205,8 @@ class Transitions:
 
     Attributes
     ----------
-    shed_at_k :
-        Sample the controller began shedding at, None when it is not shedding.
-    mode :
-        The mode of the last step, None before the first.
+    shed_at_k, mode :
+        Sample shedding began at (None: not shedding); the last step's mode (None before).
     """
 
     shed_at_k: int | None = None
