@@ -88,70 +88,59 @@ class Dataset:
     segment_starts: tuple[int, ...] = (0,)
 
     def __post_init__(self) -> None:
-        for name in ("time_s", "triac_pct", "power_kw"):
+        for name in CSV_COLUMNS:
             arr = _readonly(getattr(self, name))
             if arr.ndim != 1:
-                raise DataFileError(f"{name} must be 1-D; got shape {arr.shape}", path=self.source)
+                raise self._error(f"{name} must be 1-D; got shape {arr.shape}")
             object.__setattr__(self, name, arr)
         n = self.time_s.size
         if self.triac_pct.size != n or self.power_kw.size != n:
-            raise DataFileError(
-                "time_s, triac_pct and power_kw must have equal lengths; got "
-                f"{n}, {self.triac_pct.size}, {self.power_kw.size}",
-                path=self.source)
+            raise self._error("time_s, triac_pct and power_kw must have equal lengths; got "
+                              f"{n}, {self.triac_pct.size}, {self.power_kw.size}")
         if n < MIN_SAMPLES:
-            raise DataFileError(f"a data set needs at least {MIN_SAMPLES} samples; got {n}", path=self.source)
-        for name in ("time_s", "triac_pct", "power_kw"):
-            bad = np.flatnonzero(~np.isfinite(getattr(self, name)))
+            raise self._error(f"a data set needs at least {MIN_SAMPLES} samples; got {n}")
+        for name in CSV_COLUMNS:
+            values = getattr(self, name)
+            bad = np.flatnonzero(~np.isfinite(values))
             if bad.size:
-                raise DataFileError(
-                    f"sample {bad[0]}: expected a finite number; got {getattr(self, name)[bad[0]]}",
-                    path=self.source,
-                    column=name)
+                raise self._error(f"sample {bad[0]}: expected a finite number; got {values[bad[0]]}",
+                                  column=name)
         if not (math.isfinite(self.ts_s) and self.ts_s > 0):
-            raise DataFileError(f"ts_s must be a finite number > 0; got {self.ts_s}", path=self.source)
+            raise self._error(f"ts_s must be a finite number > 0; got {self.ts_s}")
         object.__setattr__(self, "ts_s", float(self.ts_s))
-        starts = self._checked_segment_starts(n)
-        object.__setattr__(self, "segment_starts", starts)
-        bounds = (*starts, n)
-        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+        object.__setattr__(self, "segment_starts", self._checked_segment_starts(n))
+        for lo, hi in self.segment_bounds():
             k = first_sampling_violation(self.time_s[lo:hi], self.ts_s, self.sampling_rtol)
             if k is not None:
-                raise DataFileError(
-                    sampling_violation_message(
-                        self.time_s, lo + k, self.ts_s, self.sampling_rtol),
-                    path=self.source,
-                    column="time_s")
-        for lo in starts[1:]:
+                raise self._error(sampling_violation_message(
+                    self.time_s, lo + k, self.ts_s, self.sampling_rtol), column="time_s")
+        for lo in self.segment_starts[1:]:
             if not self.time_s[lo] > self.time_s[lo - 1]:
-                raise DataFileError(
+                raise self._error(
                     f"time must be strictly increasing across segments; segment at sample "
                     f"{lo} starts at {self.time_s[lo]:g} s after {self.time_s[lo - 1]:g} s",
-                    path=self.source,
                     column="time_s")
+
+    def _error(self, message: str, *, column: str | None = None) -> DataFileError:
+        """A `DataFileError` naming this data set's source file."""
+        return DataFileError(message, path=self.source, column=column)
 
     def _checked_segment_starts(self, n: int) -> tuple[int, ...]:
         raw = self.segment_starts
         if isinstance(raw, (str, bytes)) or not hasattr(raw, "__iter__"):
-            raise DataFileError(
-                f"segment_starts must be a tuple of sample indices; got {raw!r}", path=self.source)
+            raise self._error(f"segment_starts must be a tuple of sample indices; got {raw!r}")
         starts = tuple(raw)
         if not starts or not all(
                 isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in starts):
-            raise DataFileError(
-                f"segment_starts must be a non-empty tuple of integers; got {raw!r}",
-                path=self.source)
+            raise self._error(f"segment_starts must be a non-empty tuple of integers; got {raw!r}")
         starts = tuple(int(v) for v in starts)
         if starts[0] != 0:
-            raise DataFileError(
-                f"segment_starts must begin with 0; got {starts[0]}", path=self.source)
+            raise self._error(f"segment_starts must begin with 0; got {starts[0]}")
         bounds = (*starts, n)
-        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
-            if hi - lo < MIN_SAMPLES:
-                raise DataFileError(
-                    f"segment_starts must be strictly increasing with at least {MIN_SAMPLES} "
-                    f"samples per segment (n_samples = {n}); got {starts}",
-                    path=self.source)
+        if any(hi - lo < MIN_SAMPLES for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)):
+            raise self._error(
+                f"segment_starts must be strictly increasing with at least {MIN_SAMPLES} "
+                f"samples per segment (n_samples = {n}); got {starts}")
         return starts
 
     @classmethod
@@ -225,9 +214,8 @@ class Dataset:
         Segment boundaries inside ``start:stop`` are kept.
         """
         if not (0 <= start < stop <= self.n_samples):
-            raise DataFileError(
-                f"segment must satisfy 0 <= start < stop <= {self.n_samples}; got {start}:{stop}",
-                path=self.source)
+            raise self._error(
+                f"segment must satisfy 0 <= start < stop <= {self.n_samples}; got {start}:{stop}")
         return replace(
             self,
             time_s=self.time_s[start:stop],
@@ -255,6 +243,13 @@ def sampling_violation_message(time_s: FloatArray, k: int, ts_s: float, rtol: fl
         f"interval of {step:g} s from {time_s[k - 1]:g} s to {time_s[k]:g} s")
 
 
+def file_bytes(path: str | os.PathLike[str]) -> tuple[Path, bytes, str]:
+    """The file's path, its bytes and their SHA-256 (hex)."""
+    p = Path(path)
+    blob = p.read_bytes()
+    return p, blob, hashlib.sha256(blob).hexdigest()
+
+
 def decode_text(blob: bytes, path: str | Path) -> str:
     """A file's bytes as UTF-8 text (a byte-order mark dropped); `DataFileError` if not UTF-8."""
     try:
@@ -262,6 +257,20 @@ def decode_text(blob: bytes, path: str | Path) -> str:
     except UnicodeDecodeError as exc:
         raise DataFileError(f"expected UTF-8 text; got undecodable byte at offset {exc.start}",
                             path=path) from None
+
+
+def csv_table(text: str, path: str | Path, delimiter: str = ",") -> tuple[list[str], list[list[str]]]:
+    """The header (fields stripped, none twice) and the rows of CSV ``text``."""
+    reader = csv.reader(io.StringIO(text), delimiter=delimiter)
+    try:
+        table = list(reader)
+    except csv.Error as exc:    # e.g. a bare carriage return inside a field
+        raise DataFileError(f"not readable as CSV: {exc}", path=path, line=reader.line_num) from None
+    header = [h.strip() for h in table[0]]
+    if len(set(header)) != len(header):
+        dup = next(h for h in header if header.count(h) > 1)
+        raise DataFileError(f"header field '{dup}' appears twice", path=path, line=1, column=dup)
+    return header, table[1:]
 
 
 def check_column_mapping(header: Sequence[str], columns: Mapping[str, str] | None,
@@ -344,27 +353,16 @@ def read_csv(
     OSError
         The file cannot be opened.
     """
-    path = Path(path)
-    raw = path.read_bytes()
-    digest = hashlib.sha256(raw).hexdigest()
+    path, raw, digest = file_bytes(path)
     text = decode_text(raw, path)
     if not text.strip():
         raise DataFileError("the file is empty; expected a header 'time_s,triac_pct,power_kw' "
                             "and at least one row", path=path)
-    reader = csv.reader(io.StringIO(text))
-    try:
-        rows = list(reader)
-    except csv.Error as exc:    # e.g. a bare carriage return inside a field
-        raise DataFileError(f"not readable as CSV: {exc}", path=path,
-                            line=reader.line_num) from None
-    header = [h.strip() for h in rows[0]]
-    if len(set(header)) != len(header):
-        dup = next(h for h in header if header.count(h) > 1)
-        raise DataFileError(f"header field '{dup}' appears twice", path=path, line=1, column=dup)
+    header, rows = csv_table(text, path)
     wanted = check_column_mapping(header, columns, path, layout_hint="pass a column mapping")
     index = {name: header.index(wanted[name]) for name in CSV_COLUMNS}
     values: dict[str, list[float]] = {name: [] for name in CSV_COLUMNS}
-    for line_no, row in enumerate(rows[1:], start=2):
+    for line_no, row in enumerate(rows, start=2):
         if not row or all(not cell.strip() for cell in row):
             raise DataFileError("blank line; expected a row of numbers", path=path, line=line_no)
         if len(row) != len(header):
@@ -386,19 +384,12 @@ def read_csv(
     if n < max(min_samples, MIN_SAMPLES):
         raise DataFileError(f"expected at least {max(min_samples, MIN_SAMPLES)} samples; got {n}", path=path)
     time_s = np.asarray(values["time_s"])
-    steps = np.diff(time_s)
-    nonincreasing = np.flatnonzero(steps <= 0)
-    if nonincreasing.size:
-        k = int(nonincreasing[0]) + 1
-        raise DataFileError(
-            sampling_violation_message(time_s, k, 1.0, 0.0), path=path, line=k + 2,
-            column=wanted["time_s"])
-    nominal = float(np.median(steps)) if ts_s is None else float(ts_s)
-    k_bad = first_sampling_violation(time_s, nominal, sampling_rtol)
-    if k_bad is not None:
-        raise DataFileError(
-            sampling_violation_message(time_s, k_bad, nominal, sampling_rtol),
-            path=path, line=k_bad + 2, column=wanted["time_s"])
+    nominal = float(np.median(np.diff(time_s))) if ts_s is None else float(ts_s)
+    # time going backwards first (any interval passes rtol = inf), then uniform sampling
+    for step_s, rtol in ((1.0, math.inf), (nominal, sampling_rtol)):
+        if (k := first_sampling_violation(time_s, step_s, rtol)) is not None:
+            raise DataFileError(sampling_violation_message(time_s, k, step_s, rtol), path=path,
+                                line=k + 2, column=wanted["time_s"])
     return Dataset(
         time_s=time_s,
         triac_pct=np.asarray(values["triac_pct"]),
@@ -413,10 +404,9 @@ def read_csv(
 
 def format_csv(data: Dataset) -> str:
     """Render a data set in the CSV contract (shortest round-trip float text)."""
-    lines = [",".join(CSV_COLUMNS)]
-    for t, s, p in zip(data.time_s, data.triac_pct, data.power_kw, strict=True):
-        lines.append(f"{float(t)!r},{float(s)!r},{float(p)!r}")
-    return "\n".join(lines) + "\n"
+    rows = (f"{float(t)!r},{float(s)!r},{float(p)!r}"
+            for t, s, p in zip(data.time_s, data.triac_pct, data.power_kw, strict=True))
+    return "\n".join([",".join(CSV_COLUMNS), *rows]) + "\n"
 
 
 def write_csv(data: Dataset, path: str | os.PathLike[str]) -> None:

@@ -31,8 +31,6 @@ in every model file's provenance):
 
 from __future__ import annotations
 
-import csv
-import hashlib
 import io
 import math
 import os
@@ -54,7 +52,9 @@ from sysid.data import (
     MIN_SAMPLES,
     Dataset,
     check_column_mapping,
+    csv_table,
     decode_text,
+    file_bytes,
 )
 from sysid.errors import DataFileError
 
@@ -472,13 +472,6 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
     return LoadedLog(data=data, report=report)
 
 
-def _file_bytes(path: str | os.PathLike[str]) -> tuple[Path, bytes, str]:
-    """The file's path, its bytes and their SHA-256 (hex)."""
-    p = Path(path)
-    blob = p.read_bytes()
-    return p, blob, hashlib.sha256(blob).hexdigest()
-
-
 # --- time cells ------------------------------------------------------------------------
 
 def _no_time_stamp(path: str | None, column: str) -> DataFileError:
@@ -597,7 +590,7 @@ def read_log_csv(
         The file cannot be opened.
     """
     policy = LoadPolicy() if policy is None else policy
-    p, blob, digest = _file_bytes(path)
+    p, blob, digest = file_bytes(path)
     text = decode_text(blob, p)
     lines = text.splitlines()
     while lines and not lines[-1].strip():
@@ -610,24 +603,15 @@ def read_log_csv(
         separator = detect_separator(lines[0]) if sep is None else sep
     except DataFileError as exc:
         raise DataFileError(str(exc), path=p, line=1) from None
-    reader = csv.reader(io.StringIO("\n".join(lines)), delimiter=separator)
-    try:
-        table = list(reader)
-    except csv.Error as exc:
-        raise DataFileError(f"not readable as CSV: {exc}", path=p, line=reader.line_num) from None
-    header = [h.strip() for h in table[0]]
+    header, body = csv_table("\n".join(lines), p, separator)
     if len(header) == 1 and any(sep_ in header[0] for sep_ in SEPARATORS):
         raise DataFileError(
             f"the header is one field with the separator {separator!r}; got {header[0]!r} "
             "(pass --sep ',', ';' or tab)", path=p, line=1)
-    if len(set(header)) != len(header):
-        dup = next(h for h in header if header.count(h) > 1)
-        raise DataFileError(f"header field '{dup}' appears twice", path=p, line=1, column=dup)
     names = check_column_mapping(
         header, columns, p, missing_hint=_COLUMNS_HINT,
         layout_hint="pass --columns time_s=NAME,triac_pct=NAME,power_kw=NAME")
     index = {c: header.index(names[c]) for c in CSV_COLUMNS}
-    body = table[1:]
     if len(body) < MIN_SAMPLES:
         raise DataFileError(f"expected at least {MIN_SAMPLES} samples; got {len(body)}", path=p)
     for i, row in enumerate(body):
@@ -763,7 +747,7 @@ def read_log_parquet(
     import pyarrow.parquet as pq
 
     policy = LoadPolicy() if policy is None else policy
-    p, blob, digest = _file_bytes(path)
+    p, blob, digest = file_bytes(path)
     try:
         table = pq.read_table(io.BytesIO(blob))
     except Exception as exc:  # pyarrow raises several types for a damaged file
