@@ -18,7 +18,7 @@ from typing import Literal
 import numpy as np
 
 from sysid._typing import FloatArray
-from sysid.errors import IdentificationError, IdentificationWarning
+from sysid.errors import IdentificationWarning
 from sysid.greybox import GreyBoxStructure
 from sysid.hammerstein.filtering import (
     HammersteinOrders,
@@ -35,6 +35,7 @@ from sysid.hammerstein.model import (
     hammerstein_armax_structure,
     hammerstein_oe_structure,
 )
+from sysid.linear import segment_bounds
 from sysid.optimize import (
     DEFAULT_FTOL,
     DEFAULT_XTOL,
@@ -53,18 +54,9 @@ ProgressCallback = Callable[[int, float], None]
 def split_segments(
     y: FloatArray, ds: FloatArray, segment_starts: Sequence[int] | None, where: str
 ) -> list[Segment]:
-    """Cut deviation arrays into segments at `segment_starts` (first index of each)."""
-    if segment_starts is None:
-        return [(y, ds)]
-    starts = [int(s) for s in segment_starts]
-    if not starts or starts[0] != 0 or any(b <= a for a, b in zip(starts, starts[1:], strict=False)) \
-            or starts[-1] >= y.size:
-        raise IdentificationError(
-            f"{where}: segment_starts must start at 0 and increase strictly below {y.size}; "
-            f"got {starts}"
-        )
-    bounds = [*starts, y.size]
-    return [(y[lo:hi], ds[lo:hi]) for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]
+    """Cut deviation arrays into segments at `segment_starts` (`sysid.linear.segment_bounds`)."""
+    starts = None if segment_starts is None else list(segment_starts)
+    return [(y[lo:hi], ds[lo:hi]) for lo, hi in segment_bounds(y.size, starts, where)]
 
 
 def covariance_from_jacobian(jacobian: FloatArray, residuals: FloatArray, *,
@@ -126,56 +118,21 @@ def _pem(
     return lm, cov, std, lm.theta[p:]
 
 
-def _fit_from_lm(
-    orders: HammersteinOrders,
-    lm: LMResult,
-    cov: FloatArray,
-    std: FloatArray,
-    transients: FloatArray,
-    initial_state: InitialState,
-    start: str,
-) -> HammersteinFit:
-    p = orders.n_model
-    a, beta, c, poly = orders.polynomials(lm.theta[:p])
-    criterion: Literal["ballistic", "one_step"] = (
-        "ballistic" if orders.block == "oe" else "one_step"
-    )
-    return HammersteinFit(
-        linear_block=orders.block,
-        a=a,
-        b=beta,
-        c=c,
-        input_poly=poly,
-        parameter_names=orders.parameter_names(),
-        parameters=lm.theta[:p],
-        std_errors=std,
-        residuals=lm.residuals,
-        criterion=criterion,
-        cost=lm.cost,
-        n_iterations=lm.n_iterations,
-        converged=lm.converged,
-        message=lm.message,
-        method=f"hammerstein-{orders.block}-pem-{criterion}-from-{start}",
-        covariance=cov,
-        initial_state=initial_state,
-        initial_transients=transients,
-    )
-
-
 def _start_values(
     initial: HammersteinFit | Mapping[str, float] | None, names: tuple[str, ...]
 ) -> tuple[dict[str, float], str]:
-    """Start values by name; a previous fit gives what it shares with ``names``.
+    """Start values by name, and their label; a previous fit gives what it shares with ``names``.
 
-    A user's mapping is passed on whole, so an unknown name is an error, not dropped.
+    An OE fit's ``f_i`` start an ARMAX fit's ``a_i`` (so ``C = A``). A user's mapping is
+    passed on whole, so an unknown name is an error, not dropped.
     """
     if initial is None:
         return {}, "zeros"
     if isinstance(initial, HammersteinFit):
-        values = {k: v for k, v in initial.values().items() if k in names}
-    else:
-        values = dict(initial)
-    return {k: float(v) for k, v in values.items()}, "initial-values"
+        values = {(f"a{k[1:]}" if k[0] == "f" and k not in names else k): v
+                  for k, v in initial.values().items()}
+        return {k: v for k, v in values.items() if k in names}, "initial-values"
+    return {k: float(v) for k, v in initial.items()}, "initial-values"
 
 
 def fit_hammerstein_oe(
@@ -196,10 +153,8 @@ def fit_hammerstein_oe(
 
     Parameters
     ----------
-    y :
-        Output deviation ``dP`` [kW], shape ``(N,)``.
-    ds :
-        Input deviation [%], shape ``(N,)``.
+    y, ds :
+        Output deviation ``dP`` [kW] and input deviation [%], shape ``(N,)``.
     initial :
         Start: a previous fit (for example the OE re-identification of step 2, whose
         ``F``, ``B`` and ``f`` give ``f1, b2, d1, d2``), a mapping by name, or None for
@@ -262,26 +217,13 @@ def fit_hammerstein_armax(
 
     Parameters
     ----------
-    y :
-        Output deviation ``dP`` [kW], shape ``(N,)``.
-    ds :
-        Input deviation [%], shape ``(N,)``.
+    y, ds, max_iterations, initial_state, segment_starts, progress :
+        As in `fit_hammerstein_oe`.
     initial :
         Start: a previous fit (an OE fit gives ``a = f`` and ``k = 0``, i.e. ``C = A``;
         an ARMAX fit gives all), a mapping by name, or None for zeros.
     degree, na, nb, nc, nk :
         Degree of ``f`` and the orders of ``A``, ``B``, ``C`` and the delay.
-    max_iterations :
-        Levenberg-Marquardt iteration limit.
-    initial_state :
-        ``"estimate"`` (default: each segment's initial state is fitted with the model,
-        as MATLAB's ``'estimate'``), ``"held"`` (past held at the first sample, the rule
-        of `sysid.simulate`) or ``"zero"`` (the record starts at rest).
-    segment_starts :
-        First sample of each segment (experiment) of the record, starting with 0;
-        default one segment. Each segment has its own initial state.
-    progress :
-        ``progress(iteration, cost)`` after every iteration (sign of life on long logs).
 
     Returns
     -------
@@ -293,32 +235,18 @@ def fit_hammerstein_armax(
     Raises
     ------
     IdentificationError
-        Bad options or arrays; fewer than ``degree + 1`` distinct input levels; fewer
-        than 10 samples per parameter.
+        As `fit_hammerstein_oe`.
 
     Warns
     -----
     IdentificationWarning
-        The search did not converge (the best iterate is returned, ``converged=False``).
+        As `fit_hammerstein_oe`.
     """
     return _fit(
         "armax", y, ds, initial=initial, degree=degree, na=na, nb=nb, nc=nc, nk=nk,
         max_iterations=max_iterations, initial_state=initial_state,
         segment_starts=segment_starts, progress=progress, where="fit_hammerstein_armax",
     )
-
-
-def _armax_start(
-    initial: HammersteinFit | Mapping[str, float] | None, names: tuple[str, ...]
-) -> tuple[dict[str, float], str]:
-    """Start values of an ARMAX fit: an OE fit's ``f_i`` become ``a_i`` (so ``C = A``)."""
-    if isinstance(initial, HammersteinFit) and initial.linear_block != "armax":
-        values = initial.values()
-        for i in range(1, initial.a.size):
-            if f"f{i}" in values:
-                values[f"a{i}"] = values.pop(f"f{i}")
-        return {k: v for k, v in values.items() if k in names}, "initial-values"
-    return _start_values(initial, names)
 
 
 def _fit(
@@ -354,25 +282,39 @@ def _fit(
 
     structure = structure_for(None)
     _check_excitation(ds_arr, degree, structure.n_parameters, where)
-    if block == "oe":
-        start, label = _start_values(initial, structure.parameter_names)
-    else:
-        start, label = _armax_start(initial, structure.parameter_names)
+    start, label = _start_values(initial, structure.parameter_names)
     structure = structure_for(start)
     policy = check_initial_state(initial_state, where)
     orders = HammersteinOrders(block=block, degree=degree, nb=nb, na=na, nc=nc, nk=nk)
     segments = split_segments(y_arr, ds_arr, segment_starts, where)
     lm, cov, std, transients = _pem(orders, structure, segments, policy, max_iterations, progress)
-    _warn_unconverged(lm, where)
-    return _fit_from_lm(orders, lm, cov, std, transients, policy, label)
-
-
-def _warn_unconverged(result: LMResult, where: str) -> None:
-    if not result.converged:
+    if not lm.converged:
         warnings.warn(
             f"{where}: the prediction-error search did not converge after "
-            f"{result.n_iterations} iterations ({result.message}); the best iterate is kept",
+            f"{lm.n_iterations} iterations ({lm.message}); the best iterate is kept",
             IdentificationWarning,
-            stacklevel=4,
+            stacklevel=3,
         )
-
+    p = orders.n_model
+    a, beta, c, poly = orders.polynomials(lm.theta[:p])
+    criterion: Literal["ballistic", "one_step"] = "ballistic" if block == "oe" else "one_step"
+    return HammersteinFit(
+        linear_block=block,
+        a=a,
+        b=beta,
+        c=c,
+        input_poly=poly,
+        parameter_names=orders.parameter_names(),
+        parameters=lm.theta[:p],
+        std_errors=std,
+        residuals=lm.residuals,
+        criterion=criterion,
+        cost=lm.cost,
+        n_iterations=lm.n_iterations,
+        converged=lm.converged,
+        message=lm.message,
+        method=f"hammerstein-{block}-pem-{criterion}-from-{label}",
+        covariance=cov,
+        initial_state=policy,
+        initial_transients=transients,
+    )
