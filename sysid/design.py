@@ -1,48 +1,40 @@
 """Design of open-loop identification test signals for the triac input (pure numpy).
 
-A test signal is a sequence of triac set-points ``triac_pct`` sampled every ``ts_s``.
-Three kinds:
+A test signal is a sequence of triac set-points ``triac_pct`` sampled every ``ts_s``:
 
 ``steps``
-    Up-and-down staircase across the band ``[lo_pct, hi_pct]``: at least ``degree + 2``
-    levels (a degree-``d`` polynomial f needs ``d + 1`` distinct levels to be determined,
-    one more to check it), each visited on the way up and on the way down so that
-    hysteresis-free static gain and drift can be told apart.  Each level is held
-    ``HOLD_TAUS`` time constants (the step response of a first-order plant is within
-    ``exp(-4) < 2 %`` of its final value after 4 time constants).
+    Up-and-down staircase across ``[lo_pct, hi_pct]``: at least ``degree + 2`` levels (a
+    degree-``d`` f needs ``d + 1`` to be determined, one more to check it), each visited
+    up and down so that static gain and drift can be told apart, each held
+    ``HOLD_TAUS`` time constants (a first-order step response is then within
+    ``exp(-4) < 2 %`` of its final value).
 ``gbn``
     Generalized binary noise (Tulleken 1990, "Generalized binary noise test-signal
-    concept for improved identification-experiment design", Automatica 26(1), 37-49): at each
-    sample the signal switches between two levels with probability ``p_sw``.  Its
-    autocorrelation is ``(1 - 2 p_sw)^|k|``, so its spectrum is flat up to about
-    ``omega_c = 2 p_sw / ts_s = 2 / T_sw`` rad/s, where ``T_sw = ts_s / p_sw`` is the mean
-    switching time.  Rule used here: ``T_sw = tau_s``, which places the corner at twice
-    the plant bandwidth ``1 / tau_s`` (Ljung, System Identification, 2nd ed., ch. 13:
-    put the input power where the model must be accurate, i.e. up to and somewhat beyond
-    the bandwidth of the process).
+    concept for improved identification-experiment design", Automatica 26(1), 37-49):
+    each sample switches between two levels with probability ``p_sw``. Its
+    autocorrelation is ``(1 - 2 p_sw)^|k|``, flat in spectrum up to about
+    ``omega_c = 2 p_sw / ts_s = 2 / T_sw`` rad/s (``T_sw = ts_s / p_sw`` the mean
+    switching time). Rule: ``T_sw = tau_s``, the corner at twice the plant bandwidth
+    ``1 / tau_s`` (Ljung, System Identification, 2nd ed., ch. 13: input power up to and
+    somewhat beyond the process bandwidth).
 ``mixed`` (default)
-    The staircase followed by GBN around the middle of the band for the rest of the
-    duration.
+    The staircase, then GBN around the middle of the band for the rest of the duration.
 ``multilevel``
-    Multilevel noise for short tests of slow plants: it switches about once per time
-    constant, as the GBN does, but to another of the staircase's ``n_levels`` levels each
-    time. A binary signal excites only two points of the static nonlinearity f; a
-    multilevel one excites f at every level and the dynamics over the same band as the
-    GBN (Godfrey, ed., Perturbation Signals for System Identification, Prentice Hall
-    1993, ch. 7-8 on multilevel signals for nonlinear systems). It needs no settled
-    holds, so it fits a plant with tau = 600 s into 2 h where ``mixed`` needs 8 h.
-    Shortest duration: ``MIN_MULTILEVEL_ROUNDS`` rounds of the levels, ``tau_s`` per
-    visit on average.
+    For short tests of slow plants: it switches about once per time constant, as the
+    GBN, but to another of ``n_levels`` levels each time, so it excites f at every level
+    (a binary signal: at two points) and the dynamics over the GBN's band (Godfrey,
+    ed., Perturbation Signals for System Identification, Prentice Hall 1993, ch. 7-8).
+    Needing no settled holds, it fits a plant with tau = 600 s into 2 h where ``mixed``
+    needs 8 h. Shortest duration: ``MIN_MULTILEVEL_ROUNDS`` rounds of the levels,
+    ``tau_s`` per visit on average.
 
-    Rules, for a short test that is cut in halves to be identified (the order search
-    estimates on the first half and validates on the second): each half of the test
-    makes a whole number of shuffled rounds through the levels, as many as give holds
-    nearest one ``tau_s`` on average (so every level is held equally often in both
-    halves), and the hold times are spread evenly within ``MULTILEVEL_HOLD_SPREAD`` of
-    their mean in random order, not drawn geometrically as the GBN's. Geometric holds
-    of mean tau range from a few samples to several tau: in 2 h one level could be held
-    142 s in one half and 1,254 s in the other, and a model fitted to the first half
-    then extrapolated f on the second. A jump larger than ``max_step_pct`` is ramped.
+    The order search estimates on the first half and validates on the second, so each
+    half makes a whole number of shuffled rounds through the levels (as many as give
+    holds nearest ``tau_s`` on average), with hold times spread evenly within
+    ``MULTILEVEL_HOLD_SPREAD`` of their mean in random order. Geometric holds (GBN) of
+    mean tau could hold one level 142 s in one half and 1,254 s in the other of a 2 h
+    test, and a model of the first half then extrapolates f on the second. A jump
+    larger than ``max_step_pct`` is ramped.
 """
 
 from __future__ import annotations
@@ -68,12 +60,12 @@ MIN_GBN_TAUS = 20.0
 """Shortest GBN part of a mixed signal, in time constants (about 20 switches)."""
 
 MIN_MULTILEVEL_ROUNDS = 2
-"""Shortest multilevel signal, in rounds through all its levels (each level visited
-twice, from two predecessors: f is seen from both directions on average)."""
+"""Shortest multilevel signal, in rounds through all its levels (each level reached from
+two predecessors)."""
 MULTILEVEL_HOLD_SPREAD = 0.5
-"""Multilevel hold times spread evenly within this fraction of their mean (about one
-``tau_s``) around it: from half a time constant (a level shorter than that barely shows
-in f) to 1.5 (one long hold would leave the other levels short in a 2 h test)."""
+"""Multilevel holds spread evenly within this fraction of their mean (about ``tau_s``):
+from half a time constant (shorter barely shows in f) to 1.5 (longer leaves the other
+levels short in a 2 h test)."""
 
 Kind = Literal["steps", "gbn", "mixed", "multilevel"]
 #: Every kind `design_test_signal` builds (the CLI's choices).
@@ -103,8 +95,7 @@ class ExcitationSpec:
     kind : {"steps", "gbn", "mixed", "multilevel"}
         Signal kind (see module docstring).
     degree : int
-        Degree of the input polynomial f to be identified; the staircase has at least
-        ``degree + 2`` levels.
+        Degree of the input polynomial f to be identified (``degree + 2`` levels at least).
     """
 
     ts_s: float
@@ -195,14 +186,11 @@ class ExcitationSignal:
 
         ``at_levels``: only the stretches at one of ``levels_pct`` (not a ramp's steps).
         """
-        change = np.flatnonzero(np.diff(self.triac_pct) != 0.0) + 1
-        starts = np.concatenate(([0], change))
-        edges = np.concatenate((starts, [self.triac_pct.size]))
-        holds = np.diff(edges).astype(float) * self.spec.ts_s
-        if at_levels:
-            at = np.isclose(self.triac_pct[starts][:, None], self.levels_pct[None, :]).any(axis=1)
-            holds = holds[at]
-        return holds
+        starts = np.concatenate(([0], np.flatnonzero(np.diff(self.triac_pct) != 0.0) + 1))
+        holds = np.diff(np.concatenate((starts, [self.triac_pct.size]))).astype(float) * self.spec.ts_s
+        if not at_levels:
+            return holds
+        return holds[np.isclose(self.triac_pct[starts][:, None], self.levels_pct[None, :]).any(axis=1)]
 
     def spectrum(self) -> tuple[FloatArray, FloatArray]:
         """One-sided periodogram of the mean-removed signal: frequency [rad/s], power [%^2 s]."""
@@ -223,9 +211,7 @@ class ExcitationSignal:
     def summary(self) -> str:
         """Multi-line description: levels, hold times vs tau, spectrum vs bandwidth, duration."""
         spec = self.spec
-        holds = self.hold_times_s()
-        if spec.kind == "multilevel":   # the ramps between levels are not holds
-            holds = self.hold_times_s(at_levels=True)
+        holds = self.hold_times_s(at_levels=spec.kind == "multilevel")   # ramps are no holds
         band = 1.0 / spec.tau_s
         lines = [
             f"kind {spec.kind}: {self.triac_pct.size} samples at Ts = {spec.ts_s:g} s, "
@@ -261,12 +247,14 @@ class ExcitationSignal:
 
 
 def _staircase(spec: ExcitationSpec) -> tuple[FloatArray, FloatArray]:
+    """The up-and-down staircase and its levels."""
     levels = np.linspace(spec.lo_pct, spec.hi_pct, spec.n_levels)
     order = np.concatenate((np.arange(levels.size), np.arange(levels.size - 2, -1, -1)))
     return np.repeat(levels[order], spec.hold_samples), levels
 
 
 def _gbn(spec: ExcitationSpec, n: int, start_high: bool, rng: np.random.Generator) -> FloatArray:
+    """``n`` samples of GBN around the band's middle."""
     mid = 0.5 * (spec.lo_pct + spec.hi_pct)
     amp = min(0.25 * (spec.hi_pct - spec.lo_pct), 0.5 * spec.max_step_pct)
     switches = rng.random(n) < spec.gbn_switch_probability
@@ -283,12 +271,8 @@ def _ramp(start_pct: float, end_pct: float, max_step_pct: float) -> FloatArray:
 
 def _level_sequence(n_levels: int, n_visits: int, after: int | None,
                     rng: np.random.Generator) -> list[int]:
-    """``n_visits`` level indices in shuffled rounds, never one level twice in a row.
-
-    A round whose first level would repeat the previous one is rotated by one.
-
-    ``after``: the level before the sequence (None at the start of the test).
-    """
+    """``n_visits`` level indices in shuffled rounds, never one level twice in a row
+    (a round starting at ``after``, or the previous round's last level, is rotated)."""
     order: list[int] = []
     while len(order) < n_visits:
         round_ = [int(i) for i in rng.permutation(n_levels)]
@@ -300,12 +284,9 @@ def _level_sequence(n_levels: int, n_visits: int, after: int | None,
 
 
 def _hold_samples(n_visits: int, total: int, rng: np.random.Generator) -> FloatArray:
-    """``n_visits`` hold lengths [samples] that sum to ``total``, in random order.
-
-    Evenly spread over ``1 +- MULTILEVEL_HOLD_SPREAD`` times their mean ``total /
-    n_visits`` (a stratified draw: short and long holds in every half, none outside the
-    spread), rounded to samples with the largest remainders getting the leftover ones.
-    """
+    """``n_visits`` hold lengths [samples] summing to ``total``, in random order: evenly
+    spread over ``1 +- MULTILEVEL_HOLD_SPREAD`` times their mean, rounded down with the
+    leftover samples to the largest remainders."""
     exact = (total / n_visits) * (1.0 + MULTILEVEL_HOLD_SPREAD
                                   * np.linspace(-1.0, 1.0, n_visits))[rng.permutation(n_visits)]
     holds = np.maximum(np.floor(exact), 1.0)
@@ -316,9 +297,8 @@ def _hold_samples(n_visits: int, total: int, rng: np.random.Generator) -> FloatA
 
 
 def _multilevel(spec: ExcitationSpec, n: int, rng: np.random.Generator) -> FloatArray:
+    """``n`` samples of multilevel noise: whole rounds of the levels in each half."""
     levels = np.linspace(spec.lo_pct, spec.hi_pct, spec.n_levels)
-    # each half of the test on its own: whole rounds of the levels (one visit each per
-    # round, about one tau per visit) in its own half of the samples
     half_samples = (n // 2, n - n // 2)
     half_visits = spec.multilevel_rounds_per_half * levels.size
     first = _level_sequence(levels.size, half_visits, None, rng)
@@ -336,9 +316,9 @@ def _multilevel(spec: ExcitationSpec, n: int, rng: np.random.Generator) -> Float
 def shortest_duration_s(spec: ExcitationSpec) -> float:
     """Shortest test [s] `design_test_signal` accepts for ``spec``'s kind and band.
 
-    ``steps``: the staircase (``2 n_levels - 1`` holds of ``HOLD_TAUS`` tau); ``mixed``:
-    that plus ``MIN_GBN_TAUS`` tau of GBN; ``gbn``: ``MIN_GBN_TAUS`` tau;
-    ``multilevel``: ``MIN_MULTILEVEL_ROUNDS`` rounds of ``n_levels`` visits of one tau.
+    ``steps``: ``2 n_levels - 1`` holds of ``HOLD_TAUS`` tau; ``mixed``: that plus
+    ``MIN_GBN_TAUS`` tau of GBN; ``gbn``: ``MIN_GBN_TAUS`` tau; ``multilevel``:
+    ``MIN_MULTILEVEL_ROUNDS`` rounds of ``n_levels`` visits of one tau.
     """
     stairs_s = ((2 * spec.n_levels - 1) * spec.hold_samples - 1) * spec.ts_s
     return {"steps": stairs_s, "gbn": MIN_GBN_TAUS * spec.tau_s,
@@ -352,10 +332,8 @@ def design_test_signal(spec: ExcitationSpec, rng: np.random.Generator) -> Excita
     Raises
     ------
     SignalDesignError
-        If the duration is shorter than `shortest_duration_s`: it cannot hold the
-        staircase (``steps``), the staircase plus ``MIN_GBN_TAUS`` time constants of
-        GBN (``mixed``), or ``MIN_MULTILEVEL_ROUNDS`` rounds of the levels
-        (``multilevel``).
+        A ``steps``, ``mixed`` or ``multilevel`` duration shorter than
+        `shortest_duration_s`.
     """
     n = spec.n_samples
     levels: FloatArray = np.zeros(0)
@@ -384,9 +362,7 @@ def design_test_signal(spec: ExcitationSpec, rng: np.random.Generator) -> Excita
                 + f"; give at least {math.ceil(need_s):d} s, a shorter --tau-s or fewer levels")
         if spec.kind == "steps":
             u = np.concatenate((stairs, np.full(n - steps_n, stairs[-1])))
-        else:
-            # A short ramp joins the staircase's last level (lo) to the GBN's low level
-            # so that no jump exceeds max_step_pct.
+        else:   # a ramp joins the staircase's last level to the GBN's low one
             gbn = _gbn(spec, n - steps_n, False, rng)
             ramp = _ramp(float(stairs[-1]), float(gbn[0]), spec.max_step_pct)
             u = np.concatenate((stairs, ramp, gbn))
