@@ -1,11 +1,10 @@
 """Step analysis: find the input steps of a record and their instantaneous gains (Table 3).
 
-The paper (sec. 7.3) reads the nonlinearity off the data before fitting anything: for
-each step of the input it divides the immediate jump of the output by the size of the
-step, the *instantaneous* gain ``r`` [kW/%], and finds that ``r`` falls as the
-operating point rises (Table 3: 1.35, 1.31, 1.23, 1.14 kW/%). The same analysis works
-on any SISO log (input in V, output in degC, ...): the functions use only the arrays of
-a `Dataset`, whose ``input_unit`` and ``output_unit`` say what the numbers are.
+The paper (sec. 7.3) reads the nonlinearity off the data before fitting anything: the
+immediate jump of the output over the size of each input step, the *instantaneous*
+gain ``r`` [kW/%], falls as the operating point rises (Table 3: 1.35, 1.31, 1.23,
+1.14 kW/%). Any SISO log works: the units are the `Dataset`'s ``input_unit`` and
+``output_unit``.
 
 Notation
 --------
@@ -17,8 +16,6 @@ A step at sample ``k`` is a change ``|u_k - u_{k-1}| > min_step``. Its instantan
 gain is (paper eq. 15, with ``nk = 1``)::
 
     r = (y_{k+nk} - y_{k+nk-1}) / (u_k - u_{k-1})
-
-the jump of the output across the one sample in which the step arrives.
 """
 
 from __future__ import annotations
@@ -33,14 +30,12 @@ from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import IdentificationError
 
-#: Default step threshold as a fraction of the input's range (max - min). A staircase
-#: experiment moves its input in steps of a few percent of its span; a logger's
-#: rounding and a controller's jitter move it by far less.
+#: Default step threshold as a fraction of the input's range (max - min): a staircase
+#: moves by a few percent of its span, a logger's rounding or jitter by far less.
 DEFAULT_STEP_FRACTION_OF_RANGE = 0.05
 
-#: The default threshold is also at least this many robust standard deviations of
-#: the sample-to-sample input change, so that noise on a logged input is never a step
-#: (a 5-sigma Gaussian excursion occurs once in about 1.7 million samples).
+#: The default threshold is also at least this many robust standard deviations of the
+#: sample-to-sample input change (a 5-sigma Gaussian excursion: once in 1.7 million).
 DEFAULT_STEP_NOISE_SIGMAS = 5.0
 
 #: Scale from the median absolute deviation to the standard deviation of a Gaussian.
@@ -58,14 +53,12 @@ class InputStep:
     time_s :
         Time of sample ``k`` [s].
     triac_before_pct, triac_after_pct :
-        Input before (``u_{k-1}``) and after (``u_k``) the step [%, or the data set's
-        input unit].
+        Input before (``u_{k-1}``) and after (``u_k``) the step [input unit].
     power_before_kw, power_after_kw :
-        Output just before the step shows (``y_{k+nk-1}``) and the first output that
-        shows it (``y_{k+nk}``) [kW, or the data set's output unit].
+        Output just before the step shows (``y_{k+nk-1}``) and the first that shows it
+        (``y_{k+nk}``) [output unit].
     gain_kw_per_pct :
-        Instantaneous gain ``r = (power_after - power_before) / (triac_after -
-        triac_before)`` [kW/%, or output unit per input unit] (paper sec. 7.3).
+        Instantaneous gain ``r`` (module docstring) [output unit per input unit].
     """
 
     k: int
@@ -92,18 +85,14 @@ def default_step_threshold(
     triac_pct :
         Input signal, shape ``(n_samples,)`` [any unit].
     segment_starts :
-        First sample of each segment, starting with 0 (`sysid.data.Dataset`); the
-        change from one segment's last sample to the next one's first is no
-        sample-to-sample change and is left out of ``sigma``.
+        First sample of each segment, starting with 0 (`sysid.data.Dataset`); changes
+        across a segment boundary are left out of ``sigma``.
 
     Returns
     -------
     float
-        ``max(0.05 * (max - min), 5 * sigma)`` in the input's unit, where ``sigma`` is
-        the robust standard deviation (scaled median absolute deviation) of the
-        sample-to-sample changes. For a staircase input ``sigma`` is 0 and the
-        threshold is 5 % of the input's range; on a noisy input it stays 5 noise
-        standard deviations above the noise.
+        ``max(0.05 * (max - min), 5 * sigma)`` [input unit], ``sigma`` the robust (MAD)
+        standard deviation of the sample-to-sample changes (0 for a staircase).
     """
     u = np.asarray(triac_pct, dtype=float)
     if u.size < 2:
@@ -126,20 +115,17 @@ def detect_steps(
     data :
         The record (raw or preprocessed; the paper's Table 3 uses the preprocessed one).
     min_step :
-        A change of the input between two samples counts as a step when its size is
-        larger than this [input unit]; default: `default_step_threshold` (5 % of the
-        input's range, and at least 5 noise standard deviations).
+        An input change between two samples larger than this is a step [input unit];
+        default `default_step_threshold`.
     delay_steps :
         Delay ``nk`` from input to output in samples (1 for the CZ heater, sec. 6.1).
 
     Returns
     -------
     tuple of InputStep
-        The steps in time order. A step whose response ``y_{k+nk}`` falls after the
-        end of the record (of its segment) cannot be measured and is not listed; nor
-        is the change from one segment's last sample to the next one's first (no step
-        across a segment boundary). Steps closer together
-        than ``nk`` samples share output samples; their gains then mix.
+        The steps in time order, except those whose response ``y_{k+nk}`` falls after
+        the end of their segment and changes across a segment boundary. Steps closer
+        together than ``nk`` samples share output samples; their gains then mix.
 
     Raises
     ------
@@ -166,7 +152,7 @@ def detect_steps(
                 f"detect_steps: min_step must be a finite number >= 0; got {min_step!r}")
     u, y = data.triac_pct, data.power_kw
     candidates = np.flatnonzero(np.abs(np.diff(u)) > threshold) + 1
-    # the segment each sample is in, and that segment's end: no step across a boundary
+    # each sample's segment end: no step across a boundary
     seg_end = np.repeat([hi for _, hi in data.segment_bounds()],
                         [hi - lo for lo, hi in data.segment_bounds()])
     starts = set(data.segment_starts)
@@ -207,8 +193,7 @@ def format_step_table(
     Returns
     -------
     str
-        The table, ending with a newline; a single line saying so when there are no
-        steps.
+        The table, ending with a newline (one line saying so when there are no steps).
     """
     warnings.warn("sysid.steps.format_step_table is deprecated since 0.2.0 and goes in 0.3.0; "
                   "use czmpc.reports.tables.format_table", DeprecationWarning, stacklevel=2)
@@ -218,14 +203,11 @@ def format_step_table(
     header = (
         f"{'k':>6}  {'time [s]':>9}  {'input [' + input_unit + ']':>18}  "
         f"{'output [' + output_unit + ']':>20}  {'r [' + gain_unit + ']':>12}")
-    lines = [header]
-    for step in steps:
-        lines.append(
-            f"{step.k:>6}  {step.time_s:>9.1f}  "
+    rows = [f"{step.k:>6}  {step.time_s:>9.1f}  "
             f"{step.triac_before_pct:>7.2f} -> {step.triac_after_pct:>7.2f}  "
             f"{step.power_before_kw:>8.3f} -> {step.power_after_kw:>8.3f}  "
-            f"{step.gain_kw_per_pct:>12.4f}")
-    return "\n".join(lines) + "\n"
+            f"{step.gain_kw_per_pct:>12.4f}" for step in steps]
+    return "\n".join([header, *rows]) + "\n"
 
 
 __all__ = [
