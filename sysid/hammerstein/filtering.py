@@ -114,14 +114,12 @@ class HammersteinOrders:
 
     def parameter_names(self) -> tuple[str, ...]:
         """Model parameter names, in the order of the parameter vector."""
-        names_b = tuple(f"b{j}" for j in range(self.nk + 1, self.nk + self.nb))
-        names_d = tuple(f"d{i}" for i in range(1, self.degree + 1))
+        names = tuple(f"b{j}" for j in range(self.nk + 1, self.nk + self.nb))
+        names += tuple(f"d{i}" for i in range(1, self.degree + 1))
         if self.block == "oe":
-            return names_b + names_d + tuple(f"f{i}" for i in range(1, self.na + 1))
-        return (
-            names_b + names_d + tuple(f"a{i}" for i in range(1, self.na + 1))
-            + tuple(f"k{i}" for i in range(1, self.nc + 1))
-        )
+            return names + tuple(f"f{i}" for i in range(1, self.na + 1))
+        return names + tuple(f"a{i}" for i in range(1, self.na + 1)) + tuple(
+            f"k{i}" for i in range(1, self.nc + 1))
 
     def polynomials(self, theta: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """``(A or F, beta, C, input_poly)`` from the model parameters (first `n_model`)."""
@@ -222,6 +220,17 @@ def _transient_columns(out: FloatArray, den: FloatArray, n_model: int, n_state: 
             out[k:, i] += sign * float(dh[k]) * h[: h.size - k]
 
 
+def _held_derivatives(orders: HammersteinOrders, beta: FloatArray, w0: float, ds0: float,
+                      y0: float) -> list[FloatArray]:
+    """``d h/d theta`` of the OE held-past transient ``h = w_0 S(beta) - y_0 S(f)`` by ``b, d, f``."""
+    n = orders.n_state
+    k_idx = np.arange(n)
+    tail_beta = _tail_sums(beta, n)
+    out = [np.where(k_idx < j, w0, 0.0) for j in range(orders.nk + 1, orders.nk + orders.nb)]
+    out += [ds0**i * tail_beta for i in range(1, orders.degree + 1)]
+    return out + [np.where(k_idx < i, -y0, 0.0) for i in range(1, orders.na + 1)]
+
+
 def _oe_segment(
     orders: HammersteinOrders, theta: FloatArray, h_free: FloatArray | None, y: FloatArray,
     feats: FloatArray, initial_state: InitialState,
@@ -234,7 +243,7 @@ def _oe_segment(
     (the transient's columns, and the held past's first samples through them).
     """
     f, beta, _, poly = orders.polynomials(theta)
-    n, deg, nk, nb = orders.n_state, orders.degree, orders.nk, orders.nb
+    n = orders.n_state
     w = feats @ poly
     src = _fir(beta, w)
     w0, ds0, y0 = float(w[0]), float(feats[0, 0]), float(y[0])
@@ -257,13 +266,7 @@ def _oe_segment(
         for i in range(1, orders.na + 1):
             _put_lag(out, col, yhat_f, i)
             col += 1
-        d_state: list[FloatArray] = []
-        if initial_state == "held":
-            k_idx = np.arange(n)
-            tail_beta = _tail_sums(beta, n)
-            d_state = [np.where(k_idx < j, w0, 0.0) for j in range(nk + 1, nk + nb)]
-            d_state += [ds0**i * tail_beta for i in range(1, deg + 1)]
-            d_state += [np.where(k_idx < i, -y0, 0.0) for i in range(1, orders.na + 1)]
+        d_state = _held_derivatives(orders, beta, w0, ds0, y0) if initial_state == "held" else []
         _transient_columns(out, f, orders.n_model, n, initial_state, d_state, -1.0)
         return out
 
@@ -279,9 +282,7 @@ def _armax_segment(
     As `_oe_segment` through ``1/C``: filterings of ``ds^i``, ``y``, ``e`` and a pulse.
     """
     a, beta, c, poly = orders.polynomials(theta)
-    n, deg, nk, nb, na, nc = (
-        orders.n_state, orders.degree, orders.nk, orders.nb, orders.na, orders.nc
-    )
+    n, na, nc = orders.n_state, orders.na, orders.nc
     w = feats @ poly
     v = _fir(a, y) - _fir(beta, w)
     w0, ds0, y0 = float(w[0]), float(feats[0, 0]), float(y[0])
@@ -310,13 +311,8 @@ def _armax_segment(
             _put_lag(out, col, e_c, i, -1.0)
             col += 1
         d_state: list[FloatArray] = []
-        if initial_state == "held":
-            k_idx = np.arange(n)
-            tail_beta = _tail_sums(beta, n)
-            d_state = [np.where(k_idx < j, -w0, 0.0) for j in range(nk + 1, nk + nb)]
-            d_state += [-(ds0**i) * tail_beta for i in range(1, deg + 1)]
-            d_state += [np.where(k_idx < i, y0, 0.0) for i in range(1, na + 1)]
-            d_state += [np.zeros(n)] * nc
+        if initial_state == "held":  # g = -h of OE's held past, nothing from the k_i
+            d_state = [-d for d in _held_derivatives(orders, beta, w0, ds0, y0)] + [np.zeros(n)] * nc
         _transient_columns(out, c, orders.n_model, n, initial_state, d_state, 1.0)
         return out
 
