@@ -1,15 +1,12 @@
 """A designed dither on the MPC's input for closed-loop identification (`czmpc run --dither-pct`).
 
-Where: on the INPUT, added to the MPC's command. Why there and not on the setpoint:
-a setpoint dither reaches the input only through the closed loop, so the MPC's move
-penalty and its slow terminal dynamics filter it and its amplitude at the TRIAC is
-unknown in advance; an input dither is the excitation itself, its amplitude ``A`` [%]
-is stated in the unit of the test band, and it is independent of the plant noise,
-which is what makes closed-loop data informative for the direct prediction-error
-method (Ljung, System Identification, 2nd ed., sec. 13.4: an external signal that is
-persistently exciting and uncorrelated with the noise). The MPC is told the input
-actually applied every step (``applied_triac_pct``), so its estimator is not misled by
-the dither and it corrects the dither's effect on the power like any known input.
+Where: on the INPUT, added to the MPC's command, not on the setpoint: a setpoint dither
+reaches the TRIAC only filtered by the MPC's move penalty and terminal dynamics, with an
+amplitude unknown in advance; an input dither is the excitation itself, of amplitude
+``A`` [%] in the unit of the test band and independent of the plant noise, which makes
+closed-loop data informative for the direct prediction-error method (Ljung, System
+Identification, 2nd ed., sec. 13.4). The MPC is told the input actually applied every
+step (``applied_triac_pct``), so its estimator treats the dither as a known input.
 
 The dither is generalized binary noise of levels ``+A`` and ``-A`` (zero mean) whose
 mean switching time is the model's dominant time constant (the same rule as

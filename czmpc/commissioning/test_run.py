@@ -8,12 +8,11 @@ watchdog, safe action), and the config's ``[test]`` limits abort it
 
 Start (bumpless): the first command is the input the plant applies now, held for
 `LEAD_IN_HOLD_SAMPLES` samples so that the loop aligns its reads to the plant's period
-before any input moves (`czmpc.runtime.alignment`; before, a lead-in move that reached
-the heater a sample late left a +-5 kW residual that failed check-model's whiteness on
-an otherwise clean test). The driver then ramps to the schedule's first value at the
-schedule's own largest step per sample (`InputSchedule.max_step_pct`), plays the
-schedule (zero-order hold) and reports the run finished after its last row. An operator
-who switches the plant's mode away from ON aborts the test.
+before any input moves (`czmpc.runtime.alignment`; unaligned, a lead-in move a sample
+late left a +-5 kW residual that failed check-model's whiteness). The driver then ramps
+to the schedule's first value at `InputSchedule.max_step_pct` per sample, plays the
+schedule (zero-order hold) and finishes after its last row. An operator who switches
+the plant's mode away from ON aborts the test.
 """
 
 from __future__ import annotations
@@ -259,7 +258,6 @@ def make_test_loop(config: RunConfig, schedule: InputSchedule, **loop_options: o
     config = dataclasses.replace(config, duration_s=None)
     return ControlLoop(config, ScheduleDriver(schedule, config.ts_s),
                        provenance=schedule_provenance(schedule), **loop_options)  # type: ignore[arg-type]
-
 
 
 __all__ = ["CONSTANT_SCHEDULE_RAMP_PCT", "LEAD_IN_HOLD_SAMPLES", "InputSchedule", "RunSummary",

@@ -145,10 +145,6 @@ def _responses_figure(schedule: PIDSchedule, path: Path) -> None:
     _save(fig, path)
 
 
-def _fmt(v: float) -> str:
-    return f"{v:.4g}"
-
-
 def write_report(
     schedule: PIDSchedule, directory: str | os.PathLike[str], *, command: str, model_source: str,
     files: Sequence[str], characterizer_error_pct: float, regions: tuple[Region, ...],
@@ -196,7 +192,7 @@ def write_report(
         "| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     for r in schedule.rows:
         values = row_values(r)
-        lines.append("| " + " | ".join(_fmt(values[c]) for c in COLUMNS) + " |")
+        lines.append("| " + " | ".join(f"{values[c]:.4g}" for c in COLUMNS) + " |")
     lines += ["", "Columns:", ""] + [f"- `{c}`: {COLUMN_MEANINGS[c]}" for c in COLUMNS] + [""]
     lines += ["## Does the schedule hold?", ""]
     if schedule.added_breakpoints_pct:

@@ -194,12 +194,6 @@ def tune_schedule(
         return float(grid[int(np.argmax([local_plant(model, float(v)).gain_kw_per_pct
                                          for v in grid]))])
 
-    def tuning_for(s: float, nxt: float) -> PIDTuning:
-        at = highest_gain_input(s, nxt)
-        if at not in tunings:
-            tunings[at] = tune_local(local_plant(model, at), spec)
-        return tunings[at]
-
     warnings: list[str] = []
     fragile: list[str] = []   # said after every "does not hold"
     rows: list[ScheduleRow] = []
@@ -207,8 +201,10 @@ def tune_schedule(
     while i < len(points):
         s = points[i]
         nxt = points[i + 1] if i + 1 < len(points) else (hi if s < hi else s)
-        tuning = tuning_for(s, nxt)
         tuned_at = highest_gain_input(s, nxt)
+        if tuned_at not in tunings:
+            tunings[tuned_at] = tune_local(local_plant(model, tuned_at), spec)
+        tuning = tunings[tuned_at]
         own = sampled_margins(tuning, local_plant(model, tuned_at)).ms
         bound = spec.ms_bound if spec.ms_bound is not None else own * (1.0 + MS_SLACK)
         worst_ms, change = _interval_check(model, tuning, s, nxt)

@@ -4,13 +4,12 @@ Three panels stacked on a shared time axis (`plot_closed_loop`):
 
 1. power [kW]: measured (thin, grey), true noise-free power (black), setpoint (red,
    dashed) and the soft power limits if any (dotted);
-2. TRIAC input [%] with the controller's allowed range (dashed: the model's validity
-   range widened by the margin, within the TRIAC limits) and the TRIAC limits if they
-   are tighter than 0..100 %;
+2. TRIAC input [%] with the controller's allowed range (dashed) and the TRIAC limits if
+   they are tighter than 0..100 %;
 3. the controller's disturbance estimate as the steady power change it causes [kW].
 
-Same conventions as `czmpc.reports.identification_figures`: plain arrays in, the Agg canvas (no pyplot),
-the figure written to ``path`` and returned so tests can inspect it.
+Conventions as `czmpc.reports.identification_figures`: plain arrays in, the figure
+written to ``path`` and returned.
 """
 
 from __future__ import annotations

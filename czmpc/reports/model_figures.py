@@ -1,11 +1,10 @@
 """Figures of a model for analysis: step responses, Bode plots, poles and zeros, with bands.
 
 Each linearization is `sysid.export.linearize` at a TRIAC level. The confidence bands
-are the 2.5 and 97.5 percentiles over models drawn from the parameter covariance
-(`sysid.uncertainty`: the file's covariance, else its standard errors); draws that
-break the model contract (an unstable ``A`` or ``C``) are left out and counted. A model
-without either has no bands, and the figure says so. `czmpc show-model --plot DIR`
-draws them.
+are the `BAND_PERCENTILES` over models drawn from the parameter covariance
+(`sysid.uncertainty`: the file's covariance, else its standard errors; without either,
+no bands, and the figure says so); unstable draws are left out and counted. `czmpc
+show-model --plot DIR` draws them.
 """
 
 from __future__ import annotations
@@ -83,8 +82,7 @@ def _step_kw(model: HammersteinModel, triac_pct: float, step_pct: float, n: int)
 def _band(values: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
     if not values:
         return None
-    stack = np.vstack(values)
-    lo, hi = np.percentile(stack, BAND_PERCENTILES, axis=0)
+    lo, hi = np.percentile(np.vstack(values), BAND_PERCENTILES, axis=0)
     return lo, hi
 
 

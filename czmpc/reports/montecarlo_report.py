@@ -1,19 +1,11 @@
 """Monte-Carlo summary of a campaign over sampled plants: offset-free and in-limits shares.
 
-Reads the rows of a campaign (`czmpc.campaigns.campaign.ROW_COLUMNS`, plain data) whose plants were
+Reads the rows of a campaign (`czmpc.campaigns.campaign.ROW_COLUMNS`) whose plants were
 drawn from the model's parameter uncertainty (``plant = "sampled k"``) and gives, per
-controller and scenario:
-
-* **offset-free**: the share of runs whose every setpoint change ends with |mean
-  measured error over the last quarter of its segment| below the campaign's threshold,
-  the error taken to the reachable setpoint (the row's ``offset_free``: the setpoint clipped to what that
-  plant holds inside the allowed input range); a scenario without setpoint changes
-  (the voltage sag) is judged over the last quarter of the whole run;
-* **within limits**: the share of runs with no sample outside the TRIAC limits, no move
-  beyond the rate limit and no sample outside the controllers' allowed input range;
-* the IAE [kW s] of the true power against the setpoint over the whole run: median,
-  5th and 95th percentiles, and its distribution (`plot_iae_ecdf`);
-* the draws rejected by the sampling rule (`czmpc.campaigns.sampling`), per plant.
+controller and scenario, the shares of runs offset-free (the row's ``offset_free``, against
+the reachable setpoint) and `within_limits`, the IAE [kW s] quantiles and distribution
+(`plot_iae_ecdf`), and the draws the sampling rule rejected (`czmpc.campaigns.sampling`);
+the report's text (`format_montecarlo_markdown`) defines each.
 """
 
 from __future__ import annotations
