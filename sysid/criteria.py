@@ -4,15 +4,12 @@ Notation
 --------
 ``eps_k = P_k - Psim_k`` is the ballistic simulation error and ``e_k = P_k - Ppred_k`` the
 one-step-ahead prediction error [kW] (Table 1). Both criteria average over every sample
-of the record, ``k = 0 .. N-1``, by default with the held-past initial conditions of
-`sysid.simulate`. A record of several segments (``Dataset.segment_starts``) is scored
-segment by segment, each restarted with its own initial state under the same policy,
-and the squared errors are pooled over all samples; ``initial_state="estimate"``
-scores the model with its initial state (each segment's) fitted by least squares (the
-errors are affine in it), as MATLAB's ``compare`` with ``'InitialCondition',
-'estimate'``, which is fair to records that do not start at rest. `start_at_rest`
-judges whether a record does: whether the held past, and any simulation from rest at
-the first sample, describe its start.
+``k = 0 .. N-1``, by default with the held-past initial conditions of `sysid.simulate`;
+each segment (``Dataset.segment_starts``) restarts with its own initial state and the
+squared errors are pooled. ``initial_state="estimate"`` fits each segment's initial
+state by least squares (the errors are affine in it), as MATLAB's ``compare`` with
+``'InitialCondition', 'estimate'``: fair to records that do not start at rest, which
+`start_at_rest` judges.
 """
 
 from __future__ import annotations
@@ -38,8 +35,8 @@ REST_MIN_SAMPLES = 5
 #: A start is not at rest when, while the input holds its first value, the output's
 #: straight-line trend moves it by more than this share of its recorded span ...
 REST_DRIFT_SHARE = 0.05
-#: ... and by more than this many standard errors of that move (the noise level the
-#: larger of the window's residual and the record's, from second differences).
+#: ... and by more than this many standard errors (noise: the larger of the window's
+#: residual and the record's, from second differences).
 REST_DRIFT_Z = 3.0
 
 #: Initial-state policies of the criteria.
@@ -47,13 +44,9 @@ CriterionInitialState = Literal["held", "estimate"]
 
 
 def _check_policy(value: object, where: str) -> CriterionInitialState:
-    if value == "held":
-        return "held"
-    if value == "estimate":
-        return "estimate"
-    raise IdentificationError(
-        f"{where}: initial_state must be 'held' or 'estimate'; got {value!r}"
-    )
+    if value not in ("held", "estimate"):
+        raise IdentificationError(f"{where}: initial_state must be 'held' or 'estimate'; got {value!r}")
+    return "held" if value == "held" else "estimate"
 
 
 def estimated_state_errors(
@@ -61,22 +54,18 @@ def estimated_state_errors(
 ) -> FloatArray:
     """``target - (num/den) x`` with the ``n_state`` initial transients fitted by least squares.
 
-    Kernel: the output of ``num/den`` driven by ``x`` from a zero past, plus the free
-    response ``(1/den)`` of a transient in the first ``n_state`` samples (what any
-    initial state of the observer form adds), the transient chosen to minimize the sum
-    of squared errors.
+    The free response ``1/den`` of pulses in the first ``n_state`` samples spans what any
+    initial state of the observer form adds to the zero-past output.
     """
-    base = target - lfilter(num, den, x)
+    base: FloatArray = target - lfilter(num, den, x)
     if n_state == 0:
-        out: FloatArray = base
-        return out
+        return base
     pulses = np.zeros((x.size, n_state))
     m = min(n_state, x.size)
     pulses[np.arange(m), np.arange(m)] = 1.0
     free = lfilter([1.0], den, pulses, axis=0)
-    coef = np.linalg.lstsq(free, base, rcond=None)[0]
-    out = base - free @ coef
-    return out
+    fitted: FloatArray = base - free @ np.linalg.lstsq(free, base, rcond=None)[0]
+    return fitted
 
 
 def errors_with_fitted_state(model: HammersteinModel, data: Dataset, *,
@@ -84,12 +73,11 @@ def errors_with_fitted_state(model: HammersteinModel, data: Dataset, *,
     """Ballistic (or one-step) errors with each segment's initial state fitted [kW].
 
     ``P_k - Psim_k`` (or ``P_k - Ppred_k`` with ``one_step``) for every sample, each
-    segment's initial state fitted by least squares (the errors are affine in it), as
-    MATLAB's ``compare`` and ``resid`` with ``'InitialCondition', 'estimate'``. Use it
-    to score a record that may start in a transient, such as the held-out end of a test
-    cut in the middle of a ramp: the held-past rule (`sysid.simulate`) would charge the
-    model with the wrong initial state (seen: one 5.9 kW one-step error at the start of
-    a 900-sample validation record, ten times the whole record's other residuals).
+    segment's initial state fitted by least squares, as MATLAB's ``compare`` and
+    ``resid`` with ``'InitialCondition', 'estimate'``: for a record that may start in a
+    transient, which the held past (`sysid.simulate`) misreads (seen: one 5.9 kW
+    one-step error at the start of a 900-sample validation record, ten times the
+    record's other residuals).
 
     Raises
     ------
@@ -108,6 +96,7 @@ def errors_with_fitted_state(model: HammersteinModel, data: Dataset, *,
 def _segment_estimated_errors(
     model: HammersteinModel, y: FloatArray, w: FloatArray, one_step: bool
 ) -> FloatArray:
+    """`errors_with_fitted_state` of one segment: output ``y``, ``w = f(ds)``."""
     a, b = model.a, model.b
     if not one_step or model.linear_block == "oe":
         return estimated_state_errors(b, a, w, y, max(a.size, b.size) - 1)
@@ -119,13 +108,13 @@ def _segment_estimated_errors(
 
 
 def _pair(measured: FloatArray, modelled: FloatArray, where: str) -> tuple[FloatArray, FloatArray]:
+    """Both as float arrays, refused unless non-empty, 1-D and of equal length."""
     y = np.asarray(measured, dtype=float)
     yhat = np.asarray(modelled, dtype=float)
     if y.ndim != 1 or y.shape != yhat.shape or y.size == 0:
         raise IdentificationError(
             f"{where}: measured and modelled must be non-empty 1-D arrays of equal length; "
-            f"got shapes {y.shape} and {yhat.shape}"
-        )
+            f"got shapes {y.shape} and {yhat.shape}")
     return y, yhat
 
 
@@ -211,6 +200,7 @@ def model_criteria(model: HammersteinModel, data: Dataset) -> Criteria:
     w = v if model.linear_block == "oe" else one_step_mse(model, data)
     return Criteria(ballistic_mse_kw2=v, one_step_mse_kw2=w)
 
+
 def fit_percent(measured: FloatArray, simulated: FloatArray) -> float:
     """NRMSE fit [%] as MATLAB's ``compare``: ``100 (1 - |y - yhat| / |y - mean(y)|)``.
 
@@ -242,25 +232,22 @@ def fit_percent(measured: FloatArray, simulated: FloatArray) -> float:
     if spread == 0.0:
         raise IdentificationError(
             "fit_percent: the measured signal is constant, so the normalized fit is "
-            "undefined; use a record in which the output varies"
-        )
+            "undefined; use a record in which the output varies")
     return 100.0 * (1.0 - float(np.linalg.norm(y - yhat)) / spread)
 
 
 def start_at_rest(data: Dataset) -> Check:
     """Whether each segment of a record starts at rest: a warning check when one does not.
 
-    While the input holds its first value (within `REST_INPUT_RTOL` of its span) before
-    its first change, a process at rest keeps its output within noise. A straight line
-    is fitted to the output over those samples; the start is not at rest when the line
-    moves the output by more than `REST_DRIFT_SHARE` of the segment's output span and by
-    more than `REST_DRIFT_Z` standard errors. Such a record begins inside a transient
-    that an input change before it caused: the held past of V (eq. 9) and any model
-    simulated from rest at the first sample misread it, and the record alone may not
-    determine the static gain (seen: the TCLab log cut by 5 % at its start, 19 samples
-    after a 0 -> 100 % step, moves by 99 % of its span in the 171 samples before its
-    first input change; no OE or Hammerstein model fitted to it with its initial state
-    and offset estimated comes within 3.8 times the full log's model on the full log).
+    While the input holds its first value (within `REST_INPUT_RTOL` of its span), a
+    process at rest keeps its output within noise. The start is not at rest when the
+    straight line fitted to the output over those samples moves it by more than
+    `REST_DRIFT_SHARE` of the segment's output span and by more than `REST_DRIFT_Z`
+    standard errors: the record begins inside a transient, which the held past of V
+    (eq. 9) and any simulation from rest misread, and may not determine the static
+    gain (seen: the TCLab log cut by 5 % at its start moves by 99 % of its span before
+    its first input change; no model fitted to it, initial state and offset estimated,
+    comes within 3.8 times the full log's model on the full log).
 
     Parameters
     ----------
@@ -270,9 +257,9 @@ def start_at_rest(data: Dataset) -> Check:
     Returns
     -------
     Check
-        ``start_at_rest``, severity ``"warning"``: measured the largest share of the
-        output span moved over the segments' first samples [-]; passed (measured NaN, not
-        judged) when no segment holds its input for `REST_MIN_SAMPLES` samples.
+        ``start_at_rest``, a warning: measured the largest share of the output span moved
+        over the segments' first samples [-]; passed (measured NaN) when no segment holds
+        its input for `REST_MIN_SAMPLES` samples.
     """
     where, worst = "", (-1.0, 0.0, 0.0, 0)
     for i, (lo, hi) in enumerate(data.segment_bounds()):
