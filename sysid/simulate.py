@@ -2,42 +2,32 @@
 
 Notation
 --------
-``y`` = ``dP = P - P_nom`` [kW], ``u`` = ``w = f(ds)`` [kW-equivalent input] with
-``ds = s - s_nom`` [%]; ``A``, ``B``, ``C``, ``F`` are q^-1 polynomials (ascending powers,
-paper eqs. 1-4). The kernels work on plain deviation arrays; `simulate` and
-`predict_one_step` take a `HammersteinModel` and a `Dataset` in absolute units.
+``y = dP = P - P_nom`` [kW], ``u = w = f(ds)`` [kW-equivalent input] with ``ds = s - s_nom``
+[%]; ``A``, ``B``, ``C``, ``F`` are q^-1 polynomials (ascending powers, paper eqs. 1-4).
+The ``*_arrays`` kernels work on deviation arrays; `simulate` and `predict_one_step` take
+a `HammersteinModel` and a `Dataset` in absolute units.
 
-* Ballistic simulation (OE, eq. 7): ``F(q) yhat_k = B(q) u_k``; the model output
-  never sees the measured output after the start (the ``eps`` of eq. 9).
-* One-step prediction (eqs. 5-6): ``C(q) yhat_k = (C(q) - A(q)) y_k + B(q) u_k``,
-  i.e. the prediction error ``e = y - yhat`` obeys ``C(q) e_k = A(q) y_k - B(q) u_k``
-  (the ``e`` of eq. 10). ARX has ``C = 1``; OE (``C = A``) gives the simulation.
+* Ballistic simulation (OE, eq. 7): ``F(q) yhat_k = B(q) u_k``, blind to the measured
+  output after the start (the ``eps`` of eq. 9).
+* One-step prediction (eqs. 5-6): ``C(q) yhat_k = (C(q) - A(q)) y_k + B(q) u_k``, so the
+  error ``e = y - yhat`` obeys ``C(q) e_k = A(q) y_k - B(q) u_k`` (the ``e`` of eq. 10).
+  ARX has ``C = 1``; OE (``C = A``) gives the simulation.
 
 Initial conditions (the *held-past* rule)
 -----------------------------------------
-No filter here starts from a zero state: its start-up transient would dominate V and W.
-The samples before the record (``k < 0``) are taken as
-
-* inputs held at the first input, ``u_k = u_0``;
-* measured outputs held at the first measured output, ``y_k = y_0``;
-* simulated outputs of the ballistic simulation equal to ``y_0`` as well, so the
-  simulation starts where the measurement starts (the record's first sample is
-  taken as a rest point);
-* past one-step prediction errors zero, ``e_k = 0`` (so the past predictions equal
-  the held measurement, and the OE predictor reproduces the OE simulation).
-
-These past values become the direct-form II transposed state of `scipy.signal.lfilter`
-through `filter_state` (what `scipy.signal.lfiltic` computes). The kernels here also take
-explicit past values
-(``y_past``, ``e_past``, most recent first: ``[y_{-1}, y_{-2}, ...]``). Where a record
-does not start at rest, the identification kernels of `sysid.linear` can instead
-estimate the output-driven part of the initial filter state (the ``nf`` states of
-``1/F`` for OE, the ``nc`` states of ``1/C`` for ARMAX) as extra parameters; models and
-their criteria V and W always use the held-past rule, so they are reproducible from
-the model and the data alone.
+No filter starts from a zero state (its transient would dominate V and W). Before the
+record (``k < 0``) the inputs are held at ``u_0``, the measured and the simulated outputs
+at ``y_0`` (the first sample is taken as a rest point), and past prediction errors are
+zero (so the OE predictor reproduces the OE simulation). `filter_state` turns these pasts
+into the `scipy.signal.lfilter` state; the kernels also take explicit pasts (``y_past``,
+``e_past``, most recent first: ``[y_{-1}, y_{-2}, ...]``). Models and their V and W always
+use this rule, so they are reproducible from the model and the data alone (the
+identification kernels of `sysid.linear` can instead estimate the initial state).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 from scipy.signal import lfilter
@@ -183,12 +173,17 @@ def predict_one_step_arrays(
     return np.asarray(y, dtype=float) - prediction_errors_arrays(a, b, c, y, u, e_past=e_past)
 
 
-def _deviations(model: HammersteinModel, data: Dataset) -> tuple[FloatArray, FloatArray]:
+def _per_segment(model: HammersteinModel, data: Dataset,
+                 kernel: Callable[[FloatArray, FloatArray], FloatArray]) -> FloatArray:
+    """``P_nom + kernel(dP, f(ds))`` [kW], the kernel restarted on each segment."""
     model.check_ts(data.ts_s)
     op = model.operating_point
     dp_kw = data.power_kw - op.power_kw
     w = np.asarray(model.input_nonlinearity(data.triac_pct - op.triac_pct), dtype=float)
-    return dp_kw, w
+    yhat = np.empty_like(dp_kw)
+    for lo, hi in data.segment_bounds():
+        yhat[lo:hi] = kernel(dp_kw[lo:hi], w[lo:hi])
+    return yhat + op.power_kw
 
 
 def simulate(model: HammersteinModel, data: Dataset) -> FloatArray:
@@ -214,11 +209,8 @@ def simulate(model: HammersteinModel, data: Dataset) -> FloatArray:
     SamplingTimeError
         ``data.ts_s`` differs from ``model.ts_s``.
     """
-    dp_kw, w = _deviations(model, data)
-    yhat = np.empty_like(dp_kw)
-    for lo, hi in data.segment_bounds():
-        yhat[lo:hi] = simulate_arrays(model.b, model.a, w[lo:hi], y_past=float(dp_kw[lo]))
-    return yhat + model.operating_point.power_kw
+    return _per_segment(model, data, lambda y, w: simulate_arrays(model.b, model.a, w,
+                                                                  y_past=float(y[0])))
 
 
 def predict_one_step(model: HammersteinModel, data: Dataset) -> FloatArray:
@@ -248,12 +240,8 @@ def predict_one_step(model: HammersteinModel, data: Dataset) -> FloatArray:
     """
     if model.linear_block == "oe":
         return simulate(model, data)
-    dp_kw, w = _deviations(model, data)
     c = np.array([1.0]) if model.linear_block == "arx" else model.c
-    yhat = np.empty_like(dp_kw)
-    for lo, hi in data.segment_bounds():
-        yhat[lo:hi] = predict_one_step_arrays(model.a, model.b, c, dp_kw[lo:hi], w[lo:hi])
-    return yhat + model.operating_point.power_kw
+    return _per_segment(model, data, lambda y, w: predict_one_step_arrays(model.a, model.b, c, y, w))
 
 
 __all__ = [
