@@ -2,25 +2,17 @@
 
 Every file the toolkit writes for a user (data CSVs, model files, closed-loop records,
 reports, figures) goes through here, so a run that fails half-way (an exception, a full
-disk, Ctrl-C) never leaves a half-written output: the target either keeps its old
-content (or stays absent) or gets the complete new content. `os.replace` within one
-directory is atomic on POSIX and Windows.
+disk, Ctrl-C) leaves the target as it was (or absent) or complete: `os.replace` within
+one directory is atomic on POSIX and Windows. The temporary file is ``fsync``-ed before
+the rename and the directory after it, so a returned write survives a power cut (where
+the file system honours ``fsync``; Windows cannot sync a directory).
 
-Power loss: the temporary file's content is ``fsync``-ed before the rename, and the
-directory after it, so once a write returns, the new file survives a power cut (on
-file systems that honour ``fsync``; directories cannot be synced on Windows, where only
-the file is).
-
-Signals: SIGINT raises ``KeyboardInterrupt`` and the cleanup below removes the temporary
-file. SIGTERM by default kills the process without running any Python code, so the
-console script (`czmpc.cli.main`) installs a SIGTERM handler that raises
-`czmpc.cli.Terminated` (a ``SystemExit`` with code 143 = 128 + 15): the same cleanup
-runs and the process exits 143 as if killed by the signal. A library user who wants the
-same must install such a handler. Only ``SIGKILL`` (or a power cut mid-write) can leave
-the hidden temporary file (``.NAME.XXXX.tmp...``) behind, never a partial target.
-
-The temporary file is created with mode ``0o666`` minus the process umask, like a
-plain ``open(path, "w")``, so the finished file gets the usual permissions.
+SIGINT raises ``KeyboardInterrupt``, which runs the cleanup. SIGTERM kills without
+running Python code, so the console script (`czmpc.cli.main`) installs a handler raising
+`czmpc.cli.Terminated` (exit 143 = 128 + 15); a library user must install one likewise.
+Only ``SIGKILL`` or a power cut mid-write can leave the hidden temporary file
+(``.NAME.XXXX.tmp...``) behind, never a partial target. The temporary file gets mode
+``0o666`` minus the umask, like a plain ``open(path, "w")``.
 """
 
 from __future__ import annotations
@@ -38,11 +30,7 @@ _MAX_NAME_ATTEMPTS = 100
 
 
 def _temporary_sibling(path: Path) -> Path:
-    """Create an empty, unused file next to ``path``; its name keeps ``path``'s suffix.
-
-    The suffix is kept so that tools which pick a format from the extension
-    (matplotlib's ``savefig``) see the same one as for the target.
-    """
+    """Create an empty, unused file next to ``path``, with its suffix (``savefig`` reads it)."""
     for _ in range(_MAX_NAME_ATTEMPTS):
         tmp = path.with_name(f".{path.stem}.{secrets.token_hex(4)}.tmp{path.suffix}")
         try:
