@@ -114,7 +114,8 @@ def _pair(measured: FloatArray, modelled: FloatArray, where: str) -> tuple[Float
     if y.ndim != 1 or y.shape != yhat.shape or y.size == 0:
         raise IdentificationError(
             f"{where}: measured and modelled must be non-empty 1-D arrays of equal length; "
-            f"got shapes {y.shape} and {yhat.shape}")
+            f"got shapes {y.shape} and {yhat.shape}"
+        )
     return y, yhat
 
 
@@ -232,7 +233,8 @@ def fit_percent(measured: FloatArray, simulated: FloatArray) -> float:
     if spread == 0.0:
         raise IdentificationError(
             "fit_percent: the measured signal is constant, so the normalized fit is "
-            "undefined; use a record in which the output varies")
+            "undefined; use a record in which the output varies"
+        )
     return 100.0 * (1.0 - float(np.linalg.norm(y - yhat)) / spread)
 
 

@@ -1,10 +1,9 @@
 """Residual analysis: whiteness and input independence of prediction errors (paper Figs. 3, 6, 18).
 
-A model explains the data when its one-step-ahead prediction errors ``e`` are white
-(no autocorrelation at lags ``tau != 0``) and independent of past inputs (no
-cross-correlation between ``e`` and ``u``). Both are judged with the usual 99 %
-confidence bound ``2.58 / sqrt(N)`` on the normalized sample correlations
-(Ljung, *System Identification*, 2nd ed., sec. 16.6; MATLAB ``resid``).
+A model explains the data when its one-step-ahead prediction errors ``e`` are white and
+uncorrelated with the input, both judged with the 99 % bound ``2.58 / sqrt(N)`` on the
+normalized sample correlations (Ljung, *System Identification*, 2nd ed., sec. 16.6;
+MATLAB ``resid``).
 
 Notation
 --------
@@ -36,16 +35,14 @@ from sysid._arrays import readonly_array as _readonly
 from sysid._typing import FloatArray
 from sysid.errors import IdentificationError
 
-#: Two-sided 99 % quantile of the standard normal distribution (paper Figs. 3, 6, 18;
-#: MATLAB ``resid``): a white-noise correlation estimate stays within
-#: ``Z_99 / sqrt(N)`` with probability 0.99 at each lag.
+#: Two-sided 99 % quantile of the standard normal distribution: a white-noise
+#: correlation estimate stays within ``Z_99 / sqrt(N)`` with probability 0.99 at each lag.
 Z_99 = 2.58
 
 #: Default largest lag [samples], as in MATLAB ``resid``.
 DEFAULT_MAX_LAG = 25
 
 CorrelationKind = Literal["auto", "cross"]
-
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -66,8 +63,7 @@ class CorrelationResult:
     n_samples :
         ``N``, the length of the residual record.
     n_tested :
-        Lags compared with the bound (every lag except 0 for ``"auto"``; every lag
-        for ``"cross"``).
+        Lags compared with the bound (all but lag 0 for ``"auto"``).
     n_outside :
         Tested lags whose ``|value|`` exceeds `bound`.
     within_bound :
@@ -126,6 +122,7 @@ def _tested(kind: CorrelationKind, lags: npt.NDArray[np.int64]) -> npt.NDArray[n
 
 
 def _signal(values: FloatArray, name: str) -> FloatArray:
+    """``values`` with its mean removed, refused unless 1-D and finite."""
     arr: FloatArray = np.asarray(values, dtype=float)
     if arr.ndim != 1:
         raise IdentificationError(f"{name} must be a 1-D array; got shape {arr.shape}")
@@ -159,6 +156,7 @@ def _lagged_products(x: FloatArray, z: FloatArray, lags: npt.NDArray[np.int64]) 
 
 def _result(kind: CorrelationKind, lags: npt.NDArray[np.int64], values: FloatArray,
             n: int) -> CorrelationResult:
+    """The result at `lags`, compared with the bound ``Z_99 / sqrt(n)``."""
     bound = Z_99 / math.sqrt(n)
     tested = _tested(kind, lags)
     n_outside = int(np.count_nonzero(tested & (np.abs(values) > bound)))
@@ -193,8 +191,7 @@ def autocorrelation(e: FloatArray, *, max_lag: int = DEFAULT_MAX_LAG) -> Correla
 
     Notes
     -----
-    ``r_e(tau) = sum_{k>=tau} (e_k - mean)(e_{k-tau} - mean) / sum_k (e_k - mean)^2``
-    (the module docstring's biased estimator), as plotted in paper Figs. 3, 6, 18.
+    ``r_e(tau)`` of the module docstring (biased), as plotted in paper Figs. 3, 6, 18.
     """
     x = _signal(e, "e")
     _check_max_lag(max_lag, x.size)
