@@ -52,10 +52,8 @@ CLAMP_TOL = 1e-6
 APPLIED_TOL_PCT = 1e-6
 
 
-#: What the QP stage (stage 3) decided: the solution; the first move to apply
-#: [kW-equivalent] (plan or fallback); the fallback; the bounds of the first move
-#: [kW-equivalent]; whether max_bad_solves is reached. A plain tuple: a NamedTuple's
-#: constructor cost a third of a microsecond a step (issue 30).
+#: Stage 3's decision: solution, first move [kW-equivalent], fallback, the first move's
+#: bounds [kW-equivalent], max_bad_solves reached. A plain tuple: a NamedTuple cost 0.3 us.
 _Plan = tuple[QPSolution, float, Fallback, float, float, bool]
 
 
@@ -69,10 +67,8 @@ class OffsetFreeMPC:
     settings :
         Tuning; None for `MPCSettings.default_for` ``(model)`` (rate limit on).
     initial_triac_pct :
-        The TRIAC input the plant holds now [%] (read it from the plant), for a
-        bumpless start: the estimator starts at its steady state and the first move is
-        within the rate limit of it. Overrides ``settings.initial_triac_pct``; None
-        keeps that (None there too: the model's operating point).
+        The input the plant holds now [%], for a bumpless start; overrides
+        ``settings.initial_triac_pct`` (None keeps that).
 
     Attributes
     ----------
@@ -88,9 +84,9 @@ class OffsetFreeMPC:
     SettingsError
         If ``settings.ts_s`` is given and differs from the model's sampling time.
     DesignError
-        If the allowed input range leaves the monotone branch of ``f``, the augmented
-        pair is not detectable, the model has no delay or no static gain, a DARE has
-        no stabilizing solution, or ``initial_triac_pct`` lies outside the allowed range.
+        The allowed input range leaves the monotone branch of ``f``, the augmented pair
+        is not detectable, the model has no delay or no static gain, a DARE has no
+        stabilizing solution, or ``initial_triac_pct`` is outside the allowed range.
 
     Examples
     --------
@@ -253,8 +249,7 @@ class OffsetFreeMPC:
         return self._qp
 
     def reset(self) -> None:
-        """Forget all state, as if newly constructed: the estimator at the steady state of
-        the initial input with ``d = 0``; mode, limits, counters and transition log initial."""
+        """Forget all state, as if newly constructed."""
         w0 = self._input_map.f(self._ds_init)
         self._restart_estimator(w0)
         self._ds_prev = self._ds_init
@@ -285,9 +280,8 @@ class OffsetFreeMPC:
     def request_mode(self, mode: Mode | str) -> ModeTransition:
         """Ask for a mode change; it applies from the next `step` (`czmpc.modes.transition`).
 
-        Leaving ``OFF`` restarts the estimator at the steady state of the applied input,
-        so ``ON`` needs ``warmup_samples`` valid samples in ``PREDICT`` first. Every
-        request is logged (`drain_transitions`).
+        Leaving ``OFF`` restarts the estimator, so ``ON`` needs ``warmup_samples`` valid
+        samples in ``PREDICT`` first. Every request is logged (`drain_transitions`).
 
         Parameters
         ----------
@@ -335,17 +329,14 @@ class OffsetFreeMPC:
     def set_triac_limits(self, triac_min_pct: float, triac_max_pct: float) -> None:
         """Change the TRIAC limits at run time [%].
 
-        The limits are intersected with `allowed_triac_range_pct` (the settings' limits
-        and the model's validity range). A tightened limit moves in at
-        ``limit_ramp_pct_per_s`` starting from the current input (so it bites at once
-        but never makes the input jump); a widened limit applies at once
+        Intersected with `allowed_triac_range_pct`; a tightened limit moves in from the
+        current input at ``limit_ramp_pct_per_s``, a widened one applies at once
         (`czmpc.supervision.LimitRamp`).
 
         Raises
         ------
         SettingsError
-            Non-finite or inverted limits, or limits that leave nothing of the allowed
-            range.
+            Non-finite or inverted limits, or none of the allowed range left.
         """
         self._limits.set(triac_min_pct, triac_max_pct, ds_now_pct=self._ds_prev)
 
@@ -357,20 +348,16 @@ class OffsetFreeMPC:
         Parameters
         ----------
         power_kw :
-            Measured heater power [kW] at this sample. None, NaN (or inf) mark a missing
-            sample; it and any sample failing a validity check (`czmpc.validation`) is
-            not fed to the estimator (also an absurd value, see
-            `czmpc.kalman.MAX_INNOVATION_KW`).
+            Measured heater power [kW]; None, NaN or inf mark a missing sample. A sample
+            failing a validity check (`czmpc.validation`, `czmpc.kalman.MAX_INNOVATION_KW`)
+            is not fed to the estimator.
         setpoint_kw :
-            Power setpoint [kW]. None, a non-finite value or one outside the plausible
-            range (``power_min_kw`` .. ``power_max_kw`` or
-            `czmpc.supervision.MAX_SETPOINT_KW`) is rejected: the previous valid setpoint
-            is held and `StepDiagnostics.setpoint_verdict` says why. Nothing of a
-            rejected setpoint reaches the ramp or filter.
+            Power setpoint [kW]. None, non-finite or implausible (``power_min_kw`` ..
+            ``power_max_kw``, `czmpc.supervision.MAX_SETPOINT_KW`): the previous valid one
+            is held (`StepDiagnostics.setpoint_verdict` says why).
         applied_triac_pct :
-            The TRIAC input actually applied over the previous sample [%], when the
-            caller knows it differs from what was returned (saturation downstream,
-            manual override, stuck TRIAC); None (or non-finite): as returned. In
+            The input actually applied over the previous sample [%] if it differs from
+            the one returned (saturation, override); None or non-finite: as returned. In
             ``OFF``/``PREDICT`` it is the caller's own input.
 
         Returns
@@ -526,11 +513,10 @@ class OffsetFreeMPC:
 
     def _guard_input(self, w0: float, ds_prev: float, measurement_shed: bool, tgt: Target,
                      em: InputMap) -> tuple[float, float]:
-        """Stage 4: invert ``w0`` (or take the safe input when shed), then the rate and limit guard.
+        """Stage 4: invert ``w0``, or take the safe input when shed, then guard rate and limits.
 
-        The safe input is ``shed_triac_pct`` when set, else the target: the steady input
-        holding the setpoint by the last trusted estimate, not the transients of the
-        soft-sensor period. Returns the guarded input and the one asked for [%, deviation].
+        The safe input is ``shed_triac_pct``, else the target (from the last trusted
+        estimate). Returns the guarded input and the one asked for [%, deviation].
         """
         if self._max_move is not None:
             r_lo, r_hi = ds_prev - self._max_move, ds_prev + self._max_move
@@ -590,11 +576,7 @@ class OffsetFreeMPC:
 
 
 def _check_static_gain(model: HammersteinModel, gain: float, input_map: InputMap) -> None:
-    """Refuse a model whose static gain over the allowed input range is not positive and finite.
-
-    The steady gain is ``B(1)/A(1) f'(ds)`` with ``f' > 0`` on the allowed range
-    (`build_input_map`): a wrong-signed ``B(1)/A(1)`` would drive the heater the wrong way.
-    """
+    """Refuse a static gain ``B(1)/A(1) f'(ds)`` over the allowed range not positive and finite."""
     lo, hi = input_map.ds_min_pct, input_map.ds_max_pct
     g_lo = gain * slope(input_map.coefficients, lo)
     g_hi = gain * slope(input_map.coefficients, hi)

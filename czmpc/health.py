@@ -1,11 +1,9 @@
 """Model-health monitor: one-step residuals of the model, their correlation with past data, a stale alarm.
 
-`czmpc.mismatch` watches the controller's own innovations. Those come from the
-estimator *with* its integrating disturbance, which is built to absorb model error (a
-gain error becomes a disturbance after a few samples), and whose tuning makes them
-slightly coloured even for a perfect model. So this monitor runs the model's own
-one-step predictor beside the controller, and tests its residuals, which for a correct
-model are exactly white with the model's ``noise_std_kw``.
+The controller's innovations (`czmpc.mismatch`) come from an estimator whose
+integrating disturbance absorbs model error and whose tuning colours them slightly even
+for a perfect model. So this monitor runs the model's own one-step predictor beside the
+controller: for a correct model its residuals are exactly white with ``noise_std_kw``.
 
 Notation
 --------
@@ -17,60 +15,48 @@ Residual (one-step prediction error of the model, docs/reference/model_file.rst)
 
     C(q) e_k = A(q) y_k - B(q) w_k
 
-Under a correct model ``e_k`` is white, ``N(0, sigma^2)``, ``sigma = noise_std_kw``, and
+Under a correct model ``e_k`` is white, ``N(0, sigma^2)``, ``sigma = noise_std_kw``,
 independent of everything measured before ``k``. A model whose ``A`` or ``B`` no longer
-match the plant (a gain, time constant or delay that moved) leaves in ``e_k`` exactly
-``psi_k' (theta_plant - theta_model)`` with the regressors of past data filtered by
-``1/C`` (the prediction-error gradient)::
+match the plant leaves in ``e_k`` exactly ``psi_k' (theta_plant - theta_model)``, with
+the past data filtered by ``1/C`` (the prediction-error gradient)::
 
     psi_k = [ y_{k-1} .. y_{k-na},  w_{k-1} .. w_{k-nb-m} ] / C(q)
 
-(``m`` extra input lags catch a longer delay). The stale-model test regresses the
-residuals of the window on ``psi`` and a constant, and compares the explained part with
-the rest (the regression F test of Ljung's cross-correlation test, and the score test
-of the local approach to change detection; Basseville and Nikiforov, *Detection of
-Abrupt Changes*, 1993, ch. 9)::
+(``m`` extra input lags catch a longer delay). The test regresses the window's
+residuals on ``psi`` and a constant (the regression F test of Ljung's cross-correlation
+test; the score test of Basseville and Nikiforov, *Detection of Abrupt Changes*, 1993,
+ch. 9)::
 
     F = (RSS_0 - RSS_1) / q  /  (RSS_1 / (n - r)),     q = r - 1 = rank of psi (centred)
 
-Under a correct model ``F ~ F(q, n - r)`` (exactly, for Gaussian ``e`` and regressors
-fixed by the past; the constant absorbs the residual mean, so a slow output offset,
-which the offset-free controller handles, raises no alarm; the noise level is
-estimated in the window, so a noisier sensor raises none either).
+Under a correct model ``F ~ F(q, n - r)`` exactly (Gaussian ``e``, regressors fixed by
+the past). The constant absorbs a slow output offset and the noise level is estimated
+in the window, so neither raises an alarm.
 
 **The rule.** Every `HealthSettings.test_every_samples` residuals, over the last
-`HealthSettings.window_samples` residuals (at least half of them present): the stale
-alarm is raised when ``P(F(q, n - r) > F) < false_alarm_per_test``, and it stays raised
-(latched) until `ModelHealthMonitor.reset`. By the union bound, a correct model raises
-a false alarm over a duration ``D`` with probability at most
+`HealthSettings.window_samples` (at least half of them present): the stale alarm is
+raised when ``P(F(q, n - r) > F) < false_alarm_per_test`` and latched until
+`ModelHealthMonitor.reset`. By the union bound, a correct model raises a false alarm
+over a duration ``D`` with probability at most
 ``D / (Ts * test_every_samples) * false_alarm_per_test``
-(`HealthSettings.false_alarm_bound`): with the defaults at ``Ts = 2 s``,
+(`HealthSettings.false_alarm_bound`): at the defaults and ``Ts = 2 s``,
 ``720 tests/day * 1e-6 = 7.2e-4`` per day.
 
-The test needs excitation: with the input held constant, ``w`` brings no information
-and ``psi`` drops in rank; a stale model is then invisible (and harmless to the
-tracking of a constant setpoint, which the integrating disturbance holds offset-free).
+With the input held constant ``psi`` drops in rank: a stale model is then invisible
+(and harmless to a constant setpoint, held offset-free by the integrating disturbance).
+Reported beside it (`czmpc.mismatch.InnovationMonitor` on these residuals): the mean
+over its standard error, the variance over ``sigma^2``, the lag-1 correlation, and the
+drift of the controller's disturbance estimate over the window.
 
-Reported beside it (reusing `czmpc.mismatch.InnovationMonitor` on these residuals):
-the residual mean over its standard error and the variance over ``sigma^2`` (a sensor or
-noise change), the lag-1 correlation, and the drift of the controller's disturbance
-estimate over the window (how much the integrating disturbance has had to move).
+**Two references.** Against the model (``baseline_samples = 0``): any mismatch alarms,
+also one from the start; on the model's own plant a 25 % gain loss in minutes and a
+doubled time constant within 30 min (BENCHMARKS.md), the virtual heater's structural
+mismatch within about an hour. Against a baseline (``baseline_samples = N``): each test
+is a partial F test (Chow) of whether the window's regression coefficients differ from
+those of the first ``N`` residuals (constants free), so only a *change* alarms, at some
+cost in detection power. `czmpc run` uses the baseline (`RUNTIME_HEALTH`).
 
-**Two references.** Against the model (``baseline_samples = 0``, the test above): any
-mismatch alarms, also one the model had from the start. On the model's own plant this
-detects a 25 % gain loss in minutes and a doubled time constant within 30 min
-(BENCHMARKS.md); on a plant the model describes only approximately (the virtual heater
-against a model identified from it) it flags that structural mismatch within about an
-hour. Against a baseline (``baseline_samples = N``): the first ``N`` residuals after the
-start are the reference, and each test is a partial F test (Chow) of whether the
-regression coefficients of the window differ from the baseline's (constants free):
-the mismatch the model had when it was judged ready is normal, only a *change* alarms.
-It costs detection power (two estimates instead of one). `czmpc run` uses the baseline
-(`RUNTIME_HEALTH`: the first 30 min of the run at Ts = 2 s).
-
-The figure published as ``health`` is ``F / F_limit`` of the latest test: below 1 the
-residuals show no significant correlation with past data (no significant change); at 1
-or above, the alarm.
+The published ``health`` is ``F / F_limit`` of the latest test: 1 or above is the alarm.
 """
 
 from __future__ import annotations
@@ -110,14 +96,11 @@ class HealthSettings:
     extra_input_lags :
         Input lags tested beyond the model's ``B`` (a longer delay shows there).
     residual_lags :
-        Past residuals ``e_{k-1} .. e_{k-p}`` taken into both regressions as nuisance
-        terms, so that residuals coloured by noise the model does not describe (a slow
-        grid wander, say) do not count as mismatch of the dynamics.
+        Past residuals ``e_{k-1} .. e_{k-p}`` in both regressions as nuisance terms, so
+        noise the model does not describe (a slow grid wander) is not mismatch.
     baseline_samples :
-        0: test the residuals against the model (any mismatch alarms). ``N > 0``: the
-        first ``N`` residuals after the start are the *baseline*, and each test asks
-        whether the relation of the residuals to past data has *changed* since (the
-        mismatch the model had when it was switched on, and judged ready, is normal).
+        0: test against the model. ``N > 0``: test for a change since the first ``N``
+        residuals (module notes).
 
     Raises
     ------
@@ -158,8 +141,7 @@ class HealthSettings:
         -------
         float
             ``min(1, n_tests * false_alarm_per_test)``, ``n_tests = duration_s / (ts_s *
-            test_every_samples)`` (union bound; the tests of overlapping windows are
-            correlated, so the true rate is lower).
+            test_every_samples)`` (union bound; overlapping windows make it pessimistic).
         """
         n_tests = math.floor(duration_s / (ts_s * self.test_every_samples))
         return min(1.0, n_tests * self.false_alarm_per_test)
@@ -180,8 +162,7 @@ class ModelHealth:
     residual_kw :
         One-step prediction residual ``e_k`` [kW]; NaN if none (missing sample, start).
     predicted_kw :
-        The model's one-step prediction of the power at this sample [kW] (NaN at the
-        start).
+        The model's one-step prediction of this sample's power [kW] (NaN at the start).
     n_samples :
         Residuals in the window.
     mean_z :
@@ -201,8 +182,7 @@ class ModelHealth:
     health :
         ``f_statistic / f_limit`` (0 before the first test): >= 1 is an alarm [-].
     disturbance_drift_kw :
-        Change of the controller's disturbance estimate over the window [kW] (NaN if
-        none given).
+        Change of the controller's disturbance estimate over the window [kW] (or NaN).
     stale_alarm :
         The latched stale-model alarm.
     alarm_reason :
@@ -251,11 +231,6 @@ class ModelHealthMonitor:
         The model the controller runs on.
     settings :
         Window, test interval and false-alarm rate.
-
-    Notes
-    -----
-    Memory is bounded by the window; a test costs one least-squares solve of
-    ``window_samples`` rows.
 
     Examples
     --------
@@ -313,10 +288,7 @@ class ModelHealthMonitor:
         self.alarm_k: int | None = None
 
     def _y_hat(self, w_newest: float) -> float:
-        """One-step prediction [kW, deviation] of the next sample with ``w_newest`` acting.
-
-        C e = A y - B w:  y_hat = -sum a_i y_{k-i} + sum b_j w_{k-j} + sum c_i e_{k-i}.
-        """
+        """``y_hat = -sum a_i y_{k-i} + sum b_j w_{k-j} + sum c_i e_{k-i}`` [kW], ``w_newest`` acting."""
         a, b, c = self._a_t, self._b_t, self._c_t
         y_hat = 0.0
         for i in range(1, len(a)):
@@ -346,8 +318,8 @@ class ModelHealthMonitor:
             TRIAC input applied over ``(t_{k-1}, t_k]`` [%] (the previous command); NaN:
             unknown, the previous one is kept.
         disturbance_kw :
-            The controller's disturbance estimate as a steady power effect [kW] (for the
-            drift figure); NaN if not known.
+            The controller's disturbance estimate as a steady power effect [kW]; NaN if
+            not known.
 
         Returns
         -------

@@ -4,23 +4,17 @@ With a correct model the innovations ``eps_k`` are white with standard deviation
 ``sigma_eps`` (the model's ``noise_std_kw`` times the estimator's predicted innovation
 std). Over the last ``n`` used samples the monitor reports
 
-* ``mean_z = mean(eps) / (sigma_eps / sqrt(n))``: about N(0, 1) for a correct model; a
-  biased sensor or a plant offset the integrating disturbance has not yet absorbed
-  makes it large;
-* ``variance_ratio = var(eps) / sigma_eps^2``: about 1; a noisier plant or an
-  un-modelled dynamic raises it;
-* ``lag1_correlation`` of the innovations: about 0 (std ``1/sqrt(n)``); a plant whose
-  dynamics drifted from the model colours the innovations.
+* ``mean_z = mean(eps) / (sigma_eps / sqrt(n))``: about N(0, 1); large for a biased
+  sensor or an offset not yet absorbed by the integrating disturbance;
+* ``variance_ratio = var(eps) / sigma_eps^2``: about 1; raised by a noisier plant or
+  un-modelled dynamics;
+* ``lag1_correlation``: about 0 (std ``1/sqrt(n)``); drifted dynamics colour it.
 
-It also watches the disturbance estimate: the offset-free estimator turns a persistent
-sensor bias or gain drift into ``d``, so ``|d| > disturbance_limit_kw`` flags it even
-after the innovations are white again. Nothing here changes the control; it reports.
-Memory is bounded by the window (running sums over a ring buffer).
-
-A noise-free model (``noise_std_kw = 0``, a fit to simulated data) is monitored with
-`monitored_noise_std_kw`: a millionth of the model's own output span over its input
-range, so that the normalised statistics stay finite, rounding on a model plant stays
-far inside the limits, and any real noise on a plant flags the model's claim.
+The estimator turns a persistent sensor bias or gain drift into ``d``, so
+``|d| > disturbance_limit_kw`` flags it even after the innovations are white again.
+Nothing here changes the control. A noise-free model (``noise_std_kw = 0``) is monitored
+with `monitored_noise_std_kw`: a millionth of its output span, so the statistics stay
+finite and any real noise flags the model's claim.
 """
 
 from __future__ import annotations
@@ -36,8 +30,7 @@ import numpy as np
 from czmpc._records import record_from_fields
 from sysid.model import HammersteinModel
 
-#: A noise-free model is monitored as if its innovations had this fraction of its
-#: output span over the input range as standard deviation.
+#: A noise-free model's monitored innovation std, as a fraction of its output span.
 NOISE_FREE_STD_FRACTION = 1e-6
 #: Smallest monitored standard deviation: its square is still a normal float.
 _MIN_MONITORED_STD = math.sqrt(sys.float_info.min)
@@ -54,14 +47,9 @@ def monitored_noise_std_kw(model: HammersteinModel) -> float:
     Returns
     -------
     float
-        ``noise_std_kw``, but at least `NOISE_FREE_STD_FRACTION` times the span of the
-        model's steady-state output over its input range (and at least the square
-        root of the smallest normal float): > 0 and finite for every model that loads.
-
-    Notes
-    -----
-    The Kalman gain of the innovations form does not depend on the noise level
-    (docs/theory.rst, C1); only the monitors divide by it.
+        ``noise_std_kw``, at least `NOISE_FREE_STD_FRACTION` times the model's
+        steady-state output span over its input range and the square root of the
+        smallest normal float (the Kalman gain does not depend on it, docs/theory.rst, C1).
     """
     lo, hi = model.input_range_pct
     power_kw = model.steady_state_power_kw(np.linspace(lo, hi, 101))
@@ -96,9 +84,8 @@ class MismatchStats:
 
     Notes
     -----
-    `InnovationMonitor` makes one per controller step, and most are never read: it hands
-    out records holding the window's sums, whose fields are all computed at the first
-    read of one (`window_statistics`), with the same values.
+    `InnovationMonitor` makes one per step and most are never read: its records hold the
+    window's sums, and every field is computed at the first read (`window_statistics`).
     """
 
     n_samples: int
@@ -182,8 +169,7 @@ class InnovationMonitor:
     disturbance_limit_kw :
         Threshold on ``|disturbance_kw|``; None disables that flag.
 
-    The thresholds are fixed at construction: the records it hands out read them when
-    first read themselves.
+    The thresholds are fixed at construction (its records read them lazily).
     """
 
     def __init__(self, *, window_samples: int, sigma_kw: float, min_samples: int = 30,
@@ -244,8 +230,6 @@ class InnovationMonitor:
 
     def stats(self, disturbance_kw: float) -> MismatchStats:
         """Statistics of the current window (computed when first read, `MismatchStats`)."""
-        # The running sums are recomputed from the window once per window length, so a
-        # huge value that left the window cannot leave rounding residue behind for long.
         return record_from_fields(MismatchStats, {"_window_sums": (
             len(self._buf), self._sum, self._sum2, len(self._pairs), self._sum_pair,
             disturbance_kw, self)})

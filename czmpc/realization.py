@@ -46,10 +46,9 @@ from sysid._arrays import readonly_array as _readonly
 from sysid._typing import FloatArray
 from sysid.model import HammersteinModel
 
-#: PBH rank test: a smallest singular value below this (relative to the largest) counts
-#: as rank loss. Far above round-off (1e-16), far below any real model's margin.
+#: PBH rank test: a smallest singular value below this, relative to the largest, is rank
+#: loss (far above round-off, far below any real model's margin).
 PBH_RTOL = 1e-9
-
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -169,8 +168,7 @@ def augment(base: InnovationsForm, disturbance_model: DisturbanceModel) -> Augme
     Raises
     ------
     DesignError
-        If the augmented pair ``(A, C)`` is not detectable (`check_detectable`), for
-        example an input disturbance on a model whose ``B(q)`` has a zero at ``z = 1``.
+        If the augmented pair ``(A, C)`` is not detectable (`check_detectable`).
     """
     n = base.n_states
     A = np.zeros((n + 1, n + 1))
@@ -194,9 +192,8 @@ def check_detectable(A: FloatArray, C: FloatArray, *, what: str) -> None:
     """Raise `DesignError` unless ``(A, C)`` is detectable (PBH test).
 
     Every eigenvalue ``lambda`` of ``A`` with ``|lambda| >= 1`` must satisfy
-    ``rank [lambda I - A; C] = n``. For an augmented model the integrator ``z = 1`` is
-    the critical one: with an input disturbance it fails exactly when ``B(1) = 0``
-    (the disturbance then has no steady effect on the output).
+    ``rank [lambda I - A; C] = n``; an input disturbance fails at ``z = 1`` exactly when
+    ``B(1) = 0`` (no steady effect on the output).
 
     Parameters
     ----------

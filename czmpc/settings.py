@@ -1,14 +1,12 @@
 """MPCSettings (+ OSQPOptions): frozen, validated, defaults from a model.
 
-Every tuning knob of `czmpc.controller.OffsetFreeMPC` lives here, checked once at
-construction (an invalid instance cannot exist). Model-dependent checks (is the allowed
-input range on the monotone branch of ``f``? is the augmented pair detectable?) happen
-when the controller is built and raise `czmpc.errors.DesignError`.
+Every tuning knob of `czmpc.controller.OffsetFreeMPC`, checked once at construction.
+Model-dependent checks (monotone ``f`` over the allowed range, a detectable augmented
+pair) raise `czmpc.errors.DesignError` when the controller is built.
 
-Weights are on quantities in kW: the QP works in ``w = f(ds)`` [kW-equivalent], and the
-linear block's first ``B`` coefficient is normalized to 1 (docs/reference/model_file.rst), so one
-kW of ``w`` moves the power by one kW at once. That is why fixed numbers are sensible
-defaults for every model in this form.
+Weights are on kW: the QP works in ``w = f(ds)`` [kW-equivalent] and ``B``'s first
+coefficient is 1 (docs/reference/model_file.rst), so one kW of ``w`` moves the power by
+one kW at once, and fixed default weights suit every model in this form.
 """
 
 from __future__ import annotations
@@ -29,9 +27,8 @@ HORIZON_FRACTION_OF_SLOW_MODE = 0.3
 #: Default horizons stay within these bounds [samples].
 MIN_DEFAULT_HORIZON_STEPS = 10
 MAX_DEFAULT_HORIZON_STEPS = 60
-#: Default TRIAC rate limit: this fraction of the model's identified input range per
-#: sample (5 %: the whole range in 20 samples, 40 s at Ts = 2 s), because a real TRIAC
-#: and heating element must not be slammed (see `MPCSettings.default_for`).
+#: Default TRIAC rate limit per sample, as a fraction of the model's identified input
+#: range (the whole range in 20 samples: a real element must not be slammed).
 DEFAULT_RATE_FRACTION_OF_RANGE = 0.05
 
 
@@ -58,10 +55,7 @@ _GT0: tuple[float | None, bool] = (0.0, True)
 
 def _check_fields(obj: object, *, ints: dict[str, int] | None = None,
                   numbers: dict[str, tuple[float | None, bool]] | None = None) -> None:
-    """Check ``obj``'s int fields (name -> minimum) and number fields (name -> rule).
-
-    A number field whose type admits None may be None (the setting is off).
-    """
+    """Check ``obj``'s int fields (name -> minimum) and number fields (name -> rule; None if typed so)."""
     owner = type(obj).__name__
     for name, least in (ints or {}).items():
         _check_int(owner, name, getattr(obj, name), minimum=least)
@@ -79,27 +73,24 @@ class OSQPOptions:
     Parameters
     ----------
     eps_abs, eps_rel :
-        Absolute and relative termination tolerances. About 1e-5 keeps the input bounds
-        (in kW-equivalent) to about 1e-4 kW, well below anything physical.
+        Absolute and relative termination tolerances. 1e-5 keeps the input bounds to
+        about 1e-4 kW.
     max_iter :
-        Iteration cap per solve; a solve that hits it counts as failed and the
-        controller falls back (docs/theory.rst, C7). Warm-started solves take a median of
-        5-10 iterations, but a large step through a tight rate limit takes thousands:
-        a 15 kW step at 0.3 %/step on the shipped model needed up to 3,210, and with a
-        cap of 1000, 14 of its 200 solves fell back (none at 4000, and the run was no
-        slower: a fallback's cold start costs more than the extra iterations).
+        Iteration cap per solve; a solve that hits it fails and the controller falls
+        back (docs/theory.rst, C7). Measured: a 15 kW step at 0.3 %/step on the shipped
+        model took up to 3,210 iterations, 14 of 200 solves fell back at a cap of 1000,
+        none at 4000 (no slower: a fallback's cold start costs more).
     polishing :
         Run OSQP's solution polishing (an extra active-set solve): bounds then hold to
         about 1e-9 instead of about ``eps``, at the cost of one extra factorization.
     time_limit_s :
-        Wall-clock cap per solve [s], or None for none. Setting it makes results depend
-        on machine speed, so it is off by default.
+        Wall-clock cap per solve [s], or None for none. Off by default: results would
+        depend on machine speed.
     check_termination :
-        Check the termination criteria every this many iterations. Warm-started solves
-        need few iterations, so checking often saves time.
+        Check the termination criteria every this many iterations.
     adaptive_rho_interval :
-        Update OSQP's step size ``rho`` every this many iterations. A fixed interval (not
-        OSQP's time-based choice) keeps runs bit-for-bit reproducible.
+        Update OSQP's step size ``rho`` every this many iterations. Fixed, so runs
+        reproduce bit for bit.
     """
 
     eps_abs: float = 1e-5
@@ -125,8 +116,7 @@ ModeName = Literal["off", "predict", "on"]
 class ReliabilitySettings:
     """How the controller behaves under faults, bad data and solver trouble.
 
-    The defaults leave clean-data behaviour unchanged: no check trips on a healthy
-    signal, no setpoint shaping, and limits change only when asked.
+    At the defaults no check trips on a healthy signal and the setpoint is not shaped.
 
     Parameters
     ----------
@@ -147,13 +137,13 @@ class ReliabilitySettings:
         Smallest change of the model's prediction [kW] over a run of identical readings
         for the run to count as a stuck sensor (a plant at rest legitimately repeats).
     spike_gate_k_sigma :
-        Spike gate width in predicted innovation standard deviations; None (the
-        default) disables it: a genuine step disturbance (a grid voltage sag) looks like
-        a level change for ``reopen_after_samples`` samples and would be answered that
-        much later. About 8 with a floor of 0.5 kW rejects the paper's 1-3 kW spikes.
+        Spike gate width in predicted innovation standard deviations; None (default)
+        disables it, since a genuine step disturbance would be answered
+        ``reopen_after_samples`` late. About 8 with a 0.5 kW floor rejects the paper's
+        1-3 kW spikes.
     spike_gate_floor_kw :
-        Smallest spike gate half-width [kW]; covers the model mismatch the noise model
-        does not describe (setpoint steps on the real heater).
+        Smallest spike gate half-width [kW]; covers mismatch the noise model does not
+        describe.
     reopen_after_samples :
         Consecutive rate/spike rejections after which the next value is accepted as a
         genuine level change.
@@ -252,44 +242,39 @@ class MPCSettings:
     move_weight :
         Weight on ``(w_k - w_{k-1})^2`` [1/kW^2], ``w = f(ds)`` in kW-equivalent.
     input_target_weight :
-        Weight on ``(w_k - w_s)^2`` [1/kW^2], ``w_s`` the steady-state target input.
-        ``move_weight + input_target_weight`` must be > 0 (the LQ problem needs a
-        positive input weight).
+        Weight on ``(w_k - w_s)^2`` [1/kW^2], ``w_s`` the steady-state target input;
+        ``move_weight + input_target_weight`` must be > 0.
     disturbance_model :
         Where the integrating disturbance ``d`` acts: ``"input"`` (``w + d``) or
-        ``"output"`` (``P + d``). Both remove offset; see `default_for` for the choice.
+        ``"output"`` (``P + d``); both remove offset (`default_for`).
     disturbance_noise :
         Variance of the disturbance's random-walk increment relative to the innovation
-        variance ``sigma_e^2`` [-]. Larger values track disturbances faster and pass more
-        measurement noise to the input. The estimator gains depend only on this ratio.
-        Default 0.3, measured on the shipped model (seed 7): against 0.1 it cuts the IAE
-        of the 3 % voltage sag on the virtual heater from 53 to 45 kW s for +1.5 % on the
-        staircase, and keeps regulation at 1.02 x the minimum variance (1.09 at 1.0).
+        variance ``sigma_e^2`` [-]. The only parameter of the estimator gains: larger
+        tracks faster and passes more noise.
+        Measured (shipped model, seed 7): 0.3 against 0.1 cuts the 3 % voltage sag's IAE
+        from 53 to 45 kW s for +1.5 % on the staircase; regulation 1.02 x the minimum
+        variance (1.09 at 1.0).
     triac_min_pct, triac_max_pct :
         Hard TRIAC limits [%], inside 0..100.
     validity_margin_pct :
         How far [%] beyond the model's identified input range ``input_range_pct`` the
-        controller may drive ``s``. The allowed range is
-        ``[s_min - margin, s_max + margin]`` intersected with the TRIAC limits; it must
-        stay on the monotone branch of ``f`` (else `DesignError` at construction).
+        controller may drive ``s``. The allowed range ``[s_min - margin, s_max + margin]``
+        within the TRIAC limits must stay on the monotone branch of ``f``.
     max_move_pct_per_step :
         Largest TRIAC change per sample [%/step], or None for no rate limit.
     soft_power_min_kw, soft_power_max_kw :
-        Soft limits on the predicted absolute power [kW], or None. Violations are
-        allowed through one slack variable ``v >= 0`` [kW] penalised by
-        ``soft_limit_weight * v^2 + soft_limit_linear_weight * v``.
+        Soft limits on the predicted absolute power [kW], or None. One slack ``v >= 0``
+        [kW] penalised by ``soft_limit_weight * v^2 + soft_limit_linear_weight * v``.
     soft_limit_weight :
         Quadratic slack weight [1/kW^2].
     soft_limit_linear_weight :
-        Linear slack weight [1/kW]; large enough makes the soft limit exact when it can
-        be met (an exact penalty).
+        Linear slack weight [1/kW]; large enough, the limit is exact when it can be met.
     initial_triac_pct :
         The TRIAC input the plant holds when the controller starts [%], or None for the
-        model's operating point. The estimator starts at that input's steady state and
-        the first rate limit is taken from it.
+        model's operating point. The estimator and the first rate limit start from it.
     ts_s :
         The sampling time [s] these settings were tuned for, or None; if given it must
-        equal the model's (checked when the controller is built).
+        equal the model's.
     osqp :
         Solver options.
     reliability :
@@ -393,28 +378,19 @@ class MPCSettings:
     def default_for(cls, model: HammersteinModel) -> MPCSettings:
         """Good default settings for ``model``.
 
-        The horizon covers `HORIZON_FRACTION_OF_SLOW_MODE` (30 %) of the slow time
-        constant ``tau = -1 / ln|z_max|`` of ``A(q)`` (samples), within 10..60 samples.
-        The DARE terminal cost already accounts for everything after the horizon in the
-        unconstrained case, so the horizon has to cover only the transient in which
-        constraints bind (the instantaneous step and the first part of the sag); for the
-        paper's model (``a1 = -0.99``, ``tau`` about 100 samples = 200 s) that gives
-        30 samples = 60 s (docs/theory.rst, "Facts that bite"), at a third of the cost of a
-        full-``tau`` horizon.
+        The horizon covers `HORIZON_FRACTION_OF_SLOW_MODE` of the slow time constant
+        ``tau = -1 / ln|z_max|`` of ``A(q)`` [samples], within 10..60: the DARE terminal
+        cost covers the unconstrained tail, so the horizon needs only the transient in
+        which constraints bind (the paper's model: ``tau`` about 100 samples, horizon 30 =
+        60 s; docs/theory.rst, "Facts that bite").
 
-        The disturbance model is ``"output"``, chosen by measurement on both paper
-        models (OE and ARMAX block; exact-model plant; all three presets): after a
-        +0.15 kW output shift (or a +0.33 % power-gain step) the noise-free IAE was
-        8-13 % lower than with the input disturbance; with the models' own noise the
-        IAE was within 1 % (output never worse); with a plant whose static gain is
-        11 % off, the input model was better by up to 8 % on the OE model only. Both
-        leave no offset. The input model stays available (it is refused when
-        ``B(1) = 0``, where it is not detectable).
+        The disturbance model is ``"output"``, measured on both paper models (exact
+        plant, all presets): 8-13 % lower noise-free IAE after a +0.15 kW output shift or
+        a +0.33 % gain step, within 1 % with noise; the input model was better by up to
+        8 % only on the OE model with an 11 % static gain error.
 
-        The TRIAC rate limit is on: `DEFAULT_RATE_FRACTION_OF_RANGE` (5 %) of the
-        model's identified input range ``input_range_pct`` per sample [%/step], so that
-        the whole range takes 20 samples (1.6 %/step for the shipped CZ heater model,
-        range 33..65 %).
+        The rate limit is `DEFAULT_RATE_FRACTION_OF_RANGE` of ``input_range_pct`` per
+        sample [%/step] (1.6 %/step for the shipped model, range 33..65 %).
 
         Parameters
         ----------
@@ -434,16 +410,13 @@ class MPCSettings:
 
         ``"default"``
             `default_for` unchanged: output weight 1, move weight 0.1, input-target
-            weight 0.01 [1/kW^2]; moves of a few kW cost about as much as a 1 kW error.
+            weight 0.01 [1/kW^2].
         ``"aggressive"``
-            Output weight 1, move weight 1e-4, input-target weight 1e-5: close to the
-            one-sample-delay deadbeat response (the instantaneous gain of ``B`` is 1, so
-            the first move alone can put the power on its setpoint). Noise goes through
-            to the input nearly unfiltered.
+            Move weight 1e-4, input-target weight 1e-5: close to the one-sample-delay
+            deadbeat response; noise reaches the input nearly unfiltered.
         ``"smooth"``
             Move weight 1, input-target weight 0.01, disturbance noise ratio 0.02:
-            slower, smaller moves and a disturbance estimate that averages over more
-            samples.
+            slower, smaller moves and a slower disturbance estimate.
 
         Parameters
         ----------

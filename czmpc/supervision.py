@@ -1,13 +1,12 @@
 """Setpoint shaping and limit ramps: what surrounds the MPC, not the MPC.
 
 `SetpointShaper` checks each received setpoint (a rejected one holds the last valid
-setpoint and leaves nothing in the shaping), then moves at most ``ramp * Ts`` per
-sample and filters with a first-order lag ``alpha = 1 - exp(-Ts / T_f)``.
+one), then moves at most ``ramp * Ts`` per sample and filters with a first-order lag
+``alpha = 1 - exp(-Ts / T_f)``.
 
-`LimitRamp` keeps the effective TRIAC limits: a tightened limit moves in from the
-current input at ``ramp * Ts`` per sample, so it bites at once but never makes the input
-jump; a widened limit applies at once. Limits are TRIAC deviations ``ds = s - s_nom``
-[%] inside the allowed range of the `InputMap`.
+`LimitRamp` keeps the effective TRIAC limits ``ds = s - s_nom`` [%] inside the
+`InputMap`'s range: a tightened limit moves in from the current input at ``ramp * Ts``
+per sample (it bites at once, the input never jumps); a widened one applies at once.
 """
 
 from __future__ import annotations
@@ -19,9 +18,8 @@ from typing import NamedTuple
 from czmpc.errors import SettingsError
 from czmpc.inversion import InputMap, clamp
 
-#: Largest setpoint magnitude taken [kW]: beyond it a setpoint is no heater power and is
-#: rejected like a non-finite one (the previous setpoint is held), so that values such as
-#: 1e308 cannot overflow the setpoint ramp and filter into inf or NaN.
+#: Largest setpoint magnitude taken [kW]; beyond it a setpoint is rejected like a
+#: non-finite one, so 1e308 cannot overflow the ramp and filter.
 MAX_SETPOINT_KW = 1e6
 
 
@@ -130,8 +128,7 @@ class LimitRamp:
         Raises
         ------
         SettingsError
-            Non-finite or inverted limits, or limits that leave nothing of the allowed
-            range.
+            Non-finite or inverted limits, or none of the allowed range left.
         """
         lo_pct, hi_pct = float(triac_min_pct), float(triac_max_pct)
         if not (math.isfinite(lo_pct) and math.isfinite(hi_pct) and lo_pct < hi_pct):

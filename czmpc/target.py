@@ -12,9 +12,8 @@ static gain ``B(1)/A(1)``.
     input disturbance:   x_s = xw (w_s + d),  y_s = g (w_s + d) = r  ->  w_s = r/g - d
     output disturbance:  x_s = xw w_s,        y_s = g w_s + d = r    ->  w_s = (r - d)/g
 
-``w_s`` is clipped to ``[w_min, w_max]``; with a scalar input that clipped value gives
-the reachable output closest to ``r``. The target then reports the setpoint as
-unreachable and gives the reachable ``y_s`` instead of chasing ``r``.
+``w_s`` is clipped to ``[w_min, w_max]`` (with a scalar input: the reachable output
+closest to ``r``); the target then reports the setpoint unreachable, with that ``y_s``.
 """
 
 from __future__ import annotations
@@ -117,8 +116,7 @@ def compute_target(
     setpoint :
         ``r`` [kW deviation], finite.
     disturbance :
-        ``d`` estimate, finite (kW-equivalent for an input, kW for an output
-        disturbance).
+        ``d`` estimate, finite ([kW-equivalent] input, [kW] output disturbance).
     w_min, w_max :
         Input bounds [kW-equivalent], ``w_min < w_max``.
     """
