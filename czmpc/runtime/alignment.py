@@ -1,14 +1,12 @@
 """Read just after the plant publishes: the loop's phase against the plant's sample clock.
 
 A loop that reads just before the plant's step writes after that step on some periods
-and before it on others, so the input reaches the heater with a delay that jitters by a
-sample (docs/guides/plant_link.rst, section 4, says how that shows and what to set).
-The *phase* of a read is the sample's age ``now - SourceTimestamp`` as a share of the
-period, modulo 1; `read_phase` takes its circular mean over `WINDOW` good samples and,
-outside `BAND`, `alignment_delay_s` is the one delay of the schedule (less than a period)
-that moves the reads to `TARGET_PHASE`. Phases spread around the circle (concentration
-below `MIN_CONCENTRATION`: another publishing rate, or clocks that jump) give no
-estimate, and the schedule is left alone.
+and before it on others: the input delay jitters by a sample (docs/guides/plant_link.rst,
+section 4). The *phase* of a read is the sample's age ``now - SourceTimestamp`` as a
+share of the period, modulo 1; `read_phase` is its circular mean over `WINDOW` good
+samples and, outside `BAND`, `alignment_delay_s` the schedule delay (less than a period)
+that moves the reads to `TARGET_PHASE`. Spread phases (concentration below
+`MIN_CONCENTRATION`: another publishing rate, jumping clocks) leave the schedule alone.
 """
 
 from __future__ import annotations
@@ -17,16 +15,15 @@ import cmath
 import math
 from collections.abc import Sequence
 
-#: Where in the plant's period the loop reads [share of the period after the plant
-#: published]: late enough that read jitter cannot put a read before the plant's own
-#: publication, early enough that the write lands long before its next step.
+#: Where the loop reads [share of the period after the plant published]: late enough that
+#: jitter cannot put a read before the publication, early enough to write long before the
+#: next step.
 TARGET_PHASE = 0.2
 #: Read phases inside this band [share of the period] are left alone.
 BAND = (0.05, 0.5)
 #: Good samples whose phases make one estimate.
 WINDOW = 8
-#: Smallest length of the mean phase vector (1: every phase equal; 0: spread evenly)
-#: that counts as a phase at all.
+#: Smallest length of the mean phase vector (1: every phase equal; 0: spread evenly).
 MIN_CONCENTRATION = 0.8
 
 
@@ -36,8 +33,7 @@ def read_phase(ages_s: Sequence[float], period_s: float) -> float | None:
     Parameters
     ----------
     ages_s :
-        Ages ``now - SourceTimestamp`` of samples at the moment the loop read them
-        [wall s]; at least one.
+        Ages ``now - SourceTimestamp`` of samples when the loop read them [wall s].
     period_s :
         The loop's (and the plant's) period [wall s], > 0.
 

@@ -3,18 +3,16 @@
 A run log is the controller's evidence after a crash, so a start never overwrites one
 (`open_run_log`):
 
-- ``[run] log = "run.csv"`` (a file): a start refuses when ``run.csv`` or its meta file
-  exists, unless told ``--append`` (rows go on in the same file; the meta file keeps
-  every run's provenance) or ``--replace-log`` (the earlier log is replaced);
-- ``[run] log = "logs/"`` (a directory: ends with ``/`` or exists; `RunConfig.log_per_run`):
-  each run writes its
-  own ``logs/run-YYYYMMDDTHHMMSSZ.csv``, so a service that restarts keeps every run.
+- ``[run] log = "run.csv"``: a start refuses when ``run.csv`` or its meta file exists,
+  unless told ``--append`` (the meta file keeps every run's provenance) or
+  ``--replace-log``;
+- ``[run] log = "logs/"`` (ends with ``/`` or is a directory; `RunConfig.log_per_run`):
+  each run writes its own ``logs/run-YYYYMMDDTHHMMSSZ.csv``.
 
-Long runs rotate (``[run] rotate = "daily"`` at midnight UTC, or ``rotate_mb``): the
-next part ``<stem>-part002.csv`` and so on, each with its meta file carrying the run's
-provenance, its part number and the previous part. Readers take a file, a directory or
-a glob as one log (`log_parts`): parts of one run join up; between runs (the sample
-index starts again) there is a gap.
+Long runs rotate (``[run] rotate = "daily"`` at midnight UTC, or ``rotate_mb``) into
+``<stem>-part002.csv`` and on, each meta file naming its part and the previous one.
+Readers take a file, a directory or a glob as one log (`log_parts`): parts of one run
+join up; between runs (the sample index starts again) there is a gap.
 """
 
 from __future__ import annotations
@@ -75,13 +73,11 @@ class RunLog:
     Parameters
     ----------
     path :
-        The (first) CSV file (columns `LOG_COLUMNS`); see `open_run_log` for the policy.
+        The (first) CSV file (columns `LOG_COLUMNS`).
     meta :
-        Provenance written to `meta_path` ``(path)`` as JSON (format `RUN_META_FORMAT`),
-        or None for no provenance file.
+        Provenance for `meta_path` ``(path)`` (JSON, `RUN_META_FORMAT`); None: no file.
     append :
-        Continue an existing file (no second header; the meta file keeps every run's
-        provenance under ``runs``).
+        Continue an existing file (the meta file keeps every run's under ``runs``).
     rotate :
         ``"none"`` or ``"daily"`` (a new part at midnight UTC).
     rotate_bytes :
@@ -182,6 +178,7 @@ def refuse_overwrite(configured: Path, policy: str, *, per_run: bool = False) ->
 
 
 def _first_wall_time(path: Path) -> float:
+    """The first row's wall time [s since the epoch]; inf for none."""
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:
             for row in csv.DictReader(fh):

@@ -15,11 +15,8 @@ from czmpc.runtime.node_types import LinearScale, NodeValueError, decode
 
 
 def sample_time(dv: Any) -> tuple[dt.datetime | None, bool]:
-    """A DataValue's time in UTC, and True when it is the source timestamp.
-
-    The source timestamp when the server sends one, else the server timestamp
-    (``False``), else ``(None, False)``. A naive timestamp (asyncua's own) is UTC.
-    """
+    """A DataValue's time in UTC (a naive one is UTC), and True for the source timestamp:
+    the source timestamp, else the server's (False), else ``(None, False)``."""
     for ts, is_source in ((dv.SourceTimestamp, True), (dv.ServerTimestamp, False)):
         if ts is not None:
             return (ts.replace(tzinfo=dt.UTC) if ts.tzinfo is None else ts), is_source
@@ -34,13 +31,12 @@ def age_s(dv: Any) -> float | None:
 
 def measurement(dv: Any, max_age_s: float, previous_time: dt.datetime | None = None,
                 scale: LinearScale | None = None) -> tuple[float, str]:
-    """Value [czmpc's units] and a quality word from a DataValue; NaN unless ``"good"``.
+    """Value [czmpc's units, scaled from raw] and a quality word from a DataValue; NaN
+    unless ``"good"``.
 
     ``"bad"`` and ``"uncertain"`` come from the status code, ``"stale"`` from a sample
-    time older than ``max_age_s``, and ``"repeated"`` from one that is not later than
-    ``previous_time`` (the previous read's): the plant has not published since, so the
-    value is the previous sample's read again. Any numeric type is read, and scaled
-    from raw with ``scale``.
+    time older than ``max_age_s``, ``"repeated"`` from one not later than
+    ``previous_time`` (the plant has not published since the previous read).
     """
     status = dv.StatusCode
     if status is not None and not status.is_good():

@@ -3,19 +3,16 @@
 Two controllers writing one TRIAC command fight, and neither knows it. Two guards:
 
 `PlantLock`
-    An exclusive lock per (endpoint, command node) on this machine, held for the run's
-    life: a second ``czmpc run`` for the same plant refuses to start and names the first
-    (pid, start time, log). The operating system releases it on any exit, a crash or a
-    ``kill -9`` included, so it never needs cleaning up.
+    An exclusive lock per (endpoint, command node) on this machine for the run's life:
+    a second ``czmpc run`` for the plant refuses to start and names the first. The
+    operating system releases it on any exit, ``kill -9`` included.
 `WriterWatch`
-    At the plant, czmpc reads back what it wrote (command, heartbeat, and the optional
-    ``[nodes] owner`` lease that holds its identity). A value that changed by something
-    other than czmpc's own writes is another writer: czmpc stops writing, raises the
-    alarm and exits 1. Before its first write it watches the same nodes for one period
-    and refuses to start (exit 2) when they move: the plant is already driven.
+    czmpc reads back what it wrote (command, heartbeat, the optional ``[nodes] owner``
+    lease): a value changed by another writer stops czmpc's writes, raises the alarm,
+    exit 1. Before its first write, nodes that move over one period refuse the start
+    (exit 2, `moved`).
 
-Values are compared as the node holds them (`same_value`): a Float node stores float32,
-so the value czmpc wrote comes back rounded to float32, and that is not a change.
+Values are compared as the node holds them (`same_value`: a Float node's float32).
 """
 
 from __future__ import annotations
@@ -169,7 +166,7 @@ class WriterWatch:
 
 def moved(first: dict[str, Any], second: dict[str, Any]) -> str | None:
     """Why two read-backs one period apart, with no write by czmpc between, show a driven
-    plant (a watched node changed), or None."""
+    plant, or None."""
     for key, value in first.items():
         if key in second and value != second[key]:
             return (f"[nodes] {key} changed from {value!r} to {second[key]!r} within one period "

@@ -1,19 +1,17 @@
 """Application instance certificates for OPC UA: a key pair and a self-signed certificate.
 
-An OPC UA application identifies itself by an X.509 certificate whose subject
-alternative names hold its application URI (``URI:urn:...``) and the host it runs on
-(``DNS:`` or ``IP:``); servers and clients check both (IEC 62541-6, 6.2.2). The key
-usage must allow signing and key encipherment, and the extended key usage must name the
-role: client authentication for ``czmpc run``, server authentication for a served plant.
+An OPC UA application's X.509 certificate holds its application URI (``URI:urn:...``)
+and host (``DNS:`` or ``IP:``) as subject alternative names (IEC 62541-6, 6.2.2), key
+usage for signing and key encipherment, and the role as extended key usage (client
+authentication for ``czmpc run``, server for a served plant).
 
 `create_application_certificate` writes::
 
     DIR/own/<name>.der    the certificate (DER, what OPC UA stacks exchange)
     DIR/own/<name>.pem    the RSA private key (PEM, unencrypted, mode 0600)
 
-The certificate is self-signed: to be trusted, it is copied into the other side's
-trusted-certificate store (a plant's server: its ``pki/trusted/certs`` folder or its
-administrator's tool), and the other side's certificate is pinned in czmpc's run config
+The certificate is self-signed: it is copied into the other side's trusted store (a
+server's ``pki/trusted/certs``), and the server's is pinned in the run config
 (``server_certificate``).
 """
 
@@ -77,8 +75,7 @@ def create_application_certificate(
     out_dir :
         PKI directory; files go to ``out_dir/own/``.
     app_uri :
-        Application URI, e.g. ``urn:plant-a:czmpc``; must match the client's or server's
-        configured application URI.
+        Application URI, e.g. ``urn:plant-a:czmpc`` (the application's configured one).
     host :
         Host name or IP address the application runs on (subject alternative name).
     name :

@@ -1,19 +1,16 @@
 """What a Bad status code in a read or write response means for the run, and what to fix.
 
-A server answers a write with one status per node. A Bad one is a *refusal*, not a
-lost link: the session still stands. Three kinds (`kind_of`):
+A Bad status for a node in a write response is a *refusal*, not a lost link. Three kinds
+(`kind_of`):
 
 ``configuration``
-    Will not go away by itself: the node does not exist, is read-only, refuses this
-    user, has another type, or refuses the value's range. The run stops at once
-    (exit 2) with the node, the code and what to change (`fix_for`).
+    Will not go away by itself (no such node, read-only, this user refused, another
+    type, out of range): the run stops at once (exit 2) with the fix (`fix_for`).
 ``link``
-    The session or channel is gone (``BadSessionIdInvalid``, ``BadConnectionClosed``,
-    ...): the link is lost and is reopened with backoff.
+    The session or channel is gone: the link is reopened with backoff.
 ``transient``
     Any other Bad code (the PLC busy, a resource locked, a device fault): counted and
-    logged with its name; ``[plant] max_refused_writes`` refused commands in a row stop
-    the run through the safe action (exit 1).
+    logged; ``[plant] max_refused_writes`` in a row stop the run safely (exit 1).
 """
 
 from __future__ import annotations

@@ -1,12 +1,10 @@
 """Open an OPC UA client session with the security a `SecuritySettings` asks for, or say why not.
 
 First ``GetEndpoints`` on an unsecured discovery channel: the server must offer the
-configured policy and mode, with the pinned certificate byte for byte. Then the secure
-channel and session with czmpc's certificate and user. Each refusal (no matching
-endpoint, another certificate, czmpc's certificate or user not accepted) is a
-configuration error (`SecurityRejectedError`, exit 2) raised within ``timeout_s``, and a
-weaker policy is never tried in its place; a refused TCP connection or a timeout before
-the server answered is a network fault (`PlantUnreachableError`) a runtime may retry.
+configured policy and mode with the pinned certificate, byte for byte; then the secure
+channel and session with czmpc's certificate and user. Each refusal is a configuration
+error (`SecurityRejectedError`, exit 2) within ``timeout_s``, never retried with a weaker
+policy; no TCP connection or no answer is a network fault (`PlantUnreachableError`).
 """
 
 from __future__ import annotations
@@ -123,8 +121,7 @@ async def connect(endpoint: str, settings: SecuritySettings, *,
     endpoint :
         ``opc.tcp://host:port/path``.
     settings :
-        From `czmpc.runtime.security.parse_security` (which already refused an
-        unsecured non-loopback endpoint).
+        From `czmpc.runtime.security.parse_security`.
     timeout_s :
         Bound on each network wait [s].
 

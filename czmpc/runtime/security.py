@@ -1,13 +1,11 @@
 """OPC UA channel security of the plant link: the ``[plant.security]`` table, checked.
 
-`parse_security` turns the run config's table into a frozen `SecuritySettings` and
-refuses, before any connection is tried, what an OT security officer would refuse: no
-table (or ``policy = "None"``) on a non-loopback endpoint, a ``password`` key in the file
-(it comes from the environment variable ``password_env`` names), a private key others
-can read, a missing file, an unknown key (docs/reference/plant_security.rst). The
-password is held in a `Secret`, which no ``repr`` or ``str`` shows. The served plant's
-side: `parse_server_security` validates ``czmpc plant serve``'s options, and
-`check_serve_address` refuses an unsecured non-loopback endpoint before anything binds.
+`parse_security` makes the table a frozen `SecuritySettings` and refuses, before any
+connection, what an OT security officer would: no table (or ``policy = "None"``) on a
+non-loopback endpoint, a ``password`` key (it comes from the variable ``password_env``
+names, held in a `Secret`), a private key others can read, a missing file, an unknown key
+(docs/reference/plant_security.rst). The served plant's side: `parse_server_security`
+and `check_serve_address` (no unsecured non-loopback endpoint is ever bound).
 """
 
 from __future__ import annotations
@@ -15,7 +13,7 @@ from __future__ import annotations
 import ipaddress
 import os
 import stat
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -24,9 +22,8 @@ from urllib.parse import urlsplit
 from czmpc.config_text import choices, shown
 from czmpc.errors import SettingsError
 
-#: Security policies accepted for a channel to a plant (OPC UA names without the URI
-#: prefix). Basic256Sha256 is the floor: Basic128Rsa15 and Basic256 use SHA-1 and are
-#: deprecated by the OPC Foundation.
+#: Security policies accepted (OPC UA names without the URI prefix); Basic256Sha256 is
+#: the floor (Basic128Rsa15 and Basic256 use SHA-1, deprecated by the OPC Foundation).
 SECURE_POLICIES = ("Basic256Sha256", "Aes128_Sha256_RsaOaep", "Aes256_Sha256_RsaPss")
 #: Message security modes: signed, or signed and encrypted.
 MODES = ("SignAndEncrypt", "Sign")
@@ -72,13 +69,7 @@ class Secret:
 
 
 def is_loopback_endpoint(endpoint: str) -> bool:
-    """Whether an ``opc.tcp://host:port/...`` endpoint names this machine's loopback.
-
-    Parameters
-    ----------
-    endpoint :
-        OPC UA endpoint URL.
-    """
+    """Whether an ``opc.tcp://host:port/...`` endpoint names this machine's loopback."""
     host = urlsplit(endpoint).hostname or ""
     if host == "localhost":
         return True
@@ -101,14 +92,11 @@ class SecuritySettings:
     certificate, private_key :
         czmpc's application instance certificate (DER) and its private key (PEM).
     server_certificate :
-        The server certificate pinned for this plant (DER): a server that presents
-        another one is refused.
+        The server certificate pinned for this plant (DER); another one is refused.
     username :
         OPC UA user name, or None for an anonymous session.
-    password :
-        The user's password, read from the environment (never from the file).
-    password_env :
-        Name of the environment variable the password came from (for messages).
+    password, password_env :
+        The user's password and the environment variable it came from.
     """
 
     policy: Policy
@@ -137,6 +125,11 @@ class SecuritySettings:
 INSECURE_LOOPBACK = SecuritySettings(policy="None")
 
 
+def _one_of(value: object, allowed: Sequence[str], option: str) -> None:
+    if value not in allowed:
+        raise SettingsError(f"{option} must be one of {choices(allowed)}; got {shown(value)}")
+
+
 def _file(table: Mapping[str, object], key: str, base_dir: Path, where: str) -> Path:
     value = table.get(key)
     if not isinstance(value, str) or not value:
@@ -161,7 +154,7 @@ def check_private_key_permissions(path: Path, *, where: str = "plant.security.pr
     Raises
     ------
     SettingsError
-        The file's mode grants any permission to group or others.
+        The file's mode grants group or others any permission.
     """
     if os.name != "posix":  # pragma: no cover - POSIX modes only
         return
@@ -183,7 +176,7 @@ def parse_security(table: Mapping[str, object] | None, *, endpoint: str, base_di
     endpoint :
         The ``[plant].endpoint`` URL it secures.
     base_dir :
-        Directory that relative file names are taken from (the config file's).
+        Directory of relative file names (the config file's).
     environ :
         Environment to read the password from (default ``os.environ``).
 
@@ -220,12 +213,9 @@ def parse_security(table: Mapping[str, object] | None, *, endpoint: str, base_di
                 f"{where}.policy = \"None\" is allowed only for a loopback endpoint; "
                 f"{shown(endpoint)} needs one of {choices(SECURE_POLICIES)}")
         return INSECURE_LOOPBACK
-    if policy not in SECURE_POLICIES:
-        raise SettingsError(f"{where}.policy must be one of "
-                            f"{choices([*SECURE_POLICIES, 'None'])}; got {shown(policy)}")
+    _one_of(policy, [*SECURE_POLICIES, "None"], f"{where}.policy")
     mode = table.get("mode", "SignAndEncrypt")
-    if mode not in MODES:
-        raise SettingsError(f"{where}.mode must be one of {choices(MODES)}; got {shown(mode)}")
+    _one_of(mode, MODES, f"{where}.mode")
     certificate = _file(table, "certificate", base_dir, where)
     private_key = _file(table, "private_key", base_dir, where)
     check_private_key_permissions(private_key)
@@ -269,10 +259,8 @@ class PlantUser:
     ----------
     name :
         OPC UA user name.
-    password :
-        The password, read from the environment.
-    password_env :
-        The environment variable it came from (for messages).
+    password, password_env :
+        The password, and the environment variable it came from.
     controller :
         True for the controller's user (writes `CONTROLLER_NODES`); False for an
         operator (writes `OPERATOR_NODES`).
@@ -339,11 +327,10 @@ def _password(name: str, env_name: str, env: Mapping[str, str], option: str) -> 
 
 
 def _trusted_clients(files: tuple[Path, ...], directory: Path | None) -> tuple[Path, ...]:
-    found: list[Path] = []
+    found = list(files)
     for path in files:
         if not path.is_file():
             raise SettingsError(f"--trusted-client: no such file {path}")
-        found.append(path)
     if directory is not None:
         if not directory.is_dir():
             raise SettingsError(f"--trusted-client-dir: no such directory {directory}")
@@ -373,10 +360,8 @@ def parse_server_security(
         One of `MODES`.
     certificate, private_key :
         The server's certificate (DER) and private key (PEM, owner-only).
-    trusted_clients :
-        Client certificates admitted.
-    trusted_client_dir :
-        A directory whose ``*.der`` / ``*.pem`` files are admitted too.
+    trusted_clients, trusted_client_dir :
+        Client certificates admitted, and a directory whose ``*.der`` / ``*.pem`` are too.
     user, password_env :
         The controller's user and the environment variable holding its password.
     operators :
@@ -392,9 +377,8 @@ def parse_server_security(
     Raises
     ------
     SettingsError
-        A missing or unreadable file, a key readable by others, no trusted client, no
-        user, a password variable that is not set, a duplicate user, or security
-        options with policy ``"None"``.
+        A missing file, a key readable by others, no trusted client, no user, an unset
+        password variable, a duplicate user, or security options with policy ``"None"``.
     """
     given = [opt for opt, v in (("--certificate", certificate), ("--private-key", private_key),
                                 ("--trusted-client", trusted_clients),
@@ -405,11 +389,8 @@ def parse_server_security(
             raise SettingsError(f"{', '.join(given)} need a security policy: add --policy "
                                 f"{SECURE_POLICIES[0]} (a password never travels unencrypted)")
         return None
-    if policy not in SECURE_POLICIES:
-        raise SettingsError(f"--policy must be one of {choices([*SECURE_POLICIES, 'None'])}; "
-                            f"got {shown(policy)}")
-    if mode not in MODES:
-        raise SettingsError(f"--mode must be one of {choices(MODES)}; got {shown(mode)}")
+    _one_of(policy, [*SECURE_POLICIES, "None"], "--policy")
+    _one_of(mode, MODES, "--mode")
     if certificate is None or private_key is None:
         raise SettingsError(f"--policy {policy} needs the server's --certificate and --private-key "
                             f"(make them with 'czmpc pki create --role server')")
@@ -439,9 +420,8 @@ def parse_server_security(
 
 
 def check_serve_address(endpoint: str, security: ServerSecurity | None, *, insecure: bool) -> str | None:
-    """Refuse to serve an unsecured plant beyond loopback; the warning for ``--insecure``.
-
-    Called before the server is created, so a refused endpoint is never bound.
+    """Refuse to serve an unsecured plant beyond loopback (before anything binds); the
+    warning for ``--insecure``.
 
     Parameters
     ----------

@@ -26,22 +26,19 @@ server)::
 
 ``ServeOptions.node_types = "plc"`` types them as a PLC does (`NODE_TYPES`).
 
-Watchdog (as a PLC has one): when the heartbeat has not changed for ``watchdog_s``
-[plant s], the applied input moves to ``safe_triac_pct`` and ``WatchdogTripped`` turns
-True (and a line is printed). It arms at the first heartbeat; a new heartbeat and a new command re-arm it.
+Watchdog (as a PLC has one): after ``watchdog_s`` [plant s] without a new heartbeat the
+applied input moves to ``safe_triac_pct`` and ``WatchdogTripped`` turns True. It arms at
+the first heartbeat; a new heartbeat and a new command re-arm it.
 
-Security (``ServeOptions.security``, a `czmpc.runtime.security.ServerSecurity`): one
-endpoint with the configured policy and mode; a client is admitted only with a trusted
-certificate (byte for byte, checked again at activation against the secure channel's)
-and a configured user's password, and may write only its user's nodes (``_UserManager``,
-``_permission_rules``); each refusal is logged, never a password. Without security:
-policy None, anonymous. docs/guides/plant_link.rst says how to serve a secured plant.
+Security (``ServeOptions.security``): one endpoint with the configured policy and mode;
+a client needs a trusted certificate (byte for byte, checked again against the secure
+channel's) and a configured user's password, and writes only its user's nodes; each
+refusal is logged, never a password (docs/guides/plant_link.rst). Without: policy None,
+anonymous.
 
-Plant log (``ServeOptions.log_path``, `PLANT_LOG_COLUMNS`): one row per sample with
-the *true* power no controller sees, lined up with a run log by wall time. History
-(``ServeOptions.historize``): every change of `HISTORIZED_NODES`, in memory or in
-SQLite, answered to HistoryRead in pages of ``history_page_values`` values
-(docs/guides/history.rst).
+Plant log (``ServeOptions.log_path``, `PLANT_LOG_COLUMNS`): one row per sample with the
+*true* power no controller sees. History (``ServeOptions.historize``): every change of
+`HISTORIZED_NODES`, in memory or SQLite, for HistoryRead (docs/guides/history.rst).
 """
 
 from __future__ import annotations
@@ -184,8 +181,8 @@ class ServedPlant:
     seed :
         Seed of the scenario's random sensor faults.
     log :
-        Called with one line of text on notable events (watchdog, stop, and with security
-        every refused login, session or write: who and why, never a password).
+        Called with a line of text on notable events (watchdog, stop, each refused login,
+        session or write: who and why, never a password).
     """
 
     def __init__(self, plant: Plant, *, initial_triac_pct: float, options: ServeOptions,
@@ -382,11 +379,8 @@ def _load_der(path: Any) -> bytes:
 
 
 class _UserManager:
-    """asyncua user manager: configured users over a channel with a trusted certificate.
-
-    Every refused login is logged (user name and reason; never the password), as an
-    audit trail of who tried to reach the heater.
-    """
+    """asyncua user manager: configured users over a channel with a trusted certificate;
+    every refused login is logged (user name and reason, never the password)."""
 
     def __init__(self, security: ServerSecurity, log: Callable[[str], None]) -> None:
         self._users = {u.name: u for u in security.users}
@@ -398,9 +392,7 @@ class _UserManager:
         from asyncua.crypto.permission_rules import User, UserRole
 
         who = f"user {username!r}" if username else "an anonymous client"
-        # `certificate` is the secure channel's peer certificate: empty (or None) on an
-        # unsecured channel (a client may open one for discovery), which must not carry a
-        # session.
+        # the secure channel's peer certificate: empty on an unsecured (discovery) channel
         if not certificate:
             self._log(f"security: refused login of {who}: no secure channel")
             return None

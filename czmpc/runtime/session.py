@@ -1,10 +1,9 @@
 """Opens an MPC run: the sampling-time and candidate checks and the one switch-on rule.
 
 `czmpc run` and the commissioning journey both open their runs here (`open_run`), so a
-model reaches a plant's TRIAC by one rule (`switch_on_rule`) on its check-model verdict,
-stored beside the model as ``MODEL.check.json`` (written by
-`czmpc.commissioning.check.write_check`, read by `read_check` with the SHA-256 of the
-model file, so a model changed since its check counts as unchecked):
+model reaches a plant's TRIAC by one rule (`switch_on_rule`) on its check-model verdict in
+``MODEL.check.json`` (`czmpc.commissioning.check.write_check`; `read_check` compares the
+model file's SHA-256, so a model changed since its check counts as unchecked):
 
 =========================  ==========================  ==========================
 verdict                    attended (``czmpc run``)    unattended (the journey)
@@ -16,8 +15,8 @@ never checked or changed   ON, with a warning          PREDICT only
                            ON, said and logged)
 =========================  ==========================  ==========================
 
-PREDICT only: the MPC starts in PREDICT, the loop refuses the plant's requests for ON
-and nothing is written (a shadow run).
+PREDICT only: the MPC starts in PREDICT and refuses the plant's requests for ON; nothing
+is written (a shadow run).
 """
 
 from __future__ import annotations
@@ -60,8 +59,8 @@ def read_check(model_path: str | Path) -> tuple[Verdict | None, str]:
     Returns
     -------
     verdict, note
-        ``(None, why)`` when the model was never checked, or changed since (the SHA-256
-        differs), or the check file is unreadable; else the verdict and its reasons.
+        ``(None, why)`` when the model was never checked, changed since, or the check
+        file is unreadable; else the verdict and its reasons.
     """
     target = check_path(model_path)
     if not target.is_file():
@@ -95,7 +94,7 @@ class SwitchOn:
     forced :
         True when ``force`` let a ``not ready`` model switch ON.
     notes :
-        What to say at the start, with the logging level of each.
+        What to say at the start: (logging level, text) pairs.
     """
 
     allowed: bool
@@ -116,8 +115,9 @@ def switch_on_rule(verdict: Verdict | None, note: str, *, force: bool = False,
     unattended :
         No operator decides (the commissioning journey): only ``ready`` switches ON.
     """
-    if verdict == "ready":
-        return SwitchOn(allowed=True, forced=False, notes=((logging.INFO, note),))
+    said = (logging.INFO, note)
+    if verdict == "ready" or (verdict == "ready with conditions" and not unattended):
+        return SwitchOn(allowed=True, forced=False, notes=(said,))
     if unattended:
         return SwitchOn(allowed=False, forced=False, notes=(
             (logging.WARNING, f"{note}: not 'ready', so the MPC is not switched on "
@@ -125,16 +125,12 @@ def switch_on_rule(verdict: Verdict | None, note: str, *, force: bool = False,
     if verdict is None:
         return SwitchOn(allowed=True, forced=False, notes=(
             (logging.WARNING, f"{note}; run 'czmpc check-model' before switching on"),))
-    if verdict != "not ready":
-        return SwitchOn(allowed=True, forced=False, notes=((logging.INFO, note),))
     if force:
         return SwitchOn(allowed=True, forced=True, notes=(
-            (logging.INFO, note),
-            (logging.WARNING, "--force: switching ON with a model judged not ready")))
+            said, (logging.WARNING, "--force: switching ON with a model judged not ready")))
     return SwitchOn(allowed=False, forced=False, notes=(
-        (logging.INFO, note),
-        (logging.WARNING, "the model is not ready: running in PREDICT only (nothing is "
-                          "written); --force overrides")))
+        said, (logging.WARNING, "the model is not ready: running in PREDICT only (nothing is "
+                                "written); --force overrides")))
 
 
 def _same_ts(model: HammersteinModel, config: RunConfig, where: str, path: Path) -> None:
