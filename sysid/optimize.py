@@ -102,15 +102,13 @@ def triangular_factor(jac: FloatArray, free: FloatArray | None = None,
         block = jac
     else:
         block = np.empty((jac.shape[0], len(cols) + (last is not None)), order="F")
-    if block is jac:
-        pass
-    elif len(cols) == jac.shape[1]:
-        block[:, : len(cols)] = jac
-    else:
-        for i, j in enumerate(cols):
-            block[:, i] = jac[:, j]
-    if last is not None:
-        block[:, -1] = last
+        if len(cols) == jac.shape[1]:
+            block[:, : len(cols)] = jac
+        else:
+            for i, j in enumerate(cols):
+                block[:, i] = jac[:, j]
+        if last is not None:
+            block[:, -1] = last
     qr, _, _, info = lapack.dgeqrf(block, overwrite_a=True)
     if info != 0:  # pragma: no cover - geqrf fails only on an illegal argument
         raise IdentificationError(f"triangular_factor: LAPACK dgeqrf returned info = {info}")
@@ -455,11 +453,9 @@ def levenberg_marquardt(
                 jac, r_aug = made
                 accepted = True
                 if small_reduction:
-                    converged = True
-                    message = f"relative reduction of the cost below ftol = {ftol:g}"
+                    converged, message = True, f"relative reduction of the cost below ftol = {ftol:g}"
                 elif step_small:
-                    converged = True
-                    message = f"step size below xtol = {xtol:g} (relative to |theta|)"
+                    converged, message = True, f"step size below xtol = {xtol:g} (relative to |theta|)"
                 break
             if augmented is not None:  # the augmented model failed: Gauss-Newton's, same mu
                 augmented = None
@@ -528,32 +524,26 @@ def parameter_std_errors(jacobian: FloatArray, residuals: FloatArray, *,
 
     Notes
     -----
-    ``(J'J)^-1`` is formed from the SVD ``J = U S V'`` (taken of the triangular
-    factor of ``J``) as ``V S^-2 V'``. Singular
-    values below ``max(N, p) * eps * S_max`` mark unidentifiable directions: every
-    parameter with a component above ``sqrt(eps)`` along such a direction gets an
-    infinite standard error, the others keep their finite value. With ``N <= p``
-    every entry is infinite (no residual degrees of freedom).
+    ``(J'J)^-1 = V S^-2 V'`` from the SVD ``J = U S V'`` (of the triangular factor of
+    ``J``). Singular values below ``max(N, p) * eps * S_max`` mark unidentifiable
+    directions: a parameter with a component above ``sqrt(eps)`` along one gets an
+    infinite standard error, the others keep theirs. With ``N <= p`` every entry is
+    infinite (no residual degrees of freedom).
     """
     jac = np.asarray(jacobian, dtype=float)
-    r = np.asarray(residuals, dtype=float)
     n, p = jac.shape
     if n <= p:
         return np.full(p, np.inf)
-    s2 = sum_of_squares(r) / (n - p)
+    s2 = sum_of_squares(np.asarray(residuals, dtype=float)) / (n - p)
     # J = Q R, so J and the small R share singular values and right singular vectors.
     _, sing, vt = np.linalg.svd(triangular_factor(jac) if factor is None else factor)
     tol = max(n, p) * np.finfo(float).eps * (float(sing[0]) if sing.size else 0.0)
     good = sing > tol
     if not np.any(good):
         return np.full(p, np.inf)
-    v_good = vt[good].T
-    variances = s2 * np.sum((v_good / sing[good]) ** 2, axis=1)
-    out = np.sqrt(variances)
+    out = np.sqrt(s2 * np.sum((vt[good].T / sing[good]) ** 2, axis=1))
     if not np.all(good):
-        v_null = vt[~good].T
-        unidentifiable = np.max(np.abs(v_null), axis=1) > np.sqrt(np.finfo(float).eps)
-        out[unidentifiable] = np.inf
+        out[np.max(np.abs(vt[~good].T), axis=1) > np.sqrt(np.finfo(float).eps)] = np.inf
     return np.asarray(out, dtype=float)
 
 

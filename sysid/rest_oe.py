@@ -1,12 +1,10 @@
 """Linear OE models simulated from rest: multistart search over orders and delay.
 
-A log nobody here has seen rarely starts at rest, and its slow modes may be longer than
-the record: a fit that estimates the initial state can then trade a pole near ``z = 1``
-against that state and still match the record, yet simulate badly from any other start
-(its static gain is not determined). This module fits the plain output-error model that
-a user compares against first (MATLAB's ``oe`` scored by ``compare`` from rest): the
-simulation from rest at the first sample, with the first part of the record a burn-in
-in which the unknown initial state decays.
+A fit that estimates the initial state of a log that does not start at rest can trade a
+pole near ``z = 1`` against that state: it matches the record but simulates badly from
+any other start. This module fits the plain output-error model a user compares against
+first (MATLAB's ``oe`` scored by ``compare``): simulated from rest at the first sample,
+the start of the record a burn-in in which the unknown initial state decays.
 
 Notation
 --------
@@ -21,12 +19,10 @@ and ``V_rest = mean_{k >= n_burn} (y_k - yhat_k)^2`` [output unit^2] (eq. 9 with
 first ``n_burn`` samples left out). The search normalises ``y - y0`` and ``u - u0`` by
 their root mean squares, so the answer does not depend on the data's units.
 
-Starts of each fit (the OE criterion is not convex): the ARX least squares; a
-simplified refined instrumental-variable estimate (SRIV: prefiltered by the current
-``1/F``, instruments from the noise-free simulated output, the classical remedy for
-the bias of ARX on OE problems; Young 1976, Ljung 1999 sec. 7.6); and ``F`` fixed at
-repeated poles spread over the plausible time constants with ``B`` by least squares
-(`sysid.hammerstein.route.fixed_pole_starts`). The best by ``V_rest`` is kept.
+Starts of each fit (the OE criterion is not convex), the best by ``V_rest`` kept: the
+ARX least squares; the SRIV estimate (`sysid.linear.sriv_oe`); and ``F`` fixed at
+repeated poles over the plausible time constants with ``B`` by least squares
+(`sysid.hammerstein.route.fixed_pole_starts`).
 """
 
 from __future__ import annotations
@@ -44,7 +40,7 @@ from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import IdentificationError
 from sysid.hammerstein.route import fixed_pole_starts, pole_start_time_constants
-from sysid.linear import _linear_model, arx_oe_start, sriv_oe
+from sysid.linear import _linear_model, _oe_polynomials, _shift_into, arx_oe_start, sriv_oe
 from sysid.model import HammersteinModel, OperatingPoint
 from sysid.optimize import levenberg_marquardt
 from sysid.polynomials import is_stable
@@ -66,12 +62,10 @@ N_REFINED = 4
 #: parameters is chosen (a record cannot tell them apart; fewer parameters extrapolate
 #: more safely).
 PARSIMONY_RTOL = 0.02
-#: Structures whose ``V_rest`` lies within this share of the lowest are ones the record
-#: does not tell apart (`RestOESearch.near`): the margin the tests allow the model
-#: identify writes over the multistart reference (issue 29), far above the searches'
-#: tolerances. On the four real logs 2 (the exchanger), 6 (TCLab), 16 (the tanks) and 20
-#: (the lamp) of the 48 structures lie within it, and a 5 or 10 % cut at either end of a
-#: log moves the choice among them.
+#: Structures within this share of the lowest ``V_rest`` are ones the record does not
+#: tell apart (`RestOESearch.near`; the margin the tests allow identify over the
+#: multistart reference, issue 29). Measured: 2, 6, 16 and 20 of the 48 structures on the
+#: exchanger, TCLab, tanks and lamp logs; a 5 or 10 % cut at a log's end moves the choice.
 NEAR_V_SHARE = 0.10
 #: LM tolerances of the grid (structures ranked at the 1e-3 level of V_rest) and of the
 #: refined structures' fits.
@@ -266,12 +260,6 @@ def rest_oe_model(fit: RestOEFit, data: Dataset, *, operating_triac_pct: float,
         f"{fit.start}, burn-in {fit.burn_in_steps} samples)", where="rest_oe_model")
 
 
-def _shifted(x: FloatArray, lag: int) -> FloatArray:
-    out = np.zeros_like(x)
-    out[lag:] = x[: x.size - lag]
-    return out
-
-
 class _Problem:
     """Residuals and exact Jacobian of one structure on normalised data (module notes)."""
 
@@ -280,9 +268,7 @@ class _Problem:
         self.y, self.u, self.nb, self.nf, self.nk, self.burn = y, u, nb, nf, nk, burn
 
     def polys(self, theta: FloatArray) -> tuple[FloatArray, FloatArray]:
-        b = np.concatenate([np.zeros(self.nk), theta[: self.nb]])
-        f = np.concatenate([[1.0], theta[self.nb:]])
-        return b, f
+        return _oe_polynomials(theta, self.nb, self.nf, self.nk)
 
     def __call__(self, theta: FloatArray) -> tuple[FloatArray, FloatArray]:
         b, f = self.polys(theta)
@@ -292,15 +278,16 @@ class _Problem:
         v = lfilter([1.0], f, self.u)                      # u / F
         sim = lfilter(b, [1.0], v)                         # B u / F
         w = lfilter([1.0], f, sim)                         # B u / F^2
-        cols = [_shifted(v, self.nk + j) for j in range(self.nb)]
-        cols += [-_shifted(w, i) for i in range(1, self.nf + 1)]
-        jac = -np.column_stack(cols)[self.burn:]
-        return self.y[self.burn:] - sim[self.burn:], jac
+        jac = np.empty((v.size, self.nb + self.nf))
+        b_cols = jac[:, : self.nb]
+        np.negative(_shift_into(b_cols, v, range(self.nk, self.nk + self.nb)), out=b_cols)
+        _shift_into(jac[:, self.nb:], w, range(1, self.nf + 1))
+        return self.y[self.burn:] - sim[self.burn:], jac[self.burn:]
 
     def b_given_f(self, f: FloatArray) -> FloatArray:
         """Least-squares ``B`` with ``F`` fixed (linear in ``B``)."""
         v = lfilter([1.0], f, self.u)
-        phi = np.column_stack([_shifted(v, self.nk + j) for j in range(self.nb)])
+        phi = _shift_into(np.empty((v.size, self.nb)), v, range(self.nk, self.nk + self.nb))
         b, *_ = np.linalg.lstsq(phi[self.burn:], self.y[self.burn:], rcond=None)
         return np.asarray(b, dtype=float)
 
