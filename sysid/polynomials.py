@@ -50,10 +50,9 @@ def is_stable(poly: FloatArray) -> bool:
 
     The Schur-Cohn step-down recursion: the last coefficient of each monic polynomial
     is a reflection coefficient, all of which must have modulus below one (Astrom and
-    Wittenmark, Computer-Controlled Systems, sec. 3.3). A few scalar operations for the
-    low orders identified here, where the roots cost an eigenvalue problem: the
-    prediction-error searches test every trial point with it, so it runs on Python
-    floats (a tenth of the time of the same recursion on numpy arrays).
+    Wittenmark, Computer-Controlled Systems, sec. 3.3). The prediction-error searches
+    test every trial point with it, so it runs on Python floats (a tenth of the time on
+    numpy arrays; the roots would cost an eigenvalue problem).
     """
     a: list[float] = np.asarray(poly, dtype=float).reshape(-1).tolist()
     while a and a[-1] == 0.0:  # trailing zeros: roots at z = 0
@@ -72,10 +71,9 @@ def is_stable(poly: FloatArray) -> bool:
 def impulse_response(den: FloatArray, n_samples: int) -> FloatArray:
     """First ``n_samples`` of the impulse response of ``1/den`` (a monic ``den``).
 
-    The sensitivity filters of the prediction-error searches take every initial-state
-    column from it (a delayed pulse's response is it delayed). A first-order ``den =
-    [1, a1]`` gives the powers of ``-a1``, by `numpy.cumprod`: the products lfilter's
-    recursion forms (``y_k = -a1 y_{k-1}``), bit for bit, at two thirds of its time.
+    Every initial-state column of the sensitivity filters is it, delayed. A first-order
+    ``den = [1, a1]`` gives the powers of ``-a1`` by `numpy.cumprod`: lfilter's products,
+    bit for bit, at two thirds of its time.
     """
     den = np.asarray(den, dtype=float)
     if den.size == 2 and den[0] == 1.0:
@@ -100,12 +98,9 @@ def reflect_unstable_roots(poly: FloatArray) -> FloatArray:
     if is_stable(p):
         return p.copy()
     r = roots_z(p)
-    if r.size == 0:
-        return p.copy()
     big = np.abs(r) >= 1.0
-    if not np.any(big):
+    if not np.any(big):  # also a constant, which has no roots
         return p.copy()
-    r = r.copy()
     r[big] = 1.0 / np.conj(r[big])
     # keep strictly inside: a root exactly on the circle is pulled in slightly
     on = np.abs(r) >= 1.0 - 1e-9

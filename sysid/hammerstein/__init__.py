@@ -1,13 +1,5 @@
 """Hammerstein models of heater logs: the model, its fitting routines and the paper's route.
 
-Modules, by job:
-
-* `sysid.hammerstein.model`: `HammersteinFit`, the grey-box structures (simulation),
-  criteria and conversion to a `HammersteinModel`;
-* `sysid.hammerstein.fitting`: joint PEM of the OE block on V and of the ARMAX block on W;
-* `sysid.hammerstein.route`: the paper's route (eq. 21 start, re-identification, the
-  fits above, the noise model of eqs. 29-32) and `fit_hammerstein` on a `Dataset`.
-
 The paper's route (secs. 7.3-7.6), each step a pure function with a frozen result:
 
 1. `initial_input_poly`: the coefficients of ``f`` by least squares from the input
@@ -15,11 +7,12 @@ The paper's route (secs. 7.3-7.6), each step a pure function with a frozen resul
 2. `reidentify_linear_block`: ``f`` fixed, the linear block re-identified with input
    ``w = f(ds)`` by ARX or OE (sec. 7.4, Fig. 13);
 3. `fit_hammerstein_oe`: all parameters at once in the normalized form of eq. 25
-   (``b1 = 1``) by PEM on V, an instance of `sysid.greybox` with the structure of
-   eq. 26 (sec. 7.5), from good initial values or from zeros;
+   (``b1 = 1``) by PEM on V (the structure of eq. 26, sec. 7.5);
 4. `fit_hammerstein_armax`: the noise-model extension of eqs. 29-32 by PEM on W.
 
-`fit_hammerstein` runs them all on a `Dataset` and returns an `IdentificationResult`.
+Steps 1-2 and `fit_hammerstein`, which runs them all on a `Dataset`, are in
+`sysid.hammerstein.route`, steps 3-4 in `sysid.hammerstein.fitting`; `HammersteinFit`, the
+grey-box structures and the criteria in `sysid.hammerstein.model`.
 
 Notation
 --------

@@ -559,21 +559,14 @@ def run_hammerstein_route(
         Input steps (absolute units) for eq. 21.
     operating_point :
         The operating point the deviations are about (converts the steps).
-    degree, nb, nf, nk :
-        Degree of ``f`` and the orders of the linear block (the ARX uses ``na = nf``).
+    degree, nb, nf, nk, nc, max_iterations, initial_state :
+        As in `fit_hammerstein` (the ARX uses ``na = nf``).
     noise_model :
         Also fit the ARMAX-block model on W (step 4), with ``na = nf`` and ``nc``.
-    nc :
-        Order of ``C``; default ``nf`` (the paper takes ``nc = na``).
     from_zeros :
         Also run step 3 from all-zero initial values.
     row_form :
         Rows of eq. 21 (see `initial_input_poly`).
-    max_iterations :
-        Iteration limit of every search.
-    initial_state :
-        Initial-state policy of the joint PEM fits (steps 3-4): ``"estimate"``
-        (default), ``"held"`` or ``"zero"`` (see `sysid.hammerstein.filtering`).
     progress :
         ``progress(step, iteration, cost)`` after every iteration of the joint PEM
         fits, with ``step`` naming the fit.
