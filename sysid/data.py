@@ -326,9 +326,8 @@ def read_csv(
         File to read. Its header must be exactly ``time_s,triac_pct,power_kw`` unless
         `columns` maps the contract's names to the file's.
     columns :
-        Mapping from contract name (``time_s``, ``triac_pct``, ``power_kw``) to the
-        file's column name, for logs of other rigs. The file may then hold other
-        columns too; only the mapped ones are read.
+        Contract name (``time_s``, ``triac_pct``, ``power_kw``) -> the file's column
+        name, for logs of other rigs (other columns are then allowed, and not read).
     ts_s :
         Nominal sampling time [s]; default: the median interval of the file.
     sampling_rtol :

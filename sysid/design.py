@@ -336,12 +336,12 @@ def design_test_signal(spec: ExcitationSpec, rng: np.random.Generator) -> Excita
         `shortest_duration_s`.
     """
     n = spec.n_samples
+    need_s = shortest_duration_s(spec)
     levels: FloatArray = np.zeros(0)
     if spec.kind == "gbn":
         u = _gbn(spec, n, True, rng)
         steps_n = 0
     elif spec.kind == "multilevel":
-        need_s = shortest_duration_s(spec)
         if need_s > spec.duration_s:
             raise SignalDesignError(
                 f"duration_s = {spec.duration_s:g} s is too short for a multilevel test: "
@@ -353,7 +353,6 @@ def design_test_signal(spec: ExcitationSpec, rng: np.random.Generator) -> Excita
     else:
         stairs, levels = _staircase(spec)
         steps_n = stairs.size
-        need_s = shortest_duration_s(spec)
         if need_s > spec.duration_s:
             raise SignalDesignError(
                 f"duration_s = {spec.duration_s:g} s is too short for a {spec.kind} test with "

@@ -88,18 +88,16 @@ class SteadyWindow:
         The window is samples ``start_sample .. stop_sample - 1``.
     start_time_s, end_time_s :
         Times of its first and last sample [s].
-    input_spread :
-        ``max - min`` of the input in the window [input unit].
-    output_spread_kw :
-        ``max - min`` of the output in the window [output unit].
+    input_spread, output_spread_kw :
+        ``max - min`` of the input [input unit] and of the output [output unit].
     output_std_kw :
-        Standard deviation of the output in the window [output unit].
+        Standard deviation of the output [output unit].
     output_drift_kw :
-        ``|slope| * (n - 1)``: change across the window of a straight line fitted
-        to the output by least squares [output unit].
+        ``|slope| * (n - 1)``: change across the window of the output's least-squares
+        straight line [output unit].
     final_level_kw :
-        Final level of the constant-input stretch: mean of its last quarter (at
-        least `min_window_samples` samples) [output unit].
+        Mean of the constant-input stretch's last quarter (at least
+        `min_window_samples` samples) [output unit].
     settle_limit_kw :
         Band around `final_level_kw` that the moving average stays in, and the
         largest drift accepted [output unit].
@@ -131,8 +129,7 @@ class OperatingPointChoice:
     operating_point :
         ``(s_nom, P_nom)`` in the data set's units.
     method :
-        ``"given"`` (the user's value), ``"means"`` (sample means over the record) or
-        ``"steady"`` (means over the most central long steady window).
+        ``"given"``, ``"means"`` or ``"steady"`` (`find_operating_point`).
     window :
         The steady window for ``"steady"``, else None.
     power_offset_kw :
@@ -391,7 +388,7 @@ class StepResidual:
     sample, last_sample, time_s, peak_residual_kw :
         As for `OutlierCandidate`.
     input_step_sample :
-        Sample ``j`` of the input change it follows (``u[j] != u[j-1]``).
+        Sample ``j`` of the input step it follows.
     """
 
     sample: int
@@ -414,20 +411,16 @@ class OutlierReport:
         First sample of each segment with a residual, ``max(na, nk + nb - 1)``.
     scale_kw :
         Robust residual scale ``sigma`` (MAD) [output unit].
-    threshold :
-        Flagging threshold in units of `scale_kw`.
-    threshold_kw :
-        ``threshold * scale_kw`` [output unit].
+    threshold, threshold_kw :
+        Flagging threshold in units of `scale_kw`, and times `scale_kw` [output unit].
     na, nb, nk :
         ARX orders used.
     input_step_samples :
         Samples ``j`` at which the input changed by more than `input_step_tol`.
     input_step_tol :
         Input change that counted as a step [input unit].
-    candidates :
-        Events away from input steps, in time order.
-    step_residuals :
-        Events within the guard after an input step (excluded from `candidates`).
+    candidates, step_residuals :
+        Events away from input steps, and within the guard after one, in time order.
     clipped_samples :
         Samples in an exactly constant run of at least ``clip_min_run_samples`` at the
         output's record maximum or minimum (a saturated sensor, e.g. the cascaded tanks
