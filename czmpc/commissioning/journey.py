@@ -300,7 +300,7 @@ def commission(config: RunConfig, plan: JourneyPlan, *,
     say(f"3/5 identifying (orders auto) from {est.n_samples} samples; {val.n_samples} held out")
     identified = identify_test(data, progress=lambda m: say(f"    {m}"))
     messages += list(identified.messages)
-    model, simulated, fit = identified.model, identified.simulated_kw, identified.fit_pct
+    model, fit = identified.model, identified.fit_pct
     model_path = out / "model.json"
     save_model(model, model_path)
     from czmpc.reports.identification import write_report
@@ -339,8 +339,8 @@ def commission(config: RunConfig, plan: JourneyPlan, *,
                 messages.append(f"not switched on: the verdict is {check.verdict!r}, not 'ready'")
     report = _write_report(out, config=config, plan=plan, signal=signal, schedule=schedule,
                            test_summary=test_summary, started=started, command=command,
-                           lead_in_s=lead_in_s, data=data, val=val, simulated=simulated, fit=fit, model=model,
-                           check=check, settings=settings, n_est=est.n_samples,
+                           lead_in_s=lead_in_s, data=data, identified=identified, check=check,
+                           settings=settings, n_est=est.n_samples,
                            stage=stage, messages=messages)
     return JourneyResult(stage=stage, out_dir=out, report_path=report, test_summary=test_summary,
                          model_path=model_path, check=check, fit_pct=fit,
@@ -357,9 +357,7 @@ def _equation(model: HammersteinModel) -> list[str]:
 def _write_report(out: Path, *, config: RunConfig, plan: JourneyPlan, signal: ExcitationSignal,
                   schedule: InputSchedule, test_summary: RunSummary, started: str,
                   command: str | None, lead_in_s: float = 0.0, data: Dataset | None = None,
-                  val: Dataset | None = None,
-                  simulated: np.ndarray | None = None, fit: float | None = None,
-                  model: HammersteinModel | None = None, check: ModelCheck | None = None,
+                  identified: IdentifiedTest | None = None, check: ModelCheck | None = None,
                   settings: MPCSettings | None = None, n_est: int = 0,
                   stage: str = "test aborted", messages: Sequence[str] = ()) -> Path:
     fig_dir = out / "figures"
@@ -390,20 +388,21 @@ def _write_report(out: Path, *, config: RunConfig, plan: JourneyPlan, signal: Ex
             schedule_time_s=signal.time_s + lead_in_s,
             schedule_triac_pct=signal.triac_pct)
         lines += ["", f"![the test: input and measured power](figures/{fig.name})"]
-    if model is not None and val is not None and simulated is not None and fit is not None:
+    if identified is not None:
+        val, fit = identified.validation, identified.fit_pct
         lines += ["", "## 3. Identification", "",
                   f"From the first {n_est} of {data.n_samples if data else 0} usable samples "
                   f"({data.n_segments if data else 0} segment(s)); orders chosen automatically "
                   "on validation data; no level-shift repair (the designed steps are not "
                   "sensor faults). Full report: [identification/report.md]"
-                  "(identification/report.md). Model `model.json`:", "", *_equation(model), "",
+                  "(identification/report.md). Model `model.json`:", "", *_equation(identified.model), "",
                   *[f"- {m}" for m in messages if m.startswith("identification:")], "",
                   "## 4. Fit on held-out data", "",
                   f"The last {val.n_samples} samples, simulated with their initial state "
                   f"fitted by least squares (ballistic, as MATLAB `compare`): fit "
                   f"**{fit:.1f} %**."]
-        fig = figures.fit_figure(fig_dir / "fit.png", val.time_s, val.power_kw, simulated,
-                                 fit_pct=fit)
+        fig = figures.fit_figure(fig_dir / "fit.png", val.time_s, val.power_kw,
+                                 identified.simulated_kw, fit_pct=fit)
         lines += ["", f"![held-out fit](figures/{fig.name})"]
     if check is not None:
         lines += ["", "## 5. Check-model verdict", "", f"**{check.verdict}**", ""]

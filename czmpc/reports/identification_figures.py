@@ -33,11 +33,10 @@ from czmpc.reports.figure_style import PALETTE, FigureError, legend_above, save_
 def axis_labels(*, input_name: str = "TRIAC input s", input_unit: str = "%",
                 output_name: str = "power P", output_unit: str = "kW",
                 input_symbol: str = "ds", output_symbol: str = "dP") -> dict[str, str]:
-    """Axis labels for a log of any rig: its signal names and units.
+    """Axis labels for a log of any rig, for the ``labels`` keyword of every ``plot_*`` function.
 
     The defaults give the CZ puller's labels (TRIAC input in %, power in kW); `AXIS_LABELS`
-    are those with shorter names of the deviations. Pass the ``labels`` keyword of every
-    ``plot_*`` function the result.
+    are those with shorter names of the deviations.
     """
     return {
         "time": "time [s]",
@@ -70,10 +69,7 @@ _MEASURED_STYLE = {"color": "black", "linewidth": 1.2, "label": "measured"}
 
 def _series(func: str, noun: str, what: str, series: Mapping[str, Sequence[float] | np.ndarray],
             n: int, *, allow_empty: bool = False) -> dict[str, np.ndarray]:
-    """The labelled series ``what`` of ``func`` as float arrays of ``n`` samples.
-
-    At least one series is needed unless ``allow_empty``.
-    """
+    """The labelled series ``what`` of ``func`` as arrays of ``n`` floats; none only if ``allow_empty``."""
     if not series and not allow_empty:
         raise FigureError(f"{func} needs at least one {noun} series; got none")
     return {name: vector(v, f"{what}[{name!r}]", n) for name, v in series.items()}
@@ -210,9 +206,8 @@ def plot_residuals(
     t = vector(time_s, "time_s")
     series = _series("plot_residuals", "residual", "residuals_kw", residuals_kw, t.size)
     fig, axes = stacked_axes(len(series))
-    if len(series) > 1:
-        for ax in axes[1:]:
-            ax.sharey(axes[0])
+    for ax in axes[1:]:
+        ax.sharey(axes[0])
     lab = _labels(labels)
     marks = np.asarray(list(marked_time_s), dtype=float)
     for i, (ax, (name, e)) in enumerate(zip(axes, series.items(), strict=True)):

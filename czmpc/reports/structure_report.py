@@ -1,9 +1,7 @@
 """The structure choice in the identification report: the delay's evidence and each search's runners-up.
 
-MATLAB's ``delayest`` and ``selstruc`` show the evidence of a delay and each structure's
-loss against its number of parameters, so that the user sees how sharply the data
-single out a structure. This module does the same for the two searches of ``czmpc
-identify --orders auto``:
+As MATLAB's ``delayest`` and ``selstruc`` do, it shows how sharply the data single out a
+structure, for the two searches of ``czmpc identify --orders auto``:
 
 * `sysid.structure.select_structure`: the delay from an ARX fit's ``B`` coefficients
   (`sysid.structure.DelayEstimate`), then the Hammerstein-OE structures scored on
@@ -12,8 +10,7 @@ identify --orders auto``:
   simulation from rest, with the structures the record does not tell apart
   (`sysid.rest_oe.RestOESearch.near`).
 
-`structure_section` writes the Markdown, `plot_structure_choice` the figure (plain
-arrays in, so it can draw any search's numbers).
+`structure_section` writes the Markdown, `plot_structure_choice` the figure (plain arrays in).
 """
 
 from __future__ import annotations
