@@ -104,8 +104,7 @@ def model_from_dict(obj: Any) -> HammersteinModel:
     ModelFileError
         Unknown format, missing keys (unknown keys are ignored), wrong types or lengths,
         non-finite numbers or numbers beyond float range, malformed ``units`` or
-        ``covariance``, non-finite
-        numbers, or any invariant of `HammersteinModel`.
+        ``covariance``, or any invariant of `HammersteinModel`.
     UnstableModelError
         ``A`` or ``C`` with a root on or outside the unit circle.
     """

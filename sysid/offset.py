@@ -1,14 +1,12 @@
 """Put a sample-mean operating point on the steady-state curve (paper sec. 5.1).
 
 Without a steady window the operating point is the sample means ``(mean s, mean P)``
-(the paper's fallback). For a linear plant in steady state on average that point lies
-on its steady-state curve. For a Hammerstein plant it does not: the mean of ``f(ds)``
-is not ``f`` of the mean, so ``mean P`` misses the steady power at ``mean s`` by about
-``B(1)/A(1) * (d2 var(ds) + ...)``, 0.2 kW for a quadratic heater over a 36..54 %
-staircase. The Hammerstein ``f`` has no constant term (a constant in ``f`` cannot be told
-from ``P_nom``), so the models cannot represent that offset; with the initial state
-estimated, a pole at ``z = 1`` can, and the order search then prefers structures with a
-pole-zero pair near ``z = 1`` whose static gain is meaningless.
+(the paper's fallback). For a Hammerstein plant that point is off its steady-state
+curve: the mean of ``f(ds)`` is not ``f`` of the mean, so ``mean P`` misses the steady
+power at ``mean s`` by about ``B(1)/A(1) * (d2 var(ds) + ...)``, 0.2 kW for a quadratic
+heater over a 36..54 % staircase. ``f`` has no constant term, so the models cannot
+represent that offset; with the initial state estimated a pole at ``z = 1`` can, and the
+order search then prefers a pole-zero pair near ``z = 1`` whose static gain is meaningless.
 
 `steady_state_offset_kw` estimates the offset from the data by a polynomial ARX with
 a constant term (linear least squares, no search),
@@ -16,8 +14,7 @@ a constant term (linear least squares, no search),
     A(q) dP_k = sum_{j=nk}^{nk+nb-1} sum_{p=1}^{degree} beta_jp ds_{k-j}^p + c + e_k,
 
 whose steady state at ``ds = 0`` is ``dP = c / A(1)``; the operating point's power is
-moved by that much, so that ``(s_nom, P_nom)`` is a steady state of the record as the
-paper defines it.
+moved by that much, making ``(s_nom, P_nom)`` a steady state of the record.
 """
 
 from __future__ import annotations

@@ -1,11 +1,9 @@
 """The range of signal magnitudes identification can represent, checked before any fit.
 
-A log's input and output may be in any unit (kW or W, degC or mV), but the numerics
-square the output (the criteria V and W are mean squares in the output unit squared)
-and raise the input to the power of the polynomial's degree (up to 3): a span of
-1e200 has a square that overflows, a span of 1e-200 one that underflows to zero. The
-check refuses such a log before any fit, naming the signal, its span and the range,
-so that the user rescales the column instead of meeting a traceback.
+A log may be in any unit (kW or W, degC or mV), but the fits square the output (V and W)
+and raise the input to the polynomial's degree (up to 3): a span of 1e200 overflows, one
+of 1e-200 underflows to zero. Such a log is refused before any fit, with a message that
+asks to rescale the column instead of a traceback.
 """
 
 from __future__ import annotations

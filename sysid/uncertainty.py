@@ -13,8 +13,6 @@ order). The names map onto the model's coefficients as the fits estimated them
 `parameter_distribution` gives ``N(theta, Sigma)`` from the file's covariance, falling
 back to ``diag(std_errors^2)`` with a stated warning; `draw_parameters` samples it (also
 a singular covariance); `model_with_parameters` builds the model of a parameter vector.
-Used by the Monte Carlo of sampled plants (`czmpc.campaigns.sampling`), the model check
-(`czmpc.commissioning.check`) and the confidence bands of the model figures.
 """
 
 from __future__ import annotations
@@ -85,9 +83,10 @@ def _slot(model: HammersteinModel, name: str) -> tuple[str, int]:
     return letter, i
 
 
-def _a_padded(model: HammersteinModel, n: int) -> FloatArray:
-    out = np.zeros(max(n, model.a.size))
-    out[: model.a.size] = model.a
+def _padded(a: FloatArray, n: int) -> FloatArray:
+    """``a`` cut or zero-padded to length ``n``."""
+    out = np.zeros(max(n, a.size))
+    out[: a.size] = a
     return out[:n]
 
 
@@ -100,7 +99,7 @@ def model_parameters(model: HammersteinModel, names: tuple[str, ...]) -> FloatAr
         A name that is no coefficient of the model.
     """
     coefficients = {"b": model.b, "a": model.a, "c": model.c,
-                    "k": model.c - _a_padded(model, model.c.size),
+                    "k": model.c - _padded(model.a, model.c.size),
                     "d": np.concatenate([[0.0], model.input_poly])}   # d<i> is ds^i's
     out = np.empty(len(names))
     for n, name in enumerate(names):
@@ -125,7 +124,7 @@ def model_with_parameters(model: HammersteinModel, names: tuple[str, ...],
     """
     a, b, c = model.a.copy(), model.b.copy(), model.c.copy()
     poly = model.input_poly.copy()
-    k = c - _a_padded(model, c.size)
+    k = c - _padded(a, c.size)
     set_c: dict[int, float] = {}
     # where each letter's coefficient i lives (d<i> is input_poly[i-1]); c<i> is set last
     slots: dict[str, tuple[Any, int]] = {"a": (a, 0), "b": (b, 0), "d": (poly, 1), "k": (k, 0),
@@ -137,7 +136,7 @@ def model_with_parameters(model: HammersteinModel, names: tuple[str, ...],
     if model.linear_block == "oe":
         c = a.copy()
     elif model.linear_block == "armax":
-        c = k + np.concatenate([a, np.zeros(max(0, c.size - a.size))])[: c.size]
+        c = k + _padded(a, c.size)
         c[0] = 1.0
         for i, value in set_c.items():
             c[i] = value

@@ -110,19 +110,13 @@ class HammersteinFit:
 
     def values(self) -> dict[str, float]:
         """All model coefficients by the names `sysid.hammerstein` uses (for starts)."""
-        nk = self.delay_steps
-        out: dict[str, float] = {}
-        for j in range(nk + 1, self.b.size):
-            out[f"b{j}"] = float(self.b[j])
-        for i, p in enumerate(self.input_poly, start=1):
-            out[f"d{i}"] = float(p)
         letter = "f" if self.linear_block == "oe" else "a"
-        for i in range(1, self.a.size):
-            out[f"{letter}{i}"] = float(self.a[i])
+        out = {f"b{j}": float(self.b[j]) for j in range(self.delay_steps + 1, self.b.size)}
+        out |= {f"d{i}": float(p) for i, p in enumerate(self.input_poly, start=1)}
+        out |= {f"{letter}{i}": float(self.a[i]) for i in range(1, self.a.size)}
         if self.linear_block == "armax":
-            for i in range(1, self.c.size):
-                a_i = float(self.a[i]) if i < self.a.size else 0.0
-                out[f"k{i}"] = float(self.c[i]) - a_i
+            out |= {f"k{i}": float(self.c[i]) - (float(self.a[i]) if i < self.a.size else 0.0)
+                    for i in range(1, self.c.size)}
         return out
 
     def input_nonlinearity(self, ds_pct: FloatArray | float) -> FloatArray:
