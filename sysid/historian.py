@@ -99,12 +99,12 @@ class LoadPolicy:
     Parameters
     ----------
     gaps :
-        ``"refuse"``, ``"split"`` or ``"fill"`` (see the module docstring).
+        ``"refuse"``, ``"split"`` or ``"fill"`` (module docstring).
     fill_max_samples :
         Longest run of missing samples that ``"fill"`` interpolates.
     resample :
-        ``"snap"`` (jitter up to `SNAP_MAX_JITTER` snapped onto the grid, more
-        refused) or ``"linear"`` (interpolate onto the grid).
+        ``"snap"`` (jitter up to `SNAP_MAX_JITTER` snapped onto the grid, more refused)
+        or ``"linear"`` (interpolate onto the grid).
     ts_s :
         Sampling time [s] of the grid; default the median interval.
     sampling_rtol :
@@ -158,12 +158,10 @@ class LoadReport:
         ISO-8601 text of the first sample's time stamp (``time_s = 0``), or None.
     ts_s :
         Sampling time [s] of the grid.
-    columns :
-        Contract name -> the log's column name.
-    policy :
-        The policy applied.
-    n_rows :
-        Data rows read.
+    columns, policy :
+        Contract name -> the log's column name; the policy applied.
+    n_rows, n_samples :
+        Data rows read; samples of the result.
     n_missing_cells :
         Cells of the three mapped columns that held no value (NaN, empty, ...).
     n_gap_samples :
@@ -176,13 +174,11 @@ class LoadReport:
     n_snapped :
         Samples whose time was moved onto the grid (0 when times are kept).
     max_jitter :
-        Largest deviation of an interval from a whole number of periods, fraction of Ts.
+        Largest deviation of an interval from a whole number of periods [fraction of Ts].
     resampled :
         True if the signals were interpolated onto the grid (``--resample linear``).
     segment_starts :
         First sample of each segment of the result.
-    n_samples :
-        Samples of the result.
     """
 
     source_format: str
@@ -810,8 +806,8 @@ def read_frame(
     Parameters
     ----------
     frame :
-        A ``pandas.DataFrame``. The time is the column mapped to ``time_s``, or the
-        index if no such column exists and the index is a ``DatetimeIndex`` or numeric.
+        A ``pandas.DataFrame``; the time is the column mapped to ``time_s``, else a
+        ``DatetimeIndex`` or an index of that name.
     columns, policy, input_unit, output_unit :
         As `read_log_csv`.
 
