@@ -29,30 +29,6 @@ class RunConfigError(CzmpcError, ValueError):
     """A run configuration or recipe file that cannot be used."""
 
 
-#: The ``[nodes]`` keys, in the order of `NodeIds`.
-NODE_KEYS = ("power_kw", "triac_pct", "applied_triac_pct", "setpoint_kw", "heartbeat", "mode",
-             "model_health", "owner", "status", "mode_in_effect", "stale_alarm",
-             "predicted_power_kw", "target_triac_pct", "watchdog")
-
-_TABLES: dict[str, tuple[str, ...]] = {
-    "plant": ("endpoint", "ts_s", "time_scale", "max_sample_age_s", "connect_timeout_s",
-              "align_to_plant", "reject_repeated_samples", "max_refused_writes", "security"),
-    "nodes": NODE_KEYS,
-    "controller": ("model", "settings", "candidate"),
-    "run": ("duration_s", "setpoint_kw", "schedule", "log", "rotate", "rotate_mb"),
-    "safety": ("action", "safe_triac_pct"),
-    "test": ("power_band_kw", "max_bad_quality_s"),
-    "logging": ("syslog", "facility"),
-}
-
-#: Default of ``[test] max_bad_quality_s`` [plant s]: five samples at Ts = 2 s; longer
-#: blind stretches during an open-loop test leave the heater unwatched.
-DEFAULT_MAX_BAD_QUALITY_S = 10.0
-#: Default of ``[plant] max_refused_writes``: five samples of refused commands in a row
-#: (10 s at Ts = 2 s, as long as the default test's blind stretch) stop the run.
-DEFAULT_MAX_REFUSED_WRITES = 5
-
-
 @dataclass(frozen=True, slots=True, kw_only=True)
 class NodeIds:
     """OPC UA node ids (strings such as ``"ns=2;s=Heater.Power"``); None: not used.
@@ -80,6 +56,28 @@ class NodeIds:
         """The configured nodes by key, with their scaling (unused keys left out)."""
         return {key: NodeSpec(node_id, self.scales.get(key))
                 for key in NODE_KEYS if (node_id := getattr(self, key)) is not None}
+
+
+#: The ``[nodes]`` keys, in the order of `NodeIds`.
+NODE_KEYS = tuple(f.name for f in dataclasses.fields(NodeIds) if f.name != "scales")
+
+_TABLES: dict[str, tuple[str, ...]] = {
+    "plant": ("endpoint", "ts_s", "time_scale", "max_sample_age_s", "connect_timeout_s",
+              "align_to_plant", "reject_repeated_samples", "max_refused_writes", "security"),
+    "nodes": NODE_KEYS,
+    "controller": ("model", "settings", "candidate"),
+    "run": ("duration_s", "setpoint_kw", "schedule", "log", "rotate", "rotate_mb"),
+    "safety": ("action", "safe_triac_pct"),
+    "test": ("power_band_kw", "max_bad_quality_s"),
+    "logging": ("syslog", "facility"),
+}
+
+#: Default of ``[test] max_bad_quality_s`` [plant s]: five samples at Ts = 2 s; longer
+#: blind stretches during an open-loop test leave the heater unwatched.
+DEFAULT_MAX_BAD_QUALITY_S = 10.0
+#: Default of ``[plant] max_refused_writes``: five samples of refused commands in a row
+#: (10 s at Ts = 2 s, as long as the default test's blind stretch) stop the run.
+DEFAULT_MAX_REFUSED_WRITES = 5
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

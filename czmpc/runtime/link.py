@@ -182,6 +182,11 @@ def _access_words(readable: bool, writable: bool) -> str:
     return ("r" if readable else "-") + ("w" if writable else "-")
 
 
+def _held(dv: Any) -> Any:
+    """The Python value a DataValue holds (None: no Variant)."""
+    return None if dv.Value is None else dv.Value.Value
+
+
 def _timestamps(dv: Any) -> str:
     if dv.SourceTimestamp is not None:
         return "source"
@@ -203,8 +208,7 @@ def check_node(key: str, spec: NodeSpec, values: Mapping[str, Any], *,
     if status is not None and status.name in ("BadNodeIdUnknown", "BadNodeIdInvalid"):
         return NodeCheck(key, node, problem=f"{status.name}: " + refusals.fix_for(
             status.name, key=key, node=node), code=status.name), None
-    dtype_dv = values["DataType"]
-    dtype = dtype_dv.Value.Value if dtype_dv.Value is not None else None
+    dtype = _held(values["DataType"])
     type_name = None if dtype is None else builtin_type_name(dtype.NamespaceIndex, dtype.Identifier)
     held = value_dv.Value.VariantType.name if value_dv.Value is not None else None
     note = ""
@@ -213,11 +217,8 @@ def check_node(key: str, spec: NodeSpec, values: Mapping[str, Any], *,
                "the type of the value it holds"
         type_name = held
     type_name = type_name or (dtype.to_string() if dtype is not None else "unknown")
-    rank_dv = values["ValueRank"]
-    rank = int(rank_dv.Value.Value) if rank_dv.Value is not None and rank_dv.Value.Value is not None \
-        else -1
-    bits = {name: int(values[name].Value.Value or 0) if values[name].Value is not None else 0
-            for name in ("AccessLevel", "UserAccessLevel")}
+    rank = -1 if _held(values["ValueRank"]) is None else int(_held(values["ValueRank"]))
+    bits = {name: int(_held(values[name]) or 0) for name in ("AccessLevel", "UserAccessLevel")}
     read_bit, write_bit = 1 << ua.AccessLevel.CurrentRead, 1 << ua.AccessLevel.CurrentWrite
     node_writable = bool(bits["AccessLevel"] & write_bit)
     readable = bool(bits["UserAccessLevel"] & read_bit)
@@ -359,7 +360,7 @@ class PlantLink:
                 self.types[key] = info
             value_dv = values["Value"]
             if value_dv.StatusCode is None or value_dv.StatusCode.is_good():
-                self.initial[key] = value_dv.Value.Value if value_dv.Value is not None else None
+                self.initial[key] = _held(value_dv)
         return CheckReport(cfg.endpoint, tuple(checks))
 
     async def _call(self, awaitable: Awaitable[T], what: str, deadline_s: float) -> T:

@@ -65,38 +65,33 @@ from sim.protocols import NOMINAL, Exogenous, Plant
 from sim.scenario import Scenario
 
 NAMESPACE_URI = "urn:czmpc:plant"
+#: Each ``Heater.*`` node: its name, its run config ``[nodes]`` key (None: none), and its
+#: type in the ``"czmpc"`` and the ``"plc"`` profile.
+_NODES = (
+    ("Power", "power_kw", "Double", "Float"),
+    ("TriacCommand", "triac_pct", "Double", "Float"),
+    ("TriacApplied", "applied_triac_pct", "Double", "Float"),
+    ("PowerSetpoint", "setpoint_kw", "Double", "Float"),
+    ("Heartbeat", "heartbeat", "Int64", "UInt16"),
+    ("Mode", "mode", "String", "Int16"),
+    ("WatchdogTripped", None, "Boolean", "Boolean"),
+    ("PlantTime_s", None, "Double", "Float"),
+    ("ModelHealth", "model_health", "Double", "Float"),
+    ("Owner", "owner", "String", "String"),
+    ("MPCStatus", "status", "String", "Int16"),
+    ("MPCMode", "mode_in_effect", "String", "Int16"),
+    ("StaleAlarm", "stale_alarm", "Boolean", "Boolean"),
+    ("Predicted", "predicted_power_kw", "Double", "Float"),
+    ("TargetTriac", "target_triac_pct", "Double", "Float"),
+    ("MPCWatchdog", "watchdog", "Int64", "UInt16"),
+)
 #: The served plant's node ids by the run config's ``[nodes]`` keys (``ns=2``: the
 #: namespace `NAMESPACE_URI` is the first one a fresh server registers).
-SERVED_NODE_IDS = {
-    "power_kw": "ns=2;s=Heater.Power",
-    "triac_pct": "ns=2;s=Heater.TriacCommand",
-    "applied_triac_pct": "ns=2;s=Heater.TriacApplied",
-    "setpoint_kw": "ns=2;s=Heater.PowerSetpoint",
-    "heartbeat": "ns=2;s=Heater.Heartbeat",
-    "mode": "ns=2;s=Heater.Mode",
-    "model_health": "ns=2;s=Heater.ModelHealth",
-    "owner": "ns=2;s=Heater.Owner",
-    "status": "ns=2;s=Heater.MPCStatus",
-    "mode_in_effect": "ns=2;s=Heater.MPCMode",
-    "stale_alarm": "ns=2;s=Heater.StaleAlarm",
-    "predicted_power_kw": "ns=2;s=Heater.Predicted",
-    "target_triac_pct": "ns=2;s=Heater.TargetTriac",
-    "watchdog": "ns=2;s=Heater.MPCWatchdog",
-}
+SERVED_NODE_IDS = {key: f"ns=2;s=Heater.{name}" for name, key, *_ in _NODES if key is not None}
 #: The OPC UA data type of each node, by profile: ``"czmpc"`` (the default) and ``"plc"``.
 NODE_TYPES: dict[str, dict[str, str]] = {
-    "czmpc": {"Power": "Double", "TriacCommand": "Double", "TriacApplied": "Double",
-              "PowerSetpoint": "Double", "Heartbeat": "Int64", "Mode": "String",
-              "WatchdogTripped": "Boolean", "PlantTime_s": "Double", "ModelHealth": "Double",
-              "Owner": "String", "MPCStatus": "String", "MPCMode": "String",
-              "StaleAlarm": "Boolean", "Predicted": "Double", "TargetTriac": "Double",
-              "MPCWatchdog": "Int64"},
-    "plc": {"Power": "Float", "TriacCommand": "Float", "TriacApplied": "Float",
-            "PowerSetpoint": "Float", "Heartbeat": "UInt16", "Mode": "Int16",
-            "WatchdogTripped": "Boolean", "PlantTime_s": "Float", "ModelHealth": "Float",
-            "Owner": "String", "MPCStatus": "Int16", "MPCMode": "Int16", "StaleAlarm": "Boolean",
-            "Predicted": "Float", "TargetTriac": "Float", "MPCWatchdog": "UInt16"},
-}
+    profile: {name: types[i] for name, _, *types in _NODES}
+    for i, profile in enumerate(("czmpc", "plc"))}
 #: Columns of the plant log: plant time [s], wall-clock time of the sample [s since the
 #: epoch, as a run log's ``wall_time_s``], TRIAC input applied over the sample [%], true
 #: and published power [kW], ``good`` or ``bad`` quality, and the watchdog's state (0/1).
