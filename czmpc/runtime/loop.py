@@ -671,16 +671,13 @@ class ControlLoop:
         ``status`` and ``mode_in_effect``: text, or `STATUS_CODES` / `MODE_CODES` on an
         integer node; ``predicted_power_kw``: the next sample with this step's input acting.
         """
-        link, out = self.link, {}
-        present = link.types
-        if "status" in present:
-            out["status"] = link.word("status", self.ctrl.status_words()[0] or "OFF", STATUS_CODES)
-        if "mode_in_effect" in present:
-            out["mode_in_effect"] = link.word("mode_in_effect", self.ctrl.mode.name, MODE_CODES)
-        if "stale_alarm" in present:
-            alarm = health is not None and health.stale_alarm
-            out["stale_alarm"] = link.word("stale_alarm", "ON" if alarm else "OFF",
-                                           {"OFF": 0, "ON": 1})
+        link, present = self.link, self.link.types
+        alarm = health is not None and health.stale_alarm
+        words = {"status": (self.ctrl.status_words()[0] or "OFF", STATUS_CODES),
+                 "mode_in_effect": (self.ctrl.mode.name, MODE_CODES),
+                 "stale_alarm": ("ON" if alarm else "OFF", {"OFF": 0, "ON": 1})}
+        out = {key: link.word(key, name, codes) for key, (name, codes) in words.items()
+               if key in present}
         acting = command if command is not None else self._last_cmd
         if "predicted_power_kw" in present and self.health is not None:
             predicted = self.health.predict_next_kw(acting)
