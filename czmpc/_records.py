@@ -10,12 +10,9 @@ _Record = TypeVar("_Record")
 def record_from_fields(cls: type[_Record], fields: dict[str, Any]) -> _Record:
     """An instance of frozen dataclass ``cls`` whose ``__dict__`` is ``fields``, set at once.
 
-    The step's path for its records (`czmpc.diagnostics.StepDiagnostics`,
-    `czmpc.qp.QPSolution`, `czmpc.target.Target`, `czmpc.mismatch.MismatchStats`): a
-    frozen dataclass's ``__init__`` calls ``object.__setattr__`` once per field, which
-    cost more than the rest of building the record (issue 30). For classes without
-    ``__post_init__`` and ``slots`` only, so nothing is skipped but the calls; ``fields``
-    must name every field, in order (the tests check the step's records).
+    A frozen dataclass's ``__init__`` calls ``object.__setattr__`` per field, costing more
+    than the rest of a step's record. Only for classes without ``__post_init__`` and
+    ``slots``; ``fields`` must name every field, in order (the tests check).
 
     Parameters
     ----------

@@ -1,10 +1,8 @@
 """How a configuration error shows what it got, and what it expected, in the user's words.
 
-Every validator of a file a user writes (the run config, the settings file, a campaign
-spec, a regression suite, the plant security) says what it got the way the user wrote
-it, never as a Python repr: ``true`` rather than ``True``, ``[30, 60]`` rather than
-``[30.0, 60.0]`` of a float list's repr, a table as ``{ id = '...' }`` rather than a dict,
-a path as its text. An unknown key gets a did-you-mean hint from the valid keys.
+Every validator of a user's file says what it got as the user wrote it, never as a
+Python repr: ``true``, ``[30, 60]``, a table as ``{ id = '...' }``, a path as its text.
+An unknown key gets a did-you-mean hint.
 """
 
 from __future__ import annotations

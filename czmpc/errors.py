@@ -12,11 +12,7 @@ class SettingsError(CzmpcError, ValueError):
 
 
 class DesignError(CzmpcError, ValueError):
-    """A model and settings from which no sound controller can be built.
-
-    For example an augmented pair that is not detectable, or an allowed input range
-    that leaves the monotone branch of the input nonlinearity.
-    """
+    """A model and settings from which no sound controller can be built (e.g. not detectable)."""
 
 
 __all__ = ["CzmpcError", "DesignError", "SettingsError"]

@@ -9,12 +9,11 @@ Notation
     z+ = A z + B w + v,    y = C z + e,
     cov(v) = Q,  cov(e) = R,  cov(v, e) = S
 
-For the innovations form ``v = K e`` (plus the disturbance's random-walk increment
-``xi``), so ``Q = s2 (K K^T + rho E_d E_d^T)``, ``S = s2 K``, ``R = s2`` with
-``s2 = sigma_e^2`` and ``rho`` the settings' ``disturbance_noise``. The gains do not
-depend on ``s2``, so it is set to 1.
+For the innovations form ``v = K e`` plus the disturbance increment ``xi``:
+``Q = s2 (K K^T + rho E_d E_d^T)``, ``S = s2 K``, ``R = s2``, ``s2 = sigma_e^2``, ``rho``
+the settings' ``disturbance_noise``. The gains do not depend on ``s2``: it is set to 1.
 
-Steady-state filter with correlated noise: ``P`` solves the filter DARE
+``P`` solves the filter DARE with correlated noise
 ``P = A P A^T + Q - (A P C^T + S) Re^-1 (A P C^T + S)^T`` with ``Re = C P C^T + R``;
 the updates are::
 
@@ -151,10 +150,8 @@ def innovation_variance_after_gap(
 ) -> FloatArray:
     """Predicted innovation variance after ``m = 0..max_gap`` skipped measurement updates.
 
-    Without an update the one-step prediction error grows as
-    ``P_{m+1} = A P_m A^T + Q`` from the stationary ``P_0 = P``, so the next innovation
-    has variance ``C P_m C^T + R`` (units of ``s2``, see the module notes; multiply by
-    ``sigma_e^2``). The spike gate (`czmpc.validation`) widens with it after an outage.
+    ``C P_m C^T + R`` with ``P_{m+1} = A P_m A^T + Q`` from the stationary ``P_0 = P``
+    (units of ``s2``); the spike gate (`czmpc.validation`) widens with it.
 
     Parameters
     ----------
@@ -183,15 +180,13 @@ def innovation_variance_after_gap(
     return _readonly(out)
 
 
-#: A measurement whose innovation exceeds this [kW] is no heater power (CZ heaters run at
-#: tens to a few hundred kW): `Estimator.update` skips it, so absurd values such as 1e300
-#: cannot overflow the estimator.
+#: An innovation beyond this [kW] is no heater power: `Estimator.update` skips it, so
+#: absurd values such as 1e300 cannot overflow the estimator.
 MAX_INNOVATION_KW = 1e6
 
 
-#: One past sample as the estimator saw it, kept to roll back: ``(z_{j|j}, eps_j, w_j)``,
-#: the filtered state, the innovation used at j [kW] (0 if none) and the ``w`` applied over
-#: sample j [kW-equivalent]. A plain tuple: a NamedTuple cost a third of a microsecond a step.
+#: One past sample, kept to roll back: ``(z_{j|j}, eps_j [kW] or 0, w_j [kW-equivalent])``.
+#: A plain tuple: a NamedTuple cost 0.3 us a step.
 _Trace = tuple[FloatArray, float, float]
 
 
@@ -199,8 +194,7 @@ class Estimator:
     """The steady-state Kalman filter with its state: predict, update, roll back.
 
     ``z`` is ``z_{k|k-1}`` until `update` makes it ``z_{k|k}``; `predict` then gives
-    ``z_{k+1|k}`` with the ``w`` actually applied (module notes). A short trace of past
-    samples lets `roll_back` undo updates with readings found invalid later.
+    ``z_{k+1|k}`` with the ``w`` applied. A trace lets `roll_back` undo updates.
 
     Parameters
     ----------
@@ -285,11 +279,8 @@ class Estimator:
         return self._std_kw[0]
 
     def update(self, y: float) -> bool:
-        """Measurement update with ``y_k`` [kW deviation]; False (skipped) if absurd.
-
-        A sample whose innovation is not finite or exceeds `MAX_INNOVATION_KW` is
-        skipped as `skip` does.
-        """
+        """Measurement update with ``y_k`` [kW deviation]; False (skipped as by `skip`)
+        if the innovation is not finite or beyond `MAX_INNOVATION_KW`."""
         eps = y - self._y_pred
         if not abs(eps) <= MAX_INNOVATION_KW:
             self.gap += 1
@@ -336,11 +327,9 @@ class Estimator:
                 self._history[-1] = (z_post, eps, w_applied)
 
     def roll_back(self, samples: int) -> int:
-        """Undo the updates of the last ``samples`` samples: predict from the sample before them.
+        """Undo the updates of the last ``samples`` samples, as if they had been skipped.
 
-        The estimator restarts from ``z_{j|j}`` of the last sample it trusts and predicts
-        with the inputs applied since, as if those samples had been skipped. Returns the
-        number of samples undone (0 if the trace is too short or the result not finite).
+        Returns the number undone (0 if the trace is too short or the result not finite).
         """
         steps_back = min(samples + 1, len(self._history))
         if steps_back < 1:

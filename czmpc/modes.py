@@ -71,10 +71,8 @@ class ModeTransition:
 def transition(current: Mode, requested: Mode, *, estimator_ready: bool) -> tuple[Mode, str]:
     """Return ``(new_mode, reason)`` for a mode request; pure.
 
-    Rules: ``OFF`` and ``PREDICT`` may always be entered; ``ON`` only with a warm
-    estimator (``estimator_ready``: enough valid measurements since it was last
-    (re)started, in ``PREDICT`` or ``ON``). A request for the current mode changes
-    nothing. A refused request leaves the mode as it is.
+    ``OFF`` and ``PREDICT`` may always be entered, ``ON`` only with a warm estimator; a
+    request for the current mode, or a refused one, leaves the mode as it is.
 
     Parameters
     ----------
@@ -83,7 +81,7 @@ def transition(current: Mode, requested: Mode, *, estimator_ready: bool) -> tupl
     requested :
         The mode asked for.
     estimator_ready :
-        True if the estimator has seen its warm-up samples.
+        True if the estimator has seen its warm-up samples since its last (re)start.
     """
     if not isinstance(requested, Mode):
         return current, f"refused: {requested!r} is not a Mode"

@@ -29,19 +29,15 @@ The QP (``docs/theory.rst``, C5), condensed in ``w`` (the states are eliminated)
 ``xi = [dx; w_{j-1} - w_s]`` (the move penalty is a cross term), so without active
 constraints the first move equals the infinite-horizon LQR law for any ``N``.
 
-Bounds are exact where that is possible: ``w_lo_0 = f(max(ds_min, ds_prev - delta))``
-and ``w_hi_0 = f(min(ds_max, ds_prev + delta))`` for the first move (f is increasing on
-the allowed range); later ``w_j`` are boxed by the image of the TRIAC inputs reachable
-in ``j + 1`` moves; and their moves are limited by ``m_j delta`` with ``m_j`` the
-smallest slope of ``f`` over those reachable inputs (not the global minimum slope), so
-``|ds_j - ds_{j-1}| <= delta`` holds by the mean value theorem.
+Bounds are exact where possible: ``w_lo_0 = f(max(ds_min, ds_prev - delta))`` and
+``w_hi_0 = f(min(ds_max, ds_prev + delta))`` (f increases on the allowed range); later
+``w_j`` are boxed by the image of the inputs reachable in ``j + 1`` moves, and their
+moves limited by ``m_j delta``, ``m_j`` the smallest slope of ``f`` over those inputs,
+so ``|ds_j - ds_{j-1}| <= delta`` holds by the mean value theorem.
 
-Formulation choice: condensed, by measurement. With ``n = 2`` states and ``N = 50``
-the condensed problem has 50 variables and 50 (+ 49 rate) sparse rows; its KKT factor
-is a dense 50 x 50 block, factorized once at set-up. Replaying the 1500 QPs of a
-closed-loop staircase run (paper-like model, same OSQP options) took 22 us and
-8.7 iterations per solve on average condensed, against 79 us and 28 iterations for the
-sparse form (150 variables, 100 equality rows), with the same first moves to 4e-5.
+Condensed, by measurement (``n = 2``, ``N = 50``, the 1500 QPs of a staircase run):
+22 us and 8.7 iterations per solve, against 79 us and 28 iterations for the sparse form
+(150 variables, 100 equality rows), with the same first moves to 4e-5.
 """
 
 from __future__ import annotations
@@ -76,8 +72,7 @@ class QPSolution:
     Parameters
     ----------
     status :
-        OSQP's status string (``"solved"``, ``"solved inaccurate"``,
-        ``"maximum iterations reached"``, ...).
+        OSQP's status string (``"solved"``, ``"solved inaccurate"``, ...).
     is_usable :
         True if the status is solved or solved-inaccurate and the plan is finite.
     is_accurate :
@@ -132,10 +127,8 @@ def terminal_cost(
     try:
         P = scipy.linalg.solve_discrete_are(Axi, Bxi, Qxi, Rxi, s=Sxi)
     except (ValueError, np.linalg.LinAlgError) as exc:
-        # scipy's QZ ordering can fail on a slow pole near z = 1 next to the delay
-        # states' poles at z = 0 ("Reordering ... failed"); the doubling algorithm
-        # needs no ordering. Its answer is accepted only if it solves the DARE and
-        # stabilizes the loop.
+        # scipy's QZ ordering can fail on a slow pole near z = 1 next to the delay states'
+        # poles at z = 0; doubling needs no ordering (its answer is checked).
         P = dare_by_doubling(Axi, Bxi, Qxi, Rxi, Sxi)
         if P is None:
             raise DesignError(
@@ -154,11 +147,10 @@ def dare_by_doubling(A: FloatArray, B: FloatArray, Q: FloatArray, R: FloatArray,
     """Stabilizing solution of the DARE with cross term by the doubling algorithm.
 
     Solves ``P = A^T P A - (A^T P B + S)(R + B^T P B)^{-1}(B^T P A + S^T) + Q`` (scipy's
-    convention) by the structure-preserving doubling algorithm (Chu, Fan, Lin, "A
-    structure-preserving doubling algorithm for continuous-time algebraic Riccati
-    equations", Linear Algebra Appl. 396, 2005, and its discrete-time form): the cross
-    term is removed (``A - B R^-1 S^T``, ``Q - S R^-1 S^T``), then ``A_k, G_k, H_k``
-    double the horizon each step and ``H_k`` converges quadratically to ``P``.
+    convention) by structure-preserving doubling (Chu, Fan, Lin, Linear Algebra Appl.
+    396, 2005, discrete-time form): with the cross term removed (``A - B R^-1 S^T``,
+    ``Q - S R^-1 S^T``), ``A_k, G_k, H_k`` double the horizon each step and ``H_k``
+    converges quadratically to ``P``.
 
     Returns
     -------
@@ -237,18 +229,16 @@ class MoveBounds:
     horizon_steps :
         ``N``.
     box_rows :
-        ``(w_lo, w_hi)`` (N,) arrays to write the box bounds into: the box rows of a QP's
-        ``l`` and ``u`` (`MPCQP.move_bounds`), so the QP takes them as they stand; None
-        for arrays of its own.
+        ``(w_lo, w_hi)`` (N,) arrays to write the box bounds into (a QP's rows,
+        `MPCQP.move_bounds`); None for arrays of its own.
     rate_rows :
-        ``(lower, upper)`` (N-1,) arrays to write ``-rate`` and ``rate`` into (the rate
-        rows of a QP's ``l`` and ``u``); None for an array of its own (``rate`` only).
+        ``(lower, upper)`` (N-1,) arrays to write ``-rate`` and ``rate`` into; None for
+        an array of its own (``rate`` only).
 
     Notes
     -----
     The scalars enter numpy as 0-d arrays, made once per input map: a Python float costs
-    numpy a conversion on every call (about 0.2 us of the 0.55 us of each of the ten
-    calls, issue 30). The arithmetic is the same.
+    a conversion per call (0.2 us of 0.55 us). The arithmetic is the same.
     """
 
     def __init__(self, max_move_pct_per_step: float | None, horizon_steps: int, *,
@@ -388,13 +378,11 @@ class MPCQP:
         OSQP options.
     bound_tol_kw :
         How far [kW-equivalent] a returned plan may violate its box and rate bounds and
-        still count as usable; OSQP can stop at its iteration or time limit (or report
-        "solved inaccurate") with a point outside them.
+        still count as usable (OSQP may stop outside them).
     h_map :
         (n, k) ``M`` with ``h = M t`` for the k terms ``t`` `solve` is given (the
-        controller's ``[z; x_s; eps]``); None for ``t = h``. ``M`` is folded into the
-        products with ``h``, so ``h`` is never formed (one matrix-vector product a step
-        fewer; the rounding of ``q`` differs from forming ``h`` first by about an ulp).
+        controller's ``[z; x_s; eps]``); None for ``t = h``. Folded into the products,
+        so ``h`` is never formed (``q`` differs by about an ulp).
 
     Raises
     ------
@@ -537,10 +525,8 @@ class MPCQP:
                                **settings)
         except (osqp.OSQPException, ValueError) as exc:
             raise DesignError(f"MPC QP: OSQP set-up must succeed; got: {exc}") from exc
-        # The solver object behind osqp.OSQP (osqp 1.x): its update_data_vec and solve
-        # skip the wrapper's per-call work (constant look-ups through importlib, clipping
-        # copies of l and u, a namespace of every info field), which cost a third of a
-        # bare solve (BENCHMARKS.md, "MPC step against a bare OSQP solve").
+        # The solver object behind osqp.OSQP (osqp 1.x) skips the wrapper's per-call work,
+        # a third of a bare solve (BENCHMARKS.md, "MPC step against a bare OSQP solve").
         self._ext = self._solver._solver
         # Its info and solution: the same objects on every access, read after each solve.
         self._info = self._ext.info
@@ -628,9 +614,8 @@ class MPCQP:
 
         Notes
         -----
-        A solve that does not end solved (or solved-inaccurate) with a finite plan
-        inside its bounds (to ``bound_tol_kw``) is not usable and makes the next solve
-        cold-start.
+        A solve without a finite plan inside its bounds (to ``bound_tol_kw``), solved or
+        solved-inaccurate, is not usable and makes the next solve cold-start.
         """
         N = self.horizon_steps
         params = self._params

@@ -1,12 +1,11 @@
 """The controller settings file: MPCSettings as TOML, read and written.
 
-Top-level keys are the fields of `czmpc.settings.MPCSettings`; the tables
-``[reliability]`` and ``[osqp]`` hold those of `czmpc.settings.ReliabilitySettings` and
-`czmpc.settings.OSQPOptions`; ``preset`` names the base the file starts from
-(``MPCSettings.preset(preset, model)``). A ``float | None`` setting is switched off with
-the string ``"off"``. An unknown key, a value of the wrong type or out of range raises
-`czmpc.errors.SettingsError` naming the file, the table and the key. The user's page,
-with an example and every key, is docs/reference/settings_file.rst.
+Top-level keys are the fields of `czmpc.settings.MPCSettings`, the tables
+``[reliability]`` and ``[osqp]`` those of `czmpc.settings.ReliabilitySettings` and
+`czmpc.settings.OSQPOptions`; ``preset`` names the base (``MPCSettings.preset``). A
+``float | None`` setting is switched off with ``"off"``. Errors are
+`czmpc.errors.SettingsError` naming the file, the table and the key (user's page:
+docs/reference/settings_file.rst).
 """
 
 from __future__ import annotations
@@ -38,10 +37,7 @@ _T = TypeVar("_T")
 
 
 def field_docs(cls: type[Any]) -> dict[str, str]:
-    """First sentence of each parameter's description in ``cls``'s numpy docstring.
-
-    Parameters listed together (``a, b :``) share their description.
-    """
+    """First sentence of each parameter's description in ``cls``'s numpy docstring (shared by ``a, b :``)."""
     doc = cls.__doc__ or ""
     block = doc.split("Parameters\n    ----------\n", 1)[-1]
     block = re.split(r"\n    [A-Z][a-z]+\n    -+\n", block, maxsplit=1)[0]

@@ -1,8 +1,7 @@
 """Paths of the data shipped with the package: the paper-like experiment and its models.
 
-The files are the package data ``czmpc.data`` (the repository's ``data/`` folder links to
-them), so that these paths resolve the same in a source checkout, an editable install
-and a wheel, whatever the current directory.
+The files are the package data ``czmpc.data`` (``data/`` links to them): the paths
+resolve the same in a checkout, an editable install and a wheel.
 """
 
 from __future__ import annotations

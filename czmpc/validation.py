@@ -7,19 +7,15 @@ A measured power ``P_k`` [kW] is fed to the estimator only if it passes, in this
    the heater's rating, is a sensor fault);
 3. **rate**: ``|P_k - P_last| <= max_change_kw`` with ``P_last`` the last accepted value;
 4. **stuck**: not the exact same value for ``stuck_samples`` samples while the model's
-   prediction moved by at least ``stuck_min_predicted_change_kw``. The power sensor
-   quantizes to 1 W and its noise std is about 13 W, so an exactly repeated value over
-   many samples while the input moves is a frozen reading; at a constant input the
-   prediction does not move and a quiet (or noise-free simulated) signal never trips;
-5. **spike**: the innovation lies inside the gate
-   ``|eps_k| <= max(k_sigma * std(eps_k), gate_floor_kw)``, with ``std(eps_k)`` the
-   predicted innovation std (`czmpc.kalman.innovation_std_growth`), which widens while
-   samples are missed.
+   prediction moved by at least ``stuck_min_predicted_change_kw`` (the sensor quantizes
+   to 1 W with 13 W noise: a repeated value while the input moves is frozen; at a
+   constant input the prediction does not move, so a quiet signal never trips);
+5. **spike**: ``|eps_k| <= max(k_sigma * std(eps_k), gate_floor_kw)``, ``std(eps_k)`` the
+   predicted innovation std, which widens while samples are missed.
 
 Checks 3 and 5 re-open after ``reopen_after`` consecutive rejections: the next value is
-accepted as a genuine level change (and the spike gate stays open until the innovation
-is back inside it), so a persistent change is never rejected forever and the estimator
-stays offset-free. Limit and stuck rejections never re-open.
+accepted as a level change (the spike gate stays open until the innovation is back
+inside), so the estimator stays offset-free. Limit and stuck rejections never re-open.
 """
 
 from __future__ import annotations
@@ -53,9 +49,8 @@ class MeasurementCheck:
         True if the sample was accepted only because the rate or spike check re-opened
         after repeated rejections (a level change).
     stuck_run_samples :
-        For `Verdict.STUCK`: how many identical readings in a row, this one included.
-        The first of them is the last one the sensor gave while alive; the others were
-        frozen, including those accepted before the run was long enough to judge.
+        For `Verdict.STUCK`: identical readings in a row, this one included (the first
+        was the sensor's last live one).
     """
 
     verdict: Verdict
@@ -68,8 +63,7 @@ class MeasurementCheck:
         return self.verdict is Verdict.VALID
 
 
-# The records of an accepted sample: frozen, so one of each serves every step (building
-# a frozen record costs about 0.5 us, a quarter of the whole check).
+# The records of an accepted sample, frozen, shared by every step (building one: 0.5 us).
 _VALID = MeasurementCheck(verdict=Verdict.VALID)
 _VALID_REOPENED = MeasurementCheck(verdict=Verdict.VALID, reopened=True)
 
