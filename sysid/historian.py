@@ -365,13 +365,13 @@ def _linear_grid(time: FloatArray, u: FloatArray, y: FloatArray, ts_s: float
     w = (grid - time[lo]) / span
     exact_lo = np.isclose(grid, time[lo], rtol=0.0, atol=1e-9 * ts_s)
     exact_hi = np.isclose(grid, time[hi], rtol=0.0, atol=1e-9 * ts_s)
-    out = []
-    for v in (u, y):
-        val = (1.0 - w) * v[lo] + w * v[hi]
-        val = np.where(exact_lo, v[lo], np.where(exact_hi, v[hi], val))
-        val = np.where((span > LINEAR_GAP_PERIODS * ts_s) & ~exact_lo & ~exact_hi, np.nan, val)
-        out.append(val)
-    return grid, out[0], out[1]
+    far = (span > LINEAR_GAP_PERIODS * ts_s) & ~exact_lo & ~exact_hi
+
+    def on_grid(v: FloatArray) -> FloatArray:
+        val = np.where(exact_lo, v[lo], np.where(exact_hi, v[hi], (1.0 - w) * v[lo] + w * v[hi]))
+        return np.where(far, np.nan, val)
+
+    return grid, on_grid(u), on_grid(y)
 
 
 def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: str
@@ -410,10 +410,10 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
         n_slots = int(slots[-1]) + 1
         t_slot, u_slot, y_slot = np.full((3, n_slots), np.nan)
         snap = max_jitter > policy.sampling_rtol
-        t_slot[slots] = time[0] + ts_s * slots if snap else time
+        grid = time[0] + ts_s * slots
+        t_slot[slots] = grid if snap else time
         if snap:
-            n_snapped = int(np.count_nonzero(
-                np.abs(time - (time[0] + ts_s * slots)) > policy.sampling_rtol * ts_s))
+            n_snapped = int(np.count_nonzero(np.abs(time - grid) > policy.sampling_rtol * ts_s))
         u_slot[slots] = u
         y_slot[slots] = y
         absent = np.ones(n_slots, dtype=bool)
