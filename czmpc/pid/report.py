@@ -17,6 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
@@ -65,7 +66,11 @@ def simulate_row(tuning: PIDTuning, plant: LocalPlant, *, setpoint_kw: float, lo
     return y, u
 
 
-def _save(fig: Figure, path: Path) -> None:
+def _save(fig: Figure, axes: Sequence[Axes], path: Path) -> None:
+    """Grid every panel, lay the figure out tightly and write it to ``path`` (PNG)."""
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
     FigureCanvasAgg(fig)
     fig.savefig(path, dpi=110)
 
@@ -90,11 +95,9 @@ def _schedule_figure(schedule: PIDSchedule, path: Path) -> None:
     axes[2].set_ylabel("Ti, Td [s]")
     axes[2].set_xlabel("TRIAC input s [%]")
     for ax in axes:
-        ax.grid(True, alpha=0.3)
         for x in s[:-1]:
             ax.axvline(x, color="0.8", lw=0.6)
-    fig.tight_layout()
-    _save(fig, path)
+    _save(fig, axes, path)
 
 
 def _margins_figure(schedule: PIDSchedule, path: Path, ms_bound: float | None) -> None:
@@ -114,10 +117,7 @@ def _margins_figure(schedule: PIDSchedule, path: Path, ms_bound: float | None) -
     axes[2].plot(s, [r.margins.gain_margin for r in rows], "o-")
     axes[2].set_ylabel("gain margin [-]")
     axes[2].set_xlabel("TRIAC input s [%]")
-    for ax in axes:
-        ax.grid(True, alpha=0.3)
-    fig.tight_layout()
-    _save(fig, path)
+    _save(fig, axes, path)
 
 
 def _responses_figure(schedule: PIDSchedule, path: Path) -> None:
@@ -138,11 +138,8 @@ def _responses_figure(schedule: PIDSchedule, path: Path) -> None:
     axes[1, 0].set_ylabel("TRIAC deviation [%]")
     for ax in axes[1]:
         ax.set_xlabel("time [s]")
-    for ax in axes.flat:
-        ax.grid(True, alpha=0.3)
     axes[0, 0].legend(fontsize=7)
-    fig.tight_layout()
-    _save(fig, path)
+    _save(fig, list(axes.flat), path)
 
 
 def write_report(

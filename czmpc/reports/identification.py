@@ -919,18 +919,10 @@ def write_report(
         A `sysid.pipeline.PipelineResult`.
     out_dir :
         Output directory (created if missing).
-    model_file :
-        Path of the model for control, relative to `out_dir`.
-    model_files :
-        Paths of the intermediate model files, relative to `out_dir`.
-    command :
-        The command line, for the report's header.
+    model_file, model_files, command, reference, notes :
+        As in `render_report` (the paths relative to `out_dir`).
     figure_dir :
         Sub-directory of `out_dir` for the PNGs.
-    reference :
-        Show the paper's values beside ours; default: for data in % and kW only.
-    notes :
-        Sentences shown under the header (see `render_report`).
 
     Returns
     -------

@@ -139,6 +139,8 @@ def plot_dataset(
         Times [s] to mark with vertical dotted lines (for example repaired samples).
     marked_label :
         Legend text of those lines.
+    labels :
+        Axis labels (`axis_labels`); None: `AXIS_LABELS`.
 
     Returns
     -------
@@ -178,16 +180,12 @@ def plot_residuals(
 
     Parameters
     ----------
-    time_s :
-        Sample times [s], shape ``(n,)``.
+    time_s, path, title, labels :
+        As in `plot_dataset`.
     residuals_kw :
         Panel label -> residuals ``e`` [kW], each shape ``(n,)``; NaN marks samples
         without a prediction (the start of a high-order ARX model). Panels are
         stacked in the mapping's order and share both axes so that their sizes compare.
-    path :
-        PNG file to write.
-    title :
-        Figure title.
     marked_time_s :
         Times [s] to mark with a triangle above the largest residual there
         (the paper's blue arrows of fig. 3).
@@ -239,20 +237,16 @@ def plot_outlier_zoom(
 
     Parameters
     ----------
-    time_s :
-        Sample times [s], shape ``(n,)``.
+    time_s, path, title, labels :
+        As in `plot_dataset`.
     residual_kw :
         One-step residuals ``e`` of the high-order ARX model [kW], shape ``(n,)``.
     power_dev_kw :
         Measured power deviation ``dP`` [kW], shape ``(n,)``.
     center_time_s :
         Time of the candidate [s]; the window is ``center +- half_width_s``.
-    path :
-        PNG file to write.
     half_width_s :
         Half width of the zoom window [s].
-    title :
-        Figure title.
 
     Returns
     -------
@@ -297,17 +291,13 @@ def plot_simulations(
 
     Parameters
     ----------
-    time_s :
-        Sample times [s], shape ``(n,)``.
+    time_s, path, title, labels :
+        As in `plot_dataset`.
     measured_kw :
         Measured power deviation ``dP`` [kW], shape ``(n,)``.
     simulated_kw :
         Legend label -> simulated ``dP`` [kW], each shape ``(n,)``. Labels should
         carry the criterion, for example ``"OE(2,1), V = 0.043 kW^2"``.
-    path :
-        PNG file to write.
-    title :
-        Figure title.
     input_pct :
         TRIAC deviation ``ds`` [%], shape ``(n,)``; if given, drawn in a lower panel.
 
@@ -352,15 +342,11 @@ def plot_simulation_errors(
 
     Parameters
     ----------
-    time_s :
-        Sample times [s], shape ``(n,)``.
+    time_s, path, title, labels :
+        As in `plot_dataset`.
     errors_kw :
         Legend label -> simulation error [kW], each shape ``(n,)``; the legend adds
         each series' mean square (the criterion ``V`` of eq. 9).
-    path :
-        PNG file to write.
-    title :
-        Figure title.
 
     Returns
     -------
@@ -419,10 +405,8 @@ def plot_correlations(
         Normalized cross-correlation of input and residuals [-], shape ``(m2,)``.
     crosscorr_bound :
         Half width of its confidence band [-].
-    path :
-        PNG file to write.
-    title :
-        Figure title.
+    path, title, labels :
+        As in `plot_dataset`.
     confidence :
         Confidence level of the bands, for the legend [-].
 
@@ -485,14 +469,12 @@ def plot_gain_curve(
         TRIAC deviations ``ds`` [%] to draw the curves over, shape ``(m,)``.
     gain_kw_per_pct :
         Legend label -> gain on that grid [kW/%], each shape ``(m,)``.
-    path :
-        PNG file to write.
+    path, title, labels :
+        As in `plot_dataset`.
     step_ds_pct :
         Midpoints ``ds`` of the measured input steps [%], shape ``(k,)``.
     step_gain_kw_per_pct :
         Measured step gains ``r`` [kW/%], shape ``(k,)``.
-    title :
-        Figure title.
 
     Returns
     -------
