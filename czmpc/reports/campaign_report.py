@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Mapping, Sequence
+from itertools import product
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -126,24 +127,21 @@ def plot_perturbation_heatmaps(rows: Sequence[Row], path: str | os.PathLike[str]
     gains, taus, delays = (sorted({r[k] for r in pert}) for k in (
         "gain_factor", "time_constant_factor", "extra_delay_steps"))
     cells: dict[tuple[str, int, int, int], tuple[float, bool, bool]] = {}
-    for name in names:
-        for d, n in enumerate(delays):
-            for t, m in enumerate(taus):
-                for k, g in enumerate(gains):
-                    mine = [r for r in pert if r["controller"] == name and (
-                        r["gain_factor"], r["time_constant_factor"], r["extra_delay_steps"]) == (g, m, n)]
-                    ratios = [float(r["iae_changes_reachable_kw_s"])
-                              / nominal.get((name, r["scenario"], r["seed"]), math.nan) for r in mine]
-                    cells[name, d, t, k] = (
-                        float(np.median(ratios)) if ratios else math.nan,
-                        any(not r["offset_free"] for r in mine),
-                        any(int(r["n_unreachable_changes"]) > 0 for r in mine))
+    for name, (d, n), (t, m), (k, g) in product(names, enumerate(delays), enumerate(taus),
+                                                enumerate(gains)):
+        mine = [r for r in pert if r["controller"] == name and (
+            r["gain_factor"], r["time_constant_factor"], r["extra_delay_steps"]) == (g, m, n)]
+        ratios = [float(r["iae_changes_reachable_kw_s"])
+                  / nominal.get((name, r["scenario"], r["seed"]), math.nan) for r in mine]
+        cells[name, d, t, k] = (float(np.median(ratios)) if ratios else math.nan,
+                                any(not r["offset_free"] for r in mine),
+                                any(int(r["n_unreachable_changes"]) > 0 for r in mine))
     values = np.array([v for v, _, _ in cells.values()])
     finite = values[np.isfinite(values) & (values > 0)]
     norm = LogNorm(vmin=min(1.0, float(finite.min())) if finite.size else 0.5,
                    vmax=max(1.0 + 1e-9, float(finite.max())) if finite.size else 2.0)
     fig = new_figure(((0.62 * len(gains) + 1.8) * len(delays) + 1.2,
-                          (0.42 * len(taus) + 1.8) * len(names)))
+                      (0.42 * len(taus) + 1.8) * len(names)))
     axes = fig.subplots(len(names), len(delays), squeeze=False)
     image = None
     for i, name in enumerate(names):
@@ -152,14 +150,13 @@ def plot_perturbation_heatmaps(rows: Sequence[Row], path: str | os.PathLike[str]
             grid = np.array([[cells[name, d, t, k][0] for k in range(len(gains))]
                              for t in range(len(taus))])
             image = ax.imshow(grid, origin="lower", cmap="viridis", norm=norm, aspect="auto")
-            for t in range(len(taus)):
-                for k in range(len(gains)):
-                    value, fails, unreachable = cells[name, d, t, k]
-                    if fails:
-                        ax.plot(k, t, marker="x", color="red", markersize=16, markeredgewidth=2.5)
-                    ax.text(k, t, f"{value:.2f}{'*' if unreachable else ''}", ha="center",
-                            va="center", fontsize=7,
-                            color="white" if np.isfinite(value) and norm(value) < 0.6 else "black")
+            for t, k in product(range(len(taus)), range(len(gains))):
+                value, fails, unreachable = cells[name, d, t, k]
+                if fails:
+                    ax.plot(k, t, marker="x", color="red", markersize=16, markeredgewidth=2.5)
+                ax.text(k, t, f"{value:.2f}{'*' if unreachable else ''}", ha="center",
+                        va="center", fontsize=7,
+                        color="white" if np.isfinite(value) and norm(value) < 0.6 else "black")
             ax.set_xticks(range(len(gains)), [f"{g:g}" for g in gains])
             ax.set_yticks(range(len(taus)), [f"{m:g}" for m in taus])
             ax.set_xlabel("plant gain factor [-]")
