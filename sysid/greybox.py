@@ -79,18 +79,16 @@ class GreyBoxStructure:
     lower, upper :
         Bounds per parameter (``-inf``/``inf`` for none); default: unbounded.
     matrices :
-        ``matrices(p) -> (A, B, C, D, K)`` where ``p`` maps each parameter name to a
-        CasADi scalar symbol; written with CasADi operations (``ca.vertcat``,
-        ``ca.blockcat``, arithmetic). Shapes: ``A`` (n_x, n_x), ``B`` (n_x, n_u),
-        ``C`` (1, n_x), ``D`` (1, n_u) or None, ``K`` (n_x, 1) or None.
+        ``matrices(p) -> (A, B, C, D, K)``, ``p`` mapping each name to a CasADi scalar
+        symbol, in CasADi operations. Shapes: ``A`` (n_x, n_x), ``B`` (n_x, n_u), ``C``
+        (1, n_x), ``D`` (1, n_u) or None, ``K`` (n_x, 1) or None.
     input_map :
-        Maps the measured input, shape ``(n_samples,)``, to the model input, shape
-        ``(n_samples, n_u)``; it must not depend on the parameters. Default: the
-        measured input itself (``n_u = 1``). For eq. 26 it is
+        Maps the measured input ``(n_samples,)`` to the model input ``(n_samples, n_u)``,
+        independent of the parameters; default the input itself. For eq. 26:
         ``lambda ds: np.column_stack([ds**2, ds])``.
     project :
-        Optional map from all parameter values to admissible ones (for example,
-        mirroring unstable roots), applied to every trial point of the search.
+        Optional map from all parameter values to admissible ones (for example
+        mirroring unstable roots), applied to every trial point.
     name :
         Label used in messages.
 
@@ -203,13 +201,12 @@ class GreyBoxResult:
     parameters :
         Final values of all parameters (fixed ones unchanged).
     std_errors :
-        Standard errors from the final Jacobian, ``sqrt(diag(s^2 (J'J)^-1))``; 0.0 for
-        fixed parameters, ``inf`` for free ones the data cannot determine.
+        ``sqrt(diag(s^2 (J'J)^-1))``; 0.0 for fixed parameters, ``inf`` for free ones
+        the data cannot determine.
     free :
         Which parameters were free.
     initial_state :
-        The initial state used, shape ``(n_x,)``, at the final parameters (held-past
-        or steady state, or the estimated one).
+        The initial state used at the final parameters, shape ``(n_x,)``.
     residuals :
         Final residual sequence ``eps_k`` or ``e_k``, shape ``(n_samples,)``.
     criterion_value :
@@ -378,11 +375,9 @@ class _Evaluator:
 def _held_past_state(A: ca.SX, B: ca.SX, C: ca.SX, D: ca.SX, u0: ca.SX, y0: ca.SX) -> ca.SX:
     """State ``x_0`` of a model whose past inputs were ``u0`` and past outputs ``y0``.
 
-    Solves for ``z = x_{-n}`` such that ``x_{j+1} = A x_j + B u0`` gives outputs
-    ``C x_j + D u0 = y0`` at ``j = -n .. -1`` (``n`` = number of states; the
-    observability matrix must be invertible), then returns ``x_0``. For a polynomial
-    model in observer form this is exactly the held-past rule of `sysid.simulate`
-    (past inputs ``u_0``, past outputs ``y_0``, past innovations zero).
+    Solves for ``z = x_{-n}`` whose free run under ``u0`` outputs ``y0`` at ``j = -n ..
+    -1`` (an invertible observability matrix), then steps to ``x_0``: for a polynomial
+    model in observer form, the held-past rule of `sysid.simulate`.
     """
     n_x = A.shape[0]
     rows = []
@@ -578,21 +573,16 @@ def fit_greybox(
         ``"ballistic"``: minimize ``V`` (eq. 9), ``K`` ignored. ``"one_step"``:
         minimize ``W`` (eq. 10) with the innovations predictor.
     initial_state :
-        ``"held_past"`` (default): ``x_0`` is the state of a model whose past inputs
-        were ``u_0`` and past outputs ``y_0`` (past innovations zero): the held-past
-        rule of `sysid.simulate`, so V and W agree with `sysid.criteria` for
-        polynomial models. Needs an observable ``(A, C)``.
-        ``"steady"``: ``x_0`` is the steady state of the model (or predictor) for the
-        first sample's input (and output).
-        ``"estimate"``: ``x_0`` is estimated as ``n_x`` extra free parameters, started
-        from the held-past state.
-        In the first two ``x_0`` is a function of the parameters and is differentiated
-        with them.
+        ``"held_past"``: ``x_0`` of a model whose past inputs were ``u_0`` and past
+        outputs ``y_0`` (the rule of `sysid.simulate`, so V and W agree with
+        `sysid.criteria`; needs an observable ``(A, C)``). ``"steady"``: the steady state
+        of the model (or predictor) at the first sample. Both are differentiated with the
+        parameters. ``"estimate"``: ``n_x`` extra free parameters, started held-past.
     max_iterations :
         Most Levenberg-Marquardt iterations.
     xtol, ftol, gtol :
-        Convergence tolerances on the step, the relative cost decrease and the
-        gradient (see `sysid.optimize.levenberg_marquardt`).
+        Tolerances on the step, the relative cost decrease and the gradient
+        (`sysid.optimize.levenberg_marquardt`).
     warn :
         Emit an `IdentificationWarning` if the search did not converge.
 
@@ -616,12 +606,9 @@ def fit_greybox(
 
     Notes
     -----
-    The residual sequence of the whole record is a CasADi ``mapaccum`` of the
-    one-step map ``(x_k, S_k, u_k, y_k) -> (x_{k+1}, S_{k+1}, r_k, dr_k/dtheta)``
-    with ``S = dx/dtheta``: the Jacobian with respect to the free parameters (and
-    the initial state if estimated) is exact, from forward-mode sensitivities.
-    Standard errors assume white residuals; for the ballistic criterion on data with
-    coloured noise they are optimistic.
+    The residuals are a CasADi ``mapaccum`` of ``(x_k, S_k, u_k, y_k) -> (x_{k+1},
+    S_{k+1}, r_k, dr_k/dtheta)`` with ``S = dx/dtheta``: an exact Jacobian. Standard
+    errors assume white residuals (optimistic for V on coloured noise).
     """
     if not (isinstance(max_iterations, int) and max_iterations >= 1):
         raise IdentificationError(f"fit_greybox: max_iterations must be an int >= 1; got {max_iterations!r}")

@@ -167,13 +167,10 @@ class ArxFit:
     std_errors :
         Standard errors of `theta`, ``sqrt(diag(s^2 (Phi'Phi)^-1))``.
     residuals :
-        Equation errors ``e_k = A y_k - B u_k`` for the samples with a complete
-        regressor only, ``k = first_sample .. N-1``; shape ``(N - first_sample,)``.
-        With several segments: those of each segment (from its own ``first_sample``),
-        concatenated.
+        Equation errors ``e_k = A y_k - B u_k`` of the samples with a complete regressor,
+        ``k >= first_sample`` of each segment, concatenated.
     first_sample :
-        ``max(na, nk + nb - 1)``: index of the sample `residuals` starts at (in each
-        segment).
+        ``max(na, nk + nb - 1)``.
     na, nb, nk :
         The orders used.
     """
@@ -204,10 +201,9 @@ def arx_regressor(
 ) -> tuple[FloatArray, FloatArray, int]:
     """Regression ``y_k = phi_k' theta + e_k`` on the samples with complete regressors.
 
-    Returns ``(Phi, target, first_sample)`` with ``Phi`` of shape ``(N - n0, na + nb)``,
-    rows ``phi_k = [-y_{k-1} .. -y_{k-na}, u_{k-nk} .. u_{k-nk-nb+1}]`` and
-    ``target = y[n0:]``, ``n0 = max(na, nk + nb - 1)``. Trusts its inputs. ``Phi`` is
-    column-major, the layout of its QR factorization and its column norms.
+    Returns ``(Phi, y[n0:], n0)``, ``n0 = max(na, nk + nb - 1)``, with column-major
+    ``Phi`` of shape ``(N - n0, na + nb)``, rows ``[-y_{k-1} .. -y_{k-na}, u_{k-nk} ..
+    u_{k-nk-nb+1}]``. Trusts its inputs.
     """
     n = y.size
     n0 = max(na, nk + nb - 1)
@@ -247,9 +243,8 @@ def sriv_oe(y: FloatArray, u: FloatArray, *, nb: int, nf: int, nk: int,
     """Simplified refined instrumental-variable estimate of ``y = B/F u`` from `start`.
 
     Each of `SRIV_ITERATIONS` passes prefilters ``y`` and ``u`` by the current ``1/F``
-    and solves the ARX normal equations with instruments from the noise-free simulated
-    output ``B/F u`` (Young 1976; Ljung 1999, sec. 7.6): unlike the ARX least squares it
-    is not biased by coloured noise, so it starts an OE search near its optimum.
+    and solves the ARX normal equations with instruments from the noise-free output
+    ``B/F u`` (Young 1976; Ljung 1999, sec. 7.6): unbiased by coloured noise, unlike ARX.
 
     Parameters
     ----------
@@ -308,17 +303,15 @@ def arx_least_squares(
     nk :
         Input delay [samples] (>= 0).
     segment_starts :
-        First sample of each segment (experiment) of the record, starting with 0;
-        default one segment. No regressor reaches across a segment boundary: each
-        segment contributes its own samples ``k >= max(na, nk + nb - 1)`` (counted from
-        its start); a segment shorter than that contributes none.
+        First sample of each segment (experiment), starting with 0; default one segment.
+        No regressor reaches across a boundary: each segment contributes its samples
+        ``k >= max(na, nk + nb - 1)`` from its start.
 
     Returns
     -------
     ArxFit
-        Polynomials, parameters, standard errors and equation errors on the samples
-        ``k >= max(na, nk + nb - 1)`` (those whose regressor is complete; no initial
-        conditions are assumed).
+        Polynomials, parameters, standard errors and the equation errors of the
+        samples with a complete regressor (no initial conditions assumed).
 
     Raises
     ------
@@ -368,8 +361,8 @@ def arx_least_squares(
             "input is zero over the fitted samples); the data do not determine every "
             "parameter"
         )
-    # R of [Phi / scale, target] (its last column holds Q'target), and the rank from the
-    # singular values of the small R (Phi's): numpy's lstsq cut-off, at a third of its time
+    # R of [Phi / scale, target] (last column Q'target); the rank from the small R's
+    # singular values: numpy's lstsq cut-off, at a third of its time
     aug = np.empty((phi.shape[0], n_par + 1), order="F")
     np.divide(phi, col_scale, out=aug[:, :n_par])
     aug[:, n_par] = target
@@ -423,8 +416,8 @@ class PemFit:
     parameter_names :
         Names of `theta` entries (``"b1"``, ``"f1"``, ...).
     std_errors :
-        Standard errors of `theta` from the Jacobian (`parameter_std_errors`); when
-        the initial state is estimated, its parameters are part of the covariance.
+        Standard errors of `theta` (`parameter_std_errors`, estimated initial states in
+        the covariance).
     residuals :
         Simulation errors ``eps`` (OE) or prediction errors ``e`` (ARMAX), shape ``(N,)``.
     cost :
@@ -432,10 +425,9 @@ class PemFit:
     initial_conditions :
         ``"held"`` (the rule of `sysid.simulate`) or ``"estimated"``.
     initial_state :
-        ``w``: the part of the `scipy.signal.lfilter` (direct form II transposed) state of
-        ``1/F`` (OE, length ``nf``) or ``1/C`` (ARMAX, length ``nc``) that the samples
-        before the record leave. Held: OE ``filter_state([1], F, [y_0]*nf)``, ARMAX zeros.
-        Estimated: fitted. With several segments, each segment's, concatenated.
+        ``w``: the `scipy.signal.lfilter` state of ``1/F`` (OE, length ``nf``) or ``1/C``
+        (ARMAX, ``nc``) that the past leaves; held: OE ``filter_state([1], F, [y_0]*nf)``,
+        ARMAX zeros; estimated: fitted. Each segment's, concatenated.
     converged, message, n_iterations :
         From the optimizer.
     lm :
@@ -464,11 +456,7 @@ class PemFit:
 
 
 def _shift_into(out: FloatArray, x: FloatArray, lags: range) -> FloatArray:
-    """Fill column ``i`` of `out` with ``q^-lags[i] x``: ``x`` delayed, zeros before the record.
-
-    Every lag of a sensitivity filter is such a shift of one filtering (lags ``>= 0``).
-    Returns `out`, shape ``(x.size, len(lags))``.
-    """
+    """Fill column ``i`` of `out` with ``q^-lags[i] x`` (zeros before the record); return `out`."""
     for col, lag in enumerate(lags):
         out[:lag, col] = 0.0
         out[lag:, col] = x[: x.size - lag]
@@ -477,13 +465,11 @@ def _shift_into(out: FloatArray, x: FloatArray, lags: range) -> FloatArray:
 
 def _held_lag_responses(x: FloatArray, den: FloatArray, lags: range,
                         step: FloatArray, out: FloatArray) -> FloatArray:
-    """Columns ``lagged(x, j) / den`` from a zero filter state, one per lag ``j``, by shifting.
+    """Columns ``lagged(x, j) / den`` from a zero filter state, one per lag ``j``, into `out`.
 
-    ``lagged(x, j) = x_0 + q^-j (x - x_0)`` (the past held at ``x_0``), and ``1/den``
-    commutes with the delay ``q^-j`` from rest, so every column is ``x_0 g + q^-j v``
-    with the step response ``g`` of ``1/den`` and ``v = (x - x_0)/den``: one filtering
-    of the data for all lags (the sensitivity filters of the PEM, Ljung 1999, sec. 10.3).
-    The columns are written into `out`, shape ``(x.size, len(lags))``, and it is returned.
+    ``lagged(x, j) = x_0 + q^-j (x - x_0)`` and ``1/den`` commutes with ``q^-j`` from rest,
+    so each column is ``x_0 g + q^-j v`` with the step response ``g`` of ``1/den`` and
+    ``v = (x - x_0)/den``: one filtering for all lags (Ljung 1999, sec. 10.3).
     """
     x0 = float(x[0])
     _shift_into(out, lfilter([1.0], den, x - x0), lags)
@@ -540,9 +526,8 @@ Problem = Callable[[FloatArray], tuple[FloatArray, Callable[[], FloatArray]]]
 def _stacked_problem(problems: list[Problem], n_model: int, n_state: int) -> Problem:
     """Residuals of several segments, concatenated: shared model, own initial states.
 
-    ``theta = [model (n_model), state of segment 0 (n_state), state of segment 1, ..]``;
-    each segment's problem sees ``[model, its state]`` and its Jacobian columns land in
-    the model block and its own state block (zero elsewhere).
+    ``theta = [model (n_model), state of segment 0 (n_state), ..]``; each segment sees
+    ``[model, its state]``.
     """
     if len(problems) == 1:
         return problems[0]
@@ -575,13 +560,10 @@ def _oe_problem(
 ) -> Problem:
     """Residuals ``eps = y - B/F u`` and their exact Jacobian via sensitivity filters.
 
-    ``d yhat/d b_j = u_{k-j} / F`` (past input held: data), and ``d yhat/d f_i =
-    -yhat_{k-i} / F`` with the held past ``yhat = y_0`` (data) or, when the initial state
-    ``w`` of ``1/F`` is estimated, with a zero past (the past lives in ``w``); all
-    sensitivity filters start from zero. ``d yhat/d w_j`` is the free response of ``1/F``.
-    The Jacobian is made on request (`sysid.optimize.levenberg_marquardt` asks at
-    accepted points only), from three filterings whatever the orders: ``(u - u_0)/F``,
-    ``yhat/F`` (every lag is a shift of them) and the impulse response of ``1/F``.
+    ``d yhat/d b_j = u_{k-j} / F`` (past input held), ``d yhat/d f_i = -yhat_{k-i} / F``
+    with the past held at ``y_0`` or, with the state ``w`` of ``1/F`` estimated, zero;
+    ``d yhat/d w_j`` is the free response of ``1/F``. The Jacobian is made on request
+    from three filterings: ``(u - u_0)/F``, ``yhat/F`` and the impulse response of ``1/F``.
     """
     n = y.size
     held = np.full(nf, y[0])
@@ -624,11 +606,10 @@ def _armax_problem(
 ) -> Problem:
     """Prediction errors ``e = (A y - B u)/C`` and their exact Jacobian.
 
-    ``de/da_i = y_{k-i}/C``, ``de/db_j = -u_{k-j}/C`` (pasts held: data),
-    ``de/dc_i = -e_{k-i}/C`` with a zero past (held: past errors are zero; estimated: the
-    past lives in the initial state ``w`` of ``1/C``), all from zero filter states;
-    ``de/dw_j`` is the free response of ``1/C``. The Jacobian is made on request, each
-    signal's lags as shifts of one filtering (``(y - y_0)/C``, ``(u - u_0)/C``, ``e/C``).
+    ``de/da_i = y_{k-i}/C``, ``de/db_j = -u_{k-j}/C`` (pasts held), ``de/dc_i =
+    -e_{k-i}/C`` with a zero past (the estimated past lives in the state ``w`` of
+    ``1/C``); ``de/dw_j`` is the free response of ``1/C``. Made on request, each signal's
+    lags as shifts of one filtering.
     """
     n = y.size
     n_model = na + nb + nc

@@ -12,20 +12,16 @@
    OE-reidentified linear blocks, final PEM on V from those values and from zeros;
 6. the Hammerstein model with a noise model (eq. 30, sec. 7.6), PEM on W.
 
-Every model is kept as a named `HammersteinModel` with V and W, so the CLI can save
-them all; the wall time of each stage is recorded (for the benchmark only, never used
-in a decision). The route works on any SISO log (units from the `Dataset`); what a
-log cannot support (no steady window, fewer steps than the polynomial degree, a
-model that fails) is skipped and said in `PipelineResult.skipped`.
+Every model is kept as a named `HammersteinModel` with V and W; each stage's wall time
+is recorded (for the benchmark, never used in a decision). What a SISO log cannot
+support (no steady window, too few steps, a model that fails) is skipped and said in
+`PipelineResult.skipped`.
 
-A log of several segments (``Dataset.segment_starts``: separate experiments, or one
-log split at gaps) is used whole, each segment with its own initial state: the
-operating-point windows, the outlier search's ARX, the input steps and every ARX
-regressor stay inside a segment; the OE, ARMAX and Hammerstein PEM fits and the
-criteria V and W restart in each segment (held past, or the segment's own estimated
-initial state) and pool the errors of all samples; structure selection validates on
-each segment's end. A level shift found in one segment is corrected to the end of
-the record (said in `PipelineResult.skipped`). The models' provenance records the
+A log of several segments (``Dataset.segment_starts``) is used whole: operating-point
+windows, the outlier ARX, input steps and ARX regressors stay inside a segment; the PEM
+fits and V and W restart in each segment (held past or its own estimated initial
+state) and pool the errors; structure selection validates on each segment's end. A
+level shift is corrected to the end of the record. The models' provenance records the
 segments (``extra["n_segments"]``, ``["n_samples"]``, ``["segment_starts"]``).
 """
 
@@ -82,24 +78,18 @@ from sysid.scale import check_representable
 from sysid.steps import InputStep, detect_steps
 from sysid.structure import StructureChoice, select_structure
 
-#: LM's ``ftol`` and ``xtol`` of the linear OE and ARMAX fits of Table 2, which serve as
-#: comparisons (their V and W beside the Hammerstein's, paper secs. 6-7): they stop once a
-#: step improves the cost by under 1e-6 relative, as the structure grid's fits do
-#: (`sysid.structure.RANKING_TOLERANCE`), instead of crawling on to a final fit's 1e-12;
-#: MATLAB's ``pem`` stops at 0.01 % expected improvement. Measured against the tight fits on
-#: the shipped experiment and the four real logs: V and W within 1.1e-4 relative (the
-#: report prints four digits), parameters within 4e-3 relative (in the directions the
-#: data barely determine); the shipped experiment's four fits take 41 iterations instead
-#: of 51, a tenth of the pipeline. The Hammerstein route's fits keep the tight defaults.
+#: LM's ``ftol`` and ``xtol`` of Table 2's linear OE and ARMAX fits, which only serve as
+#: comparisons (as `sysid.structure.RANKING_TOLERANCE`; the route's fits keep 1e-12).
+#: Measured against tight fits on the shipped and four real logs: V and W within 1.1e-4
+#: relative, parameters within 4e-3; 41 iterations instead of 51 on the shipped experiment.
 COMPARISON_TOLERANCE = 1e-6
 
 #: The final model gives way to the OE from rest (orders "auto") when its own simulation
 #: from rest has more than this times the OE's mean squared error (issue 29's bar).
 REST_V_RATIO = 1.1
 #: ... and only if its static gain is below this many times the output's recorded span
-#: over the input's: a larger gain is an extrapolation the record does not support (a log
-#: cut just after an input step: from rest at that sample the fit drifts like an
-#: integrator, gain -6e6 degC/% on the TCLab log without its first ten samples).
+#: over the input's: a larger gain is an extrapolation (measured: -6e6 degC/% on the TCLab
+#: log cut just after an input step).
 REST_GAIN_SPAN_FACTOR = 10.0
 
 #: ``level_shift`` argument: ``"auto"`` (from the outlier candidates), ``"none"``, or
@@ -176,11 +166,10 @@ class OrderComparison:
 
     Notes
     -----
-    The paper's Table 2 lists V for all six models. V of a W-fitted model with a pole
-    near z = 1 is dominated by the slow drift its simulation accumulates, so it does
-    not judge whether the orders suffice: on the shipped experiment ARMAX(1,2,1)'s V
-    is 0.48 kW^2 with the operating point at 33 % and 0.94 kW^2 at 45 %, while its W
-    moves by 0.01 %. Each family is therefore judged on its own criterion.
+    The paper's Table 2 lists V for all six. V of a W-fitted model with a pole near
+    z = 1 is dominated by its simulation's drift (shipped experiment: ARMAX(1,2,1)'s V
+    0.48 kW^2 at an operating point of 33 %, 0.94 at 45 %, W within 0.01 %), so each
+    family is judged on its own criterion.
     """
 
     family: str
@@ -304,18 +293,16 @@ class PipelineResult:
     skipped :
         What could not be done and why, in words.
     warnings :
-        The messages of the `IdentificationWarning` s the fits raised (searches that
-        did not converge); `run_paper_pipeline` re-issues them as one warning.
+        The messages of the fits' `IdentificationWarning` s (unconverged searches),
+        re-issued by `run_paper_pipeline` as one warning.
     initial_state :
         Initial-state policy of the Hammerstein PEM fits (``"estimate"``, ``"held"`` or
-        ``"zero"``); each Hammerstein model's provenance repeats it as
-        ``extra["initial_state"]``.
+        ``"zero"``), repeated in their provenance as ``extra["initial_state"]``.
     structure :
-        With ``orders="auto"``: the delay estimate, every structure scored on
-        validation data, the choice and why (`sysid.structure.StructureChoice`).
+        With ``orders="auto"``: the structure search (`sysid.structure.StructureChoice`).
     rest_search :
-        With ``orders="auto"`` on a log of one segment: every structure of the OE
-        search from rest and its choice (`sysid.rest_oe.RestOESearch`).
+        With ``orders="auto"`` on a log of one segment: the OE search from rest
+        (`sysid.rest_oe.RestOESearch`).
     """
 
     raw_data: Dataset = field(repr=False)
@@ -546,32 +533,18 @@ def _findings(
     route: HammersteinRoute | None, nb: int, nf: int,
 ) -> PipelineFindings:
     by_name = {m.name: m for m in linear + hammerstein}
-    na = nf
-    base = {
-        "arx": by_name.get(f"arx_{na}_{nb}"),
-        "armax": by_name.get(f"armax_{na}_{nb}_{na}"),
-        "oe": by_name.get(f"oe_{nb}_{nf}"),
-    }
+    arx, armax, oe, final_oe, noise = (by_name.get(name) for name in (
+        f"arx_{nf}_{nb}", f"armax_{nf}_{nb}_{nf}", f"oe_{nb}_{nf}", "hammerstein_oe",
+        "hammerstein_armax"))
     oe_beats = None
-    if all(m is not None for m in base.values()):
-        oe_v = base["oe"].ballistic_mse_kw2  # type: ignore[union-attr]
-        oe_beats = bool(
-            oe_v < base["arx"].ballistic_mse_kw2  # type: ignore[union-attr]
-            and oe_v < base["armax"].ballistic_mse_kw2  # type: ignore[union-attr]
-        )
+    if arx is not None and armax is not None and oe is not None:
+        oe_beats = bool(oe.ballistic_mse_kw2 < arx.ballistic_mse_kw2
+                        and oe.ballistic_mse_kw2 < armax.ballistic_mse_kw2)
     comparisons = order_comparisons(linear, nb, nf)
-    final_oe = by_name.get("hammerstein_oe")
-    noise = by_name.get("hammerstein_armax")
-    ratio = (
-        base["oe"].ballistic_mse_kw2 / final_oe.ballistic_mse_kw2
-        if base["oe"] is not None and final_oe is not None
-        else None
-    )
-    reduction = (
-        1.0 - noise.one_step_mse_kw2 / base["armax"].one_step_mse_kw2
-        if noise is not None and base["armax"] is not None
-        else None
-    )
+    ratio = (oe.ballistic_mse_kw2 / final_oe.ballistic_mse_kw2
+             if oe is not None and final_oe is not None else None)
+    reduction = (1.0 - noise.one_step_mse_kw2 / armax.one_step_mse_kw2
+                 if noise is not None and armax is not None else None)
     zeros_diff = it_init = it_zeros = None
     if route is not None:
         it_init = route.final_oe.n_iterations
@@ -712,19 +685,16 @@ def run_paper_pipeline(
     from_zeros :
         Also run the final PEM from zeros (the paper's check, sec. 7.5).
     progress :
-        Called with the name of each stage as it starts, and inside the long
-        Hammerstein fits with their iteration and cost (at most once a second).
+        Called with each stage's name as it starts, and with the long fits' iteration
+        and cost (at most once a second).
     initial_state :
-        Initial-state policy of the Hammerstein PEM fits: ``"estimate"`` (default; each
-        segment's initial state fitted, as MATLAB's ``'estimate'``), ``"held"`` or
-        ``"zero"``. Stated in `PipelineResult.initial_state` and each model's provenance.
+        Initial-state policy of the Hammerstein PEM fits: ``"estimate"`` (each segment's
+        fitted, as MATLAB's ``'estimate'``), ``"held"`` or ``"zero"``.
     orders :
-        ``"paper"`` (default): `degree`, `nb`, `nf`, `nk` as given. ``"auto"``: the
-        delay and the orders (degree, nb, nf, nk) chosen on validation data by
-        `sysid.structure.select_structure` (the given ones are the paper's structure it
-        is compared with); when the choice differs, the Hammerstein models at the
-        given orders are fitted too (``hammerstein_oe_paper``,
-        ``hammerstein_armax_paper``) and shown beside it.
+        ``"paper"``: `degree`, `nb`, `nf`, `nk` as given. ``"auto"``: chosen on
+        validation data by `sysid.structure.select_structure` against the given ones;
+        when the choice differs, the Hammerstein models at the given orders are fitted
+        too (``hammerstein_oe_paper``, ``hammerstein_armax_paper``).
     nc :
         Order of the noise model's ``C``; default ``nf`` (the paper: ``nc = na``).
     min_nk :
@@ -732,16 +702,13 @@ def run_paper_pipeline(
         loop that reads before it writes (`sysid.structure.select_structure`).
     means_on_steady_curve :
         Without a steady window, move the sample-mean ``P_nom`` onto the steady-state
-        curve (`sysid.offset`): for a designed test of a Hammerstein plant, whose
-        curvature puts the mean power off that curve (the commissioning journey). Off by
-        default: on the TCLab log it made the written models worse (best V 0.173 against
-        0.0856 without it).
+        curve (`sysid.offset`), for a designed test of a curved Hammerstein plant. Off by
+        default (measured on TCLab: best V 0.173 with it, 0.0856 without).
 
     Returns
     -------
     PipelineResult
-        Preprocessed data, every model (named), steps, findings, timings, and what
-        was skipped.
+        Preprocessed data, every model, steps, findings, timings and what was skipped.
 
     Raises
     ------
@@ -948,12 +915,8 @@ def _run_stages(
 def _rest_model(data: Dataset, op: OperatingPoint, at: RestPoint | None, min_nk: int,
                 skipped: list[str]) -> tuple[NamedModel | None, RestOESearch | None]:
     """The best linear OE simulated from rest (`sysid.rest_oe`) and its search, or Nones
-    with the reason.
-
-    It is fitted on the log as recorded (no repairs): the model a user checks first. Its
-    rest is `at` (an operating point the user gave: the rest before the record), else
-    the first sample.
-    """
+    with the reason; fitted on the log as recorded, from rest at `at`, else the first
+    sample."""
     if data.n_segments > 1:
         skipped.append("OE from rest not searched: the log holds several segments")
         return None, None
@@ -978,12 +941,9 @@ def _better_from_rest(final: NamedModel, rest: NamedModel, data: Dataset,
                       at: RestPoint | None, skipped: list[str]) -> NamedModel:
     """`final`, unless its simulation from rest is worse than `REST_V_RATIO` x the OE's.
 
-    A model fitted with an estimated initial state can trade a pole near ``z = 1``
-    against that state: it matches the record but simulates badly from rest (on the
-    TCLab log 2,500 times the OE's error, its static gain not determined). The OE from
-    rest is then the better prediction model, and the reason is listed. Not when the OE's
-    own static gain exceeds `REST_GAIN_SPAN_FACTOR` times the recorded span ratio: then
-    the first sample was no rest, and the OE drifts instead.
+    A fit with an estimated initial state can trade a pole near ``z = 1`` against that
+    state (TCLab: 2,500 times the OE's error from rest). Not when the OE's static gain
+    exceeds `REST_GAIN_SPAN_FACTOR` times the recorded span ratio (no rest at the start).
     """
     span_ratio = float(np.ptp(data.power_kw) / np.ptp(data.triac_pct))
     gain = abs(rest.model.linear_static_gain * float(rest.model.input_poly[0]))
@@ -1011,11 +971,8 @@ def _better_from_rest(final: NamedModel, rest: NamedModel, data: Dataset,
 def _on_steady_state_curve(
     data: Dataset, choice: OperatingPointChoice, degree: int, nk: int, skipped: list[str]
 ) -> OperatingPointChoice:
-    """The sample-mean operating point with ``P_nom`` moved onto the steady-state curve.
-
-    The offset is `sysid.offset.steady_state_offset_kw` on the record's segments; where
-    it cannot be estimated the means are kept and the reason joins `skipped`.
-    """
+    """The sample-mean operating point with ``P_nom`` moved onto the steady-state curve
+    (`sysid.offset.steady_state_offset_kw`), else the means and the reason in `skipped`."""
     op = choice.operating_point
     segments = [(seg.power_kw - op.power_kw, seg.triac_pct - op.triac_pct)
                 for seg in data.segments()]
@@ -1034,13 +991,9 @@ def _choose_final(
 ) -> NamedModel | None:
     """The noise-model Hammerstein (the paper's final model), else the Hammerstein-OE.
 
-    The noise model shares ``A`` with the input path: a slow drift of the output (a
-    random walk, as a wandering grid voltage makes) can pull a pole of ``A`` onto
-    ``z = 1`` and give the input an integrator that is not there. When the
-    noise-model Hammerstein's slowest time constant is longer than the record (its
-    longest segment, for a record of several), the Hammerstein-OE (whose poles are
-    the input's alone) is the final model, and the reason is listed with what was
-    skipped.
+    The noise model shares ``A`` with the input path, so an output drift can pull a pole
+    onto ``z = 1``: when its slowest time constant is longer than `n_samples` (the
+    longest segment) the Hammerstein-OE is final, and the reason joins `skipped`.
     """
     by_name = {m.name: m for m in hammerstein}
     armax, oe = by_name.get("hammerstein_armax"), by_name.get("hammerstein_oe")

@@ -148,11 +148,9 @@ def estimate_delay(
     threshold_sigma :
         A coefficient is significant if ``|b_j| > threshold_sigma * std(b_j)``.
     min_relative_size :
-        ... and at least this share of the largest ``|b_j|``. Coloured noise (a slow
-        grid wander) and the input nonlinearity bias the ARX fit: on a heater with three
-        samples of delay, lags 0 and 1 came out at 3.7 sigma with 0.6 % of the size of
-        lag 3's coefficient (94 sigma). The share leaves the delays of the three real
-        logs and of the paper's experiment unchanged (tests).
+        ... and at least this share of the largest ``|b_j|``: coloured noise and the
+        input nonlinearity bias ARX (a heater with delay 3: lags 0 and 1 at 3.7 sigma,
+        0.6 % of lag 3's 94-sigma coefficient).
 
     Returns
     -------
@@ -215,25 +213,22 @@ class CandidateScore:
         V on the validation blocks with no initial state fitted to the scored samples
         (`_validation_errors`) [output unit^2].
     validation_v_free_state_kw2 :
-        V on the validation blocks with each block's initial state fitted to it by
-        least squares [output unit^2]: the choice's criterion only when no candidate's
-        transients die out within the estimation record (every one an integrator or a
-        drift), where a state carried into a validation block drifts off with it.
+        V on the validation blocks with each block's initial state fitted to it [output
+        unit^2]: the choice's criterion only when every candidate's time constant is
+        longer than the estimation record.
     aic, bic :
         ``N log V + 2 p`` and ``N log V + p log N`` on the estimation blocks.
     converged :
         Every search of this structure converged.
     slowest_tau_samples :
-        Time constant of the slowest pole of ``F`` [samples], the largest over the
-        folds (``-1 / ln|z|``; ``inf`` for a pole on or outside the unit circle).
+        Time constant ``-1 / ln|z|`` of the slowest pole of ``F`` [samples], the largest
+        over the folds (``inf`` on or outside the unit circle).
     static_gain_rsd :
-        Relative standard deviation of the static gain ``f'(0) B(1) / F(1)`` from the
-        estimation fit's covariance (delta method), the largest over the folds [-]
-        (`_static_gain_rsd`).
+        Relative standard deviation of the static gain ``f'(0) B(1) / F(1)`` (delta
+        method), the largest over the folds [-].
     pole_zero_share :
-        The nearest cancellation of a pole by a zero: the smallest ``|p - z| / |1 - p|``
-        over the poles ``p`` of ``F`` and the zeros ``z`` of ``B``, the smallest over the
-        folds [-] (`_pole_zero_share`; ``inf`` without a pole or a zero).
+        The smallest ``|p - z| / |1 - p|`` over the poles ``p`` of ``F`` and zeros ``z``
+        of ``B``, the smallest over the folds [-] (``inf`` without a pole or a zero).
     """
 
     degree: int
@@ -284,15 +279,14 @@ class StructureChoice:
     validation_fit_percent :
         ``compare``-style fit [%] of the chosen model on the validation data.
     chosen_parameters :
-        The chosen structure's parameters fitted on the (first) estimation block, by
-        name: a start for the fit on the whole record.
+        The chosen structure's parameters on the (first) estimation block, by name: a
+        start for the fit on the whole record.
     estimation_samples :
-        Samples of the shortest fold's estimation blocks: a candidate whose slowest time
-        constant is longer is not chosen (it cannot be told from an integrator there).
+        Samples of the shortest fold's estimation blocks; a slower candidate is not chosen.
     criterion :
-        What the choice compared: ``"validation"`` (`CandidateScore.validation_v_kw2`) or,
-        when every candidate's time constant is longer than the estimation record,
-        ``"free_state"`` (`CandidateScore.validation_v_free_state_kw2`).
+        What the choice compared: ``"validation"`` (`CandidateScore.validation_v_kw2`)
+        or ``"free_state"`` (`CandidateScore.validation_v_free_state_kw2`, when every
+        candidate is slower than the estimation record).
     """
 
     delay: DelayEstimate
@@ -316,12 +310,8 @@ class StructureChoice:
 
 @dataclass(frozen=True, eq=False)
 class _Fold:
-    """Estimation and validation blocks of one fold, segment by segment.
-
-    ``lead_in``: each validation block directly follows the estimation block of the same
-    index (the holdout split and the first of two folds); its score then continues the
-    estimation block's simulation, initial state included (`_validation_errors`).
-    """
+    """Estimation and validation blocks of one fold, segment by segment; ``lead_in``: each
+    validation block follows its estimation block (`_validation_errors`)."""
 
     est: list[Segment]
     val: list[Segment]
@@ -388,9 +378,8 @@ def _static_gain(orders: HammersteinOrders, theta: FloatArray) -> float:
 def _pole_zero_share(orders: HammersteinOrders, theta: FloatArray) -> float:
     """Smallest ``|p - z| / |1 - p|`` over the poles of ``F`` and the zeros of ``B`` [-].
 
-    ``(p - z) / (1 - p)`` is the static gain of the mode ``p`` in the pair
-    ``(1 - z q^-1) / (1 - p q^-1) = 1 + (p - z) q^-1 / (1 - p q^-1)``, as a share of the
-    pair's direct part (`MIN_POLE_ZERO_SHARE`). ``inf`` without a pole or a zero.
+    ``(1 - z q^-1) / (1 - p q^-1) = 1 + (p - z) q^-1 / (1 - p q^-1)``: the mode's share of
+    the pair's static gain (`MIN_POLE_ZERO_SHARE`). ``inf`` without a pole or a zero.
     """
     a, beta, _, _ = orders.polynomials(theta)
     poles = np.roots(a)
@@ -404,11 +393,8 @@ def _pole_zero_share(orders: HammersteinOrders, theta: FloatArray) -> float:
 
 def _static_gain_rsd(orders: HammersteinOrders, theta: FloatArray,
                      covariance: FloatArray) -> float:
-    """Relative standard deviation of ``f'(0) B(1) / F(1)`` by the delta method [-].
-
-    ``covariance``: of the model parameters (first `n_model` of ``theta``); the gradient
-    by forward differences. ``inf`` where the gain is 0 or not finite.
-    """
+    """Relative standard deviation of ``f'(0) B(1) / F(1)`` by the delta method [-], the
+    gradient by forward differences; ``inf`` where the gain is 0 or not finite."""
     p = orders.n_model
     base = _static_gain(orders, theta[:p])
     if not math.isfinite(base) or base == 0.0:
@@ -568,15 +554,13 @@ def select_structure(
     validation_fraction :
         Share of each segment (its end) held out for validation.
     n_refine :
-        Number of best dynamics ``(nb, nf, nk)`` of the grid (at degrees 1 and the
-        paper's; the fewest parameters first among those within `PARSIMONY_MARGIN` of
-        the lowest V, `_parsimony_order`) tried with every degree 1..`degree_max`.
+        Number of best dynamics ``(nb, nf, nk)`` of the grid (fewest parameters first
+        within `PARSIMONY_MARGIN`) tried with every degree 1..`degree_max`.
     max_iterations :
         Iteration limit of each fit.
     min_nk :
-        Smallest delay tried [samples]. 1 for a log written by a loop that reads the
-        output before it writes the input (every `czmpc run` log): such a loop cannot
-        see its own write within the same sample, so ``nk = 0`` would only fit jitter.
+        Smallest delay tried [samples]: 1 for a loop that reads the output before it
+        writes the input (every `czmpc run` log), where ``nk = 0`` only fits jitter.
 
     Returns
     -------
