@@ -27,20 +27,17 @@ class StepDiagnostics:
     setpoint_kw :
         Setpoint as received [kW] (may be non-finite).
     setpoint_used_kw :
-        Setpoint the step worked with [kW]: the received one (or the previous one
-        held when the received one was not finite) after the optional ramp and filter.
+        Setpoint the step worked with [kW]: the received or held one after the optional
+        ramp and filter.
     setpoint_held :
         True if the received setpoint was rejected and the previous one was held.
     setpoint_verdict :
-        Why a setpoint was rejected, or ``"valid"``: ``"missing"`` (None),
-        ``"not finite"``, ``"below power_min_kw"``, ``"beyond MAX_SETPOINT_KW"`` or
-        ``"above power_max_kw"``.
+        ``"valid"`` or why the setpoint was rejected (`czmpc.supervision.SetpointShaper.verdict`).
     triac_pct :
         What `OffsetFreeMPC.step` returned [%].
     measurement_used :
-        False if the measurement update was skipped: a sample that failed a validity
-        check (`verdict`), one whose innovation exceeds
-        `czmpc.kalman.MAX_INNOVATION_KW`, or any sample in ``OFF``.
+        False if the measurement update was skipped (`verdict`,
+        `czmpc.kalman.MAX_INNOVATION_KW`, or ``OFF``).
     innovation_kw :
         ``eps_k = y_k - C z_{k|k-1}`` [kW] (0 when the measurement was not used).
     state_estimate :
@@ -76,8 +73,7 @@ class StepDiagnostics:
     verdict :
         Measurement validity (`czmpc.validation.Verdict`).
     level_change_accepted :
-        True if the measurement was accepted only because the rate/spike check
-        re-opened after repeated rejections.
+        True if the measurement was accepted only because the rate/spike check re-opened.
     innovation_std_kw :
         Predicted innovation std the spike gate used [kW].
     samples_without_measurement :
@@ -85,8 +81,8 @@ class StepDiagnostics:
     bad_solves_in_row :
         Consecutive QP solves (this one included) whose result was not used.
     advised_triac_pct :
-        The input the controller would apply in ``ON`` [%] (equals ``triac_pct`` in
-        ``ON``; the shadow advice in ``PREDICT``; the held input in ``OFF``).
+        The input the controller would apply in ``ON`` [%] (the shadow advice in
+        ``PREDICT``, the held input in ``OFF``).
     applied_triac_pct :
         The input applied over the previous sample as the estimator used it [%].
     triac_limits_pct :
@@ -96,9 +92,8 @@ class StepDiagnostics:
     transition :
         The mode request handled since the previous step, or None.
     rolled_back_samples :
-        Past samples whose measurement updates this step undid: a frozen sensor was
-        detected, so the readings it gave before detection are judged invalid too and
-        the estimator was rolled back to the last live sample (0 otherwise).
+        Past samples whose measurement updates this step undid on detecting a frozen
+        sensor (the estimator rolled back to its last live sample); 0 otherwise.
     """
 
     k: int

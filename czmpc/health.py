@@ -429,7 +429,10 @@ class ModelHealthMonitor:
     def _conclude(self, f_stat: float, q: int, dof_den: int, n: int, finding: str) -> None:
         """Record a partial F test of ``q`` directions; latch the alarm when it exceeds its limit."""
         self._f, self._dof = f_stat, q
-        self._f_limit = self._limit(q, dof_den)
+        key = (q, dof_den)
+        if key not in self._limits:
+            self._limits[key] = float(special.fdtri(q, dof_den, 1.0 - self.settings.false_alarm_per_test))
+        self._f_limit = self._limits[key]
         self._p = float(special.fdtrc(q, dof_den, f_stat))
         if f_stat > self._f_limit and not self.stale_alarm:
             self.stale_alarm = True
@@ -438,13 +441,6 @@ class ModelHealthMonitor:
                 f"stale model: {finding} (F = {f_stat:.3g} > {self._f_limit:.3g}, p = "
                 f"{self._p:.2g} < {self.settings.false_alarm_per_test:g}, {q} directions, "
                 f"{n} samples)")
-
-    def _limit(self, q: int, dof_den: int) -> float:
-        key = (q, dof_den)
-        if key not in self._limits:
-            self._limits[key] = float(special.fdtri(q, dof_den,
-                                                    1.0 - self.settings.false_alarm_per_test))
-        return self._limits[key]
 
     def _test(self) -> None:
         rows = np.asarray(self._rows, dtype=float)

@@ -38,6 +38,7 @@ from sim.heater import (
     STEFAN_BOLTZMANN_KW_PER_M2_K4,
     HeaterParams,
     VirtualHeater,
+    _relative_resistance,
     steady_state,
 )
 from sim.model_plant import ModelPlant
@@ -337,7 +338,7 @@ def heater_time_constant_s(params: HeaterParams, triac_pct: float | None = None)
     """
     s = params.initial_triac_pct if triac_pct is None else triac_pct
     power_kw, temp_k = steady_state(s, params)
-    rho = 1.0 + params.resistance_tc_per_k * (temp_k - params.reference_temp_k)
+    rho = _relative_resistance(temp_k, params)
     conductance_kw_per_k = (4.0 * params.emissivity_area_m2 * STEFAN_BOLTZMANN_KW_PER_M2_K4
                             * temp_k**3 + power_kw * params.resistance_tc_per_k / rho)
     return params.heat_capacity_kj_per_k / conductance_kw_per_k

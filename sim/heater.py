@@ -150,7 +150,7 @@ class HeaterParams:
         for name, inside, expected in ranges:
             if not inside:
                 raise PlantError(f"HeaterParams.{name} must be {expected}; got {getattr(self, name)!r}")
-        rho_wall = 1.0 + self.resistance_tc_per_k * (self.wall_temp_k - self.reference_temp_k)
+        rho_wall = _relative_resistance(self.wall_temp_k, self)
         if rho_wall <= 0.0:
             raise PlantError("HeaterParams: the relative resistance at the wall temperature, 1 + "
                              "resistance_tc_per_k * (wall_temp_k - reference_temp_k), must be > 0; "
@@ -247,9 +247,8 @@ def steady_state(
 
 
 def _check_input(triac_pct: float, exogenous: Exogenous) -> None:
-    if isinstance(triac_pct, bool) or not isinstance(triac_pct, int | float | np.floating):
-        raise PlantError(f"VirtualHeater: triac_pct must be a number in [0, 100]; got {triac_pct!r}")
-    if not 0.0 <= triac_pct <= 100.0:  # also refuses NaN
+    if (isinstance(triac_pct, bool) or not isinstance(triac_pct, int | float | np.floating)
+            or not 0.0 <= triac_pct <= 100.0):  # also refuses NaN
         raise PlantError(f"VirtualHeater: triac_pct must be a number in [0, 100]; got {triac_pct!r}")
     v = exogenous.grid_voltage_factor
     if not (math.isfinite(v) and v > 0.0):
