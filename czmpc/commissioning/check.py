@@ -192,10 +192,7 @@ def write_check(check: ModelCheck, model_path: str | Path) -> Path:
 # --- the checks ------------------------------------------------------------------------
 
 def _stability(model: HammersteinModel) -> CheckItem:
-    ra = np.abs(roots_z(model.a))
-    rc = np.abs(roots_z(model.c))
-    top_a = float(ra.max()) if ra.size else 0.0
-    top_c = float(rc.max()) if rc.size else 0.0
+    top_a, top_c = (float(np.max(np.abs(roots_z(p)), initial=0.0)) for p in (model.a, model.c))
     if top_a >= 1.0 or top_c >= 1.0:
         return CheckItem(name="stability", status="fail", value=max(top_a, top_c),
                          detail=f"largest root |z| of A {top_a:.6f}, of C {top_c:.6f}: not "
