@@ -207,19 +207,15 @@ class DriftingPlant:
         self.ts_s = float(plant.ts_s)
         self.initial_triac_pct = float(initial_triac_pct)
         self._set = set_dynamics
-        self._line: deque[float] = deque()
-        self._k = 0
-        self._next_event = 0
-        self.gain_factor = variation.gain_factor
-        self.tau_s = variation.tau_s
+        self._rewind()
 
-    def _start(self) -> None:
+    def _rewind(self) -> None:
+        """The starting variation, no drift applied, the delay line full of the initial input."""
         self._k = 0
         self._next_event = 0
         self.gain_factor = self.variation.gain_factor
         self.tau_s = self.variation.tau_s
-        self._set(self.gain_factor, self.tau_s)
-        self._line = deque([self.initial_triac_pct] * self.variation.extra_delay_samples)
+        self._line: deque[float] = deque([self.initial_triac_pct] * self.variation.extra_delay_samples)
 
     def reset(self, rng: np.random.Generator | int | None = None) -> float:
         """Start a new run with the starting variation (drifts not yet applied).
@@ -234,7 +230,8 @@ class DriftingPlant:
         float
             The first measured power [kW].
         """
-        self._start()
+        self._rewind()
+        self._set(self.gain_factor, self.tau_s)
         return float(self.plant.reset(rng))
 
     def step(self, triac_pct: float, exogenous: Exogenous = NOMINAL) -> float:
