@@ -59,14 +59,12 @@ class LMResult:
     jacobian :
         Jacobian ``dr/dtheta`` at `theta`, shape ``(N, p)``.
     factor :
-        `triangular_factor` of ``[jacobian, residuals]``, shape ``(p + 1, p + 1)``: its
-        leading ``(p, p)`` block is the ``R`` of the Jacobian (for standard errors and
-        the covariance without factoring the Jacobian again).
+        `triangular_factor` of ``[jacobian, residuals]``, shape ``(p + 1, p + 1)``; its
+        leading ``(p, p)`` block is the Jacobian's ``R``.
     cost :
-        Mean of the squared residuals at `theta` (V or W when the residuals are the
-        simulation or prediction errors).
+        Mean of the squared residuals at `theta` (V or W).
     n_iterations :
-        Iterations used (one Jacobian evaluation and a damping search each).
+        Iterations used (one Jacobian and a damping search each).
     converged :
         True if a convergence test (ftol, xtol, gtol or zero cost) was met.
     message :
@@ -92,10 +90,9 @@ def triangular_factor(jac: FloatArray, free: FloatArray | None = None,
                       last: FloatArray | None = None, *, overwrite: bool = False) -> FloatArray:
     """``R`` of the QR factorization of ``[J[:, free], last]`` (Householder, LAPACK geqrf).
 
-    The columns are copied once into a column-major block and factored in place:
-    ``numpy.linalg.qr`` on the row-major Jacobian costs four times more, most of it in a
-    transposing copy (12,000 x 9: 1.2 ms against 0.3 ms). ``overwrite``: a column-major
-    ``jac`` (no ``free``, no ``last``) is factored in its own memory, which it then loses.
+    Factored in place in one column-major copy (measured on 12,000 x 9: 0.3 ms against
+    ``numpy.linalg.qr``'s 1.2 ms). ``overwrite``: a column-major ``jac`` (no ``free``, no
+    ``last``) is factored in its own memory, which it then loses.
     """
     cols = range(jac.shape[1]) if free is None else np.flatnonzero(free).tolist()
     if overwrite and free is None and last is None and jac.flags.f_contiguous:
@@ -119,17 +116,15 @@ def triangular_factor(jac: FloatArray, free: FloatArray | None = None,
     return out
 
 
-#: What ``fun`` may return as its Jacobian: the array, or a callable that makes it. The
-#: callable is called only where the trial point is accepted, so a rejected trial costs
-#: one residual evaluation, not the sensitivity filters of every parameter.
+#: What ``fun`` may return as its Jacobian: the array, or a callable that makes it, called
+#: only at accepted trial points (a rejected trial costs the residuals alone).
 Jacobian = FloatArray | Callable[[], FloatArray]
 
 
 def _evaluate(
     fun: Callable[[FloatArray], tuple[FloatArray, Jacobian]], theta: FloatArray
 ) -> tuple[FloatArray, Jacobian, float] | None:
-    """``fun(theta)``'s residuals, checked 1-D, its Jacobian and ``sum r^2``; None if the
-    residuals are not finite."""
+    """``fun(theta)``'s residuals (checked 1-D), Jacobian and ``sum r^2``; None if not finite."""
     r_raw, jac = fun(theta)
     r = np.asarray(r_raw, dtype=float)
     if r.ndim != 1:
@@ -142,9 +137,8 @@ def _evaluate(
 
 
 def _factored(jac: Jacobian, r: FloatArray, p: int) -> tuple[FloatArray, FloatArray] | None:
-    """The Jacobian (made if lazy), checked for shape ``(n, p)``, and the
-    `triangular_factor` of ``[J, r]``; None if that factor is not finite (a nan or inf in
-    ``J`` reaches it: the check costs a small matrix, not a pass over ``J``)."""
+    """The Jacobian (made if lazy, shape checked) and the `triangular_factor` of ``[J, r]``;
+    None if that factor is not finite (a nan or inf in ``J`` reaches it)."""
     out = np.asarray(jac() if callable(jac) else jac, dtype=float)
     if out.shape != (r.size, p):
         raise IdentificationError(
@@ -159,9 +153,8 @@ def _damped_solver(r_mat: FloatArray, qtr: FloatArray,
                    d: FloatArray) -> Callable[[float], FloatArray]:
     """``s(mu) = argmin |R s + Q'r|^2 + mu |D s|^2`` for any damping ``mu``, one SVD.
 
-    With ``t = D s`` and ``R D^-1 = U S V'``: ``t = -V S / (S^2 + mu) U'Q'r``. One SVD
-    per iteration serves every trial of its damping search (the stacked least squares
-    ``[R; sqrt(mu) D] s = [-Q'r; 0]`` solved anew per trial costs as much each time).
+    With ``t = D s`` and ``R D^-1 = U S V'``: ``t = -V S / (S^2 + mu) U'Q'r``, so one SVD
+    serves every trial of an iteration's damping search.
     """
     u, sing, vt = np.linalg.svd(r_mat / d, full_matrices=False)
     coef = u.T @ qtr
@@ -203,10 +196,9 @@ def _secant_update(second: FloatArray, step: FloatArray, y_sharp: FloatArray,
                    y_full: FloatArray) -> FloatArray:
     """NL2SOL's sized structured secant update of ``S`` (Dennis, Gay and Welsch 1981).
 
-    ``S`` approximates ``sum_k r_k d^2 r_k/dtheta^2``, the part of the Hessian that
-    Gauss-Newton leaves out. Sized by ``min(1, |s'y#| / |s'Ss|)``, then the symmetric
-    rank-two update with ``S+ s = y#``, where ``y# = (J+ - J)' r+`` and ``y = J+'r+ - J'r``;
-    unchanged (only sized) where ``y's <= 0``.
+    Sized by ``min(1, |s'y#| / |s'Ss|)``, then the symmetric rank-two update with
+    ``S+ s = y#``, ``y# = (J+ - J)' r+`` and ``y = J+'r+ - J'r``; only sized where
+    ``y's <= 0``.
     """
     s_s = float(step @ second @ step)
     if s_s > 0:
@@ -236,15 +228,13 @@ def _as_bound(bound: FloatArray | None, p: int, fill: float, name: str) -> Float
 DEFAULT_XTOL = 1e-10
 DEFAULT_FTOL = 1e-12
 #: Progress test: the search stops (converged) when the cost fell by less than this,
-#: relative, over the last `PROGRESS_WINDOW` iterations. A slow crawl along a flat
-#: valley (a pole creeping towards z = 1) then ends as an answer instead of running
-#: into the iteration cap; 1e-6 of V per ten iterations is far below any difference
-#: the criteria resolve (MATLAB's pem stops at 1e-4 expected improvement).
+#: relative, over the last `PROGRESS_WINDOW` iterations, so a crawl along a flat valley
+#: ends instead of hitting the cap (MATLAB's pem stops at 1e-4 expected improvement).
 DEFAULT_PROGRESS_RTOL = 1e-6
 #: Iterations over which the progress test compares the cost.
 PROGRESS_WINDOW = 10
-#: Cap on the iterations of every prediction-error search (a safety net: the progress
-#: test ends a search long before it on a well-posed problem). Stated in the report.
+#: Cap on the iterations of every prediction-error search (a safety net behind the
+#: progress test). Stated in the report.
 MAX_ITERATIONS = 1000
 
 
@@ -271,22 +261,19 @@ def levenberg_marquardt(
     ----------
     fun :
         ``fun(theta) -> (r, J)``: residuals, shape ``(N,)``, and their Jacobian
-        ``dr/dtheta``, shape ``(N, p)``, or a callable without arguments that returns
-        it: then it is called only at accepted trial points (a rejected trial costs the
-        residuals alone). It may return non-finite values at a trial point (for example
-        an unstable filter); that trial is rejected and the damping raised.
+        ``dr/dtheta``, shape ``(N, p)``, or a `Jacobian` callable. Non-finite values at a
+        trial point (an unstable filter) reject it and raise the damping.
     theta0 :
-        Starting point, shape ``(p,)``. It is clipped to the bounds and projected.
+        Starting point, shape ``(p,)``, clipped to the bounds and projected.
     lower, upper :
-        Bounds on ``theta`` (``-inf``/``+inf`` entries allowed), or None. Trial points
-        are clipped into them; parameters at a bound whose gradient pushes outward are
-        held fixed for that step (a simple active set).
+        Bounds on ``theta`` (``-inf``/``+inf`` allowed), or None. Trial points are
+        clipped into them; parameters at a bound whose gradient pushes outward are held
+        for that step (a simple active set).
     project :
-        Maps a trial point into the feasible set after clipping, or None. Used to keep
-        F(q) and C(q) stable (`sysid.polynomials.reflect_unstable_roots`).
+        Maps a trial point into the feasible set after clipping, or None (to keep F(q)
+        and C(q) stable: `sysid.polynomials.reflect_unstable_roots`).
     max_iterations :
-        Cap on the iterations (each: one Jacobian, one damping search); the progress
-        test (`progress_rtol`) normally ends the search first.
+        Cap on the iterations; the progress test normally ends the search first.
     xtol :
         Converged when a step satisfies ``||s|| <= xtol (xtol + ||theta||)``.
     ftol :
@@ -298,18 +285,16 @@ def levenberg_marquardt(
         the residual and a Jacobian column).
     progress_rtol :
         Converged when the cost fell by at most ``progress_rtol`` relative over the
-        last `PROGRESS_WINDOW` iterations: the budget follows progress, so a search
-        that still improves V keeps going (up to `max_iterations`) and one that crawls
-        stops. 0 turns the test off.
+        last `PROGRESS_WINDOW` iterations; 0 turns the test off.
     callback :
-        Called after every iteration as ``callback(iteration, cost)`` with the cost
-        (mean squared residual) of the best iterate so far: progress on long fits.
+        Called after every iteration as ``callback(iteration, cost)`` with the best
+        iterate's cost (mean squared residual).
 
     Returns
     -------
     LMResult
-        The best iterate (the cost never increases, so the last accepted point), with
-        ``converged=False`` and a message if no test was met within `max_iterations`.
+        The best (last accepted) iterate; ``converged=False`` and a message if no test
+        was met within `max_iterations`.
 
     Raises
     ------
@@ -384,9 +369,8 @@ def levenberg_marquardt(
         if ssr <= _TINY:
             converged, message = True, "the sum of squared residuals is zero"
             break
-        # r_aug: R of the QR factorization of [J, r] (made where the point was accepted):
-        # J = Q R_J and r = Q R_r + (a part orthogonal to J), so J'r = R_J' R_r and the
-        # column norms of J are R_J's.
+        # r_aug = R of [J, r]: J = Q R_J, r = Q R_r + (orthogonal to J), so J'r = R_J' R_r
+        # and J's column norms are R_J's
         grad = r_aug[:, :p].T @ r_aug[:, p]
         col_norms = np.sqrt(np.einsum("ij,ij->j", r_aug[:, :p], r_aug[:, :p]))
         if pending is not None:  # y# = (J - J_old)'r and y = J'r - J_old'r_old

@@ -58,9 +58,8 @@ N_POLE_STARTS = 4
 #: The structures with the lowest V_rest from the ARX and SRIV starts that are also
 #: refined from the fixed-pole starts.
 N_REFINED = 4
-#: Of the structures within this share of the lowest V_rest, the one with the fewest
-#: parameters is chosen (a record cannot tell them apart; fewer parameters extrapolate
-#: more safely).
+#: Of the structures within this share of the lowest V_rest, the fewest parameters is
+#: chosen (the record cannot tell them apart; fewer extrapolate more safely).
 PARSIMONY_RTOL = 0.02
 #: Structures within this share of the lowest ``V_rest`` are ones the record does not
 #: tell apart (`RestOESearch.near`; the margin the tests allow identify over the
@@ -82,13 +81,12 @@ class RestOEFit:
     nb, nf, nk :
         Number of ``B`` coefficients, poles, delay [samples].
     b :
-        ``B(q)`` in the data's units (output per input), ascending powers of ``q^-1``,
-        ``nk`` leading zeros.
+        ``B(q)`` [output unit per input unit], ascending powers of ``q^-1``, ``nk``
+        leading zeros.
     f :
         ``F(q)``, monic and stable.
     v_rest :
-        ``V_rest`` [output unit^2]: mean squared simulation error from rest after the
-        burn-in.
+        ``V_rest`` [output unit^2] (module notation).
     burn_in_steps :
         Samples left out of ``V_rest`` at the start.
     start :
@@ -141,11 +139,8 @@ class RestOESearch:
     candidates: tuple[RestOEFit, ...] = field(repr=False)
 
     def near(self, share: float = NEAR_V_SHARE) -> tuple[RestOEFit, ...]:
-        """The structures within ``share`` of the lowest ``V_rest``, lowest first.
-
-        More than one: the record does not single out a structure; the chosen is the
-        fewest parameters among those within `PARSIMONY_RTOL`.
-        """
+        """The structures within ``share`` of the lowest ``V_rest``, lowest first (more than
+        one: the record does not single out a structure)."""
         if not (math.isfinite(share) and share >= 0.0):
             raise IdentificationError(f"RestOESearch.near: share must be finite and >= 0; "
                                       f"got {share!r}")
@@ -160,10 +155,8 @@ class RestPoint:
 
     Parameters
     ----------
-    input :
-        Input at rest [input unit].
-    output :
-        Output at rest [output unit].
+    input, output :
+        Input and output at rest [their units].
     """
 
     input: float
@@ -247,8 +240,8 @@ def rest_oe_model(fit: RestOEFit, data: Dataset, *, operating_triac_pct: float,
     Returns
     -------
     HammersteinModel
-        ``kind = "linear"``, ``linear_block = "oe"``, ``C = A = F``, the noise standard
-        deviation from the errors after the burn-in, V and W on `data`.
+        ``kind = "linear"``, ``linear_block = "oe"``, ``C = A = F``, noise from the
+        errors after the burn-in, V and W on `data`.
     """
     u, y = data.triac_pct, data.power_kw
     rest_kw = rest.output + fit.static_gain * (operating_triac_pct - rest.input)
@@ -347,8 +340,7 @@ def search_oe_from_rest(
     y, u :
         Output and input as logged, shape ``(N,)``, finite (any units).
     burn_in_steps :
-        Samples left out of ``V_rest`` at the start; default `BURN_IN_SHARE` of the
-        record.
+        Samples left out of ``V_rest`` at the start; default `BURN_IN_SHARE` of them.
     nk_values :
         Delays to search [samples], each >= 0.
     rest :
