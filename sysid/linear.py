@@ -491,14 +491,6 @@ def _stabilizer(blocks: tuple[slice, ...]) -> Callable[[FloatArray], FloatArray]
     return project
 
 
-def _check_initial_conditions(value: object) -> InitialConditions:
-    if value not in ("held", "estimated"):
-        raise IdentificationError(
-            f"initial_conditions must be 'held' or 'estimated'; got {value!r}"
-        )
-    return value
-
-
 def _check_theta0(theta0: FloatArray | None, n_model: int, where: str) -> FloatArray | None:
     if theta0 is None:
         return None
@@ -509,15 +501,6 @@ def _check_theta0(theta0: FloatArray | None, n_model: int, where: str) -> FloatA
             f"the order of parameter_names); got {theta0!r}"
         )
     return arr
-
-
-def _check_length(n: int, n_total: int, max_lag: int, where: str) -> None:
-    needed = max_lag + n_total + 1
-    if n < needed:
-        raise IdentificationError(
-            f"{where}: these orders need at least {needed} samples ({n_total} parameters "
-            f"and lags up to {max_lag}); got {n}; use a longer record or lower orders"
-        )
 
 
 Problem = Callable[[FloatArray], tuple[FloatArray, Callable[[], FloatArray]]]
@@ -684,12 +667,21 @@ def _pem_setup(
 
     `max_lag`: the structure's longest lag [samples]; `where`: the public name in messages.
     """
-    ic = _check_initial_conditions(initial_conditions)
+    if initial_conditions not in ("held", "estimated"):
+        raise IdentificationError(
+            f"initial_conditions must be 'held' or 'estimated'; got {initial_conditions!r}"
+        )
     y, u = _check_signals(y, u, where)
     bounds = segment_bounds(y.size, segment_starts, where)
-    setup = _PemSetup(y=y, u=u, bounds=bounds, initial_conditions=ic, n_model=n_model,
-                      n_state=n_state)
-    _check_length(y.size, n_model + len(bounds) * setup.n_searched_state, max_lag, where)
+    setup = _PemSetup(y=y, u=u, bounds=bounds, initial_conditions=initial_conditions,
+                      n_model=n_model, n_state=n_state)
+    n_total = n_model + len(bounds) * setup.n_searched_state
+    if y.size < max_lag + n_total + 1:
+        raise IdentificationError(
+            f"{where}: these orders need at least {max_lag + n_total + 1} samples ({n_total} "
+            f"parameters and lags up to {max_lag}); got {y.size}; use a longer record or "
+            "lower orders"
+        )
     return setup
 
 

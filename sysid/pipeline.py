@@ -409,10 +409,14 @@ def _segment_starts(data: Dataset) -> tuple[int, ...] | None:
     return None if data.n_segments == 1 else data.segment_starts
 
 
+def _deviations(data: Dataset, op: OperatingPoint) -> tuple[FloatArray, FloatArray]:
+    """``(dP, ds)``: the record's deviations from `op`."""
+    return data.power_kw - op.power_kw, data.triac_pct - op.triac_pct
+
+
 def _segments(data: Dataset, op: OperatingPoint) -> list[tuple[FloatArray, FloatArray]]:
     """``(dP, ds)`` deviation arrays of each segment."""
-    y = data.power_kw - op.power_kw
-    ds = data.triac_pct - op.triac_pct
+    y, ds = _deviations(data, op)
     return [(y[lo:hi], ds[lo:hi]) for lo, hi in data.segment_bounds()]
 
 
@@ -613,8 +617,7 @@ def _paper_models(
 ) -> tuple[NamedModel, ...]:
     """The Hammerstein OE and ARMAX models at the paper's orders, beside an auto choice."""
     degree, nb, nf, nk = paper_orders
-    y = data.power_kw - op.power_kw
-    ds = data.triac_pct - op.triac_pct
+    y, ds = _deviations(data, op)
     seg = _segment_starts(data)
     out: list[NamedModel] = []
     try:
@@ -843,8 +846,7 @@ def _run_stages(
     route: HammersteinRoute | None = None
     try:
         route = run_hammerstein_route(
-            clean.power_kw - op.power_kw,
-            clean.triac_pct - op.triac_pct,
+            *_deviations(clean, op),
             steps=steps,
             operating_point=op,
             degree=degree,
@@ -974,9 +976,7 @@ def _on_steady_state_curve(
     """The sample-mean operating point with ``P_nom`` moved onto the steady-state curve
     (`sysid.offset.steady_state_offset_kw`), else the means and the reason in `skipped`."""
     op = choice.operating_point
-    segments = [(seg.power_kw - op.power_kw, seg.triac_pct - op.triac_pct)
-                for seg in data.segments()]
-    offset = steady_state_offset_kw(segments, degree=degree, nk=nk)
+    offset = steady_state_offset_kw(_segments(data, op), degree=degree, nk=nk)
     if offset is None:
         skipped.append("the sample-mean operating point was not moved onto the steady-state "
                        "curve: the polynomial ARX with a constant term has no steady state")

@@ -442,12 +442,10 @@ class _Grid:
         converged = True
         for i, fold in enumerate(self.folds):
             est = fold.est
-            starts = [_linear_start(est, nb, nf, nk)]
-            nested = self._start(key, i)
-            if nested is not None:
-                starts.append(nested)
             best = None
-            for start in starts:
+            for start in (_linear_start(est, nb, nf, nk), self._start(key, i)):
+                if start is None:
+                    continue
                 structure: GreyBoxStructure = hammerstein_oe_structure(
                     degree=degree, nb=nb, nf=nf, nk=nk, initial_values=start
                 )
