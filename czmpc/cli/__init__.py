@@ -126,7 +126,8 @@ def build_parser() -> argparse.ArgumentParser:
     order = [c for names in command_groups(list(modules)).values() for c in names]
     for name in order:
         module = modules[name]
-        p = sub.add_parser(name, help=module.HELP, description=module.__doc__)
+        p = sub.add_parser(name, help=module.HELP, description=module.__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
         module.register(p)
         _accept_debug(p)
         p.set_defaults(_run=module.run)

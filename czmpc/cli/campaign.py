@@ -64,7 +64,6 @@ def _add_overrides(parser: argparse.ArgumentParser) -> None:
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add the ``run`` and ``report`` sub-commands."""
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     sub = parser.add_subparsers(dest="campaign_command", metavar="{run,report}", required=True)
     run_p = sub.add_parser("run", help="run (or resume) a campaign into DIR",
                            description="Run the runs of SPEC not yet in DIR; write DIR/results.parquet.")
@@ -147,8 +146,7 @@ def _report(args: argparse.Namespace) -> int:
         trajectories = []
         for path in saved:
             with np.load(path) as data:
-                trajectories.append({k: data[k] for k in data.files})
-        trajectories = [{**t, "run_id": str(t["run_id"])} for t in trajectories]
+                trajectories.append({**{k: data[k] for k in data.files}, "run_id": str(data["run_id"])})
         plot_trajectories(trajectories, args.dir / "worst_runs.png")
         figures.append("worst_runs.png")
     text = format_summary_markdown(rows, title=name, figures=figures)
@@ -164,23 +162,8 @@ def _report(args: argparse.Namespace) -> int:
     return 0
 
 
-#: BLAS/OpenMP thread variables set to 1 for this process (unless the user set them).
-_BLAS_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
-
-
 def run(args: argparse.Namespace) -> int:
-    """Dispatch to ``run`` or ``report``.
-
-    The serial executor runs in this process: its BLAS gets one thread, like every
-    worker's, before numpy is first imported (small matrices; more threads only
-    contend, which on a shared machine halved the serial rate).
-    """
-    import os
-    import sys
-
-    if "numpy" not in sys.modules:
-        for var in _BLAS_VARS:
-            os.environ.setdefault(var, "1")
+    """Dispatch to ``run`` or ``report`` (``czmpc.cli`` pins BLAS to one thread on import)."""
     if args.campaign_command == "run":
         return _run(args)
     return _report(args)

@@ -24,7 +24,6 @@ HELP = "go/no-go before switch-on: ready / ready with conditions / not ready, wi
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("model", metavar="MODEL.json", type=Path, help="model file to check")
     parser.add_argument("--data", metavar="VALIDATION.csv", type=Path, default=None,
                         help="held-out record (time_s,triac_pct,power_kw; the model's Ts) for "

@@ -28,7 +28,6 @@ HELP = "commission a heater: design and run a test, identify, check, report, swi
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("config", metavar="CONFIG.toml", type=Path,
                         help="run configuration with [plant], [nodes], [test], [safety] "
                              "(see czmpc run --help)")

@@ -26,6 +26,7 @@ HELP = "run the whole job: experiment, identification, MPC on the staircase (bot
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
+    parser.formatter_class = argparse.HelpFormatter  # its description is re-wrapped
     parser.add_argument("--out", type=Path, default=Path("out/demo"),
                         help="output directory (default: out/demo)")
     parser.add_argument("--scenario", default="staircase",

@@ -23,6 +23,7 @@ HELP = "design an identification test signal (staircase + GBN) and write TEST.cs
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
+    parser.formatter_class = argparse.HelpFormatter  # its description is re-wrapped
     parser.add_argument("--ts-s", type=t.seconds, required=True,
                         help="sampling time of the test [s]")
     parser.add_argument("--range-pct", type=t.percent, nargs=2,

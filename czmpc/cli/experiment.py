@@ -27,7 +27,6 @@ HELP = "simulate the paper's identification experiment on the virtual heater; wr
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument(
         "--seed", metavar="N", type=_argtypes.seed, default=None,
         help="seed of the sensor noise and grid wander (default: the seed of the shipped "

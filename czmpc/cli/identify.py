@@ -67,7 +67,6 @@ HELP = "identify the Hammerstein heater model from logged data and write model, 
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument(
         "data", metavar="DATA",
         help="logged data, CSV or Parquet: header time_s,triac_pct,power_kw (time [s], "

@@ -18,7 +18,6 @@ HELP = "check a logged data file: samples, sampling time, ranges, input steps an
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("file", metavar="FILE.csv", help="logged data file")
     _argtypes.add_log_options(parser)
     parser.add_argument(

@@ -18,7 +18,6 @@ HELP = "make an OPC UA application certificate and key for a secure plant link"
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     sub = parser.add_subparsers(dest="pki_action", metavar="ACTION", required=True)
     create = sub.add_parser("create", help="key pair and self-signed application certificate",
                             description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

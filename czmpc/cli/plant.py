@@ -38,7 +38,6 @@ HELP = ("serve the virtual CZ heater or a model plant over OPC UA (plant serve);
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add the actions 'serve' and 'history' and their options."""
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     _plant_history.register(sub.add_parser(
         "history", help="read the power and applied-input history from the plant's OPC UA "

@@ -76,7 +76,6 @@ def _golden_options(p: argparse.ArgumentParser) -> None:
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add the ``record``, ``check`` and ``audit`` sub-commands."""
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     sub = parser.add_subparsers(dest="regress_command", metavar="{record,check,audit}",
                                 required=True)
     rec = sub.add_parser(

@@ -44,7 +44,6 @@ HELP = "run the MPC in real time against a plant's OPC UA server (config file)"
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("config", metavar="CONFIG.toml", type=Path,
                         help="run configuration: [plant], [nodes], [controller], [run], [safety], "
                              "[test]")

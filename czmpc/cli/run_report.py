@@ -22,7 +22,6 @@ HELP = "draw a 'czmpc run' log: power, input, quality, timing, model health and 
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("log", metavar="RUN.csv",
                         help="the run log 'czmpc run' wrote, or a directory or quoted glob of "
                              "its parts")

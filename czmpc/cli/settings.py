@@ -21,7 +21,6 @@ HELP = "show (and check) the effective MPC settings for a model, as a settings T
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("--show", action="store_true",
                         help="print the effective settings as TOML (the default action)")
     parser.add_argument("--model", metavar="MODEL.json", type=Path, default=None,

@@ -25,7 +25,6 @@ def register(parser: argparse.ArgumentParser) -> None:
 
     from czmpc.cli import _argtypes
 
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("model", metavar="MODEL.json", help="model file to show")
     parser.add_argument("--plot", metavar="DIR", type=Path, default=None,
                         help="also draw step.png, bode.png and poles_zeros.png into DIR")

@@ -72,7 +72,6 @@ PROGRESS_AFTER_S = 1.0
 
 def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument(
         "--model", metavar="MODEL.json", type=Path, required=True,
         help="identified model file (format czmpc-model/1, e.g. data/cz_heater_model.json "

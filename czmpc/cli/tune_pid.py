@@ -31,7 +31,6 @@ def register(parser: argparse.ArgumentParser) -> None:
     from czmpc.pid.design import RULES
     from czmpc.pid.vendor import FORMS
 
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("model", metavar="MODEL.json", type=Path,
                         help="identified model file (format czmpc-model/1)")
     parser.add_argument("--out", metavar="DIR", type=Path, required=True,
