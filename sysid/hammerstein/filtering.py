@@ -69,16 +69,10 @@ class HammersteinOrders:
     block :
         ``"oe"`` (parameters ``b.., d.., f1..f_na``) or ``"armax"`` (``b.., d..,
         a1..a_na, k1..k_nc``), as `sysid.hammerstein.model`'s structures.
-    degree :
-        Degree of ``f`` (no constant term).
-    nb :
-        Number of ``B`` coefficients including the normalized ``b_nk = 1``.
-    na :
-        Order of ``F`` (OE) or ``A`` (ARMAX).
-    nc :
-        Order of ``C`` (ARMAX; ignored for OE).
-    nk :
-        Delay [samples].
+    degree, nb, na, nc, nk :
+        Degree of ``f`` (no constant term); number of ``B`` coefficients including the
+        normalized ``b_nk = 1``; order of ``F`` (OE) or ``A`` (ARMAX); order of ``C``
+        (ARMAX; ignored for OE); delay [samples].
     """
 
     block: Literal["oe", "armax"]
@@ -400,10 +394,9 @@ def estimate_transients(
 ) -> FloatArray:
     """Least-squares initial transients of every segment for fixed model parameters.
 
-    The residuals are affine in the transients, so one least-squares solve per
-    segment gives the exact minimum of V (OE) or W (ARMAX) over the initial state.
-    With ``fit_samples``, only the first ``fit_samples`` samples of each segment are
-    fitted (a burn-in: the rest can then be scored on data the state never saw).
+    The residuals are affine in the transients, so one least-squares solve per segment
+    gives the exact minimum of V (OE) or W (ARMAX) over the initial state. With
+    ``fit_samples``, only each segment's first samples are fitted (a burn-in).
 
     Returns
     -------
