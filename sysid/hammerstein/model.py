@@ -66,10 +66,9 @@ class HammersteinFit:
     greybox :
         The grey-box result behind a joint PEM, or None.
     covariance :
-        Full covariance of `parameters`, ``sigma^2 (J'J)^-1`` with ``sigma^2 = sum r^2 /
-        (N - p)`` and ``J`` the Jacobian at the optimum (the initial states, when
-        estimated, are part of ``J`` and marginalized out), shape ``(p, p)``; empty
-        ``(0, 0)`` when not computed.
+        Full covariance of `parameters` (`sysid.hammerstein.fitting.covariance_from_jacobian`,
+        estimated initial states marginalized out), shape ``(p, p)``; empty ``(0, 0)`` when
+        not computed.
     initial_state :
         How each segment's initial state was treated: ``"estimate"`` (fitted),
         ``"held"`` (past held at the first sample), ``"zero"``, or ``"none"`` (ARX
