@@ -471,7 +471,17 @@ def _model_inputs(structure: GreyBoxStructure, u: FloatArray) -> FloatArray:
     return np.ascontiguousarray(features, dtype=float)
 
 
-def _check_signals(y: Any, u: Any, structure: GreyBoxStructure) -> tuple[FloatArray, FloatArray]:
+# --------------------------------------------------------------------------- public API
+def _prepare(structure: GreyBoxStructure, y: Any, u: Any, criterion: str, initial_state: str
+             ) -> _Evaluator:
+    """Check the options and signals and build the structure's `_Evaluator` on them."""
+    if criterion not in ("ballistic", "one_step"):
+        raise IdentificationError(
+            f"fit_greybox: criterion must be 'ballistic' or 'one_step'; got {criterion!r}")
+    if initial_state not in ("held_past", "steady", "estimate"):
+        raise IdentificationError(
+            "fit_greybox: initial_state must be 'held_past', 'steady' or 'estimate'; "
+            f"got {initial_state!r}")
     y_arr = np.asarray(y, dtype=float)
     u_arr = np.asarray(u, dtype=float)
     if y_arr.ndim != 1:
@@ -483,20 +493,6 @@ def _check_signals(y: Any, u: Any, structure: GreyBoxStructure) -> tuple[FloatAr
     if not (np.all(np.isfinite(y_arr)) and np.all(np.isfinite(u_arr))):
         raise IdentificationError(
             "fit_greybox: y and u must be finite (repair missing samples before fitting)")
-    return y_arr, u_arr
-
-
-# --------------------------------------------------------------------------- public API
-def _prepare(structure: GreyBoxStructure, y: Any, u: Any, criterion: str, initial_state: str
-             ) -> _Evaluator:
-    if criterion not in ("ballistic", "one_step"):
-        raise IdentificationError(
-            f"fit_greybox: criterion must be 'ballistic' or 'one_step'; got {criterion!r}")
-    if initial_state not in ("held_past", "steady", "estimate"):
-        raise IdentificationError(
-            "fit_greybox: initial_state must be 'held_past', 'steady' or 'estimate'; "
-            f"got {initial_state!r}")
-    y_arr, u_arr = _check_signals(y, u, structure)
     features = _model_inputs(structure, u_arr)
     return _build_evaluator(
         structure,

@@ -630,8 +630,8 @@ def _armax_problem(
 class _PemSetup:
     """The checked data and options of one OE or ARMAX fit (what `_pem_fit` runs on).
 
-    ``bounds``: `segment_bounds`; ``n_model``: the size of `PemFit.theta`; ``n_state``: a
-    segment's initial-state parameters when estimated, ``nf`` (OE) or ``nc`` (ARMAX).
+    ``bounds``: `segment_bounds`; ``n_model``: the size of `PemFit.theta`; ``estimate``:
+    whether the initial states are searched, ``n_searched_state`` of them per segment.
     """
 
     y: FloatArray
@@ -639,17 +639,8 @@ class _PemSetup:
     bounds: tuple[tuple[int, int], ...]
     initial_conditions: InitialConditions
     n_model: int
-    n_state: int
-
-    @property
-    def estimate(self) -> bool:
-        """Whether the initial states are parameters of the search."""
-        return self.initial_conditions == "estimated"
-
-    @property
-    def n_searched_state(self) -> int:
-        """Initial-state parameters of one segment in the search (`n_state` or 0)."""
-        return self.n_state if self.estimate else 0
+    estimate: bool
+    n_searched_state: int
 
 
 def _pem_setup(
@@ -665,6 +656,7 @@ def _pem_setup(
 ) -> _PemSetup:
     """Check the data and options of an OE or ARMAX fit (orders already checked).
 
+    `n_state`: a segment's initial-state parameters when estimated (``nf`` or ``nc``);
     `max_lag`: the structure's longest lag [samples]; `where`: the public name in messages.
     """
     if initial_conditions not in ("held", "estimated"):
@@ -673,8 +665,10 @@ def _pem_setup(
         )
     y, u = _check_signals(y, u, where)
     bounds = segment_bounds(y.size, segment_starts, where)
+    estimate = initial_conditions == "estimated"
     setup = _PemSetup(y=y, u=u, bounds=bounds, initial_conditions=initial_conditions,
-                      n_model=n_model, n_state=n_state)
+                      n_model=n_model, estimate=estimate,
+                      n_searched_state=n_state if estimate else 0)
     n_total = n_model + len(bounds) * setup.n_searched_state
     if y.size < max_lag + n_total + 1:
         raise IdentificationError(
