@@ -185,6 +185,19 @@ class OrderComparison:
         return (self.base_kw2 - self.high_kw2) / self.base_kw2
 
 
+def _table2_orders(family: str, nb: int, nf: int, up: int) -> dict[str, int]:
+    """Orders of Table 2's ``"arx"``, ``"armax"`` or ``"oe"`` (``na = nc = nf``), `up` above
+    the base."""
+    na, b = nf + up, nb + up
+    return {"arx": {"na": na, "nb": b}, "armax": {"na": na, "nb": b, "nc": na},
+            "oe": {"nb": b, "nf": na}}[family]
+
+
+def _table2_name(family: str, nb: int, nf: int, up: int = 0) -> str:
+    """``arx_<na>_<nb>``, ``armax_<na>_<nb>_<nc>`` or ``oe_<nb>_<nf>`` (`_table2_orders`)."""
+    return "_".join([family, *(str(v) for v in _table2_orders(family, nb, nf, up).values())])
+
+
 def order_comparisons(
     models: tuple[NamedModel, ...], nb: int, nf: int
 ) -> tuple[OrderComparison, ...]:
@@ -199,14 +212,10 @@ def order_comparisons(
         The base orders; ``na = nc = nf``.
     """
     by_name = {m.name: m for m in models}
-    na = nf
-    pairs = (("arx", f"arx_{na}_{nb}", f"arx_{na + 1}_{nb + 1}"),
-             ("armax", f"armax_{na}_{nb}_{na}", f"armax_{na + 1}_{nb + 1}_{na + 1}"),
-             ("oe", f"oe_{nb}_{nf}", f"oe_{nb + 1}_{nf + 1}"))
     out = []
-    for family, base, high in pairs:
+    for family, criterion in OWN_CRITERION.items():
+        base, high = _table2_name(family, nb, nf), _table2_name(family, nb, nf, 1)
         if base in by_name and high in by_name:
-            criterion = OWN_CRITERION[family]
             b, h = by_name[base], by_name[high]
             out.append(OrderComparison(
                 family=family, criterion=criterion, base_name=base, high_name=high,
@@ -511,14 +520,12 @@ def _linear_models(
     ic = {"initial_conditions": "estimated" if initial_state == "estimate" else "held", **tol}
     note = _segments_note(data)
     out = []
-    for family, fit, options in (("ARX", fit_arx, {}), ("ARMAX", fit_armax, tol),
-                                 ("OE", fit_oe, ic)):
+    for family, fit, options in (("arx", fit_arx, {}), ("armax", fit_armax, tol),
+                                 ("oe", fit_oe, ic)):
         for up in (0, 1):
-            na, b = nf + up, nb + up
-            orders = {"ARX": {"na": na, "nb": b}, "ARMAX": {"na": na, "nb": b, "nc": na},
-                      "OE": {"nb": b, "nf": na}}[family]
-            name = "_".join([family.lower(), *(str(v) for v in orders.values())])
-            label = f"{family}({', '.join(f'{k}={v}' for k, v in orders.items())})"
+            orders = _table2_orders(family, nb, nf, up)
+            name = _table2_name(family, nb, nf, up)
+            label = f"{family.upper()}({', '.join(f'{k}={v}' for k, v in orders.items())})"
             try:
                 result = fit(data, operating_point=op, nk=nk, **orders, **options)  # type: ignore[arg-type]
             except SysidError as exc:
@@ -537,9 +544,8 @@ def _findings(
     route: HammersteinRoute | None, nb: int, nf: int,
 ) -> PipelineFindings:
     by_name = {m.name: m for m in linear + hammerstein}
-    arx, armax, oe, final_oe, noise = (by_name.get(name) for name in (
-        f"arx_{nf}_{nb}", f"armax_{nf}_{nb}_{nf}", f"oe_{nb}_{nf}", "hammerstein_oe",
-        "hammerstein_armax"))
+    arx, armax, oe = (by_name.get(_table2_name(f, nb, nf)) for f in ("arx", "armax", "oe"))
+    final_oe, noise = by_name.get("hammerstein_oe"), by_name.get("hammerstein_armax")
     oe_beats = None
     if arx is not None and armax is not None and oe is not None:
         oe_beats = bool(oe.ballistic_mse_kw2 < arx.ballistic_mse_kw2
