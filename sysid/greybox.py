@@ -660,9 +660,8 @@ def fit_greybox(
         project=project, max_iterations=max_iterations, xtol=xtol, ftol=ftol, gtol=gtol)
     theta = np.asarray(lm.theta, dtype=float)
     x0, _ = evaluator.initial(theta)
-    se_free = np.asarray(parameter_std_errors(lm.jacobian, lm.residuals), dtype=float)
     std_errors = np.zeros(structure.n_parameters)
-    std_errors[free] = se_free[:n_par_free]
+    std_errors[free] = parameter_std_errors(lm.jacobian, lm.residuals)[:n_par_free]
     residuals = np.asarray(lm.residuals, dtype=float)
     if warn and not lm.converged:
         warnings.warn(
