@@ -67,6 +67,7 @@ from czmpc.campaigns.campaign import (
 from czmpc.campaigns.measure import COUNT_COLUMNS, METRIC_COLUMNS, metric_row
 from czmpc.campaigns.runner import map_runs
 from czmpc.errors import CzmpcError
+from sysid._version import __version__
 from sysid.atomic import atomic_write_text, file_sha256
 
 GOLDEN_FORMAT = "czmpc-regress/1"
@@ -242,11 +243,6 @@ def trajectory_band(nominal: np.ndarray, tight: np.ndarray) -> float:
     return max(solver, FLOAT_RTOL * scale, FLOAT_ATOL) + rounding
 
 
-def _version() -> str:
-    from sysid._version import __version__
-    return str(__version__)
-
-
 def _input_key(path: str, base: Path) -> str:
     """How an input file is named in ``regress.json``: relative to the suite, or shipped."""
     from czmpc.shipped import shipped_path
@@ -355,9 +351,8 @@ def record_suite(
     tmp = out.with_name(out.name + ".recording")
     if tmp.exists():
         shutil.rmtree(tmp)
-    (tmp / TRAJECTORY_DIR).mkdir(parents=True)
-    (tmp / "suite").mkdir()
-    (tmp / INPUTS_DIR).mkdir()
+    for folder in (TRAJECTORY_DIR, "suite", INPUTS_DIR):
+        (tmp / folder).mkdir(parents=True)
     shutil.copyfile(suite_file, tmp / SUITE_COPY)
     inputs: dict[str, dict[str, str]] = {}
     for i, path in enumerate(suite.input_files()):
@@ -393,7 +388,7 @@ def record_suite(
         "suite": {"name": suite.name, "description": suite.description, "copy": SUITE_COPY,
                   "folder": Path(rel_base).as_posix(), "folder_absolute": str(base)},
         "provenance": {
-            "czmpc_version": _version(), "python": platform.python_version(),
+            "czmpc_version": __version__, "python": platform.python_version(),
             "platform": platform.platform(), "numpy": np.__version__,
             "recorded_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             "command": " ".join(["czmpc", *sys.argv[1:]]) if sys.argv else "",
@@ -761,7 +756,7 @@ def check_golden(
     checks = tuple(_judge(golden, r.case_id, r, changed) for r in results if r.applicable)
     return CheckReport(golden=golden, cases=checks, input_changes=changes,
                        recorded_version=str(golden.doc["provenance"]["czmpc_version"]),
-                       current_version=_version(), wall_time_s=time.perf_counter() - t0)
+                       current_version=__version__, wall_time_s=time.perf_counter() - t0)
 
 
 # --- audit -----------------------------------------------------------------------------------

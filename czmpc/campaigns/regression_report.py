@@ -79,10 +79,9 @@ def check_table(report: CheckReport) -> str:
                  f"case(s) hold{'' if n_fail == 0 else f'; {n_fail} FAILED'} "
                  f"({report.wall_time_s:.1f} s)")
     causes = cause_lines(report)
-    if causes and n_fail:
-        lines += ["Likely cause:", *[f"  {c}" for c in causes]]
-    elif causes:
-        lines += ["Changed since recording (every case still holds):", *[f"  {c}" for c in causes]]
+    if causes:
+        lines += ["Likely cause:" if n_fail else "Changed since recording (every case still holds):",
+                  *[f"  {c}" for c in causes]]
     return "\n".join(lines) + "\n"
 
 
@@ -149,9 +148,8 @@ def write_report(report: CheckReport, out_dir: str | Path) -> tuple[Path, ...]:
             divergence_time_s=None if case.divergence is None else case.divergence.time_s)
         figures[case.case_id] = rel
         paths.append(out / rel)
-    md = out / "report.md"
-    atomic_write_text(md, markdown(report, figures))
-    return (md, *paths)
+    atomic_write_text(out / "report.md", markdown(report, figures))
+    return (out / "report.md", *paths)
 
 
 def junit_xml(report: CheckReport) -> str:

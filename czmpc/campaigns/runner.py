@@ -273,8 +273,7 @@ def save_trajectories(runs: Sequence[RunSpec], out_dir: Path) -> list[Path]:
     paths = []
     for run in runs:
         result = simulate_run(run).result
-        name = hashlib.sha256(run.run_id.encode("utf-8")).hexdigest()[:16] + ".npz"
-        path = folder / name
+        path = folder / (hashlib.sha256(run.run_id.encode("utf-8")).hexdigest()[:16] + ".npz")
         arrays: dict[str, Any] = {
             k: np.asarray(getattr(result, k), dtype=np.float32)
             for k in ("time_s", "setpoint_kw", "power_true_kw", "power_measured_kw", "triac_pct")}
@@ -337,11 +336,10 @@ def run_campaign(
     n_skipped = len(runs) - len(todo)
     if max_runs is not None:
         todo = todo[:max_runs]
-    stream = map_runs(execute_run, todo, executor=executor, workers=workers,
-                      dask_address=dask_address)
     n_run = 0
     with rows_path.open("a", encoding="utf-8") as fh:
-        for _, row in stream:
+        for _, row in map_runs(execute_run, todo, executor=executor, workers=workers,
+                               dask_address=dask_address):
             fh.write(json.dumps(row, allow_nan=True) + "\n")
             fh.flush()
             os.fsync(fh.fileno())

@@ -1,15 +1,11 @@
 """run_simulation and write_outputs: one closed-loop run of the offset-free MPC, wired up.
 
-Puts an identified model, a plant, a scenario and `OffsetFreeMPC` together for one
-closed-loop run and writes its files (`czmpc simulate` and `czmpc demo` call it). The
-plant (``"model"``: the model's own difference equation, no mismatch; ``"heater"``: the
-virtual heater's grey-box physics) is built and started in steady state by
-`czmpc.campaigns.build.build_plant`, or varied and drifting (`sim.drift`).
-
-The controller starts at the plant's initial input (`MPCSettings.initial_triac_pct`,
-clipped to the controller's allowed range) and takes the scenario's TRIAC limits and
-rate limit (the tighter of the scenario's and the given settings'), so that the
-metrics check the controller against the limits it was told.
+`czmpc simulate` and `czmpc demo` call it. The plant (``"model"``: the model's own
+difference equation, no mismatch; ``"heater"``: the virtual heater's grey-box physics)
+is built and started in steady state by `czmpc.campaigns.build.build_plant`, or varied
+and drifting (`sim.drift`). The controller's limits and start input are the plant's and
+the scenario's (`czmpc.campaigns.build.controller_settings`), so the metrics check it
+against the limits it was told.
 """
 
 from __future__ import annotations
@@ -87,12 +83,10 @@ class SimulationOutcome:
         What ran: ``"mpc"`` (`OffsetFreeMPC` with ``settings``) or the name the caller
         gave its own controller (`run_simulation`'s ``controller_factory``).
     metrics_measured :
-        Its metrics on the measured power (NaN samples skipped; spikes included). On
-        the model plant this is the signal to judge offsets by: the model's noise
-        ``v = C/A e`` is mostly slow (``C(1)/A(1)`` is about 50 for the shipped model),
-        the controller rejects it as the disturbance it is, and so the noise-free power
-        ``y_det`` wanders by ``-v``'s slow part (a few hundredths of a kW over a
-        segment's last quarter) while the measured power sits on the setpoint.
+        Its metrics on the measured power (NaN samples skipped; spikes included): on the
+        model plant the ones to judge offsets by. The controller rejects the mostly slow
+        noise ``v = C/A e`` (``C(1)/A(1)`` about 50 for the shipped model), so the
+        noise-free power wanders by ``-v``'s slow part (a few hundredths of a kW).
     """
 
     plant: PlantKind
@@ -322,9 +316,9 @@ def write_outputs(outcome: SimulationOutcome, out_dir: str | os.PathLike[str], *
         The model file the controller was built from (its SHA-256 goes into
         metrics.json), or None.
 
-    Nothing in ``out_dir`` changes unless the whole run of writers succeeded: all three
-    files are first written into a hidden scratch directory there, then renamed into
-    place (a failure while rendering the figure leaves no new ``trajectory.csv``).
+    Nothing in ``out_dir`` changes unless every writer succeeded: the files are written
+    into a hidden scratch directory there, then renamed into place (a failure anywhere,
+    SIGINT/SIGTERM included, leaves no new ``trajectory.csv``).
 
     Returns
     -------
@@ -334,9 +328,6 @@ def write_outputs(outcome: SimulationOutcome, out_dir: str | os.PathLike[str], *
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     names = (TRAJECTORY_FILE, METRICS_FILE, FIGURE_FILE)
-    # Everything is produced in a hidden scratch directory inside ``out`` first (same
-    # file system, so the moves below are renames); a failure anywhere (the figure, a
-    # full disk, SIGINT/SIGTERM) leaves ``out`` as it was, the scratch directory removed.
     scratch = Path(tempfile.mkdtemp(prefix=".czmpc-simulate.", suffix=".tmp", dir=out))
     try:
         outcome.result.to_csv(scratch / TRAJECTORY_FILE)
@@ -348,8 +339,7 @@ def write_outputs(outcome: SimulationOutcome, out_dir: str | os.PathLike[str], *
             os.replace(scratch / name, out / name)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
-    trajectory, metrics, figure = (out / name for name in names)
-    return trajectory, metrics, figure
+    return tuple(out / name for name in names)
 
 
 def plot_outcome(outcome: SimulationOutcome, path: str | os.PathLike[str]) -> Figure:
