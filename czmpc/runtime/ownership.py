@@ -22,6 +22,7 @@ import hashlib
 import json
 import os
 import socket
+import sys
 import tempfile
 from pathlib import Path
 from typing import IO, Any
@@ -110,18 +111,15 @@ def _holder_words(text: str) -> str:
 def _try_lock(fh: IO[str]) -> bool:
     """An exclusive, non-blocking lock on an open file (POSIX flock, Windows locking)."""
     try:
-        import fcntl
-    except ImportError:  # pragma: no cover - Windows
-        import msvcrt
+        if sys.platform == "win32":  # pragma: no cover - Windows
+            import msvcrt
 
-        try:
             fh.seek(0)
-            msvcrt.locking(fh.fileno(), msvcrt.LK_NBLCK, 1)  # type: ignore[attr-defined]
-        except OSError:
-            return False
-        return True
-    try:
-        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            msvcrt.locking(fh.fileno(), msvcrt.LK_NBLCK, 1)
+        else:
+            import fcntl
+
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
         return False
     return True
