@@ -49,8 +49,7 @@ CHECK_FORMAT = "czmpc-model-check/1"
 def check_path(model_path: str | Path) -> Path:
     """``MODEL.check.json`` beside ``MODEL.json``."""
     p = Path(model_path)
-    stem = p.name[:-5] if p.name.endswith(".json") else p.name
-    return p.with_name(stem + ".check.json")
+    return p.with_name(p.name.removesuffix(".json") + ".check.json")
 
 
 def read_check(model_path: str | Path) -> tuple[Verdict | None, str]:
