@@ -412,11 +412,6 @@ def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Fi
         add_plot(key, caption, figs.plot_simulations, t, dp, curves, input_pct=ds, title=title,
                  paper_part=paper_fig)
 
-    def add_errors(key: str, caption: str, errors: dict[str, np.ndarray], title: str,
-                   paper_fig: str) -> None:
-        add_plot(key, caption, figs.plot_simulation_errors, t, errors, title=title,
-                 paper_part=paper_fig)
-
     choice = result.structure
     if choice is not None:
         add("structure_choice", "Structure selection: the delay's evidence (the ARX input "
@@ -431,10 +426,10 @@ def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Fi
         add_sims("fig08_linear_simulations", "Fig. 8 analogue: ballistic simulations of the "
                  f"linear models against the measured {st.out_name}.", curves8,
                  "Ballistic simulations, linear models", "paper Fig. 8")
-        add_errors("fig09_linear_errors", "Fig. 9 analogue: ballistic simulation errors of the "
-                   "linear models.", {s: dp - sim for (_, s), sim in zip(lin, curves8.values(),
-                                                                       strict=True)},
-                   "Simulation errors, linear models", "paper Fig. 9")
+        add_plot("fig09_linear_errors", "Fig. 9 analogue: ballistic simulation errors of the "
+                 "linear models.", figs.plot_simulation_errors, t,
+                 {s: dp - sim for (_, s), sim in zip(lin, curves8.values(), strict=True)},
+                 title="Simulation errors, linear models", paper_part="paper Fig. 9")
     if "hammerstein_eq21" in m:
         add_sims("fig12_eq21", "Fig. 12 analogue: the Hammerstein model of eq. 21 (ARX block, f "
                  "from the step gains) against ARX(1,2) and the measurement.",
@@ -452,9 +447,10 @@ def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Fi
         final15 = sims([("hammerstein_oe", "final Hammerstein (eq. 27)")])
         add_sims("fig15_final_simulation", "Fig. 15 analogue: ballistic simulation of the final "
                  "Hammerstein model (eq. 27).", final15, "Final Hammerstein model", "paper Fig. 15")
-        add_errors("fig16_final_error", "Fig. 16 analogue: its ballistic simulation error.",
-                   {"final Hammerstein (eq. 27)": dp - next(iter(final15.values()))},
-                   "Simulation error, final Hammerstein", "paper Fig. 16")
+        add_plot("fig16_final_error", "Fig. 16 analogue: its ballistic simulation error.",
+                 figs.plot_simulation_errors, t,
+                 {"final Hammerstein (eq. 27)": dp - next(iter(final15.values()))},
+                 title="Simulation error, final Hammerstein", paper_part="paper Fig. 16")
     if "armax_1_2_1" in m and "hammerstein_armax" in m:
         e_lin = _pred_error(m["armax_1_2_1"].model, result)
         e_ham = _pred_error(m["hammerstein_armax"].model, result)
