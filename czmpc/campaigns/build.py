@@ -1,13 +1,10 @@
 """The one place that builds a run's plant and its controller.
 
-Plants (`build_plant`): ``model`` (`sim.model_plant.ModelPlant` of the model, started as
-`ModelPlant.for_scenario` starts it), ``heater`` (`sim.heater.VirtualHeater`, grey-box
-physics, started in steady state at the input whose heater power is the initial
-setpoint), ``perturbed`` (the model perturbed by `sim.perturbed.perturb_model`) and
-``sampled`` (the model with parameters drawn from its covariance,
-`czmpc.campaigns.sampling.sample_plant`). A perturbed or sampled plant starts at rest at
-its own steady-state input for the initial setpoint, so a plant with another gain does
-not start with an error.
+Plants (`build_plant`): the model (`sim.model_plant.ModelPlant`, started at the
+scenario's initial input), the virtual heater (`sim.heater.VirtualHeater`, grey-box
+physics), the model perturbed (`sim.perturbed.perturb_model`) or sampled
+(`czmpc.campaigns.sampling.sample_plant`); the last three start in steady state for the
+initial setpoint, so a plant with another gain does not start with an error.
 
 Controllers (`build_controller`, kinds `CONTROLLERS`). Fairness: every controller gets
 the Hammerstein MPC's allowed input range (the identified range widened by the validity
@@ -97,9 +94,8 @@ MUTATED_KINDS: frozenset[str] = frozenset({"mpc"})
 def heater_steady_state_triac_pct(power_kw: float, params: HeaterParams | None = None) -> float:
     """TRIAC input [%] whose steady power on the virtual heater is ``power_kw`` [kW].
 
-    Bisection (`scipy.optimize.brentq`) on `sim.heater.steady_state` at nominal grid
-    voltage between the firing threshold and 100 %; the steady power rises
-    monotonically with the input there, so the root is unique.
+    `scipy.optimize.brentq` on `sim.heater.steady_state` at nominal grid voltage between
+    the firing threshold and 100 %, where the power rises monotonically (one root).
 
     Parameters
     ----------
