@@ -134,29 +134,23 @@ class IdentifyOutcome:
 
     Parameters
     ----------
-    model_path :
-        The model for control (the noise-model Hammerstein, eq. 30).
-    model_files :
-        Every intermediate model file.
-    report_path :
-        report.md.
-    figure_files :
-        The report's PNG figures.
+    model_path, model_files, report_path, figure_files :
+        model.json (the noise-model Hammerstein, eq. 30), every intermediate model
+        file, report.md and the report's PNG figures.
     unconverged :
-        ``"name (n iterations)"`` of each intermediate fit that did not converge (empty
-        if all did); model.json's own fit is never among them.
+        ``"name (n iterations)"`` of each intermediate fit that did not converge;
+        model.json's own fit is never among them.
     final_unconverged :
         Why model.json's own fit did not converge (``"name: optimizer message"``), or
-        None if it converged: the only non-convergence that fails the command.
+        None: the only non-convergence that fails the command.
     warnings :
-        Every warning raised while identifying (for example an optimizer's
-        non-convergence message), as ``"Category: message"``.
+        Every warning raised while identifying, as ``"Category: message"``.
     notes :
         What the run changed or left out that a user must know (the segments used, a
         model kind other than the Hammerstein with noise model), as printed.
     findings :
-        The paper's findings checked on these data (`czmpc.reports.identification.findings_checklist`),
-        as in the report.
+        The paper's findings checked on these data, as in the report
+        (`czmpc.reports.identification.findings_checklist`).
     identifiability :
         Every identifiability check on the data and the final model
         (`sysid.identifiability`), or None.

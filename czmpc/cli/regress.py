@@ -164,8 +164,4 @@ def _audit(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Run the sub-command."""
-    if args.regress_command == "record":
-        return _record(args)
-    if args.regress_command == "check":
-        return _check(args)
-    return _audit(args)
+    return {"record": _record, "check": _check, "audit": _audit}[args.regress_command](args)

@@ -83,8 +83,7 @@ def describe_model(model: object) -> str:
         f"  noise std(e) = {model.noise_std_kw:.4g} {u_out}",
         f"linear-block static gain B(1)/A(1) = {model.linear_static_gain:.4g}",
     ]
-    poles = roots_z(model.a)
-    for z in poles:
+    for z in roots_z(model.a):
         if abs(z.imag) < 1e-12 and 0 < z.real < 1:
             lines.append(f"  pole z = {z.real:.5f}: time constant {-model.ts_s / math.log(z.real):.1f} s")
         else:
