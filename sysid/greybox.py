@@ -311,7 +311,8 @@ class _BlockRunner:
         self._block = min(_BLOCK_SAMPLES, n_samples)
         self._full = step.mapaccum("block", self._block)
         tail = n_samples % self._block
-        self._tail = step.mapaccum("tail", tail) if tail else None
+        # with no tail every block is full, so the tail is never called
+        self._tail = step.mapaccum("tail", tail) if tail else self._full
         self._n_samples = n_samples
 
     def __call__(self, z0: FloatArray, U: FloatArray, Y: FloatArray, *params: FloatArray) -> FloatArray:
@@ -320,7 +321,6 @@ class _BlockRunner:
         for start in range(0, self._n_samples, self._block):
             stop = min(start + self._block, self._n_samples)
             fun = self._full if stop - start == self._block else self._tail
-            assert fun is not None  # the tail exists whenever it is needed
             states, out = fun(z, U[:, start:stop], Y[:, start:stop], *params)
             chunks.append(np.asarray(out, dtype=float))
             z = np.asarray(states[:, -1], dtype=float).ravel()
