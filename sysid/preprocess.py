@@ -8,8 +8,8 @@ provenance. Outlier detection only *reports* candidates; the user applies
 Notation
 --------
 ``s`` / ``u`` : input (TRIAC signal [%] for the CZ heater; `Dataset.input_unit`).
-``P`` / ``y`` : output (heater power [kW]; `Dataset.output_unit`). Names ending in
-``_kw`` carry the output unit of the data set (kW for the CZ heater).
+``P`` / ``y`` : output (heater power [kW]; `Dataset.output_unit`, also that of names
+ending in ``_kw``).
 ``(s_nom, P_nom)`` : operating point (sec. 5.1); ``ds = s - s_nom``, ``dP = P - P_nom``.
 ``e`` : one-step-ahead residuals of a high-order ARX model (paper Fig. 3, eq. 5).
 ``sigma`` : robust residual scale ``1.4826 * median(|e - median(e)|)`` (MAD: the
@@ -415,10 +415,9 @@ class OutlierReport:
         Flagging threshold in units of `scale_kw`, and times `scale_kw` [output unit].
     na, nb, nk :
         ARX orders used.
-    input_step_samples :
-        Samples ``j`` at which the input changed by more than `input_step_tol`.
-    input_step_tol :
-        Input change that counted as a step [input unit].
+    input_step_samples, input_step_tol :
+        Samples ``j`` at which the input changed by more than the step threshold, and
+        that threshold [input unit].
     candidates, step_residuals :
         Events away from input steps, and within the guard after one, in time order.
     clipped_samples :
