@@ -30,6 +30,7 @@ import numpy as np
 from czmpc.reports.run_report import RunRecord
 from czmpc.runtime.config import RunConfigError
 from czmpc.runtime.logfiles import RUN_META_FORMAT, is_log_file, log_parts, meta_path
+from sysid._arrays import true_runs
 from sysid._typing import FloatArray
 from sysid.data import Dataset
 
@@ -98,10 +99,7 @@ def read_run_log(path: str | Path) -> Dataset:
     nxt = applied[1:]
     triac[:-1] = np.where(np.isfinite(nxt), nxt, command[:-1])
     usable = np.isfinite(power) & np.isfinite(triac)
-    # the runs of usable samples: [start, stop) pairs between the edges of `usable`
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], usable.astype(int), [0]))))
-    kept = [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)
-            if b - a >= MIN_SEGMENT_SAMPLES]
+    kept = [(a, b) for a, b in true_runs(usable) if b - a >= MIN_SEGMENT_SAMPLES]
     if not kept:
         raise RunConfigError(
             f"{path}: no stretch of {MIN_SEGMENT_SAMPLES} or more usable samples in a row "
