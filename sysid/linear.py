@@ -1087,8 +1087,6 @@ def fit_arx(
     IdentificationError
         Bad orders, a constant input, too short a record, a rank-deficient regressor, or
         an unstable estimated ``A``.
-    SamplingTimeError
-        Never for a valid `Dataset` (the model takes the data's sampling time).
     """
     dy, du = _deviation_arrays(data, operating_point, "fit_arx")
     fit = arx_least_squares(dy, du, na=na, nb=nb, nk=nk, segment_starts=data.segment_starts)
