@@ -249,7 +249,8 @@ class OffsetFreeMPC:
         return self._qp
 
     def reset(self) -> None:
-        """Forget all state, as if newly constructed."""
+        """Forget all state, as if newly constructed: the estimator at the steady state of
+        the initial input with ``d = 0``; mode, limits, counters and transition log initial."""
         w0 = self._input_map.f(self._ds_init)
         self._restart_estimator(w0)
         self._ds_prev = self._ds_init
@@ -354,7 +355,8 @@ class OffsetFreeMPC:
         setpoint_kw :
             Power setpoint [kW]. None, non-finite or implausible (``power_min_kw`` ..
             ``power_max_kw``, `czmpc.supervision.MAX_SETPOINT_KW`): the previous valid one
-            is held (`StepDiagnostics.setpoint_verdict` says why).
+            is held (`StepDiagnostics.setpoint_verdict` says why), and nothing of it
+            reaches the ramp or filter.
         applied_triac_pct :
             The input actually applied over the previous sample [%] if it differs from
             the one returned (saturation, override); None or non-finite: as returned. In
