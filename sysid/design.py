@@ -332,13 +332,17 @@ def design_test_signal(spec: ExcitationSpec, rng: np.random.Generator) -> Excita
     Raises
     ------
     SignalDesignError
-        A ``steps``, ``mixed`` or ``multilevel`` duration shorter than
-        `shortest_duration_s`.
+        A duration shorter than `shortest_duration_s`.
     """
     n = spec.n_samples
     need_s = shortest_duration_s(spec)
     levels: FloatArray = np.zeros(0)
     if spec.kind == "gbn":
+        if need_s > spec.duration_s:
+            raise SignalDesignError(
+                f"duration_s = {spec.duration_s:g} s is too short for a gbn test: "
+                f"{MIN_GBN_TAUS:g} tau of {spec.tau_s:g} s need at least {math.ceil(need_s):d} s; "
+                "give a longer test or a shorter --tau-s")
         u = _gbn(spec, n, True, rng)
         steps_n = 0
     elif spec.kind == "multilevel":

@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sysid.design import HOLD_TAUS, ExcitationSpec, SignalDesignError, design_test_signal
+from sysid.design import (
+    HOLD_TAUS,
+    MIN_GBN_TAUS,
+    ExcitationSpec,
+    SignalDesignError,
+    design_test_signal,
+    shortest_duration_s,
+)
 
 
 def _spec(**kw: object) -> ExcitationSpec:
@@ -124,3 +131,15 @@ def test_multilevel_fits_a_slow_plant_into_two_hours_where_mixed_cannot() -> Non
     with pytest.raises(SignalDesignError, match="at least 4800 s"):
         design_test_signal(ExcitationSpec(kind="multilevel", **{**slow, "duration_s": 4000.0}),
                            np.random.default_rng(0))
+
+
+def test_a_gbn_shorter_than_its_shortest_duration_is_refused() -> None:
+    # shortest_duration_s says a GBN needs MIN_GBN_TAUS tau (20 x 300 s = 6000 s here); a
+    # 1,000 s GBN holds about three switches, too few to identify anything from
+    spec = _spec(kind="gbn", duration_s=1_000.0)
+    assert shortest_duration_s(spec) == MIN_GBN_TAUS * 300.0
+    with pytest.raises(SignalDesignError, match=r"too short for a gbn test: 20 tau of 300 s "
+                                                r"need at least 6000 s"):
+        design_test_signal(spec, np.random.default_rng(0))
+    ok = design_test_signal(_spec(kind="gbn", duration_s=6_000.0), np.random.default_rng(0))
+    assert ok.triac_pct.size == 601
