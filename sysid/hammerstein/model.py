@@ -23,7 +23,7 @@ from sysid._typing import FloatArray
 from sysid.criteria import model_criteria
 from sysid.data import Dataset
 from sysid.errors import IdentificationError, UnstableModelError
-from sysid.greybox import GreyBoxResult, GreyBoxStructure
+from sysid.greybox import GreyBoxStructure
 from sysid.hammerstein.filtering import HammersteinOrders, _powers, mean_square_criterion
 from sysid.model import Criteria, HammersteinModel, OperatingPoint, Provenance, _poly_eval
 from sysid.polynomials import reflect_unstable_roots
@@ -63,8 +63,6 @@ class HammersteinFit:
         From the optimizer (0, True, "least squares" for closed-form steps).
     method :
         Short label of the step that produced it (for provenance).
-    greybox :
-        The grey-box result behind a joint PEM, or None.
     covariance :
         Full covariance of `parameters` (`sysid.hammerstein.fitting.covariance_from_jacobian`,
         estimated initial states marginalized out), shape ``(p, p)``; empty ``(0, 0)`` when
@@ -92,7 +90,6 @@ class HammersteinFit:
     converged: bool
     message: str
     method: str
-    greybox: GreyBoxResult | None = field(default=None, repr=False)
     covariance: FloatArray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
     initial_state: Literal["estimate", "held", "zero", "none"] = "held"
     initial_transients: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
