@@ -39,6 +39,7 @@ import casadi as ca
 import numpy as np
 
 from sysid._arrays import readonly_array
+from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.errors import IdentificationError, IdentificationWarning
 from sysid.optimize import LMResult, levenberg_marquardt, parameter_std_errors
@@ -606,8 +607,7 @@ def fit_greybox(
     S_{k+1}, r_k, dr_k/dtheta)`` with ``S = dx/dtheta``: an exact Jacobian. Standard
     errors assume white residuals (optimistic for V on coloured noise).
     """
-    if not (isinstance(max_iterations, int) and max_iterations >= 1):
-        raise IdentificationError(f"fit_greybox: max_iterations must be an int >= 1; got {max_iterations!r}")
+    max_iterations = checked_int(max_iterations, 1, "fit_greybox: max_iterations")
     for tol_name, tol in (("xtol", xtol), ("ftol", ftol), ("gtol", gtol)):
         if not (math.isfinite(tol) and tol >= 0):
             raise IdentificationError(f"fit_greybox: {tol_name} must be finite and >= 0; got {tol}")

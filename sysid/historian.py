@@ -45,6 +45,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sysid._arrays import true_runs
+from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.data import (
     CSV_COLUMNS,
@@ -133,8 +134,7 @@ class LoadPolicy:
                 f"resample must be one of {list(RESAMPLE_POLICIES)}; got {self.resample!r}")
         for name, value, low in (("fill_max_samples", self.fill_max_samples, 1),
                                  ("min_segment_samples", self.min_segment_samples, MIN_SAMPLES)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise DataFileError(f"{name} must be an int >= {low}; got {value!r}")
+            object.__setattr__(self, name, checked_int(value, low, name, DataFileError))
         if self.ts_s is not None and not (math.isfinite(self.ts_s) and self.ts_s > 0):
             raise DataFileError(f"ts_s must be a finite number > 0; got {self.ts_s!r}")
         if not (math.isfinite(self.sampling_rtol) and 0 <= self.sampling_rtol < SNAP_MAX_JITTER):

@@ -60,6 +60,7 @@ from typing import Any, Literal
 import numpy as np
 from scipy import stats
 
+from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import IdentificationError
@@ -523,9 +524,8 @@ def assess_data(
     """
     if not isinstance(data, Dataset):
         raise IdentificationError(f"assess_data: data must be a sysid Dataset; got {type(data).__name__}")
-    for name, value in (("degree", degree), ("nb", nb), ("n_parameters", n_parameters)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise IdentificationError(f"assess_data: {name} must be an int >= 1; got {value!r}")
+    degree, nb, n_parameters = (checked_int(value, 1, f"assess_data: {name}") for name, value
+                                in (("degree", degree), ("nb", nb), ("n_parameters", n_parameters)))
     return IdentifiabilityAssessment(checks=tuple(
         _data_checks(data, degree=degree, nb=nb, n_parameters=n_parameters, what=what)))
 

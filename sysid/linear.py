@@ -30,6 +30,7 @@ from scipy.linalg import solve_triangular
 from scipy.signal import lfilter
 
 from sysid._arrays import readonly_array
+from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.criteria import model_criteria
 from sysid.data import Dataset
@@ -56,12 +57,6 @@ from sysid.result import CriterionName, IdentificationResult
 from sysid.simulate import equation_errors, filter_state, simulate_arrays
 
 InitialConditions = Literal["held", "estimated"]
-
-
-def _check_order(name: str, value: object, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise IdentificationError(f"{name} must be an int >= {minimum}; got {value!r}")
-    return int(value)
 
 
 def _indexed_names(letter: str, indices: range) -> tuple[str, ...]:
@@ -330,9 +325,9 @@ def arx_least_squares(
     >>> np.round(fit.theta, 9).tolist()
     [-0.5, 1.0, -0.3]
     """
-    na = _check_order("na", na, 0)
-    nb = _check_order("nb", nb, 1)
-    nk = _check_order("nk", nk, 0)
+    na = checked_int(na, 0, "na")
+    nb = checked_int(nb, 1, "nb")
+    nk = checked_int(nk, 0, "nk")
     y, u = _check_signals(y, u, "arx_least_squares")
     bounds = segment_bounds(y.size, segment_starts, "arx_least_squares")
     n0 = max(na, nk + nb - 1)
@@ -756,9 +751,9 @@ def _oe_pem(
     tolerance: float | None = None,
 ) -> PemFit:
     """`oe_pem` without its warning (`fit_oe` warns in its own name)."""
-    nb = _check_order("nb", nb, 1)
-    nf = _check_order("nf", nf, 0)
-    nk = _check_order("nk", nk, 0)
+    nb = checked_int(nb, 1, "nb")
+    nf = checked_int(nf, 0, "nf")
+    nk = checked_int(nk, 0, "nk")
     setup = _pem_setup(y, u, initial_conditions=initial_conditions,
                        segment_starts=segment_starts, n_model=nb + nf, n_state=nf,
                        max_lag=max(nf, nk + nb - 1), where="oe_pem")
@@ -870,10 +865,10 @@ def _armax_pem(
     tolerance: float | None = None,
 ) -> PemFit:
     """`armax_pem` without its warning (`fit_armax` warns in its own name)."""
-    na = _check_order("na", na, 0)
-    nb = _check_order("nb", nb, 1)
-    nc = _check_order("nc", nc, 0)
-    nk = _check_order("nk", nk, 0)
+    na = checked_int(na, 0, "na")
+    nb = checked_int(nb, 1, "nb")
+    nc = checked_int(nc, 0, "nc")
+    nk = checked_int(nk, 0, "nk")
     setup = _pem_setup(y, u, initial_conditions=initial_conditions,
                        segment_starts=segment_starts, n_model=na + nb + nc, n_state=nc,
                        max_lag=max(na, nc, nk + nb - 1), where="armax_pem")

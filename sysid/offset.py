@@ -24,6 +24,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.errors import IdentificationError
 
@@ -63,8 +64,7 @@ def steady_state_offset_kw(
     """
     if degree not in (1, 2, 3):
         raise IdentificationError(f"steady_state_offset_kw: degree must be 1, 2 or 3; got {degree!r}")
-    if isinstance(nk, bool) or not isinstance(nk, int) or nk < 0:
-        raise IdentificationError(f"steady_state_offset_kw: nk must be an int >= 0; got {nk!r}")
+    nk = checked_int(nk, 0, "steady_state_offset_kw: nk")
     lag0 = max(OFFSET_NA, nk + OFFSET_NB - 1)
     rows: list[FloatArray] = []
     targets: list[FloatArray] = []

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import lapack
 
+from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.errors import IdentificationError
 
@@ -311,12 +312,7 @@ def levenberg_marquardt(
     >>> np.round(levenberg_marquardt(line, np.zeros(2)).theta, 12).tolist()
     [1.0, 2.0]
     """
-    if isinstance(max_iterations, bool) or not isinstance(max_iterations, int) or (
-        max_iterations < 1
-    ):
-        raise IdentificationError(
-            f"levenberg_marquardt: max_iterations must be an int >= 1; got {max_iterations!r}"
-        )
+    max_iterations = checked_int(max_iterations, 1, "levenberg_marquardt: max_iterations")
     for name, tol in (("xtol", xtol), ("ftol", ftol), ("gtol", gtol),
                       ("progress_rtol", progress_rtol)):
         if not (np.isfinite(tol) and tol >= 0):

@@ -36,6 +36,7 @@ from typing import Literal
 
 import numpy as np
 
+from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import IdentificationError, IdentificationWarning, SysidError
@@ -742,12 +743,9 @@ def run_paper_pipeline(
             f"run_paper_pipeline: operating_point must be an OperatingPoint or None; got "
             f"{operating_point!r}"
         )
-    for name, value, minimum in (("degree", degree, 1), ("nb", nb, 1), ("nf", nf, 0),
-                                 ("nk", nk, 0), ("min_nk", min_nk, 0)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-            raise IdentificationError(
-                f"run_paper_pipeline: {name} must be an int >= {minimum}; got {value!r}"
-            )
+    degree, nb, nf, nk, min_nk = (
+        checked_int(value, minimum, f"run_paper_pipeline: {name}") for name, value, minimum
+        in (("degree", degree, 1), ("nb", nb, 1), ("nf", nf, 0), ("nk", nk, 0), ("min_nk", min_nk, 0)))
     if np.ptp(data.triac_pct) == 0.0:
         raise IdentificationError(
             "run_paper_pipeline: the input is constant over the whole record; expected a "

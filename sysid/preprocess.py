@@ -27,6 +27,7 @@ import numpy.typing as npt
 
 from sysid._arrays import readonly_array as _readonly
 from sysid._arrays import true_runs
+from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import DataFileError, IdentificationError
@@ -279,11 +280,7 @@ def find_operating_point(
     for name, value in (("input_tol", input_tol), ("drift_sigmas", drift_sigmas),
                         ("output_atol_kw", output_atol_kw)):
         _check_finite("find_operating_point", name, value)
-    if isinstance(min_window_samples, bool) or not isinstance(min_window_samples, int) or \
-            min_window_samples < 4:
-        raise IdentificationError(
-            f"find_operating_point: min_window_samples must be an int >= 4; got "
-            f"{min_window_samples!r}")
+    min_window_samples = checked_int(min_window_samples, 4, "find_operating_point: min_window_samples")
     bounds = data.segment_bounds()
     diffs = np.concatenate([np.diff(y[lo:hi]) for lo, hi in bounds])
     sigma_y = _robust_scale(diffs) / math.sqrt(2.0)
@@ -461,12 +458,6 @@ def _clipped_samples(y: FloatArray, min_run: int) -> tuple[int, ...]:
                         for a, b in true_runs(y == extreme) if b - a >= min_run for k in range(a, b)))
 
 
-def _check_int(where: str, name: str, value: object, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise IdentificationError(f"{where}: {name} must be an int >= {minimum}; got {value!r}")
-    return int(value)
-
-
 def find_outlier_candidates(
     data: Dataset,
     *,
@@ -523,11 +514,11 @@ def find_outlier_candidates(
     end of the record has no "after" and counts as a level shift.
     """
     where = "find_outlier_candidates"
-    na = _check_int(where, "na", na, 0)
-    nb = _check_int(where, "nb", nb, 1)
-    nk = _check_int(where, "nk", nk, 0)
-    step_guard_samples = _check_int(where, "step_guard_samples", step_guard_samples, 0)
-    clip_min_run_samples = _check_int(where, "clip_min_run_samples", clip_min_run_samples, 2)
+    na = checked_int(na, 0, f"{where}: na")
+    nb = checked_int(nb, 1, f"{where}: nb")
+    nk = checked_int(nk, 0, f"{where}: nk")
+    step_guard_samples = checked_int(step_guard_samples, 0, f"{where}: step_guard_samples")
+    clip_min_run_samples = checked_int(clip_min_run_samples, 2, f"{where}: clip_min_run_samples")
     _check_finite(where, "threshold", threshold, positive=True)
     if input_step_tol is not None:
         _check_finite(where, "input_step_tol", input_step_tol, or_none=True)
@@ -773,8 +764,8 @@ def estimate_level_shift(
     heater's sag).
     """
     where = "estimate_level_shift"
-    w = _check_int(where, "window_samples", window_samples, 2)
-    m = _check_int(where, "transition_samples", transition_samples, 0)
+    w = checked_int(window_samples, 2, f"{where}: window_samples")
+    m = checked_int(transition_samples, 0, f"{where}: transition_samples")
     k0 = _sample_at(data, from_time_s, where)
     lo, hi = next((a, b) for a, b in data.segment_bounds() if a <= k0 < b)
     before = (max(k0 - w, lo), k0)

@@ -32,6 +32,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sysid._arrays import readonly_array as _readonly
+from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.errors import IdentificationError
 
@@ -136,8 +137,7 @@ def _signal(values: FloatArray, name: str) -> FloatArray:
 
 
 def _check_max_lag(max_lag: int, n: int) -> None:
-    if isinstance(max_lag, bool) or not isinstance(max_lag, (int, np.integer)) or max_lag < 1:
-        raise IdentificationError(f"max_lag must be an int >= 1; got {max_lag!r}")
+    checked_int(max_lag, 1, "max_lag")
     if max_lag >= n:
         raise IdentificationError(
             f"max_lag must be smaller than the number of samples ({n}); got {max_lag}"

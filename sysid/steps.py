@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import IdentificationError
@@ -141,8 +142,7 @@ def detect_steps(
     >>> [round(step.gain_kw_per_pct, 2) for step in detect_steps(data)]
     [1.35]
     """
-    if isinstance(delay_steps, bool) or not isinstance(delay_steps, int) or delay_steps < 0:
-        raise IdentificationError(f"detect_steps: delay_steps must be an int >= 0; got {delay_steps!r}")
+    delay_steps = checked_int(delay_steps, 0, "detect_steps: delay_steps")
     if min_step is None:
         threshold = default_step_threshold(data.triac_pct, segment_starts=data.segment_starts)
     else:

@@ -35,6 +35,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from sysid._arrays import readonly_array as _readonly
+from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.errors import IdentificationError
 from sysid.greybox import GreyBoxStructure
@@ -570,16 +571,14 @@ def select_structure(
     IdentificationError
         Bad options, or no structure could be fitted.
     """
-    for name, value in (("nb_max", nb_max), ("nf_max", nf_max), ("degree_max", degree_max)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise IdentificationError(f"select_structure: {name} must be an int >= 1; got {value!r}")
+    nb_max, nf_max, degree_max = (checked_int(value, 1, f"select_structure: {name}") for name, value
+                                  in (("nb_max", nb_max), ("nf_max", nf_max), ("degree_max", degree_max)))
     if not 0.05 <= validation_fraction <= 0.5:
         raise IdentificationError(
             f"select_structure: validation_fraction must lie in [0.05, 0.5]; got "
             f"{validation_fraction!r}"
         )
-    if isinstance(min_nk, bool) or not isinstance(min_nk, int) or min_nk < 0:
-        raise IdentificationError(f"select_structure: min_nk must be an int >= 0; got {min_nk!r}")
+    min_nk = checked_int(min_nk, 0, "select_structure: min_nk")
     delay = estimate_delay(segments)
     nks = sorted({max(nk, min_nk) for nk in (delay.delay_steps - 1, delay.delay_steps,
                                               delay.delay_steps + 1, paper_orders[3])})

@@ -40,6 +40,7 @@ from typing import Literal
 import numpy as np
 from scipy.signal import lfilter
 
+from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.errors import IdentificationError
 from sysid.polynomials import impulse_response
@@ -88,11 +89,8 @@ class HammersteinOrders:
                 f"HammersteinOrders: block must be 'oe' or 'armax'; got {self.block!r}"
             )
         for name, minimum in (("degree", 1), ("nb", 1), ("na", 0), ("nc", 0), ("nk", 0)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-                raise IdentificationError(
-                    f"HammersteinOrders: {name} must be an int >= {minimum}; got {value!r}"
-                )
+            object.__setattr__(self, name, checked_int(getattr(self, name), minimum,
+                                                       f"HammersteinOrders: {name}"))
 
     @property
     def n_model(self) -> int:

@@ -19,6 +19,7 @@ import casadi as ca
 import numpy as np
 
 from sysid._arrays import readonly_array as _readonly
+from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.criteria import model_criteria
 from sysid.data import Dataset
@@ -120,12 +121,6 @@ class HammersteinFit:
         return _poly_eval(self.input_poly, np.asarray(ds_pct, dtype=float))
 
 
-def _check_int(name: str, value: object, minimum: int, where: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise IdentificationError(f"{where}: {name} must be an int >= {minimum}; got {value!r}")
-    return int(value)
-
-
 def _check_arrays(y: Any, ds: Any, where: str) -> tuple[FloatArray, FloatArray]:
     y_arr = np.asarray(y, dtype=float)
     ds_arr = np.asarray(ds, dtype=float)
@@ -185,10 +180,10 @@ def _observer_form(
 
 def _check_orders(degree: int, nb: int, nf: int, nk: int, where: str) -> tuple[int, int, int, int]:
     return (
-        _check_int("degree", degree, 1, where),
-        _check_int("nb", nb, 1, where),
-        _check_int("nf", nf, 0, where),
-        _check_int("nk", nk, 0, where),
+        checked_int(degree, 1, f"{where}: degree"),
+        checked_int(nb, 1, f"{where}: nb"),
+        checked_int(nf, 0, f"{where}: nf"),
+        checked_int(nk, 0, f"{where}: nk"),
     )
 
 
@@ -287,8 +282,8 @@ def hammerstein_armax_structure(
     """
     where = "hammerstein_armax_structure"
     degree, nb, _, nk = _check_orders(degree, nb, 0, nk, where)
-    na = _check_int("na", na, 0, where)
-    nc = _check_int("nc", nc, 0, where)
+    na = checked_int(na, 0, f"{where}: na")
+    nc = checked_int(nc, 0, f"{where}: nc")
     orders = HammersteinOrders(block="armax", degree=degree, nb=nb, na=na, nc=nc, nk=nk)
 
     def kgain(p: Mapping[str, Any], n: int) -> list[Any]:

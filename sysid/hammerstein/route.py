@@ -17,6 +17,7 @@ import numpy.typing as npt
 from scipy.signal import lfilter
 
 from sysid._arrays import readonly_array as _readonly
+from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import IdentificationError, IdentificationWarning
@@ -26,7 +27,6 @@ from sysid.hammerstein.model import (
     HammersteinFit,
     RowForm,
     _check_arrays,
-    _check_int,
     _check_orders,
     hammerstein_model,
 )
@@ -125,7 +125,7 @@ def initial_input_poly(
     rest. Solved by ordinary least squares (the paper: four rows, two unknowns).
     """
     where = "initial_input_poly"
-    degree = _check_int("degree", degree, 1, where)
+    degree = checked_int(degree, 1, f"{where}: degree")
     if row_form not in ("eq21", "jump"):
         raise IdentificationError(f"{where}: row_form must be 'eq21' or 'jump'; got {row_form!r}")
     a = np.asarray(arx_a, dtype=float)
@@ -338,8 +338,8 @@ def pole_start_time_constants(n_samples: int, n_starts: int = N_POLE_STARTS) -> 
         ``n_samples < 1`` or ``n_starts < 1``.
     """
     where = "pole_start_time_constants"
-    n = _check_int("n_samples", n_samples, 1, where)
-    m = _check_int("n_starts", n_starts, 1, where)
+    n = checked_int(n_samples, 1, f"{where}: n_samples")
+    m = checked_int(n_starts, 1, f"{where}: n_starts")
     out: FloatArray = np.geomspace(1.0, max(n / 10.0, 1.0), m)
     return out
 
@@ -599,7 +599,7 @@ def run_hammerstein_route(
     where = "run_hammerstein_route"
     y_arr, ds_arr = _check_arrays(y, ds, where)
     degree, nb, nf, nk = _check_orders(degree, nb, nf, nk, where)
-    nc_used = nf if nc is None else _check_int("nc", nc, 0, where)
+    nc_used = nf if nc is None else checked_int(nc, 0, f"{where}: nc")
     skipped: list[str] = []
     seg = None if segment_starts is None else tuple(int(v) for v in segment_starts)
     arx_fit = arx_least_squares(y_arr, ds_arr, na=nf, nb=nb, nk=nk, segment_starts=seg)
@@ -648,7 +648,7 @@ def run_hammerstein_route(
     if pole_starts:
         final = _multistart(
             final, y_arr, ds_arr, degree=degree, nb=nb, nf=nf, nk=nk,
-            n_starts=_check_int("pole_starts", pole_starts, 0, where),
+            n_starts=checked_int(pole_starts, 0, f"{where}: pole_starts"),
             max_iterations=max_iterations, initial_state=initial_state, segment_starts=seg,
             progress=report("joint PEM of the OE block from fixed poles (V)"),
         )
@@ -760,7 +760,7 @@ def fit_hammerstein(
         raise IdentificationError(
             f"{where}: operating_point must be an OperatingPoint; got {operating_point!r}"
         )
-    nk = _check_int("nk", nk, 0, where)
+    nk = checked_int(nk, 0, f"{where}: nk")
     used_steps = tuple(detect_steps(data, delay_steps=nk) if steps is None else steps)
     y = data.power_kw - operating_point.power_kw
     ds = data.triac_pct - operating_point.triac_pct
