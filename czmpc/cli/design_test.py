@@ -12,7 +12,6 @@ spectrum [%^2 s] against frequency [rad/s] with the expected bandwidth 1/tau.
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 from czmpc.cli import _argtypes as t
@@ -53,13 +52,13 @@ def register(parser: argparse.ArgumentParser) -> None:
 def _tau_from_model(path: str) -> tuple[float, int]:
     from sysid.errors import ModelFileError
     from sysid.modelfile import load_model
-    from sysid.polynomials import roots_z
+    from sysid.polynomials import slowest_time_constant_samples
 
     model = load_model(path)
-    taus = [-model.ts_s / math.log(abs(z)) for z in roots_z(model.a) if 0 < abs(z) < 1]
-    if not taus:
+    tau_s = model.ts_s * slowest_time_constant_samples(model.a)   # a model's A is stable
+    if tau_s == 0.0:
         raise ModelFileError(f"{path}: the model has no stable pole to give a time constant; use --tau-s")
-    return max(taus), model.input_degree
+    return tau_s, model.input_degree
 
 
 def run(args: argparse.Namespace) -> int:

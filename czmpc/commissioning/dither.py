@@ -26,7 +26,7 @@ from czmpc.errors import SettingsError
 from czmpc.modes import Mode
 from czmpc.runtime.loop import MPCDriver
 from sysid.model import HammersteinModel
-from sysid.polynomials import roots_z
+from sysid.polynomials import slowest_time_constant_samples
 
 #: Largest dither amplitude [%] accepted: a dither is small by design; larger
 #: excitation is an open-loop test (`czmpc run --test`).
@@ -41,10 +41,10 @@ def dominant_time_constant_s(model: HammersteinModel) -> float:
     SettingsError
         If the model has no stable pole with ``0 < |z| < 1`` (no time constant to use).
     """
-    taus = [-model.ts_s / math.log(abs(z)) for z in roots_z(np.asarray(model.a)) if 0 < abs(z) < 1]
-    if not taus:
+    tau_s = model.ts_s * slowest_time_constant_samples(model.a)   # a model's A is stable
+    if tau_s == 0.0:
         raise SettingsError("the model has no stable pole that gives a time constant for the dither")
-    return max(taus)
+    return tau_s
 
 
 class DitheredMPC(MPCDriver):
