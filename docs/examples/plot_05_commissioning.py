@@ -72,8 +72,12 @@ try:
     config = load_run_config(work / "run.toml")
     result = commission(config, plan, progress=print)
 finally:
-    server.send_signal(signal.SIGINT)
-    server.wait(10)
+    server.send_signal(signal.SIGINT)     # it writes its log and exits (1-2 s when idle)
+    try:
+        server.wait(60)
+    except subprocess.TimeoutExpired:     # a machine too busy to let it finish
+        server.kill()
+        server.wait()
 
 print(f"journey ended: {result.stage}; verdict {result.check.verdict if result.check else None}; "
       f"held-out fit {result.fit_pct if result.fit_pct is not None else float('nan'):.1f} %")
