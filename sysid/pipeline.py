@@ -57,6 +57,7 @@ from sysid.model import HammersteinModel, OperatingPoint
 from sysid.offset import steady_state_offset_kw
 from sysid.polynomials import slowest_time_constant_samples
 from sysid.preprocess import (
+    LEVEL_SHIFT_MAX_SPAN_SHARE,
     OperatingPointChoice,
     OutlierReport,
     correct_level_shift,
@@ -497,6 +498,17 @@ def _preprocess(
                 continue
             try:
                 est = estimate_level_shift(repaired, cand.time_s)
+                span = float(np.ptp(data.power_kw))
+                share = abs(est.shift_kw) / span
+                if share > LEVEL_SHIFT_MAX_SPAN_SHARE:
+                    skipped.append(
+                        f"level shift at {cand.time_s:g} s not corrected: its estimate "
+                        f"{est.shift_kw:.4g} {data.output_unit} is {100 * share:.0f} % of the "
+                        f"output's span, more than the {100 * LEVEL_SHIFT_MAX_SPAN_SHARE:g} % a "
+                        "sensor offset takes; the process moved in a way the outlier model "
+                        "does not predict (give --level-shift TIME_S KW if it is a sensor "
+                        "fault)")
+                    continue
                 repaired = correct_level_shift(
                     repaired, from_time_s=est.from_time_s, shift_kw=est.shift_kw
                 )

@@ -23,6 +23,12 @@ Starts of each fit (the OE criterion is not convex), the best by ``V_rest`` kept
 ARX least squares; the SRIV estimate (`sysid.linear.sriv_oe`); and ``F`` fixed at
 repeated poles over the plausible time constants with ``B`` by least squares
 (`sysid.hammerstein.route.fixed_pole_starts`).
+
+The choice: the fewest parameters within `PARSIMONY_RTOL` of the lowest ``V_rest`` among
+the structures whose slowest time constant is at most the record's length (the rule of
+`sysid.structure.select_structure`). A slower pole cannot be told from an integrator on
+the record: on a log that does not show the process settle it buys a lower ``V_rest``
+with a static gain of 1e7 times the recorded one (TCLab's first 250 samples).
 """
 
 from __future__ import annotations
@@ -43,7 +49,7 @@ from sysid.hammerstein.route import fixed_pole_starts, pole_start_time_constants
 from sysid.linear import _linear_model, _oe_polynomials, _shift_into, arx_oe_start, sriv_oe
 from sysid.model import HammersteinModel, OperatingPoint
 from sysid.optimize import levenberg_marquardt
-from sysid.polynomials import is_stable
+from sysid.polynomials import is_stable, slowest_time_constant_samples
 
 #: Share of the record at its start that is a burn-in: not scored, so that the unknown
 #: initial state (a log that does not start at rest) decays before the criterion counts.
@@ -63,8 +69,9 @@ N_REFINED = 4
 PARSIMONY_RTOL = 0.02
 #: Structures within this share of the lowest ``V_rest`` are ones the record does not
 #: tell apart (`RestOESearch.near`; the margin the tests allow identify over the
-#: multistart reference, issue 29). Measured: 2, 6, 16 and 20 of the 48 structures on the
-#: exchanger, TCLab, tanks and lamp logs; a 5 or 10 % cut at a log's end moves the choice.
+#: multistart reference, issue 29). Measured: 1, 6, 18 and 20 of the 45, 43, 44 and 48
+#: admissible structures on the exchanger, TCLab, tanks and lamp logs; a 5 or 10 % cut
+#: at a log's end moves the choice.
 NEAR_V_SHARE = 0.10
 #: LM tolerances of the grid (structures ranked at the 1e-3 level of V_rest) and of the
 #: refined structures' fits.
@@ -122,6 +129,11 @@ class RestOEFit:
         """``B(1) / F(1)`` [output unit per input unit]."""
         return float(np.sum(self.b) / np.sum(self.f))
 
+    @property
+    def slowest_time_constant_samples(self) -> float:
+        """``-1 / ln|z|`` of ``F``'s largest root [samples]."""
+        return slowest_time_constant_samples(self.f)
+
 
 @dataclass(frozen=True, kw_only=True, eq=False)
 class RestOESearch:
@@ -130,23 +142,34 @@ class RestOESearch:
     Parameters
     ----------
     chosen :
-        The fewest-parameter structure within `PARSIMONY_RTOL` of the lowest ``V_rest``.
+        The fewest-parameter structure within `PARSIMONY_RTOL` of the lowest ``V_rest``
+        among the `admissible` ones.
     candidates :
         The best fit of every structure that gave a stable model, lowest ``V_rest`` first.
+    record_samples :
+        Length of the record searched [samples]: a fit whose slowest time constant is
+        longer cannot be told from an integrator on it, so it is not chosen.
     """
 
     chosen: RestOEFit
     candidates: tuple[RestOEFit, ...] = field(repr=False)
+    record_samples: int
+
+    @property
+    def admissible(self) -> tuple[RestOEFit, ...]:
+        """The candidates whose slowest time constant is at most `record_samples`, or all
+        of them when none is (the choice is made among these)."""
+        return _admissible(self.candidates, self.record_samples)
 
     def near(self, share: float = NEAR_V_SHARE) -> tuple[RestOEFit, ...]:
-        """The structures within ``share`` of the lowest ``V_rest``, lowest first (more than
-        one: the record does not single out a structure)."""
+        """The `admissible` structures within ``share`` of their lowest ``V_rest``, lowest
+        first (more than one: the record does not single out a structure)."""
         if not (math.isfinite(share) and share >= 0.0):
             raise IdentificationError(f"RestOESearch.near: share must be finite and >= 0; "
                                       f"got {share!r}")
-        lowest = min(fit.v_rest for fit in self.candidates)
-        return tuple(sorted((fit for fit in self.candidates
-                             if fit.v_rest <= (1.0 + share) * lowest), key=lambda f: f.v_rest))
+        pool = self.admissible
+        lowest = min(fit.v_rest for fit in pool)
+        return tuple(fit for fit in pool if fit.v_rest <= (1.0 + share) * lowest)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -315,6 +338,13 @@ def _fit(problem: _Problem, starts: Sequence[tuple[str, FloatArray | None]],
     return best
 
 
+def _admissible(fits: Sequence[RestOEFit], record_samples: int) -> tuple[RestOEFit, ...]:
+    """`fits` (kept in order) whose slowest time constant is at most `record_samples`, or
+    all of them when none is."""
+    slow_enough = tuple(f for f in fits if f.slowest_time_constant_samples <= record_samples)
+    return slow_enough or tuple(fits)
+
+
 def _pole_starts(problem: _Problem) -> list[tuple[str, FloatArray | None]]:
     out: list[tuple[str, FloatArray | None]] = []
     taus = pole_start_time_constants(problem.y.size, N_POLE_STARTS)
@@ -350,7 +380,7 @@ def search_oe_from_rest(
     -------
     RestOESearch
         The chosen model (the fewest parameters within `PARSIMONY_RTOL` of the lowest
-        ``V_rest``) and every structure's best fit.
+        ``V_rest`` among the `RestOESearch.admissible`) and every structure's best fit.
 
     Raises
     ------
@@ -397,18 +427,22 @@ def search_oe_from_rest(
     if not fits:
         raise IdentificationError(f"{where}: no structure gave a stable model")
     fits.sort(key=lambda fit: fit.v_rest)
-    for i, fit in enumerate(fits[:N_REFINED]):
+    # The refined ones are the best of those that can be chosen; a refinement that runs
+    # into a time constant longer than the record is not kept for an admissible fit.
+    for fit in _admissible(fits, n)[:N_REFINED]:
         problem = problems[(fit.nb, fit.nf, fit.nk)]
         own = np.concatenate([fit.b[fit.nk:] * (u_rms / y_rms), fit.f[1:]])
         better = _fit(problem, [(fit.start, own), *_pole_starts(problem)], y_rms, u_rms,
                       _FINAL_TOL)
-        if better is not None and better.v_rest < fit.v_rest:
-            fits[i] = better
+        if better is not None and better.v_rest < fit.v_rest and (
+                better.slowest_time_constant_samples <= n
+                or fit.slowest_time_constant_samples > n):
+            fits[fits.index(fit)] = better
     fits.sort(key=lambda fit: fit.v_rest)
-    lowest = fits[0].v_rest
-    near = [fit for fit in fits if fit.v_rest <= (1.0 + PARSIMONY_RTOL) * lowest]
+    pool = _admissible(fits, n)
+    near = [fit for fit in pool if fit.v_rest <= (1.0 + PARSIMONY_RTOL) * pool[0].v_rest]
     chosen = min(near, key=lambda fit: (fit.n_parameters, fit.v_rest))
-    return RestOESearch(chosen=chosen, candidates=tuple(fits))
+    return RestOESearch(chosen=chosen, candidates=tuple(fits), record_samples=n)
 
 
 __all__ = [

@@ -113,6 +113,11 @@ def _rest_text(search: RestOESearch, v_unit: str) -> str:
     else:
         verdict = (f"Only the chosen of the {len(search.candidates)} structures lies within "
                    f"{100 * NEAR_V_SHARE:.0f} % of the lowest V from rest: the record singles it out.")
+    too_slow = len(search.candidates) - len(search.admissible)
+    if too_slow:
+        verdict += (f" {too_slow} structure(s) with a time constant longer than the "
+                    f"{search.record_samples}-sample record are not chosen and not listed: the "
+                    "record cannot tell them from an integrator, whatever their V.")
     return (f"**Linear OE from rest** (nb, nf, nk: OE({c.nb}, {c.nf}, {c.nk}) chosen, V from "
             f"rest after a burn-in of {c.burn_in_steps} samples). {verdict}\n\n"
             + format_table(["nb, nf, nk", "parameters", f"V from rest [{v_unit}]",

@@ -117,8 +117,9 @@ def test_search_refuses_bad_input_by_name(y: np.ndarray, u: np.ndarray,
 
 def test_an_oe_from_a_first_sample_that_is_no_rest_does_not_replace_the_final_model() -> None:
     """The TCLab log without its first ten samples starts at the step 0 -> 100 %: from rest
-    there, the best OE drifts like an integrator (static gain about -6e6 degC/%, against a
-    recorded span ratio of 0.35), and the final model is kept, with the reason."""
+    there, the lowest-V OE drifts like an integrator (static gain about -6e6 degC/%, against
+    a recorded span ratio of 0.35; the search does not choose it, its time constant being
+    longer than the record), and the final model is kept, with the reason."""
     from pathlib import Path
 
     from sysid.pipeline import NamedModel, _better_from_rest
@@ -129,7 +130,7 @@ def test_an_oe_from_a_first_sample_that_is_no_rest_does_not_replace_the_final_mo
     cut = Dataset(time_s=log.time_s[10:] - log.time_s[10], triac_pct=log.triac_pct[10:],
                   power_kw=log.power_kw[10:], ts_s=log.ts_s, sampling_rtol=log.sampling_rtol)
     rest = RestPoint.first_sample(cut.triac_pct, cut.power_kw)
-    fit = search_oe_from_rest(cut.power_kw, cut.triac_pct).chosen
+    fit = search_oe_from_rest(cut.power_kw, cut.triac_pct).candidates[0]
     assert abs(fit.static_gain) > 1e3 * float(np.ptp(cut.power_kw) / np.ptp(cut.triac_pct))
     oe = NamedModel(name="oe_rest", label="OE", n_parameters=fit.n_parameters, n_iterations=0,
                     converged=True, model=rest_oe_model(fit, cut, operating_triac_pct=50.0,

@@ -230,8 +230,7 @@ def test_the_pipeline_on_two_segments_recovers_the_static_gain_from_all_samples(
     final = result.final
     assert final is not None and final.name == "hammerstein_armax"
     # Tolerance 1 %: the noise (0.05 kW, 2,400 samples, steps of up to 25 %) leaves a
-    # standard error of the gain near 1e-3 kW/% (0.1 %); 1 % is ten of them, and far
-    # below the glued record's error (over 50 %).
+    # standard error of the gain near 1e-3 kW/% (0.1 %); 1 % is ten of them.
     assert _static_gain(final.model) == pytest.approx(GAIN_TRUE_KW_PER_PCT, rel=0.01)
     # V with each segment's initial state estimated is the noise variance (0.0025 kW^2):
     # the model explains both segments to the noise
@@ -246,13 +245,20 @@ def test_the_pipeline_on_two_segments_recovers_the_static_gain_from_all_samples(
     assert not any("segment" in s for s in result.skipped)
     assert all(step.k != data.segment_starts[1] for step in result.steps)
 
-    glued_final = _pipeline(glued).final
+    # Glued, the seam is a jump of 11 kW (35 % of the span) that the outlier search flags
+    # as a level shift; too large for a sensor's offset, it is not subtracted from the rest
+    # of the record (`sysid.preprocess.LEVEL_SHIFT_MAX_SPAN_SHARE`; subtracting it made the
+    # gain err by over 10 %). What is left is the seam's transient: measured, the gain errs
+    # 0.46 % against 0.019 % and V is 1.26 times the segmented record's.
+    glued_result = _pipeline(glued)
+    assert any("level shift at 2400 s not corrected" in s for s in glued_result.skipped)
+    glued_final = glued_result.final
     assert glued_final is not None
     glued_gain = _static_gain(glued_final.model)
-    assert abs(glued_gain - GAIN_TRUE_KW_PER_PCT) > 50 * abs(
+    assert abs(glued_gain - GAIN_TRUE_KW_PER_PCT) > 5 * abs(
         _static_gain(final.model) - GAIN_TRUE_KW_PER_PCT)
-    assert abs(glued_gain / GAIN_TRUE_KW_PER_PCT - 1.0) > 0.1
-    assert ballistic_mse(glued_final.model, data, initial_state="estimate") > 100 * v_est
+    assert abs(glued_gain / GAIN_TRUE_KW_PER_PCT - 1.0) < 0.02
+    assert ballistic_mse(glued_final.model, data, initial_state="estimate") > 1.1 * v_est
 
 
 def test_one_segment_gives_what_the_pipeline_gave_before_segments_reached_it(

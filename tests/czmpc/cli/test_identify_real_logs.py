@@ -70,13 +70,14 @@ END_CUTS = {
     for pct in (5, 10)
 }
 #: The other real logs with 5 % and 10 % cut from their end. The structure of their
-#: model.json does not hold there (tanks: nb, nf, nk 4, 3, 2 becomes 3, 3, 0; the
-#: exchanger's Hammerstein 3, 3, 0 becomes 4, 1, 0 at 10 %): the structures within a
+#: model.json does not hold there (tanks: nb, nf, nk 3, 2, 0 becomes 3, 3, 0 and 3, 2, 1;
+#: the exchanger's Hammerstein 3, 3, 0 becomes 4, 1, 0 at 10 %): the structures within a
 #: few per cent of each other's V are many, and which wins moves with the record (no
 #: rule tried held them: parsimony margins of 2 to 20 %, BIC, one standard error over
 #: 5 to 20 blocks). What holds is the model: scored on the full log, the cut log's
 #: model.json errs by at most this factor over the full log's own (measured: lamp 1.00
-#: and 1.00, tanks 1.08 and 1.31, exchanger 1.00 and 1.18).
+#: and 1.00, tanks 1.03 and 1.22, exchanger 1.00 and 1.18; tanks 1.08 and 1.31 before
+#: the OE from rest left out time constants longer than the record).
 OTHER_END_CUT_V_RATIO = 1.35
 OTHER_END_CUTS = {
     f"{log}_end{pct}": (lambda log=log, pct=pct: READERS[log]().segment(
@@ -99,8 +100,8 @@ OTHER_END_CUTS = {
 #: the data leave open is the model's rest, not the estimator's choice. So identify warns
 #: that such a log does not start at rest (`sysid.criteria.start_at_rest`) and says to log
 #: from a steady state instead. The model.json identify writes from the cut logs errs
-#: 2,063 and 1,424 degC^2 on the full log, with nb, nf, nk 3, 2, 0 on both against the
-#: full log's 4, 3, 3: its choice of structure is not stable under a start cut (open).
+#: 2,308 and 1,275 degC^2 on the full log, with nb, nf, nk 4, 3, 1 and 2, 1, 0 against
+#: the full log's 4, 3, 3: its choice of structure is not stable under a start cut (open).
 START_CUT_V_RATIO = 1.25
 START_CUTS = {
     f"tclab_start{pct}": (lambda pct=pct: READERS["tclab"]().segment(
@@ -176,6 +177,18 @@ def _written_v(path: Path, data: Dataset, burn: int) -> float:
         v = float(np.mean(err[burn:] ** 2))
     return v if np.isfinite(v) else np.inf
 
+#: Issue 29's short records, as windows of the real logs: 250 or 400 samples in which the
+#: process does not settle. Simulated from rest, a pole at z = 1 - 1e-9 fits such a window
+#: best (a static gain 1e6..1e7 times the recorded one); identify chooses among slower
+#: time constants no more than the window holds, and its model.json stays within the
+#: issue's bar. Measured before that rule: model.json 409, 272, 151, 2.4 and 3.3 times the
+#: reference; after it 1.00, 1.00, 1.00, 1.015 and 1.014.
+EXCERPTS = {
+    f"{log}_{lo}_{hi}": (lambda log=log, lo=lo, hi=hi: READERS[log]().segment(lo, hi))
+    for log, lo, hi in (("tclab", 0, 250), ("lamp", 550, 800), ("tanks", 774, 1024),
+                        ("tanks", 624, 1024), ("exchanger", 1800, 2200))
+}
+
 
 Identified = Callable[[str], tuple[int, str, Path]]
 
@@ -194,7 +207,7 @@ def identified(tmp_path_factory: pytest.TempPathFactory) -> Identified:
             reading = ["--columns", "time_s=t,triac_pct=u_V,power_kw=y_degC",
                        "--input-unit", "V", "--output-unit", "degC"]
         else:
-            write_csv({**READERS, **END_CUTS, **OTHER_END_CUTS, **START_CUTS}[name](),
+            write_csv({**READERS, **END_CUTS, **OTHER_END_CUTS, **START_CUTS, **EXCERPTS}[name](),
                       folder / "log.csv")
         err = io.StringIO()
         with contextlib.redirect_stderr(err):
@@ -220,6 +233,22 @@ def test_identify_with_default_options_exits_0_within_ten_percent_of_the_multist
                                    for p in sorted((out / "models").glob("*.json"))])
     assert v_model_json <= REFERENCE_V_RATIO * reference, (v_model_json, reference)
     assert v_best <= v_model_json
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(EXCERPTS))
+def test_a_short_window_that_does_not_settle_gets_a_model_within_the_bar(
+    name: str, identified: Identified,
+) -> None:
+    code, err, out = identified(name)
+    assert code == 0, err
+    data = EXCERPTS[name]()
+    burn = int(BURN_IN_SHARE * data.n_samples)
+    reference = _reference_v(data.power_kw, data.triac_pct, burn, seed=29)
+    v_model_json = _written_v(out / "model.json", data, burn)
+    assert v_model_json <= REFERENCE_V_RATIO * reference, (v_model_json, reference)
+    a = json.loads((out / "model.json").read_text(encoding="utf-8"))["A"]
+    assert -1.0 / np.log(np.max(np.abs(np.roots(a)))) <= data.n_samples
 
 
 def _structure(path: Path) -> tuple[int, int, int]:
@@ -342,7 +371,7 @@ def test_identify_says_when_a_log_does_not_start_at_rest(name: str, identified: 
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="issue 29 item 3: cut at its start, the TCLab log "
-                   "gives nb, nf, nk 3, 2, 0 instead of the full log's 4, 3, 3")
+                   "gives nb, nf, nk 4, 3, 1 and 2, 1, 0 instead of the full log's 4, 3, 3")
 @pytest.mark.parametrize("name", list(START_CUTS))
 def test_the_short_logs_structure_holds_when_its_start_is_cut(name: str,
                                                               identified: Identified) -> None:
@@ -373,12 +402,20 @@ def test_hammerstein_oe_never_does_worse_than_the_linear_oe_it_contains(name: st
     assert v_hammerstein <= v_oe * (1 + NESTED_V_RTOL)
 
 
-def test_cascaded_tanks_nonlinearity_is_captured_by_the_input_polynomial() -> None:
-    # The tanks' outflow goes with sqrt(level): strongly nonlinear. Measured: V 40.8 -> 1.17 V^2.
+def test_the_cascaded_tanks_filling_to_overflow_is_not_repaired_as_level_shifts() -> None:
+    # ARX(10, 10), the outlier model, misses the tanks filling to overflow (the output
+    # clips at 10 V): seven events whose level persists. Each estimated shift is 18 to
+    # 67 % of the output's span, far more than a sensor's offset, so none is subtracted
+    # and each is said. Subtracted, they made OE(2,1)'s V 40.8 V^2 (Hammerstein-OE 1.17,
+    # read then as the nonlinearity); on the log as logged it is 0.363 (Hammerstein-OE
+    # 0.357).
     result = _pipeline("tanks")
-    ratio = (result.model("oe_2_1").model.criteria.ballistic_mse_kw2
-             / result.model("hammerstein_oe").model.criteria.ballistic_mse_kw2)
-    assert ratio > 10.0
+    not_corrected = [s for s in result.skipped if "not corrected" in s]
+    assert result.outliers is not None
+    shifts = [c for c in result.outliers.candidates if c.kind == "level_shift"]
+    assert len(not_corrected) == len(shifts) == 7
+    np.testing.assert_array_equal(result.data.power_kw, result.raw_data.power_kw)
+    assert result.model("oe_2_1").model.criteria.ballistic_mse_kw2 < 0.5
     assert any("steady" in s for s in result.skipped)     # says it fell back to the means
 
 

@@ -52,8 +52,11 @@ def test_the_section_finds_the_known_delay_and_lists_the_structures_within_ten_p
     assert choice.chosen.nk == TRUE_DELAY
     rows = _table_rows(text, "**Linear OE from rest**")
     # every V from rest recomputed by scipy: zero state, rest at the first sample, burn-in
+    # of the structures whose slowest time constant (numpy's roots) fits in the record
+    slow_enough = [f for f in search.candidates
+                   if -1.0 / np.log(np.max(np.abs(np.roots(f.f)))) <= y.size]
     v = [float(np.mean((y - y[0] - lfilter(f.b, f.f, u - u[0]))[f.burn_in_steps:] ** 2))
-         for f in search.candidates]
+         for f in slow_enough]
     near = sorted(x for x in v if x <= 1.10 * min(v))
     assert len(rows) == len(near) >= 2                  # nested structures fit the truth too
     shown = [float(r[2]) for r in rows]
@@ -62,6 +65,10 @@ def test_the_section_finds_the_known_delay_and_lists_the_structures_within_ten_p
     chosen_row = next(r for r in rows if r[4] == "**chosen**")
     assert chosen_row[0] == f"{search.chosen.nb}, {search.chosen.nf}, {search.chosen.nk}"
     assert f"{len(rows)} of the {len(search.candidates)} structures lie within 10 %" in text
+    too_slow = len(search.candidates) - len(slow_enough)
+    assert too_slow >= 1                                # one near-integrator on this record
+    assert (f"{too_slow} structure(s) with a time constant longer than the {y.size}-sample "
+            "record are not chosen") in text
     grid = _table_rows(text, "**Orders on validation data**")
     chosen = [r for r in grid if "**chosen**" in r[5]]
     assert len(chosen) == 1 and float(chosen[0][4]) == 1.0
@@ -70,21 +77,34 @@ def test_the_section_finds_the_known_delay_and_lists_the_structures_within_ten_p
     assert ratios == sorted(ratios)                     # the best by validation V first
 
 
-def _fit(nb: int, v_rest: float) -> RestOEFit:
-    return RestOEFit(nb=nb, nf=1, nk=0, b=np.ones(nb), f=np.array([1.0, -0.5]),
+def _fit(nb: int, v_rest: float, pole: float = 0.5) -> RestOEFit:
+    return RestOEFit(nb=nb, nf=1, nk=0, b=np.ones(nb), f=np.array([1.0, -pole]),
                      v_rest=v_rest, burn_in_steps=10, start="arx", n_iterations=3,
                      converged=True)
 
 
 def test_a_record_that_singles_out_its_structure_says_so() -> None:
     fits = (_fit(1, 1.0), _fit(2, 1.2), _fit(3, 2.0))
-    text = structure_section(None, RestOESearch(chosen=fits[0], candidates=fits),
-                             v_unit="degC^2", gain_unit="degC/V")
+    search = RestOESearch(chosen=fits[0], candidates=fits, record_samples=100)
+    text = structure_section(None, search, v_unit="degC^2", gain_unit="degC/V")
     assert "Only the chosen of the 3 structures lies within 10 %" in text
+    assert "time constant longer" not in text
     assert len(_table_rows(text, "**Linear OE from rest**")) == 1
     assert "V from rest [degC^2]" in text
-    near = RestOESearch(chosen=fits[0], candidates=fits).near(0.25)
-    assert [f.nb for f in near] == [1, 2]
+    assert [f.nb for f in search.near(0.25)] == [1, 2]
+
+
+def test_near_and_admissible_leave_out_a_pole_slower_than_the_record() -> None:
+    # z = 0.999: a time constant of 999.5 samples, longer than a 500-sample record
+    fits = (_fit(3, 0.5, pole=0.999), _fit(1, 1.0), _fit(2, 1.05))
+    search = RestOESearch(chosen=fits[1], candidates=fits, record_samples=500)
+    assert [f.nb for f in search.admissible] == [1, 2]
+    assert [f.nb for f in search.near()] == [1, 2]
+    assert fits[0].slowest_time_constant_samples == pytest.approx(-1.0 / np.log(0.999))
+    longer = RestOESearch(chosen=fits[0], candidates=fits, record_samples=1000)
+    assert [f.nb for f in longer.near()] == [3]         # 1.0 > 1.10 x 0.5
+    every = RestOESearch(chosen=fits[0], candidates=fits[:1], record_samples=500)
+    assert every.admissible == fits[:1]                 # none fits: all are kept
 
 
 def test_no_search_no_section() -> None:
