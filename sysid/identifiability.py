@@ -9,8 +9,9 @@ orders in `assess_model`), each a refusal when it fails:
 
 * ``input_excitation``: the input's standard deviation against its scale;
 * ``input_levels``: distinct input levels: fewer than 2 is a refusal; fewer than the
-  polynomial degree + 1 only a warning (the pipeline writes a lower-order model, which
-  the data do support);
+  polynomial degree + 1 only a warning (with as many levels away from the operating point
+  as the degree, ``f`` passes exactly through them; with fewer, the Hammerstein fits
+  refuse the degree and the pipeline writes a lower-order model, which the data support);
 * ``persistent_excitation``: the input's order of persistent excitation against the
   number of ``B`` coefficients;
 * ``samples_per_parameter``: samples against estimated parameters;
@@ -477,7 +478,9 @@ def _data_checks(data: Dataset, *, degree: int, nb: int, n_parameters: int,
                         f"{what} ({degree} coefficient(s) of f and the output at the operating "
                         "point)"),
                advice=((f"; {_ADVICE_TEST}" if levels < 2 else
-                        "; the input polynomial cannot be fitted from these levels, so the "
+                        f"; a degree-{degree} f is at best drawn exactly through these "
+                        "levels, its shape between them unchecked; with fewer levels away "
+                        "from the operating point than its degree it is not fitted, and the "
                         "model written is of lower order (the terminal says which); for "
                         f"the nonlinearity, {_ADVICE_TEST}")
                        + (", or a lower degree (--orders)" if degree > 1 else ""))),

@@ -114,6 +114,25 @@ def test_two_levels_warn_for_the_polynomial_but_support_a_linear_model() -> None
     assert "model written is of lower order" in levels.message
 
 
+def test_as_many_levels_as_the_degree_fit_f_exactly_and_the_warning_says_so() -> None:
+    """A square wave between 40 and 50 % about an operating point of 45 %: two levels away
+    from it, so a quadratic f is fitted (not dropped to a lower order, as the warning used
+    to say), drawn exactly through them."""
+    rng = np.random.default_rng(2)
+    s = np.where(np.arange(400) % 80 < 40, 40.0, 50.0)
+    ds = s - OP.triac_pct
+    y = lfilter([0.0, 0.2], [1.0, -0.8], 0.5 * ds + 0.01 * ds**2)
+    y = y + 0.01 * rng.standard_normal(y.size)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = fit_hammerstein_oe(y, ds, degree=2, nb=1, nf=1, nk=1)
+    model = hammerstein_model(fit, _log(s, y), operating_point=OP)
+    assert model.input_degree == 2
+    levels = assess_model(model, _log(s, y)).check("input_levels")
+    assert not levels.passed and levels.severity == "warning"
+    assert "a degree-2 f is at best drawn exactly through these levels" in levels.message
+
+
 def test_structure_before_fit_counts_the_parameters_of_each_orders_option() -> None:
     assert structure_before_fit("paper")[:3] == (2, 2, 5)          # b2, d1, d2, a1, k1
     assert structure_before_fit("auto")[:3] == (1, 1, 3)           # d1, a1, k1
