@@ -1,5 +1,5 @@
 """Array helpers shared by sysid modules: read-only float copies (how frozen values hold
-arrays) and runs of a boolean mask."""
+arrays), runs of a boolean mask, and the output's clipped samples."""
 
 from __future__ import annotations
 
@@ -24,4 +24,16 @@ def true_runs(mask: npt.NDArray[np.bool_]) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
-__all__ = ["readonly_array", "true_runs"]
+#: Shortest exactly constant run at the output's record maximum or minimum taken as
+#: clipping (a saturated sensor or process, e.g. the cascaded tanks at 10 V).
+CLIP_MIN_RUN_SAMPLES = 10
+
+
+def clipped_samples(y: FloatArray, min_run: int = CLIP_MIN_RUN_SAMPLES) -> tuple[int, ...]:
+    """Samples in exactly constant runs of at least ``min_run`` at ``y``'s max or min."""
+    return tuple(sorted(k for extreme in {float(np.max(y)), float(np.min(y))}
+                        for a, b in true_runs(y == extreme) if b - a >= min_run
+                        for k in range(a, b)))
+
+
+__all__ = ["CLIP_MIN_RUN_SAMPLES", "clipped_samples", "readonly_array", "true_runs"]

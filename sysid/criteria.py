@@ -9,7 +9,7 @@ each segment (``Dataset.segment_starts``) restarts with its own initial state an
 squared errors are pooled. ``initial_state="estimate"`` fits each segment's initial
 state by least squares (the errors are affine in it), as MATLAB's ``compare`` with
 ``'InitialCondition', 'estimate'``: fair to records that do not start at rest, which
-`start_at_rest` judges.
+`start_at_rest` judges; `output_clipping` says when the output saturates.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from typing import Literal
 import numpy as np
 from scipy.signal import lfilter
 
+from sysid._arrays import CLIP_MIN_RUN_SAMPLES, clipped_samples
 from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import IdentificationError
@@ -305,6 +306,41 @@ def start_at_rest(data: Dataset) -> Check:
                     "input change")))
 
 
+def output_clipping(data: Dataset) -> Check:
+    """Whether the output saturates: a warning check when it sits at its extreme.
+
+    Samples in exactly constant runs of at least `sysid._arrays.CLIP_MIN_RUN_SAMPLES` at
+    the output's recorded maximum or minimum (per segment) are a saturated sensor or
+    process (the cascaded tanks overflow at 10 V): the models identified here, linear in
+    their dynamics, cannot follow the output there, and those samples pull the fit.
+
+    Parameters
+    ----------
+    data :
+        The record (absolute units), one or more segments.
+
+    Returns
+    -------
+    Check
+        ``output_clipping``, a warning: measured the clipped samples [-], threshold 0.
+    """
+    clipped = [(lo + k, float(data.power_kw[lo + k]))
+               for lo, hi in data.segment_bounds() for k in clipped_samples(data.power_kw[lo:hi])]
+    n = len(clipped)
+    values = ", ".join(f"{v:.6g}" for v in sorted({v for _, v in clipped}))
+    return Check(
+        name="output_clipping", passed=n == 0, severity="warning", measured=float(n),
+        threshold=0.0,
+        message=("output clipping: no run of " f"{CLIP_MIN_RUN_SAMPLES} or more samples at the "
+                 "output's extreme" if n == 0 else
+                 f"output clipping: {n} sample(s) ({100 * n / data.n_samples:.3g} % of the "
+                 f"record, from t = {data.time_s[clipped[0][0]]:g} s) sit in runs of "
+                 f"{CLIP_MIN_RUN_SAMPLES} or more at the output's extreme ({values} "
+                 f"{data.output_unit}): a saturated sensor or process, which the model cannot "
+                 "follow and whose samples pull its fit; log inside the sensor's range, or "
+                 "blank those rows and identify with --gaps split"))
+
+
 __all__ = ["REST_DRIFT_SHARE", "REST_DRIFT_Z", "REST_INPUT_RTOL", "REST_MIN_SAMPLES",
            "ballistic_mse", "errors_with_fitted_state", "fit_percent", "mean_squared_error",
-           "model_criteria", "one_step_mse", "start_at_rest"]
+           "model_criteria", "one_step_mse", "output_clipping", "start_at_rest"]

@@ -25,8 +25,8 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from sysid._arrays import CLIP_MIN_RUN_SAMPLES, clipped_samples
 from sysid._arrays import readonly_array as _readonly
-from sysid._arrays import true_runs
 from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.data import Dataset
@@ -459,12 +459,6 @@ def _events(flagged: npt.NDArray[np.intp]) -> list[tuple[int, int]]:
     return events
 
 
-def _clipped_samples(y: FloatArray, min_run: int) -> tuple[int, ...]:
-    """Samples in constant runs of at least ``min_run`` at the output's max or min."""
-    return tuple(sorted(k for extreme in {float(y.max()), float(y.min())}
-                        for a, b in true_runs(y == extreme) if b - a >= min_run for k in range(a, b)))
-
-
 def find_outlier_candidates(
     data: Dataset,
     *,
@@ -475,7 +469,7 @@ def find_outlier_candidates(
     threshold: float = DEFAULT_OUTLIER_THRESHOLD,
     step_guard_samples: int = 5,
     input_step_tol: float | None = None,
-    clip_min_run_samples: int = 10,
+    clip_min_run_samples: int = CLIP_MIN_RUN_SAMPLES,
 ) -> OutlierReport:
     """Flag outlier candidates by the residuals of a high-order ARX model (paper sec. 5.2).
 
@@ -580,7 +574,7 @@ def find_outlier_candidates(
         threshold_kw=limit, na=na, nb=nb, nk=nk,
         input_step_samples=tuple(int(j) for j in steps), input_step_tol=step_tol,
         candidates=tuple(candidates), step_residuals=tuple(step_residuals),
-        clipped_samples=_clipped_samples(y, clip_min_run_samples))
+        clipped_samples=clipped_samples(y, clip_min_run_samples))
 
 
 # --------------------------------------------------------------------------- repairs
@@ -798,7 +792,8 @@ def estimate_level_shift(
 
 __all__ = [
     "DEFAULT_OUTLIER_THRESHOLD", "LEVEL_SHIFT_MAX_SPAN_SHARE", "LevelShiftEstimate",
-    "OperatingPointChoice", "OperatingPointMethod", "OutlierCandidate", "OutlierKind", "OutlierReport", "SteadyWindow",
-    "StepResidual", "correct_level_shift", "estimate_level_shift", "find_operating_point",
-    "find_outlier_candidates", "interpolate_spike", "to_deviation"
+    "OperatingPointChoice", "OperatingPointMethod", "OutlierCandidate", "OutlierKind",
+    "OutlierReport", "SteadyWindow", "StepResidual", "correct_level_shift",
+    "estimate_level_shift", "find_operating_point", "find_outlier_candidates",
+    "interpolate_spike", "to_deviation",
 ]

@@ -12,6 +12,7 @@ from sysid.criteria import (
     fit_percent,
     mean_squared_error,
     one_step_mse,
+    output_clipping,
     start_at_rest,
 )
 from sysid.data import Dataset
@@ -126,3 +127,37 @@ def test_start_at_rest_is_not_judged_when_the_input_moves_at_once(
     data = _first_order_log(rng, skip=8)         # the input changes at its third sample
     check = start_at_rest(data)
     assert check.passed and np.isnan(check.measured) and "not judged" in check.message
+
+
+@pytest.mark.parametrize(("run", "at_max", "warned"), [(9, True, False), (10, True, True),
+                                                       (10, False, True)])
+def test_output_clipping_counts_constant_runs_at_the_outputs_extreme(
+    run: int, at_max: bool, warned: bool, rng: np.random.Generator,
+) -> None:
+    y = 40.0 + rng.uniform(-5.0, 5.0, 300)
+    y[100:100 + run] = 50.0 if at_max else 30.0          # beyond every other sample
+    y[200:220] = 42.0                                    # a constant run inside the range
+    data = Dataset(time_s=2.0 * np.arange(300), triac_pct=rng.uniform(0, 100, 300),
+                   power_kw=y, ts_s=2.0)
+    check = output_clipping(data)
+    assert (check.name, check.severity, check.passed) == ("output_clipping", "warning",
+                                                          not warned)
+    assert check.measured == (run if warned else 0)
+    if warned:
+        assert f"{run} sample(s) (" in check.message and "from t = 200 s" in check.message
+        assert f"({50 if at_max else 30} kW)" in check.message
+
+
+def test_output_clipping_judges_each_segment_at_its_own_extreme(
+    rng: np.random.Generator,
+) -> None:
+    # segment 2 clips at 45 kW, below segment 1's maximum of 50 kW
+    y = np.concatenate([40.0 + rng.uniform(-10.0, 10.0, 150), 40.0 + rng.uniform(-3, 3, 150)])
+    y[200:215] = 45.0
+    data = Dataset(time_s=np.concatenate([2.0 * np.arange(150), 1e4 + 2.0 * np.arange(150)]),
+                   triac_pct=rng.uniform(0, 100, 300), power_kw=y, ts_s=2.0,
+                   segment_starts=(0, 150))
+    check = output_clipping(data)
+    assert not check.passed and check.measured == 15
+    assert "(45 kW)" in check.message
+

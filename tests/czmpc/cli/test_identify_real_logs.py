@@ -370,6 +370,22 @@ def test_identify_says_when_a_log_does_not_start_at_rest(name: str, identified: 
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("name", list(READERS))
+def test_identify_says_when_the_output_clips(name: str, identified: Identified) -> None:
+    # the cascaded tanks overflow at 10 V: 47 samples in runs at that maximum
+    code, err, out = identified(name)
+    assert code == 0, err
+    checks = {c["check"]: c for c in json.loads((out / "model.json").read_text(
+        encoding="utf-8"))["provenance"]["identifiability"]}
+    clips = name == "tanks"
+    assert checks["output_clipping"]["passed"] is not clips
+    assert checks["output_clipping"]["measured"] == (47 if clips else 0)
+    assert ("czmpc: WARNING: output clipping: 47 sample(s)" in err) is clips
+    report = (out / "report.md").read_text(encoding="utf-8")
+    assert ("| output_clipping | warning |" in report) is clips
+
+
+@pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="issue 29 item 3: cut at its start, the TCLab log "
                    "gives nb, nf, nk 4, 3, 1 and 2, 1, 0 instead of the full log's 4, 3, 3")
 @pytest.mark.parametrize("name", list(START_CUTS))
