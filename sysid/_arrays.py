@@ -1,5 +1,6 @@
 """Array helpers shared by sysid modules: read-only float copies (how frozen values hold
-arrays), runs of a boolean mask, and the output's clipped samples."""
+arrays), runs of a boolean mask, the output's clipped samples and the robust standard
+deviation (MAD) that the outlier search, the step detector and the rest check share."""
 
 from __future__ import annotations
 
@@ -24,6 +25,16 @@ def true_runs(mask: npt.NDArray[np.bool_]) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
+#: Median absolute deviation to standard deviation for Gaussian data, ``1 / Phi^-1(3/4)``.
+MAD_TO_STD = 1.482602218505602
+
+
+def robust_std(x: FloatArray) -> float:
+    """``MAD_TO_STD * median(|x - median(x)|)``: the standard deviation of Gaussian ``x``,
+    unmoved by a few outliers."""
+    return MAD_TO_STD * float(np.median(np.abs(x - np.median(x))))
+
+
 #: Shortest exactly constant run at the output's record maximum or minimum taken as
 #: clipping (a saturated sensor or process, e.g. the cascaded tanks at 10 V).
 CLIP_MIN_RUN_SAMPLES = 10
@@ -36,4 +47,5 @@ def clipped_samples(y: FloatArray, min_run: int = CLIP_MIN_RUN_SAMPLES) -> tuple
                         for k in range(a, b)))
 
 
-__all__ = ["CLIP_MIN_RUN_SAMPLES", "clipped_samples", "readonly_array", "true_runs"]
+__all__ = ["CLIP_MIN_RUN_SAMPLES", "MAD_TO_STD", "clipped_samples", "readonly_array",
+           "robust_std", "true_runs"]

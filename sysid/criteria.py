@@ -20,7 +20,7 @@ from typing import Literal
 import numpy as np
 from scipy.signal import lfilter
 
-from sysid._arrays import CLIP_MIN_RUN_SAMPLES, clipped_samples
+from sysid._arrays import CLIP_MIN_RUN_SAMPLES, clipped_samples, robust_std
 from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.errors import IdentificationError
@@ -274,7 +274,7 @@ def start_at_rest(data: Dataset) -> Check:
         k = np.arange(m) - (m - 1) / 2.0
         slope = float(k @ y[:m]) / float(k @ k)
         d2 = np.diff(y, 2)
-        noise = max(1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0),
+        noise = max(robust_std(d2) / np.sqrt(6.0),
                     float(np.std(y[:m] - np.mean(y[:m]) - slope * k)))
         drift = slope * (m - 1)
         z = abs(slope) * float(np.sqrt(k @ k)) / noise if noise > 0 else math.inf

@@ -25,7 +25,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-from sysid._arrays import CLIP_MIN_RUN_SAMPLES, clipped_samples
+from sysid._arrays import CLIP_MIN_RUN_SAMPLES, clipped_samples, robust_std
 from sysid._arrays import readonly_array as _readonly
 from sysid._checks import checked_int
 from sysid._typing import FloatArray
@@ -36,9 +36,6 @@ from sysid.model import OperatingPoint
 
 OperatingPointMethod = Literal["given", "means", "steady"]
 OutlierKind = Literal["spike", "level_shift"]
-
-#: MAD-to-standard-deviation factor for Gaussian data (1 / Phi^-1(3/4)).
-MAD_TO_STD = 1.4826
 
 #: Default outlier threshold [robust residual scales]. A Gaussian residual exceeds
 #: 5 sigma with probability 5.7e-7, so a 12 500-sample record (the paper's ~7 h at
@@ -76,11 +73,6 @@ def _check_finite(where: str, name: str, value: float, *, positive: bool = False
         return
     bound = ("> 0" if positive else ">= 0") + (" or None" if or_none else "")
     raise IdentificationError(f"{where}: {name} must be a finite number {bound}; got {value!r}")
-
-
-def _robust_scale(x: FloatArray) -> float:
-    """``1.4826 * median(|x - median(x)|)``."""
-    return MAD_TO_STD * float(np.median(np.abs(x - np.median(x))))
 
 
 # --------------------------------------------------------------------------- operating point
@@ -290,7 +282,7 @@ def find_operating_point(
     min_window_samples = checked_int(min_window_samples, 4, "find_operating_point: min_window_samples")
     bounds = data.segment_bounds()
     diffs = np.concatenate([np.diff(y[lo:hi]) for lo, hi in bounds])
-    sigma_y = _robust_scale(diffs) / math.sqrt(2.0)
+    sigma_y = robust_std(diffs) / math.sqrt(2.0)
     limit = max(drift_sigmas * sigma_y, output_atol_kw)
     runs = [(lo + a, lo + b) for lo, hi in bounds
             for a, b in _constant_input_runs(u[lo:hi], input_tol)]
@@ -528,7 +520,7 @@ def find_outlier_candidates(
     n0 = fit.first_sample
     e = fit.residuals
     rows = np.concatenate([np.arange(lo + n0, hi) for lo, hi in data.segment_bounds()])
-    scale = _robust_scale(e)
+    scale = robust_std(e)
     if scale <= EXACT_FIT_RTOL * float(np.std(dp)):
         raise IdentificationError(
             f"{where}: expected residuals with a positive robust scale (MAD); got {scale:.3g} "
@@ -539,7 +531,7 @@ def find_outlier_candidates(
     du = np.diff(data.triac_pct)
     within = np.ones(du.size, dtype=bool)   # du[j] = u[j+1] - u[j] inside one segment
     within[np.asarray(data.segment_starts[1:], dtype=int) - 1] = False
-    step_tol = INPUT_STEP_SIGMAS * _robust_scale(du[within]) if input_step_tol is None \
+    step_tol = INPUT_STEP_SIGMAS * robust_std(du[within]) if input_step_tol is None \
         else float(input_step_tol)
     steps = np.flatnonzero((np.abs(du) > step_tol) & within) + 1
     limit = threshold * scale

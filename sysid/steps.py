@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sysid._arrays import robust_std
 from sysid._checks import checked_int
 from sysid._typing import FloatArray
 from sysid.data import Dataset
@@ -38,9 +39,6 @@ DEFAULT_STEP_FRACTION_OF_RANGE = 0.05
 #: The default threshold is also at least this many robust standard deviations of the
 #: sample-to-sample input change (a 5-sigma Gaussian excursion: once in 1.7 million).
 DEFAULT_STEP_NOISE_SIGMAS = 5.0
-
-#: Scale from the median absolute deviation to the standard deviation of a Gaussian.
-_MAD_TO_STD = 1.482602218505602
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -101,7 +99,7 @@ def default_step_threshold(
     changes = np.diff(u)
     if len(segment_starts) > 1:
         changes = np.delete(changes, np.asarray(segment_starts[1:], dtype=int) - 1)
-    sigma = _MAD_TO_STD * float(np.median(np.abs(changes - np.median(changes))))
+    sigma = robust_std(changes)
     span = float(np.max(u) - np.min(u))
     return max(DEFAULT_STEP_FRACTION_OF_RANGE * span, DEFAULT_STEP_NOISE_SIGMAS * sigma)
 
