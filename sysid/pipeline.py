@@ -69,6 +69,7 @@ from sysid.preprocess import (
 from sysid.rest_oe import (
     BURN_IN_SHARE,
     NK_VALUES,
+    REST_GAIN_SPAN_FACTOR,
     RestOESearch,
     RestPoint,
     rest_mse,
@@ -89,10 +90,8 @@ COMPARISON_TOLERANCE = 1e-6
 #: The final model gives way to the OE from rest (orders "auto") when its own simulation
 #: from rest has more than this times the OE's mean squared error (issue 29's bar).
 REST_V_RATIO = 1.1
-#: ... and only if its static gain is below this many times the output's recorded span
-#: over the input's: a larger gain is an extrapolation (measured: -6e6 degC/% on the TCLab
-#: log cut just after an input step).
-REST_GAIN_SPAN_FACTOR = 10.0
+#: ... and only if its static gain is at most `sysid.rest_oe.REST_GAIN_SPAN_FACTOR` times
+#: the output's recorded span over the input's (the search chooses among those).
 
 #: ``level_shift`` argument: ``"auto"`` (from the outlier candidates), ``"none"``, or
 #: ``(from_time_s, shift_kw)`` to subtract ``shift_kw`` from the output from that time.

@@ -95,8 +95,8 @@ def _grid_text(choice: StructureChoice, v_unit: str) -> str:
                            align="lrrrrl", markdown=True))
 
 
-def _rest_text(search: RestOESearch, v_unit: str) -> str:
-    from sysid.rest_oe import NEAR_V_SHARE, PARSIMONY_RTOL
+def _rest_text(search: RestOESearch, v_unit: str, gain_unit: str) -> str:
+    from sysid.rest_oe import NEAR_V_SHARE, PARSIMONY_RTOL, REST_GAIN_SPAN_FACTOR
 
     near = search.near()
     lowest = near[0].v_rest
@@ -113,11 +113,12 @@ def _rest_text(search: RestOESearch, v_unit: str) -> str:
     else:
         verdict = (f"Only the chosen of the {len(search.candidates)} structures lies within "
                    f"{100 * NEAR_V_SHARE:.0f} % of the lowest V from rest: the record singles it out.")
-    too_slow = len(search.candidates) - len(search.admissible)
-    if too_slow:
-        verdict += (f" {too_slow} structure(s) with a time constant longer than the "
-                    f"{search.record_samples}-sample record are not chosen and not listed: the "
-                    "record cannot tell them from an integrator, whatever their V.")
+    left_out = len(search.candidates) - len(search.admissible)
+    if left_out:
+        verdict += (f" {left_out} structure(s) with a static gain above {search.max_abs_gain:.4g} "
+                    f"{gain_unit} ({REST_GAIN_SPAN_FACTOR:g} times the recorded output span over "
+                    "the input span) are not chosen and not listed: a pole next to z = 1 that "
+                    "the record cannot tell from an integrator, whatever its V.")
     return (f"**Linear OE from rest** (nb, nf, nk: OE({c.nb}, {c.nf}, {c.nk}) chosen, V from "
             f"rest after a burn-in of {c.burn_in_steps} samples). {verdict}\n\n"
             + format_table(["nb, nf, nk", "parameters", f"V from rest [{v_unit}]",
@@ -147,7 +148,7 @@ def structure_section(choice: StructureChoice | None, search: RestOESearch | Non
     if choice is not None:
         parts += [_delay_text(choice, gain_unit), _grid_text(choice, v_unit)]
     if search is not None:
-        parts.append(_rest_text(search, v_unit))
+        parts.append(_rest_text(search, v_unit, gain_unit))
     return "\n\n".join(parts)
 
 

@@ -118,8 +118,8 @@ def test_search_refuses_bad_input_by_name(y: np.ndarray, u: np.ndarray,
 def test_an_oe_from_a_first_sample_that_is_no_rest_does_not_replace_the_final_model() -> None:
     """The TCLab log without its first ten samples starts at the step 0 -> 100 %: from rest
     there, the lowest-V OE drifts like an integrator (static gain about -6e6 degC/%, against
-    a recorded span ratio of 0.35; the search does not choose it, its time constant being
-    longer than the record), and the final model is kept, with the reason."""
+    a recorded span ratio of 0.35; the search does not choose it, by the same bound), and
+    the final model is kept, with the reason."""
     from pathlib import Path
 
     from sysid.pipeline import NamedModel, _better_from_rest

@@ -70,14 +70,13 @@ END_CUTS = {
     for pct in (5, 10)
 }
 #: The other real logs with 5 % and 10 % cut from their end. The structure of their
-#: model.json does not hold there (tanks: nb, nf, nk 3, 2, 0 becomes 3, 3, 0 and 3, 2, 1;
+#: model.json does not hold there (tanks: nb, nf, nk 4, 3, 2 becomes 3, 3, 0 and 3, 2, 1;
 #: the exchanger's Hammerstein 3, 3, 0 becomes 4, 1, 0 at 10 %): the structures within a
 #: few per cent of each other's V are many, and which wins moves with the record (no
 #: rule tried held them: parsimony margins of 2 to 20 %, BIC, one standard error over
 #: 5 to 20 blocks). What holds is the model: scored on the full log, the cut log's
 #: model.json errs by at most this factor over the full log's own (measured: lamp 1.00
-#: and 1.00, tanks 1.03 and 1.22, exchanger 1.00 and 1.18; tanks 1.08 and 1.31 before
-#: the OE from rest left out time constants longer than the record).
+#: and 1.00, tanks 1.08 and 1.29, exchanger 1.00 and 1.18).
 OTHER_END_CUT_V_RATIO = 1.35
 OTHER_END_CUTS = {
     f"{log}_end{pct}": (lambda log=log, pct=pct: READERS[log]().segment(
@@ -100,7 +99,7 @@ OTHER_END_CUTS = {
 #: the data leave open is the model's rest, not the estimator's choice. So identify warns
 #: that such a log does not start at rest (`sysid.criteria.start_at_rest`) and says to log
 #: from a steady state instead. The model.json identify writes from the cut logs errs
-#: 2,308 and 1,275 degC^2 on the full log, with nb, nf, nk 4, 3, 1 and 2, 1, 0 against
+#: 2,063 and 1,424 degC^2 on the full log, with nb, nf, nk 3, 2, 0 and 4, 2, 0 against
 #: the full log's 4, 3, 3: its choice of structure is not stable under a start cut (open).
 START_CUT_V_RATIO = 1.25
 START_CUTS = {
@@ -179,15 +178,16 @@ def _written_v(path: Path, data: Dataset, burn: int) -> float:
 
 #: Issue 29's short records, as windows of the real logs: 250 or 400 samples in which the
 #: process does not settle. Simulated from rest, a pole at z = 1 - 1e-9 fits such a window
-#: best (a static gain 1e6..1e7 times the recorded one); identify chooses among slower
-#: time constants no more than the window holds, and its model.json stays within the
-#: issue's bar. Measured before that rule: model.json 409, 272, 151, 2.4 and 3.3 times the
-#: reference; after it 1.00, 1.00, 1.00, 1.015 and 1.014.
+#: best (a static gain 1e6..1e7 times the recorded one); identify chooses among gains at
+#: most 10 times the recorded span ratio, and its model.json stays within the issue's bar.
+#: Measured before that rule: model.json 409, 272, 151, 2.4 and 3.3 times the reference;
+#: after it 1.00, 1.00, 1.00, 1.015 and 1.014. The unseen TCLab heater 2 log: 481 and
+#: 0.64.
 EXCERPTS = {
     f"{log}_{lo}_{hi}": (lambda log=log, lo=lo, hi=hi: READERS[log]().segment(lo, hi))
     for log, lo, hi in (("tclab", 0, 250), ("lamp", 550, 800), ("tanks", 774, 1024),
                         ("tanks", 624, 1024), ("exchanger", 1800, 2200))
-}
+} | {"tclab_heater2": lambda: read_tclab(REAL / "tclab_mimo_steps_data.txt", heater=2)}
 
 
 Identified = Callable[[str], tuple[int, str, Path]]
@@ -237,7 +237,7 @@ def test_identify_with_default_options_exits_0_within_ten_percent_of_the_multist
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", list(EXCERPTS))
-def test_a_short_window_that_does_not_settle_gets_a_model_within_the_bar(
+def test_short_windows_and_the_unseen_heater_2_log_get_a_model_within_the_bar(
     name: str, identified: Identified,
 ) -> None:
     code, err, out = identified(name)
@@ -247,8 +247,9 @@ def test_a_short_window_that_does_not_settle_gets_a_model_within_the_bar(
     reference = _reference_v(data.power_kw, data.triac_pct, burn, seed=29)
     v_model_json = _written_v(out / "model.json", data, burn)
     assert v_model_json <= REFERENCE_V_RATIO * reference, (v_model_json, reference)
-    a = json.loads((out / "model.json").read_text(encoding="utf-8"))["A"]
-    assert -1.0 / np.log(np.max(np.abs(np.roots(a)))) <= data.n_samples
+    obj = json.loads((out / "model.json").read_text(encoding="utf-8"))
+    gain = np.sum(obj["B"]) / np.sum(obj["A"]) * obj["input_poly"][0]
+    assert abs(gain) <= 10.0 * np.ptp(data.power_kw) / np.ptp(data.triac_pct)
 
 
 def _structure(path: Path) -> tuple[int, int, int]:
@@ -387,7 +388,7 @@ def test_identify_says_when_the_output_clips(name: str, identified: Identified) 
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="issue 29 item 3: cut at its start, the TCLab log "
-                   "gives nb, nf, nk 4, 3, 1 and 2, 1, 0 instead of the full log's 4, 3, 3")
+                   "gives nb, nf, nk 3, 2, 0 and 4, 2, 0 instead of the full log's 4, 3, 3")
 @pytest.mark.parametrize("name", list(START_CUTS))
 def test_the_short_logs_structure_holds_when_its_start_is_cut(name: str,
                                                               identified: Identified) -> None:

@@ -52,11 +52,11 @@ def test_the_section_finds_the_known_delay_and_lists_the_structures_within_ten_p
     assert choice.chosen.nk == TRUE_DELAY
     rows = _table_rows(text, "**Linear OE from rest**")
     # every V from rest recomputed by scipy: zero state, rest at the first sample, burn-in
-    # of the structures whose slowest time constant (numpy's roots) fits in the record
-    slow_enough = [f for f in search.candidates
-                   if -1.0 / np.log(np.max(np.abs(np.roots(f.f)))) <= y.size]
+    # of the structures whose static gain B(1)/F(1) is at most 10 x ptp(y) / ptp(u)
+    plausible = [f for f in search.candidates
+                 if abs(np.sum(f.b) / np.sum(f.f)) <= 10.0 * np.ptp(y) / np.ptp(u)]
     v = [float(np.mean((y - y[0] - lfilter(f.b, f.f, u - u[0]))[f.burn_in_steps:] ** 2))
-         for f in slow_enough]
+         for f in plausible]
     near = sorted(x for x in v if x <= 1.10 * min(v))
     assert len(rows) == len(near) >= 2                  # nested structures fit the truth too
     shown = [float(r[2]) for r in rows]
@@ -65,10 +65,9 @@ def test_the_section_finds_the_known_delay_and_lists_the_structures_within_ten_p
     chosen_row = next(r for r in rows if r[4] == "**chosen**")
     assert chosen_row[0] == f"{search.chosen.nb}, {search.chosen.nf}, {search.chosen.nk}"
     assert f"{len(rows)} of the {len(search.candidates)} structures lie within 10 %" in text
-    too_slow = len(search.candidates) - len(slow_enough)
-    assert too_slow >= 1                                # one near-integrator on this record
-    assert (f"{too_slow} structure(s) with a time constant longer than the {y.size}-sample "
-            "record are not chosen") in text
+    left_out = len(search.candidates) - len(plausible)
+    assert left_out >= 1                                # a near-integrator on this record
+    assert f"{left_out} structure(s) with a static gain above " in text
     grid = _table_rows(text, "**Orders on validation data**")
     chosen = [r for r in grid if "**chosen**" in r[5]]
     assert len(chosen) == 1 and float(chosen[0][4]) == 1.0
@@ -85,26 +84,27 @@ def _fit(nb: int, v_rest: float, pole: float = 0.5) -> RestOEFit:
 
 def test_a_record_that_singles_out_its_structure_says_so() -> None:
     fits = (_fit(1, 1.0), _fit(2, 1.2), _fit(3, 2.0))
-    search = RestOESearch(chosen=fits[0], candidates=fits, record_samples=100)
+    search = RestOESearch(chosen=fits[0], candidates=fits, max_abs_gain=100.0)
     text = structure_section(None, search, v_unit="degC^2", gain_unit="degC/V")
     assert "Only the chosen of the 3 structures lies within 10 %" in text
-    assert "time constant longer" not in text
+    assert "static gain above" not in text
     assert len(_table_rows(text, "**Linear OE from rest**")) == 1
     assert "V from rest [degC^2]" in text
     assert [f.nb for f in search.near(0.25)] == [1, 2]
 
 
-def test_near_and_admissible_leave_out_a_pole_slower_than_the_record() -> None:
-    # z = 0.999: a time constant of 999.5 samples, longer than a 500-sample record
+def test_near_and_admissible_leave_out_a_gain_the_record_cannot_hold() -> None:
+    # z = 0.999: B(1)/F(1) = 3 / 0.001 = 3000, against gains of 2 and 4 for the others
     fits = (_fit(3, 0.5, pole=0.999), _fit(1, 1.0), _fit(2, 1.05))
-    search = RestOESearch(chosen=fits[1], candidates=fits, record_samples=500)
+    search = RestOESearch(chosen=fits[1], candidates=fits, max_abs_gain=10.0)
     assert [f.nb for f in search.admissible] == [1, 2]
     assert [f.nb for f in search.near()] == [1, 2]
-    assert fits[0].slowest_time_constant_samples == pytest.approx(-1.0 / np.log(0.999))
-    longer = RestOESearch(chosen=fits[0], candidates=fits, record_samples=1000)
-    assert [f.nb for f in longer.near()] == [3]         # 1.0 > 1.10 x 0.5
-    every = RestOESearch(chosen=fits[0], candidates=fits[:1], record_samples=500)
-    assert every.admissible == fits[:1]                 # none fits: all are kept
+    text = structure_section(None, search, v_unit="degC^2", gain_unit="degC/V")
+    assert "1 structure(s) with a static gain above 10 degC/V (10 times" in text
+    larger = RestOESearch(chosen=fits[0], candidates=fits, max_abs_gain=5000.0)
+    assert [f.nb for f in larger.near()] == [3]         # 1.0 > 1.10 x 0.5
+    every = RestOESearch(chosen=fits[0], candidates=fits[:1], max_abs_gain=10.0)
+    assert every.admissible == fits[:1]                 # none plausible: all are kept
 
 
 def test_no_search_no_section() -> None:
