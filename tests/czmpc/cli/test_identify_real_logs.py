@@ -30,6 +30,7 @@ from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
 from czmpc.cli import main
+from sysid._arrays import clipped_samples
 from sysid.data import Dataset, write_csv
 from sysid.model import OperatingPoint
 from sysid.modelfile import load_model
@@ -384,6 +385,30 @@ def test_identify_says_when_the_output_clips(name: str, identified: Identified) 
     assert ("czmpc: WARNING: output clipping: 47 sample(s)" in err) is clips
     report = (out / "report.md").read_text(encoding="utf-8")
     assert ("| output_clipping | warning |" in report) is clips
+
+
+@pytest.mark.slow
+def test_the_clipping_warnings_advice_works_blanked_rows_identify_in_segments(
+    tmp_path: Path,
+) -> None:
+    # the advice: blank the clipped rows and identify with --gaps split
+    data = READERS["tanks"]()
+    clipped = set(clipped_samples(data.power_kw))
+    columns = (data.time_s.tolist(), data.triac_pct.tolist(), data.power_kw.tolist())
+    rows = ["time_s,triac_pct,power_kw"] + [
+        f"{t!r},{u!r}," + ("" if k in clipped else repr(y))
+        for k, (t, u, y) in enumerate(zip(*columns, strict=True))]
+    (tmp_path / "blanked.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        code = main(["identify", str(tmp_path / "blanked.csv"), "--out", str(tmp_path / "id"),
+                     "--gaps", "split"])
+    assert code == 0, err.getvalue()
+    assert "47 incomplete sample(s) dropped; split into 3 segments" in err.getvalue()
+    assert "output clipping" not in err.getvalue()
+    checks = {c["check"]: c for c in json.loads((tmp_path / "id" / "model.json").read_text(
+        encoding="utf-8"))["provenance"]["identifiability"]}
+    assert checks["output_clipping"]["passed"] and checks["output_clipping"]["measured"] == 0
 
 
 @pytest.mark.slow
