@@ -331,7 +331,7 @@ def output_clipping(data: Dataset) -> Check:
     return Check(
         name="output_clipping", passed=n == 0, severity="warning", measured=float(n),
         threshold=0.0,
-        message=("output clipping: no run of " f"{CLIP_MIN_RUN_SAMPLES} or more samples at the "
+        message=(f"output clipping: no run of {CLIP_MIN_RUN_SAMPLES} or more samples at the "
                  "output's extreme" if n == 0 else
                  f"output clipping: {n} sample(s) ({100 * n / data.n_samples:.3g} % of the "
                  f"record, from t = {data.time_s[clipped[0][0]]:g} s) sit in runs of "

@@ -88,10 +88,10 @@ from sysid.structure import StructureChoice, select_structure
 COMPARISON_TOLERANCE = 1e-6
 
 #: The final model gives way to the OE from rest (orders "auto") when its own simulation
-#: from rest has more than this times the OE's mean squared error (issue 29's bar).
+#: from rest has more than this times the OE's mean squared error (issue 29's bar), and
+#: only if the OE's static gain is at most `sysid.rest_oe.REST_GAIN_SPAN_FACTOR` times the
+#: output's recorded span over the input's (the search chooses among those).
 REST_V_RATIO = 1.1
-#: ... and only if its static gain is at most `sysid.rest_oe.REST_GAIN_SPAN_FACTOR` times
-#: the output's recorded span over the input's (the search chooses among those).
 
 #: ``level_shift`` argument: ``"auto"`` (from the outlier candidates), ``"none"``, or
 #: ``(from_time_s, shift_kw)`` to subtract ``shift_kw`` from the output from that time.

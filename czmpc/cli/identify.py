@@ -26,8 +26,8 @@ on the input) is refused with exit 1, every reason on stderr, and nothing writte
 (--accept-unidentifiable writes the files anyway); an unusual model (a gain that is not
 significant or not positive, a pole at z = 1, a long delay), a log that does not start
 at rest (sysid.criteria.start_at_rest) or an output that clips (output_clipping) is a
-warning on stderr, in report.md and in
-model.json's provenance ("identifiability"), with exit 0.
+warning on stderr, in report.md and in model.json's provenance ("identifiability"),
+with exit 0.
 
 Every prediction-error search stops when V falls by less than 1e-6 relative over ten
 iterations (its budget follows progress), with a cap of 1000 iterations stated in the
