@@ -621,6 +621,10 @@ def _preprocessing_section(result: PipelineResult, st: _Style) -> str:
                          "subtracted 0.15 kW from dP for t >= 20714 s.")
     else:
         lines.append("none.")
+    left = [s for s in result.skipped if s.startswith("level shift at ") and "not corrected" in s]
+    if left:
+        lines.append("\nNot repaired:\n")
+        lines += [f"- {s[0].upper()}{s[1:]}." for s in left]
     after = result.outliers_after
     if after is not None:
         lines.append(f"\nAfter the repairs the same search finds {len(after.candidates)} candidate(s)"

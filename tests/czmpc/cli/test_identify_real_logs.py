@@ -388,6 +388,23 @@ def test_identify_says_when_the_output_clips(name: str, identified: Identified) 
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("name", list(READERS))
+def test_the_report_lists_the_level_shifts_it_did_not_repair(name: str,
+                                                             identified: Identified) -> None:
+    # the tanks' seven candidates are 18 to 67 % of the span: listed, none subtracted
+    code, err, out = identified(name)
+    assert code == 0, err
+    report = (out / "report.md").read_text(encoding="utf-8")
+    start = report.index("## Preprocessing")
+    section = report[start:report.index("\n## ", start + 1)]
+    bullets = re.findall(r"^- Level shift at [\d.]+ s not corrected: its estimate .* % of the "
+                         r"output's span", section, flags=re.MULTILINE)
+    assert len(bullets) == (7 if name == "tanks" else 0)
+    if name == "tanks":
+        assert "provenance):\n\nnone." in section
+
+
+@pytest.mark.slow
 def test_the_clipping_warnings_advice_works_blanked_rows_identify_in_segments(
     tmp_path: Path,
 ) -> None:
