@@ -492,12 +492,12 @@ def _preprocess(
             repaired, from_time_s=level_shift[0], shift_kw=level_shift[1]
         )
     elif level_shift == "auto" and report is not None:
+        span = float(np.ptp(data.power_kw))
         for cand in report.candidates:
             if cand.kind != "level_shift":
                 continue
             try:
                 est = estimate_level_shift(repaired, cand.time_s)
-                span = float(np.ptp(data.power_kw))
                 share = abs(est.shift_kw) / span
                 if share > LEVEL_SHIFT_MAX_SPAN_SHARE:
                     skipped.append(

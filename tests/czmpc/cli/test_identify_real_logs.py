@@ -253,6 +253,12 @@ def test_short_windows_and_the_unseen_heater_2_log_get_a_model_within_the_bar(
     assert abs(gain) <= 10.0 * np.ptp(data.power_kw) / np.ptp(data.triac_pct)
 
 
+def _identifiability(path: Path) -> dict[str, dict[str, object]]:
+    """A written model file's identifiability checks by name, read as plain JSON."""
+    checks = json.loads(path.read_text(encoding="utf-8"))["provenance"]["identifiability"]
+    return {c["check"]: c for c in checks}
+
+
 def _structure(path: Path) -> tuple[int, int, int]:
     """``(nb, nf, nk)`` of a written model file: B's leading zeros are the delay."""
     obj = json.loads(path.read_text(encoding="utf-8"))
@@ -360,8 +366,7 @@ def test_identify_says_when_a_log_does_not_start_at_rest(name: str, identified: 
                                                          ) -> None:
     code, err, out = identified(name)
     assert code == 0, err
-    checks = {c["check"]: c for c in json.loads((out / "model.json").read_text(
-        encoding="utf-8"))["provenance"]["identifiability"]}
+    checks = _identifiability(out / "model.json")
     report = (out / "report.md").read_text(encoding="utf-8")
     at_rest = name not in NOT_AT_REST
     assert checks["start_at_rest"]["passed"] is at_rest
@@ -377,8 +382,7 @@ def test_identify_says_when_the_output_clips(name: str, identified: Identified) 
     # the cascaded tanks overflow at 10 V: 47 samples in runs at that maximum
     code, err, out = identified(name)
     assert code == 0, err
-    checks = {c["check"]: c for c in json.loads((out / "model.json").read_text(
-        encoding="utf-8"))["provenance"]["identifiability"]}
+    checks = _identifiability(out / "model.json")
     clips = name == "tanks"
     assert checks["output_clipping"]["passed"] is not clips
     assert checks["output_clipping"]["measured"] == (47 if clips else 0)
@@ -423,8 +427,7 @@ def test_the_clipping_warnings_advice_works_blanked_rows_identify_in_segments(
     assert code == 0, err.getvalue()
     assert "47 incomplete sample(s) dropped; split into 3 segments" in err.getvalue()
     assert "output clipping" not in err.getvalue()
-    checks = {c["check"]: c for c in json.loads((tmp_path / "id" / "model.json").read_text(
-        encoding="utf-8"))["provenance"]["identifiability"]}
+    checks = _identifiability(tmp_path / "id" / "model.json")
     assert checks["output_clipping"]["passed"] and checks["output_clipping"]["measured"] == 0
 
 
