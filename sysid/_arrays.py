@@ -41,9 +41,14 @@ CLIP_MIN_RUN_SAMPLES = 10
 
 
 def clipped_samples(y: FloatArray, min_run: int = CLIP_MIN_RUN_SAMPLES) -> tuple[int, ...]:
-    """Samples in exactly constant runs of at least ``min_run`` at ``y``'s max or min."""
+    """Samples in exactly constant runs of at least ``min_run`` at ``y``'s max or min.
+
+    A run from the first sample is the level the record starts at, not a limit reached:
+    a heating test starts cold, at its minimum, and a quantised or held sensor repeats
+    that value exactly (TCLab's log held for three samples: 12 samples at 20.83 degC).
+    """
     return tuple(sorted(k for extreme in {float(np.max(y)), float(np.min(y))}
-                        for a, b in true_runs(y == extreme) if b - a >= min_run
+                        for a, b in true_runs(y == extreme) if b - a >= min_run and a > 0
                         for k in range(a, b)))
 
 

@@ -5,7 +5,8 @@
 1. operating point: given, or the most central long steady window (sec. 5.1), else the means;
 2. outlier candidates from the residuals of ARX(10,10) (sec. 5.2, Fig. 3); spikes
    repaired by interpolation, level shifts corrected (automatically from the
-   candidates, or as given, e.g. 0.15 kW from 20714 s); candidates again (Fig. 6);
+   candidates the record establishes, or as given, e.g. 0.15 kW from 20714 s);
+   candidates again (Fig. 6);
 3. the linear models of Table 2: ARX, ARMAX and OE at the base orders and one higher;
 4. the input steps and their instantaneous gains (Table 3);
 5. the Hammerstein route (sec. 7.4-7.5): eq. 21 initial polynomial, ARX- and
@@ -58,6 +59,7 @@ from sysid.offset import steady_state_offset_kw
 from sysid.polynomials import slowest_time_constant_samples
 from sysid.preprocess import (
     LEVEL_SHIFT_MAX_SPAN_SHARE,
+    LEVEL_SHIFT_MIN_STD_ERRORS,
     OperatingPointChoice,
     OutlierReport,
     correct_level_shift,
@@ -493,6 +495,7 @@ def _preprocess(
         )
     elif level_shift == "auto" and report is not None:
         span = float(np.ptp(data.power_kw))
+        unproven: list[tuple[float, float]] = []     # (time [s], |shift| / standard error)
         for cand in report.candidates:
             if cand.kind != "level_shift":
                 continue
@@ -508,6 +511,9 @@ def _preprocess(
                         "does not predict (give --level-shift TIME_S KW if it is a sensor "
                         "fault)")
                     continue
+                if abs(est.shift_kw) < LEVEL_SHIFT_MIN_STD_ERRORS * est.std_error_kw:
+                    unproven.append((cand.time_s, abs(est.shift_kw) / est.std_error_kw))
+                    continue
                 repaired = correct_level_shift(
                     repaired, from_time_s=est.from_time_s, shift_kw=est.shift_kw
                 )
@@ -517,7 +523,21 @@ def _preprocess(
                         "in the later segments too (one sensor across the segments assumed)")
             except SysidError as exc:
                 skipped.append(f"level shift at {cand.time_s:g} s not corrected: {exc}")
+        if unproven:
+            skipped.append(_unproven_shifts_note(unproven))
     return repaired, report
+
+
+def _unproven_shifts_note(unproven: list[tuple[float, float]]) -> str:
+    """One note for the level-shift candidates whose estimates the record does not establish."""
+    times = ", ".join(f"{t:g}" for t, _ in unproven[:3])
+    more = f" and {len(unproven) - 3} more" if len(unproven) > 3 else ""
+    return (f"level shifts at {times} s{more} not corrected: each estimate lies within "
+            f"{LEVEL_SHIFT_MIN_STD_ERRORS:g} standard errors of zero (at most "
+            f"{max(r for _, r in unproven):.1f}), so the record does not establish a sensor "
+            "offset; the output moves in small steps the outlier model does not predict (a "
+            "logger that holds or interpolates samples?); give --level-shift TIME_S KW to "
+            "correct a known one")
 
 
 def _linear_models(
@@ -690,8 +710,11 @@ def run_paper_pipeline(
         ``(s_nom, P_nom)``; default: the most central long steady window
         (`sysid.preprocess.find_operating_point`, sec. 5.1), else the sample means.
     level_shift :
-        ``"auto"``: correct every level-shift candidate of the outlier search by its
-        estimated size; ``"none"``; or ``(from_time_s, shift_kw)``: subtract
+        ``"auto"``: correct each level-shift candidate of the outlier search by its
+        estimated size, if that estimate is at least `LEVEL_SHIFT_MIN_STD_ERRORS`
+        standard errors from zero and at most `LEVEL_SHIFT_MAX_SPAN_SHARE` of the
+        output's span (the others are noted in ``skipped``); ``"none"``; or
+        ``(from_time_s, shift_kw)``: subtract
         ``shift_kw`` from the output from that time (the paper: ``(20714.0, 0.15)``).
     repair_spikes :
         Replace every spike candidate by the mean of its neighbours (Fig. 4).

@@ -90,8 +90,9 @@ def register(parser: argparse.ArgumentParser) -> None:
         help="correct a level shift of the measured power: subtract KW [kW] from P at and "
              "after TIME_S [s] (the paper subtracts 0.15 kW from t = 20714 s); default: "
              "repair the level shifts the outlier search finds, with the size it estimates, "
-             "if at most 5 %% of the output's span (a larger one is the process moving: said, "
-             "not repaired)",
+             "if that estimate is at least 5 standard errors from zero and at most 5 %% of the "
+             "output's span (a smaller one is not established, a larger one is the process "
+             "moving: said, not repaired)",
     )
     _argtypes.add_log_options(parser)
     parser.add_argument(

@@ -62,6 +62,9 @@ FROM_ZEROS_MAX_RELATIVE_DIFFERENCE = 1e-4
 
 #: Half width of the outlier zoom figures (paper figs. 4-5) [s].
 ZOOM_HALF_WIDTH_S = 60.0
+#: Most outlier candidates drawn zoomed, those of largest peak residual (the paper draws
+#: two; a logger that holds samples gave 75 candidates, and 449 figures took 150 s).
+MAX_ZOOM_FIGURES = 6
 
 Verdict = Literal["shown", "not shown", "not measured"]
 
@@ -376,10 +379,15 @@ def _draw_figures(result: PipelineResult, fig_dir: Path, st: _Style) -> list[_Fi
                  {f"ARX({out.na},{out.nb}) on raw data": out.residuals_kw},
                  marked_time_s=[c.time_s for c in out.candidates],
                  title=f"Residuals of ARX({out.na},{out.nb})", paper_part="paper Fig. 3")
-        for i, cand in enumerate(out.candidates, start=1):
+        numbered = list(enumerate(out.candidates, start=1))
+        drawn_zooms = sorted(numbered, key=lambda ic: -abs(ic[1].peak_residual_kw))[
+            :MAX_ZOOM_FIGURES]
+        of_many = (f" (one of the {MAX_ZOOM_FIGURES} of largest peak residual among "
+                   f"{len(numbered)})" if len(numbered) > MAX_ZOOM_FIGURES else "")
+        for i, cand in sorted(drawn_zooms, key=lambda ic: ic[0]):
             add_plot(f"fig04_zoom_{i}",
                      f"Figs. 4-5 analogue: candidate {i} ({cand.kind}) at t = {cand.time_s:g} s, "
-                     "zoomed.",
+                     f"zoomed{of_many}.",
                      figs.plot_outlier_zoom, raw.time_s, out.residuals_kw,
                      np.asarray(raw.power_kw) - op.power_kw, cand.time_s,
                      half_width_s=ZOOM_HALF_WIDTH_S,
@@ -621,7 +629,7 @@ def _preprocessing_section(result: PipelineResult, st: _Style) -> str:
                          "subtracted 0.15 kW from dP for t >= 20714 s.")
     else:
         lines.append("none.")
-    left = [s for s in result.skipped if s.startswith("level shift at ") and "not corrected" in s]
+    left = [s for s in result.skipped if s.startswith("level shift") and "not corrected" in s]
     if left:
         lines.append("\nNot repaired:\n")
         lines += [f"- {s[0].upper()}{s[1:]}." for s in left]

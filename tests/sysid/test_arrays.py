@@ -28,3 +28,10 @@ def test_clipped_samples_are_runs_at_either_extreme_only() -> None:
     assert clipped_samples(y, 3) == (2, 3, 4)          # the run of 2.0 is not at an extreme
     assert clipped_samples(y, 2) == (2, 3, 4, 6, 7)
     assert clipped_samples(y, 4) == ()
+
+
+def test_a_run_at_an_extreme_from_the_first_sample_is_the_start_not_clipping() -> None:
+    # a heating test starts cold, at its minimum; a held or quantised sensor repeats it
+    y = np.array([0.0, 0.0, 0.0, 1.0, 3.0, 3.0, 3.0, 2.0])
+    assert clipped_samples(y, 3) == (4, 5, 6)
+    assert clipped_samples(y[::-1], 3) == (1, 2, 3, 5, 6, 7)   # at the end it may be a limit

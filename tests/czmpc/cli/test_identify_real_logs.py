@@ -15,6 +15,7 @@ burn-in of a fifth of the record.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import io
 import itertools
@@ -30,6 +31,7 @@ from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
 from czmpc.cli import main
+from czmpc.reports.identification import MAX_ZOOM_FIGURES
 from sysid._arrays import clipped_samples
 from sysid.data import Dataset, write_csv
 from sysid.model import OperatingPoint
@@ -191,6 +193,20 @@ EXCERPTS = {
 } | {"tclab_heater2": lambda: read_tclab(REAL / "tclab_mimo_steps_data.txt", heater=2)}
 
 
+def _held(data: Dataset, every: int) -> Dataset:
+    """The log as a logger records a sensor that updates every ``every`` samples."""
+    held = np.repeat(data.power_kw[::every], every)[:data.n_samples]
+    return dataclasses.replace(data, power_kw=held)
+
+
+#: The TCLab log as a logger that holds each temperature for three samples records it (a
+#: historian polling faster than its sensor updates). The outlier search flags 75 steps of
+#: the hold as level shifts of at most 4.0 standard errors: before the rule that a repair
+#: needs 5, every one was subtracted, 75 zoom figures were drawn, and the 12 samples the
+#: log starts at were warned as clipping.
+HELD = {"tclab_held3": lambda: _held(READERS["tclab"](), 3)}
+
+
 Identified = Callable[[str], tuple[int, str, Path]]
 
 
@@ -208,7 +224,8 @@ def identified(tmp_path_factory: pytest.TempPathFactory) -> Identified:
             reading = ["--columns", "time_s=t,triac_pct=u_V,power_kw=y_degC",
                        "--input-unit", "V", "--output-unit", "degC"]
         else:
-            write_csv({**READERS, **END_CUTS, **OTHER_END_CUTS, **START_CUTS, **EXCERPTS}[name](),
+            write_csv({**READERS, **END_CUTS, **OTHER_END_CUTS, **START_CUTS, **EXCERPTS,
+                       **HELD}[name](),
                       folder / "log.csv")
         err = io.StringIO()
         with contextlib.redirect_stderr(err):
@@ -251,6 +268,22 @@ def test_short_windows_and_the_unseen_heater_2_log_get_a_model_within_the_bar(
     obj = json.loads((out / "model.json").read_text(encoding="utf-8"))
     gain = np.sum(obj["B"]) / np.sum(obj["A"]) * obj["input_poly"][0]
     assert abs(gain) <= 10.0 * np.ptp(data.power_kw) / np.ptp(data.triac_pct)
+
+
+@pytest.mark.slow
+def test_a_log_held_by_its_logger_is_not_repaired_step_by_step(identified: Identified) -> None:
+    code, err, out = identified("tclab_held3")
+    assert code == 0, err
+    report = (out / "report.md").read_text(encoding="utf-8")
+    assert "| correct_level_shift |" not in report
+    notes = [line for line in err.splitlines() if "not corrected" in line]
+    assert len(notes) == 1 and "and 72 more not corrected" in notes[0], notes
+    assert len(list((out / "figures").glob("fig04_zoom_*.png"))) == MAX_ZOOM_FIGURES
+    assert _identifiability(out / "model.json")["output_clipping"]["passed"]
+    data = HELD["tclab_held3"]()
+    burn = int(BURN_IN_SHARE * data.n_samples)
+    reference = _reference_v(data.power_kw, data.triac_pct, burn, seed=29)
+    assert _written_v(out / "model.json", data, burn) <= REFERENCE_V_RATIO * reference
 
 
 def _identifiability(path: Path) -> dict[str, dict[str, object]]:
