@@ -255,8 +255,12 @@ def decode_text(blob: bytes, path: str | Path) -> str:
     try:
         return blob.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        raise DataFileError(f"expected UTF-8 text; got undecodable byte at offset {exc.start}",
-                            path=path) from None
+        line = blob.count(b"\n", 0, exc.start) + 1
+        raise DataFileError(
+            f"expected UTF-8 text; got the byte 0x{blob[exc.start]:02x} at offset {exc.start}"
+            f" (line {line}), which UTF-8 does not allow: "
+            "save the export as UTF-8 (Excel: 'CSV UTF-8'; Windows-1252 writes a degree sign "
+            "as 0xb0)", path=path) from None
 
 
 def csv_table(text: str, path: str | Path, delimiter: str = ",") -> tuple[list[str], list[list[str]]]:

@@ -374,6 +374,16 @@ def _linear_grid(time: FloatArray, u: FloatArray, y: FloatArray, ts_s: float
     return grid, on_grid(u), on_grid(y)
 
 
+def _backwards_hint(raw: _Raw, step_s: float) -> str:
+    """What to do about time that does not increase by ``step_s`` [s] (<= 0)."""
+    zone_less = raw.time_origin is not None and datetime.fromisoformat(raw.time_origin).tzinfo is None
+    if zone_less and 1800.0 < -step_s <= 3600.0:
+        return ("(zone-less time stamps that go back by up to an hour: local clocks repeat an "
+                "hour when daylight-saving time ends, and sorting would interleave the two; "
+                "export the log in UTC or with UTC offsets, e.g. 2024-10-27T02:30:00+01:00)")
+    return "(sort the export by time and remove duplicated rows)"
+
+
 def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: str
                 ) -> LoadedLog:
     """Apply the time, jitter and gap policies to raw columns; build the data set."""
@@ -391,7 +401,7 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
     if (k := _first_bad_interval(np.diff(time) <= 0)) is not None:
         raise _fail(raw, int(rows[k]), "time_s",
                     f"time must be strictly increasing; got {time[k]:g} s after {time[k - 1]:g} s "
-                    "(sort the export by time and remove duplicated rows)")
+                    + _backwards_hint(raw, float(time[k] - time[k - 1])))
     ts_s = float(np.median(np.diff(time))) if policy.ts_s is None else float(policy.ts_s)
     n_snapped = 0
     if policy.resample == "linear":
@@ -598,7 +608,12 @@ def read_log_csv(
     try:
         separator = detect_separator(lines[0]) if sep is None else sep
     except DataFileError as exc:
-        raise DataFileError(str(exc), path=p, line=1) from None
+        later = next((i for i, line in enumerate(lines[1:20], start=2)
+                      if any(c in line for c in SEPARATORS)), None)
+        hint = "" if later is None else (
+            f" (line {later} has one: if lines before the header, such as an export's title, "
+            "come first, delete them; the header must be the first line)")
+        raise DataFileError(str(exc) + hint, path=p, line=1) from None
     header, body = csv_table("\n".join(lines), p, separator)
     if len(header) == 1 and any(sep_ in header[0] for sep_ in SEPARATORS):
         raise DataFileError(

@@ -9,7 +9,7 @@ clean log with an independent reference (the clean arrays, ``np.interp``).
 from __future__ import annotations
 
 import json
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime, timedelta, timezone
 from pathlib import Path
 
 import numpy as np
@@ -232,6 +232,37 @@ def test_mixed_zoned_and_naive_stamps_and_garbage_are_refused(
     with pytest.raises(DataFileError, match="ISO-8601") as info:
         load_log(path)
     assert info.value.line == 9
+
+
+def test_the_end_of_daylight_saving_time_is_named_not_a_sort(tmp_path: Path) -> None:
+    # Europe, 2024-10-27: local clocks go from 03:00 CEST back to 02:00 CET
+    utc = [datetime(2024, 10, 27, 0, 40, tzinfo=UTC) + timedelta(seconds=20.0 * k)
+           for k in range(120)]
+    local = [t.astimezone(timezone(timedelta(hours=2 if t.hour < 1 else 1))) for t in utc]
+    rows = [f"{t.isoformat()},{10.0 + (k > 60)!r},{float(k % 7)!r}" for k, t in enumerate(local)]
+    zoned = _write(tmp_path / "zoned.csv", "time_s,triac_pct,power_kw", rows)
+    loaded = load_log(zoned)
+    np.testing.assert_array_equal(loaded.data.time_s, 20.0 * np.arange(120))
+    naive = _write(tmp_path / "naive.csv", "time_s,triac_pct,power_kw",
+                   [r.split("+")[0] + r[r.index(","):] for r in rows])
+    with pytest.raises(DataFileError, match="daylight-saving time ends") as info:
+        load_log(naive)
+    assert info.value.line == 2 + 60          # 03:00:00 CEST, written 02:00:00
+    assert "sort" not in str(info.value).replace("sorting would", "")
+    rows[9] = rows[8]                          # a duplicated row is still told to sort
+    with pytest.raises(DataFileError, match="sort the export by time"):
+        load_log(_write(tmp_path / "twice.csv", "time_s,triac_pct,power_kw", rows))
+
+
+def test_lines_before_the_header_are_named(
+    tmp_path: Path, daisy: Dataset
+) -> None:
+    titled = tmp_path / "titled.csv"
+    titled.write_text("Export of CZ12 heater\n\n" + "\n".join(
+        ["time_s,triac_pct,power_kw", *_rows(daisy)]) + "\n", encoding="utf-8")
+    with pytest.raises(DataFileError, match="line 3 has one.*delete them") as info:
+        load_log(titled)
+    assert info.value.line == 1
 
 
 # --- separators and decimal comma --------------------------------------------------------
