@@ -11,8 +11,10 @@ from zeros) and the Hammerstein model with a noise model (eq. 30, sec. 7.6).
 
 It writes into DIR:
 
-  model.json      the noise-model Hammerstein (eq. 30), the MPC's prediction model
-                  (czmpc-model/1; read it with 'czmpc show-model DIR/model.json')
+  model.json      the MPC's prediction model (czmpc-model/1; read it with 'czmpc
+                  show-model DIR/model.json'): the noise-model Hammerstein (eq. 30),
+                  unless it simulates from rest more than 1.1 times worse than the
+                  best linear OE from rest, which is then written (stderr says which)
   models/*.json   every intermediate model, one czmpc-model/1 file each
   report.md       data, preprocessing, Table 2 and Table 3 analogues, the
                   Hammerstein route beside the paper's values, the final model's
