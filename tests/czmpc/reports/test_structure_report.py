@@ -65,9 +65,10 @@ def test_the_section_finds_the_known_delay_and_lists_the_structures_within_ten_p
     chosen_row = next(r for r in rows if r[4] == "**chosen**")
     assert chosen_row[0] == f"{search.chosen.nb}, {search.chosen.nf}, {search.chosen.nk}"
     assert f"{len(rows)} of the {len(search.candidates)} structures lie within 10 %" in text
+    # the search keeps a fit of admissible gain per structure when a start gives one; on
+    # this record every structure has one (left-out structures: the tests below)
     left_out = len(search.candidates) - len(plausible)
-    assert left_out >= 1                                # a near-integrator on this record
-    assert f"{left_out} structure(s) with a static gain above " in text
+    assert left_out == 0 and "static gain above" not in text
     grid = _table_rows(text, "**Orders on validation data**")
     chosen = [r for r in grid if "**chosen**" in r[5]]
     assert len(chosen) == 1 and float(chosen[0][4]) == 1.0
