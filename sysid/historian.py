@@ -6,7 +6,8 @@ records what it did in a `LoadReport` (also in the data set's ``preprocessing``,
 in every model file's provenance):
 
 * **Time column**: seconds or ISO-8601 timestamps, with or without a zone
-  (``2024-05-01T12:00:00``, ``2024-05-01 12:00:00.5+02:00``, ``...Z``). Zoned stamps are
+  (``2024-05-01T12:00:00``, ``2024-05-01 12:00:00.5+02:00``, ``...Z``), or stamps in a
+  given `datetime.strptime` format (``time_format``, ``--time-format``). Zoned stamps are
   converted to UTC; naive ones are taken as written (a daylight-saving step backwards
   is refused as time going backwards). ``time_s`` counts seconds from the first
   stamp (`LoadReport.time_origin`).
@@ -485,10 +486,16 @@ def _no_time_stamp(path: str | None, column: str) -> DataFileError:
 
 
 def _iso_seconds(cells: Sequence[str | None], raw_names: Mapping[str, str], path: str | None,
-                 lines: Sequence[int] | None) -> tuple[FloatArray, str]:
-    """Seconds from the first ISO-8601 stamp, and that stamp's text (NaN where missing)."""
+                 lines: Sequence[int] | None, time_format: str | None = None,
+                 ) -> tuple[FloatArray, str]:
+    """Seconds from the first stamp, and that stamp in ISO-8601 (NaN where missing); each
+    stamp ISO-8601 or, given `time_format`, in that `datetime.strptime` format."""
     def fail(i: int, message: str) -> DataFileError:
         return _row_error(message, i, lines=lines, path=path, column=raw_names["time_s"])
+
+    def parsed(text: str) -> datetime:
+        return (datetime.fromisoformat(text) if time_format is None
+                else datetime.strptime(text, time_format))
 
     stamps: list[datetime | None] = []
     zoned: bool | None = None
@@ -498,10 +505,13 @@ def _iso_seconds(cells: Sequence[str | None], raw_names: Mapping[str, str], path
             continue
         text = cell.strip()
         try:
-            stamp = datetime.fromisoformat(text)
+            stamp = parsed(text)
         except ValueError:
-            raise fail(i, "expected seconds or an ISO-8601 time stamp such as 2024-05-01T12:00:00 "
-                          f"or 2024-05-01 12:00:00+02:00; got {text!r}") from None
+            raise fail(i, f"expected a time stamp in the format {time_format!r} (--time-format); "
+                          f"got {text!r}" if time_format is not None else
+                          "expected seconds or an ISO-8601 time stamp such as 2024-05-01T12:00:00 "
+                          f"or 2024-05-01 12:00:00+02:00; got {text!r} (for another form pass "
+                          "--time-format, e.g. '%d.%m.%Y %H:%M:%S')") from None
         has_zone = stamp.tzinfo is not None
         if zoned is None:
             zoned = has_zone
@@ -564,6 +574,7 @@ def read_log_csv(
     decimal: str | None = None,
     input_unit: str = "%",
     output_unit: str = "kW",
+    time_format: str | None = None,
 ) -> LoadedLog:
     """Read a CSV log as historians export it (see the module docstring for the rules).
 
@@ -582,6 +593,9 @@ def read_log_csv(
         cell looks like ``12,5``.
     input_unit, output_unit :
         Units of the input and output columns.
+    time_format :
+        `datetime.strptime` format of the time stamps (``"%d.%m.%Y %H:%M:%S"``); default
+        seconds or ISO-8601, told from the first row.
 
     Returns
     -------
@@ -665,8 +679,8 @@ def read_log_csv(
     first = next((t.strip() for t in time_cells if t.strip().lower() not in MISSING_TOKENS), "")
     line_numbers = list(range(2, len(body) + 2))
     origin = None
-    if _looks_numeric(first.replace(",", ".") if decimal == "," else first):
-        time_format = "seconds"
+    if time_format is None and _looks_numeric(first.replace(",", ".") if decimal == "," else first):
+        time_kind = "seconds"
         secs = []
         for i, t in enumerate(time_cells):
             try:
@@ -681,13 +695,13 @@ def read_log_csv(
             raise DataFileError(f"expected a finite time; got {time_cells[k].strip()!r}",
                                 path=p, line=k + 2, column=names["time_s"])
     else:
-        time_format = "timestamp"
-        time, origin = _iso_seconds(time_cells, names, str(p), line_numbers)
+        time_kind = "timestamp"
+        time, origin = _iso_seconds(time_cells, names, str(p), line_numbers, time_format)
     raw = _Raw(time=time, u=np.asarray(values["triac_pct"], dtype=float),
                y=np.asarray(values["power_kw"], dtype=float),
                lines=np.asarray(line_numbers, dtype=np.int64), path=str(p), names=names,
                source_format="csv", separator=separator, decimal=decimal,
-               time_format=time_format, time_origin=origin, sha256=digest)
+               time_format=time_kind, time_origin=origin, sha256=digest)
     return _regularize(raw, policy, input_unit=input_unit, output_unit=output_unit)
 
 
@@ -901,6 +915,7 @@ def load_log(
     decimal: str | None = None,
     input_unit: str = "%",
     output_unit: str = "kW",
+    time_format: str | None = None,
 ) -> LoadedLog:
     """Read a CSV or Parquet log (told by the file's first bytes): see `read_log_csv` and
     `read_log_parquet`."""
@@ -908,13 +923,13 @@ def load_log(
     with p.open("rb") as fh:
         magic = fh.read(4)
     if magic == b"PAR1":
-        if sep is not None or decimal is not None:
-            raise DataFileError("--sep and --decimal apply to CSV files; this is Parquet",
-                                path=p)
+        if sep is not None or decimal is not None or time_format is not None:
+            raise DataFileError("--sep, --decimal and --time-format apply to CSV files; this "
+                                "is Parquet", path=p)
         return read_log_parquet(p, columns=columns, policy=policy, input_unit=input_unit,
                                 output_unit=output_unit)
     return read_log_csv(p, columns=columns, policy=policy, sep=sep, decimal=decimal,
-                        input_unit=input_unit, output_unit=output_unit)
+                        input_unit=input_unit, output_unit=output_unit, time_format=time_format)
 
 
 __all__ = [

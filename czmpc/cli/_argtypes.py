@@ -156,6 +156,12 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
              "not a comma and the values look like 12,5; else '.')",
     )
     parser.add_argument(
+        "--time-format", metavar="FORMAT", default=None,
+        help="format of the time stamps in Python's strptime codes, for stamps that are "
+             "neither seconds nor ISO-8601, e.g. '%%d.%%m.%%Y %%H:%%M:%%S' for 25.10.2026 "
+             "01:00:00 (%%z reads a UTC offset)",
+    )
+    parser.add_argument(
         "--gaps", choices=("refuse", "split", "fill"), default="refuse",
         help="missing values (NaN, empty cells) and gaps in time: 'refuse' (default) stops "
              "with the line; 'split' cuts the log into segments of complete samples "
@@ -202,7 +208,8 @@ def load_log(path: str | Path, args: argparse.Namespace) -> LoadedLog:
         gaps=args.gaps, resample=args.resample, ts_s=args.ts_s, sampling_rtol=rtol,
         fill_max_samples=DEFAULT_FILL_MAX_SAMPLES if args.fill_max is None else args.fill_max)
     return load(path, columns=args.columns, policy=policy, sep=args.sep, decimal=args.decimal,
-                input_unit=args.input_unit, output_unit=args.output_unit)
+                input_unit=args.input_unit, output_unit=args.output_unit,
+                time_format=args.time_format)
 
 
 def read_log(path: str | Path, args: argparse.Namespace) -> Dataset:
@@ -244,6 +251,8 @@ def log_option_words(args: argparse.Namespace) -> list[str]:
         words += ["--sep", "tab" if args.sep == "\t" else args.sep]
     if args.decimal is not None:
         words += ["--decimal", args.decimal]
+    if args.time_format is not None:
+        words += ["--time-format", args.time_format]
     words += ["--gaps", args.gaps]
     if args.fill_max is not None:
         words += ["--fill-max", str(args.fill_max)]

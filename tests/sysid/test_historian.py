@@ -234,6 +234,34 @@ def test_mixed_zoned_and_naive_stamps_and_garbage_are_refused(
     assert info.value.line == 9
 
 
+def test_stamps_in_a_local_form_load_with_their_format(tmp_path: Path, daisy: Dataset) -> None:
+    # a German export: day.month.year, semicolons, decimal commas
+    t0 = datetime(2024, 3, 31, 0, 30, 0)
+    rows = [f"{t0 + timedelta(seconds=float(t)):%d.%m.%Y %H:%M:%S};"
+            + ";".join(repr(float(v)).replace(".", ",") for v in (u, y))
+            for t, u, y in zip(daisy.time_s, daisy.triac_pct, daisy.power_kw, strict=True)]
+    path = _write(tmp_path / "de.csv", "Zeit;Stellgrad;Temperatur", rows)
+    columns = {"time_s": "Zeit", "triac_pct": "Stellgrad", "power_kw": "Temperatur"}
+    with pytest.raises(DataFileError, match=r"got '31.03.2024 00:30:00' \(for another form "
+                       r"pass --time-format") as info:
+        load_log(path, columns=columns)
+    assert info.value.line == 2
+    loaded = load_log(path, columns=columns, time_format="%d.%m.%Y %H:%M:%S")
+    np.testing.assert_allclose(loaded.data.time_s, daisy.time_s, rtol=IDENTITY_RTOL)
+    np.testing.assert_array_equal(loaded.data.power_kw, daisy.power_kw)
+    assert loaded.report.time_origin == "2024-03-31T00:30:00"
+    rows[4] = "2024-03-31 00:30:08" + rows[4][rows[4].index(";"):]
+    _write(path, "Zeit;Stellgrad;Temperatur", rows)
+    with pytest.raises(DataFileError, match=r"in the format '%d.%m.%Y %H:%M:%S' \(--time-format\)"
+                       r"; got '2024-03-31 00:30:08'") as info:
+        load_log(path, columns=columns, time_format="%d.%m.%Y %H:%M:%S")
+    assert info.value.line == 6
+    parquet = tmp_path / "log.parquet"
+    write_parquet(daisy, parquet)
+    with pytest.raises(DataFileError, match="--time-format apply to CSV files"):
+        load_log(parquet, time_format="%d.%m.%Y %H:%M:%S")
+
+
 def test_the_end_of_daylight_saving_time_is_named_not_a_sort(tmp_path: Path) -> None:
     # Europe, 2024-10-27: local clocks go from 03:00 CEST back to 02:00 CET
     utc = [datetime(2024, 10, 27, 0, 40, tzinfo=UTC) + timedelta(seconds=20.0 * k)

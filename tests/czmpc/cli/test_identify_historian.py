@@ -34,15 +34,23 @@ def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str,
     return rc, out, err
 
 
-def _european_export(path: Path, *, nan_line: int | None = 102, jitter_s: float = 0.0) -> Path:
-    """DaISy as a historian exports it: ISO stamps, ';', decimal comma, one NaN cell."""
+#: A German export's time stamps (25.10.2026 01:00:00), read with --time-format.
+GERMAN_STAMPS = "%d.%m.%Y %H:%M:%S"
+
+
+def _european_export(path: Path, *, nan_line: int | None = 102, jitter_s: float = 0.0,
+                     stamp_format: str | None = None) -> Path:
+    """DaISy as a historian exports it: ISO stamps (or in `stamp_format`), ';', decimal
+    comma, one NaN cell."""
     d: Dataset = read_daisy_heating(DAISY)
     t0 = datetime(2024, 5, 1, 12, 0, 0)
     jitter = np.zeros(d.n_samples)
     jitter[1::2] = jitter_s
     lines = ["Zeitstempel;Lampe;Platte"]
     for i, (t, u, y) in enumerate(zip(d.time_s, d.triac_pct, d.power_kw, strict=True)):
-        stamp = (t0 + timedelta(seconds=float(t) + jitter[i])).isoformat(timespec="milliseconds")
+        when = t0 + timedelta(seconds=float(t) + jitter[i])
+        stamp = (when.isoformat(timespec="milliseconds") if stamp_format is None
+                 else f"{when:{stamp_format}}")
         plate = "NaN" if i + 2 == nan_line else repr(float(y)).replace(".", ",")
         lines.append(f"{stamp};{repr(float(u)).replace('.', ',')};{plate}")
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
@@ -104,10 +112,11 @@ def test_bad_loading_options_exit_2(
 def test_an_export_identifies_and_the_report_speaks_its_units_and_reruns_exactly(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    log = _european_export(tmp_path / "export.csv")
+    log = _european_export(tmp_path / "export.csv", stamp_format=GERMAN_STAMPS)
     out = tmp_path / "o"
     rc, _, err = _run(["identify", str(log), "--out", str(out), "--columns", COLUMNS, *UNITS,
-                       "--gaps", "fill", "--fill-max", "2", "--orders", "paper"], capsys)
+                       "--gaps", "fill", "--fill-max", "2", "--orders", "paper",
+                       "--time-format", GERMAN_STAMPS], capsys)
     assert rc == 0, err
     # the terminal says how the log was read and what was changed
     assert "czmpc: note: read" in err and "1 sample(s) filled" in err
@@ -134,7 +143,7 @@ def test_an_export_identifies_and_the_report_speaks_its_units_and_reruns_exactly
     words = shlex.split(match.group(1))
     assert words[:2] == ["czmpc", "identify"]
     for needed in ("--columns", "--input-unit", "--output-unit", "--gaps", "--fill-max",
-                   "--orders", "--initial-state", "--resample"):
+                   "--orders", "--initial-state", "--resample", "--time-format"):
         assert needed in words
     first = json.loads((out / "model.json").read_text(encoding="utf-8"))
     (out / "model.json").unlink()
