@@ -312,7 +312,8 @@ def output_clipping(data: Dataset) -> Check:
     Samples in exactly constant runs of at least `sysid._arrays.CLIP_MIN_RUN_SAMPLES` at
     the output's recorded maximum or minimum (per segment) are a saturated sensor or
     process (the cascaded tanks overflow at 10 V): the models identified here, linear in
-    their dynamics, cannot follow the output there, and those samples pull the fit.
+    their dynamics, cannot follow the output there, and those samples pull the fit. A run
+    from a segment's first sample is the level it starts at, not clipping.
 
     Parameters
     ----------
