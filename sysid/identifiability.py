@@ -130,6 +130,10 @@ class Check:
     threshold: float
     message: str
 
+    def __post_init__(self) -> None:
+        # a verdict compared from numpy floats is a numpy bool, which json cannot write
+        object.__setattr__(self, "passed", bool(self.passed))
+
     def as_dict(self) -> dict[str, Any]:
         """JSON-able form (for the model's provenance)."""
         return {"check": self.name, "passed": self.passed, "severity": self.severity,

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from scipy.signal import lfilter, lfiltic
@@ -119,6 +121,17 @@ def test_start_at_rest_warns_of_a_log_that_starts_mid_transient(
     expected = abs(slope) * (m - 1) / np.ptp(data.power_kw)
     np.testing.assert_allclose(check.measured, expected, rtol=1e-9)
     assert "log from a steady state before the first input change" in check.message
+
+
+def test_a_check_holds_a_plain_bool_that_json_writes(rng: np.random.Generator) -> None:
+    # a noise-free ramp before the first input step, noise after it: the noise scale
+    # comes from the second differences (a numpy float), and so did the verdict, which
+    # then failed json.dumps when identify wrote model.json's provenance
+    u = np.concatenate([np.zeros(50), np.full(250, 10.0)])
+    y = np.concatenate([np.linspace(0.0, 5.0, 50), 5.0 + rng.normal(0.0, 0.5, 250)])
+    check = start_at_rest(Dataset(time_s=np.arange(300.0), triac_pct=u, power_kw=y, ts_s=1.0))
+    assert check.passed is False
+    assert '"passed": false' in json.dumps(check.as_dict())
 
 
 def test_start_at_rest_is_not_judged_when_the_input_moves_at_once(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import warnings
 
@@ -287,6 +288,10 @@ def test_negative_gain_is_a_warning_not_a_refusal() -> None:
     np.testing.assert_allclose(judged.check("gain_sign").measured, -2.5, rtol=0.02)
     assert judged.check("gain_significance").passed
     assert "refuses a model whose static gain" in judged.check("gain_sign").message
+    # the checks go into model.json's provenance: plain bools (a numpy bool made
+    # save_model fail on a test run's log whose Hammerstein gain came out negative)
+    assert all(type(c.passed) is bool for c in judged.checks)
+    assert '"passed": false' in json.dumps(judged.as_dicts())
 
 
 def test_integrator_and_long_delay_are_warnings() -> None:
