@@ -10,7 +10,10 @@ Two controllers writing one TRIAC command fight, and neither knows it. Two guard
     czmpc reads back what it wrote (command, heartbeat, the optional ``[nodes] owner``
     lease): a value changed by another writer stops czmpc's writes, raises the alarm,
     exit 1. Before its first write, nodes that move over one period refuse the start
-    (exit 2, `moved`).
+    (exit 2, `moved`). A single foreign write that lands between czmpc's read and its
+    own write of the same sample (the step's latency, milliseconds in a period of
+    seconds) is overwritten unseen; a controller writing every period is seen at the
+    next read after it lands outside that window.
 
 Values are compared as the node holds them (`same_value`: a Float node's float32).
 """

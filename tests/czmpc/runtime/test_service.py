@@ -8,14 +8,16 @@ in a ``finally`` if a test fails.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import csv
 import datetime as dt
 import json
 import re
 import subprocess
 import sys
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -101,17 +103,48 @@ def test_stderr_to_a_file_tells_when_the_plant_stopped(procs: list[subprocess.Po
     assert re.search(r"\| [0-9.]+ \| shed \| to the end \| +\|", text)
 
 
-def _write_node(endpoint: str, node_id: str, value: object, vtype: str) -> None:
-    """Another writer, bypassing czmpc: one write with a plain asyncua client."""
+@contextlib.contextmanager
+def _another_writer(endpoint: str, node_id: str, vtype: str,
+                    value: Callable[[int], object]) -> Iterator[float]:
+    """Another controller, bypassing czmpc's lock: it writes ``value(i)`` to ``node_id``
+    every half period until the block ends; yields the wall time of its first write.
+
+    A controller writes every period. A single write could land between czmpc's read and
+    its own write of one sample and be overwritten unseen (`czmpc.runtime.ownership`).
+    """
     from asyncua import Client, ua
-    from opcua_rig import run_async
 
-    async def write() -> None:
-        async with Client(endpoint, timeout=5.0) as client:
-            await client.get_node(node_id).write_value(
-                ua.DataValue(ua.Variant(value, getattr(ua.VariantType, vtype)), StatusCode=None))
+    stop, started = threading.Event(), threading.Event()
+    first_write: list[float] = []
 
-    run_async(write())
+    async def drive() -> None:
+        client = Client(endpoint, timeout=5.0)
+        for _ in range(100):      # the plant binds a moment after it says 'serving'
+            try:
+                await client.connect()
+                break
+            except OSError:
+                await asyncio.sleep(0.1)
+        node = client.get_node(node_id)
+        i = 0
+        while not stop.is_set():
+            i += 1
+            if not first_write:
+                first_write.append(time.time())
+            await node.write_value(ua.DataValue(ua.Variant(value(i), getattr(ua.VariantType, vtype)),
+                                                StatusCode=None))
+            started.set()
+            await asyncio.sleep(PERIOD_S / 2)
+        await client.disconnect()
+
+    driver = threading.Thread(target=lambda: asyncio.run(drive()), daemon=True)
+    driver.start()
+    try:
+        assert started.wait(30.0), "the other writer did not connect within 30 s"
+        yield first_write[0]
+    finally:
+        stop.set()
+        driver.join(10)
 
 
 def _wait_rows(path: Path, n: int, timeout_s: float) -> None:
@@ -145,10 +178,11 @@ def test_one_writer_per_plant(procs: list[subprocess.Popen[str]], tmp_path: Path
     n_before = len(_rows(tmp_path / "first.csv"))
     time.sleep(10 * PERIOD_S)
     assert first.poll() is None and len(_rows(tmp_path / "first.csv")) > n_before + 5
-    # a writer that bypasses the lock: seen within three samples, czmpc stops writing, exit 1
-    rogue_at = time.time()
-    _write_node(endpoint, served_nodes()["triac_pct"], 40.0, "Double")
-    _, err = first.communicate(timeout=60)
+    # a controller that bypasses the lock: seen within three samples, czmpc stops writing,
+    # exit 1
+    with _another_writer(endpoint, served_nodes()["triac_pct"], "Double",
+                         lambda i: 40.0) as rogue_at:
+        _, err = first.communicate(timeout=60)
     assert first.returncode == 1, err
     rows = _rows(tmp_path / "first.csv")
     seen = next(i for i, r in enumerate(rows) if "ANOTHER WRITER" in r["event"])
@@ -160,44 +194,14 @@ def test_one_writer_per_plant(procs: list[subprocess.Popen[str]], tmp_path: Path
 
 def test_a_plant_already_driven_is_refused_before_any_write(
         procs: list[subprocess.Popen[str]], tmp_path: Path) -> None:
-    import threading
-
     port = free_port()
     endpoint = f"opc.tcp://127.0.0.1:{port}/czmpc/"
     _serve(procs, tmp_path, port, duration_s=3000.0)   # 60 s wall: outlasts a loaded start
-    stop = threading.Event()
-
-    async def drive() -> None:   # another controller, without czmpc's lock: a heartbeat
-        from asyncua import Client, ua
-
-        client = Client(endpoint, timeout=5.0)
-        for _ in range(100):      # the plant binds a moment after it says 'serving'
-            try:
-                await client.connect()
-                break
-            except OSError:
-                await asyncio.sleep(0.1)
-        node = client.get_node(served_nodes()["heartbeat"])
-        beat = 0
-        while not stop.is_set():
-            beat += 1
-            await node.write_value(ua.DataValue(ua.Variant(beat, ua.VariantType.Int64),
-                                                StatusCode=None))
-            started.set()
-            await asyncio.sleep(PERIOD_S / 2)
-        await client.disconnect()
-
-    started = threading.Event()
-    driver = threading.Thread(target=lambda: asyncio.run(drive()), daemon=True)
-    driver.start()
-    assert started.wait(30.0)
-    try:
+    # another controller, without czmpc's lock: a heartbeat
+    with _another_writer(endpoint, served_nodes()["heartbeat"], "Int64", lambda i: i):
         config = _config(tmp_path, port, duration_s=100.0)
         run = subprocess.run([*CLI, "run", str(config)], capture_output=True, text=True,
                              timeout=60)
-    finally:
-        stop.set()
-        driver.join(10)
     assert run.returncode == 2, run.stderr
     assert "already driven" in run.stderr and "Heater.Heartbeat" not in run.stdout
     assert "heartbeat changed from" in run.stderr
