@@ -106,12 +106,6 @@ def run(args: argparse.Namespace) -> int:
 
         schedule = load_input_schedule(args.test)
         loop = make_test_loop(config, schedule, status=tty_status())
-        limits = config.test_limits
-        assert limits is not None    # load_input_schedule's loop needs [test]
-        _log.info("open-loop test %s: %g s of plant time, largest step %g %%; band %g..%g kW, "
-                  "at most %g s without a usable sample; abort -> %g %%", args.test,
-                  schedule.duration_s, schedule.max_step_pct, limits.power_band_kw[0],
-                  limits.power_band_kw[1], limits.max_bad_quality_s, config.safe_triac_pct)
     else:
         opened = open_run(config, force=args.force, log=_log)
         forced = opened.switch_on.forced

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +32,8 @@ from czmpc.runtime import alignment
 from czmpc.runtime.config import RunConfig
 from czmpc.runtime.loop import ControlLoop, RunSummary
 from sysid._typing import FloatArray
+
+_log = logging.getLogger(__name__)
 
 #: Ramp rate [%/sample] into a schedule whose value never changes (its largest step is 0).
 CONSTANT_SCHEDULE_RAMP_PCT = 1.0
@@ -251,10 +254,15 @@ def make_test_loop(config: RunConfig, schedule: InputSchedule, **loop_options: o
     """
     import dataclasses
 
-    if config.test_limits is None:
+    limits = config.test_limits
+    if limits is None:
         raise ScheduleError(
             "a test needs a [test] section in the run config: power_band_kw = [LO, HI] (kW) and "
             "max_bad_quality_s (s); see czmpc run --help")
+    _log.info("open-loop test %s: %g s of plant time, largest step %g %%; band %g..%g kW, "
+              "at most %g s without a usable sample; abort -> %g %%", schedule.source,
+              schedule.duration_s, schedule.max_step_pct, limits.power_band_kw[0],
+              limits.power_band_kw[1], limits.max_bad_quality_s, config.safe_triac_pct)
     config = dataclasses.replace(config, duration_s=None)
     return ControlLoop(config, ScheduleDriver(schedule, config.ts_s),
                        provenance=schedule_provenance(schedule), **loop_options)  # type: ignore[arg-type]

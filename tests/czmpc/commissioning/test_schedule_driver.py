@@ -157,3 +157,22 @@ def test_the_shipped_commissioning_config_reads() -> None:
     assert cfg.model_path is None
     assert cfg.test_limits == ExperimentLimits(power_band_kw=(25.0, 70.0), max_bad_quality_s=10.0)
     assert cfg.safe_triac_pct == 33.0 and cfg.setpoint_kw == 45.0
+
+
+def test_a_test_loop_states_its_plan_and_refuses_a_config_without_a_test_section(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    from czmpc.commissioning.test_run import make_test_loop
+
+    schedule = InputSchedule(time_s=np.array([0.0, 20.0, 60.0]),
+                             triac_pct=np.array([40.0, 47.5, 40.0]), source="steps.csv")
+    safety = {"safe_triac_pct": 30.0}
+    with pytest.raises(ScheduleError, match=r"a test needs a \[test\] section"):
+        make_test_loop(run_config_from_dict(
+            _doc(safety=safety, controller={"model": "m.json"},
+                 run={"log": "run.csv", "setpoint_kw": 45.0}), base_dir=tmp_path), schedule)
+    cfg = run_config_from_dict(_doc(safety=safety, test={"power_band_kw": [20, 60]}),
+                               base_dir=tmp_path)
+    with caplog.at_level("INFO", logger="czmpc"):
+        make_test_loop(cfg, schedule)
+    assert ("open-loop test steps.csv: 60 s of plant time, largest step 7.5 %; band 20..60 kW, "
+            "at most 10 s without a usable sample; abort -> 30 %") in caplog.text
