@@ -9,7 +9,8 @@ each segment (``Dataset.segment_starts``) restarts with its own initial state an
 squared errors are pooled. ``initial_state="estimate"`` fits each segment's initial
 state by least squares (the errors are affine in it), as MATLAB's ``compare`` with
 ``'InitialCondition', 'estimate'``: fair to records that do not start at rest, which
-`start_at_rest` judges; `output_clipping` says when the output saturates.
+`start_at_rest` judges; `output_clipping` says when the output saturates, and
+`output_held` when a sensor or logger holds each value for several samples.
 """
 
 from __future__ import annotations
@@ -39,6 +40,13 @@ REST_DRIFT_SHARE = 0.05
 #: ... and by more than this many standard errors (noise: the larger of the window's
 #: residual and the record's, from second differences).
 REST_DRIFT_Z = 3.0
+
+#: `output_held` judges a log whose output changes at least this many times ...
+HELD_MIN_CHANGES = 20
+#: ... and calls it held when this share of the changes falls on one sample in ``m``.
+#: Measured: held logs 1.00; the real logs as recorded and quantised to 50 or 200
+#: levels at most 0.53 (0.5 is one sample in 2 by chance).
+HELD_MIN_SHARE = 0.9
 
 #: Initial-state policies of the criteria.
 CriterionInitialState = Literal["held", "estimate"]
@@ -342,6 +350,55 @@ def output_clipping(data: Dataset) -> Check:
                  "blank those rows and identify with --gaps split"))
 
 
-__all__ = ["REST_DRIFT_SHARE", "REST_DRIFT_Z", "REST_INPUT_RTOL", "REST_MIN_SAMPLES",
+def output_held(data: Dataset) -> Check:
+    """Whether a sensor or logger holds the output: a warning check when it changes only
+    every ``m``-th sample, in step with the stamps.
+
+    A sensor that updates every ``m Ts``, logged every ``Ts``, repeats each value ``m``
+    times: its changes all fall on one sample in ``m``. Quantisation repeats values too,
+    but at irregular samples. ``m`` is the most common number of samples between changes;
+    the log is held when ``m >= 2`` and at least `HELD_MIN_SHARE` of the changes (of at
+    least `HELD_MIN_CHANGES`) fall on one residue modulo ``m`` in each segment.
+
+    Parameters
+    ----------
+    data :
+        The record (absolute units), one or more segments.
+
+    Returns
+    -------
+    Check
+        ``output_held``, a warning: measured ``m``, the samples each value is held (1: the
+        output moves at the log's own rate; NaN: not judged), threshold 1.
+    """
+    changes = [np.flatnonzero(np.diff(data.power_kw[lo:hi]) != 0.0) + 1
+               for lo, hi in data.segment_bounds()]
+    n = sum(c.size for c in changes)
+    if n < HELD_MIN_CHANGES:
+        return Check(name="output_held", passed=True, severity="warning", measured=math.nan,
+                     threshold=1.0,
+                     message=(f"output held: not judged, the output changes {n} times (fewer "
+                              f"than {HELD_MIN_CHANGES})"))
+    gaps = np.concatenate([np.diff(c) for c in changes])
+    m = int(np.argmax(np.bincount(gaps))) if gaps.size else 1
+    on_one = sum(int(np.max(np.bincount(c % m))) for c in changes if c.size) if m >= 2 else 0
+    share = on_one / n
+    held = m >= 2 and share >= HELD_MIN_SHARE
+    ts = data.ts_s
+    return Check(
+        name="output_held", passed=not held, severity="warning", measured=float(m if held else 1),
+        threshold=1.0,
+        message=(f"output held: the output changes at the log's own rate ({n} changes)"
+                 if not held else
+                 f"output held: the output changes only once in {m} samples ({100 * share:.3g} % "
+                 f"of its {n} changes fall on one sample in {m}): the sensor or logger updates "
+                 f"every {m * ts:g} s while the log is stamped every {ts:g} s, so each held "
+                 "value is a step the process did not make and the model's sampling time and "
+                 f"delay are the stamps'; export the log at the sensor's rate (one sample in "
+                 f"{m}) or log the sensor itself"))
+
+
+__all__ = ["HELD_MIN_CHANGES", "HELD_MIN_SHARE", "REST_DRIFT_SHARE", "REST_DRIFT_Z",
+           "REST_INPUT_RTOL", "REST_MIN_SAMPLES",
            "ballistic_mse", "errors_with_fitted_state", "fit_percent", "mean_squared_error",
-           "model_criteria", "one_step_mse", "output_clipping", "start_at_rest"]
+           "model_criteria", "one_step_mse", "output_clipping", "output_held", "start_at_rest"]

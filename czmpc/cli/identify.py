@@ -27,9 +27,9 @@ move, too few input levels or samples for the orders, an output that does not de
 on the input) is refused with exit 1, every reason on stderr, and nothing written
 (--accept-unidentifiable writes the files anyway); an unusual model (a gain that is not
 significant or not positive, a pole at z = 1, a long delay), a log that does not start
-at rest (sysid.criteria.start_at_rest) or an output that clips (output_clipping) is a
-warning on stderr, in report.md and in model.json's provenance ("identifiability"),
-with exit 0.
+at rest (sysid.criteria.start_at_rest), an output that clips (output_clipping) or one
+that a sensor or logger holds for several samples (output_held) is a warning on stderr,
+in report.md and in model.json's provenance ("identifiability"), with exit 0.
 
 Every prediction-error search stops when V falls by less than 1e-6 relative over ten
 iterations (its budget follows progress), with a cap of 1000 iterations stated in the
@@ -272,7 +272,7 @@ def identify_to_directory(
     notes: list[str] = []
     if data.n_segments > 1:
         notes.append(segments_note(data))
-    from sysid.criteria import output_clipping, start_at_rest
+    from sysid.criteria import output_clipping, output_held, start_at_rest
     from sysid.identifiability import (
         IdentifiabilityAssessment,
         UnidentifiableDataError,
@@ -301,7 +301,8 @@ def identify_to_directory(
     if result.final is None:  # pragma: no cover - the pipeline raises instead
         raise IdentificationError("identify: the pipeline returned no model")
     judged = before + assess_model(result.final.model, result.data) + \
-        IdentifiabilityAssessment(checks=(start_at_rest(data), output_clipping(data)))
+        IdentifiabilityAssessment(checks=(start_at_rest(data), output_clipping(data),
+                                          output_held(data)))
     if judged.refusals and not accept_unidentifiable:
         raise UnidentifiableDataError(judged)
     out = Path(out_dir)

@@ -15,6 +15,7 @@ from sysid.criteria import (
     mean_squared_error,
     one_step_mse,
     output_clipping,
+    output_held,
     start_at_rest,
 )
 from sysid.data import Dataset
@@ -174,3 +175,49 @@ def test_output_clipping_judges_each_segment_at_its_own_extreme(
     assert not check.passed and check.measured == 15
     assert "(45 kW)" in check.message
 
+
+
+def _held_record(rng: np.random.Generator, hold: int, phase: int = 0, levels: float = 0.0,
+                 n: int = 600) -> Dataset:
+    """A first-order response to random steps, with noise; its output held for ``hold``
+    samples from ``phase`` on (as a sensor updating every ``hold Ts``), or rounded to
+    ``levels`` steps over its span."""
+    triac = np.repeat(rng.uniform(25.0, 65.0, n // 40 + 1), 40)[:n]
+    power = lfilter([0.1], [1.0, -0.9], triac) + 0.3 * rng.standard_normal(n)
+    if levels:
+        power = np.round(power / (np.ptp(power) / levels)) * (np.ptp(power) / levels)
+    if hold > 1:
+        k = np.arange(n)
+        power = power[np.maximum(k - (k - phase) % hold, 0)]
+    return Dataset(time_s=2.0 * np.arange(n), triac_pct=triac, power_kw=power, ts_s=2.0)
+
+
+@pytest.mark.parametrize(("hold", "phase", "levels"), [
+    (1, 0, 0.0), (1, 0, 50.0), (1, 0, 20.0), (2, 1, 0.0), (3, 2, 0.0), (6, 0, 50.0)])
+def test_output_held_finds_a_sensor_updating_slower_than_the_stamps(
+    hold: int, phase: int, levels: float, rng: np.random.Generator,
+) -> None:
+    check = output_held(_held_record(rng, hold, phase, levels))
+    assert (check.name, check.severity, check.passed) == ("output_held", "warning", hold == 1)
+    assert check.measured == hold
+    if hold > 1:
+        assert f"changes only once in {hold} samples" in check.message
+        assert f"updates every {2 * hold:g} s while the log is stamped every 2 s" in check.message
+
+
+def test_output_held_takes_each_segments_own_phase(rng: np.random.Generator) -> None:
+    first, second = _held_record(rng, 3, phase=0, n=300), _held_record(rng, 3, phase=1, n=300)
+    data = Dataset(time_s=np.concatenate([first.time_s, 1e4 + second.time_s]),
+                   triac_pct=np.concatenate([first.triac_pct, second.triac_pct]),
+                   power_kw=np.concatenate([first.power_kw, second.power_kw]), ts_s=2.0,
+                   segment_starts=(0, 300))
+    check = output_held(data)
+    assert not check.passed and check.measured == 3
+
+
+def test_output_held_is_not_judged_on_an_output_that_hardly_moves(rng: np.random.Generator,
+                                                                  ) -> None:
+    data = Dataset(time_s=2.0 * np.arange(600), triac_pct=rng.uniform(0.0, 100.0, 600),
+                   power_kw=np.where(np.arange(600) < 300, 1.0, 2.0), ts_s=2.0)   # one change
+    check = output_held(data)
+    assert check.passed and np.isnan(check.measured) and "not judged" in check.message

@@ -470,6 +470,20 @@ def test_identify_says_when_the_output_clips(name: str, identified: Identified) 
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("name", [*READERS, *HELD])
+def test_identify_says_when_a_logger_holds_the_output(name: str, identified: Identified) -> None:
+    # TCLab's log held for three samples: a sensor updating every 3 s, stamped every 1 s
+    code, err, out = identified(name)
+    assert code == 0, err
+    check = _identifiability(out / "model.json")["output_held"]
+    held = name in HELD
+    assert check["passed"] is not held and check["measured"] == (3 if held else 1)
+    assert ("czmpc: WARNING: output held: the output changes only once in 3 samples" in err) is held
+    report = (out / "report.md").read_text(encoding="utf-8")
+    assert ("| output_held | warning |" in report) is held
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(READERS))
 def test_the_report_lists_the_level_shifts_it_did_not_repair(name: str,
                                                              identified: Identified) -> None:
