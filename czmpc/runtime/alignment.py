@@ -4,8 +4,10 @@ A loop that reads just before the plant's step writes after that step on some pe
 and before it on others: the input delay jitters by a sample (docs/guides/plant_link.rst,
 section 4). The *phase* of a read is the sample's age ``now - SourceTimestamp`` as a
 share of the period, modulo 1; `read_phase` is its circular mean over `WINDOW` good
-samples and, outside `BAND`, `alignment_delay_s` the schedule delay (less than a period)
-that moves the reads to `TARGET_PHASE`. Spread phases (concentration below
+samples and, outside `BAND`, `alignment_shift_s` the shift of the schedule (less than a
+period) that moves the reads to `TARGET_PHASE` within the plant's period: later when the
+loop reads too early, earlier when it reads too late, so that no plant sample goes
+unread (a later schedule past the next publication would skip one). Spread phases (concentration below
 `MIN_CONCENTRATION`: another publishing rate, jumping clocks) leave the schedule alone.
 """
 
@@ -58,8 +60,8 @@ def read_phase(ages_s: Sequence[float], period_s: float) -> float | None:
     return (cmath.phase(mean) / (2.0 * math.pi)) % 1.0
 
 
-def alignment_delay_s(phase: float, period_s: float) -> float | None:
-    """How long to delay the loop's schedule so that reads come at `TARGET_PHASE`.
+def alignment_shift_s(phase: float, period_s: float) -> float | None:
+    """How far to shift the loop's schedule so that reads come at `TARGET_PHASE`.
 
     Parameters
     ----------
@@ -71,9 +73,11 @@ def alignment_delay_s(phase: float, period_s: float) -> float | None:
     Returns
     -------
     float or None
-        ``((TARGET_PHASE - phase) mod 1) * period_s`` [wall s], less than a period;
-        None when `phase` lies inside `BAND`.
+        ``(TARGET_PHASE - phase) * period_s`` [wall s]: positive delays the schedule (a
+        read just after the publication), negative brings it forward (a read late in the
+        period); either way the reads stay in the plant's period, so the plant sample
+        between them is read. None when `phase` lies inside `BAND`.
     """
     if BAND[0] <= phase <= BAND[1]:
         return None
-    return ((TARGET_PHASE - phase) % 1.0) * period_s
+    return (TARGET_PHASE - phase) * period_s

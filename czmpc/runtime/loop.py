@@ -216,9 +216,9 @@ class RunSummary:
     #: A node the server will not accept as configured: the node, the code, the fix (exit 2).
     configuration_error: str | None = None
     #: The last `RECENT_PHASES` read phases (`czmpc.runtime.alignment.read_phase`) and
-    #: schedule delays [wall s] taken to read just after the plant publishes.
+    #: schedule shifts [wall s] (positive: later) taken to read just after the plant publishes.
     read_phases: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT_PHASES))
-    alignment_delays_s: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT_PHASES))
+    alignment_shifts_s: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT_PHASES))
 
     @property
     def moved_nothing(self) -> bool:
@@ -539,8 +539,9 @@ class ControlLoop:
         self.summary.n_steps = k
 
     def _align(self, row: dict[str, object]) -> float:
-        """Delay [wall s] moving the reads to just after the plant publishes, said in the
-        row; 0 until `alignment.WINDOW` good samples are in, or inside `alignment.BAND`."""
+        """Shift [wall s] of the schedule that moves the reads to just after the plant
+        publishes, said in the row; 0 until `alignment.WINDOW` good samples are in, or
+        inside `alignment.BAND`."""
         if not self.config.align_to_plant or len(self._ages_s) < alignment.WINDOW:
             return 0.0
         period = self.config.period_s
@@ -549,13 +550,14 @@ class ControlLoop:
         if phase is None:
             return 0.0
         self.summary.read_phases.append(phase)
-        delay = alignment.alignment_delay_s(phase, period)
-        if delay is None:
+        shift = alignment.alignment_shift_s(phase, period)
+        if shift is None:
             return 0.0
-        self.summary.alignment_delays_s.append(delay)
+        self.summary.alignment_shifts_s.append(shift)
         self._add_event(row, f"reads moved to {alignment.TARGET_PHASE:.2f} of the period after the "
-                             f"plant publishes (were at {phase:.2f}; delay {delay * 1e3:.1f} ms)")
-        return delay
+                             f"plant publishes (were at {phase:.2f}; {abs(shift) * 1e3:.1f} ms "
+                             f"{'later' if shift > 0 else 'earlier'})")
+        return shift
 
     def _check_limits(self, row: dict[str, object], n_periods: int) -> None:
         """Stop the run if a test limit is left, the controller aborts or is done."""

@@ -68,7 +68,7 @@ def test_reads_move_to_just_after_the_plant_publishes(tmp_path: Path) -> None:
     # every estimate after the first lies in the band the loop keeps its reads in
     assert len(summary.read_phases) >= 10
     phases = list(summary.read_phases)
-    later = phases[1:] if summary.alignment_delays_s else phases
+    later = phases[1:] if summary.alignment_shifts_s else phases
     inside = [alignment.BAND[0] <= p <= alignment.BAND[1] for p in later]
     assert np.mean(inside) >= 0.9, summary.read_phases
     share = _one_sample_share(tmp_path / "run.csv", after_k=2 * alignment.WINDOW)

@@ -11,7 +11,7 @@ from czmpc.runtime.alignment import (
     BAND,
     MIN_CONCENTRATION,
     TARGET_PHASE,
-    alignment_delay_s,
+    alignment_shift_s,
     read_phase,
 )
 
@@ -42,15 +42,17 @@ def test_spread_phases_give_no_estimate() -> None:
     assert read_phase([0.0, 0.045], PERIOD_S) is None
 
 
-def test_delay_moves_a_late_read_to_the_target_and_leaves_the_band_alone() -> None:
+def test_a_shift_moves_the_reads_to_the_target_inside_the_plants_period() -> None:
     # read at 0.9 of the period after the plant published: its next step is 10 % of a
-    # period away, so a write may land on either side of it
-    delay = alignment_delay_s(0.9, PERIOD_S)
-    assert delay == pytest.approx((1.0 - 0.9 + TARGET_PHASE) * PERIOD_S, rel=1e-12)
-    assert 0.0 < delay < PERIOD_S
-    assert alignment_delay_s(0.01, PERIOD_S) == pytest.approx((TARGET_PHASE - 0.01) * PERIOD_S)
+    # period away, so a write may land on either side of it. The reads come 0.7 of a
+    # period sooner; 0.3 later would pass the next publication and leave a sample unread
+    assert alignment_shift_s(0.9, PERIOD_S) == pytest.approx(-0.7 * PERIOD_S, rel=1e-12)
+    assert alignment_shift_s(0.01, PERIOD_S) == pytest.approx((TARGET_PHASE - 0.01) * PERIOD_S)
+    for phase in (0.0, 0.04, 0.51, 0.75, 0.999):
+        moved = phase + alignment_shift_s(phase, PERIOD_S) / PERIOD_S   # type: ignore[operator]
+        assert moved == pytest.approx(TARGET_PHASE, abs=1e-12)         # never across a publication
     for phase in (BAND[0], TARGET_PHASE, BAND[1]):
-        assert alignment_delay_s(phase, PERIOD_S) is None
+        assert alignment_shift_s(phase, PERIOD_S) is None
 
 
 @pytest.mark.parametrize(("ages", "period"), [([], 0.1), ([math.nan], 0.1), ([0.1], 0.0)])

@@ -21,6 +21,7 @@ from asyncua import ua
 from plant_rig import TIME_SCALE, free_port, make_config, served_nodes, with_served
 
 from czmpc.controller import OffsetFreeMPC
+from czmpc.runtime import alignment
 from czmpc.runtime.loop import ControlLoop
 from czmpc.runtime.served import ServedPlant, ServeOptions
 from czmpc.settings import MPCSettings
@@ -370,6 +371,47 @@ def test_a_candidate_model_runs_in_shadow_and_is_compared(tmp_path: Path) -> Non
     # it never drove: the written commands are the active MPC's (tracked offset-free)
     tail = [float(r["power_kw"]) for r in rows[-10:] if r["quality"] == "good"]
     assert abs(sum(tail) / len(tail) - 31.0) < 0.05
+
+
+def test_a_read_late_in_the_plants_period_moves_earlier_and_no_plant_sample_goes_unread(
+        tmp_path: Path) -> None:
+    """The loop starts 0.7 of a period after the plant publishes; it moves its reads to 0.2
+    by reading sooner. Delayed instead (by 0.5 of a period, past the next publication), the
+    plant stepped twice between two reads with the command held: one sample unread, as if
+    a period were skipped but not counted (the one-step residue of a noise-free plant rose
+    to 1e-2 kW there)."""
+    model, plant = _model_plant()
+    port = free_port()
+    served = ServedPlant(plant, initial_triac_pct=plant.initial_triac_pct, options=ServeOptions(
+        endpoint=f"opc.tcp://127.0.0.1:{port}/czmpc/", time_scale=TIME_SCALE, watchdog_s=None))
+    nodes = {k: v for k, v in served_nodes().items() if k != "setpoint_kw"}
+    cfg = make_config(tmp_path, port, duration_s=100.0, nodes=nodes, run={"setpoint_kw": 31.0})
+    loop = ControlLoop(cfg, OffsetFreeMPC(model))
+    plant_k: list[int] = []            # the plant's sample count at each of the loop's reads
+    read, steps = loop._read, loop._loop
+
+    async def read_and_count(end: float) -> Any:
+        values = await read(end)
+        plant_k.append(served.k)
+        return values
+
+    async def start_late(log: Any) -> None:
+        published = served.k
+        while served.k == published:
+            await asyncio.sleep(0.0005)
+        await asyncio.sleep(0.7 * cfg.period_s)
+        await steps(log)
+
+    loop._read = read_and_count           # type: ignore[method-assign]
+    loop._loop = start_late               # type: ignore[method-assign]
+    summary = asyncio.run(with_served(served, loop.run()))
+    assert len(summary.alignment_shifts_s) == 1 and summary.alignment_shifts_s[0] < 0.0
+    assert summary.read_phases[0] > alignment.BAND[1]
+    rows = [r for r in _rows(cfg.log_path) if r["k"]]
+    moved = next(i for i, r in enumerate(rows) if "reads moved" in r["event"])
+    assert "ms earlier" in rows[moved]["event"]
+    assert int(rows[moved + 1]["k"]) == int(rows[moved]["k"]) + 1       # no period skipped
+    assert plant_k[moved + 1] - plant_k[moved] == 1                    # one plant sample on
 
 
 @pytest.mark.parametrize("node_types", ["czmpc", "plc"])

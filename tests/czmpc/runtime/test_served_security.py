@@ -219,10 +219,22 @@ def secured_plant(pki: Pki) -> Iterator[SecuredPlant]:
         assert started.wait(60.0), "the secured plant did not start within 60 s"
         yield SecuredPlant(endpoint, served, loops[0], log)
     finally:
-        if loops and not loops[0].is_closed():   # closed: the plant's duration ran out
-            for task in asyncio.all_tasks(loops[0]):
-                loops[0].call_soon_threadsafe(task.cancel)
+        if loops:
+            _cancel_all(loops[0])
         thread.join(20.0)
+
+
+def _cancel_all(loop: asyncio.AbstractEventLoop) -> None:
+    """Cancel every task of ``loop`` from another thread, in one call run by the loop itself
+    (cancelling task by task from here raced the loop closing once the first had ended)."""
+    def cancel() -> None:
+        for task in asyncio.all_tasks():
+            task.cancel()
+
+    try:
+        loop.call_soon_threadsafe(cancel)
+    except RuntimeError:     # closed already: the plant's duration ran out
+        pass
 
 
 async def _quietly_cancelled(coro: Awaitable[None]) -> None:
