@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from sysid._arrays import readonly_array as _readonly
 from sysid._typing import FloatArray
@@ -35,6 +36,13 @@ DEFAULT_SAMPLING_RTOL = 0.01
 
 #: The fewest samples any model in this project can be fitted to.
 MIN_SAMPLES = 3
+
+#: The optional column of the grid voltage relative to nominal [-] (issue 40): the
+#: heater's drive goes with its square. Absent: no voltage compensation.
+GRID_VOLTAGE_COLUMN = "grid_voltage_factor"
+#: Accepted range of the grid voltage factor [-]: outside it the value is not a
+#: mains voltage relative to nominal (a voltage in volts, or a percentage).
+GRID_VOLTAGE_RANGE: tuple[float, float] = (0.5, 1.5)
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -65,6 +73,10 @@ class Dataset:
         Sample indices where each segment (experiment) starts: strictly increasing,
         the first 0. Each segment is uniformly sampled with ``ts_s``; across a
         segment boundary time may jump (a gap), but still increases.
+    grid_voltage_factor :
+        Grid voltage relative to nominal [-] at each sample (the optional log column
+        `GRID_VOLTAGE_COLUMN`), each within `GRID_VOLTAGE_RANGE`; None (default) when
+        the log does not carry it (no voltage compensation).
 
     Raises
     ------
@@ -72,7 +84,8 @@ class Dataset:
         Arrays of unequal length or other than 1-D, non-finite values, fewer than
         `MIN_SAMPLES` samples (in any segment), time not strictly increasing, a
         sampling interval within a segment that differs from ``ts_s`` by more than
-        `DEFAULT_SAMPLING_RTOL`, or malformed ``segment_starts``.
+        `DEFAULT_SAMPLING_RTOL`, malformed ``segment_starts``, or a grid voltage
+        factor of another length, not finite or outside `GRID_VOLTAGE_RANGE`.
     """
 
     time_s: FloatArray
@@ -86,6 +99,7 @@ class Dataset:
     preprocessing: tuple[Mapping[str, Any], ...] = field(default=())
     sampling_rtol: float = DEFAULT_SAMPLING_RTOL
     segment_starts: tuple[int, ...] = (0,)
+    grid_voltage_factor: FloatArray | None = None
 
     def __post_init__(self) -> None:
         for name in CSV_COLUMNS:
@@ -109,6 +123,8 @@ class Dataset:
             raise self._error(f"ts_s must be a finite number > 0; got {self.ts_s}")
         object.__setattr__(self, "ts_s", float(self.ts_s))
         object.__setattr__(self, "segment_starts", self._checked_segment_starts(n))
+        if self.grid_voltage_factor is not None:
+            object.__setattr__(self, "grid_voltage_factor", self._checked_voltage(n))
         for lo, hi in self.segment_bounds():
             k = first_sampling_violation(self.time_s[lo:hi], self.ts_s, self.sampling_rtol)
             if k is not None:
@@ -124,6 +140,17 @@ class Dataset:
     def _error(self, message: str, *, column: str | None = None) -> DataFileError:
         """A `DataFileError` naming this data set's source file."""
         return DataFileError(message, path=self.source, column=column)
+
+    def _checked_voltage(self, n: int) -> FloatArray:
+        volt = _readonly(self.grid_voltage_factor)
+        if volt.ndim != 1 or volt.size != n:
+            raise self._error(f"{GRID_VOLTAGE_COLUMN} must be 1-D with one value per sample "
+                              f"({n}); got shape {volt.shape}", column=GRID_VOLTAGE_COLUMN)
+        bad = np.flatnonzero(~_voltage_ok(volt))
+        if bad.size:
+            raise self._error(f"sample {bad[0]}: {voltage_expectation()}; got {volt[bad[0]]}",
+                              column=GRID_VOLTAGE_COLUMN)
+        return volt
 
     def _checked_segment_starts(self, n: int) -> tuple[int, ...]:
         raw = self.segment_starts
@@ -221,9 +248,33 @@ class Dataset:
             time_s=self.time_s[start:stop],
             triac_pct=self.triac_pct[start:stop],
             power_kw=self.power_kw[start:stop],
+            grid_voltage_factor=None if self.grid_voltage_factor is None
+            else self.grid_voltage_factor[start:stop],
             preprocessing=self.preprocessing
             + ({"what": "segment", "start_sample": start, "stop_sample": stop},),
             segment_starts=(0, *(b - start for b in self.segment_starts if start < b < stop)))
+
+
+def _voltage_ok(values: FloatArray) -> npt.NDArray[np.bool_]:
+    """True where a grid voltage factor is finite and inside `GRID_VOLTAGE_RANGE`."""
+    lo, hi = GRID_VOLTAGE_RANGE
+    with np.errstate(invalid="ignore"):
+        ok: npt.NDArray[np.bool_] = np.isfinite(values) & (values >= lo) & (values <= hi)
+    return ok
+
+
+def voltage_expectation() -> str:
+    """What a grid voltage factor must be, for error messages."""
+    lo, hi = GRID_VOLTAGE_RANGE
+    return (f"expected a finite grid voltage factor (voltage / nominal) within {lo:g}..{hi:g}")
+
+
+def check_voltage_value(value: float, cell: str, path: str | Path | None, line: int | None,
+                        column: str) -> None:
+    """Refuse one read grid voltage factor outside `GRID_VOLTAGE_RANGE` (file, line, column)."""
+    if not bool(_voltage_ok(np.array([value]))[0]):
+        raise DataFileError(f"{voltage_expectation()}; got {cell.strip()!r}", path=path,
+                            line=line, column=column)
 
 
 def first_sampling_violation(time_s: FloatArray, ts_s: float, rtol: float) -> int | None:
@@ -284,12 +335,17 @@ def check_column_mapping(header: Sequence[str], columns: Mapping[str, str] | Non
 
     Refuses a mapping of other names or onto one column twice, and a mapped column
     missing from `header` (`missing_hint` ends that message when `columns` is None).
-    With `layout_hint` and no `columns`, `header` must be exactly `CSV_COLUMNS`.
+    With `layout_hint` and no `columns`, `header` must be exactly `CSV_COLUMNS`, or
+    `CSV_COLUMNS` followed by `GRID_VOLTAGE_COLUMN`.
+
+    The optional `GRID_VOLTAGE_COLUMN` is in the result when `columns` maps it, or
+    when `header` holds a field of that name that no other contract name is mapped to.
     """
     wanted = {c: c for c in CSV_COLUMNS} if columns is None else dict(columns)
-    if set(wanted) != set(CSV_COLUMNS):
+    if not (set(CSV_COLUMNS) <= set(wanted) <= {*CSV_COLUMNS, GRID_VOLTAGE_COLUMN}):
         raise DataFileError(
-            f"the column mapping must map exactly {list(CSV_COLUMNS)}; got {sorted(wanted)}",
+            f"the column mapping must map exactly {list(CSV_COLUMNS)} (and optionally "
+            f"'{GRID_VOLTAGE_COLUMN}'); got {sorted(wanted)}",
             path=path)
     if len(set(wanted.values())) != len(wanted):
         raise DataFileError(
@@ -302,12 +358,16 @@ def check_column_mapping(header: Sequence[str], columns: Mapping[str, str] | Non
                 + ("" if name == contract else f" (mapped to {contract})")
                 + f"; got fields {list(header)}" + ("" if columns is not None else missing_hint),
                 path=path, line=1, column=name)
-    if columns is None and layout_hint is not None and list(header) != list(CSV_COLUMNS):
-        extra = [h for h in header if h not in CSV_COLUMNS]
+    if GRID_VOLTAGE_COLUMN not in wanted and GRID_VOLTAGE_COLUMN in header \
+            and GRID_VOLTAGE_COLUMN not in wanted.values():
+        wanted[GRID_VOLTAGE_COLUMN] = GRID_VOLTAGE_COLUMN
+    if columns is None and layout_hint is not None and list(header) not in (
+            list(CSV_COLUMNS), [*CSV_COLUMNS, GRID_VOLTAGE_COLUMN]):
+        extra = [h for h in header if h not in (*CSV_COLUMNS, GRID_VOLTAGE_COLUMN)]
         detail = f"extra field(s) {extra}" if extra else f"fields in the order {list(header)}"
         raise DataFileError(
-            f"header must be exactly 'time_s,triac_pct,power_kw'; got {detail} "
-            f"({layout_hint} to read other layouts)",
+            f"header must be exactly 'time_s,triac_pct,power_kw'; got {detail} ({layout_hint} "
+            f"to read other layouts; only an optional '{GRID_VOLTAGE_COLUMN}' may follow)",
             path=path, line=1, column=extra[0] if extra else None)
     return wanted
 
@@ -327,11 +387,14 @@ def read_csv(
     Parameters
     ----------
     path :
-        File to read. Its header must be exactly ``time_s,triac_pct,power_kw`` unless
-        `columns` maps the contract's names to the file's.
+        File to read. Its header must be exactly ``time_s,triac_pct,power_kw`` (or
+        that followed by the optional ``grid_voltage_factor``) unless `columns` maps the
+        contract's names to the file's.
     columns :
         Contract name (``time_s``, ``triac_pct``, ``power_kw``) -> the file's column
-        name, for logs of other rigs (other columns are then allowed, and not read).
+        name, for logs of other rigs (other columns are then allowed, and not read);
+        it may also map ``grid_voltage_factor``, which is otherwise read when the file
+        has a column of that name.
     ts_s :
         Nominal sampling time [s]; default: the median interval of the file.
     sampling_rtol :
@@ -350,7 +413,8 @@ def read_csv(
     ------
     DataFileError
         An empty file; missing, extra or duplicated header fields; a non-numeric,
-        NaN or infinite cell; a row with too many or too few cells; time not strictly
+        NaN or infinite cell; a grid voltage factor outside `GRID_VOLTAGE_RANGE`; a row
+        with too many or too few cells; time not strictly
         increasing; non-uniform sampling; fewer than `min_samples` samples. The message
         names the file, the 1-based line and the column.
     OSError
@@ -363,8 +427,9 @@ def read_csv(
                             "and at least one row", path=path)
     header, rows = csv_table(text, path)
     wanted = check_column_mapping(header, columns, path, layout_hint="pass a column mapping")
-    index = {name: header.index(wanted[name]) for name in CSV_COLUMNS}
-    values: dict[str, list[float]] = {name: [] for name in CSV_COLUMNS}
+    names = (*CSV_COLUMNS, *((GRID_VOLTAGE_COLUMN,) if GRID_VOLTAGE_COLUMN in wanted else ()))
+    index = {name: header.index(wanted[name]) for name in names}
+    values: dict[str, list[float]] = {name: [] for name in names}
     for line_no, row in enumerate(rows, start=2):
         if not row or all(not cell.strip() for cell in row):
             raise DataFileError("blank line; expected a row of numbers", path=path, line=line_no)
@@ -372,7 +437,7 @@ def read_csv(
             raise DataFileError(
                 f"expected {len(header)} cells like the header; got {len(row)}",
                 path=path, line=line_no)
-        for name in CSV_COLUMNS:
+        for name in names:
             cell = row[index[name]].strip()
             try:
                 value = float(cell)
@@ -382,6 +447,8 @@ def read_csv(
             if not math.isfinite(value):
                 raise DataFileError(f"expected a finite number; got {cell!r}", path=path,
                                     line=line_no, column=wanted[name])
+            if name == GRID_VOLTAGE_COLUMN:
+                check_voltage_value(value, cell, path, line_no, wanted[name])
             values[name].append(value)
     n = len(values["time_s"])
     if n < max(min_samples, MIN_SAMPLES):
@@ -402,11 +469,18 @@ def read_csv(
         output_unit=output_unit,
         source=str(path),
         sha256=digest,
-        sampling_rtol=sampling_rtol)
+        sampling_rtol=sampling_rtol,
+        grid_voltage_factor=(np.asarray(values[GRID_VOLTAGE_COLUMN])
+                             if GRID_VOLTAGE_COLUMN in values else None))
 
 
 def format_csv(data: Dataset) -> str:
-    """Render a data set in the CSV contract (shortest round-trip float text)."""
+    """Render a data set in the CSV contract (shortest round-trip float text), with the
+    ``grid_voltage_factor`` column after the contract's if the data set carries it."""
+    if data.grid_voltage_factor is not None:
+        rows = (f"{float(t)!r},{float(s)!r},{float(p)!r},{float(v)!r}" for t, s, p, v in zip(
+            data.time_s, data.triac_pct, data.power_kw, data.grid_voltage_factor, strict=True))
+        return "\n".join([",".join((*CSV_COLUMNS, GRID_VOLTAGE_COLUMN)), *rows]) + "\n"
     rows = (f"{float(t)!r},{float(s)!r},{float(p)!r}"
             for t, s, p in zip(data.time_s, data.triac_pct, data.power_kw, strict=True))
     return "\n".join([",".join(CSV_COLUMNS), *rows]) + "\n"
@@ -421,5 +495,6 @@ def write_csv(data: Dataset, path: str | os.PathLike[str]) -> None:
     atomic_write_text(path, format_csv(data))
 
 
-__all__ = ["CSV_COLUMNS", "DEFAULT_SAMPLING_RTOL", "Dataset", "MIN_SAMPLES", "format_csv",
-           "read_csv", "write_csv"]
+__all__ = ["CSV_COLUMNS", "DEFAULT_SAMPLING_RTOL", "Dataset", "GRID_VOLTAGE_COLUMN",
+           "GRID_VOLTAGE_RANGE", "MIN_SAMPLES", "check_voltage_value", "format_csv", "read_csv",
+           "voltage_expectation", "write_csv"]

@@ -51,12 +51,16 @@ from sysid._typing import FloatArray
 from sysid.data import (
     CSV_COLUMNS,
     DEFAULT_SAMPLING_RTOL,
+    GRID_VOLTAGE_COLUMN,
+    GRID_VOLTAGE_RANGE,
     MIN_SAMPLES,
     Dataset,
     check_column_mapping,
+    check_voltage_value,
     csv_table,
     decode_text,
     file_bytes,
+    voltage_expectation,
 )
 from sysid.errors import DataFileError
 
@@ -277,11 +281,12 @@ class LoadedLog:
 
 @dataclass(frozen=True, kw_only=True)
 class _Raw:
-    """The three mapped columns as read, before any policy (NaN = missing)."""
+    """The mapped columns as read, before any policy (NaN = missing)."""
 
     time: FloatArray           # seconds, NaN where the row has no time
     u: FloatArray
     y: FloatArray
+    v: FloatArray | None = None   # grid voltage factor, if the log carries it
     lines: npt.NDArray[np.int64] | None   # 1-based file line of each row (CSV only)
     path: str | None
     names: Mapping[str, str]
@@ -294,8 +299,9 @@ class _Raw:
 
     @property
     def n_missing_cells(self) -> int:
-        """Cells of the three columns that hold no value (NaN)."""
-        return int(sum(np.count_nonzero(np.isnan(a)) for a in (self.time, self.u, self.y)))
+        """Cells of the mapped columns that hold no value (NaN)."""
+        columns = (self.time, self.u, self.y) + (() if self.v is None else (self.v,))
+        return int(sum(np.count_nonzero(np.isnan(a)) for a in columns))
 
 
 def _row_error(message: str, row: int, *, lines: Sequence[int] | npt.NDArray[np.int64] | None,
@@ -396,6 +402,7 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
                     "no time stamp in this row (empty or NaN); " + _gap_hint(policy))
     rows = rows[~no_time]
     time, u, y = raw.time[rows], raw.u[rows], raw.y[rows]
+    v = None if raw.v is None else raw.v[rows]
     if time.size < MIN_SAMPLES:
         raise DataFileError(f"expected at least {MIN_SAMPLES} samples; got {time.size}",
                             path=raw.path)
@@ -407,6 +414,7 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
     n_snapped = 0
     if policy.resample == "linear":
         t_slot, u_slot, y_slot = _linear_grid(time, u, y, ts_s)
+        v_slot = None if v is None else _linear_grid(time, v, v, ts_s)[1]
         n_slots = t_slot.size
         line_rows = rows[np.searchsorted(time, t_slot, side="left").clip(0, time.size - 1)]
         absent = np.zeros(n_slots, dtype=bool)
@@ -427,12 +435,18 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
             n_snapped = int(np.count_nonzero(np.abs(time - grid) > policy.sampling_rtol * ts_s))
         u_slot[slots] = u
         y_slot[slots] = y
+        v_slot = None
+        if v is not None:
+            v_slot = np.full(n_slots, np.nan)
+            v_slot[slots] = v
         absent = np.ones(n_slots, dtype=bool)
         absent[slots] = False
         # the row at or after each slot: a gap is reported at the row that ends it
         line_rows = rows[np.searchsorted(slots, np.arange(n_slots), side="left")]
     n_gap = int(np.count_nonzero(absent))
     missing = np.isnan(u_slot) | np.isnan(y_slot)
+    if v_slot is not None:
+        missing = missing | np.isnan(v_slot)
     if policy.gaps == "refuse" and missing.any():
         k = int(np.argmax(missing))
         if absent[k]:
@@ -440,7 +454,8 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
             raise _fail(raw, int(line_rows[k]), "time_s",
                         f"a gap in time: {hi - lo} missing sample(s) between {t_slot[lo - 1]:g} s "
                         f"and the next row (Ts = {ts_s:g} s); " + _gap_hint(policy))
-        column = "triac_pct" if np.isnan(u_slot[k]) else "power_kw"
+        column = ("triac_pct" if np.isnan(u_slot[k]) else "power_kw" if np.isnan(y_slot[k])
+                  else GRID_VOLTAGE_COLUMN)
         what = (f"no value at grid instant t = {t_slot[k]:g} s (a NaN or empty cell beside "
                 f"it, or no sample within {LINEAR_GAP_PERIODS:g} periods)"
                 if policy.resample == "linear" else "a missing value (NaN or empty cell)")
@@ -451,7 +466,12 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
         u_slot, fu = _fill_runs(u_slot, policy.fill_max_samples)
         y_slot, fy = _fill_runs(y_slot, policy.fill_max_samples)
         filled = fu | fy
+        if v_slot is not None:
+            v_slot, fv = _fill_runs(v_slot, policy.fill_max_samples)
+            filled = filled | fv
     keep = ~(np.isnan(u_slot) | np.isnan(y_slot))
+    if v_slot is not None:
+        keep = keep & ~np.isnan(v_slot)
     if keep.all():   # nothing cut: the strict reader's minimum applies, not the segments'
         segments = [(0, n_slots)]
     else:
@@ -475,7 +495,8 @@ def _regularize(raw: _Raw, policy: LoadPolicy, *, input_unit: str, output_unit: 
         time_s=t_slot[index], triac_pct=u_slot[index], power_kw=y_slot[index], ts_s=ts_s,
         input_unit=input_unit, output_unit=output_unit, source=raw.path, sha256=raw.sha256,
         preprocessing=() if report.is_plain_contract else (report.record(),),
-        sampling_rtol=rtol, segment_starts=starts)
+        sampling_rtol=rtol, segment_starts=starts,
+        grid_voltage_factor=None if v_slot is None else v_slot[index])
     return LoadedLog(data=data, report=report)
 
 
@@ -660,9 +681,12 @@ def read_log_csv(
     def cell(row: list[str], c: str) -> str:
         return row[index[c]] if len(row) > index[c] else ""
 
-    values: dict[str, list[float]] = {"triac_pct": [], "power_kw": []}
+    signals = ("triac_pct", "power_kw") + (
+        (GRID_VOLTAGE_COLUMN,) if GRID_VOLTAGE_COLUMN in names else ())
+    index.update({c: header.index(names[c]) for c in signals})
+    values: dict[str, list[float]] = {c: [] for c in signals}
     for i, row in enumerate(body):
-        for c in ("triac_pct", "power_kw"):
+        for c in signals:
             raw_cell = cell(row, c)
             try:
                 v = _parse_number(raw_cell, decimal)
@@ -674,6 +698,8 @@ def read_log_csv(
             if math.isinf(v):
                 raise DataFileError(f"expected a finite number; got {raw_cell.strip()!r}",
                                     path=p, line=i + 2, column=names[c])
+            if c == GRID_VOLTAGE_COLUMN and not math.isnan(v):   # NaN: missing, as u and y
+                check_voltage_value(v, raw_cell, p, i + 2, names[c])
             values[c].append(v)
     time_cells = [cell(row, "time_s") for row in body]
     first = next((t.strip() for t in time_cells if t.strip().lower() not in MISSING_TOKENS), "")
@@ -699,6 +725,8 @@ def read_log_csv(
         time, origin = _iso_seconds(time_cells, names, str(p), line_numbers, time_format)
     raw = _Raw(time=time, u=np.asarray(values["triac_pct"], dtype=float),
                y=np.asarray(values["power_kw"], dtype=float),
+               v=(np.asarray(values[GRID_VOLTAGE_COLUMN], dtype=float)
+                  if GRID_VOLTAGE_COLUMN in values else None),
                lines=np.asarray(line_numbers, dtype=np.int64), path=str(p), names=names,
                source_format="csv", separator=separator, decimal=decimal,
                time_format=time_kind, time_origin=origin, sha256=digest)
@@ -757,6 +785,15 @@ def _check_finite_values(values: FloatArray, name: str, path: str | None) -> Non
                          lines=None, path=path, column=name)
 
 
+def _check_voltage_values(values: FloatArray, name: str, path: str | None) -> None:
+    """Refuse a grid voltage factor outside its range (NaN is a missing value)."""
+    lo, hi = GRID_VOLTAGE_RANGE
+    bad = np.flatnonzero(~np.isnan(values) & ((values < lo) | (values > hi)))
+    if bad.size:
+        raise _row_error(f"{voltage_expectation()}; got {values[bad[0]]}", int(bad[0]),
+                         lines=None, path=path, column=name)
+
+
 def read_log_parquet(
     path: str | os.PathLike[str],
     *,
@@ -781,7 +818,12 @@ def read_log_parquet(
     time, fmt, origin = _arrow_time(table.column(names["time_s"]), names["time_s"], str(p))
     u = _arrow_values(table.column(names["triac_pct"]), names["triac_pct"], str(p))
     y = _arrow_values(table.column(names["power_kw"]), names["power_kw"], str(p))
-    raw = _Raw(time=np.asarray(time, dtype=float), u=u, y=y, lines=None, path=str(p),
+    v = None
+    if GRID_VOLTAGE_COLUMN in names:
+        v = _arrow_values(table.column(names[GRID_VOLTAGE_COLUMN]), names[GRID_VOLTAGE_COLUMN],
+                          str(p))
+        _check_voltage_values(v, names[GRID_VOLTAGE_COLUMN], str(p))
+    raw = _Raw(time=np.asarray(time, dtype=float), u=u, y=y, v=v, lines=None, path=str(p),
                names=names, source_format="parquet", time_format=fmt, time_origin=origin,
                sha256=digest)
     return _regularize(raw, policy, input_unit=input_unit, output_unit=output_unit)
@@ -791,8 +833,11 @@ def _columns(data: Dataset) -> dict[str, Any]:
     """The contract's columns of ``data`` and ``segment`` (each sample's, 0-based)."""
     segment = np.repeat(np.arange(data.n_segments, dtype=np.int64),
                         [hi - lo for lo, hi in data.segment_bounds()])
-    return {"time_s": np.array(data.time_s), "triac_pct": np.array(data.triac_pct),
-            "power_kw": np.array(data.power_kw), "segment": segment}
+    out = {"time_s": np.array(data.time_s), "triac_pct": np.array(data.triac_pct),
+           "power_kw": np.array(data.power_kw), "segment": segment}
+    if data.grid_voltage_factor is not None:
+        out[GRID_VOLTAGE_COLUMN] = np.array(data.grid_voltage_factor)
+    return out
 
 
 def write_parquet(data: Dataset, path: str | os.PathLike[str]) -> None:
@@ -886,7 +931,8 @@ def read_frame(
         time, origin = _iso_seconds(cells, names, None, None)
         fmt = "timestamp"
     signals = []
-    for c in ("triac_pct", "power_kw"):
+    for c in ("triac_pct", "power_kw") + (
+            (GRID_VOLTAGE_COLUMN,) if GRID_VOLTAGE_COLUMN in names else ()):
         col = frame[names[c]]
         if not pd.api.types.is_numeric_dtype(col):
             raise DataFileError(f"expected a numeric column; got dtype {col.dtype}",
@@ -894,7 +940,10 @@ def read_frame(
         arr = col.to_numpy(dtype=float, na_value=np.nan)
         _check_finite_values(arr, names[c], None)
         signals.append(arr)
-    raw = _Raw(time=np.asarray(time, dtype=float), u=signals[0], y=signals[1], lines=None,
+    if len(signals) > 2:
+        _check_voltage_values(signals[2], names[GRID_VOLTAGE_COLUMN], None)
+    raw = _Raw(time=np.asarray(time, dtype=float), u=signals[0], y=signals[1],
+               v=signals[2] if len(signals) > 2 else None, lines=None,
                path=None, names=names, source_format="frame", time_format=fmt,
                time_origin=origin)
     return _regularize(raw, policy or LoadPolicy(), input_unit=input_unit,
