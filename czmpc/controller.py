@@ -6,18 +6,24 @@ Notation
 ``w = f(ds)`` [kW-equivalent] (paper eq. 28); ``z = [x; d]`` the augmented estimator
 state (`czmpc.kalman.Estimator`); ``eps`` [kW] the innovation.
 
-One step (``docs/theory.rst``, C3-C7), for measured ``P_k`` and setpoint ``P_ref``:
+One step (``docs/theory.rst``, C3-C8), for measured ``P_k`` and setpoint ``P_ref``:
 
-0. take the input actually applied over the last sample (``applied_triac_pct``): the
-   estimator's prediction is corrected to it and the rate limit starts from it; ramp
-   the limits and shape the setpoint (`czmpc.supervision`);
+0. take the input actually applied over the last sample (``applied_triac_pct``) and the
+   grid voltage measured over it (``grid_voltage_factor``, `czmpc.voltage`): the
+   estimator's prediction is corrected to the effective input they give and the rate
+   limit starts from the applied input; ramp the limits and shape the setpoint and its
+   preview (`czmpc.supervision`);
 1. validity checks (`czmpc.validation`), then the measurement update with a valid
    ``y_k`` only; otherwise the estimator runs on the model alone (soft sensor);
-2. target ``(x_s, w_s)`` for the current ``d`` (`czmpc.target`);
-3. QP over the horizon in ``w`` (`czmpc.qp`), checked; on failure the shifted previous
+2. target ``(x_s, w_s)`` for the current ``d`` and the last setpoint in the horizon
+   (`czmpc.target`);
+3. QP over the horizon in the effective ``w`` (`czmpc.qp`), tracking the setpoint
+   trajectory (the preview, held past its end; a setpoint the target cannot reach is
+   tracked itself, not the reachable target), checked; on failure the shifted previous
    plan, then the target;
-4. ``ds = f^-1(w_0)`` (`czmpc.inversion`), clipped to the limits and the rate limit;
-5. time update with the ``w`` applied (in ``OFF``/``PREDICT`` the caller's input).
+4. ``ds = f^-1(w_0)`` (`czmpc.inversion`, through the voltage), clipped to the limits and
+   the rate limit;
+5. time update with the effective ``w`` applied (in ``OFF``/``PREDICT`` the caller's input).
 
 Modes and statuses: `czmpc.modes`. Run-time trouble never raises; what the controller
 does for each fault, and what it reports, is ``docs/guides/controller_failures.rst``.
@@ -43,6 +49,7 @@ from czmpc.settings import MPCSettings
 from czmpc.supervision import LimitRamp, SetpointShaper, ShapedSetpoint
 from czmpc.target import SteadyStateMap, Target, compute_target, steady_state_map
 from czmpc.validation import MeasurementCheck, MeasurementChecker, Verdict
+from czmpc.voltage import NOT_MEASURED, VALID, absolute_drive_kw, voltage_verdict
 from sysid._typing import FloatArray
 from sysid.model import HammersteinModel
 
@@ -51,6 +58,10 @@ CLAMP_TOL = 1e-6
 #: Tolerance [%] for "the applied input differs from the command".
 APPLIED_TOL_PCT = 1e-6
 
+
+#: A step without a preview.
+_NO_PREVIEW = np.empty(0)
+_NO_PREVIEW.flags.writeable = False
 
 #: Stage 3's decision: solution, first move [kW-equivalent], fallback, the first move's
 #: bounds [kW-equivalent], max_bad_solves reached. A plain tuple: a NamedTuple cost 0.3 us.
@@ -184,6 +195,10 @@ class OffsetFreeMPC:
                          else clamp(rel.shed_triac_pct - self._s_nom, im.ds_min_pct, im.ds_max_pct))
         self._nan_plan = np.full(settings.horizon_steps, math.nan)
         self._nan_plan.flags.writeable = False
+        self._horizon = settings.horizon_steps
+        self._w0_abs = absolute_drive_kw(self._p_nom, self._ssm.static_gain)
+        self._trajectory = np.empty(settings.horizon_steps)  # r_{k+1..k+N} [kW], reused
+        self._y_offsets = np.empty(settings.horizon_steps - 1)
         self.reset()
 
     # --- public state -----------------------------------------------------------
@@ -252,6 +267,7 @@ class OffsetFreeMPC:
         """Forget all state, as if newly constructed: the estimator at the steady state of
         the initial input with ``d = 0``; mode, limits, counters and transition log initial."""
         w0 = self._input_map.f(self._ds_init)
+        self._v2, self._v_offset = 1.0, 0.0   # v^2 and (v^2 - 1) W0 in force (`czmpc.voltage`)
         self._restart_estimator(w0)
         self._ds_prev = self._ds_init
         self._w_prev = w0
@@ -271,7 +287,9 @@ class OffsetFreeMPC:
 
     def _restart_estimator(self, w: float) -> None:
         """Estimator at the steady state of input ``w`` with ``d = 0``; checks reset."""
-        self._est.restart(np.append(self._ssm.xw * w, 0.0))
+        w_eff = self._effective(w)
+        self._est.restart(np.append(self._ssm.xw * w_eff, 0.0))
+        self._w_eff_assumed = w_eff   # the effective input the estimator's last predict took
         self._warm = 0
         self._stuck_rolled = False
         self._checker.reset()
@@ -343,7 +361,9 @@ class OffsetFreeMPC:
 
     # --- the step -------------------------------------------------------------------
     def step(self, power_kw: float | None, setpoint_kw: float | None, *,
-             applied_triac_pct: float | None = None) -> float:
+             applied_triac_pct: float | None = None,
+             setpoint_preview_kw: object = None,
+             grid_voltage_factor: float | None = None) -> float:
         """Return the TRIAC input [%] to apply now.
 
         Parameters
@@ -361,6 +381,17 @@ class OffsetFreeMPC:
             The input actually applied over the previous sample [%] if it differs from
             the one returned (saturation, override); None or non-finite: as returned. In
             ``OFF``/``PREDICT`` it is the caller's own input.
+        setpoint_preview_kw :
+            The setpoints [kW] of the coming samples as far as they are known (a recipe):
+            entry ``i`` is the setpoint of sample ``k + 1 + i``. None or empty: no
+            preview. Checked, ramped and filtered as ``setpoint_kw`` is; the known part
+            ends at the first rejected entry and its last value is held to the end of
+            the horizon (`StepDiagnostics.preview_samples` says how many were used).
+        grid_voltage_factor :
+            Grid voltage relative to nominal [-] measured over the previous sample; it
+            is held over the horizon (`czmpc.voltage`). None: not measured (1). Missing
+            (NaN) or implausible values also give 1 and say so in
+            `StepDiagnostics.voltage_verdict`.
 
         Returns
         -------
@@ -373,21 +404,39 @@ class OffsetFreeMPC:
         mode = self._mode
         transition_record, self._pending = self._pending, None
         applied_differs = (False if applied_triac_pct is None
-                           else self._take_applied_input(applied_triac_pct, mode))
+                           else self._take_applied_input(applied_triac_pct))
+        v_verdict = self._take_voltage(grid_voltage_factor)
+        if mode is not Mode.OFF:
+            w_eff = self._effective(self._w_prev)
+            if w_eff != self._w_eff_assumed:
+                self._est.correct_input(self._w_eff_assumed, w_eff)
+                self._w_eff_assumed = w_eff
         self._limits.ramp()
         sp = self._shaper.shape(setpoint_kw)
+        preview = (_NO_PREVIEW if setpoint_preview_kw is None
+                   else self._shaper.preview(setpoint_preview_kw, self._horizon))
+        n_preview = preview.size
         if mode is Mode.OFF:
-            return self._record_off(power, sp, transition_record)
+            return self._record_off(power, sp, transition_record, v_verdict, n_preview)
 
         check, used, std_kw, rolled_back = self._measurement_update(power)
         est = self._est
         z, eps = est.z, est.eps
         d = float(z[self._n_x])
         em = self._limits.map
-        tgt = compute_target(self._ssm, setpoint=sp.used_kw - self._p_nom, disturbance=d,
-                             w_min=em.w_min, w_max=em.w_max)
+        v2, v_off = self._v2, self._v_offset
+        if v_verdict is NOT_MEASURED:
+            w_min, w_max = em.w_min, em.w_max
+        else:
+            w_min, w_max = v2 * em.w_min + v_off, v2 * em.w_max + v_off
+        r_end_kw = float(preview[-1]) if n_preview else sp.used_kw
+        tgt = compute_target(self._ssm, setpoint=r_end_kw - self._p_nom, disturbance=d,
+                             w_min=w_min, w_max=w_max)
+        offsets = (self._reference_offsets(preview, tgt, w_min, w_max) if n_preview
+                   else (None, None) if tgt.is_reachable
+                   else self._reference_offsets(np.array([sp.used_kw]), tgt, w_min, w_max))
         ds_prev = self._ds_prev
-        plan = self._solve_or_fall_back(z, eps, tgt, em)
+        plan = self._solve_or_fall_back(z, eps, tgt, em, offsets)
         sol, w0, fallback, _, _, solver_shed = plan
         measurement_shed = est.gap > self._rel.max_predicted_samples
         ds, ds_raw = self._guard_input(w0, ds_prev, measurement_shed, tgt, em)
@@ -399,7 +448,8 @@ class OffsetFreeMPC:
             self._w_prev = em.f(ds)
         else:  # PREDICT: the caller keeps its input
             status = Status.HELD
-        est.predict(self._w_prev)
+        self._w_eff_assumed = w_applied = self._effective(self._w_prev)
+        est.predict(w_applied)
 
         triac = self._s_nom + self._ds_prev
         d_power = d * self._d_power_gain
@@ -410,7 +460,7 @@ class OffsetFreeMPC:
             "setpoint_used_kw": sp.used_kw, "setpoint_held": verdict != "valid",
             "triac_pct": triac, "measurement_used": used, "innovation_kw": eps,
             "state_estimate": z, "disturbance_estimate": d, "disturbance_power_kw": d_power,
-            "target_w": tgt.w_s, "target_triac_pct": self._s_nom + em.inverse(tgt.w_s),
+            "target_w": tgt.w_s, "target_triac_pct": self._s_nom + em.inverse(self._nominal(tgt.w_s)),
             "target_power_kw": self._p_nom + tgt.y_s, "setpoint_reachable": tgt.is_reachable,
             "planned_w": sol.w, "solver_status": sol.status, "solve_time_s": sol.solve_time_s,
             "n_iterations": sol.n_iterations, "fallback": fallback,
@@ -422,27 +472,65 @@ class OffsetFreeMPC:
             "triac_limits_pct": self._limits.triac_pct,
             "mismatch": self._monitor.update(eps if used else None, disturbance_kw=d_power),
             "transition": transition_record, "setpoint_verdict": verdict,
-            "rolled_back_samples": rolled_back,
+            "rolled_back_samples": rolled_back, "preview_samples": n_preview,
+            "voltage_factor_used": math.sqrt(v2), "voltage_verdict": v_verdict,
         })
         self._k += 1
         return triac
 
     # --- the stages of a step, in order ---------------------------------------------
-    def _take_applied_input(self, applied_triac_pct: float, mode: Mode) -> bool:
-        """Stage 0: correct the estimator to the input applied over the last sample, and start
-        the rate limit from it (if finite). Returns whether it differs from the command."""
+    def _take_applied_input(self, applied_triac_pct: float) -> bool:
+        """Stage 0: take the input applied over the last sample (if finite): the rate limit
+        starts from it and the estimator is corrected to it (`step`). Returns whether it
+        differs from the command."""
         applied = float(applied_triac_pct)
         if not math.isfinite(applied):
             return False
         ds_a = clamp(applied, 0.0, 100.0) - self._s_nom
         differs = abs(ds_a - self._ds_prev) > APPLIED_TOL_PCT
         if ds_a != self._ds_prev:
-            w_a = self._input_map.f(ds_a)
-            if mode is not Mode.OFF:
-                self._est.correct_input(self._w_prev, w_a)
             self._ds_prev = ds_a
-            self._w_prev = w_a
+            self._w_prev = self._input_map.f(ds_a)
         return differs
+
+    def _take_voltage(self, grid_voltage_factor: float | None) -> str:
+        """Stage 0: the voltage factor in force from now on (1 unless measured and
+        plausible), as ``v^2`` and ``(v^2 - 1) W0``; returns its verdict (`czmpc.voltage`)."""
+        verdict = voltage_verdict(grid_voltage_factor)
+        v = float(grid_voltage_factor) if verdict is VALID else 1.0  # type: ignore[arg-type]
+        self._v2 = v * v
+        self._v_offset = (self._v2 - 1.0) * self._w0_abs
+        return verdict
+
+    def _effective(self, w: float) -> float:
+        """The effective input ``v^2 w + (v^2 - 1) W0`` of nonlinearity output ``w`` now."""
+        return w if self._v2 == 1.0 else self._v2 * w + self._v_offset
+
+    def _nominal(self, w_eff: float) -> float:
+        """The nonlinearity output whose effective input is ``w_eff`` now (`_effective`'s inverse)."""
+        return w_eff if self._v2 == 1.0 else (w_eff - self._v_offset) / self._v2
+
+    def _reference_offsets(self, setpoints_kw: FloatArray, tgt: Target, w_min: float,
+                           w_max: float) -> tuple[FloatArray, FloatArray | None]:
+        """Stage 2: the QP's ``rho`` and ``sigma`` (`czmpc.qp.MPCQP.solve`) for the setpoints of
+        samples ``k+1, ...`` [kW], held past their end; ``tgt`` is the last one's target.
+
+        The output references are the setpoints themselves, so a setpoint the target
+        cannot reach pulls the output towards it, not towards the reachable target. The
+        input targets follow the setpoints through the static gain, within the bounds
+        (one entry: a constant setpoint, whose input targets are the target's: None).
+        """
+        r = self._trajectory
+        n = setpoints_kw.size
+        r[:n] = setpoints_kw
+        r[n:] = setpoints_kw[-1]
+        y_off = self._y_offsets
+        np.subtract(r[:-1], self._p_nom + tgt.y_s, out=y_off)
+        if n == 1:
+            return y_off, None
+        w_off = np.clip(tgt.w_unclipped + (r - r[-1]) / self._ssm.static_gain, w_min, w_max)
+        w_off -= tgt.w_s
+        return y_off, w_off
 
     def _measurement_update(self, power: float) -> tuple[MeasurementCheck, bool, float, int]:
         """Stage 1: validity checks, then the measurement update with a valid sample only.
@@ -474,20 +562,21 @@ class OffsetFreeMPC:
             self._n_rejected += 1
         return check, used, std_kw, rolled_back
 
-    def _solve_or_fall_back(self, z: FloatArray, eps: float, tgt: Target, em: InputMap) -> _Plan:
+    def _solve_or_fall_back(self, z: FloatArray, eps: float, tgt: Target, em: InputMap,
+                            offsets: tuple[FloatArray | None, FloatArray | None]) -> _Plan:
         """Stage 3: the QP, checked; on failure the shifted previous plan, then the target."""
         ds_prev = self._ds_prev
         ds_base = clamp(ds_prev, em.ds_min_pct, em.ds_max_pct)
-        w_base = self._w_prev if ds_base == ds_prev else em.f(ds_base)
+        w_base = self._effective(self._w_prev if ds_base == ds_prev else em.f(ds_base))
         h_in = self._h_in
         self._h_in_z[...] = z
         self._h_in_xs[...] = tgt.x_s
         h_in[-1] = eps
-        w_lo, w_hi, rate = self._bounds.compute(em, ds_base)
+        w_lo, w_hi, rate = self._bounds.compute(em, ds_base, self._v2, self._v_offset)
         sol: QPSolution = self._qp.solve(
             h_terms=h_in, w_prev=w_base, w_target=tgt.w_s, y_target=tgt.y_s, w_lo=w_lo,
             w_hi=w_hi, rate=rate, soft_min_rel_kw=self._soft_min_rel,
-            soft_max_rel_kw=self._soft_max_rel,
+            soft_max_rel_kw=self._soft_max_rel, y_offsets=offsets[0], w_offsets=offsets[1],
         )
         fallback: Fallback
         if sol.is_usable:
@@ -525,9 +614,9 @@ class OffsetFreeMPC:
         else:
             r_lo, r_hi = -math.inf, math.inf
         if measurement_shed:
-            ds_raw = em.inverse(tgt.w_s) if self._shed_ds is None else self._shed_ds
+            ds_raw = em.inverse(self._nominal(tgt.w_s)) if self._shed_ds is None else self._shed_ds
         else:
-            ds_raw = em.inverse(w0)
+            ds_raw = em.inverse(self._nominal(w0))
             if not math.isfinite(ds_raw):
                 ds_raw = ds_prev
         return clamp(clamp(ds_raw, r_lo, r_hi), em.ds_min_pct, em.ds_max_pct), ds_raw
@@ -549,7 +638,8 @@ class OffsetFreeMPC:
         return Status.GOOD
 
     def _record_off(self, power: float, sp: ShapedSetpoint,
-                    transition_record: ModeTransition | None) -> float:
+                    transition_record: ModeTransition | None, v_verdict: str,
+                    n_preview: int) -> float:
         """``OFF``: nothing runs; record the held input and return it."""
         triac = self._s_nom + self._ds_prev
         z = self._est.z
@@ -571,7 +661,8 @@ class OffsetFreeMPC:
             "advised_triac_pct": triac, "applied_triac_pct": triac,
             "triac_limits_pct": self._limits.triac_pct, "mismatch": None,
             "transition": transition_record, "setpoint_verdict": sp.verdict,
-            "rolled_back_samples": 0,
+            "rolled_back_samples": 0, "preview_samples": n_preview,
+            "voltage_factor_used": math.sqrt(self._v2), "voltage_verdict": v_verdict,
         })
         self._k += 1
         return triac

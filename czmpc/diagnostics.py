@@ -94,6 +94,15 @@ class StepDiagnostics:
     rolled_back_samples :
         Past samples whose measurement updates this step undid on detecting a frozen
         sensor (the estimator rolled back to its last live sample); 0 otherwise.
+    preview_samples :
+        How many setpoints of the coming samples the step planned with (0: no preview;
+        the preview ends at its first rejected entry).
+    voltage_factor_used :
+        Grid voltage factor [-] the step planned and inverted with (1 unless a measured
+        one was valid).
+    voltage_verdict :
+        ``"not measured"``, ``"valid"``, ``"missing"`` or ``"implausible"``
+        (`czmpc.voltage.voltage_verdict`); the last two fall back to 1.
     """
 
     k: int
@@ -131,6 +140,9 @@ class StepDiagnostics:
     transition: ModeTransition | None = None
     setpoint_verdict: str = "valid"
     rolled_back_samples: int = 0
+    preview_samples: int = 0
+    voltage_factor_used: float = 1.0
+    voltage_verdict: str = "not measured"
 
 
 __all__ = ["Fallback", "StepDiagnostics"]

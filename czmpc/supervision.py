@@ -2,7 +2,8 @@
 
 `SetpointShaper` checks each received setpoint (a rejected one holds the last valid
 one), then moves at most ``ramp * Ts`` per sample and filters with a first-order lag
-``alpha = 1 - exp(-Ts / T_f)``.
+``alpha = 1 - exp(-Ts / T_f)``. A preview of the coming setpoints goes through the same
+check, ramp and filter (`SetpointShaper.preview`); it ends at its first rejected entry.
 
 `LimitRamp` keeps the effective TRIAC limits ``ds = s - s_nom`` [%] inside the
 `InputMap`'s range: a tightened limit moves in from the current input at ``ramp * Ts``
@@ -15,8 +16,11 @@ import math
 from dataclasses import replace
 from typing import NamedTuple
 
+import numpy as np
+
 from czmpc.errors import SettingsError
 from czmpc.inversion import InputMap, clamp
+from sysid._typing import FloatArray
 
 #: Largest setpoint magnitude taken [kW]; beyond it a setpoint is rejected like a
 #: non-finite one, so 1e308 cannot overflow the ramp and filter.
@@ -88,6 +92,48 @@ class SetpointShaper:
         self._filtered += self._alpha * (ramped - self._filtered)
         # tuple.__new__ skips the NamedTuple's Python-level __new__ (once per step, issue 30).
         return tuple.__new__(ShapedSetpoint, (received, self._filtered, verdict))
+
+    def preview(self, setpoints_kw: object, max_samples: int) -> FloatArray:
+        """The setpoints to use over the coming samples, shaped as `shape` would shape them.
+
+        Parameters
+        ----------
+        setpoints_kw :
+            Setpoints [kW] of the samples after the one `shape` took last, in order (any
+            1-d sequence). The known part ends at the first entry `verdict` rejects (or
+            one that is not a number at all).
+        max_samples :
+            How many are wanted at most (the horizon).
+
+        Returns
+        -------
+        ndarray
+            (L,) shaped setpoints [kW], ``0 <= L <= max_samples``, from the state `shape`
+            left (its own state is not changed).
+        """
+        try:
+            raw = np.asarray(setpoints_kw, dtype=float).ravel()[:max_samples]
+        except (TypeError, ValueError):
+            return np.empty(0)
+        ok = np.isfinite(raw) & (np.abs(raw) <= MAX_SETPOINT_KW)
+        if self._min_kw is not None:
+            ok &= raw >= self._min_kw
+        if self._max_kw is not None:
+            ok &= raw <= self._max_kw
+        if not ok.all():
+            raw = raw[: int(np.argmin(ok))]
+        if self._max_step is None and self._alpha == 1.0:
+            return raw
+        out = np.empty(raw.size)
+        ramped, filtered = self._ramped, self._filtered
+        for i, target in enumerate(raw.tolist()):
+            if self._max_step is not None:
+                ramped += clamp(target - ramped, -self._max_step, self._max_step)
+            else:
+                ramped = target
+            filtered += self._alpha * (ramped - filtered)
+            out[i] = filtered
+        return out
 
 
 class LimitRamp:
