@@ -6,14 +6,18 @@ virtual CZ heater, 'model' the plant of a model file, one sample every Ts / time
 wall seconds whether a controller keeps up or not. Nodes (ns=2): Heater.Power [kW]
 (read; Bad during a sensor fault), Heater.TriacCommand [%] (write), Heater.TriacApplied
 [%], Heater.PowerSetpoint [kW], Heater.Heartbeat (write), Heater.Mode (OFF/PREDICT/ON),
-Heater.WatchdogTripped, Heater.PlantTime_s [s]; typed as a PLC types them with
---node-types plc. When the heartbeat stops for --watchdog-s, the TRIAC goes to
---safe-triac-pct. Without --policy it serves on 127.0.0.1 only (--insecure overrides
-that for an isolated test network); with --policy it admits only the trusted client
-certificates and the configured users. Guide: docs/guides/plant_link.rst (nodes, PLC
-types, "Secure the link to a real plant"); a plant that differs from its model:
-docs/guides/commission.rst and sim.drift. Exit codes: 0 stopped (duration or Ctrl-C),
-2 bad options or a refused address.
+Heater.WatchdogTripped, Heater.PlantTime_s [s], Heater.GridVoltage [-] (the grid
+voltage relative to nominal over the last sample: the scenario's grid events) and
+Heater.SetpointPreview [kW] (an array of the scenario's coming setpoints, element 0 the
+next sample, --setpoint-preview-s long; empty without --scenario); typed as a PLC types
+them with --node-types plc. A run config for it names them as [nodes]
+grid_voltage_factor and setpoint_preview_kw (docs/guides/plant_link.rst). When the
+heartbeat stops for --watchdog-s, the TRIAC goes to --safe-triac-pct. Without --policy
+it serves on 127.0.0.1 only (--insecure overrides that for an isolated test network);
+with --policy it admits only the trusted client certificates and the configured users.
+Guide: docs/guides/plant_link.rst (nodes, PLC types, "Secure the link to a real
+plant"); a plant that differs from its model: docs/guides/commission.rst and sim.drift.
+Exit codes: 0 stopped (duration or Ctrl-C), 2 bad options or a refused address.
 """
 
 from __future__ import annotations
@@ -72,6 +76,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                    default=None, help="stop after this plant time [s] (default: run until Ctrl-C)")
     p.add_argument("--setpoint-kw", metavar="KW", type=_argtypes.number(unit="kW"),
                    default=45.0, help="initial value of Heater.PowerSetpoint [kW] (default: 45)")
+    p.add_argument("--setpoint-preview-s", metavar="S", type=_argtypes.seconds, default=60.0,
+                   help="how far ahead Heater.SetpointPreview holds the scenario's setpoints "
+                        "[plant s] (default: 60)")
     p.add_argument("--node-types", choices=("czmpc", "plc"), default="czmpc",
                    help="data types of the nodes: 'czmpc' (Double, Int64 heartbeat, String "
                         "mode) or 'plc' (Float, UInt16 heartbeat, Int16 mode), as a PLC's "
@@ -171,7 +178,8 @@ def _serve(args: argparse.Namespace) -> int:
                            historize=args.historize is not None,
                            history_path=(args.historize if isinstance(args.historize, Path)
                                          else None),
-                           history_page_values=args.history_page_values)
+                           history_page_values=args.history_page_values,
+                           setpoint_preview_s=args.setpoint_preview_s)
     served = ServedPlant(plant, initial_triac_pct=initial, options=options, scenario=scenario,
                          seed=args.seed, log=lambda m: print(m, file=sys.stderr, flush=True))
     print(f"serving the {args.plant} plant on {args.endpoint} (Ts {plant.ts_s:g} s, time scale "

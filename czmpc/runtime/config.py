@@ -50,6 +50,8 @@ class NodeIds:
     predicted_power_kw: str | None = None
     target_triac_pct: str | None = None
     watchdog: str | None = None
+    setpoint_preview_kw: str | None = None
+    grid_voltage_factor: str | None = None
     scales: Mapping[str, LinearScale] = dataclasses.field(default_factory=dict)
 
     def specs(self) -> dict[str, NodeSpec]:
@@ -66,7 +68,8 @@ _TABLES: dict[str, tuple[str, ...]] = {
               "align_to_plant", "reject_repeated_samples", "max_refused_writes", "security"),
     "nodes": NODE_KEYS,
     "controller": ("model", "settings", "candidate"),
-    "run": ("duration_s", "setpoint_kw", "schedule", "log", "rotate", "rotate_mb"),
+    "run": ("duration_s", "setpoint_kw", "schedule", "setpoint_preview_s", "log", "rotate",
+            "rotate_mb"),
     "safety": ("action", "safe_triac_pct"),
     "test": ("power_band_kw", "max_bad_quality_s"),
     "logging": ("syslog", "facility"),
@@ -90,6 +93,15 @@ class Schedule:
     def setpoint_at(self, time_s: float) -> float:
         """The setpoint [kW] in force at run time ``time_s`` [s] (the first before it starts)."""
         return self.setpoints_kw[max(0, bisect.bisect_right(self.times_s, time_s) - 1)]
+
+    def setpoints_after(self, time_s: float, ts_s: float, n_samples: int) -> tuple[float, ...]:
+        """The setpoints [kW] of the ``n_samples`` samples after run time ``time_s`` [s].
+
+        Element ``i`` is `setpoint_at` ``(time_s + (i + 1) * ts_s)``: the setpoint the
+        sample ``k + 1 + i`` will take when ``time_s`` is sample ``k``'s time (the loop's
+        ``setpoint_preview_kw``). Empty for ``n_samples <= 0``.
+        """
+        return tuple(self.setpoint_at(time_s + (i + 1) * ts_s) for i in range(max(0, n_samples)))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -163,11 +175,20 @@ class RunConfig:
     rotate_bytes: int | None = None
     #: ``log_path`` is a directory: each run writes its own timestamped file there.
     log_per_run: bool = False
+    #: ``[run] setpoint_preview_s``: how far ahead the controller is told the setpoint [s];
+    #: 0 with an array node: all of it.
+    setpoint_preview_s: float = 0.0
 
     @property
     def period_s(self) -> float:
         """Wall-clock period of the loop [s]: ``ts_s / time_scale``."""
         return self.ts_s / self.time_scale
+
+    @property
+    def preview_samples(self) -> int:
+        """Samples of setpoint preview: ``round(setpoint_preview_s / ts_s)`` (0: none, or the
+        array node's whole length)."""
+        return round(self.setpoint_preview_s / self.ts_s)
 
 
 def _bool(table: dict[str, Any], key: str, where: str, *, default: bool) -> bool:
@@ -287,6 +308,8 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
             and node_ids.setpoint_kw is None):
         raise RunConfigError(
             "run.setpoint_kw: missing; give nodes.setpoint_kw, run.setpoint_kw or run.schedule")
+    preview_s = float(_num(run, "setpoint_preview_s", "run", default=0.0, minimum=0.0) or 0.0)
+    _check_preview(preview_s, ts_s, schedule=schedule_name, array_node=node_ids.setpoint_preview_kw)
     log = _str(run, "log", "run") or "run.csv"
     rotate = _str(run, "rotate", "run") or "none"
     if rotate not in ("none", "daily"):
@@ -323,7 +346,26 @@ def run_config_from_dict(doc: dict[str, Any], *, base_dir: Path) -> RunConfig:
         max_refused_writes=int(max_refused or DEFAULT_MAX_REFUSED_WRITES),
         syslog=syslog, syslog_facility=facility, rotate=rotate,
         rotate_bytes=None if rotate_mb is None else max(1, round(rotate_mb * 1e6)),
+        setpoint_preview_s=preview_s,
     )
+
+
+def _check_preview(preview_s: float, ts_s: float, *, schedule: str | None,
+                   array_node: str | None) -> None:
+    """``[run] setpoint_preview_s`` needs one source of the coming setpoints: the recipe
+    file (a run czmpc owns) or the array node (a recipe the DCS owns), not both."""
+    if schedule is not None and array_node is not None:
+        raise RunConfigError(
+            "nodes.setpoint_preview_kw: give either run.schedule (czmpc owns the recipe) or "
+            "nodes.setpoint_preview_kw (the DCS owns it and writes the coming setpoints), not both")
+    if preview_s > 0.0 and schedule is None and array_node is None:
+        raise RunConfigError(
+            f"run.setpoint_preview_s: {preview_s:g} s of preview needs the coming setpoints: "
+            "give run.schedule (a recipe CSV) or nodes.setpoint_preview_kw (an array node)")
+    if 0.0 < preview_s < 0.5 * ts_s:
+        raise RunConfigError(
+            f"run.setpoint_preview_s: expected 0 or at least half a sample "
+            f"({0.5 * ts_s:g} s at plant.ts_s = {ts_s:g} s); got {preview_s:g}")
 
 
 #: Syslog facilities ``[logging] facility`` accepts.

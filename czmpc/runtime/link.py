@@ -50,7 +50,8 @@ class NodeRole:
     ``kind``: ``"number"`` (read or written as a number in czmpc's units), ``"counter"``
     (the heartbeat), ``"mode"`` (OFF/PREDICT/ON as text, an integer 0/1/2 or a bool) or
     ``"text"`` (a String), ``"word"`` (an enumeration: its name as text, or its index as an
-    integer) or ``"flag"`` (a bool, or 0/1 as an integer).
+    integer), ``"flag"`` (a bool, or 0/1 as an integer) or ``"array"`` (a one-dimensional
+    array of numbers in czmpc's units).
     ``carries``: values a written number must be able to take (after scaling).
     """
 
@@ -87,6 +88,12 @@ ROLES: dict[str, NodeRole] = {
                                  what="target TRIAC input 0..100 [%]"),
     "watchdog": NodeRole(reads=False, writes=True, kind="counter",
                          what="czmpc's own watchdog counter"),
+    # what the plant tells the controller about the coming samples and the grid
+    "setpoint_preview_kw": NodeRole(reads=True, writes=False, kind="array",
+                                    what="setpoints of the coming samples [kW], element 0 the "
+                                         "next sample"),
+    "grid_voltage_factor": NodeRole(reads=True, writes=False,
+                                    what="grid voltage relative to nominal [-]"),
 }
 
 
@@ -230,7 +237,11 @@ def check_node(key: str, spec: NodeSpec, values: Mapping[str, Any], *,
     def fail(code: str | None, text: str) -> tuple[NodeCheck, NodeType | None]:
         return NodeCheck(**common, problem=text, code=code, note=note), info
 
-    if not info.scalar:
+    if role.kind == "array":
+        if rank not in (-3, -2, 0, 1):
+            return fail("BadTypeMismatch", f"{node} has ValueRank {rank}: point {key} at a "
+                                           "one-dimensional array tag (ValueRank 1)")
+    elif not info.scalar:
         return fail("BadTypeMismatch", f"{node} is an array (ValueRank {rank}): point {key} at a "
                                        "scalar tag")
     for code, refused, who in (("BadNotWritable", role.writes and not node_writable, None),

@@ -33,7 +33,8 @@ LOG_COLUMNS = ("k", "time_s", "wall_time_s", "power_kw", "quality", "setpoint_kw
                "triac_pct", "applied_triac_pct", "status", "verdict", "mode", "connected",
                "written", "lateness_s", "step_latency_s", "skipped", "predicted_kw", "health",
                "stale_alarm", "event", "candidate_predicted_kw", "candidate_health",
-               "candidate_stale_alarm")
+               "candidate_stale_alarm", "grid_voltage_factor", "voltage_factor_used",
+               "voltage_verdict", "preview_samples")
 #: Format tag of the run log's provenance file ``<log>.meta.json``.
 RUN_META_FORMAT = "czmpc-runlog/1"
 #: How a start treats an existing log file: refuse, append to it, or replace it.
@@ -108,8 +109,16 @@ class RunLog:
                 doc["runs"] = [*earlier.get("runs", [{k: v for k, v in earlier.items()
                                                       if k != "runs"}]), dict(self._meta)]
             meta_path(path).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        self._columns: tuple[str, ...] = LOG_COLUMNS
+        if append and path.is_file():
+            # a log of an earlier version has fewer columns: continue it with its own
+            with open(path, newline="", encoding="utf-8-sig") as old:
+                header = tuple(next(csv.reader(old), []))
+            if header and LOG_COLUMNS[:len(header)] == header:
+                self._columns = header
         fh = open(path, "a" if append else "w", newline="", encoding="utf-8")  # noqa: SIM115
         if not append or fh.tell() == 0:
+            self._columns = LOG_COLUMNS
             csv.writer(fh).writerow(LOG_COLUMNS)
             fh.flush()
         self._day = dt.datetime.now(dt.UTC).date()
@@ -123,7 +132,7 @@ class RunLog:
             self.path = part_path(self.first, self.part)
             self._fh = self._open(self.path, append=False)
             self._w = csv.writer(self._fh)
-        self._w.writerow([_fmt(values[c]) for c in LOG_COLUMNS])
+        self._w.writerow([_fmt(values[c]) for c in self._columns])
         self._fh.flush()
 
     def _due(self) -> bool:

@@ -20,13 +20,14 @@ from __future__ import annotations
 
 import asyncio
 import datetime as dt
+import inspect
 import logging
 import math
 import signal
 import sys
 import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -87,6 +88,24 @@ RECENT_STEPS = 200
 RECENT_PHASES = 1000
 #: The counters czmpc increments each step (the plant's watchdog and its own).
 _COUNTERS = ("heartbeat", "watchdog")
+#: What the loop tells a controller about the coming samples and the grid, besides the
+#: power and the setpoint (keyword arguments of `OffsetFreeMPC.step`).
+CONTEXT_ARGS = ("setpoint_preview_kw", "grid_voltage_factor")
+
+
+def context_args_taken(ctrl: object) -> frozenset[str]:
+    """Which of `CONTEXT_ARGS` the controller's ``step`` takes as keyword arguments.
+
+    An open-loop test schedule takes neither (it plays its inputs whatever comes); the
+    MPC (`ContextMPCDriver`) takes both.
+    """
+    try:
+        params = inspect.signature(ctrl.step).parameters  # type: ignore[attr-defined]
+    except (AttributeError, TypeError, ValueError):
+        return frozenset()
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return frozenset(CONTEXT_ARGS)
+    return frozenset(name for name in CONTEXT_ARGS if name in params)
 
 
 def _good_values(reads: Mapping[str, Any], keys: tuple[str, ...]) -> dict[str, Any]:
@@ -148,6 +167,23 @@ class MPCDriver:
     def abort_reason(self) -> str | None:
         """Never."""
         return None
+
+
+class ContextMPCDriver(MPCDriver):
+    """The MPC told the coming setpoints and the measured grid voltage (`CONTEXT_ARGS`):
+    what `ControlLoop` drives a plain `OffsetFreeMPC` with."""
+
+    def step(self, power_kw: float, setpoint_kw: float, *,
+             applied_triac_pct: float | None = None,
+             setpoint_preview_kw: Sequence[float] | None = None,
+             grid_voltage_factor: float | None = None) -> float:
+        """One MPC step; the preview and the voltage passed on when the run has them."""
+        extra: dict[str, Any] = {}
+        if setpoint_preview_kw is not None:
+            extra["setpoint_preview_kw"] = setpoint_preview_kw
+        if grid_voltage_factor is not None:
+            extra["grid_voltage_factor"] = grid_voltage_factor
+        return self.mpc.step(power_kw, setpoint_kw, applied_triac_pct=applied_triac_pct, **extra)
 
 
 @dataclass(slots=True)
@@ -277,7 +313,8 @@ class ControlLoop:
                  health_settings: HealthSettings | None = None,
                  provenance: Mapping[str, object] | None = None) -> None:
         self.config = config
-        self.ctrl: LoopController = (MPCDriver(controller) if isinstance(controller, OffsetFreeMPC)
+        self.ctrl: LoopController = (ContextMPCDriver(controller)
+                                     if isinstance(controller, OffsetFreeMPC)
                                      else controller)
         self._provenance = dict(provenance or {})
         self._bad_run = 0
@@ -328,6 +365,17 @@ class ControlLoop:
         self._setpoint = config.setpoint_kw if config.setpoint_kw is not None else math.nan
         if config.schedule is not None:
             self._setpoint = config.schedule.setpoints_kw[0]
+        #: The `CONTEXT_ARGS` the controller takes; the run's others are not passed (said once).
+        self.context_args = context_args_taken(self.ctrl)
+        configured = {"setpoint_preview_kw": config.schedule is not None
+                      and config.preview_samples > 0 or config.nodes.setpoint_preview_kw is not None,
+                      "grid_voltage_factor": config.nodes.grid_voltage_factor is not None}
+        for name in CONTEXT_ARGS:
+            if configured[name] and name not in self.context_args:
+                _log.warning("%s: %s is configured but this controller does not take it; it "
+                             "is read and logged only", type(self.ctrl).__name__, name)
+        self._preview_said = "good"     # the array node's last quality word said
+        self._voltage_said = True       # the voltage node's last value was usable
 
     def request_stop(self, reason: str) -> None:
         """Ask the loop to stop at the next period and apply the safe action."""
@@ -634,13 +682,70 @@ class ControlLoop:
             self._setpoint = sample.setpoint_kw
         if cfg.schedule is not None:
             self._setpoint = cfg.schedule.setpoint_at(k * cfg.ts_s)
+        preview = self._preview(k, sample)
+        voltage = self._voltage(k, sample)
         decision = decide(self.ctrl, sample, setpoint_kw=self._setpoint,
-                          last_command_pct=self._last_cmd, allow_on=self.allow_on)
+                          last_command_pct=self._last_cmd, allow_on=self.allow_on,
+                          setpoint_preview_kw=(preview if "setpoint_preview_kw"
+                                               in self.context_args else None),
+                          grid_voltage_factor=(voltage if "grid_voltage_factor"
+                                               in self.context_args else None))
         self._transitions, events = transitions(self._transitions, k, cfg.ts_s, decision)
         for level, text in events:
             self._event(text, level)
         self.summary.n_commands_meant += decision.write
         return sample, decision, self._health(k, sample.power_kw, decision.applied_before_pct)
+
+    def _preview(self, k: int, sample: Sample) -> tuple[float, ...] | None:
+        """This step's setpoints of the coming samples [kW] (element 0 the next sample):
+        the recipe's on the run's clock, or the array node's cut to ``setpoint_preview_s``
+        (0: all of it); None without one. An unusable array node is said once when it
+        turns so and once when it is back."""
+        cfg = self.config
+        n = cfg.preview_samples
+        if cfg.schedule is not None:
+            return cfg.schedule.setpoints_after(k * cfg.ts_s, cfg.ts_s, n) if n > 0 else None
+        if "setpoint_preview_kw" not in self.link.specs:
+            return None
+        quality = sample.preview_quality
+        if quality != self._preview_said:
+            t = k * cfg.ts_s
+            if quality == "good":
+                self._event(f"setpoint preview usable again at t={t:.0f}s", logging.INFO)
+            else:
+                self._event(f"setpoint preview not usable at t={t:.0f}s ([nodes] "
+                            f"setpoint_preview_kw {quality}): the controller steps without one")
+            self._preview_said = quality
+        ahead = sample.setpoint_preview_kw
+        if ahead is None:
+            return None
+        return ahead[:n] if n > 0 else ahead
+
+    def _voltage(self, k: int, sample: Sample) -> float | None:
+        """The measured grid voltage factor [-] (NaN: not usable, the controller then says
+        "missing"; None: no node); an unusable node is said once when it turns so."""
+        voltage = sample.grid_voltage_factor
+        if voltage is None:
+            return None
+        usable = math.isfinite(voltage)
+        if usable != self._voltage_said:
+            t = k * self.config.ts_s
+            self._event(f"grid voltage usable again at t={t:.0f}s" if usable else
+                        f"grid voltage not usable at t={t:.0f}s ([nodes] grid_voltage_factor): "
+                        "the controller takes the nominal voltage", logging.INFO if usable
+                        else logging.WARNING)
+            self._voltage_said = usable
+        return voltage
+
+    def _context_columns(self, sample: Sample) -> dict[str, object]:
+        """The log's columns of the measured voltage and what the MPC used of it and of
+        the preview (blank for a controller without an MPC)."""
+        diag = None if self._mpc is None else self._mpc.last_step
+        measured = sample.grid_voltage_factor
+        return {"grid_voltage_factor": math.nan if measured is None else measured,
+                "voltage_factor_used": float(getattr(diag, "voltage_factor_used", math.nan)),
+                "voltage_verdict": str(getattr(diag, "voltage_verdict", "")),
+                "preview_samples": getattr(diag, "preview_samples", "")}
 
     def _record(self, k: int, lateness: float, sample: Sample, decision: Decision,
                 health: ModelHealth | None, written: bool) -> dict[str, object]:
@@ -660,6 +765,7 @@ class ControlLoop:
             "stale_alarm": "" if health is None else int(health.stale_alarm),
             "event": self._take_events(),
             **self._shadow_columns(k, sample.power_kw, decision.applied_before_pct, health),
+            **self._context_columns(sample),
         }
         self._say(f"k={k} t={k * cfg.ts_s:.0f}s P={sample.power_kw:.2f}kW ({sample.quality}) "
                   f"SP={self._setpoint:.2f}kW u={decision.command_pct:.2f}% {decision.status} "
@@ -698,7 +804,7 @@ class ControlLoop:
         applied-input nodes and the watched nodes; None without a link."""
         if not self.link.connected:
             return None
-        signals = ("power_kw", "setpoint_kw", "mode", "applied_triac_pct")
+        signals = ("power_kw", "setpoint_kw", "mode", "applied_triac_pct", *CONTEXT_ARGS)
         keys = tuple(k for k in signals if k in self.link.specs)
         keys += tuple(k for k in self._watched() if k not in signals)
         try:
@@ -889,5 +995,6 @@ def tty_status() -> Callable[[str], None] | None:
     return show
 
 
-__all__ = ["MODE_CODES", "RECENT_PHASES", "RECENT_STEPS", "STATUS_CODES", "ControlLoop",
-           "MPCDriver", "RunSummary", "StepTimes", "tty_status"]
+__all__ = ["CONTEXT_ARGS", "MODE_CODES", "RECENT_PHASES", "RECENT_STEPS", "STATUS_CODES",
+           "ContextMPCDriver", "ControlLoop", "MPCDriver", "RunSummary", "StepTimes", "context_args_taken",
+           "tty_status"]

@@ -23,6 +23,13 @@ server)::
     Heater.Predicted        Double  write   power predicted for the next sample [kW]
     Heater.TargetTriac      Double  write   the MPC's target input [%]
     Heater.MPCWatchdog      Int64   write   czmpc's own watchdog counter
+    Heater.GridVoltage      Double  read    grid voltage relative to nominal [-] applied
+                                            over the last sample (the scenario's grid
+                                            events; 1 without), published with the power
+    Heater.SetpointPreview  Double[] read   setpoints [kW] of the coming samples, element
+                                            0 the next sample, ``ServeOptions.
+                                            setpoint_preview_s`` long (the scenario's
+                                            recipe; empty without one)
 
 ``ServeOptions.node_types = "plc"`` types them as a PLC does (`NODE_TYPES`).
 
@@ -84,7 +91,11 @@ _NODES = (
     ("Predicted", "predicted_power_kw", "Double", "Float"),
     ("TargetTriac", "target_triac_pct", "Double", "Float"),
     ("MPCWatchdog", "watchdog", "Int64", "UInt16"),
+    ("GridVoltage", "grid_voltage_factor", "Double", "Float"),
+    ("SetpointPreview", "setpoint_preview_kw", "Double", "Float"),
 )
+#: The nodes that hold a one-dimensional array (ValueRank 1) of their type.
+ARRAY_NODES = frozenset({"SetpointPreview"})
 #: The served plant's node ids by the run config's ``[nodes]`` keys (``ns=2``: the
 #: namespace `NAMESPACE_URI` is the first one a fresh server registers).
 SERVED_NODE_IDS = {key: f"ns=2;s=Heater.{name}" for name, key, *_ in _NODES if key is not None}
@@ -132,6 +143,9 @@ class ServeOptions:
         in memory.
     history_page_values :
         Most values one HistoryRead returns before a continuation point (>= 1).
+    setpoint_preview_s :
+        How far ahead ``Heater.SetpointPreview`` holds the scenario's setpoints [plant s]
+        (>= 0; ``round(setpoint_preview_s / ts_s)`` elements, fewer near the scenario's end).
     """
 
     endpoint: str
@@ -146,8 +160,12 @@ class ServeOptions:
     historize: bool = False
     history_path: Path | None = None
     history_page_values: int = 10000
+    setpoint_preview_s: float = 60.0
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.setpoint_preview_s) and self.setpoint_preview_s >= 0.0):
+            raise ValueError(f"setpoint_preview_s: expected a finite number >= 0; "
+                             f"got {self.setpoint_preview_s!r}")
         if self.node_types not in NODE_TYPES:
             raise ValueError(f"node_types: expected one of {sorted(NODE_TYPES)}; "
                              f"got {self.node_types!r}")
@@ -213,6 +231,11 @@ class ServedPlant:
             value = list(Mode).index(Mode[value])        # an INT mode: 0 OFF, 1 PREDICT, 2 ON
         node = await folder.add_variable(ua.NodeId(f"Heater.{name}", idx), name,
                                          ua.Variant(value, vtype), datatype=ua.NodeId(vtype.value, 0))
+        if name in ARRAY_NODES:
+            await node.write_attribute(ua.AttributeIds.ValueRank, ua.DataValue(
+                ua.Variant(ua.ValueRank.OneDimension, ua.VariantType.Int32)))
+            await node.write_attribute(ua.AttributeIds.ArrayDimensions, ua.DataValue(
+                ua.Variant([0], ua.VariantType.UInt32)))
         if writable:
             await node.set_writable()
         self._nodes[name] = node
@@ -232,6 +255,15 @@ class ServedPlant:
         if self.scenario is None:
             return NOMINAL
         return exogenous_at(self.scenario.disturbances, self.k, self.ts_s)
+
+    def setpoints_ahead_kw(self) -> list[float]:
+        """The scenario's setpoints [kW] of the samples after the current one, element 0 the
+        next, `ServeOptions.setpoint_preview_s` long (cut at the scenario's end; empty
+        without a scenario): what ``Heater.SetpointPreview`` holds."""
+        if self.scenario is None:
+            return []
+        n = round(self.options.setpoint_preview_s / self.ts_s)
+        return [float(x) for x in self._setpoints[self.k + 1:self.k + 1 + n]]
 
     async def serve(self) -> None:
         """Run the server until ``options.duration_s`` of plant time or cancellation."""
@@ -262,7 +294,9 @@ class ServedPlant:
                 # the controller's state, written by czmpc run for the HMI ([nodes] state keys)
                 ("Owner", "", True), ("MPCStatus", 7 if plc else "", True),
                 ("MPCMode", "OFF", True), ("StaleAlarm", False, True), ("Predicted", 0.0, True),
-                ("TargetTriac", 0.0, True), ("MPCWatchdog", 0, True)):
+                ("TargetTriac", 0.0, True), ("MPCWatchdog", 0, True),
+                ("GridVoltage", float(self._exogenous().grid_voltage_factor), False),
+                ("SetpointPreview", self.setpoints_ahead_kw(), False)):
             await self._add(folder, idx, name, value, writable)
         self._server = server
         log_file: IO[str] | None = None
@@ -318,13 +352,19 @@ class ServedPlant:
                 self._triac_pct = self.options.safe_triac_pct
             elif math.isfinite(cmd):
                 self._triac_pct = min(100.0, max(0.0, cmd))
-            measured = float(self.plant.step(self._triac_pct, self._exogenous()))
+            exogenous = self._exogenous()
+            measured = float(self.plant.step(self._triac_pct, exogenous))
             self.k += 1
             good = math.isfinite(measured)
             if self._faults is not None and self.k < len(self._faults.missing):
                 good = good and not bool(self._faults.missing[self.k])
                 measured += float(self._faults.spike_kw[self.k])
                 await self._publish("PowerSetpoint", float(self._setpoints[self.k]))
+            # the voltage that acted over the sample just measured (the heater's own slow
+            # wander, `HeaterParams.grid_wander_std`, is not in it) and the coming setpoints,
+            # before the power: a read keyed to the power's timestamp finds them current
+            await self._publish("GridVoltage", float(exogenous.grid_voltage_factor))
+            await self._publish("SetpointPreview", self.setpoints_ahead_kw())
             await self._publish("Power", measured if good else 0.0, good=good)
             await self._publish("TriacApplied", self._triac_pct)
             await self._publish("WatchdogTripped", self.watchdog_tripped)

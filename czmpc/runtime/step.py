@@ -11,13 +11,13 @@ from __future__ import annotations
 import datetime as dt
 import logging
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 from czmpc.modes import Mode
 from czmpc.runtime.measurement import age_s, measurement, sample_time
-from czmpc.runtime.node_types import NodeSpec
+from czmpc.runtime.node_types import NodeSpec, NodeValueError, decode
 
 
 class LoopController(Protocol):
@@ -32,7 +32,11 @@ class LoopController(Protocol):
 
     def step(self, power_kw: float, setpoint_kw: float, *,
              applied_triac_pct: float | None = None) -> float:
-        """Return the TRIAC input [%] to apply now (see `OffsetFreeMPC.step`)."""
+        """Return the TRIAC input [%] to apply now (see `OffsetFreeMPC.step`).
+
+        A controller that also takes ``setpoint_preview_kw`` and ``grid_voltage_factor``
+        (as `OffsetFreeMPC.step` does) is given them when the run has them (`decide`).
+        """
 
     def status_words(self) -> tuple[str, str]:
         """``(status, verdict)`` of the last step, for the log."""
@@ -85,6 +89,17 @@ class Sample:
     applied_triac_pct :
         The input the plant reports applied [%] (the value read at a (re)connect first),
         None when unknown.
+    grid_voltage_factor :
+        The grid voltage relative to nominal [-] over the last sample; NaN when the node
+        is configured but its value is not usable (judged as the power is: Bad,
+        Uncertain, stale, not a number, or no link), None when no node is configured.
+    setpoint_preview_kw :
+        The array node's setpoints of the coming samples [kW] (element 0 the next
+        sample); None when no node is configured or its value is not usable.
+    preview_quality :
+        ``"good"`` or why the array node's value is not usable (``"bad"``,
+        ``"uncertain"``, ``"stale"``, ``"not an array of numbers"``, ``"disconnected"``);
+        ``""`` when no node is configured.
     """
 
     power_kw: float
@@ -94,6 +109,9 @@ class Sample:
     setpoint_kw: float | None = None
     mode: Mode | None = None
     applied_triac_pct: float | None = None
+    grid_voltage_factor: float | None = None
+    setpoint_preview_kw: tuple[float, ...] | None = None
+    preview_quality: str = ""
 
 
 def judge(values: Mapping[str, Any] | None, specs: Mapping[str, NodeSpec], *, max_age_s: float,
@@ -117,8 +135,11 @@ def judge(values: Mapping[str, Any] | None, specs: Mapping[str, NodeSpec], *, ma
     connect_applied_pct :
         The applied input read at a (re)connect [%], NaN if none: it wins over the node.
     """
+    voltage = math.nan if "grid_voltage_factor" in specs else None
     if values is None:
-        return Sample(power_kw=math.nan, quality="disconnected", time=previous_time)
+        return Sample(power_kw=math.nan, quality="disconnected", time=previous_time,
+                      grid_voltage_factor=voltage,
+                      preview_quality="disconnected" if "setpoint_preview_kw" in specs else "")
     dv = values["power_kw"]
     power, quality = measurement(dv, max_age_s, previous_time if reject_repeated else None,
                                  specs["power_kw"].scale)
@@ -129,13 +150,46 @@ def judge(values: Mapping[str, Any] | None, specs: Mapping[str, NodeSpec], *, ma
         value, q = measurement(values[key], math.inf, None, specs[key].scale)
         return value if q == "good" else None
 
+    if "grid_voltage_factor" in values:
+        voltage, _ = measurement(values["grid_voltage_factor"], max_age_s, None,
+                                 specs["grid_voltage_factor"].scale)
+    preview, preview_quality = (None, "")
+    if "setpoint_preview_kw" in values:
+        preview, preview_quality = preview_of(values["setpoint_preview_kw"], max_age_s,
+                                              specs["setpoint_preview_kw"])
     mode_dv = values.get("mode")
     return Sample(power_kw=power, quality=quality, time=sample_time(dv)[0] or previous_time,
                   age_s=age_s(dv) if quality == "good" else None, setpoint_kw=good("setpoint_kw"),
                   mode=None if mode_dv is None or mode_dv.Value is None
                   else mode_of(mode_dv.Value.Value),
                   applied_triac_pct=good("applied_triac_pct") if math.isnan(connect_applied_pct)
-                  else connect_applied_pct)
+                  else connect_applied_pct,
+                  grid_voltage_factor=voltage, setpoint_preview_kw=preview,
+                  preview_quality=preview_quality)
+
+
+def preview_of(dv: Any, max_age_s: float, spec: NodeSpec,
+               ) -> tuple[tuple[float, ...] | None, str]:
+    """The coming setpoints [kW] an array node's DataValue holds, and a quality word.
+
+    The array is judged as the power is (Bad, Uncertain, older than ``max_age_s``: not
+    usable, None); each element is scaled as the node's spec says. An array element
+    that is not finite stays in (the controller cuts the preview there); an element that
+    is not a number, or a value that is not an array, makes the whole value unusable.
+    """
+    status = dv.StatusCode
+    if status is not None and not status.is_good():
+        return None, "uncertain" if status.is_uncertain() else "bad"
+    age = age_s(dv)
+    if age is not None and age > max_age_s:
+        return None, "stale"
+    raw = None if dv.Value is None else dv.Value.Value
+    if not isinstance(raw, list | tuple):
+        return None, "not an array of numbers"
+    try:
+        return tuple(decode(x, spec.scale) for x in raw), "good"
+    except NodeValueError:
+        return None, "not an array of numbers"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -166,7 +220,8 @@ class Decision:
 
 
 def decide(ctrl: LoopController, sample: Sample, *, setpoint_kw: float, last_command_pct: float,
-           allow_on: bool) -> Decision:
+           allow_on: bool, setpoint_preview_kw: Sequence[float] | None = None,
+           grid_voltage_factor: float | None = None) -> Decision:
     """Pass the operator's mode request, step the controller, decide whether to write.
 
     Outside ON, where the operator drives the TRIAC, an applied input the plant does not
@@ -184,6 +239,12 @@ def decide(ctrl: LoopController, sample: Sample, *, setpoint_kw: float, last_com
         The last command accepted by the plant, or the last input outside ON [%]; NaN: none.
     allow_on :
         False: a request for ON is refused (the switch-on rule, `czmpc.runtime.session`).
+    setpoint_preview_kw :
+        The setpoints of the coming samples [kW] (element 0 the next sample); None: no
+        preview. Passed to the controller only when given.
+    grid_voltage_factor :
+        The measured grid voltage relative to nominal [-] (NaN: configured but not
+        usable); None: not measured. Passed to the controller only when given.
     """
     mode = sample.mode
     if mode is not None and mode is not ctrl.mode and (mode is not Mode.ON or allow_on):
@@ -191,7 +252,12 @@ def decide(ctrl: LoopController, sample: Sample, *, setpoint_kw: float, last_com
     applied = sample.applied_triac_pct
     if ctrl.mode is not Mode.ON and applied is None and math.isfinite(last_command_pct):
         applied = last_command_pct
-    command = float(ctrl.step(sample.power_kw, setpoint_kw, applied_triac_pct=applied))
+    extra: dict[str, Any] = {}
+    if setpoint_preview_kw is not None:
+        extra["setpoint_preview_kw"] = setpoint_preview_kw
+    if grid_voltage_factor is not None:
+        extra["grid_voltage_factor"] = grid_voltage_factor
+    command = float(ctrl.step(sample.power_kw, setpoint_kw, applied_triac_pct=applied, **extra))
     status, verdict = ctrl.status_words()
     return Decision(command_pct=command, write=ctrl.mode is Mode.ON and math.isfinite(command),
                     applied_triac_pct=applied,
@@ -255,4 +321,4 @@ def refused_in_row(code: str | None, in_row: int, max_refused: int) -> tuple[int
 
 
 __all__ = ["Decision", "LoopController", "Sample", "Transitions", "decide", "judge", "mode_of",
-           "refused_in_row", "transitions"]
+           "preview_of", "refused_in_row", "transitions"]

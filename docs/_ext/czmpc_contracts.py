@@ -162,6 +162,22 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
                        "Node id of czmpc's own counter, written every step like the heartbeat "
                        "(goes on from the node's value, wraps within its type), for an HMI "
                        "that shows whether the controller is alive."),
+    "nodes.setpoint_preview_kw": ("node", "none", "kW",
+                                  "Node id of a one-dimensional numeric array (OPC UA Double[] "
+                                  "or Float[]) that the DCS rewrites every sample with the "
+                                  "setpoints of the coming samples, element 0 the next sample. "
+                                  "Read every step and given to the MPC (cut to "
+                                  "``run.setpoint_preview_s`` when that is set, else all of "
+                                  "it); Bad, Uncertain or older than "
+                                  "``plant.max_sample_age_s``: no preview that step, said in "
+                                  "the event column. The form for a recipe the DCS owns; not "
+                                  "with ``run.schedule``."),
+    "nodes.grid_voltage_factor": ("node", "none", "-",
+                                  "Node id of the measured grid voltage relative to nominal "
+                                  "over the last sample (e.g. 0.95 for a 5 % sag), refreshed "
+                                  "every sample. Judged as the power is (Bad, Uncertain or "
+                                  "stale: not usable); the MPC then takes the nominal voltage "
+                                  "and logs ``voltage_verdict`` ``missing``."),
     "controller.model": ("string (file)", "required", "-",
                          "Model file (:doc:`model_file`) the controller is built from. An "
                          "open-loop test (``czmpc run --test``) may leave out the whole "
@@ -183,6 +199,15 @@ RUN_CONFIG_KEYS: dict[str, tuple[str, str, str, str]] = {
     "run.schedule": ("string (file)", "none", "-",
                      "Recipe CSV with header ``time_s,setpoint_kw`` [s, kW], increasing times: "
                      "the setpoint from each time of the run on."),
+    "run.setpoint_preview_s": ("number >= 0", "0", "s",
+                               "How far ahead the MPC is told the setpoint: each step passes "
+                               "the setpoints of the next ``round(setpoint_preview_s / "
+                               "ts_s)`` samples, from ``run.schedule`` on the run's clock "
+                               "or from ``nodes.setpoint_preview_kw``, so the input starts "
+                               "moving before a recipe step. 0: no preview from a schedule, "
+                               "the whole array from the node. A value > 0 needs one of "
+                               "them; 0 < value < ts_s / 2 is refused (it would round to no "
+                               "preview). The scenario key of the same name means the same."),
     "run.log": ("string (file or directory/)", "run.csv", "-",
                 "Step log, one CSV row per step, flushed per row (``--log`` overrides it). A "
                 "start never overwrites an earlier run's log: it refuses unless ``--append`` "

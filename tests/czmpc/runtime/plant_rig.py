@@ -25,10 +25,16 @@ STATE_KEYS = ("owner", "status", "mode_in_effect", "stale_alarm", "predicted_pow
               "target_triac_pct", "watchdog")
 
 
+#: The served plant's nodes of the coming setpoints and the grid voltage (issue 40's tests
+#: configure them; the others run as a controller that is told neither).
+CONTEXT_KEYS = ("setpoint_preview_kw", "grid_voltage_factor")
+
+
 def served_nodes() -> dict[str, str]:
-    """Node ids of czmpc's served plant: the signals (no model health, state or lease)."""
+    """Node ids of czmpc's served plant: the signals (no model health, state, lease, preview
+    or voltage)."""
     return {k: v for k, v in SERVED_NODE_IDS.items()
-            if k != "model_health" and k not in STATE_KEYS}
+            if k != "model_health" and k not in STATE_KEYS and k not in CONTEXT_KEYS}
 
 
 def make_config(tmp_path: Path, port: int, *, nodes: dict[str, str] | None = None,
