@@ -29,6 +29,7 @@ from sysid.identifiability import Check
 from sysid.model import Criteria, HammersteinModel
 from sysid.optimize import sum_of_squares
 from sysid.simulate import predict_one_step, simulate
+from sysid.voltage import model_input
 
 #: The input holds its first value, within this share of its span, until its first change.
 REST_INPUT_RTOL = 0.01
@@ -96,7 +97,7 @@ def errors_with_fitted_state(model: HammersteinModel, data: Dataset, *,
     model.check_ts(data.ts_s)
     op = model.operating_point
     y = data.power_kw - op.power_kw
-    w = np.asarray(model.input_nonlinearity(data.triac_pct - op.triac_pct), dtype=float)
+    w = model_input(model, data)
     parts = [_segment_estimated_errors(model, y[lo:hi], w[lo:hi], one_step)
              for lo, hi in data.segment_bounds()]
     return parts[0] if len(parts) == 1 else np.concatenate(parts)

@@ -39,7 +39,7 @@ import numpy as np
 
 from sysid._checks import checked_int
 from sysid._typing import FloatArray
-from sysid.data import Dataset
+from sysid.data import GRID_VOLTAGE_COLUMN, Dataset
 from sysid.errors import IdentificationError, IdentificationWarning, SysidError
 from sysid.hammerstein import (
     HammersteinFit,
@@ -82,6 +82,8 @@ from sysid.result import IdentificationResult
 from sysid.scale import check_representable
 from sysid.steps import InputStep, detect_steps
 from sysid.structure import StructureChoice, select_structure
+from sysid.voltage import PROVENANCE_KEY as VOLTAGE_KEY
+from sysid.voltage import compensated_drive_kw, grid_voltage, not_compensated_record
 
 #: LM's ``ftol`` and ``xtol`` of Table 2's linear OE and ARMAX fits, which only serve as
 #: comparisons (as `sysid.structure.RANKING_TOLERANCE`; the route's fits keep 1e-12).
@@ -657,6 +659,7 @@ def _paper_models(
     degree, nb, nf, nk = paper_orders
     y, ds = _deviations(data, op)
     seg = _segment_starts(data)
+    voltage = grid_voltage(data, op)
     out: list[NamedModel] = []
     try:
         oe = fit_hammerstein_oe(
@@ -664,14 +667,14 @@ def _paper_models(
                 y, ds, np.eye(degree)[0], method="oe", nb=nb, nf=nf, nk=nk,
                 segment_starts=seg),
             degree=degree, nb=nb, nf=nf, nk=nk, initial_state=initial_state,
-            segment_starts=seg,
+            segment_starts=seg, voltage=voltage,
             progress=lambda i, c: clock.fit_progress("paper's orders, OE block (V)", i, c),
         )
         out.append(_named_fit("hammerstein_oe_paper",
                               "Hammerstein-OE at the paper's orders, PEM on V", oe, data, op))
         armax = fit_hammerstein_armax(
             y, ds, initial=oe, degree=degree, na=nf, nb=nb, nc=nf, nk=nk,
-            initial_state=initial_state, segment_starts=seg,
+            initial_state=initial_state, segment_starts=seg, voltage=voltage,
             progress=lambda i, c: clock.fit_progress("paper's orders, noise model (W)", i, c),
         )
         out.append(_named_fit("hammerstein_armax_paper",
@@ -901,6 +904,7 @@ def _run_stages(
             # the OE search is not convex, and the chosen orders have no paper-tested start
             pole_starts=0 if structure is None else N_POLE_STARTS,
             segment_starts=_segment_starts(clean),
+            voltage=grid_voltage(clean, op),
         )
         skipped.extend(route.skipped)
     except SysidError as exc:
@@ -921,6 +925,7 @@ def _run_stages(
         if rest is not None:
             linear += (rest,)
     clock.stop()
+    linear = _voltage_noted(linear, clean, structure is not None, skipped)
 
     # the slowest time constant a record can show is bounded by its longest segment
     longest = max(hi - lo for lo, hi in clean.segment_bounds())
@@ -932,6 +937,11 @@ def _run_stages(
             "run_paper_pipeline: no model could be identified from this record: "
             + "; ".join(skipped)
         )
+    if clean.grid_voltage_factor is not None \
+            and compensated_drive_kw(final.model.provenance.extra) is None:
+        skipped.append(
+            f"the final model {final.name} does not compensate the grid voltage (the log "
+            f"carries {GRID_VOLTAGE_COLUMN}; only the Hammerstein PEM fits compensate it)")
     return PipelineResult(
         raw_data=data,
         data=clean,
@@ -950,6 +960,30 @@ def _run_stages(
         structure=structure,
         rest_search=search,
     )
+
+
+def _voltage_noted(linear: tuple[NamedModel, ...], data: Dataset, structure_searched: bool,
+                   skipped: list[str]) -> tuple[NamedModel, ...]:
+    """The linear models, each with a provenance note that it does not compensate the
+    grid voltage the log carries (`sysid.linear` takes ``ds`` alone); unchanged without
+    the column. The structure search's note joins `skipped`."""
+    if data.grid_voltage_factor is None:
+        return linear
+    if structure_searched:
+        skipped.append(
+            "grid voltage: the structure selection ranked its candidates without it (the "
+            "chosen orders' Hammerstein fits compensate it)")
+    record = not_compensated_record(
+        "a linear model (sysid.linear: ARX, ARMAX, OE) takes the input ds without the voltage")
+    out = []
+    for named in linear:
+        extra = named.model.provenance.extra
+        if VOLTAGE_KEY in extra:
+            out.append(named)
+            continue
+        provenance = replace(named.model.provenance, extra={**extra, VOLTAGE_KEY: record})
+        out.append(replace(named, model=named.model.with_updates(provenance=provenance)))
+    return tuple(out)
 
 
 def _rest_model(data: Dataset, op: OperatingPoint, at: RestPoint | None, min_nk: int,

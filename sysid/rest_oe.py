@@ -54,6 +54,7 @@ from sysid.linear import _linear_model, _oe_polynomials, _shift_into, arx_oe_sta
 from sysid.model import HammersteinModel, OperatingPoint
 from sysid.optimize import levenberg_marquardt
 from sysid.polynomials import is_stable
+from sysid.voltage import compensated_drive_kw, effective_input
 
 #: Share of the record at its start that is a burn-in: not scored, so that the unknown
 #: initial state (a log that does not start at rest) decays before the criterion counts.
@@ -237,11 +238,19 @@ def rest_mse(model: HammersteinModel, data: Dataset, *, burn_in_steps: int,
     -------
     float
         ``mean_{k >= burn} (y_k - y0 - [B/A] (w_k - w_0))^2`` with ``w = f(s - s_nom)``,
-        ``w_0 = f(u0 - s_nom)`` [output unit^2]; inf if the simulation overflows.
+        ``w_0 = f(u0 - s_nom)`` [output unit^2]; inf if the simulation overflows. A
+        model whose fit compensated the grid voltage the log carries is driven by
+        ``w_eff`` (`sysid.voltage.model_input`).
     """
     op_input = model.operating_point.triac_pct
     w = model.input_nonlinearity(data.triac_pct - op_input)
     w0 = float(model.input_nonlinearity(rest.input - op_input))
+    drive_kw = compensated_drive_kw(model.provenance.extra)
+    if drive_kw is not None and data.grid_voltage_factor is not None:
+        # a voltage-compensated model sees w_eff; at rest, the first sample's voltage
+        volt = data.grid_voltage_factor
+        w = effective_input(np.asarray(w, dtype=float), volt, drive_kw)
+        w0 = float(effective_input(np.array([w0]), volt[:1], drive_kw)[0])
     with np.errstate(over="ignore", invalid="ignore"):
         sim = simulate_from_rest(model.b, model.a, w, RestPoint(input=w0, output=rest.output))
         err = data.power_kw[burn_in_steps:] - sim[burn_in_steps:]

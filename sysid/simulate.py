@@ -35,6 +35,7 @@ from scipy.signal import lfilter
 from sysid._typing import FloatArray
 from sysid.data import Dataset
 from sysid.model import HammersteinModel
+from sysid.voltage import model_input
 
 
 def filter_state(b: FloatArray, a: FloatArray, y_past: FloatArray,
@@ -179,7 +180,7 @@ def _per_segment(model: HammersteinModel, data: Dataset,
     model.check_ts(data.ts_s)
     op = model.operating_point
     dp_kw = data.power_kw - op.power_kw
-    w = np.asarray(model.input_nonlinearity(data.triac_pct - op.triac_pct), dtype=float)
+    w = model_input(model, data)
     yhat = np.empty_like(dp_kw)
     for lo, hi in data.segment_bounds():
         yhat[lo:hi] = kernel(dp_kw[lo:hi], w[lo:hi])

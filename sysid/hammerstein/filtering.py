@@ -49,6 +49,21 @@ InitialState = Literal["estimate", "zero", "held"]
 INITIAL_STATES: tuple[InitialState, ...] = ("estimate", "zero", "held")
 
 Segment = tuple[FloatArray, FloatArray]
+#: A segment's grid-voltage drive ``(v^2, o)``: the powers ``ds^i`` are scaled by ``v^2``
+#: and the known input ``o = (v^2 - 1) W0`` is added, so the linear block sees
+#: ``w_eff = v^2 f(ds) + (v^2 - 1) W0`` (`sysid.hammerstein.voltage`).
+Drive = tuple[FloatArray, FloatArray]
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class _Prepared:
+    """One segment ready for the kernels: output, input regressors and the known input."""
+
+    y: FloatArray
+    feats: FloatArray          # ds^i (times v^2 under a drive), shape (N, degree)
+    off: FloatArray | None     # known input added to w, or None
+    ds0: float                 # the first input deviation
+    v20: float                 # the first v^2 (1.0 without a drive)
 
 
 def check_initial_state(value: object, where: str) -> InitialState:
@@ -213,19 +228,22 @@ def _transient_columns(out: FloatArray, den: FloatArray, n_model: int, n_state: 
 
 
 def _held_derivatives(orders: HammersteinOrders, beta: FloatArray, w0: float, ds0: float,
-                      y0: float) -> list[FloatArray]:
-    """``d h/d theta`` of the OE held-past transient ``h = w_0 S(beta) - y_0 S(f)`` by ``b, d, f``."""
+                      y0: float, v20: float = 1.0) -> list[FloatArray]:
+    """``d h/d theta`` of the OE held-past transient ``h = w_0 S(beta) - y_0 S(f)`` by ``b, d, f``.
+
+    ``v20``: the first sample's ``v^2`` under a voltage drive (``d w_0/d d_i = v20 ds0^i``).
+    """
     n = orders.n_state
     k_idx = np.arange(n)
     tail_beta = _tail_sums(beta, n)
     out = [np.where(k_idx < j, w0, 0.0) for j in range(orders.nk + 1, orders.nk + orders.nb)]
-    out += [ds0**i * tail_beta for i in range(1, orders.degree + 1)]
+    out += [v20 * ds0**i * tail_beta for i in range(1, orders.degree + 1)]
     return out + [np.where(k_idx < i, -y0, 0.0) for i in range(1, orders.na + 1)]
 
 
 def _oe_segment(
-    orders: HammersteinOrders, theta: FloatArray, h_free: FloatArray | None, y: FloatArray,
-    feats: FloatArray, initial_state: InitialState,
+    orders: HammersteinOrders, theta: FloatArray, h_free: FloatArray | None, seg: _Prepared,
+    initial_state: InitialState,
 ) -> tuple[FloatArray, SegmentJacobian]:
     """Simulation errors of one segment and the maker of their Jacobian.
 
@@ -233,12 +251,16 @@ def _oe_segment(
     input powers ``ds^i`` (``q^-j w / F`` is the shift of their combination ``w/F``,
     ``B ds^i / F`` their FIR), of ``yhat`` (``q^-i yhat / F``) and of a unit pulse
     (the transient's columns, and the held past's first samples through them).
+    A voltage drive adds its known input to ``w`` (and, filtered, to ``w/F``).
     """
     f, beta, _, poly = orders.polynomials(theta)
     n = orders.n_state
+    y, feats, off = seg.y, seg.feats, seg.off
     w = feats @ poly
+    if off is not None:
+        w = w + off
     src = _fir(beta, w)
-    w0, ds0, y0 = float(w[0]), float(feats[0, 0]), float(y[0])
+    w0, ds0, y0 = float(w[0]), seg.ds0, float(y[0])
     if initial_state == "estimate" and h_free is not None:
         h = h_free
     elif initial_state == "held":
@@ -252,13 +274,16 @@ def _oe_segment(
         # d eps/d theta = -(d yhat/d theta): every column written with its sign
         feats_f = lfilter([1.0], f, feats, axis=0)
         w_f = feats_f @ poly
+        if off is not None:
+            w_f = w_f + lfilter([1.0], f, off)
         yhat_f = lfilter([1.0], f, yhat)
         out = _jacobian_block(y.size, orders.n_model, n, initial_state)
         col = _input_columns(out, w_f, feats_f, beta, orders)
         for i in range(1, orders.na + 1):
             _put_lag(out, col, yhat_f, i)
             col += 1
-        d_state = _held_derivatives(orders, beta, w0, ds0, y0) if initial_state == "held" else []
+        d_state = (_held_derivatives(orders, beta, w0, ds0, y0, seg.v20)
+                   if initial_state == "held" else [])
         _transient_columns(out, f, orders.n_model, n, initial_state, d_state, -1.0)
         return out
 
@@ -266,8 +291,8 @@ def _oe_segment(
 
 
 def _armax_segment(
-    orders: HammersteinOrders, theta: FloatArray, g_free: FloatArray | None, y: FloatArray,
-    feats: FloatArray, initial_state: InitialState,
+    orders: HammersteinOrders, theta: FloatArray, g_free: FloatArray | None, seg: _Prepared,
+    initial_state: InitialState,
 ) -> tuple[FloatArray, SegmentJacobian]:
     """One-step prediction errors of one segment and the maker of their Jacobian.
 
@@ -275,9 +300,12 @@ def _armax_segment(
     """
     a, beta, c, poly = orders.polynomials(theta)
     n, na, nc = orders.n_state, orders.na, orders.nc
+    y, feats, off = seg.y, seg.feats, seg.off
     w = feats @ poly
+    if off is not None:
+        w = w + off
     v = _fir(a, y) - _fir(beta, w)
-    w0, ds0, y0 = float(w[0]), float(feats[0, 0]), float(y[0])
+    w0, ds0, y0 = float(w[0]), seg.ds0, float(y[0])
     if initial_state == "estimate" and g_free is not None:
         g = g_free
     elif initial_state == "held":
@@ -290,6 +318,8 @@ def _armax_segment(
     def jacobian() -> FloatArray:
         feats_c = lfilter([1.0], c, feats, axis=0)
         w_c = feats_c @ poly
+        if off is not None:
+            w_c = w_c + lfilter([1.0], c, off)
         e_c = lfilter([1.0], c, e) if nc else e
         y_c = lfilter([1.0], c, y) if na else y
         out = _jacobian_block(y.size, orders.n_model, n, initial_state)
@@ -304,7 +334,8 @@ def _armax_segment(
             col += 1
         d_state: list[FloatArray] = []
         if initial_state == "held":  # g = -h of OE's held past, nothing from the k_i
-            d_state = [-d for d in _held_derivatives(orders, beta, w0, ds0, y0)] + [np.zeros(n)] * nc
+            d_state = [-d for d in _held_derivatives(orders, beta, w0, ds0, y0, seg.v20)
+                       ] + [np.zeros(n)] * nc
         _transient_columns(out, c, orders.n_model, n, initial_state, d_state, 1.0)
         return out
 
@@ -312,24 +343,45 @@ def _armax_segment(
 
 
 def _segment_terms(
-    orders: HammersteinOrders, theta: FloatArray, prepared: Sequence[Segment],
+    orders: HammersteinOrders, theta: FloatArray, prepared: Sequence[_Prepared],
     initial_state: InitialState,
 ) -> list[tuple[FloatArray, SegmentJacobian]]:
     """Each segment's residuals and Jacobian maker; ``theta`` as `segment_residuals`.
 
-    ``prepared``: each segment's ``(y, _powers(ds, degree))``.
+    ``prepared``: each segment from `_prepare`.
     """
     kernel = _oe_segment if orders.block == "oe" else _armax_segment
     p_model, n = orders.n_model, orders.n_state
     estimate = initial_state == "estimate"
     return [kernel(orders, theta[:p_model],
                    theta[p_model + s * n : p_model + (s + 1) * n] if estimate else None,
-                   y, feats, initial_state)
-            for s, (y, feats) in enumerate(prepared)]
+                   seg, initial_state)
+            for s, seg in enumerate(prepared)]
 
 
-def _prepare(orders: HammersteinOrders, segments: Sequence[Segment]) -> list[Segment]:
-    return [(y, _powers(ds, orders.degree)) for y, ds in segments]
+def _prepare_one(orders: HammersteinOrders, y: FloatArray, ds: FloatArray,
+                 drive: Drive | None) -> _Prepared:
+    feats = _powers(ds, orders.degree)
+    if drive is None:
+        return _Prepared(y=y, feats=feats, off=None, ds0=float(feats[0, 0]), v20=1.0)
+    v2, off = drive
+    if v2.shape != y.shape or off.shape != y.shape:
+        raise IdentificationError(
+            f"a segment's voltage drive must have its {y.size} samples; got shapes "
+            f"{v2.shape} and {off.shape}")
+    return _Prepared(y=y, feats=feats * v2[:, None], off=off, ds0=float(feats[0, 0]),
+                     v20=float(v2[0]))
+
+
+def _prepare(orders: HammersteinOrders, segments: Sequence[Segment],
+             drives: Sequence[Drive] | None = None) -> list[_Prepared]:
+    """Each segment's regressors; `drives` (one per segment) applies a grid voltage."""
+    if drives is None:
+        return [_prepare_one(orders, y, ds, None) for y, ds in segments]
+    if len(drives) != len(segments):
+        raise IdentificationError(
+            f"expected one voltage drive per segment ({len(segments)}); got {len(drives)}")
+    return [_prepare_one(orders, y, ds, d) for (y, ds), d in zip(segments, drives, strict=True)]
 
 
 def _stacked_jacobian(orders: HammersteinOrders, terms: list[tuple[FloatArray, SegmentJacobian]],
@@ -356,6 +408,7 @@ def segment_residuals(
     initial_state: InitialState,
     *,
     jacobian: bool = True,
+    drives: Sequence[Drive] | None = None,
 ) -> tuple[FloatArray, FloatArray | None]:
     """Residuals over all segments (concatenated) and their Jacobian.
 
@@ -372,6 +425,8 @@ def segment_residuals(
         See the module docstring.
     jacobian :
         Also return the Jacobian ``d r/d theta``, shape ``(N_total, len(theta))``.
+    drives :
+        Each segment's grid-voltage `Drive`, or None (no voltage compensation).
 
     Returns
     -------
@@ -379,7 +434,7 @@ def segment_residuals(
         ``(r, J)`` with ``r`` the simulation errors (OE, V) or one-step prediction
         errors (ARMAX, W); ``J`` None when not asked for.
     """
-    terms = _segment_terms(orders, theta, _prepare(orders, segments), initial_state)
+    terms = _segment_terms(orders, theta, _prepare(orders, segments, drives), initial_state)
     r = np.concatenate([res for res, _ in terms])
     if not jacobian:
         return r, None
@@ -388,13 +443,14 @@ def segment_residuals(
 
 def estimate_transients(
     orders: HammersteinOrders, theta_model: FloatArray, segments: Sequence[Segment],
-    *, fit_samples: int | None = None,
+    *, fit_samples: int | None = None, drives: Sequence[Drive] | None = None,
 ) -> FloatArray:
     """Least-squares initial transients of every segment for fixed model parameters.
 
     The residuals are affine in the transients, so one least-squares solve per segment
     gives the exact minimum of V (OE) or W (ARMAX) over the initial state. With
-    ``fit_samples``, only each segment's first samples are fitted (a burn-in).
+    ``fit_samples``, only each segment's first samples are fitted (a burn-in);
+    ``drives`` as `segment_residuals`.
 
     Returns
     -------
@@ -408,10 +464,10 @@ def estimate_transients(
     kernel = _oe_segment if oe else _armax_segment
     den = orders.polynomials(theta_model)[2]  # F (OE) or C (ARMAX)
     out = []
-    for y, ds in segments:
+    for seg in _prepare(orders, segments, drives):
         # r = r0 + P h is affine in h: h = argmin |r0 + P h|, P the Jacobian's transient columns
-        r0, _ = kernel(orders, theta_model, np.zeros(n), y, _powers(ds, orders.degree),
-                       "estimate")
+        y = seg.y
+        r0, _ = kernel(orders, theta_model, np.zeros(n), seg, "estimate")
         pulses = np.empty((y.size, n), order="F")
         _transient_columns(pulses, den, 0, n, "estimate", [], -1.0 if oe else 1.0)
         m = y.size if fit_samples is None else fit_samples
@@ -424,25 +480,30 @@ def mean_square_criterion(
     theta_model: FloatArray,
     segments: Sequence[Segment],
     initial_state: InitialState,
+    drives: Sequence[Drive] | None = None,
 ) -> float:
     """V (OE) or W (ARMAX) over all segments under an initial-state policy.
 
     ``"estimate"`` scores the model with each segment's initial state fitted by least
-    squares (`estimate_transients`).
+    squares (`estimate_transients`); ``drives`` as `segment_residuals`.
     """
     theta = np.asarray(theta_model, dtype=float)
     if initial_state == "estimate":
-        theta = np.concatenate([theta, estimate_transients(orders, theta, segments)])
-    r, _ = segment_residuals(orders, theta, segments, initial_state, jacobian=False)
+        theta = np.concatenate([theta, estimate_transients(orders, theta, segments,
+                                                           drives=drives)])
+    r, _ = segment_residuals(orders, theta, segments, initial_state, jacobian=False,
+                             drives=drives)
     return float(np.mean(r**2))
 
 
 def residual_function(
-    orders: HammersteinOrders, segments: Sequence[Segment], initial_state: InitialState
+    orders: HammersteinOrders, segments: Sequence[Segment], initial_state: InitialState,
+    drives: Sequence[Drive] | None = None,
 ) -> Callable[[FloatArray], tuple[FloatArray, Callable[[], FloatArray]]]:
-    """``fun(theta) -> (r, J)`` for `sysid.optimize.levenberg_marquardt`, ``J`` made on request."""
+    """``fun(theta) -> (r, J)`` for `sysid.optimize.levenberg_marquardt`, ``J`` made on request
+    (``drives`` as `segment_residuals`)."""
 
-    prepared = _prepare(orders, segments)
+    prepared = _prepare(orders, segments, drives)
 
     def fun(theta: FloatArray) -> tuple[FloatArray, Callable[[], FloatArray]]:
         terms = _segment_terms(orders, theta, prepared, initial_state)
@@ -453,6 +514,7 @@ def residual_function(
 
 
 __all__ = [
+    "Drive",
     "INITIAL_STATES",
     "HammersteinOrders",
     "InitialState",

@@ -13,14 +13,16 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from typing import Literal
 
 import numpy as np
 
 from sysid._typing import FloatArray
-from sysid.errors import IdentificationWarning
+from sysid.errors import IdentificationError, IdentificationWarning
 from sysid.greybox import GreyBoxStructure
 from sysid.hammerstein.filtering import (
+    Drive,
     HammersteinOrders,
     InitialState,
     Segment,
@@ -44,6 +46,13 @@ from sysid.optimize import (
     levenberg_marquardt,
     parameter_std_errors,
     triangular_factor,
+)
+from sysid.voltage import (
+    MAX_W0_ITERATIONS,
+    W0_RTOL,
+    GridVoltage,
+    VoltageCompensation,
+    nominal_drive_kw,
 )
 
 #: ``progress(iteration, cost)`` after every Levenberg-Marquardt iteration.
@@ -87,17 +96,20 @@ def _pem(
     progress: ProgressCallback | None,
     *,
     tolerance: float | None = None,
+    drives: Sequence[Drive] | None = None,
 ) -> tuple[LMResult, FloatArray, FloatArray, FloatArray]:
     """The search; returns the LM result, model covariance, std errors and transients.
 
     ``tolerance``: LM's ``ftol`` and ``xtol`` both (None: `levenberg_marquardt`'s tight
     defaults, for a final fit; looser for a fit that only ranks structures).
+    ``drives``: each segment's grid-voltage drive, or None (no compensation).
     """
     p = orders.n_model
     theta0 = np.array(structure.initial_values, dtype=float)
     project = structure.project
     if initial_state == "estimate":
-        theta0 = np.concatenate([theta0, estimate_transients(orders, theta0, segments)])
+        theta0 = np.concatenate([theta0, estimate_transients(orders, theta0, segments,
+                                                             drives=drives)])
 
     def project_full(theta: FloatArray) -> FloatArray:
         out = np.array(theta, dtype=float, copy=True)
@@ -106,7 +118,7 @@ def _pem(
         return out
 
     lm = levenberg_marquardt(
-        residual_function(orders, segments, initial_state), theta0, project=project_full,
+        residual_function(orders, segments, initial_state, drives), theta0, project=project_full,
         max_iterations=max_iterations, callback=progress,
         ftol=DEFAULT_FTOL if tolerance is None else tolerance,
         xtol=DEFAULT_XTOL if tolerance is None else tolerance,
@@ -148,6 +160,7 @@ def fit_hammerstein_oe(
     initial_state: InitialState = "estimate",
     segment_starts: Sequence[int] | None = None,
     progress: ProgressCallback | None = None,
+    voltage: GridVoltage | None = None,
 ) -> HammersteinFit:
     """Estimate all parameters of the normalized Hammerstein-OE model by PEM on V (sec. 7.5).
 
@@ -172,6 +185,13 @@ def fit_hammerstein_oe(
         default one segment. Each segment has its own initial state.
     progress :
         ``progress(iteration, cost)`` after every iteration (sign of life on long logs).
+    voltage :
+        The record's grid voltage (`sysid.voltage.GridVoltage`), or None (default: no
+        compensation, the fit as without the column). Given, the fit is run as without
+        it, then refitted with the input ``w_eff = v^2 f(ds) + (v^2 - 1) W0``,
+        ``W0 = P_nom / G1`` from the previous fit, until ``W0`` moves by less than
+        `sysid.voltage.W0_RTOL` relative (at most `sysid.voltage.MAX_W0_ITERATIONS`
+        refits); the fit's ``grid_voltage`` says how.
 
     Returns
     -------
@@ -195,6 +215,7 @@ def fit_hammerstein_oe(
         "oe", y, ds, initial=initial, degree=degree, na=nf, nb=nb, nc=0, nk=nk,
         max_iterations=max_iterations, initial_state=initial_state,
         segment_starts=segment_starts, progress=progress, where="fit_hammerstein_oe",
+        voltage=voltage,
     )
 
 
@@ -212,12 +233,13 @@ def fit_hammerstein_armax(
     initial_state: InitialState = "estimate",
     segment_starts: Sequence[int] | None = None,
     progress: ProgressCallback | None = None,
+    voltage: GridVoltage | None = None,
 ) -> HammersteinFit:
     """Estimate the Hammerstein model with an ARMAX noise model by PEM on W (sec. 7.6).
 
     Parameters
     ----------
-    y, ds, max_iterations, initial_state, segment_starts, progress :
+    y, ds, max_iterations, initial_state, segment_starts, progress, voltage :
         As in `fit_hammerstein_oe`.
     initial :
         Start: a previous fit (an OE fit gives ``a = f`` and ``k = 0``, i.e. ``C = A``;
@@ -246,6 +268,7 @@ def fit_hammerstein_armax(
         "armax", y, ds, initial=initial, degree=degree, na=na, nb=nb, nc=nc, nk=nk,
         max_iterations=max_iterations, initial_state=initial_state,
         segment_starts=segment_starts, progress=progress, where="fit_hammerstein_armax",
+        voltage=voltage,
     )
 
 
@@ -265,11 +288,13 @@ def _fit(
     segment_starts: Sequence[int] | None,
     progress: ProgressCallback | None,
     where: str,
+    voltage: GridVoltage | None = None,
 ) -> HammersteinFit:
     """The one PEM loop behind `fit_hammerstein_oe` (``na`` is ``nf``) and `fit_hammerstein_armax`.
 
     Checks the arrays and the excitation, builds the grey-box structure from the start
-    values, runs the Levenberg-Marquardt search on the segments and packs the fit.
+    values, runs the Levenberg-Marquardt search on the segments and packs the fit. With
+    a `voltage`, this is also the one place that compensates it (`_compensated`).
     """
     y_arr, ds_arr = _check_arrays(y, ds, where)
 
@@ -287,13 +312,79 @@ def _fit(
     policy = check_initial_state(initial_state, where)
     orders = HammersteinOrders(block=block, degree=degree, nb=nb, na=na, nc=nc, nk=nk)
     segments = split_segments(y_arr, ds_arr, segment_starts, where)
-    lm, cov, std, transients = _pem(orders, structure, segments, policy, max_iterations, progress)
+    fit = _searched(orders, structure, segments, policy, max_iterations, progress, label, where)
+    if voltage is None:
+        return fit
+    return _compensated(fit, voltage, orders, structure_for, segments, policy, max_iterations,
+                        progress, where, segment_starts)
+
+
+def _compensated(
+    fit: HammersteinFit,
+    voltage: GridVoltage,
+    orders: HammersteinOrders,
+    structure_for: Callable[[Mapping[str, float] | None], GreyBoxStructure],
+    segments: list[Segment],
+    policy: InitialState,
+    max_iterations: int,
+    progress: ProgressCallback | None,
+    where: str,
+    segment_starts: Sequence[int] | None,
+) -> HammersteinFit:
+    """Refit `fit` with the grid voltage compensated until ``W0 = P_nom / G1`` settles.
+
+    Each refit starts from the previous one and regresses on ``v^2 ds^i`` with the known
+    input ``(v^2 - 1) W0``, ``W0`` from the previous fit's ``G1``; stops when ``W0``
+    moves by less than `W0_RTOL` relative, or after `MAX_W0_ITERATIONS` refits.
+    """
+    n = sum(y.size for y, _ in segments)
+    if voltage.factor.size != n:
+        raise IdentificationError(
+            f"{where}: the grid voltage factor has {voltage.factor.size} samples; the record "
+            f"has {n}")
+    bounds = segment_bounds(n, None if segment_starts is None else list(segment_starts), where)
+    method = f"{fit.method}-voltage-compensated"
+    w0 = nominal_drive_kw(voltage.power_nom_kw, fit.a, fit.b)
+    history = [w0]
+    settled = False
+    for _ in range(MAX_W0_ITERATIONS):
+        used = w0
+        start, _label = _start_values(fit, structure_for(None).parameter_names)
+        fit = _searched(orders, structure_for(start), segments, policy, max_iterations, progress,
+                        "voltage-refit", where, drives=voltage.drives(bounds, used))
+        w0 = nominal_drive_kw(voltage.power_nom_kw, fit.a, fit.b)
+        history.append(w0)
+        if abs(w0 - used) < W0_RTOL * abs(used):
+            settled = True
+            break
+    return replace(fit, method=method,
+                   grid_voltage=VoltageCompensation(
+                       nominal_drive_kw=used, history_kw=tuple(history),
+                       n_refits=len(history) - 1, settled=settled))
+
+
+def _searched(
+    orders: HammersteinOrders,
+    structure: GreyBoxStructure,
+    segments: list[Segment],
+    policy: InitialState,
+    max_iterations: int,
+    progress: ProgressCallback | None,
+    label: str,
+    where: str,
+    *,
+    drives: Sequence[Drive] | None = None,
+) -> HammersteinFit:
+    """One Levenberg-Marquardt search from `structure`'s start values, packed as a fit."""
+    block = orders.block
+    lm, cov, std, transients = _pem(orders, structure, segments, policy, max_iterations, progress,
+                                    drives=drives)
     if not lm.converged:
         warnings.warn(
             f"{where}: the prediction-error search did not converge after "
             f"{lm.n_iterations} iterations ({lm.message}); the best iterate is kept",
             IdentificationWarning,
-            stacklevel=3,
+            stacklevel=4,
         )
     p = orders.n_model
     a, beta, c, poly = orders.polynomials(lm.theta[:p])

@@ -28,6 +28,8 @@ from sysid.greybox import GreyBoxStructure
 from sysid.hammerstein.filtering import HammersteinOrders, _powers, mean_square_criterion
 from sysid.model import Criteria, HammersteinModel, OperatingPoint, Provenance, _poly_eval
 from sysid.polynomials import reflect_unstable_roots
+from sysid.voltage import PROVENANCE_KEY as VOLTAGE_KEY
+from sysid.voltage import VoltageCompensation, not_compensated_record
 
 HammersteinBlock = Literal["arx", "oe", "armax"]
 RowForm = Literal["eq21", "jump"]
@@ -74,6 +76,9 @@ class HammersteinFit:
         equation errors, no state).
     initial_transients :
         The estimated initial transients, ``n_state`` per segment (empty otherwise).
+    grid_voltage :
+        How the fit compensated the grid voltage (`sysid.voltage.VoltageCompensation`),
+        or None: fitted on ``f(ds)`` without the voltage.
     """
 
     linear_block: HammersteinBlock
@@ -94,6 +99,7 @@ class HammersteinFit:
     covariance: FloatArray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
     initial_state: Literal["estimate", "held", "zero", "none"] = "held"
     initial_transients: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
+    grid_voltage: VoltageCompensation | None = None
 
     def __post_init__(self) -> None:
         for name in ("a", "b", "c", "input_poly", "parameters", "std_errors", "residuals",
@@ -459,6 +465,12 @@ def hammerstein_model(
         "converged": fit.converged,
         "initial_state": fit.initial_state,
     }
+    if fit.grid_voltage is not None:
+        info[VOLTAGE_KEY] = fit.grid_voltage.record()
+    elif data.grid_voltage_factor is not None:
+        info[VOLTAGE_KEY] = not_compensated_record(
+            f"{fit.method}: this fit takes the input f(ds) at nominal voltage (only the joint "
+            "PEM fits of the OE and noise-model blocks compensate the voltage)")
     info.update(extra or {})
     try:
         model = HammersteinModel(

@@ -35,6 +35,7 @@ from sysid.model import OperatingPoint, _poly_eval
 from sysid.optimize import MAX_ITERATIONS, parameter_std_errors
 from sysid.result import IdentificationResult
 from sysid.steps import InputStep, detect_steps
+from sysid.voltage import GridVoltage, grid_voltage
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -458,6 +459,7 @@ def _multistart(
     initial_state: InitialState,
     progress: Callable[[int, float], None] | None,
     segment_starts: Sequence[int] | None = None,
+    voltage: GridVoltage | None = None,
 ) -> HammersteinFit:
     """The best of `final` and the OE fits from `sriv_start` and `fixed_pole_starts`.
 
@@ -480,7 +482,7 @@ def _multistart(
                 fit = fit_hammerstein_oe(
                     y, ds, initial=start, degree=degree, nb=nb, nf=nf, nk=nk,
                     max_iterations=max_iterations, initial_state=initial_state,
-                    segment_starts=segment_starts, progress=progress,
+                    segment_starts=segment_starts, progress=progress, voltage=voltage,
                 )
             except IdentificationError:
                 continue
@@ -548,6 +550,7 @@ def run_hammerstein_route(
     extra_start: Mapping[str, float] | None = None,
     pole_starts: int = 0,
     segment_starts: Sequence[int] | None = None,
+    voltage: GridVoltage | None = None,
 ) -> HammersteinRoute:
     """Run steps 1-4 of the paper's route on deviation arrays.
 
@@ -584,6 +587,11 @@ def run_hammerstein_route(
         state: the ARX fits never reach across a boundary, the OE and joint PEM fits
         restart in each segment (the steps must not straddle a boundary either; see
         `sysid.steps.detect_steps`).
+    voltage :
+        The record's grid voltage, or None: given, the joint PEM fits of step 3 and 4
+        compensate it (`fit_hammerstein_oe`); steps 1-2 (eq. 21 and the linear
+        re-identification with ``f`` fixed) take ``f(ds)`` without it and only start
+        them, which `skipped` says.
 
     Returns
     -------
@@ -633,11 +641,16 @@ def run_hammerstein_route(
             return None
         return lambda iteration, cost: progress(step, iteration, cost)
 
+    if voltage is not None:
+        skipped.append(
+            "grid voltage: eq. 21 and the ARX/OE re-identification with f fixed take f(ds) "
+            "without it (they only start the joint PEM fits, which compensate it)")
+
     def joint_oe(initial: HammersteinFit | Mapping[str, float] | None, step: str) -> HammersteinFit:
         return fit_hammerstein_oe(
             y_arr, ds_arr, initial=initial, degree=degree, nb=nb, nf=nf, nk=nk,
             max_iterations=max_iterations, initial_state=initial_state, segment_starts=seg,
-            progress=report(step),
+            progress=report(step), voltage=voltage,
         )
 
     final = joint_oe(oe_re, "joint PEM of the OE block (V)")
@@ -650,7 +663,7 @@ def run_hammerstein_route(
             final, y_arr, ds_arr, degree=degree, nb=nb, nf=nf, nk=nk,
             n_starts=checked_int(pole_starts, 0, f"{where}: pole_starts"),
             max_iterations=max_iterations, initial_state=initial_state, segment_starts=seg,
-            progress=report("joint PEM of the OE block from fixed poles (V)"),
+            progress=report("joint PEM of the OE block from fixed poles (V)"), voltage=voltage,
         )
     zeros = joint_oe(None, "joint PEM of the OE block from zeros (V)") if from_zeros else None
     noise = None
@@ -658,7 +671,7 @@ def run_hammerstein_route(
         noise = fit_hammerstein_armax(
             y_arr, ds_arr, initial=final, degree=degree, na=nf, nb=nb, nc=nc_used, nk=nk,
             max_iterations=max_iterations, initial_state=initial_state, segment_starts=seg,
-            progress=report("joint PEM of the noise model (W)"),
+            progress=report("joint PEM of the noise model (W)"), voltage=voltage,
         )
     return HammersteinRoute(
         arx=arx,
@@ -692,7 +705,9 @@ def fit_hammerstein(
     Parameters
     ----------
     data :
-        The (preprocessed) identification record, absolute units.
+        The (preprocessed) identification record, absolute units. If it carries
+        ``grid_voltage_factor``, the joint PEM fits compensate the voltage
+        (`run_hammerstein_route`).
     operating_point :
         ``(s_nom, P_nom)`` for the deviation variables (sec. 5.1).
     degree :
@@ -768,6 +783,7 @@ def fit_hammerstein(
         y, ds, steps=used_steps, operating_point=operating_point, degree=degree, nb=nb,
         nf=nf, nk=nk, noise_model=noise_model, nc=nc, max_iterations=max_iterations,
         initial_state=initial_state, segment_starts=data.segment_starts,
+        voltage=grid_voltage(data, operating_point),
     )
     fit = route.noise_model if route.noise_model is not None else route.final_oe
     model = hammerstein_model(
