@@ -49,7 +49,7 @@ from czmpc.settings import MPCSettings
 from czmpc.supervision import LimitRamp, SetpointShaper, ShapedSetpoint
 from czmpc.target import SteadyStateMap, Target, compute_target, steady_state_map
 from czmpc.validation import MeasurementCheck, MeasurementChecker, Verdict
-from czmpc.voltage import NOT_MEASURED, VALID, absolute_drive_kw, voltage_verdict
+from czmpc.voltage import NOT_MEASURED, VoltageDeadband, absolute_drive_kw
 from sysid._typing import FloatArray
 from sysid.model import HammersteinModel
 
@@ -197,6 +197,7 @@ class OffsetFreeMPC:
         self._nan_plan.flags.writeable = False
         self._horizon = settings.horizon_steps
         self._w0_abs = absolute_drive_kw(self._p_nom, self._ssm.static_gain)
+        self._voltage = VoltageDeadband()
         self._trajectory = np.empty(settings.horizon_steps)  # r_{k+1..k+N} [kW], reused
         self._y_offsets = np.empty(settings.horizon_steps - 1)
         self.reset()
@@ -268,6 +269,7 @@ class OffsetFreeMPC:
         the initial input with ``d = 0``; mode, limits, counters and transition log initial."""
         w0 = self._input_map.f(self._ds_init)
         self._v2, self._v_offset = 1.0, 0.0   # v^2 and (v^2 - 1) W0 in force (`czmpc.voltage`)
+        self._voltage.reset()
         self._restart_estimator(w0)
         self._ds_prev = self._ds_init
         self._w_prev = w0
@@ -495,9 +497,9 @@ class OffsetFreeMPC:
 
     def _take_voltage(self, grid_voltage_factor: float | None) -> str:
         """Stage 0: the voltage factor in force from now on (1 unless measured and
-        plausible), as ``v^2`` and ``(v^2 - 1) W0``; returns its verdict (`czmpc.voltage`)."""
-        verdict = voltage_verdict(grid_voltage_factor)
-        v = float(grid_voltage_factor) if verdict is VALID else 1.0  # type: ignore[arg-type]
+        plausible; `czmpc.voltage.VoltageDeadband`), as ``v^2`` and ``(v^2 - 1) W0``;
+        returns the reading's verdict."""
+        v, verdict = self._voltage.take(grid_voltage_factor)
         self._v2 = v * v
         self._v_offset = (self._v2 - 1.0) * self._w0_abs
         return verdict

@@ -298,6 +298,7 @@ class VirtualHeater:
         self._temp_k = p.wall_temp_k
         self._true_power_kw = 0.0
         self._wander = 0.0
+        self._voltage = 1.0
         self._noise_rng = np.random.default_rng(0)
         self._wander_rng = np.random.default_rng(0)
         self.reset(rng)
@@ -318,8 +319,9 @@ class VirtualHeater:
         _, self._noise_rng, self._wander_rng = spawn_streams(rng)
         p = self.params
         self._wander = p.grid_wander_std * float(self._wander_rng.standard_normal())
+        self._voltage = 1.0 + self._wander
         self._true_power_kw, self._temp_k = steady_state(p.initial_triac_pct, p,
-                                                         grid_voltage_factor=1.0 + self._wander)
+                                                         grid_voltage_factor=self._voltage)
         return self._measure()
 
     def step(self, triac_pct: float, exogenous: Exogenous = NOMINAL) -> float:
@@ -344,7 +346,7 @@ class VirtualHeater:
         """
         _check_input(triac_pct, exogenous)
         p = self.params
-        v = exogenous.grid_voltage_factor * (1.0 + self._wander)
+        v = self._voltage = exogenous.grid_voltage_factor * (1.0 + self._wander)
         drive_kw = power_fraction(triac_pct, p) * v * v * p.rated_power_kw
         offset_kw = exogenous.power_offset_kw
         self._temp_k = self._integrate_temp(self._temp_k, drive_kw, offset_kw)
@@ -357,6 +359,12 @@ class VirtualHeater:
     def true_power_kw(self) -> float:
         """Noise-free heater power ``P`` [kW] at the latest sample."""
         return self._true_power_kw
+
+    @property
+    def grid_voltage_factor(self) -> float:
+        """Grid voltage relative to nominal [-] over the latest sample (the step's
+        `Exogenous` factor times the slow grid wander; after `reset`, the wander alone)."""
+        return self._voltage
 
     @property
     def element_temp_k(self) -> float:

@@ -4,14 +4,19 @@ One sample ``k`` (time ``t_k = k * ts_s``):
 
 1. the measured power ``y_k`` gets the sensor faults (NaN while missing, plus any
    spike) and goes with the setpoint ``r_k`` to ``controller.step`` (timed with
-   `time.perf_counter`);
+   `time.perf_counter`); if the scenario says so, also the setpoints of the next
+   ``Scenario.preview_steps`` samples (``setpoint_preview_kw``, fewer at the run's end)
+   and the grid voltage factor measured over the last sample (``grid_voltage_factor``:
+   the plant's own ``grid_voltage_factor`` if it has one, else the scenario's, plus
+   sensor noise of `VOLTAGE_SENSOR_NOISE_STD`);
 2. the returned input ``s_k`` goes to ``plant.step`` with sample ``k``'s `Exogenous`
    value, acting over ``[t_k, t_{k+1})``; it returns ``y_{k+1}``;
 3. the runner records ``t_k``, ``r_k``, the measurement as delivered, the true power at
    ``t_k``, ``s_k``, the step time and the controller's ``last_step`` (if any).
 
 One seed is split (`numpy.random.SeedSequence.spawn`) into independent plant-noise and
-sensor-fault streams, so adding a fault does not change the noise.
+sensor-fault streams, so adding a fault does not change the noise; the voltage sensor's
+noise is drawn from the fault stream after the faults, so it changes neither.
 """
 
 from __future__ import annotations
@@ -42,6 +47,11 @@ CSV_COLUMNS = (
 STATUS_COLUMNS = ("mode", "status", "solver_status", "fallback")
 
 ProgressCallback = Callable[[int, int], None]
+
+#: Standard deviation [-] of the measured grid voltage factor's noise: 0.1 % of nominal,
+#: the repeatability of a thyristor power unit's line-voltage reading (its 0.5-1 %
+#: accuracy class is mostly a steady bias, which the controller's disturbance removes).
+VOLTAGE_SENSOR_NOISE_STD = 1e-4
 
 
 def _readonly(values: object, name: str, n: int) -> FloatArray:
@@ -210,6 +220,7 @@ def run_closed_loop(
     *,
     rng: np.random.Generator | int | None = None,
     progress: ProgressCallback | None = None,
+    voltage_noise_std: float = VOLTAGE_SENSOR_NOISE_STD,
 ) -> ClosedLoopResult:
     """Run ``controller`` on ``plant`` through ``scenario`` and record every sample.
 
@@ -227,6 +238,9 @@ def run_closed_loop(
         Seed of the run: split into independent plant-noise and fault streams.
     progress :
         Called as ``progress(samples_done, n_steps)`` about every 1 % and at the end.
+    voltage_noise_std :
+        Noise of the measured voltage factor [-] when the scenario's
+        ``measured_voltage`` is on (0 for a noise-free run).
 
     Returns
     -------
@@ -250,6 +264,15 @@ def run_closed_loop(
     missing = faults.missing.tolist()
     spikes = faults.spike_kw.tolist()
     has_diagnostics = hasattr(controller, "last_step")
+    preview_n = scenario.preview_steps
+    setpoint_arr = np.asarray(setpoints)
+    voltage_noise: list[float] = []
+    if scenario.measured_voltage:
+        if not (math.isfinite(voltage_noise_std) and voltage_noise_std >= 0):
+            raise SimError(f"run_closed_loop: voltage_noise_std must be finite and >= 0; "
+                           f"got {voltage_noise_std!r}")
+        voltage_noise = (fault_rng.standard_normal(n) * voltage_noise_std).tolist()
+    plant_voltage = isinstance(getattr(type(plant), "grid_voltage_factor", None), property)
 
     measured_rec = [math.nan] * n
     true_rec = [math.nan] * n
@@ -267,8 +290,19 @@ def run_closed_loop(
     nan = math.nan
     for k in range(n):
         measured = nan if missing[k] else y + spikes[k]
-        t0 = clock()
-        triac = controller_step(measured, setpoints[k])
+        if preview_n or voltage_noise:
+            extra: dict[str, object] = {}
+            if preview_n:
+                extra["setpoint_preview_kw"] = setpoint_arr[k + 1 : k + 1 + preview_n]
+            if voltage_noise:
+                volt = (plant.grid_voltage_factor if plant_voltage  # type: ignore[attr-defined]
+                        else exogenous[k - 1].grid_voltage_factor if k else 1.0)
+                extra["grid_voltage_factor"] = volt + voltage_noise[k]
+            t0 = clock()
+            triac = controller_step(measured, setpoints[k], **extra)
+        else:
+            t0 = clock()
+            triac = controller_step(measured, setpoints[k])
         t1 = clock()
         if not isfinite(triac):
             raise SimError(f"run_closed_loop: expected a finite TRIAC input [%] from the controller; "
@@ -290,5 +324,5 @@ def run_closed_loop(
                             diagnostics=tuple(diagnostics) if has_diagnostics else None)
 
 
-__all__ = ["CSV_COLUMNS", "STATUS_COLUMNS", "ClosedLoopResult", "ProgressCallback",
-           "run_closed_loop", "spawn_streams"]
+__all__ = ["CSV_COLUMNS", "STATUS_COLUMNS", "VOLTAGE_SENSOR_NOISE_STD", "ClosedLoopResult",
+           "ProgressCallback", "run_closed_loop", "spawn_streams"]

@@ -155,6 +155,7 @@ class ModelPlant:
         self._z: list[float] = []
         self._iz = 0
         self._true_kw = math.nan
+        self._voltage = 1.0
         self._e = 0.0
         self._y: list[float] = []
         self._w: list[float] = []
@@ -240,7 +241,7 @@ class ModelPlant:
         p_model = self._p_nom + y_det
         if p_model < 0.0:
             p_model = 0.0
-        factor = exogenous.grid_voltage_factor
+        factor = self._voltage = exogenous.grid_voltage_factor
         true_kw = factor * factor * p_model + exogenous.power_offset_kw
         if true_kw < 0.0:
             true_kw = 0.0
@@ -330,6 +331,11 @@ class ModelPlant:
     def true_power_kw(self) -> float:
         """Noise-free heater power [kW] at the latest sample (after exogenous effects)."""
         return self._true_kw
+
+    @property
+    def grid_voltage_factor(self) -> float:
+        """Grid voltage relative to nominal [-] of the latest sample (1 after `reset`)."""
+        return self._voltage
 
     @property
     def innovation_kw(self) -> float:

@@ -39,7 +39,12 @@ class Controller(Protocol):
     ts_s: float
 
     def step(self, power_kw: float, setpoint_kw: float) -> float:
-        """Return the TRIAC input [%] to apply now; ``power_kw`` may be NaN (missing)."""
+        """Return the TRIAC input [%] to apply now; ``power_kw`` may be NaN (missing).
+
+        A scenario with ``setpoint_preview_s`` or ``measured_voltage`` also passes the
+        keywords ``setpoint_preview_kw`` (the next samples' setpoints [kW]) and
+        ``grid_voltage_factor`` (measured over the last sample [-]); a controller that
+        runs such scenarios takes them."""
         ...
 
     def reset(self) -> None:

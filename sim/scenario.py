@@ -12,6 +12,10 @@ times are seconds from the start of the run. Scenarios ship as TOML files in
     initial_setpoint_kw = 45.0         # required: setpoint before the first change
     initial_triac_pct = 45.0           # optional: plant starts in steady state here
                                        # (absent: at the input that gives the setpoint)
+    setpoint_preview_s = 0.0           # how far ahead the controller is told the
+                                       # setpoint [s], default 0 (no preview)
+    measured_voltage = false           # the controller is given the grid voltage
+                                       # factor each sample, default false
     [limits]                           # limits the metrics check the input against
     triac_min_pct = 0.0                # default 0
     triac_max_pct = 100.0              # default 100
@@ -221,6 +225,12 @@ class Scenario:
         ``(min, max)`` TRIAC input the metrics check against [%].
     max_move_pct_per_step :
         Largest input move per sample the metrics check against [%]; None: no limit.
+    setpoint_preview_s :
+        How far ahead [s] the controller is told the setpoint (`sim.loop`): the
+        setpoints of the next ``round(setpoint_preview_s / ts_s)`` samples; 0: none.
+    measured_voltage :
+        Whether the controller is given the grid voltage factor measured over each
+        sample (`sim.loop`).
     source :
         File it was read from, or ``"<memory>"``.
 
@@ -243,6 +253,8 @@ class Scenario:
     plant_noise: bool = True
     triac_limits_pct: tuple[float, float] = (0.0, 100.0)
     max_move_pct_per_step: float | None = None
+    setpoint_preview_s: float = 0.0
+    measured_voltage: bool = False
     source: str = field(default="<memory>", compare=False)
 
     def __post_init__(self) -> None:
@@ -280,6 +292,14 @@ class Scenario:
                 _finite(self.max_move_pct_per_step, "Scenario.max_move_pct_per_step",
                         positive=True),
             )
+        preview_s = _finite(self.setpoint_preview_s, "Scenario.setpoint_preview_s")
+        if preview_s < 0:
+            raise ScenarioError(f"Scenario.setpoint_preview_s: expected a time >= 0 [s]; got {preview_s:g}")
+        _bounded_time(preview_s, "Scenario.setpoint_preview_s")
+        object.__setattr__(self, "setpoint_preview_s", preview_s)
+        if not isinstance(self.measured_voltage, bool):
+            raise ScenarioError(f"Scenario.measured_voltage: expected true or false; got "
+                                f"{self.measured_voltage!r}")
         self._check_setpoints()
         for event in (*self.disturbances, *self.faults):
             for key, bounded in (("at_s", _bounded_time), ("start_s", _bounded_time),
@@ -322,6 +342,11 @@ class Scenario:
     def n_steps(self) -> int:
         """Number of samples in the run."""
         return round(self.duration_s / self.ts_s)
+
+    @property
+    def preview_steps(self) -> int:
+        """Samples ahead the controller is told the setpoint: ``round(setpoint_preview_s / ts_s)``."""
+        return round(self.setpoint_preview_s / self.ts_s)
 
     def time_s(self) -> FloatArray:
         """Sample times ``k * ts_s`` [s], shape ``(n_steps,)``."""
@@ -396,7 +421,7 @@ _TOP_KEYS: dict[str, str] = {
     "name": "string", "description": "string", "duration_s": _NUM, "ts_s": _NUM,
     "plant_noise": "boolean", "initial_setpoint_kw": _NUM, "initial_triac_pct": _NUM,
     "limits": "table", "setpoint": "array of tables", "disturbance": "array of tables",
-    "fault": "array of tables",
+    "fault": "array of tables", "setpoint_preview_s": _NUM, "measured_voltage": "boolean",
 }
 _TOP_REQUIRED = ("name", "duration_s", "initial_setpoint_kw")
 _LIMIT_KEYS = ("triac_min_pct", "triac_max_pct", "max_move_pct_per_step")
@@ -515,7 +540,9 @@ def scenario_from_dict(doc: Mapping[str, Any], *, source: str = "<memory>") -> S
                         disturbances=tuple(_events(doc, "disturbance", src)),
                         faults=tuple(_events(doc, "fault", src)), plant_noise=top.get("plant_noise", True),
                         triac_limits_pct=(lim.get("triac_min_pct", 0.0), lim.get("triac_max_pct", 100.0)),
-                        max_move_pct_per_step=lim.get("max_move_pct_per_step"), source=src)
+                        max_move_pct_per_step=lim.get("max_move_pct_per_step"),
+                        setpoint_preview_s=top.get("setpoint_preview_s", 0.0),
+                        measured_voltage=top.get("measured_voltage", False), source=src)
     except ScenarioError as exc:
         message = str(exc)
         if message.startswith(src):

@@ -25,8 +25,10 @@ from czmpc.campaigns.simulation import (
     run_simulation,
 )
 from czmpc.errors import CzmpcError
+from czmpc.inversion import build_input_map
 from czmpc.pid.controller import ScheduledPID, TableSchedule
 from czmpc.settings import MPCSettings
+from czmpc.voltage import VoltageCharacterizer, absolute_drive_kw
 from sim.scenario import Scenario
 from sysid.model import HammersteinModel
 
@@ -34,15 +36,26 @@ from sysid.model import HammersteinModel
 COMPARED = ("pi_table", "mpc", "pi_fixed")
 
 
-def table_pi_factory(name: str, schedule: TableSchedule, ts_s: float) -> ControllerFactory:
-    """A `run_simulation` controller factory running ``schedule`` with the run's limits."""
+def table_pi_factory(name: str, schedule: TableSchedule, model: HammersteinModel
+                     ) -> ControllerFactory:
+    """A `run_simulation` controller factory running ``schedule`` with the run's limits.
+
+    The PI gets ``model``'s voltage characterizer (`czmpc.voltage.VoltageCharacterizer`), so
+    in a scenario with ``measured_voltage`` it divides the drive by ``v^2`` as the MPC does.
+    """
     def build(settings: MPCSettings, allowed: tuple[float, float]) -> ScheduledPID:
         if settings.initial_triac_pct is None:  # run_simulation always completes it
             raise CzmpcError(f"{name}: expected settings with initial_triac_pct; got None")
-        return ScheduledPID(schedule=schedule, ts_s=ts_s,
+        input_map = build_input_map(model, triac_min_pct=settings.triac_min_pct,
+                                    triac_max_pct=settings.triac_max_pct,
+                                    validity_margin_pct=settings.validity_margin_pct)
+        characterizer = VoltageCharacterizer(input_map=input_map, w0_kw=absolute_drive_kw(
+            model.operating_point.power_kw, model.linear_static_gain))
+        return ScheduledPID(schedule=schedule, ts_s=model.ts_s,
                             initial_triac_pct=settings.initial_triac_pct,
                             triac_limits_pct=allowed,
-                            max_move_pct_per_step=settings.max_move_pct_per_step)
+                            max_move_pct_per_step=settings.max_move_pct_per_step,
+                            voltage_characterizer=characterizer)
     return name, build
 
 
@@ -95,10 +108,10 @@ def compare_pid_table(
     scenario, plant, seed, noise, settings :
         As `czmpc.campaigns.simulation.run_simulation`.
     """
-    factories = {"pi_table": table_pi_factory("pi_table", schedule, model.ts_s),
+    factories = {"pi_table": table_pi_factory("pi_table", schedule, model),
                  "mpc": None,
                  "pi_fixed": table_pi_factory("pi_fixed", fixed_at_operating_point(
-                     schedule, model), model.ts_s)}
+                     schedule, model), model)}
     outcomes = {name: run_simulation(model, scenario, plant=plant, seed=seed, settings=settings,
                                      noise=noise, controller_factory=factory)
                 for name, factory in factories.items()}

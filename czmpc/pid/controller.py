@@ -34,6 +34,7 @@ import numpy as np
 
 from czmpc.pid.errors import PIDTuningError
 from czmpc.pid.rules import PIDTuning
+from czmpc.voltage import VoltageCharacterizer, VoltageDeadband
 from sysid._typing import FloatArray
 
 
@@ -141,6 +142,12 @@ class ScheduledPID:
         True (default): a gain change acts only on changes of the error (module notes).
         False: the new gain acts on the whole proportional term, ``Kc_k p_k - Kc_{k-1}
         p_{k-1}``, the law the ``pi_gs`` benchmark peer was recorded with.
+    voltage_characterizer :
+        With a measured grid voltage (`step`'s ``grid_voltage_factor``), the law's output
+        is the input meant at nominal voltage and this maps it to the TRIAC input that
+        gives the same drive (`czmpc.voltage.VoltageCharacterizer`: divides the drive by
+        ``v^2``, as a DCS's characterizer would); limits act on the applied input.
+        None: the voltage is ignored.
 
     Raises
     ------
@@ -158,6 +165,7 @@ class ScheduledPID:
         triac_limits_pct: tuple[float, float] = (0.0, 100.0),
         max_move_pct_per_step: float | None = None,
         bumpless: bool = True,
+        voltage_characterizer: VoltageCharacterizer | None = None,
     ) -> None:
         if not (math.isfinite(ts_s) and ts_s > 0):
             raise PIDTuningError(f"ScheduledPID.ts_s: expected a time > 0 [s]; got {ts_s!r}")
@@ -179,16 +187,19 @@ class ScheduledPID:
         self.triac_limits_pct = (lo, hi)
         self.max_move_pct_per_step = max_move_pct_per_step
         self.bumpless = bumpless
+        self.voltage_characterizer = voltage_characterizer
         self.reset()
 
     def reset(self) -> None:
         """Forget all state: at rest at ``initial_triac_pct`` with zero error."""
-        self._last = self.initial_triac_pct
+        self._last = self.initial_triac_pct   # the law's last output, at nominal voltage [%]
+        self._applied = self.initial_triac_pct  # the TRIAC input last returned [%]
         self._p_prev = 0.0            # b r - y of the previous step [kW]
         self._d_prev = 0.0            # filtered -Td dy/dt of the previous step [kW]
         self._y_prev = math.nan       # previous measurement [kW]; NaN before the first
         self._integral_move = 0.0     # (Kc Ts/Ti e) of the previous step [%]
         self._kc_prev: float | None = None
+        self._voltage = VoltageDeadband()
         self._last_step: PIDStep | None = None
 
     @property
@@ -196,7 +207,9 @@ class ScheduledPID:
         """Diagnostics of the latest `step`, None before the first."""
         return self._last_step
 
-    def step(self, power_kw: float, setpoint_kw: float) -> float:
+    def step(self, power_kw: float, setpoint_kw: float, *,
+             setpoint_preview_kw: object = None,
+             grid_voltage_factor: float | None = None) -> float:
         """Return the TRIAC input [%] for this sample; a missing sample holds the input.
 
         Parameters
@@ -205,15 +218,23 @@ class ScheduledPID:
             Measured power [kW]; NaN (or inf) marks a missing sample.
         setpoint_kw :
             Desired power [kW]; a non-finite value holds the input.
+        setpoint_preview_kw :
+            Setpoints of the coming samples: a PID has no use for them (ignored).
+        grid_voltage_factor :
+            Grid voltage relative to nominal [-] measured over the last sample, used
+            through ``voltage_characterizer`` and `czmpc.voltage.VoltageDeadband`, as the
+            MPC uses it; None, missing or implausible: 1.
         """
         tuning = self.schedule.tuning_at(self._last)
         kc = tuning.kc_pct_per_kw
+        volt = (1.0 if self.voltage_characterizer is None
+                else self._voltage.take(grid_voltage_factor)[0])
         if not (math.isfinite(power_kw) and math.isfinite(setpoint_kw)):
             self._last_step = PIDStep(measurement_used=False, error_kw=math.nan,
                                       gain_pct_per_kw=kc, integral_time_s=tuning.ti_s,
-                                      unsaturated_pct=self._last, triac_pct=self._last,
+                                      unsaturated_pct=self._applied, triac_pct=self._applied,
                                       saturated=False)
-            return self._last
+            return self._applied
         error = setpoint_kw - power_kw
         p = tuning.setpoint_weight * setpoint_kw - power_kw
         d = 0.0
@@ -226,14 +247,20 @@ class ScheduledPID:
         else:
             move = kc * (p + d) - kc_prev * (self._p_prev + self._d_prev) + self._integral_move
         v = self._last + move
+        characterizer = self.voltage_characterizer
+        if characterizer is not None and volt != 1.0:
+            v = characterizer.applied_pct(v, volt)
         lo, hi = self.triac_limits_pct
         if self.max_move_pct_per_step is not None:
-            lo = max(lo, self._last - self.max_move_pct_per_step)
-            hi = min(hi, self._last + self.max_move_pct_per_step)
+            lo = max(lo, self._applied - self.max_move_pct_per_step)
+            hi = min(hi, self._applied + self.max_move_pct_per_step)
         u = lo if v < lo else hi if v > hi else v
         self._integral_move = kc * self.ts_s / tuning.ti_s * error
         self._p_prev, self._d_prev, self._y_prev, self._kc_prev = p, d, power_kw, kc
-        self._last = u
+        self._applied = u
+        # The law goes on from what the limits allowed, at nominal voltage: no windup.
+        self._last = (characterizer.nominal_pct(u, volt)
+                      if characterizer is not None and volt != 1.0 else u)
         self._last_step = PIDStep(measurement_used=True, error_kw=error, gain_pct_per_kw=kc,
                                   integral_time_s=tuning.ti_s, unsaturated_pct=v, triac_pct=u,
                                   saturated=u != v)

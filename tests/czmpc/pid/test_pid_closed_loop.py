@@ -34,7 +34,7 @@ def _run(model: HammersteinModel, schedule: TableSchedule, scenario: str,
          name: str) -> SimulationOutcome:
     return run_simulation(model, load_scenario(scenario).shortened(TIME_SCALE), plant="heater",
                           seed=7, noise=True,
-                          controller_factory=table_pi_factory(name, schedule, model.ts_s))
+                          controller_factory=table_pi_factory(name, schedule, model))
 
 
 @pytest.mark.parametrize("scenario", ["staircase", "meltdown_ramp"])
