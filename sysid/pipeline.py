@@ -61,6 +61,7 @@ from sysid.preprocess import (
     LEVEL_SHIFT_MAX_SPAN_SHARE,
     LEVEL_SHIFT_MIN_STD_ERRORS,
     OperatingPointChoice,
+    OutlierCandidate,
     OutlierReport,
     correct_level_shift,
     estimate_level_shift,
@@ -484,8 +485,14 @@ def _preprocess(
         skipped.append(f"outlier search skipped: {exc}")
         report = None
     repaired = data
+    candidates = () if report is None else report.candidates
+    if data.grid_voltage_factor is not None:   # the voltage's steps are not the sensor's
+        explained = [c for c in candidates if _voltage_explains(data, c)]
+        if explained:
+            skipped.append(_voltage_explained_note(explained))
+            candidates = tuple(c for c in candidates if c not in explained)
     if report is not None and repair_spikes:
-        for cand in report.candidates:
+        for cand in candidates:
             if cand.kind == "spike":
                 try:
                     repaired = interpolate_spike(repaired, sample=cand.sample)
@@ -498,7 +505,7 @@ def _preprocess(
     elif level_shift == "auto" and report is not None:
         span = float(np.ptp(data.power_kw))
         unproven: list[tuple[float, float]] = []     # (time [s], |shift| / standard error)
-        for cand in report.candidates:
+        for cand in candidates:
             if cand.kind != "level_shift":
                 continue
             try:
@@ -528,6 +535,43 @@ def _preprocess(
         if unproven:
             skipped.append(_unproven_shifts_note(unproven))
     return repaired, report
+
+
+#: An outlier candidate is the grid voltage's doing, not the sensor's, when the voltage's
+#: step over the event predicts at least this share of the output's jump, with its sign.
+VOLTAGE_EXPLAINS_SHARE = 0.5
+
+
+def _voltage_explains(data: Dataset, cand: OutlierCandidate) -> bool:
+    """True if the log's grid voltage steps with `cand` enough to explain its output jump.
+
+    The voltage over the event (sample .. min(last, sample + 2), the sample of largest
+    change) against the median of the 5 samples before, as `OutlierCandidate.output_jump_kw`
+    is measured; the drive goes with ``v^2``, so a step from ``v0`` to ``v1`` moves the
+    power at once by about ``((v1/v0)^2 - 1) P`` (``P`` the power before, ``B``'s first
+    coefficient 1 and a static gain near 1 taken for the unknown model).
+    """
+    v = data.grid_voltage_factor
+    if v is None or cand.output_jump_kw == 0.0:
+        return False
+    k = cand.sample
+    before = slice(max(k - 5, 0), k) if k > 0 else slice(0, 1)
+    v0 = float(np.median(v[before]))
+    p0 = float(np.median(data.power_kw[before]))
+    window = v[k : min(cand.last_sample, k + 2) + 1]
+    v1 = float(window[np.argmax(np.abs(window - v0))])
+    predicted = ((v1 / v0) ** 2 - 1.0) * p0
+    return bool(predicted * cand.output_jump_kw > 0.0
+                and abs(predicted) >= VOLTAGE_EXPLAINS_SHARE * abs(cand.output_jump_kw))
+
+
+def _voltage_explained_note(explained: list[OutlierCandidate]) -> str:
+    """One note for the outlier candidates the grid voltage explains (left as they are)."""
+    times = ", ".join(f"{c.time_s:g}" for c in explained[:5])
+    more = f" and {len(explained) - 5} more" if len(explained) > 5 else ""
+    return (f"outlier candidates at {times} s{more} not repaired: the grid voltage steps with "
+            f"each enough to explain at least {100 * VOLTAGE_EXPLAINS_SHARE:g} % of its output "
+            "jump (the drive goes with v^2); the voltage-compensated fits model them")
 
 
 def _unproven_shifts_note(unproven: list[tuple[float, float]]) -> str:

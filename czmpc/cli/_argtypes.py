@@ -104,10 +104,13 @@ percent_step = number(above=0.0, unit="%")
 
 #: The data contract's column names (docs/reference/data_file.rst).
 CONTRACT_COLUMNS = ("time_s", "triac_pct", "power_kw")
+#: The optional column a mapping may name too (`sysid.data.GRID_VOLTAGE_COLUMN`).
+OPTIONAL_COLUMNS = ("grid_voltage_factor",)
 
 
 def column_mapping(text: str) -> dict[str, str]:
-    """Parse ``time_s=NAME,triac_pct=NAME,power_kw=NAME`` (all three, each once)."""
+    """Parse ``time_s=NAME,triac_pct=NAME,power_kw=NAME`` (all three, each once), with an
+    optional ``grid_voltage_factor=NAME``."""
     mapping: dict[str, str] = {}
     for item in text.split(","):
         key, sep, name = (part.strip() for part in item.partition("="))
@@ -115,9 +118,10 @@ def column_mapping(text: str) -> dict[str, str]:
             raise argparse.ArgumentTypeError(
                 f"expected CONTRACT_NAME=FILE_NAME items separated by commas; got {item!r}"
             )
-        if key not in CONTRACT_COLUMNS:
+        if key not in CONTRACT_COLUMNS + OPTIONAL_COLUMNS:
             raise argparse.ArgumentTypeError(
-                f"expected a contract name in {list(CONTRACT_COLUMNS)}; got {key!r}"
+                f"expected a contract name in {list(CONTRACT_COLUMNS + OPTIONAL_COLUMNS)}; "
+                f"got {key!r}"
             )
         if key in mapping:
             raise argparse.ArgumentTypeError(f"{key!r} is mapped twice")
@@ -134,7 +138,9 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
         "--columns", metavar="time_s=NAME,triac_pct=NAME,power_kw=NAME", type=column_mapping,
         default=None,
         help="read a log of another rig: map each contract name to the file's column "
-             "(other columns are ignored)",
+             "(other columns are ignored; add grid_voltage_factor=NAME to read the grid "
+             "voltage / nominal from a column of another name: a column named "
+             "grid_voltage_factor is read without it)",
     )
     parser.add_argument(
         "--ts-s", metavar="X", type=positive_float, default=None,

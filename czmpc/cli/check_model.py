@@ -26,8 +26,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     """Add this command's options."""
     parser.add_argument("model", metavar="MODEL.json", type=Path, help="model file to check")
     parser.add_argument("--data", metavar="VALIDATION.csv", type=Path, default=None,
-                        help="held-out record (time_s,triac_pct,power_kw; the model's Ts) for "
-                             "the fit and residual checks (default: none, a condition)")
+                        help="held-out record (time_s,triac_pct,power_kw, optionally "
+                             "grid_voltage_factor, which drives a voltage-compensated model; "
+                             "the model's Ts) for the fit and residual checks (default: none, "
+                             "a condition)")
     _argtypes.add_log_options(parser)
     _argtypes.add_settings_options(parser)
     parser.add_argument("--mc-runs", metavar="N", type=_argtypes.non_negative_int, default=10,

@@ -31,6 +31,16 @@ at rest (sysid.criteria.start_at_rest), an output that clips (output_clipping) o
 that a sensor or logger holds for several samples (output_held) is a warning on stderr,
 in report.md and in model.json's provenance ("identifiability"), with exit 0.
 
+A log may carry an optional column grid_voltage_factor (grid voltage / nominal, finite,
+within 0.5..1.5; a column of another name is mapped with --columns ...,
+grid_voltage_factor=NAME). The heater's drive goes with the square of the voltage, so
+the Hammerstein PEM fits (OE block and noise model) then regress on the effective input
+w_eff = v^2 f(ds) + (v^2 - 1) W0, W0 = P_nom / G1 (G1 = B(1)/A(1)), refitting until W0
+moves by less than 1e-6 relative (10 refits at most); model.json's provenance
+("grid_voltage") says whether its model compensated the voltage, and the W0 used. The
+linear models, the structure selection and the OE from rest take no voltage (said in
+their provenance and the report). Without the column nothing changes.
+
 Every prediction-error search stops when V falls by less than 1e-6 relative over ten
 iterations (its budget follows progress), with a cap of 1000 iterations stated in the
 report. An intermediate model whose search hit the cap is reported (stderr and the
@@ -73,7 +83,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "data", metavar="DATA",
         help="logged data, CSV or Parquet: header time_s,triac_pct,power_kw (time [s], "
-             "TRIAC input s [%%], heater power P [kW]) or other names with --columns; time "
+             "TRIAC input s [%%], heater power P [kW]), optionally grid_voltage_factor "
+             "(grid voltage / nominal, compensated in the fits), or other names with "
+             "--columns; time "
              "in seconds or ISO-8601 stamps; NaN, gaps and jitter under --gaps/--resample",
     )
     parser.add_argument(
@@ -272,6 +284,8 @@ def identify_to_directory(
     notes: list[str] = []
     if data.n_segments > 1:
         notes.append(segments_note(data))
+    if data.grid_voltage_factor is not None:
+        notes.append(voltage_read_note(data.grid_voltage_factor))
     from sysid.criteria import output_clipping, output_held, start_at_rest
     from sysid.identifiability import (
         IdentifiabilityAssessment,
@@ -342,6 +356,15 @@ def identify_to_directory(
                            warnings=messages,
                            findings=findings_checklist(result), identifiability=judged,
                            notes=(*notes, *(f"skipped: {x}" for x in result.skipped)))
+
+
+def voltage_read_note(v: Any) -> str:
+    """A sentence saying the log carries the grid voltage ``v`` (an array), its range,
+    and what is done with it."""
+    return (f"the log carries grid_voltage_factor ({float(v.min()):.4g} .. {float(v.max()):.4g},"
+            f" mean {float(v.mean()):.4g}): the Hammerstein PEM fits compensate it (w_eff = "
+            "v^2 f(ds) + (v^2 - 1) W0); model.json's provenance 'grid_voltage' says whether "
+            "its model did, and the W0 used")
 
 
 def segments_note(data: Dataset) -> str:

@@ -1,8 +1,9 @@
 """Check a logged data file before identifying: size, sampling, ranges and input steps.
 
-Reads FILE.csv (header time_s,triac_pct,power_kw, or other names through --columns)
-and prints the number of samples, the duration, the sampling time, the ranges of the
-input and the output with their units, and every input step with the output's
+Reads FILE.csv (header time_s,triac_pct,power_kw, optionally grid_voltage_factor, or
+other names through --columns) and prints the number of samples, the duration, the
+sampling time, the ranges of the input and the output with their units (and of the grid
+voltage factor if the log carries it), and every input step with the output's
 immediate response and the instantaneous gain r (paper sec. 7.3, Table 3). A file that
 breaks the data contract is refused with its file name, line and column (exit code 2).
 """
@@ -53,6 +54,11 @@ def run(args: argparse.Namespace) -> int:
         f"sampling time:  {data.ts_s:g} s (every interval within {100 * data.sampling_rtol:g} %)",
         f"input range:    {data.triac_pct.min():g} to {data.triac_pct.max():g} {u_unit}",
         f"output range:   {data.power_kw.min():g} to {data.power_kw.max():g} {y_unit}",
+        *([] if data.grid_voltage_factor is None else [
+            f"grid voltage:   {data.grid_voltage_factor.min():.4g} to "
+            f"{data.grid_voltage_factor.max():.4g} x nominal (column "
+            f"{names.get('grid_voltage_factor', 'grid_voltage_factor')!r}; compensated by "
+            "identify)"]),
         f"input steps:    {len(steps)} larger than {threshold:g} {u_unit} "
         f"(output read {args.delay_steps} sample(s) after the step)",
     ]

@@ -782,7 +782,22 @@ def _final_section(result: PipelineResult, model_file: str, st: _Style) -> str:
     lines += ["", f"Linear-block static gain B(1)/A(1) = {model.linear_static_gain:.4g}; "
               f"instantaneous gain f'(0) = {float(model.input_nonlinearity_slope(0.0)):.4g} "
               f"{y}/{u}."]
+    lines += _voltage_line(extra.get("grid_voltage"), y)
     return "\n".join(lines)
+
+
+def _voltage_line(entry: Any, unit: str) -> list[str]:
+    """The report's line on grid-voltage compensation (none for a log without the column)."""
+    if not isinstance(entry, Mapping):
+        return []
+    if entry.get("compensated") is True:
+        return ["", f"Grid voltage compensated: the fit's input is w_eff = v^2 f(ds) + (v^2 - 1) "
+                f"W0 with W0 = P_nom / G1 = {_num(entry.get('nominal_drive_kw'), '.6g')} {unit}-"
+                f"equivalent ({entry.get('n_refits')} refit(s), W0 "
+                f"{'settled' if entry.get('settled') else 'NOT settled'} to "
+                f"{_num(entry.get('w0_rtol'), 'g')} relative)."]
+    return ["", f"Grid voltage NOT compensated although the log carries it: "
+            f"{entry.get('reason', 'no reason recorded')}."]
 
 
 def _findings_section(findings: Sequence[Finding], paper: bool = True) -> str:
