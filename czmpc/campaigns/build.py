@@ -2,7 +2,8 @@
 
 Plants (`build_plant`): the model (`sim.model_plant.ModelPlant`, started at the
 scenario's initial input), the virtual heater (`sim.heater.VirtualHeater`, grey-box
-physics), the model perturbed (`sim.perturbed.perturb_model`) or sampled
+physics), a plant of another kind (`sim.thermal_plant.ThermalPlant`, a furnace zone
+whose output is a temperature), the model perturbed (`sim.perturbed.perturb_model`) or sampled
 (`czmpc.campaigns.sampling.sample_plant`); the last three start in steady state for the
 initial setpoint, so a plant with another gain does not start with an error.
 
@@ -30,6 +31,8 @@ from sim.heater import steady_state as heater_steady_state
 from sim.model_plant import ModelPlant, steady_state_triac_pct
 from sim.protocols import Controller, Plant
 from sim.scenario import Scenario
+from sim.thermal_plant import ThermalParams, ThermalPlant, steady_state_degc
+from sim.thermal_plant import steady_state_triac_pct as thermal_steady_state_triac_pct
 from sysid.model import HammersteinModel
 
 #: Controller kinds and what they are.
@@ -167,7 +170,8 @@ def build_plant(kind: str, model: HammersteinModel, scenario: Scenario, *, noise
     Parameters
     ----------
     kind :
-        ``"model"`` (started as `ModelPlant.for_scenario` starts it), ``"heater"``, or
+        ``"model"`` (started as `ModelPlant.for_scenario` starts it), ``"heater"``,
+        ``"thermal"`` (the furnace zone; setpoints are temperatures [degC]), or
         ``"perturbed"`` / ``"sampled"``: a model plant of the perturbed or sampled
         ``model``, started at its own steady state for the initial setpoint.
     model :
@@ -175,7 +179,8 @@ def build_plant(kind: str, model: HammersteinModel, scenario: Scenario, *, noise
     scenario :
         Supplies the sampling time and the initial setpoint or input.
     noise :
-        Plant noise on (the model's ``C/A e``, the heater's sensor noise and grid wander).
+        Plant noise on (the model's ``C/A e``, the heater's sensor noise and grid wander,
+        the furnace's sensor noise; its sensor's quantisation stays on).
 
     Raises
     ------
@@ -189,6 +194,13 @@ def build_plant(kind: str, model: HammersteinModel, scenario: Scenario, *, noise
         s0 = heater_steady_state_triac_pct(scenario.initial_setpoint_kw, params)
         return (VirtualHeater(replace(params, initial_triac_pct=s0)), s0,
                 lambda s: float(heater_steady_state(s, params)[0]))
+    if kind == "thermal":
+        zone = ThermalParams(ts_s=scenario.ts_s)
+        if not noise:
+            zone = replace(zone, sensor_noise_std_degc=0.0)
+        s0 = thermal_steady_state_triac_pct(scenario.initial_setpoint_kw, zone)
+        return (ThermalPlant(replace(zone, initial_triac_pct=s0)), s0,
+                lambda s: steady_state_degc(s, zone))
     if kind in ("model", "perturbed", "sampled"):
         if kind == "model":
             s0 = ModelPlant.for_scenario(model, scenario).initial_triac_pct
@@ -197,8 +209,8 @@ def build_plant(kind: str, model: HammersteinModel, scenario: Scenario, *, noise
                                         triac_limits_pct=scenario.triac_limits_pct)
         return (ModelPlant(model, noise=noise, initial_triac_pct=s0), s0,
                 lambda s: max(0.0, float(model.steady_state_power_kw(s))))
-    raise BuildError(f"build_plant: expected a plant among model, heater, perturbed, sampled; "
-                     f"got {kind!r}")
+    raise BuildError(f"build_plant: expected a plant among model, heater, thermal, perturbed, "
+                     f"sampled; got {kind!r}")
 
 
 def build_controller(

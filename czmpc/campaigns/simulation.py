@@ -1,7 +1,8 @@
 """run_simulation and write_outputs: one closed-loop run of the offset-free MPC, wired up.
 
 `czmpc simulate` and `czmpc demo` call it. The plant (``"model"``: the model's own
-difference equation, no mismatch; ``"heater"``: the virtual heater's grey-box physics)
+difference equation, no mismatch; ``"heater"``: the virtual heater's grey-box physics;
+``"thermal"``: a furnace zone, a plant of another kind, `sim.thermal_plant`)
 is built and started in steady state by `czmpc.campaigns.build.build_plant`, or varied
 and drifting (`sim.drift`). The controller's limits and start input are the plant's and
 the scenario's (`czmpc.campaigns.build.controller_settings`), so the metrics check it
@@ -47,6 +48,7 @@ ControllerFactory = tuple[str, Callable[[MPCSettings, tuple[float, float]], Cont
 PLANT_DESCRIPTIONS: dict[str, str] = {
     "model": "plant built from the identified model (no model mismatch)",
     "heater": "virtual CZ heater (grey-box physics: model mismatch)",
+    "thermal": "furnace zone, lags of 20 s and 140 s, 0.1 degC sensor (a plant of another kind)",
 }
 
 #: Files `write_outputs` writes into its directory.
@@ -62,7 +64,7 @@ class SimulationOutcome:
     Parameters
     ----------
     plant :
-        ``"model"`` or ``"heater"`` (see the module docstring).
+        ``"model"``, ``"heater"`` or ``"thermal"`` (see the module docstring).
     noise :
         Whether the plant's noise was on.
     seed :
@@ -209,6 +211,9 @@ def _build_plant(model: HammersteinModel, scenario: Scenario, plant: PlantKind,
     nominal, s0, _ = build_plant(plant, model, scenario, noise=noise)
     if variation is None or variation.is_nominal:
         return nominal, s0
+    if plant == "thermal":
+        raise SimError("run_simulation: the thermal plant has no variations (sim.drift varies the "
+                       f"model plant and the heater); got {variation!r}")
     if plant == "model":
         return vary_model_plant(model, variation, noise=noise, initial_triac_pct=s0), s0
     params = nominal.params if isinstance(nominal, VirtualHeater) else HeaterParams()
@@ -237,7 +242,8 @@ def run_simulation(
     scenario :
         Setpoints, disturbances, faults and duration; its ``ts_s`` must be the model's.
     plant :
-        ``"model"`` (`ModelPlant`, no mismatch) or ``"heater"`` (`VirtualHeater`).
+        ``"model"`` (`ModelPlant`, no mismatch), ``"heater"`` (`VirtualHeater`) or
+        ``"thermal"`` (`sim.thermal_plant.ThermalPlant`, for a model identified from it).
     seed :
         Seed of the plant noise and sensor faults (int >= 0); the same seed gives
         bit-identical runs.
@@ -272,7 +278,7 @@ def run_simulation(
         No sound controller from ``model`` and the (completed) settings.
     """
     if plant not in get_args(PlantKind):
-        raise SimError(f"run_simulation: expected plant 'model' or 'heater'; got {plant!r}")
+        raise SimError(f"run_simulation: expected plant 'model', 'heater' or 'thermal'; got {plant!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SimError(f"run_simulation: expected an int seed >= 0; got {seed!r}")
     model.check_ts(scenario.ts_s, what=f"scenario '{scenario.name}'")

@@ -27,7 +27,10 @@ controller rightly rejects, which moves the noise-free power.
 
 Plants: 'model' runs the model's own difference equation (no model mismatch) from the
 scenario's initial input; 'heater' runs the virtual CZ heater (grey-box physics: model
-mismatch) from the input whose steady power is the initial setpoint.
+mismatch) from the input whose steady power is the initial setpoint; 'thermal' runs a
+furnace zone (sim.thermal_plant: lags of 20 s and 140 s, a 0.1 degC sensor; its output,
+a temperature, takes the power's place) from the input whose steady temperature is the
+initial setpoint, for a model identified from it (tools/regenerate_thermal_model.py).
 
 Shipped scenarios: staircase, level_shift, voltage_sag, large_step, meltdown_ramp,
 missing_samples, combined.
@@ -82,9 +85,11 @@ def register(parser: argparse.ArgumentParser) -> None:
         help="shipped scenario name (see above) or a scenario TOML file",
     )
     parser.add_argument(
-        "--plant", choices=("model", "heater"), default="model",
+        "--plant", choices=("model", "heater", "thermal"), default="model",
         help="'model': the model's own equation (no mismatch); 'heater': the virtual CZ "
-             "heater (model mismatch) (default: model)",
+             "heater (model mismatch); 'thermal': a furnace zone, a plant of another kind "
+             "(setpoints in degC; its model: tests/data/models/thermal_model.json) "
+             "(default: model)",
     )
     parser.add_argument(
         "--seed", metavar="N", type=_argtypes.seed, default=0,

@@ -1,0 +1,115 @@
+"""MPCSettings.default_for holds on a plant of another kind (issue 40 item 5).
+
+The furnace zone (`sim.thermal_plant`, model tests/data/models/thermal_model.json
+identified by czmpc identify from a design-test signal) against the CZ heater's models:
+the defaults follow each model's dynamics, the heater's stay as they were, and on the
+furnace the default MPC is offset-free and not behind the default scheduled PI
+(``tune-pid --rule ms --ms 1.4``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.signal import lfilter
+
+from czmpc.campaigns.simulation import SimulationOutcome, run_simulation
+from czmpc.controller import OffsetFreeMPC
+from czmpc.inversion import allowed_triac_range
+from czmpc.pid.controller import ScheduledPID, TableSchedule
+from czmpc.pid.design import DesignSpec
+from czmpc.pid.schedule import tune_schedule
+from czmpc.settings import (
+    DEFAULT_INPUT_TARGET_WEIGHT,
+    DEFAULT_MOVE_WEIGHT,
+    MPCSettings,
+    immediate_fraction,
+    step_response_scale,
+)
+from czmpc.shipped import ARMAX_MODEL_JSON, HAMMERSTEIN_MODEL_JSON, shipped_path
+from sim.scenario import load_scenario
+from sim.thermal_plant import ThermalParams
+from sysid.model import HammersteinModel
+from sysid.modelfile import load_model
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+THERMAL_MODEL = DATA / "models" / "thermal_model.json"
+THERMAL_SCENARIO = DATA / "scenarios" / "thermal_steps.toml"
+
+
+@pytest.fixture(scope="module")
+def thermal() -> HammersteinModel:
+    return load_model(THERMAL_MODEL)
+
+
+@pytest.mark.parametrize(("name", "horizon"), [(HAMMERSTEIN_MODEL_JSON, 39), (ARMAX_MODEL_JSON, 60)])
+def test_the_heater_models_keep_their_defaults(name: str, horizon: int) -> None:
+    model = load_model(shipped_path(name))
+    settings = MPCSettings.default_for(model)
+    assert step_response_scale(model) == 1.0        # the power steps by 1 at once, then sags
+    assert immediate_fraction(model) == 1.0
+    assert (settings.horizon_steps, settings.move_weight, settings.input_target_weight,
+            settings.validity_margin_pct) == (horizon, 0.1, 0.01, 5.0)
+    assert settings.max_move_pct_per_step == pytest.approx(1.6)   # 5 % of 33..65 %
+
+
+def test_the_furnace_defaults_follow_its_lags(thermal: HammersteinModel) -> None:
+    settings = MPCSettings.default_for(thermal)
+    static_gain = float(np.sum(thermal.b) / np.sum(thermal.a))   # B(1)/A(1): the peak of a lagged rise
+    assert step_response_scale(thermal) == pytest.approx(static_gain, rel=1e-3)
+    assert static_gain == pytest.approx(1439.2, rel=1e-3)
+    first = lfilter(thermal.b, thermal.a, np.ones(2))[1]
+    assert immediate_fraction(thermal) == pytest.approx(first / static_gain, rel=1e-3)
+    assert settings.horizon_steps == 21                     # 0.3 x tau = 0.3 x 70 samples
+    assert settings.max_move_pct_per_step is None           # the lags filter a move
+    assert settings.move_weight == pytest.approx(DEFAULT_MOVE_WEIGHT * static_gain**2, rel=2e-3)
+    assert settings.input_target_weight == pytest.approx(
+        DEFAULT_INPUT_TARGET_WEIGHT * static_gain**2, rel=2e-3)
+    assert settings.validity_margin_pct == 5.0
+
+
+def test_presets_scale_their_weights_as_the_default_does(thermal: HammersteinModel) -> None:
+    default = MPCSettings.preset("default", thermal)
+    smooth = MPCSettings.preset("smooth", thermal)
+    aggressive = MPCSettings.preset("aggressive", thermal)
+    assert smooth.move_weight == pytest.approx(10.0 * default.move_weight)
+    assert aggressive.move_weight == pytest.approx(1e-3 * default.move_weight)
+
+
+def _default_pi_schedule(model: HammersteinModel) -> TableSchedule:
+    """The table `czmpc tune-pid MODEL --rule ms --ms 1.4` writes (its default range)."""
+    triac_range = allowed_triac_range(model, triac_min_pct=0.0, triac_max_pct=100.0,
+                                      validity_margin_pct=MPCSettings().validity_margin_pct)
+    spec = DesignSpec(rule="ms", ms=1.4)
+    return tune_schedule(model, spec, triac_range_pct=triac_range).table_schedule()
+
+
+def _run_pi(model: HammersteinModel, schedule: TableSchedule, *, full_range: bool) -> SimulationOutcome:
+    """The scheduled PI with the MPC's limits (as `simulate --controller` runs it) or alone."""
+    def build(settings: MPCSettings, allowed: tuple[float, float]) -> ScheduledPID:
+        assert settings.initial_triac_pct is not None
+        return ScheduledPID(schedule=schedule, ts_s=model.ts_s,
+                            initial_triac_pct=settings.initial_triac_pct,
+                            triac_limits_pct=(0.0, 100.0) if full_range else allowed,
+                            max_move_pct_per_step=None if full_range else settings.max_move_pct_per_step)
+    return run_simulation(model, load_scenario(THERMAL_SCENARIO), plant="thermal", seed=0,
+                          controller_factory=("pi", build))
+
+
+@pytest.mark.slow
+def test_default_mpc_is_offset_free_and_not_behind_the_default_pi(thermal: HammersteinModel) -> None:
+    scenario = load_scenario(THERMAL_SCENARIO)
+    mpc = run_simulation(thermal, scenario, plant="thermal", seed=0)
+    assert isinstance(OffsetFreeMPC(thermal), OffsetFreeMPC)   # every default builds
+    assert mpc.settings.horizon_steps == MPCSettings.default_for(thermal).horizon_steps
+    quantum = ThermalParams().sensor_quantum_degc
+    assert len(mpc.metrics.changes) == 3
+    for change in mpc.metrics.changes:
+        assert abs(change.steady_state_error_kw) < quantum, change
+    schedule = _default_pi_schedule(thermal)
+    for full_range in (False, True):
+        pi = _run_pi(thermal, schedule, full_range=full_range)
+        # measured at seed 0: MPC 8599 degC s; PI 9636 (MPC's limits), 9496 (0..100 %)
+        assert mpc.metrics.iae_kw_s <= pi.metrics.iae_kw_s, (full_range, pi.metrics.iae_kw_s)
