@@ -133,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
 def _serve(args: argparse.Namespace) -> int:
     """Check the security, build the plant and serve it until the duration or Ctrl-C."""
     from czmpc.runtime.security import check_serve_address, parse_server_security
-    from czmpc.runtime.served import NODE_TYPES, ServedPlant, ServeOptions
+    from czmpc.runtime.served import ARRAY_NODES, NODE_TYPES, ServedPlant, ServeOptions
     from czmpc.shipped import shipped_path
     from sim.drift import DriftingPlant, vary_heater, vary_model_plant
     from sim.heater import HeaterParams, VirtualHeater
@@ -182,9 +182,11 @@ def _serve(args: argparse.Namespace) -> int:
                            setpoint_preview_s=args.setpoint_preview_s)
     served = ServedPlant(plant, initial_triac_pct=initial, options=options, scenario=scenario,
                          seed=args.seed, log=lambda m: print(m, file=sys.stderr, flush=True))
+    types = ", ".join(f"{n} {t}{'[]' if n in ARRAY_NODES else ''}"
+                      for n, t in NODE_TYPES[args.node_types].items())
     print(f"serving the {args.plant} plant on {args.endpoint} (Ts {plant.ts_s:g} s, time scale "
           f"{args.time_scale:g}; {variation.describe()}; {args.node_types} node types: "
-          f"{', '.join(f'{n} {t}' for n, t in NODE_TYPES[args.node_types].items())}); security: "
+          f"{types}); security: "
           f"{'none (policy None, anonymous)' if security is None else security.describe()}; "
           f"{_history_words(options)}Ctrl-C stops", file=sys.stderr, flush=True)
     try:

@@ -516,4 +516,5 @@ async def _secure(server: Any, security: ServerSecurity, idx: int,
     server.set_certificate_validator(validate)
 
 
-__all__ = ["HISTORIZED_NODES", "NAMESPACE_URI", "NODE_TYPES", "ServeOptions", "ServedPlant"]
+__all__ = ["ARRAY_NODES", "HISTORIZED_NODES", "NAMESPACE_URI", "NODE_TYPES", "ServeOptions",
+           "ServedPlant"]

@@ -270,3 +270,23 @@ def test_the_check_wants_an_array_for_the_preview_and_a_scalar_for_the_voltage()
     volt_array, _ = check_node("grid_voltage_factor", SPECS["grid_voltage_factor"],
                                _attrs([0.97], 1), user=None)
     assert volt_array.code == "BadTypeMismatch"
+
+
+def test_the_guides_preview_config_passes_the_validator(tmp_path: Path) -> None:
+    """docs/guides/plant_link.rst section 9's addition to section 2's run config."""
+    import re
+    import tomllib
+
+    guide = (Path(__file__).parents[3] / "docs" / "guides" / "plant_link.rst").read_text(
+        encoding="utf-8")
+    blocks = re.findall(r"\.\. code-block:: toml\n(   :caption: [^\n]*\n)?\n((?:   [^\n]*\n|\n)+)",
+                        guide)
+    docs = [(caption, tomllib.loads("\n".join(line[3:] for line in body.splitlines())))
+            for caption, body in blocks]
+    base = next(doc for caption, doc in docs if not caption and "nodes" in doc)
+    (added,) = [doc for caption, doc in docs if "section 2" in caption]
+    from czmpc.runtime.config import run_config_from_dict
+
+    doc = {**base, "nodes": base["nodes"] | added["nodes"], "run": base["run"] | added["run"]}
+    cfg = run_config_from_dict(doc, base_dir=tmp_path)
+    assert cfg.preview_samples == 30 and cfg.nodes.grid_voltage_factor is not None

@@ -201,3 +201,43 @@ def test_a_served_voltage_sag_reaches_the_mpc_and_a_bad_value_is_missing(
     u = np.array([float(r["triac_pct"]) for r in rows])
     first = int(np.flatnonzero(sag)[0])
     assert u[first] - u[first - 1] > 1.0
+
+
+def test_the_cli_plant_and_run_pass_the_recipe_ahead_and_the_voltage(tmp_path: Path) -> None:
+    """`czmpc plant serve --scenario --setpoint-preview-s 10` and `czmpc run` with both nodes
+    as processes: the MPC is told the node's 5 samples ahead and the scenario's voltage."""
+    import subprocess
+    import sys
+
+    cli = [sys.executable, "-c", "import sys; from czmpc.cli import main; sys.exit(main())"]
+    (tmp_path / "sag.toml").write_text(
+        'name = "sag"\nduration_s = 2000\nplant_noise = false\ninitial_setpoint_kw = 45.0\n'
+        '[[setpoint]]\nkind = "ramp"\nstart_s = 0\nend_s = 1900\npower_kw = 47.0\n'
+        '[[disturbance]]\nkind = "voltage_step"\nat_s = 0\nfactor = 0.95\n', encoding="utf-8")
+    port = free_port()
+    nodes = served_nodes() | {k: SERVED_NODE_IDS[k]
+                              for k in ("setpoint_preview_kw", "grid_voltage_factor")}
+    (tmp_path / "run.toml").write_text(
+        f'[plant]\nendpoint = "opc.tcp://127.0.0.1:{port}/czmpc/"\nts_s = 2.0\n'
+        f"time_scale = {TIME_SCALE}\nmax_sample_age_s = 1.0\n[nodes]\n"
+        + "".join(f'{k} = "{v}"\n' for k, v in nodes.items())
+        + f'[controller]\nmodel = "{shipped_path("cz_heater_model.json")}"\n'
+        '[run]\nduration_s = 40.0\nlog = "run.csv"\n', encoding="utf-8")
+    server = subprocess.Popen(
+        [*cli, "plant", "serve", "--plant", "model", "--no-noise", "--scenario",
+         str(tmp_path / "sag.toml"), "--endpoint", f"opc.tcp://127.0.0.1:{port}/czmpc/",
+         "--time-scale", str(TIME_SCALE), "--duration-s", "2000", "--watchdog-s", "1000",
+         "--setpoint-preview-s", "10"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        run = subprocess.run([*cli, "run", str(tmp_path / "run.toml")], capture_output=True,
+                             timeout=60)
+        assert run.returncode == 0, run.stderr.decode()
+    finally:
+        if server.poll() is None:
+            server.kill()
+            server.wait(10)
+    good = [r for r in _rows(tmp_path / "run.csv") if r["quality"] == "good"]
+    assert len(good) >= 15
+    assert {r["preview_samples"] for r in good} == {"5"}
+    assert {r["voltage_verdict"] for r in good} == {"valid"}
+    assert {float(r["voltage_factor_used"]) for r in good} == {0.95}
