@@ -39,7 +39,7 @@ from sim.scenario import Scenario
 from sysid.atomic import atomic_write_text, file_sha256
 from sysid.model import HammersteinModel
 
-PlantKind = Literal["model", "heater"]
+PlantKind = Literal["model", "heater", "thermal"]
 #: A controller to run instead of the MPC: its name and how to build it from the completed
 #: settings and the allowed input range [%] (`run_simulation`).
 ControllerFactory = tuple[str, Callable[[MPCSettings, tuple[float, float]], Controller]]
