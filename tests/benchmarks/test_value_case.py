@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,7 +26,24 @@ from benchmarks.iae_bound import (
     scenario_iae_bound,
     symmetric_move_cuts,
 )
+from benchmarks.value_case import (
+    BOUND_RATIO_GOAL,
+    CONTROLLERS,
+    PREVIEW_S,
+    all_scenarios,
+    check_goals,
+    compute_bounds,
+    main,
+    plot_recipes,
+    recipe_scenarios,
+    run_case,
+    section_text,
+    tune_pid_table,
+    with_preview,
+    write_csvs,
+)
 from czmpc.campaigns.simulation import run_simulation
+from czmpc.pid.controller import TableSchedule
 from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
 from sim.loop import run_closed_loop
 from sim.metrics import compute_metrics
@@ -220,3 +238,92 @@ def test_no_controller_beats_the_bound(shipped_model: HammersteinModel) -> None:
     mpc = run_simulation(shipped_model, scenario, plant="model", seed=0, noise=False)
     assert mpc.metrics.iae_kw_s >= bound.iae_kw_s
     assert math.isfinite(bound.solve_time_s) and bound.n_variables == 3 * scenario.n_steps
+
+
+# --- the benchmark --------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def pid_schedule(tmp_path_factory: pytest.TempPathFactory) -> TableSchedule:
+    return tune_pid_table(shipped_path(HAMMERSTEIN_MODEL_JSON),
+                          tmp_path_factory.mktemp("value") / "pid")
+
+
+def _short_ramp() -> Scenario:
+    # The ramp recipe at a third of its length: 45 -> 60 kW over 200 s, hold, back down.
+    return next(s for s in recipe_scenarios() if s.name == "ramp_recipe").shortened(1 / 3)
+
+
+def test_recipes_are_what_the_benchmark_says() -> None:
+    ramp, stairs = (next(s for s in recipe_scenarios() if s.name == n)
+                    for n in ("ramp_recipe", "recipe_staircase"))
+    r = ramp.setpoint_profile_kw()
+    k = ramp.time_s()
+    assert r[k < 600].max() == 45.0 and r[(k >= 1200) & (k < 2400)].min() == 60.0
+    assert r[k >= 3000].max() == 45.0 and np.max(np.abs(np.diff(r))) == pytest.approx(15 / 300)
+    assert [c.power_kw for c in stairs.setpoints] == [50.0, 55.0, 60.0, 55.0, 50.0, 45.0]
+    shipped = {s.name for s in all_scenarios()}
+    assert {"ramp_recipe", "recipe_staircase", "staircase", "voltage_sag"} <= shipped
+
+
+def test_case_runs_the_four_controllers_with_what_each_is_given(
+        shipped_model: HammersteinModel, pid_schedule: TableSchedule) -> None:
+    rows = run_case(shipped_model, pid_schedule, _short_ramp(), plant="model", noise=False, seed=7)
+    assert [r.controller for r in rows] == list(CONTROLLERS)
+    by = {r.controller: r for r in rows}
+    # The preview lets the MPC start the ramp before it begins; without it, it lags.
+    assert by["mpc_preview"].iae_kw_s < 0.5 * by["mpc_today"].iae_kw_s
+    for r in rows:
+        assert r.result.scenario.name == "ramp_recipe-short"
+        assert r.input_travel_pct == pytest.approx(np.abs(np.diff(r.result.triac_pct)).sum())
+    assert by["mpc_preview"].result.scenario.setpoint_preview_s == PREVIEW_S
+    assert by["mpc_today"].result.scenario.setpoint_preview_s == 0.0
+
+
+def test_section_goals_csv_and_figure(shipped_model: HammersteinModel,
+                                      pid_schedule: TableSchedule, tmp_path: Path) -> None:
+    sag = load_scenario("voltage_sag").shortened(0.3)
+    rows = [*run_case(shipped_model, pid_schedule, _short_ramp(), plant="model", noise=False,
+                      seed=7),
+            *run_case(shipped_model, pid_schedule, sag, plant="model", noise=False, seed=7)]
+    bounds = compute_bounds(shipped_model, [_short_ramp(), sag], rows)
+    goals = check_goals(rows, bounds, shipped=[])
+    # Only the bound's goal applies to shortened runs, and only where no disturbance acts.
+    assert [g.where for g in goals] == ["ramp_recipe-short, model, noise off"]
+    assert goals[0].value == pytest.approx(bounds[0].ratio)
+    assert bounds[0].ratio >= 1.0 and bounds[1].ratio >= 1.0   # no controller beats the bound
+    runs_csv, bounds_csv = write_csvs(rows, bounds, tmp_path)
+    lines = runs_csv.read_text().splitlines()
+    assert lines[0].split(",")[:6] == ["scenario", "plant", "noise", "controller", "iae_kw_s",
+                                       "iae_ratio"]
+    assert len(lines) == 1 + len(rows) and len(bounds_csv.read_text().splitlines()) == 3
+    ref = next(r for r in rows if r.controller == "mpc_preview" and r.scenario == "ramp_recipe-short")
+    assert float(lines[1 + rows.index(ref)].split(",")[5]) == 1.0
+    body = section_text(rows, bounds, goals, command="python -m benchmarks.value_case", machine="m",
+                        date="2026-11-29", wall_time_s=1.0, seed=7, short=1 / 3)
+    assert "Command: `python -m benchmarks.value_case`" in body and "Date: 2026-11-29" in body
+    assert "(disturbances known to the bound)" in body
+    figure = plot_recipes(rows, tmp_path / "figure.png", scenarios=("ramp_recipe",), plant="model",
+                          noise=False)
+    assert figure is not None and figure.stat().st_size > 10_000
+
+
+@pytest.mark.xfail(strict=False, reason=(
+    "issue 40 goal not met yet: the MPC with 60 s preview reaches 1.29 x the LP bound on the "
+    "step recipe shortened x 1/3 (45.2 vs 35.0 kW s; 1.44 x on the full staircase)"))
+def test_preview_mpc_within_the_bound_goal_on_a_short_step_recipe(
+        shipped_model: HammersteinModel) -> None:
+    # Steps, not the ramp: a ramp within the rate limit can be tracked exactly (bound
+    # 0.08 kW s), so there the ratio measures residues of 0.005 kW, not the use of preview.
+    recipe = next(s for s in recipe_scenarios() if s.name == "recipe_staircase")
+    scenario = with_preview(recipe.shortened(1 / 3))
+    bound = scenario_iae_bound(shipped_model, scenario)
+    mpc = run_simulation(shipped_model, scenario, plant="model", seed=0, noise=False)
+    assert mpc.metrics.iae_kw_s >= bound.iae_kw_s
+    assert mpc.metrics.iae_kw_s <= BOUND_RATIO_GOAL * bound.iae_kw_s
+
+
+def test_command_line_refuses_bad_options(capsys: pytest.CaptureFixture[str]) -> None:
+    for argv in (["--plants", "oven"], ["--short", "2"], ["--scenarios", "nope"]):
+        with pytest.raises(SystemExit) as exc:
+            main(["--no-record", *argv])
+        assert exc.value.code == 2
+        assert "expected" in capsys.readouterr().err
