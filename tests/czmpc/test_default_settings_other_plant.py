@@ -16,6 +16,7 @@ import pytest
 from scipy.signal import lfilter
 
 from czmpc.campaigns.simulation import SimulationOutcome, run_simulation
+from czmpc.cli.settings import PROTECTION_COSTS, ProtectionCost
 from czmpc.controller import OffsetFreeMPC
 from czmpc.inversion import allowed_triac_range
 from czmpc.pid.controller import ScheduledPID, TableSchedule
@@ -113,3 +114,44 @@ def test_default_mpc_is_offset_free_and_not_behind_the_default_pi(thermal: Hamme
         pi = _run_pi(thermal, schedule, full_range=full_range)
         # measured at seed 0: MPC 8599 degC s; PI 9636 (MPC's limits), 9496 (0..100 %)
         assert mpc.metrics.iae_kw_s <= pi.metrics.iae_kw_s, (full_range, pi.metrics.iae_kw_s)
+
+
+def test_czmpc_settings_states_each_protection_and_its_cost(capsys: pytest.CaptureFixture[str]) -> None:
+    from czmpc.cli import main
+
+    assert main(["settings"]) == 0
+    heater = capsys.readouterr().out
+    assert "# max_move_pct_per_step = 1.6 by default: a move reaches this model's output at once" in heater
+    assert "# validity_margin_pct = 5 by default: the input stays within 28..70 %" in heater
+    assert "scenario 'staircase' on the heater plant" in heater
+    assert "scenario 'large_step' on the heater plant" in heater
+    assert main(["settings", "--model", str(THERMAL_MODEL)]) == 0
+    furnace = capsys.readouterr().out
+    assert "# max_move_pct_per_step: no rate limit by default" in furnace
+    assert "max_move_pct_per_step = \"off\"" in furnace
+    assert main(["settings", "--no-comments"]) == 0
+    assert "protect" not in capsys.readouterr().out
+
+
+def _iae(cost: ProtectionCost, *, protected: bool) -> float:
+    """Re-run one `PROTECTION_COSTS` entry's closed loop with or without its protection."""
+    root = DATA.parents[1]
+    model = load_model(root / cost.model)
+    scenario = load_scenario(cost.scenario if "/" not in cost.scenario else root / cost.scenario)
+    settings = MPCSettings.default_for(model)
+    if not protected:
+        off: dict[str, object] = {"max_move_pct_per_step": None, "validity_margin_pct": 100.0}
+        settings = settings.with_updates(**{cost.setting: off[cost.setting]})
+    return run_simulation(model, scenario, plant=cost.plant, seed=0,  # type: ignore[arg-type]
+                          settings=settings).metrics.iae_kw_s
+
+
+#: The stated costs are measurements: a rerun gives them to this relative tolerance.
+STATED_COST_RTOL = 0.01
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cost", PROTECTION_COSTS, ids=lambda c: f"{c.setting}-{c.plant}")
+def test_the_stated_costs_are_measured(cost: ProtectionCost) -> None:
+    assert _iae(cost, protected=True) == pytest.approx(cost.iae_with, rel=STATED_COST_RTOL)
+    assert _iae(cost, protected=False) == pytest.approx(cost.iae_without, rel=STATED_COST_RTOL)
