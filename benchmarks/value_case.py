@@ -361,7 +361,7 @@ def write_csvs(rows: Sequence[RunRow], bounds: Sequence[BoundRow], out_dir: Path
 
 def plot_recipes(rows: Sequence[RunRow], path: Path, *, scenarios: Sequence[str] = (
         "staircase", "ramp_recipe"), plant: str = "heater", noise: bool = True) -> Path | None:
-    """Power [kW] and TRIAC [%] against time [s] of the four controllers on ``scenarios``.
+    """Power [kW], its error [kW] and TRIAC [%] against time [s] of the four controllers.
 
     Returns None (and writes nothing) when none of ``scenarios`` ran on ``plant``.
     """
@@ -372,10 +372,10 @@ def plot_recipes(rows: Sequence[RunRow], path: Path, *, scenarios: Sequence[str]
     present = [s for s in present if _find(rows, s, plant, noise, REFERENCE) is not None]
     if not present:
         return None
-    fig = new_figure((6.0 * len(present), 6.5))
-    axes = fig.subplots(2, len(present), sharex="col", squeeze=False)
+    fig = new_figure((6.0 * len(present), 8.5))
+    axes = fig.subplots(3, len(present), sharex="col", squeeze=False)
     for j, sc in enumerate(present):
-        ax_p, ax_s = axes[0, j], axes[1, j]
+        ax_p, ax_e, ax_s = axes[0, j], axes[1, j], axes[2, j]
         runs = [(c, r) for c, name in zip(PALETTE, CONTROLLERS, strict=False)
                 if (r := _find(rows, sc, plant, noise, name)) is not None]
         ax_p.plot(runs[0][1].result.time_s, runs[0][1].result.setpoint_kw, color="black",
@@ -384,12 +384,16 @@ def plot_recipes(rows: Sequence[RunRow], path: Path, *, scenarios: Sequence[str]
             name = r.controller
             ax_p.plot(r.result.time_s, r.result.power_true_kw, color=colour, linewidth=0.9,
                       label=f"{name} (IAE {r.iae_kw_s:.0f} kW s)")
+            ax_e.plot(r.result.time_s, r.result.power_true_kw - r.result.setpoint_kw,
+                      color=colour, linewidth=0.8, label=name)
             ax_s.plot(r.result.time_s, r.result.triac_pct, color=colour, linewidth=0.9, label=name)
         ax_p.set_title(f"{sc}: {plant} plant, noise {'on' if noise else 'off'}", fontsize="medium")
         ax_p.set_ylabel("power [kW]")
+        ax_e.set_ylabel("power - setpoint [kW]")
+        ax_e.set_ylim(-2.0, 2.0)
         ax_s.set_ylabel("TRIAC input [%]")
         ax_s.set_xlabel("time [s]")
-        for ax in (ax_p, ax_s):
+        for ax in (ax_p, ax_e, ax_s):
             ax.grid(True, linewidth=0.5, alpha=0.6)
         ax_p.legend(fontsize="small", loc="best")
     save_figure(fig, path)
