@@ -80,13 +80,17 @@ class DitheredMPC(MPCDriver):
         self.last_dither_pct = 0.0
 
     def step(self, power_kw: float, setpoint_kw: float, *,
-             applied_triac_pct: float | None = None) -> float:
-        """One MPC step plus the dither (ON only); the MPC learns the applied input."""
+             applied_triac_pct: float | None = None, setpoint_preview_kw: object = None,
+             grid_voltage_factor: float | None = None) -> float:
+        """One MPC step plus the dither (ON only); the MPC learns the applied input, and
+        is given the setpoint preview and the grid voltage (`OffsetFreeMPC.step`)."""
         applied = applied_triac_pct
         if (applied is None or not math.isfinite(applied)) and self.mpc.mode is Mode.ON \
                 and math.isfinite(self._last):
             applied = self._last
-        u = self.mpc.step(power_kw, setpoint_kw, applied_triac_pct=applied)
+        u = self.mpc.step(power_kw, setpoint_kw, applied_triac_pct=applied,
+                          setpoint_preview_kw=setpoint_preview_kw,
+                          grid_voltage_factor=grid_voltage_factor)
         if self.mpc.mode is not Mode.ON:
             self._last = math.nan
             self.last_dither_pct = 0.0

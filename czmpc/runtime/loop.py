@@ -97,7 +97,7 @@ def context_args_taken(ctrl: object) -> frozenset[str]:
     """Which of `CONTEXT_ARGS` the controller's ``step`` takes as keyword arguments.
 
     An open-loop test schedule takes neither (it plays its inputs whatever comes); the
-    MPC (`ContextMPCDriver`) takes both.
+    MPC (`MPCDriver`, `czmpc.commissioning.dither.DitheredMPC`) takes both.
     """
     try:
         params = inspect.signature(ctrl.step).parameters  # type: ignore[attr-defined]
@@ -143,9 +143,14 @@ class MPCDriver:
         return self.mpc.request_mode(mode)
 
     def step(self, power_kw: float, setpoint_kw: float, *,
-             applied_triac_pct: float | None = None) -> float:
-        """One MPC step."""
-        return self.mpc.step(power_kw, setpoint_kw, applied_triac_pct=applied_triac_pct)
+             applied_triac_pct: float | None = None,
+             setpoint_preview_kw: Sequence[float] | None = None,
+             grid_voltage_factor: float | None = None) -> float:
+        """One MPC step, told the coming setpoints and the grid voltage when the run has
+        them (`CONTEXT_ARGS`; None: not known)."""
+        return self.mpc.step(power_kw, setpoint_kw, applied_triac_pct=applied_triac_pct,
+                             setpoint_preview_kw=setpoint_preview_kw,
+                             grid_voltage_factor=grid_voltage_factor)
 
     def status_words(self) -> tuple[str, str]:
         """Status and measurement verdict of the last step."""
@@ -167,23 +172,6 @@ class MPCDriver:
     def abort_reason(self) -> str | None:
         """Never."""
         return None
-
-
-class ContextMPCDriver(MPCDriver):
-    """The MPC told the coming setpoints and the measured grid voltage (`CONTEXT_ARGS`):
-    what `ControlLoop` drives a plain `OffsetFreeMPC` with."""
-
-    def step(self, power_kw: float, setpoint_kw: float, *,
-             applied_triac_pct: float | None = None,
-             setpoint_preview_kw: Sequence[float] | None = None,
-             grid_voltage_factor: float | None = None) -> float:
-        """One MPC step; the preview and the voltage passed on when the run has them."""
-        extra: dict[str, Any] = {}
-        if setpoint_preview_kw is not None:
-            extra["setpoint_preview_kw"] = setpoint_preview_kw
-        if grid_voltage_factor is not None:
-            extra["grid_voltage_factor"] = grid_voltage_factor
-        return self.mpc.step(power_kw, setpoint_kw, applied_triac_pct=applied_triac_pct, **extra)
 
 
 @dataclass(slots=True)
@@ -313,8 +301,7 @@ class ControlLoop:
                  health_settings: HealthSettings | None = None,
                  provenance: Mapping[str, object] | None = None) -> None:
         self.config = config
-        self.ctrl: LoopController = (ContextMPCDriver(controller)
-                                     if isinstance(controller, OffsetFreeMPC)
+        self.ctrl: LoopController = (MPCDriver(controller) if isinstance(controller, OffsetFreeMPC)
                                      else controller)
         self._provenance = dict(provenance or {})
         self._bad_run = 0
@@ -996,5 +983,5 @@ def tty_status() -> Callable[[str], None] | None:
 
 
 __all__ = ["CONTEXT_ARGS", "MODE_CODES", "RECENT_PHASES", "RECENT_STEPS", "STATUS_CODES",
-           "ContextMPCDriver", "ControlLoop", "MPCDriver", "RunSummary", "StepTimes", "context_args_taken",
+           "ControlLoop", "MPCDriver", "RunSummary", "StepTimes", "context_args_taken",
            "tty_status"]

@@ -360,10 +360,11 @@ class ServedPlant:
                 good = good and not bool(self._faults.missing[self.k])
                 measured += float(self._faults.spike_kw[self.k])
                 await self._publish("PowerSetpoint", float(self._setpoints[self.k]))
-            # the voltage that acted over the sample just measured (the heater's own slow
-            # wander, `HeaterParams.grid_wander_std`, is not in it) and the coming setpoints,
-            # before the power: a read keyed to the power's timestamp finds them current
-            await self._publish("GridVoltage", float(exogenous.grid_voltage_factor))
+            # the voltage that acted over the sample just measured (a plant's own, with the
+            # heater's slow grid wander, where it has one) and the coming setpoints, before
+            # the power: a read keyed to the power's timestamp finds them current
+            await self._publish("GridVoltage", float(getattr(
+                self.plant, "grid_voltage_factor", exogenous.grid_voltage_factor)))
             await self._publish("SetpointPreview", self.setpoints_ahead_kw())
             await self._publish("Power", measured if good else 0.0, good=good)
             await self._publish("TriacApplied", self._triac_pct)
