@@ -6,7 +6,7 @@ Notation
 ``w = f(ds)`` [kW-equivalent] (paper eq. 28); ``z = [x; d]`` the augmented estimator
 state (`czmpc.kalman.Estimator`); ``eps`` [kW] the innovation.
 
-One step (``docs/theory.rst``, C3-C8), for measured ``P_k`` and setpoint ``P_ref``:
+One step (``docs/theory.rst``, C3-C9), for measured ``P_k`` and setpoint ``P_ref``:
 
 0. take the input actually applied over the last sample (``applied_triac_pct``) and the
    grid voltage measured over it (``grid_voltage_factor``, `czmpc.voltage`): the
