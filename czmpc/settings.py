@@ -45,8 +45,10 @@ RATE_LIMIT_MIN_IMMEDIATE_FRACTION = 0.5
 #: Weights of `MPCSettings` at a step-response scale of 1 [1/kW^2] (`default_for`).
 DEFAULT_MOVE_WEIGHT = 0.1
 DEFAULT_INPUT_TARGET_WEIGHT = 0.01
-#: Samples of the step response `step_response_scale` looks at, in slow time constants.
+#: Samples of the step response `step_response_scale` looks at, in slow time constants,
+#: and at most (a pole near 1: its static gain, which the peak includes, covers the tail).
 STEP_RESPONSE_SPAN_TAUS = 10.0
+MAX_STEP_RESPONSE_SAMPLES = 100_000
 
 
 def _check_finite(owner: str, name: str, value: object, *, minimum: float | None = None,
@@ -86,15 +88,21 @@ def _check_fields(obj: object, *, ints: dict[str, int] | None = None,
 def _unit_step_response(model: HammersteinModel) -> np.ndarray:
     """Output of ``B/A`` to a unit step of ``w`` from rest, over `STEP_RESPONSE_SPAN_TAUS`."""
     tau_steps = slowest_time_constant_samples(model.a)
-    n = len(model.b) + max(1, math.ceil(STEP_RESPONSE_SPAN_TAUS * tau_steps))
-    return np.asarray(lfilter(model.b, model.a, np.ones(n)), dtype=float)
+    span = min(MAX_STEP_RESPONSE_SAMPLES, max(1, math.ceil(STEP_RESPONSE_SPAN_TAUS * tau_steps)))
+    return np.asarray(lfilter(model.b, model.a, np.ones(len(model.b) + span)), dtype=float)
+
+
+def _peak(model: HammersteinModel, response: np.ndarray) -> float:
+    """Largest ``|response|``, the static gain ``|B(1)/A(1)|`` (the response's limit) included."""
+    return max(float(np.max(np.abs(response))), abs(float(np.sum(model.b) / np.sum(model.a))))
 
 
 def step_response_scale(model: HammersteinModel) -> float:
     """Largest ``|output change|`` a held unit step of ``w = f(ds)`` causes [kW per kW].
 
     The peak of ``B(q)/A(q)``'s unit-step response over `STEP_RESPONSE_SPAN_TAUS` slow
-    time constants; at least 1, since ``B``'s first nonzero coefficient is 1. The CZ
+    time constants (at most `MAX_STEP_RESPONSE_SAMPLES`) and its limit, the static gain;
+    at least 1, since ``B``'s first nonzero coefficient is 1. The CZ
     heater's power steps by 1 at once and sags (1.0); a furnace zone behind two lags
     rises to its static gain (1439 for tests/data/models/thermal_model.json).
 
@@ -103,7 +111,7 @@ def step_response_scale(model: HammersteinModel) -> float:
     model :
         A stable model.
     """
-    return float(np.max(np.abs(_unit_step_response(model))))
+    return _peak(model, _unit_step_response(model))
 
 
 def immediate_fraction(model: HammersteinModel) -> float:
@@ -119,7 +127,7 @@ def immediate_fraction(model: HammersteinModel) -> float:
     """
     response = _unit_step_response(model)
     first = int(np.flatnonzero(model.b)[0])
-    return float(abs(response[first]) / np.max(np.abs(response)))
+    return float(abs(response[first]) / _peak(model, response))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

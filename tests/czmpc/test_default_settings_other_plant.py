@@ -9,6 +9,8 @@ furnace the default MPC is offset-free and not behind the default scheduled PI
 
 from __future__ import annotations
 
+import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -69,6 +71,29 @@ def test_the_furnace_defaults_follow_its_lags(thermal: HammersteinModel) -> None
     assert settings.input_target_weight == pytest.approx(
         DEFAULT_INPUT_TARGET_WEIGHT * static_gain**2, rel=2e-3)
     assert settings.validity_margin_pct == 5.0
+
+
+def test_a_pole_near_one_is_scaled_by_its_static_gain(thermal: HammersteinModel) -> None:
+    slow = dataclasses.replace(thermal, a=np.array([1.0, -0.999999]))   # tau 1e6 samples
+    static_gain = float(np.sum(slow.b) / np.sum(slow.a))
+    assert step_response_scale(slow) == pytest.approx(static_gain, rel=1e-9)
+    assert MPCSettings.default_for(slow).max_move_pct_per_step is None
+
+
+def test_czmpc_simulate_runs_the_thermal_plant(tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    from czmpc.cli import main
+
+    assert main(["simulate", "--plant", "thermal", "--model", str(THERMAL_MODEL), "--scenario",
+                 str(THERMAL_SCENARIO), "--short", "0.2", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "furnace zone, lags of 20 s and 140 s, 0.1 degC sensor" in out
+    doc = json.loads((tmp_path / "metrics.json").read_text())
+    assert doc["plant"] == "thermal"
+    assert doc["controller_settings"]["max_move_pct_per_step"] is None
+    first = np.loadtxt(tmp_path / "trajectory.csv", delimiter=",", skiprows=1, max_rows=1,
+                       usecols=3)   # power_true_kw: the zone starts at the initial setpoint
+    assert float(first) == pytest.approx(250.0, abs=1e-9)
 
 
 def test_presets_scale_their_weights_as_the_default_does(thermal: HammersteinModel) -> None:
