@@ -35,6 +35,7 @@ import contextlib
 import csv
 import io
 import math
+import subprocess
 import sys
 import tempfile
 import time
@@ -538,8 +539,21 @@ def run_benchmark(args: argparse.Namespace, out_dir: Path,
     return tuple(rows), bounds, check_goals(rows, bounds, shipped)
 
 
+def code_version() -> str:
+    """The commit the benchmark ran on, and whether tracked files differed from it."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, check=True,
+                              capture_output=True, text=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                               check=True, capture_output=True, text=True).stdout.splitlines()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown (not a git checkout)"
+    return f"commit {head}" + (f" with uncommitted changes in {len(dirty)} files" if dirty else "")
+
+
 def _run(args: argparse.Namespace) -> int:
-    machine = machine_info().describe()
+    machine = machine_info().describe() + f"; code: {code_version()}"
     date = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
