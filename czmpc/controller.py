@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from dataclasses import replace
 
 import numpy as np
 
@@ -46,10 +47,10 @@ from czmpc.modes import Mode, ModeTransition, Status, transition
 from czmpc.qp import MPCQP, QPSolution
 from czmpc.realization import AugmentedModel, augment, innovations_form
 from czmpc.settings import MPCSettings
-from czmpc.supervision import LimitRamp, SetpointShaper, ShapedSetpoint
+from czmpc.supervision import LimitRamp, SetpointShaper, ShapedPreview, ShapedSetpoint
 from czmpc.target import SteadyStateMap, Target, compute_target, steady_state_map
 from czmpc.validation import MeasurementCheck, MeasurementChecker, Verdict
-from czmpc.voltage import NOT_MEASURED, VoltageDeadband, absolute_drive_kw
+from czmpc.voltage import VoltageDeadband, absolute_drive_kw
 from sysid._typing import FloatArray
 from sysid.model import HammersteinModel
 
@@ -58,10 +59,6 @@ CLAMP_TOL = 1e-6
 #: Tolerance [%] for "the applied input differs from the command".
 APPLIED_TOL_PCT = 1e-6
 
-
-#: A step without a preview.
-_NO_PREVIEW = np.empty(0)
-_NO_PREVIEW.flags.writeable = False
 
 #: Stage 3's decision: solution, first move [kW-equivalent], fallback, the first move's
 #: bounds [kW-equivalent], max_bad_solves reached. A plain tuple: a NamedTuple cost 0.3 us.
@@ -198,8 +195,12 @@ class OffsetFreeMPC:
         self._horizon = settings.horizon_steps
         self._w0_abs = absolute_drive_kw(self._p_nom, self._ssm.static_gain)
         self._voltage = VoltageDeadband()
-        self._trajectory = np.empty(settings.horizon_steps)  # r_{k+1..k+N} [kW], reused
-        self._y_offsets = np.empty(settings.horizon_steps - 1)
+        self._scaled: tuple[InputMap, float, InputMap] | None = None  # (map, v^2, v^2 f)
+        self._ref_cost = self._qp.reference_cost
+        self._ref = np.empty(2 * settings.horizon_steps - 1)     # [rho; sigma], reused
+        self._traj = np.empty(settings.horizon_steps + 2)         # [r_{k+1..k+N}; c_y; c_w]
+        self._traj_cost = self._ref_cost @ _trajectory_map(settings.horizon_steps,
+                                                             self._ssm.static_gain)
         self.reset()
 
     # --- public state -----------------------------------------------------------
@@ -415,9 +416,9 @@ class OffsetFreeMPC:
                 self._w_eff_assumed = w_eff
         self._limits.ramp()
         sp = self._shaper.shape(setpoint_kw)
-        preview = (_NO_PREVIEW if setpoint_preview_kw is None
+        preview = (None if setpoint_preview_kw is None
                    else self._shaper.preview(setpoint_preview_kw, self._horizon))
-        n_preview = preview.size
+        n_preview = 0 if preview is None else preview.values_kw.size
         if mode is Mode.OFF:
             return self._record_off(power, sp, transition_record, v_verdict, n_preview)
 
@@ -426,22 +427,24 @@ class OffsetFreeMPC:
         z, eps = est.z, est.eps
         d = float(z[self._n_x])
         em = self._limits.map
-        v2, v_off = self._v2, self._v_offset
-        if v_verdict is NOT_MEASURED:
-            w_min, w_max = em.w_min, em.w_max
+        v_off = self._v_offset
+        em_v = em if self._v2 == 1.0 else self._scaled_map(em)   # v^2 f: w_eff = em_v.f + v_off
+        w_min, w_max = em_v.w_min + v_off, em_v.w_max + v_off
+        q_offset: FloatArray | None
+        if preview is not None and n_preview:
+            tgt = compute_target(self._ssm, setpoint=float(preview.values_kw[-1]) - self._p_nom,
+                                 disturbance=d, w_min=w_min, w_max=w_max)
+            q_offset = self._reference_cost(preview, tgt, w_min, w_max)
         else:
-            w_min, w_max = v2 * em.w_min + v_off, v2 * em.w_max + v_off
-        r_end_kw = float(preview[-1]) if n_preview else sp.used_kw
-        tgt = compute_target(self._ssm, setpoint=r_end_kw - self._p_nom, disturbance=d,
-                             w_min=w_min, w_max=w_max)
-        offsets = (self._reference_offsets(preview, tgt, w_min, w_max) if n_preview
-                   else (None, None) if tgt.is_reachable
-                   else self._reference_offsets(np.array([sp.used_kw]), tgt, w_min, w_max))
+            tgt = compute_target(self._ssm, setpoint=sp.used_kw - self._p_nom, disturbance=d,
+                                 w_min=w_min, w_max=w_max)
+            q_offset = (None if tgt.is_reachable else self._reference_cost(
+                ShapedPreview(np.array([sp.used_kw]), sp.used_kw, sp.used_kw), tgt, w_min, w_max))
         ds_prev = self._ds_prev
-        plan = self._solve_or_fall_back(z, eps, tgt, em, offsets)
+        plan = self._solve_or_fall_back(z, eps, tgt, em, em_v, q_offset)
         sol, w0, fallback, _, _, solver_shed = plan
         measurement_shed = est.gap > self._rel.max_predicted_samples
-        ds, ds_raw = self._guard_input(w0, ds_prev, measurement_shed, tgt, em)
+        ds, ds_raw = self._guard_input(w0 - v_off, ds_prev, measurement_shed, tgt, em_v)
 
         if mode is Mode.ON:
             status = self._judge(used, plan, tgt, ds, ds_raw, applied_differs,
@@ -462,7 +465,7 @@ class OffsetFreeMPC:
             "setpoint_used_kw": sp.used_kw, "setpoint_held": verdict != "valid",
             "triac_pct": triac, "measurement_used": used, "innovation_kw": eps,
             "state_estimate": z, "disturbance_estimate": d, "disturbance_power_kw": d_power,
-            "target_w": tgt.w_s, "target_triac_pct": self._s_nom + em.inverse(self._nominal(tgt.w_s)),
+            "target_w": tgt.w_s, "target_triac_pct": self._s_nom + em_v.inverse(tgt.w_s - v_off),
             "target_power_kw": self._p_nom + tgt.y_s, "setpoint_reachable": tgt.is_reachable,
             "planned_w": sol.w, "solver_status": sol.status, "solve_time_s": sol.solve_time_s,
             "n_iterations": sol.n_iterations, "fallback": fallback,
@@ -475,7 +478,7 @@ class OffsetFreeMPC:
             "mismatch": self._monitor.update(eps if used else None, disturbance_kw=d_power),
             "transition": transition_record, "setpoint_verdict": verdict,
             "rolled_back_samples": rolled_back, "preview_samples": n_preview,
-            "voltage_factor_used": math.sqrt(v2), "voltage_verdict": v_verdict,
+            "voltage_factor_used": math.sqrt(self._v2), "voltage_verdict": v_verdict,
         })
         self._k += 1
         return triac
@@ -508,31 +511,46 @@ class OffsetFreeMPC:
         """The effective input ``v^2 w + (v^2 - 1) W0`` of nonlinearity output ``w`` now."""
         return w if self._v2 == 1.0 else self._v2 * w + self._v_offset
 
-    def _nominal(self, w_eff: float) -> float:
-        """The nonlinearity output whose effective input is ``w_eff`` now (`_effective`'s inverse)."""
-        return w_eff if self._v2 == 1.0 else (w_eff - self._v_offset) / self._v2
+    def _scaled_map(self, em: InputMap) -> InputMap:
+        """``v^2 f`` on ``em``'s range (kept while neither changes: the deadband holds ``v``)."""
+        v2 = self._v2
+        cached = self._scaled
+        if cached is None or cached[0] is not em or cached[1] != v2:
+            scaled = replace(em, coefficients=tuple(v2 * c for c in em.coefficients),
+                             w_min=v2 * em.w_min, w_max=v2 * em.w_max)
+            cached = self._scaled = (em, v2, scaled)
+        return cached[2]
 
-    def _reference_offsets(self, setpoints_kw: FloatArray, tgt: Target, w_min: float,
-                           w_max: float) -> tuple[FloatArray, FloatArray | None]:
-        """Stage 2: the QP's ``rho`` and ``sigma`` (`czmpc.qp.MPCQP.solve`) for the setpoints of
-        samples ``k+1, ...`` [kW], held past their end; ``tgt`` is the last one's target.
+    def _reference_cost(self, preview: ShapedPreview, tgt: Target, w_min: float,
+                        w_max: float) -> FloatArray:
+        """Stage 2: the QP's linear cost for the setpoints of samples ``k+1, ...`` [kW], held
+        past their end; ``tgt`` is the last one's target (`czmpc.qp.MPCQP.solve`'s
+        ``q_offset``; ``docs/theory.rst``, C8).
 
         The output references are the setpoints themselves, so a setpoint the target
         cannot reach pulls the output towards it, not towards the reachable target. The
-        input targets follow the setpoints through the static gain, within the bounds
-        (one entry: a constant setpoint, whose input targets are the target's: None).
+        input targets follow the setpoints through the static gain, clipped to the bounds.
+        Where none is clipped, the cost is one product with the trajectory.
         """
-        r = self._trajectory
-        n = setpoints_kw.size
-        r[:n] = setpoints_kw
-        r[n:] = setpoints_kw[-1]
-        y_off = self._y_offsets
-        np.subtract(r[:-1], self._p_nom + tgt.y_s, out=y_off)
-        if n == 1:
-            return y_off, None
-        w_off = np.clip(tgt.w_unclipped + (r - r[-1]) / self._ssm.static_gain, w_min, w_max)
-        w_off -= tgt.w_s
-        return y_off, w_off
+        n, n_values = self._horizon, preview.values_kw.size
+        traj = self._traj
+        traj[:n_values] = preview.values_kw
+        r_end = float(preview.values_kw[-1])
+        if n_values < n:
+            traj[n_values:n] = r_end
+        inv_g = 1.0 / self._ssm.static_gain
+        if (w_min <= tgt.w_unclipped + (preview.low_kw - r_end) * inv_g
+                and tgt.w_unclipped + (preview.high_kw - r_end) * inv_g <= w_max):
+            traj[n] = self._p_nom + tgt.y_s
+            traj[n + 1] = tgt.w_unclipped - tgt.w_s
+            out: FloatArray = self._traj_cost.dot(traj)
+            return out
+        ref = self._ref
+        np.subtract(traj[: n - 1], self._p_nom + tgt.y_s, out=ref[: n - 1])
+        sigma = np.clip(tgt.w_unclipped + (traj[:n] - r_end) * inv_g, w_min, w_max)
+        np.subtract(sigma, tgt.w_s, out=ref[n - 1 :])
+        cost: FloatArray = self._ref_cost.dot(ref)
+        return cost
 
     def _measurement_update(self, power: float) -> tuple[MeasurementCheck, bool, float, int]:
         """Stage 1: validity checks, then the measurement update with a valid sample only.
@@ -565,20 +583,28 @@ class OffsetFreeMPC:
         return check, used, std_kw, rolled_back
 
     def _solve_or_fall_back(self, z: FloatArray, eps: float, tgt: Target, em: InputMap,
-                            offsets: tuple[FloatArray | None, FloatArray | None]) -> _Plan:
-        """Stage 3: the QP, checked; on failure the shifted previous plan, then the target."""
+                            em_v: InputMap, q_offset: FloatArray | None) -> _Plan:
+        """Stage 3: the QP, checked; on failure the shifted previous plan, then the target.
+
+        ``em_v`` is ``v^2 f`` (``em`` itself at ``v = 1``): the plan is of ``w_eff =
+        em_v.f + (v^2 - 1) W0`` (`czmpc.voltage`)."""
         ds_prev = self._ds_prev
         ds_base = clamp(ds_prev, em.ds_min_pct, em.ds_max_pct)
-        w_base = self._effective(self._w_prev if ds_base == ds_prev else em.f(ds_base))
+        v_off = self._v_offset
+        w_base = (self._effective(self._w_prev) if ds_base == ds_prev
+                  else em_v.f(ds_base) + v_off if v_off else em_v.f(ds_base))
         h_in = self._h_in
         self._h_in_z[...] = z
         self._h_in_xs[...] = tgt.x_s
         h_in[-1] = eps
-        w_lo, w_hi, rate = self._bounds.compute(em, ds_base, self._v2, self._v_offset)
+        w_lo, w_hi, rate = self._bounds.compute(em_v, ds_base)
+        if v_off:
+            w_lo += v_off
+            w_hi += v_off
         sol: QPSolution = self._qp.solve(
             h_terms=h_in, w_prev=w_base, w_target=tgt.w_s, y_target=tgt.y_s, w_lo=w_lo,
             w_hi=w_hi, rate=rate, soft_min_rel_kw=self._soft_min_rel,
-            soft_max_rel_kw=self._soft_max_rel, y_offsets=offsets[0], w_offsets=offsets[1],
+            soft_max_rel_kw=self._soft_max_rel, q_offset=q_offset,
         )
         fallback: Fallback
         if sol.is_usable:
@@ -606,7 +632,8 @@ class OffsetFreeMPC:
 
     def _guard_input(self, w0: float, ds_prev: float, measurement_shed: bool, tgt: Target,
                      em: InputMap) -> tuple[float, float]:
-        """Stage 4: invert ``w0``, or take the safe input when shed, then guard rate and limits.
+        """Stage 4: invert ``w0`` (less the voltage's offset; ``em`` is ``v^2 f``), or take the
+        safe input when shed, then guard rate and limits.
 
         The safe input is ``shed_triac_pct``, else the target (from the last trusted
         estimate). Returns the guarded input and the one asked for [%, deviation].
@@ -616,9 +643,10 @@ class OffsetFreeMPC:
         else:
             r_lo, r_hi = -math.inf, math.inf
         if measurement_shed:
-            ds_raw = em.inverse(self._nominal(tgt.w_s)) if self._shed_ds is None else self._shed_ds
+            ds_raw = (em.inverse(tgt.w_s - self._v_offset) if self._shed_ds is None
+                      else self._shed_ds)
         else:
-            ds_raw = em.inverse(self._nominal(w0))
+            ds_raw = em.inverse(w0)
             if not math.isfinite(ds_raw):
                 ds_raw = ds_prev
         return clamp(clamp(ds_raw, r_lo, r_hi), em.ds_min_pct, em.ds_max_pct), ds_raw
@@ -668,6 +696,21 @@ class OffsetFreeMPC:
         })
         self._k += 1
         return triac
+
+
+def _trajectory_map(horizon_steps: int, static_gain: float) -> FloatArray:
+    """(2N-1, N+2) ``T`` with ``[rho; sigma] = T [r_{k+1..k+N}; c_y; c_w]`` when no input
+    target is clipped: ``rho_j = r_{k+j} - c_y`` (``j = 1..N-1``) and ``sigma_j =
+    (r_{k+j+1} - r_{k+N}) / g + c_w`` (``j = 0..N-1``), ``c_y = P_nom + y_s``,
+    ``c_w = w_unclipped - w_s`` (`OffsetFreeMPC._reference_cost`)."""
+    n = horizon_steps
+    t = np.zeros((2 * n - 1, n + 2))
+    t[: n - 1, : n - 1] = np.eye(n - 1)
+    t[: n - 1, n] = -1.0
+    t[n - 1 :, :n] = np.eye(n) / static_gain
+    t[n - 1 :, n - 1] -= 1.0 / static_gain
+    t[n - 1 :, n + 1] = 1.0
+    return t
 
 
 def _check_static_gain(model: HammersteinModel, gain: float, input_map: InputMap) -> None:

@@ -276,8 +276,8 @@ class MoveBounds:
         self._c0 = np.array(c[0])
         self._2c1 = np.array(2 * c[1] if len(c) > 1 else 0.0)
 
-    def compute(self, input_map: InputMap, ds_prev_pct: float, drive_scale: float = 1.0,
-                drive_offset: float = 0.0) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    def compute(self, input_map: InputMap, ds_prev_pct: float
+                ) -> tuple[FloatArray, FloatArray, FloatArray | None]:
         """Return ``(w_lo, w_hi, rate)`` for the input applied at the previous sample.
 
         Parameters
@@ -286,10 +286,6 @@ class MoveBounds:
             ``f`` on the allowed range.
         ds_prev_pct :
             TRIAC deviation applied at the previous sample [%], inside the allowed range.
-        drive_scale, drive_offset :
-            The bounds are of ``drive_scale * f + drive_offset`` (the effective input
-            under a measured grid voltage, `czmpc.voltage`: ``v^2`` and ``(v^2 - 1) W0``);
-            ``drive_scale > 0``.
 
         Returns
         -------
@@ -302,16 +298,6 @@ class MoveBounds:
 
         The arrays are overwritten by the next call; copy them to keep them.
         """
-        if drive_scale != 1.0 or drive_offset != 0.0:
-            w_lo, w_hi, rate = self.compute(input_map, ds_prev_pct)
-            for row in (w_lo, w_hi):
-                np.multiply(row, drive_scale, out=row)
-                np.add(row, drive_offset, out=row)
-            if rate is not None:
-                np.multiply(rate, drive_scale, out=rate)
-                if self._rate_rows is not None:
-                    np.negative(rate, out=self._rate_rows[0])
-            return w_lo, w_hi, rate
         w = self._w
         if self.max_move_pct_per_step is None:
             self._w_lo.fill(input_map.w_min)
@@ -473,10 +459,9 @@ class MPCQP:
         #: (k,) where `solve` reads ``h_terms`` from when given this very array (no copy).
         self.h_input: FloatArray = self._params[:-2]
         self._terminal_P: FloatArray = P_f
-        # Reference offsets (`solve`'s ``y_offsets``, ``w_offsets``): the linear terms of
-        # q_y sum (C dx_j - rho_j)^2 + q_u sum (dW_j - sigma_j)^2 beyond those of rho = sigma = 0.
-        self._q_ref_y = -2.0 * output_weight * Ey.T
-        self._q_ref_w = np.array(-2.0 * input_target_weight)
+        #: (N, 2N-1) ``q`` per ``[rho; sigma]`` (`reference_cost`).
+        self.reference_cost: FloatArray = np.hstack([-2.0 * output_weight * Ey.T,
+                                                     -2.0 * input_target_weight * np.eye(N)])
         self._Cgam_rowsum = Cgam.sum(axis=1)
         self._Cphi_map = Cphi @ h_map  # C Phi_j h = (C Phi_j M) t
         self._cost_hessian: FloatArray = np.asarray(H, dtype=float)
@@ -606,7 +591,7 @@ class MPCQP:
         self, *, h_terms: FloatArray, w_prev: float, w_target: float, y_target: float,
         w_lo: FloatArray, w_hi: FloatArray, rate: FloatArray | None = None,
         soft_min_rel_kw: float | None = None, soft_max_rel_kw: float | None = None,
-        y_offsets: FloatArray | None = None, w_offsets: FloatArray | None = None,
+        q_offset: FloatArray | None = None,
     ) -> QPSolution:
         """Update ``q``, ``l``, ``u``, solve, and return the plan.
 
@@ -630,13 +615,12 @@ class MPCQP:
         soft_min_rel_kw, soft_max_rel_kw :
             Soft power limits as deviations from ``P_nom`` [kW], required for the rows
             the problem was built with.
-        y_offsets :
-            (N-1,) ``rho_j``: the output references of ``j = 1..N-1`` less ``y_target``
-            [kW] (a setpoint trajectory, or a setpoint the target cannot reach); None
-            for zeros. The stage cost becomes ``q_y (C dx_j - rho_j)^2``.
-        w_offsets :
-            (N,) ``sigma_j``: the input targets of ``j = 0..N-1`` less ``w_target``
-            [kW-equivalent]; None for zeros. The stage cost becomes ``q_u (dW_j - sigma_j)^2``.
+        q_offset :
+            (N,) added to the plan's linear cost: ``reference_cost @ [rho; sigma]`` for
+            output references ``y_s + rho_j`` (``j = 1..N-1``) and input targets ``w_s +
+            sigma_j`` (``j = 0..N-1``), i.e. stage costs ``q_y (C dx_j - rho_j)^2`` and
+            ``q_u (dW_j - sigma_j)^2`` (a setpoint trajectory, or a setpoint the target
+            cannot reach); None for zeros.
 
         Notes
         -----
@@ -650,10 +634,8 @@ class MPCQP:
         params[-2] = w_prev
         params[-1] = w_target
         self._q_params.dot(params, out=self._q_w)  # ndarray.dot: less call overhead than np.dot
-        if y_offsets is not None:
-            self._q_w += self._q_ref_y.dot(y_offsets)
-        if w_offsets is not None:
-            self._q_w += self._q_ref_w * w_offsets
+        if q_offset is not None:
+            self._q_w += q_offset
         if w_lo is not self._l_box:
             self._l_box[...] = w_lo  # [...]: no slice object made
         if w_hi is not self._u_box:

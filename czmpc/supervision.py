@@ -35,6 +35,17 @@ class ShapedSetpoint(NamedTuple):
     verdict: str         # "valid" or why it was rejected (then the last valid one is held)
 
 
+class ShapedPreview(NamedTuple):
+    """What `SetpointShaper.preview` made of the coming setpoints."""
+
+    values_kw: FloatArray  # (L,) shaped setpoints of samples k+1..k+L [kW]
+    low_kw: float          # their smallest [kW] (NaN for L = 0)
+    high_kw: float         # their largest [kW] (NaN for L = 0)
+
+
+_NO_PREVIEW = ShapedPreview(np.empty(0), math.nan, math.nan)
+
+
 class SetpointShaper:
     """Setpoint check, hold, ramp and filter (module notes).
 
@@ -93,7 +104,7 @@ class SetpointShaper:
         # tuple.__new__ skips the NamedTuple's Python-level __new__ (once per step, issue 30).
         return tuple.__new__(ShapedSetpoint, (received, self._filtered, verdict))
 
-    def preview(self, setpoints_kw: object, max_samples: int) -> FloatArray:
+    def preview(self, setpoints_kw: object, max_samples: int) -> ShapedPreview:
         """The setpoints to use over the coming samples, shaped as `shape` would shape them.
 
         Parameters
@@ -107,33 +118,40 @@ class SetpointShaper:
 
         Returns
         -------
-        ndarray
-            (L,) shaped setpoints [kW], ``0 <= L <= max_samples``, from the state `shape`
-            left (its own state is not changed).
+        ShapedPreview
+            ``L`` shaped setpoints [kW], ``0 <= L <= max_samples``, from the state `shape`
+            left (its own state is not changed), and their extremes.
         """
         try:
-            raw = np.asarray(setpoints_kw, dtype=float).ravel()[:max_samples]
+            raw = np.asarray(setpoints_kw, dtype=float)
         except (TypeError, ValueError):
-            return np.empty(0)
-        ok = np.isfinite(raw) & (np.abs(raw) <= MAX_SETPOINT_KW)
-        if self._min_kw is not None:
-            ok &= raw >= self._min_kw
-        if self._max_kw is not None:
-            ok &= raw <= self._max_kw
-        if not ok.all():
+            return _NO_PREVIEW
+        if raw.ndim != 1:
+            raw = raw.ravel()
+        raw = raw[:max_samples]
+        if not raw.size:
+            return _NO_PREVIEW
+        low, high = raw.min(), raw.max()   # NaN if any is
+        lo_ok = -MAX_SETPOINT_KW if self._min_kw is None else max(self._min_kw, -MAX_SETPOINT_KW)
+        hi_ok = MAX_SETPOINT_KW if self._max_kw is None else min(self._max_kw, MAX_SETPOINT_KW)
+        if not (lo_ok <= low and high <= hi_ok):   # cut at the first rejected entry
+            ok = (raw >= lo_ok) & (raw <= hi_ok)   # False for NaN
             raw = raw[: int(np.argmin(ok))]
-        if self._max_step is None and self._alpha == 1.0:
-            return raw
-        out = np.empty(raw.size)
-        ramped, filtered = self._ramped, self._filtered
-        for i, target in enumerate(raw.tolist()):
-            if self._max_step is not None:
-                ramped += clamp(target - ramped, -self._max_step, self._max_step)
-            else:
-                ramped = target
-            filtered += self._alpha * (ramped - filtered)
-            out[i] = filtered
-        return out
+            if not raw.size:
+                return _NO_PREVIEW
+            low, high = raw.min(), raw.max()
+        if self._max_step is not None or self._alpha != 1.0:
+            out = np.empty(raw.size)
+            ramped, filtered = self._ramped, self._filtered
+            for i, target in enumerate(raw.tolist()):
+                if self._max_step is not None:
+                    ramped += clamp(target - ramped, -self._max_step, self._max_step)
+                else:
+                    ramped = target
+                filtered += self._alpha * (ramped - filtered)
+                out[i] = filtered
+            raw, low, high = out, out.min(), out.max()
+        return tuple.__new__(ShapedPreview, (raw, float(low), float(high)))
 
 
 class LimitRamp:
@@ -213,4 +231,4 @@ class LimitRamp:
             self.map = replace(im, ds_min_pct=lo, ds_max_pct=hi, w_min=im.f(lo), w_max=im.f(hi))
 
 
-__all__ = ["MAX_SETPOINT_KW", "LimitRamp", "SetpointShaper", "ShapedSetpoint"]
+__all__ = ["MAX_SETPOINT_KW", "LimitRamp", "SetpointShaper", "ShapedPreview", "ShapedSetpoint"]
