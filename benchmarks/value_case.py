@@ -56,6 +56,7 @@ from czmpc.campaigns.pid_comparison import compare_pid_table
 from czmpc.campaigns.simulation import PlantKind, SimulationOutcome, run_simulation
 from czmpc.pid.controller import TableSchedule
 from czmpc.pid.table import read_pid_table
+from czmpc.settings import MPCSettings
 from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
 from sim.loop import ClosedLoopResult
 from sim.metrics import ClosedLoopMetrics
@@ -85,6 +86,9 @@ PLANTS: tuple[PlantKind, ...] = ("model", "heater")
 RECIPE_DIR = Path(__file__).resolve().parent / "scenarios"
 #: Seed of every run (as the tracking benchmark's).
 DEFAULT_SEED = 7
+#: Weights of the "sharp" MPC beside the bound: moves and input-target nearly free (the
+#: defaults are 0.1 and 0.01), so its IAE shows what the bound asks of this controller.
+SHARP_WEIGHTS = {"move_weight": 1e-3, "input_target_weight": 1e-6}
 #: Goals of issue 40 (the controller's to meet; measured here).
 STAIRCASE_RATIO_GOAL = 0.6
 RAMP_RATIO_GOAL = 0.35
@@ -100,7 +104,11 @@ READING_NOTES = (
     "IAE any controller can reach on the noise-free model plant: it knows the whole recipe "
     "(so it also bounds every finite preview) and every disturbance in advance, and relaxes "
     "the TRIAC rate limit by tangents of f (`rate_limit_cuts`); its goal is checked on "
-    "scenarios with setpoint changes and no process disturbance. A setpoint above what the "
+    "scenarios with setpoint changes and no process disturbance. A ramp slower than the "
+    "rate limit can be tracked exactly, so its bound is near 0 and its ratio measures "
+    "residues of a few W. The 'sharp MPC' is the MPC with preview with move and "
+    "input-target weights near 0 (`SHARP_WEIGHTS`): it shows that the bound is reachable "
+    "by this controller's structure, and what the default weights cost. A setpoint above what the "
     "allowed input range holds (large_step's 80 kW) or a start below it (meltdown_ramp) "
     "costs every controller and the bound alike."
 )
@@ -155,6 +163,9 @@ class BoundRow:
         The MPC with preview's IAE on the model plant without noise [kW s] (NaN: not run).
     has_disturbance :
         The scenario has process disturbances (the goal is not checked on it).
+    sharp_mpc_iae_kw_s :
+        IAE of the same MPC and preview with `SHARP_WEIGHTS` (model plant, no noise) [kW s]:
+        how close a controller of this structure can come to the bound (NaN: not run).
     """
 
     scenario: str
@@ -163,6 +174,7 @@ class BoundRow:
     solve_time_s: float
     mpc_iae_kw_s: float
     has_disturbance: bool
+    sharp_mpc_iae_kw_s: float = math.nan
 
     @property
     def ratio(self) -> float:
@@ -308,17 +320,25 @@ def check_goals(rows: Sequence[RunRow], bounds: Sequence[BoundRow],
 
 
 def compute_bounds(model: HammersteinModel, scenarios: Sequence[Scenario],
-                   rows: Sequence[RunRow]) -> tuple[BoundRow, ...]:
-    """The LP bound of every scenario, beside the MPC with preview (model, noise off)."""
+                   rows: Sequence[RunRow], *, seed: int | None = None) -> tuple[BoundRow, ...]:
+    """The LP bound of every scenario, beside the MPC with preview (model, noise off).
+
+    With a ``seed``, the MPC with preview and `SHARP_WEIGHTS` also runs on each scenario
+    (model plant, no noise): the bound's distance from what this controller can reach.
+    """
     out = []
+    sharp = MPCSettings.default_for(model).with_updates(**SHARP_WEIGHTS)
     for sc in scenarios:
         tight = scenario_iae_bound(model, sc, relaxation="tangents")
         loose = scenario_iae_bound(model, sc, relaxation="max_slope")
         mpc = _find(rows, sc.name, "model", False, REFERENCE)
+        sharp_iae = math.nan if seed is None else run_simulation(
+            model, with_preview(sc), plant="model", seed=seed, noise=False,
+            settings=sharp).metrics.iae_kw_s
         out.append(BoundRow(scenario=sc.name, bound_iae_kw_s=tight.iae_kw_s,
                             bound_max_slope_iae_kw_s=loose.iae_kw_s, solve_time_s=tight.solve_time_s,
                             mpc_iae_kw_s=math.nan if mpc is None else mpc.iae_kw_s,
-                            has_disturbance=bool(sc.disturbances)))
+                            has_disturbance=bool(sc.disturbances), sharp_mpc_iae_kw_s=sharp_iae))
     return tuple(out)
 
 
@@ -327,7 +347,8 @@ RUN_COLUMNS = ("scenario", "plant", "noise", "controller", "iae_kw_s", "iae_rati
                "overshoot_pct", "overshoot_ratio", "input_travel_pct", "input_travel_ratio",
                "wall_s")
 BOUND_COLUMNS = ("scenario", "bound_iae_kw_s", "bound_max_slope_iae_kw_s", "solve_time_s",
-                 "mpc_preview_iae_kw_s", "mpc_to_bound_ratio", "has_disturbance")
+                 "mpc_preview_iae_kw_s", "mpc_to_bound_ratio", "has_disturbance",
+                 "sharp_mpc_preview_iae_kw_s")
 
 
 def _ratios(row: RunRow, rows: Sequence[RunRow]) -> tuple[float, float, float]:
@@ -356,7 +377,7 @@ def write_csvs(rows: Sequence[RunRow], bounds: Sequence[BoundRow], out_dir: Path
         for b in bounds:
             writer.writerow([b.scenario, repr(b.bound_iae_kw_s), repr(b.bound_max_slope_iae_kw_s),
                              f"{b.solve_time_s:.3f}", repr(b.mpc_iae_kw_s), repr(b.ratio),
-                             int(b.has_disturbance)])
+                             int(b.has_disturbance), repr(b.sharp_mpc_iae_kw_s)])
     return runs, bnds
 
 
@@ -440,12 +461,13 @@ def section_text(rows: Sequence[RunRow], bounds: Sequence[BoundRow], goals: Sequ
     if bounds:
         lines += ["", "LP lower bound on IAE (model plant, no noise) and the MPC with preview:", "",
                   "| scenario | bound [kW s] | bound, max-slope relaxation [kW s] | LP solve [s] "
-                  "| MPC with preview [kW s] | MPC - bound [kW s] | MPC / bound |",
-                  "|---|---:|---:|---:|---:|---:|---:|"]
+                  "| MPC with preview [kW s] | MPC - bound [kW s] | MPC / bound "
+                  "| sharp MPC / bound |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
         lines += [f"| {b.scenario}{' (disturbances known to the bound)' if b.has_disturbance else ''}"
                   f" | {b.bound_iae_kw_s:.2f} | {b.bound_max_slope_iae_kw_s:.2f} | "
                   f"{b.solve_time_s:.2f} | {_fmt(b.mpc_iae_kw_s, '.2f')} | "
-                  f"{_fmt(b.mpc_iae_kw_s - b.bound_iae_kw_s, '.2f')} | {_fmt(b.ratio, '.3f')} |"
+                  f"{_fmt(b.mpc_iae_kw_s - b.bound_iae_kw_s, '.2f')} | {_fmt(b.ratio, '.3f')} | "
+                  f"{_fmt(_ratio(b.sharp_mpc_iae_kw_s, b.bound_iae_kw_s), '.3f')} |"
                   for b in bounds]
     for plant in dict.fromkeys(r.plant for r in rows):
         for noise in (True, False):
@@ -530,11 +552,12 @@ def run_benchmark(args: argparse.Namespace, out_dir: Path,
                  f"IAE [kW s] {iae} ({time.perf_counter() - t0:.1f} s)")
     bounds: tuple[BoundRow, ...] = ()
     if "model" in plants:
-        bounds = compute_bounds(model, scenarios, rows)
+        bounds = compute_bounds(model, scenarios, rows, seed=args.seed)
         for b in bounds:
             progress(f"LP bound {b.scenario}: {b.bound_iae_kw_s:.2f} kW s (max-slope "
                      f"{b.bound_max_slope_iae_kw_s:.2f}; {b.solve_time_s:.1f} s), MPC with "
-                     f"preview {b.mpc_iae_kw_s:.2f} kW s ({b.ratio:.3f}x)")
+                     f"preview {b.mpc_iae_kw_s:.2f} kW s ({b.ratio:.3f}x), sharp MPC "
+                     f"{b.sharp_mpc_iae_kw_s:.2f} kW s")
     shipped = [s.name for s in scenarios if s.name in list_scenarios()]
     return tuple(rows), bounds, check_goals(rows, bounds, shipped)
 
@@ -579,7 +602,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 __all__ = ["BOUND_RATIO_GOAL", "CONTROLLERS", "PREVIEW_S", "PID_MS", "RAMP_RATIO_GOAL",
-           "SAG_RATIO_GOAL", "SECTION_HEADING", "STAIRCASE_RATIO_GOAL", "BoundRow", "GoalCheck",
+           "SAG_RATIO_GOAL", "SHARP_WEIGHTS", "SECTION_HEADING", "STAIRCASE_RATIO_GOAL",
+           "BoundRow", "GoalCheck",
            "RunRow", "all_scenarios", "check_goals", "compute_bounds", "main", "plot_recipes",
            "recipe_scenarios", "run_case", "section_text", "tune_pid_table", "with_preview",
            "worst_overshoot_pct", "write_csvs"]
