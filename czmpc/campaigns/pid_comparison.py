@@ -10,7 +10,10 @@ start input, allowed range):
   everywhere (a PI tuned at the operating point, not scheduled).
 
 Per controller it reports the run's IAE, the worst step (largest IAE of one setpoint
-change and largest overshoot in percent of its step) and the IAE ratio to the MPC.
+change and largest overshoot in percent of its step), the input travel and the ratio of
+each to the MPC's. A scenario's ``setpoint_preview_s`` and ``measured_voltage`` reach every
+controller: the MPC plans with both, the PIs use the voltage through the model's
+characterizer (`table_pi_factory`) and have no use for the preview.
 """
 
 from __future__ import annotations
@@ -83,6 +86,11 @@ class ControllerSummary:
         Largest overshoot of one setpoint step, in % of that step [%].
     iae_ratio_to_mpc :
         ``iae_kw_s`` over the MPC's [-].
+    input_travel_pct :
+        Sum of the input's moves ``sum |s_k - s_{k-1}|`` [%].
+    overshoot_ratio_to_mpc, travel_ratio_to_mpc :
+        ``worst_overshoot_pct`` and ``input_travel_pct`` over the MPC's [-] (NaN where
+        the MPC's is 0 or there is no step).
     """
 
     name: str
@@ -91,6 +99,13 @@ class ControllerSummary:
     worst_step_iae_kw_s: float
     worst_overshoot_pct: float
     iae_ratio_to_mpc: float
+    input_travel_pct: float
+    overshoot_ratio_to_mpc: float
+    travel_ratio_to_mpc: float
+
+
+def _ratio(value: float, reference: float) -> float:
+    return value / reference if reference > 0 and math.isfinite(value) else math.nan
 
 
 def compare_pid_table(
@@ -115,34 +130,47 @@ def compare_pid_table(
     outcomes = {name: run_simulation(model, scenario, plant=plant, seed=seed, settings=settings,
                                      noise=noise, controller_factory=factory)
                 for name, factory in factories.items()}
-    mpc_iae = outcomes["mpc"].metrics.iae_kw_s
+    def worst_overshoot(name: str) -> float:
+        steps = [c for c in outcomes[name].metrics.changes if c.kind == "step"]
+        return max((c.overshoot_pct for c in steps), default=math.nan)
+
+    mpc = outcomes["mpc"].metrics
     out = []
     for name in COMPARED:
         metrics = outcomes[name].metrics
-        steps = [c for c in metrics.changes if c.kind == "step"]
+        overshoot = worst_overshoot(name)
         out.append(ControllerSummary(
             name=name, outcome=outcomes[name], iae_kw_s=metrics.iae_kw_s,
             worst_step_iae_kw_s=max((c.iae_kw_s for c in metrics.changes), default=math.nan),
-            worst_overshoot_pct=max((c.overshoot_pct for c in steps), default=math.nan),
-            iae_ratio_to_mpc=metrics.iae_kw_s / mpc_iae))
+            worst_overshoot_pct=overshoot,
+            iae_ratio_to_mpc=metrics.iae_kw_s / mpc.iae_kw_s,
+            input_travel_pct=metrics.input_total_variation_pct,
+            overshoot_ratio_to_mpc=_ratio(overshoot, worst_overshoot("mpc")),
+            travel_ratio_to_mpc=_ratio(metrics.input_total_variation_pct,
+                                       mpc.input_total_variation_pct)))
     return tuple(out)
 
 
 def comparison_table(summaries: tuple[ControllerSummary, ...], *, title: str) -> str:
     """Plain-text table of `compare_pid_table`'s summaries, units in the header."""
     lines = [title, f"{'controller':>10}  {'IAE [kW s]':>11}  {'IAE / MPC [-]':>13}  "
-             f"{'worst step IAE [kW s]':>21}  {'worst overshoot [% of step]':>27}"]
+             f"{'worst step IAE [kW s]':>21}  {'worst overshoot [% of step]':>27}  "
+             f"{'/ MPC [-]':>9}  {'input travel [%]':>16}  {'/ MPC [-]':>9}"]
     for s in summaries:
         lines.append(f"{s.name:>10}  {s.iae_kw_s:>11.2f}  {s.iae_ratio_to_mpc:>13.3f}  "
-                     f"{s.worst_step_iae_kw_s:>21.2f}  {s.worst_overshoot_pct:>27.2f}")
+                     f"{s.worst_step_iae_kw_s:>21.2f}  {s.worst_overshoot_pct:>27.2f}  "
+                     f"{s.overshoot_ratio_to_mpc:>9.2f}  {s.input_travel_pct:>16.1f}  "
+                     f"{s.travel_ratio_to_mpc:>9.2f}")
     return "\n".join(lines)
 
 
 def comparison_csv(summaries: tuple[ControllerSummary, ...]) -> str:
     """CSV text of the summaries (units in the column names)."""
-    lines = ["controller,iae_kw_s,iae_ratio_to_mpc,worst_step_iae_kw_s,worst_overshoot_pct"]
+    lines = ["controller,iae_kw_s,iae_ratio_to_mpc,worst_step_iae_kw_s,worst_overshoot_pct,"
+             "overshoot_ratio_to_mpc,input_travel_pct,travel_ratio_to_mpc"]
     lines += [f"{s.name},{s.iae_kw_s!r},{s.iae_ratio_to_mpc!r},{s.worst_step_iae_kw_s!r},"
-              f"{s.worst_overshoot_pct!r}" for s in summaries]
+              f"{s.worst_overshoot_pct!r},{s.overshoot_ratio_to_mpc!r},{s.input_travel_pct!r},"
+              f"{s.travel_ratio_to_mpc!r}" for s in summaries]
     return "\n".join(lines) + "\n"
 
 

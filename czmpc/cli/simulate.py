@@ -39,8 +39,14 @@ A tuned PID table (czmpc tune-pid): --controller DIR/pid_table.csv runs three co
 with the same limits, start and seed: the table's scheduled PI (pi_table), the MPC (mpc)
 and the table's row at the operating point as a fixed-gain PI (pi_fixed). DIR then holds
 one sub-directory per controller with the three files above, and comparison.csv: per
-controller the IAE [kW s], its ratio to the MPC's [-], the largest IAE of one setpoint
-change [kW s] and the largest overshoot [% of the step].
+controller the IAE [kW s], the largest IAE of one setpoint change [kW s], the largest
+overshoot [% of the step] and the input travel [%], with the ratio of IAE, overshoot and
+travel to the MPC's [-].
+
+What only an MPC can use: a scenario with setpoint_preview_s = 60 tells the MPC the
+setpoints of the coming 60 s (a recipe), and measured_voltage = true gives every
+controller the grid voltage measured over the last sample (the PIs divide their drive by
+v^2 through the model's characterizer, as a DCS would). See docs/theory.rst, C8 and C9.
 
 A plant that differs from the model: --gain-factor, --tau-s, --extra-delay-samples and
 --drift as for 'czmpc plant serve' (see sim.drift); the plant then starts at the nominal
@@ -168,6 +174,8 @@ def _compare(args: argparse.Namespace, model: HammersteinModel, scenario: Scenar
     files.append(args.out / "comparison.csv")
     print(comparison_table(summaries, title=(
         f"scenario '{scenario.name}', plant '{args.plant}', seed {args.seed}, noise "
-        f"{'on' if noise else 'off'}; table {args.controller}")))
+        f"{'on' if noise else 'off'}, setpoint preview {scenario.setpoint_preview_s:g} s, "
+        f"voltage {'measured' if scenario.measured_voltage else 'not measured'}; "
+        f"table {args.controller}")))
     print_written(files)
     return 0
