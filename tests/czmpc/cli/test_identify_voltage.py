@@ -108,8 +108,10 @@ def test_inspect_shows_the_voltage_and_reads_a_mapped_column(voltage_csv: Path,
 
 
 #: The same code run inside pytest and from the console differs in the last bit of the
-#: covariance (an SVD) and of two identifiability measurements (seen on commit 317d35c
-#: itself, before this change: 3e-16 relative); everything else is compared bit for bit.
+#: covariance (an SVD) and of two identifiability measurements: the console script pins
+#: the BLAS threads before numpy loads, pytest's process has numpy loaded already (seen
+#: on commit 317d35c itself, before this change: 3e-16 relative). Everything else is
+#: compared bit for bit.
 LAST_BIT_RTOL = 1e-13
 
 
