@@ -9,10 +9,12 @@ gain of the identified nonlinearity at the input last applied::
 
     K_c(s) = K_c0 f'(ds_0) / f'(ds),   ds = s - s_nom clipped to the model's valid range
 
-so the loop gain at the heater's instantaneous response, ``K_c f'``, stays constant. The
-gain acts on the whole proportional term (``bumpless=False`` of `ScheduledPID`), the law
-the benchmark's recorded results (tests/golden) were made with. A tuned table of
-breakpoints (``czmpc tune-pid``) is the bumpless alternative.
+so the loop gain at the heater's instantaneous response, ``K_c f'``, stays constant. A new
+gain acts only on changes of the error (``bumpless=True`` of `ScheduledPID`, the law a
+``czmpc tune-pid`` table runs), so the input does not step when the gain changes; the
+benchmark's recorded results (tests/golden) were re-recorded with it. With the default
+``lambda`` the integral time is one sampling time: at a fixed gain this forward-Euler PI
+is the integral-only law ``u_k = u_{k-1} + K_c e_k`` (`czmpc.pid.design.SampledIntegral`).
 """
 
 from __future__ import annotations
@@ -139,7 +141,7 @@ class PIController(ScheduledPID):
         super().__init__(schedule=_ScaledTuning(base=base, gain_schedule=gain_schedule),
                          ts_s=ts_s, initial_triac_pct=initial_triac_pct,
                          triac_limits_pct=triac_limits_pct,
-                         max_move_pct_per_step=max_move_pct_per_step, bumpless=False)
+                         max_move_pct_per_step=max_move_pct_per_step, bumpless=True)
         self.gain_pct_per_kw = base.kc_pct_per_kw
         self.integral_time_s = base.ti_s
         self.gain_schedule = gain_schedule

@@ -2,13 +2,15 @@
 
 From a Hammerstein model, linearised at breakpoints of the TRIAC input, this room tunes
 a PI or PID per breakpoint by a published rule or an Ms-bounded optimisation, on the
-sampled loop (hold and delay included), checks the schedule between breakpoints, runs
-it (velocity form, bumpless, anti-windup) and writes it as the plant's own PID block
-wants it.
+sampled loop (hold and delay included) in each difference equation a block may run it
+with (forward, backward or trapezoidal integration), checks the schedule between
+breakpoints, runs it (velocity form, bumpless, anti-windup) and writes it as the plant's
+own PID block wants it.
 
-The modules, in that order: ``plant``, ``rules``, ``margins``, ``design``, ``schedule``,
-``controller``, ``table``, ``vendor``, ``report`` (each docstring's first line says its
-job). It imports the core (`czmpc.inversion`, `czmpc.errors`) and `sysid`; never `sim`.
+The modules, in that order: ``plant``, ``rules``, ``discretization``, ``margins``,
+``design``, ``schedule``, ``controller``, ``table``, ``vendor``, ``report`` (each
+docstring's first line says its job). It imports the core (`czmpc.inversion`,
+`czmpc.errors`) and `sysid`; never `sim`.
 """
 
 from czmpc.pid.controller import PIDStep, ScheduledPID, TableSchedule

@@ -3,8 +3,10 @@
 The loop transfer ``L`` is given as a function of the angular frequency, so the same code
 serves a continuous loop ``L(j w)`` and a sampled loop ``L(e^{j w Ts})`` (then up to the
 Nyquist frequency ``pi/Ts``). `sampled_margins` builds the sampled loop of a tuning on a
-`LocalPlant`: ``C(z)`` of `czmpc.pid.controller` (the law that runs) times ``g B/A``
-with its delay, so the hold and the sample of delay are inside the numbers.
+`LocalPlant`: ``C(z)`` of one sampled form of the law (`czmpc.pid.discretization`;
+``forward`` is the law `czmpc.pid.controller.ScheduledPID` runs) times ``g B/A`` with its
+delay, so the hold and the sample of delay are inside the numbers. `worst_margins` is
+the worst over several forms: the largest Ms, the smallest gain and phase margins.
 
 Definitions
 -----------
@@ -19,13 +21,13 @@ Definitions
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 
-from czmpc.pid.controller import controller_frequency_response
+from czmpc.pid.discretization import IntegralForm, controller_frequency_response
 from czmpc.pid.errors import PIDTuningError
 from czmpc.pid.plant import LocalPlant
 from czmpc.pid.rules import PIDTuning
@@ -123,38 +125,87 @@ def loop_margins(loop: LoopResponse, *, w_min_rad_per_s: float,
         value = at(x)
         if value.real < 0 and 1.0 / abs(value) < gm:
             gm, w180 = 1.0 / abs(value), x
-    sensitivity = np.abs(1.0 / (1.0 + values))
-    j = int(np.argmax(sensitivity))
-    lo, hi = w[max(j - 1, 0)], w[min(j + 1, w.size - 1)]
-    best = minimize_scalar(lambda v: -abs(1.0 / (1.0 + at(v))), bounds=(lo, hi),
-                           method="bounded", options={"xatol": FREQUENCY_RTOL * hi})
-    ms, ws = (float(-best.fun), float(best.x)) if -best.fun > sensitivity[j] else (
-        float(sensitivity[j]), float(w[j]))
+    ms, ws = _refined_peak(loop, w, values)
     return LoopMargins(ms=ms, ms_rad_per_s=ws, gain_margin=gm, phase_margin_deg=pm,
                        crossover_rad_per_s=wc, phase_crossover_rad_per_s=w180)
 
 
-def sampled_loop(tuning: PIDTuning, plant: LocalPlant) -> LoopResponse:
-    """``L(e^{j w Ts}) = C(z) g B(z)/A(z)`` of ``tuning`` on ``plant`` as a function of ``w``."""
+def _refined_peak(loop: LoopResponse, w: FloatArray, values: FloatArray) -> tuple[float, float]:
+    """``(Ms, its frequency)``: the grid's peak of ``|1/(1 + L)|`` refined between its neighbours."""
+    sensitivity = np.abs(1.0 / (1.0 + values))
+    j = int(np.argmax(sensitivity))
+    lo, hi = w[max(j - 1, 0)], w[min(j + 1, w.size - 1)]
+    best = minimize_scalar(lambda v: -abs(1.0 / (1.0 + complex(loop(np.array([v]))[0]))),
+                           bounds=(lo, hi), method="bounded",
+                           options={"xatol": FREQUENCY_RTOL * hi})
+    if -best.fun > sensitivity[j]:
+        return float(-best.fun), float(best.x)
+    return float(sensitivity[j]), float(w[j])
+
+
+def sampled_loop(tuning: PIDTuning, plant: LocalPlant,
+                 form: IntegralForm = "forward") -> LoopResponse:
+    """``L(e^{j w Ts}) = C(z) g B(z)/A(z)`` of ``tuning`` in ``form`` on ``plant``, a function of ``w``."""
     def loop(w: FloatArray) -> FloatArray:
-        return np.asarray(controller_frequency_response(tuning, plant.ts_s, w)
+        return np.asarray(controller_frequency_response(tuning, plant.ts_s, w, form)
                           * plant.frequency_response(w))
     return loop
 
 
-def sampled_margins(tuning: PIDTuning, plant: LocalPlant) -> LoopMargins:
+def sampled_margins(tuning: PIDTuning, plant: LocalPlant,
+                    form: IntegralForm = "forward") -> LoopMargins:
     """Margins of ``tuning`` on ``plant`` as sampled (hold and delay included).
 
     Parameters
     ----------
     tuning :
-        The tuning (the law of `czmpc.pid.controller.ScheduledPID`).
+        The tuning.
     plant :
         The local plant.
+    form :
+        How the block samples the law (`czmpc.pid.discretization`); ``forward`` is the law
+        of `czmpc.pid.controller.ScheduledPID`.
     """
     wn = math.pi / plant.ts_s
-    return loop_margins(sampled_loop(tuning, plant), w_min_rad_per_s=SAMPLED_LOW_FRACTION * wn,
-                        w_max_rad_per_s=wn)
+    return loop_margins(sampled_loop(tuning, plant, form),
+                        w_min_rad_per_s=SAMPLED_LOW_FRACTION * wn, w_max_rad_per_s=wn)
 
 
-__all__ = ["LoopMargins", "LoopResponse", "loop_margins", "sampled_loop", "sampled_margins"]
+def sampled_ms(tuning: PIDTuning, plant: LocalPlant, form: IntegralForm = "forward") -> float:
+    """``Ms`` of `sampled_margins` alone, without the crossings (the same grid and refinement)."""
+    wn = math.pi / plant.ts_s
+    w = np.geomspace(SAMPLED_LOW_FRACTION * wn, wn, GRID_POINTS)
+    loop = sampled_loop(tuning, plant, form)
+    values = loop(w)
+    if not np.all(np.isfinite(values)):
+        raise PIDTuningError("sampled_ms: the loop's frequency response is not finite "
+                             "on the frequency range")
+    return _refined_peak(loop, w, values)[0]
+
+
+def worst_margins(margins: Iterable[LoopMargins]) -> LoopMargins:
+    """The worst of several loops' margins, each with its own frequency.
+
+    The largest Ms, the smallest gain margin, and the phase margin of smallest magnitude
+    (NaN only when no loop has a gain crossover).
+
+    Raises
+    ------
+    PIDTuningError
+        No margins given.
+    """
+    items = list(margins)
+    if not items:
+        raise PIDTuningError("worst_margins: expected the margins of at least one loop; got none")
+    ms = max(items, key=lambda m: m.ms)
+    gm = min(items, key=lambda m: m.gain_margin)
+    crossing = [m for m in items if not math.isnan(m.phase_margin_deg)]
+    pm = min(crossing, key=lambda m: abs(m.phase_margin_deg)) if crossing else items[0]
+    return LoopMargins(ms=ms.ms, ms_rad_per_s=ms.ms_rad_per_s, gain_margin=gm.gain_margin,
+                       phase_margin_deg=pm.phase_margin_deg,
+                       crossover_rad_per_s=pm.crossover_rad_per_s,
+                       phase_crossover_rad_per_s=gm.phase_crossover_rad_per_s)
+
+
+__all__ = ["LoopMargins", "LoopResponse", "loop_margins", "sampled_loop", "sampled_margins",
+           "sampled_ms", "worst_margins"]

@@ -2,14 +2,17 @@
 
 `tune_schedule` linearises the model over each row's interval, from its breakpoint to the
 next (`czmpc.pid.plant.local_plant`; the row holds there,
-`czmpc.pid.controller.TableSchedule`), tunes the row (`czmpc.pid.design.tune_local`) on the
-plant of the interval with the largest gain ``f'`` (only the gain moves, so that plant has
-the smallest margins: a bound met there holds over the whole interval), computes the
+`czmpc.pid.controller.TableSchedule`), tunes the row (`czmpc.pid.design.design_local`) on
+the plant of the interval with the largest gain ``f'`` (only the gain moves, so that plant
+has the smallest margins: a bound met there holds over the whole interval), computes the
 margins at the breakpoint on the sampled loop and ``worst_ms_to_next``: the largest Ms of
-the row's controller on the local plants of its interval.
+the row's controller on the local plants of its interval. Both are computed for each of
+the three sampled forms of the law (`czmpc.pid.discretization`); a row's own numbers are
+the worst over the forms its design holds for (``DesignSpec.discretization``), and
+`ScheduleRow.margins_for` gives them for any other discretization.
 
-The schedule *holds* between two breakpoints when, for the row's controller on every
-plant between them,
+The schedule *holds* between two breakpoints when, for the row's controller in every form
+of the design on every plant between them,
 
 * ``Ms <= bound``: the Ms bound asked for, or without one the row's own Ms times
   ``1 + MS_SLACK`` (robustness as tuned), and
@@ -19,19 +22,34 @@ plant between them,
 Default breakpoints are the ends of the allowed range and the operating point; where the
 schedule does not hold, a breakpoint is added halfway, until it holds or the interval is
 narrower than ``MIN_INTERVAL_PCT`` (then a warning says where it does not hold).
+
+Where a row's rule asked for an integral time below the sampling time
+(`czmpc.pid.design.LocalDesign.integral_dominant`), every row also gets the
+integral-only law (`czmpc.pid.design.SampledIntegral`) tuned for the same bound on the
+same plant, with its own margins: the schedule a block that integrates the current error
+can run instead.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from czmpc.pid.controller import TableSchedule
-from czmpc.pid.design import DesignSpec, tune_local
+from czmpc.pid.design import (
+    MIN_TI_SAMPLES,
+    DesignSpec,
+    LocalDesign,
+    SampledIntegral,
+    design_local,
+    tune_sampled_integral,
+)
+from czmpc.pid.discretization import INTEGRAL_FORMS, Discretization, IntegralForm, forms_of
 from czmpc.pid.errors import PIDTuningError
-from czmpc.pid.margins import LoopMargins, sampled_margins
+from czmpc.pid.margins import LoopMargins, sampled_margins, sampled_ms, worst_margins
 from czmpc.pid.plant import LocalPlant, RulePlant, local_plant, reduce_to_rule_plant
 from czmpc.pid.rules import PIDTuning
 from sysid.model import HammersteinModel
@@ -47,6 +65,25 @@ MIN_INTERVAL_PCT = 0.5
 CHECK_POINTS = 9
 #: Ms above which a row is flagged whatever was asked (a common upper limit) [-].
 MS_WARNING = 2.0
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SampledIntegralRow:
+    """A row's integral-only law (`czmpc.pid.design.SampledIntegral`) with its margins.
+
+    Parameters
+    ----------
+    law :
+        The law, tuned on the row's plant of largest ``f'``.
+    margins :
+        Its margins on the row's plant at the breakpoint (one law: no discretization).
+    worst_ms_to_next :
+        Its largest Ms on the plants from this breakpoint to the next [-].
+    """
+
+    law: SampledIntegral
+    margins: LoopMargins
+    worst_ms_to_next: float
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -66,11 +103,23 @@ class ScheduleRow:
     tuning :
         The tuned PID (ideal ISA form).
     margins :
-        Margins of ``tuning`` on ``plant`` (sampled loop).
+        Margins of ``tuning`` on ``plant`` (sampled loop): the worst over the forms of the
+        schedule's discretization.
     worst_ms_to_next :
-        Largest Ms of ``tuning`` on the plants from this breakpoint to the next [-].
+        Largest Ms of ``tuning`` on the plants from this breakpoint to the next, over the
+        same forms [-].
     worst_gain_change :
         Largest relative change of ``f'`` from this breakpoint to the next [-].
+    margins_by_form :
+        ``margins`` of each of `czmpc.pid.discretization.INTEGRAL_FORMS` alone.
+    worst_ms_to_next_by_form :
+        ``worst_ms_to_next`` of each form alone [-].
+    rule_ti_s :
+        The integral time the rule asked for on the row's plant [s]
+        (`czmpc.pid.design.LocalDesign.rule_ti_s`).
+    sampled_integral :
+        The integral-only law of the row, when any row of the schedule is integral-dominant;
+        else None.
     """
 
     plant: LocalPlant
@@ -80,11 +129,26 @@ class ScheduleRow:
     margins: LoopMargins
     worst_ms_to_next: float
     worst_gain_change: float
+    margins_by_form: Mapping[IntegralForm, LoopMargins]
+    worst_ms_to_next_by_form: Mapping[IntegralForm, float]
+    rule_ti_s: float
+    sampled_integral: SampledIntegralRow | None = None
 
     @property
     def triac_pct(self) -> float:
         """The breakpoint [%]."""
         return self.plant.triac_pct
+
+    @property
+    def integral_dominant(self) -> bool:
+        """True when the rule asked for ``Ti`` below ``MIN_TI_SAMPLES`` sampling times."""
+        return self.rule_ti_s < MIN_TI_SAMPLES * self.plant.ts_s
+
+    def margins_for(self, discretization: Discretization) -> tuple[LoopMargins, float]:
+        """``(margins, worst_ms_to_next)`` of the row in ``discretization``: worst over its forms."""
+        forms = forms_of(discretization)
+        return (worst_margins(self.margins_by_form[f] for f in forms),
+                max(self.worst_ms_to_next_by_form[f] for f in forms))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -96,7 +160,8 @@ class PIDSchedule:
     rows :
         One row per breakpoint, by increasing TRIAC input.
     spec :
-        How the rows were tuned.
+        How the rows were tuned (``spec.discretization``: the forms the rows' margins
+        and any bound hold for).
     ts_s :
         Sampling time of the model and the controller [s].
     triac_range_pct :
@@ -119,10 +184,27 @@ class PIDSchedule:
         """The breakpoints [%]."""
         return tuple(r.triac_pct for r in self.rows)
 
+    @property
+    def integral_dominant_pct(self) -> tuple[float, ...]:
+        """Breakpoints whose rule asked for ``Ti`` below the floor [%]."""
+        return tuple(r.triac_pct for r in self.rows if r.integral_dominant)
+
     def table_schedule(self) -> TableSchedule:
         """The schedule the controller runs (`czmpc.pid.controller.TableSchedule`)."""
         return TableSchedule(breakpoints_pct=self.breakpoints_pct,
                              tunings=tuple(r.tuning for r in self.rows))
+
+    def sampled_integral_schedule(self) -> TableSchedule | None:
+        """The integral-only laws as the forward-Euler PIs `ScheduledPID` runs them exactly.
+
+        None when the rows have no integral-only law (no row is integral-dominant).
+        """
+        laws = [r.sampled_integral for r in self.rows]
+        if any(law is None for law in laws):
+            return None
+        tunings = tuple(law.law.as_tuning("forward") for law in laws if law is not None)
+        return TableSchedule(breakpoints_pct=self.breakpoints_pct,
+                             tunings=tuple(t for t in tunings if t is not None))
 
 
 def _reduced(plant: LocalPlant) -> RulePlant | None:
@@ -132,17 +214,31 @@ def _reduced(plant: LocalPlant) -> RulePlant | None:
         return None
 
 
-def _interval_check(model: HammersteinModel, tuning: PIDTuning, lo_pct: float,
-                    hi_pct: float) -> tuple[float, float]:
-    """``(worst Ms, worst relative change of f')`` of ``tuning`` on plants in [lo, hi]."""
+def _interval_check(model: HammersteinModel, tuning: PIDTuning, lo_pct: float, hi_pct: float,
+                    forms: Sequence[IntegralForm] = INTEGRAL_FORMS,
+                    ) -> tuple[dict[IntegralForm, float], float]:
+    """``({form: worst Ms}, worst relative change of f')`` of ``tuning`` on plants in [lo, hi]."""
     base = local_plant(model, lo_pct)
-    worst_ms, worst_change = 0.0, 0.0
+    worst_ms = dict.fromkeys(forms, 0.0)
+    worst_change = 0.0
     for s in np.linspace(lo_pct, hi_pct, CHECK_POINTS if hi_pct > lo_pct else 1):
         plant = local_plant(model, float(s))
-        worst_ms = max(worst_ms, sampled_margins(tuning, plant).ms)
+        for form in forms:
+            worst_ms[form] = max(worst_ms[form], sampled_ms(tuning, plant, form))
         worst_change = max(worst_change,
                            abs(plant.gain_kw_per_pct / base.gain_kw_per_pct - 1.0))
     return worst_ms, worst_change
+
+
+def _sampled_integral_row(model: HammersteinModel, row: ScheduleRow, nxt: float,
+                          bound: float) -> SampledIntegralRow:
+    law = tune_sampled_integral(local_plant(model, row.tuned_at_pct), bound)
+    tuning = law.as_tuning("forward")
+    if tuning is None:  # forward Euler holds every integral-only law
+        raise PIDTuningError("sampled integral: no forward-Euler PI holds the law")
+    worst, _ = _interval_check(model, tuning, row.triac_pct, nxt, ("forward",))
+    return SampledIntegralRow(law=law, margins=sampled_margins(tuning, row.plant, "forward"),
+                              worst_ms_to_next=worst["forward"])
 
 
 def tune_schedule(
@@ -187,7 +283,8 @@ def tune_schedule(
                 f"breakpoints: expected distinct TRIAC inputs inside the range [{lo:g}, {hi:g}] "
                 f"%; got {list(breakpoints_pct)}")
     given = set(points)
-    tunings: dict[float, PIDTuning] = {}
+    designs: dict[float, LocalDesign] = {}
+    forms = spec.forms
 
     def highest_gain_input(s: float, nxt: float) -> float:
         grid = np.linspace(s, nxt, CHECK_POINTS if nxt > s else 1)
@@ -197,17 +294,20 @@ def tune_schedule(
     warnings: list[str] = []
     fragile: list[str] = []   # said after every "does not hold"
     rows: list[ScheduleRow] = []
+    ends: list[float] = []
     i = 0
     while i < len(points):
         s = points[i]
         nxt = points[i + 1] if i + 1 < len(points) else (hi if s < hi else s)
         tuned_at = highest_gain_input(s, nxt)
-        if tuned_at not in tunings:
-            tunings[tuned_at] = tune_local(local_plant(model, tuned_at), spec)
-        tuning = tunings[tuned_at]
-        own = sampled_margins(tuning, local_plant(model, tuned_at)).ms
+        if tuned_at not in designs:
+            designs[tuned_at] = design_local(local_plant(model, tuned_at), spec)
+        design = designs[tuned_at]
+        tuning = design.tuning
+        own = max(sampled_ms(tuning, local_plant(model, tuned_at), f) for f in forms)
         bound = spec.ms_bound if spec.ms_bound is not None else own * (1.0 + MS_SLACK)
-        worst_ms, change = _interval_check(model, tuning, s, nxt)
+        worst_by_form, change = _interval_check(model, tuning, s, nxt)
+        worst_ms = max(worst_by_form[f] for f in forms)
         holds = worst_ms <= bound and change <= MAX_GAIN_CHANGE
         if not holds and add_breakpoints and nxt - s >= 2 * MIN_INTERVAL_PCT:
             points.insert(i + 1, s + (nxt - s) / 2.0)
@@ -219,15 +319,23 @@ def tune_schedule(
                 f"(limit {100 * MAX_GAIN_CHANGE:g} %)")
         # point i is final: later breakpoints are inserted after it
         plant = local_plant(model, s)
-        margins = sampled_margins(tuning, plant)
+        by_form = {f: sampled_margins(tuning, plant, f) for f in INTEGRAL_FORMS}
+        margins = worst_margins(by_form[f] for f in forms)
         if margins.ms > MS_WARNING:
             fragile.append(f"row at {s:g} %: Ms {margins.ms:.3f} exceeds {MS_WARNING:g}; the "
                            "loop is fragile")
         rows.append(ScheduleRow(plant=plant, tuned_at_pct=tuned_at,
                                 rule_plant=_reduced(local_plant(model, tuned_at)), tuning=tuning,
                                 margins=margins, worst_ms_to_next=worst_ms,
-                                worst_gain_change=change))
+                                worst_gain_change=change, margins_by_form=by_form,
+                                worst_ms_to_next_by_form=worst_by_form,
+                                rule_ti_s=design.rule_ti_s))
+        ends.append(nxt)
         i += 1
+    if any(r.integral_dominant for r in rows):
+        rows = [replace(r, sampled_integral=_sampled_integral_row(
+            model, r, nxt, spec.ms_bound if spec.ms_bound is not None else r.worst_ms_to_next))
+            for r, nxt in zip(rows, ends, strict=True)]
     return PIDSchedule(rows=tuple(rows), spec=spec, ts_s=model.ts_s, triac_range_pct=(lo, hi),
                         added_breakpoints_pct=tuple(p for p in points if p not in given),
                         warnings=tuple(warnings + fragile))
@@ -244,7 +352,8 @@ class Region:
     row :
         The row whose tuning the region uses.
     worst_ms :
-        Largest Ms of that tuning over the region's local plants [-].
+        Largest Ms of that tuning over the region's local plants, in the forms of the
+        discretization the regions were merged for [-].
     """
 
     lo_pct: float
@@ -253,8 +362,8 @@ class Region:
     worst_ms: float
 
 
-def merge_regions(schedule: PIDSchedule, model: HammersteinModel, n_regions: int = 3
-                  ) -> tuple[Region, ...]:
+def merge_regions(schedule: PIDSchedule, model: HammersteinModel, n_regions: int = 3,
+                  discretization: Discretization | None = None) -> tuple[Region, ...]:
     """Merge the rows into ``n_regions`` contiguous regions of about equal width.
 
     Region boundaries are the breakpoints nearest to the equal divisions of the range;
@@ -269,6 +378,8 @@ def merge_regions(schedule: PIDSchedule, model: HammersteinModel, n_regions: int
         The model it was tuned on.
     n_regions :
         Number of regions (DeltaV's template has three), at most the number of rows.
+    discretization :
+        The forms the worst Ms is taken over; None: the schedule's own.
 
     Raises
     ------
@@ -278,6 +389,7 @@ def merge_regions(schedule: PIDSchedule, model: HammersteinModel, n_regions: int
     if n_regions < 1:
         raise PIDTuningError(f"regions: expected at least 1; got {n_regions}")
     lo, hi = schedule.triac_range_pct
+    forms = forms_of(discretization or schedule.spec.discretization)
     points = list(schedule.breakpoints_pct)
     n = min(n_regions, len(points))
     starts = sorted({min(range(len(points)), key=lambda i: abs(points[i] - target))
@@ -287,7 +399,7 @@ def merge_regions(schedule: PIDSchedule, model: HammersteinModel, n_regions: int
         last = starts[j + 1] if j + 1 < len(starts) else len(points)
         r_lo = lo if j == 0 else points[first]
         r_hi = points[last] if last < len(points) else hi
-        scored = [(_interval_check(model, row.tuning, r_lo, r_hi)[0], row)
+        scored = [(max(_interval_check(model, row.tuning, r_lo, r_hi, forms)[0].values()), row)
                   for row in schedule.rows[first:last]]
         worst, row = min(scored, key=lambda t: t[0])
         regions.append(Region(lo_pct=r_lo, hi_pct=r_hi, row=row, worst_ms=worst))
@@ -295,4 +407,5 @@ def merge_regions(schedule: PIDSchedule, model: HammersteinModel, n_regions: int
 
 
 __all__ = ["CHECK_POINTS", "MAX_GAIN_CHANGE", "MIN_INTERVAL_PCT", "MS_SLACK", "MS_WARNING",
-           "PIDSchedule", "Region", "ScheduleRow", "merge_regions", "tune_schedule"]
+           "PIDSchedule", "Region", "SampledIntegralRow", "ScheduleRow", "merge_regions",
+           "tune_schedule"]

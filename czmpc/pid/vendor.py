@@ -8,18 +8,40 @@ Emerson DeltaV ``PID``, Honeywell Experion ``PID`` and Rockwell Logix ``PIDE``, 
 parameter names of the vendors' published descriptions (docs/guides/pid.rst lists each
 form's columns and units; check them against the manual of the firmware on site). Every
 form also has the proportional band ``PB = 100/K`` [%].
+
+A block runs the ISA numbers through its own difference equation, so each form holds for
+the discretization of its block (`VENDOR_DISCRETIZATION`, `czmpc.pid.discretization`):
+the vendor's documented algorithm, or where its documentation of the discrete algorithm
+was not available, the worst case over forward, backward and trapezoidal integration;
+`VENDOR_DISCRETIZATION_SOURCE` says which, and every form's file and notes state it with
+the sampling time. A schedule not designed for a form's discretization is refused.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
+from czmpc.pid.discretization import Discretization, describe, forms_of
 from czmpc.pid.errors import PIDTuningError
 from czmpc.pid.schedule import PIDSchedule, Region
 
 FORMS: tuple[str, ...] = ("siemens", "deltav", "honeywell", "rockwell")
 SECONDS_PER_MINUTE = 60.0
+_UNDOCUMENTED = ("its documentation of the discrete algorithm (how the integral and the "
+                 "derivative filter are sampled) was not available when this form was "
+                 "written, so the numbers hold for the worst case")
+#: The discretization each form's numbers hold for (`czmpc.pid.discretization`).
+VENDOR_DISCRETIZATION: dict[str, Discretization] = {
+    "siemens": "worst", "deltav": "worst", "honeywell": "worst", "rockwell": "worst"}
+#: Why: the vendor's documented algorithm, or what of it was not available.
+VENDOR_DISCRETIZATION_SOURCE: dict[str, str] = {
+    "siemens": "PID_Compact's function manual states its law in continuous time only (a "
+               "PIDT1 in the Laplace variable); " + _UNDOCUMENTED,
+    "deltav": "DeltaV PID: " + _UNDOCUMENTED,
+    "honeywell": "Experion PID: " + _UNDOCUMENTED,
+    "rockwell": "Logix PIDE: " + _UNDOCUMENTED,
+}
 
 
 def gain_to_band_pct(gain: float) -> float:
@@ -98,6 +120,10 @@ class VendorTable:
         Values (numbers or the vendor's option strings), one tuple per breakpoint.
     notes :
         What the engineer must know to enter them.
+    discretization :
+        The discretization the numbers hold for (`VENDOR_DISCRETIZATION`).
+    comments :
+        The file's header comments: block, sampling time, discretization and Ms.
     """
 
     form: str
@@ -105,6 +131,8 @@ class VendorTable:
     header: tuple[str, ...]
     rows: tuple[tuple[float | str, ...], ...]
     notes: tuple[str, ...]
+    discretization: Discretization = "worst"
+    comments: tuple[str, ...] = ()
 
 
 def _weight_notes(block: str, schedule: PIDSchedule) -> list[str]:
@@ -235,7 +263,8 @@ def vendor_table(schedule: PIDSchedule, form: str, spans: Spans | None,
     Raises
     ------
     PIDTuningError
-        An unknown form, or no spans.
+        An unknown form, no spans, or a schedule not designed for the form's
+        discretization (`VENDOR_DISCRETIZATION`).
     """
     if form not in FORMS:
         raise PIDTuningError(f"vendor form: expected one of {', '.join(FORMS)}; got {form!r}")
@@ -244,20 +273,50 @@ def vendor_table(schedule: PIDSchedule, form: str, spans: Spans | None,
             f"vendor form {form!r} needs the spans the block scales with: give the PV range "
             "in kW and the output range in % (--pv-range-kw LO HI --out-range-pct LO HI); "
             "they are not assumed")
+    disc = VENDOR_DISCRETIZATION[form]
+    if not set(forms_of(disc)) <= set(schedule.spec.forms):
+        raise PIDTuningError(
+            f"vendor form {form!r}: its numbers must hold for {disc} "
+            f"({', '.join(forms_of(disc))}: {VENDOR_DISCRETIZATION_SOURCE[form]}); the schedule "
+            f"was designed for {schedule.spec.discretization} only: tune it with "
+            f"--discretization {disc}")
     if form == "deltav":
-        return _deltav(schedule, spans, regions)
-    return {"siemens": _siemens, "honeywell": _honeywell, "rockwell": _rockwell}[form](
-        schedule, spans)
+        table = _deltav(schedule, spans, regions)
+    else:
+        table = {"siemens": _siemens, "honeywell": _honeywell, "rockwell": _rockwell}[form](
+            schedule, spans)
+    stated = _discretization_lines(schedule, form)
+    return replace(table, discretization=disc, notes=table.notes + stated,
+                   comments=(table.block, f"ts_s: {schedule.ts_s!r}", f"discretization: {disc}",
+                             *stated))
+
+
+def _discretization_lines(schedule: PIDSchedule, form: str) -> tuple[str, ...]:
+    """Sampling time, discretization and Ms of ``form``'s numbers, one sentence each."""
+    disc = VENDOR_DISCRETIZATION[form]
+    forms = forms_of(disc)
+    worst = max(r.margins_for(disc)[1] for r in schedule.rows)
+    bound = schedule.spec.ms_bound
+    return (f"Sampling time {schedule.ts_s:g} s: the block must run every {schedule.ts_s:g} s "
+            "(its cycle, scan or update time); the numbers hold for no other.",
+            f"Discretization: {describe(disc)}. {VENDOR_DISCRETIZATION_SOURCE[form]}.",
+            f"Largest Ms at and between the breakpoints in {', '.join(forms)}: {worst:.3f}"
+            + (f" (bound {bound:g})." if bound is not None else "."))
 
 
 def vendor_csv_text(table: VendorTable) -> str:
-    """CSV text of a `VendorTable`: header with units, rows (shortest round-trip floats)."""
+    """CSV text of a `VendorTable`: comment lines (``#``), header with units, rows.
+
+    Floats are written with the shortest round-trip repr.
+    """
     def cell(v: float | str) -> str:
         return repr(float(v)) if isinstance(v, float | int) else f'"{v}"'
-    return "\n".join([",".join(f'"{h}"' for h in table.header)]
+    return "\n".join([f"# {c}" for c in table.comments]
+                     + [",".join(f'"{h}"' for h in table.header)]
                      + [",".join(cell(v) for v in row) for row in table.rows]) + "\n"
 
 
-__all__ = ["FORMS", "SECONDS_PER_MINUTE", "Spans", "VendorTable",
+__all__ = ["FORMS", "SECONDS_PER_MINUTE", "VENDOR_DISCRETIZATION", "VENDOR_DISCRETIZATION_SOURCE",
+           "Spans", "VendorTable",
            "dependent_to_independent", "gain_to_band_pct", "seconds_to_minutes", "vendor_table",
            "vendor_csv_text"]

@@ -5,7 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from czmpc.pid.design import DesignSpec, load_step_iae, tune_local
+from czmpc.pid.design import (
+    MIN_TI_SAMPLES,
+    DesignSpec,
+    design_local,
+    load_step_iae,
+    tune_local,
+    tune_sampled_integral,
+    worst_ms,
+)
+from czmpc.pid.discretization import INTEGRAL_FORMS, controller_frequency_response
 from czmpc.pid.errors import PIDTuningError
 from czmpc.pid.margins import sampled_margins
 from czmpc.pid.plant import local_plant, reduce_to_rule_plant
@@ -40,6 +49,8 @@ def test_ms_14_holds_at_and_between_every_breakpoint_on_the_sampled_loop(
     assert len(schedule.rows) >= 3 and schedule.warnings == ()
     for row, nxt in zip(schedule.rows, schedule.breakpoints_pct[1:] + (RANGE[1],), strict=True):
         assert row.margins.ms <= 1.4 and row.worst_ms_to_next <= 1.4
+        assert row.margins.ms == max(row.margins_by_form[f].ms for f in INTEGRAL_FORMS)
+        assert max(row.worst_ms_to_next_by_form.values()) == row.worst_ms_to_next
         # checked independently of czmpc.pid.margins, at the row and at the next breakpoint
         for s in (row.triac_pct, nxt):
             assert _independent_ms(shipped, row.tuning.kc_pct_per_kw, row.tuning.ti_s, s) <= 1.4
@@ -76,11 +87,55 @@ def test_a_gain_rising_with_the_input_is_tuned_on_each_intervals_highest_gain(
 def test_the_ms_rule_beats_simc_on_load_iae_under_the_same_bound(
     shipped: HammersteinModel,
 ) -> None:
+    # for ScheduledPID's law alone (forward Euler) and, on a plant with a lag, for all three
     plant = local_plant(shipped, 45.0)
-    simc = tune_local(plant, DesignSpec(ms=1.4))
-    best = tune_local(plant, DesignSpec(rule="ms", ms=1.4))
+    simc = tune_local(plant, DesignSpec(ms=1.4, discretization="forward"))
+    best = tune_local(plant, DesignSpec(rule="ms", ms=1.4, discretization="forward"))
     assert sampled_margins(best, plant).ms <= 1.4
-    assert load_step_iae(best, plant) < 0.8 * load_step_iae(simc, plant)  # measured 0.62
+    assert load_step_iae(best, plant) < 0.8 * load_step_iae(simc, plant)  # measured 0.56
+    lag = local_plant(shipped.with_updates(a=np.array([1.0, -0.9]), b=np.array([0.0, 0.0, 1.0]),
+                                           c=np.array([1.0, -0.9])), 45.0)
+    simc = tune_local(lag, DesignSpec(ms=1.4))
+    best = tune_local(lag, DesignSpec(rule="ms", ms=1.4))
+    assert worst_ms(best, lag, INTEGRAL_FORMS) <= 1.4
+    assert (max(load_step_iae(best, lag, f) for f in INTEGRAL_FORMS)
+            < 0.8 * max(load_step_iae(simc, lag, f) for f in INTEGRAL_FORMS))  # measured 0.71
+
+
+def test_a_rule_asking_for_ti_below_ts_is_floored_and_said_integral_dominant(
+    shipped: HammersteinModel,
+) -> None:
+    # nearly a gain and a dead time: SIMC's delay-dominant PI has Ti = theta/3 = Ts/2, the
+    # ms rule's optimum lies below Ts too; the table holds Ti = Ts, Kc for the bound in every form
+    plant = local_plant(shipped, 45.0)
+    for rule in ("simc", "ms"):
+        design = design_local(plant, DesignSpec(rule=rule, ms=1.4))  # type: ignore[arg-type]
+        assert design.integral_dominant and design.rule_ti_s < plant.ts_s
+        assert design.tuning.ti_s == MIN_TI_SAMPLES * plant.ts_s
+        assert worst_ms(design.tuning, plant, INTEGRAL_FORMS) <= 1.4
+        assert worst_ms(design.tuning.scaled(1.01), plant, INTEGRAL_FORMS) > 1.4  # on the bound
+    assert design_local(plant, DesignSpec(rule="simc", ms=1.4)).rule_ti_s == pytest.approx(
+        1.0, rel=IDENTITY_RTOL)  # theta/3 with theta = 3 s
+    # the integral-only law: one law, so one Ms; forward Euler with Ti = Ts is that law
+    law = tune_sampled_integral(plant, 1.4)
+    forward = law.as_tuning("forward")
+    assert forward is not None and forward.ti_s == plant.ts_s
+    assert sampled_margins(forward, plant).ms == pytest.approx(1.4, abs=1e-6)
+    tustin = law.as_tuning("tustin")
+    assert tustin is not None
+    w = np.linspace(0.01, 1.0, 5) * np.pi / plant.ts_s
+    np.testing.assert_allclose(controller_frequency_response(tustin, plant.ts_s, w, "tustin"),
+                               controller_frequency_response(forward, plant.ts_s, w, "forward"),
+                               rtol=1e-12)
+    assert law.as_tuning("backward") is None
+    # a plant with a lag: no floor, no integral-only law
+    lag = local_plant(shipped.with_updates(a=np.array([1.0, -0.9]), b=np.array([0.0, 0.0, 1.0]),
+                                           c=np.array([1.0, -0.9])), 45.0)
+    assert not design_local(lag, DesignSpec(rule="ms", ms=1.4)).integral_dominant
+    schedule = tune_schedule(shipped, DesignSpec(ms=1.4), triac_range_pct=RANGE)
+    assert schedule.integral_dominant_pct == schedule.breakpoints_pct
+    assert all(r.sampled_integral is not None and r.sampled_integral.worst_ms_to_next <= 1.4
+               for r in schedule.rows)
 
 
 def test_the_heater_reduces_to_a_gain_with_a_sample_and_a_half_of_dead_time(
@@ -116,6 +171,7 @@ def test_three_regions_cover_the_range_and_report_their_worst_ms(shipped: Hammer
     (lambda: DesignSpec(tau_c_s=3.0, ms=1.4), r"either tau_c_s .* or ms"),
     (lambda: DesignSpec(rule="ms", tau_c_s=3.0), r"tau_c_s: expected a time > 0 .* got 3.0"),
     (lambda: DesignSpec(ms=0.9), r"ms: expected a bound > 1.*got 0.9"),
+    (lambda: DesignSpec(discretization="euler"), r"discretization: expected one of .*got 'euler'"),
 ])
 def test_design_spec_refuses_contradictions(spec: object, match: str) -> None:
     with pytest.raises(PIDTuningError, match=match):

@@ -18,10 +18,13 @@ from czmpc.pid.table import (
     write_pid_table,
 )
 from czmpc.pid.vendor import (
+    VENDOR_DISCRETIZATION,
+    VENDOR_DISCRETIZATION_SOURCE,
     Spans,
     dependent_to_independent,
     gain_to_band_pct,
     seconds_to_minutes,
+    vendor_csv_text,
     vendor_table,
 )
 from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
@@ -44,18 +47,38 @@ def schedule(model: HammersteinModel) -> PIDSchedule:
 
 
 def test_pid_table_has_the_issues_columns_and_reads_back_bit_for_bit(
-    schedule: PIDSchedule, tmp_path: Path,
+    model: HammersteinModel, schedule: PIDSchedule, tmp_path: Path,
 ) -> None:
     path = write_pid_table(schedule, tmp_path / "pid_table.csv")
-    assert path.read_text().splitlines()[0] == (
+    lines = path.read_text().splitlines()
+    comments = [line for line in lines if line.startswith("#")]
+    assert lines[:len(comments)] == comments  # the header comments come first
+    assert lines[len(comments)] == (
         "triac_pct,power_kw,gain_kw_per_pct,tau_s,dead_time_s,kc_pct_per_kw,ti_s,td_s,"
         "td_filter_s,setpoint_weight,ms,gain_margin,phase_margin_deg,crossover_rad_per_s,"
         "worst_ms_to_next")
+    # they state the sampling time and the discretization of the integral and derivative filter
+    assert "# ts_s: 2.0" in comments and "# discretization: worst" in comments
+    text = "\n".join(comments)
+    assert "sampling time 2 s" in text and "derivative filter" in text
+    assert all(f"#   {f}:" in text for f in ("forward", "backward", "tustin"))
+    assert "integral-dominant" in text  # the shipped heater's rule asks for Ti = Ts/2
     table = read_pid_table(path)
     assert table.schedule == schedule.table_schedule()
+    assert table.ts_s == 2.0 and table.discretization == "worst"
     assert [v["worst_ms_to_next"] for v in table.values] == [
         r.worst_ms_to_next for r in schedule.rows]
     assert len(COLUMNS) == 15
+    # stated for one form, the margins are that form's
+    forward = read_pid_table(write_pid_table(schedule, tmp_path / "forward.csv", "forward"))
+    assert forward.discretization == "forward"
+    assert [v["ms"] for v in forward.values] == [
+        r.margins_by_form["forward"].ms for r in schedule.rows]
+    only_forward = tune_schedule(model, DesignSpec(ms=1.4, discretization="forward"),
+                                 triac_range_pct=(28.0, 70.0), breakpoints_pct=(28.0, 70.0),
+                                 add_breakpoints=False)
+    with pytest.raises(PIDTuningError, match=r"designed for .*forward.*got 'worst'"):
+        write_pid_table(only_forward, tmp_path / "x.csv", "worst")
 
 
 @pytest.mark.parametrize("text, match", [
@@ -65,6 +88,10 @@ def test_pid_table_has_the_issues_columns_and_reads_back_bit_for_bit(
      r"line 2, column 'kc_pct_per_kw': expected a number; got 'x'"),
     (",".join(COLUMNS) + "\n" + ",".join(["1"] * 5 + ["-1"] + ["1"] * 9) + "\n",
      r"line 2: PIDTuning.kc_pct_per_kw.*got -1.0"),
+    ("# a comment\n# ts_s: 2\ntriac_pct,kc\n", r"line 3: expected the pid_table.csv header"),
+    ("# discretization: euler\n" + ",".join(COLUMNS) + "\n",
+     r"header comment 'discretization': discretization: expected one of .*got 'euler'"),
+    ("# ts_s: -2\n" + ",".join(COLUMNS) + "\n", r"header comment 'ts_s': expected a time > 0"),
 ])
 def test_a_bad_table_is_refused_with_file_line_and_column(tmp_path: Path, text: str,
                                                            match: str) -> None:
@@ -117,6 +144,23 @@ def test_vendor_forms_state_units_and_use_the_spans(schedule: PIDSchedule) -> No
     for table in (deltav, honeywell, rockwell, siemens):
         assert all("[" in h for h in table.header if h not in ("STRUCTURE", "CTLEQN"))
         assert table.header[-1] == "PB [%]"
+        # each states its sampling time and discretization, in its file and in its notes
+        assert table.discretization == VENDOR_DISCRETIZATION[table.form]
+        text = vendor_csv_text(table)
+        assert "# ts_s: 2.0\n" in text and f"# discretization: {table.discretization}\n" in text
+        assert "Sampling time 2 s" in text and VENDOR_DISCRETIZATION_SOURCE[table.form] in text
+        assert any("Discretization: " in n for n in table.notes)
+        assert text.splitlines()[len(table.comments)].startswith('"from_triac_pct [%]"')
+
+
+def test_a_vendor_form_needs_a_schedule_designed_for_its_discretization(
+    model: HammersteinModel,
+) -> None:
+    forward = tune_schedule(model, DesignSpec(ms=1.4, discretization="forward"),
+                            triac_range_pct=(28.0, 70.0), breakpoints_pct=(28.0, 70.0),
+                            add_breakpoints=False)
+    with pytest.raises(PIDTuningError, match=r"vendor form 'siemens'.*--discretization worst"):
+        vendor_table(forward, "siemens", SPANS)
 
 
 def test_vendor_forms_never_assume_spans(schedule: PIDSchedule) -> None:
