@@ -294,6 +294,7 @@ class OffsetFreeMPC:
         self._est.restart(np.append(self._ssm.xw * w_eff, 0.0))
         self._w_eff_assumed = w_eff   # the effective input the estimator's last predict took
         self._warm = 0
+        self._jump_sign = 0
         self._stuck_rolled = False
         self._checker.reset()
         self._monitor.reset()
@@ -576,7 +577,15 @@ class OffsetFreeMPC:
         used = check.verdict is Verdict.VALID and est.update(power - self._p_nom)
         if used:
             self._warm += 1
+            k_sigma = self._rel.level_change_k_sigma
+            sign = (0 if k_sigma is None or not abs(est.eps) > k_sigma * std_kw
+                    else 1 if est.eps > 0 else -1)
+            if sign and sign == self._jump_sign:   # the second in a row: a level change
+                est.absorb_level_change()
+                sign = 0
+            self._jump_sign = sign
         else:
+            self._jump_sign = 0
             if check.verdict is not Verdict.VALID:
                 est.skip()
             self._n_rejected += 1

@@ -295,6 +295,22 @@ class Estimator:
         self.gap = 0
         return True
 
+    def absorb_level_change(self) -> bool:
+        """After `update`: move an output disturbance ``d`` so that ``C z = y`` for this
+        sample (the whole innovation left after the update taken as a level change).
+
+        Returns False, changing nothing, when ``d`` does not act on the output at once
+        (an input disturbance) or no measurement was used."""
+        c_d = float(self._C[-1])
+        if c_d == 0.0 or self.gap or self.eps == 0.0:
+            return False
+        residual = self.eps * (1.0 - float(self._C @ self._M))
+        z = self._z.copy()
+        z[-1] += residual / c_d
+        self._z = z
+        self._z_shared = False
+        return True
+
     def skip(self) -> None:
         """No measurement this sample: ``z_{k|k} = z_{k|k-1}``, ``eps = 0``."""
         self.gap += 1

@@ -2,7 +2,7 @@
 
 Its output is a zone temperature [degC] reported in the output role (``power_kw`` in
 `sim.protocols.Plant`; a model identified from it says ``units = {"output": "degC"}``,
-DESIGN.md "Identification is general"). It differs from the CZ heater where the
+docs/theory.rst, "Facts that bite": identification is general). It differs from the CZ heater where the
 controller's defaults could have been fitted to the heater: two lags (element about
 20 s, zone about 140 s) and no direct feed-through, so the output starts to move only
 slowly after a step; a slow mode of 70 samples at 2 s; a quantised sensor.

@@ -31,7 +31,8 @@ from pathlib import Path
 #: Parameters section must list (each with its unit in the description).
 API_PAGE = "api/generated/czmpc.OffsetFreeMPC.step.html"
 API_CLASS_PAGE = "api/generated/czmpc.OffsetFreeMPC.html"
-API_PARAMETERS = {"power_kw": "[kW]", "setpoint_kw": "[kW]", "applied_triac_pct": "[%]"}
+API_PARAMETERS = {"power_kw": "[kW]", "setpoint_kw": "[kW]", "applied_triac_pct": "[%]",
+                  "setpoint_preview_kw": "[kW]", "grid_voltage_factor": "[-]"}
 
 #: Pages the landing page must link to (paths relative to the site root).
 REQUIRED_LINKS = ("getting_started.html", "guides/identify.html", "guides/commission.html",

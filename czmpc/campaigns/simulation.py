@@ -32,7 +32,7 @@ from czmpc.settings import MPCSettings
 from sim.drift import PlantVariation, vary_heater, vary_model_plant
 from sim.errors import SimError
 from sim.heater import HeaterParams, VirtualHeater
-from sim.loop import ClosedLoopResult, ProgressCallback, run_closed_loop
+from sim.loop import VOLTAGE_SENSOR_NOISE_STD, ClosedLoopResult, ProgressCallback, run_closed_loop
 from sim.metrics import ClosedLoopMetrics, compute_metrics
 from sim.protocols import Controller, Plant
 from sim.scenario import Scenario
@@ -294,7 +294,8 @@ def run_simulation(
         name, controller, allowed = "mpc", mpc, mpc.allowed_triac_range_pct
     else:
         name, controller = controller_factory[0], controller_factory[1](used, allowed)
-    result = run_closed_loop(the_plant, controller, scenario, rng=int(seed), progress=progress)
+    result = run_closed_loop(the_plant, controller, scenario, rng=int(seed), progress=progress,
+                             voltage_noise_std=VOLTAGE_SENSOR_NOISE_STD if noise else 0.0)
     return SimulationOutcome(
         plant=plant, noise=bool(noise), seed=int(seed), initial_triac_pct=s0, settings=used,
         controller=name, allowed_triac_range_pct=allowed, result=result,

@@ -382,7 +382,7 @@ def test_estimator_matches_a_reference_predictor_fed_the_applied_input(
     # finite sample reaches the estimator (the gate has its own tests).
     settings_ = MPCSettings.default_for(model).with_updates(
         max_move_pct_per_step=0.5,
-        reliability=ReliabilitySettings(spike_gate_k_sigma=None))
+        reliability=ReliabilitySettings(spike_gate_k_sigma=None, level_change_k_sigma=None))
     mpc = OffsetFreeMPC(model, settings_)
     aug, kf = mpc.augmented_model, mpc.estimator
     z_pred = np.zeros(aug.n_states)  # starts at the operating point's steady state

@@ -57,7 +57,8 @@ def test_the_checked_page_is_the_controller_step_with_its_parameters(tool: Modul
     assert tool.API_PAGE == "api/generated/czmpc.OffsetFreeMPC.step.html"
     signature = inspect.signature(OffsetFreeMPC.step)
     assert set(tool.API_PARAMETERS) == set(signature.parameters) - {"self"}
-    full = {"power_kw": "power [kW]", "setpoint_kw": "setpoint [kW]", "applied_triac_pct": "input [%]"}
+    full = {"power_kw": "power [kW]", "setpoint_kw": "setpoint [kW]", "applied_triac_pct": "input [%]",
+            "setpoint_preview_kw": "setpoints [kW]", "grid_voltage_factor": "voltage [-]"}
     assert tool.parameters_without_unit(full) == []
     # a parameter left out, or described without its unit, is reported
     assert tool.parameters_without_unit({**full, "applied_triac_pct": "input"}) == ["applied_triac_pct"]
