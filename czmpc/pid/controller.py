@@ -141,7 +141,7 @@ class ScheduledPID:
     bumpless :
         True (default): a gain change acts only on changes of the error (module notes).
         False: the new gain acts on the whole proportional term, ``Kc_k p_k - Kc_{k-1}
-        p_{k-1}``, the law the ``pi_gs`` benchmark peer was recorded with.
+        p_{k-1}``, the law the ``pi_gs`` benchmark peer ran before issue 41 (it now runs bumpless).
     voltage_characterizer :
         With a measured grid voltage (`step`'s ``grid_voltage_factor``), the law's output
         is the input meant at nominal voltage and this maps it to the TRIAC input that

@@ -39,13 +39,16 @@ def test_fresh_runs_match_the_golden_set(scenario: str, czmpc_regress: RegressCh
 
 
 def test_a_doubled_move_weight_is_caught_as_a_regression() -> None:
-    case = "mpc/model/voltage_sag/s7"
+    # The ramp, where the move weight shapes every sample. (On the voltage sag, whose
+    # level change is taken at once since issue 40, doubling it moves the IAE by 9
+    # tolerances, and down.)
+    case = "mpc/model/meltdown_ramp/s7"
     assert check_golden(GOLDEN, cases=[case]).passed
     worse = check_golden(GOLDEN, cases=[case], mutation="move_weight x2")
     (check,) = worse.cases
     assert {f.metric for f in check.failures} >= {"iae_kw_s", "ise_kw2_s"}
     iae = next(f for f in check.failures if f.metric == "iae_kw_s")
-    # measured: 179 tolerances out; far outside, not marginal
+    # measured: 2,610 tolerances out; far outside, not marginal
     assert iae.new > iae.golden + 10 * iae.tolerance
     assert check.divergence is not None and check.divergence.signal in ("power_true_kw", "triac_pct")
 
