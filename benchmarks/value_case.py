@@ -94,8 +94,7 @@ STAIRCASE_RATIO_GOAL = 0.6
 RAMP_RATIO_GOAL = 0.35
 SAG_RATIO_GOAL = 0.6
 BOUND_RATIO_GOAL = 1.15
-#: Scenarios of the bound goal: setpoint changes without process disturbances (the bound
-#: knows disturbances in advance, a controller cannot; elsewhere the ratio is shown only).
+#: How to read the section (facts of the method, true whatever the numbers).
 READING_NOTES = (
     "IAE, overshoot and input travel are of the plant's true power (`sim.metrics`); a "
     "ratio is the controller's value over the MPC-with-preview's ('-': the MPC's is 0 or "
@@ -108,8 +107,8 @@ READING_NOTES = (
     "rate limit can be tracked exactly, so its bound is near 0 and its ratio measures "
     "residues of a few W. The 'sharp MPC' is the MPC with preview with move and "
     "input-target weights near 0 (`SHARP_WEIGHTS`): it shows that the bound is reachable "
-    "by this controller's structure, and what the default weights cost. A setpoint above what the "
-    "allowed input range holds (large_step's 80 kW) or a start below it (meltdown_ramp) "
+    "by this controller's structure, and what the default weights cost. A setpoint above "
+    "what the allowed input range holds (large_step's 80 kW) or a start below it (meltdown_ramp) "
     "costs every controller and the bound alike."
 )
 
