@@ -35,8 +35,11 @@ power at 0 kW is left out (it never binds on the allowed range of a sound model,
 power stays far above 0 there). Sensor faults (spikes, missing samples) touch only what a
 controller measures, not the true power, and are ignored.
 
-Size: three variables and five constraints per sample, about ``n (na + nb + 6)`` nonzeros;
-HiGHS solves the 3,900-sample staircase in well under a second (`IAEBound.solve_time_s`).
+Size: three variables per sample; one equality, two error rows and one row per rate cut
+(2 with ``"max_slope"``, ``2 * TANGENT_POINTS`` = 16 with ``"tangents"``), all sparse
+(a few nonzeros per row). HiGHS solves the 3,900-sample staircase in 1-3 s with the
+max-slope cuts and 6-13 s with the tangents on a shared 2-core machine
+(`IAEBound.solve_time_s`; the value-case section records each).
 """
 
 from __future__ import annotations
