@@ -8,7 +8,7 @@ The reference for "does the inversion lose anything": the same model, estimator
 Notation as in `czmpc.qp`: ``dx_j = x_j - x_s``, ``h = A (x_{k|k} - x_s) + G_x eps_k``,
 ``w_{-1} = f(ds_prev)``. The NLP (``docs/theory.rst``, C5, with ``w_j = f(ds_j)``)::
 
-    min_ds  sum_{j=1}^{N-1} q_y (C dx_j)^2
+    min_ds  sum_{j=1}^{N-1} q_y (C dx_j - rho)^2
           + sum_{j=0}^{N-1} [ q_u (f(ds_j) - w_s)^2 + q_dw (f(ds_j) - f(ds_{j-1}))^2 ]
           + [dx_N; f(ds_{N-1}) - w_s]^T P_f [dx_N; f(ds_{N-1}) - w_s]
           + rho_2 v^2 + rho_1 v                                    (soft limits only)
@@ -17,11 +17,13 @@ Notation as in `czmpc.qp`: ``dx_j = x_j - x_s``, ``h = A (x_{k|k} - x_s) + G_x e
           |ds_0 - ds_prev| <= delta,  |ds_j - ds_{j-1}| <= delta    (rate, exact)
           P_min - v <= P_nom + y_s + C dx_j <= P_max + v, j = 1..N, v >= 0   (soft)
 
-The rate limit is exact on every move here; the QP bounds later moves conservatively
+``rho = r - y_s`` is the gap to a setpoint the target cannot reach (0 when it can): the
+output tracks the setpoint itself, as the MPC's (C8). The rate limit is exact on every
+move here; the QP bounds later moves conservatively
 (`czmpc.qp.MoveBounds`). Otherwise it is the same problem in another variable: without a
 rate limit the two controllers agree to the solvers' tolerances.
 
-The NLP is built once (``nlpsol`` with parameters ``[h, w_s, w_prev, y_s]``); each step
+The NLP is built once (``nlpsol`` with parameters ``[h, w_s, w_prev, y_s, rho]``); each step
 warm-starts from the previous plan shifted by one sample. A failed solve falls back like
 the MPC (shifted previous plan, then the target), counted in `n_fallbacks`.
 """
@@ -196,8 +198,8 @@ class NonlinearMPC:
         has_soft = st.has_soft_power_limits
         ds = ca.SX.sym("ds", N)
         v = ca.SX.sym("v", 1 if has_soft else 0)
-        p = ca.SX.sym("p", n + 3)
-        h, w_s, w_prev, y_s = p[:n], p[n], p[n + 1], p[n + 2]
+        p = ca.SX.sym("p", n + 4)
+        h, w_s, w_prev, y_s, rho = p[:n], p[n], p[n + 1], p[n + 2], p[n + 3]
         Am, Bm, Cm = ca.DM(A), ca.DM(B), ca.DM(C).T
         w = [_poly(coefficients, ds[j]) for j in range(N)]
         cost = 0
@@ -206,7 +208,7 @@ class NonlinearMPC:
         dxs = [h + Bm * (w[0] - w_s)]   # dx_1 .. dx_N
         for j in range(N):
             if j >= 1:
-                cost += st.output_weight * (Cm @ dxs[-1]) ** 2
+                cost += st.output_weight * (Cm @ dxs[-1] - rho) ** 2
                 dxs.append(Am @ dxs[-1] + Bm * (w[j] - w_s))
             cost += st.input_target_weight * (w[j] - w_s) ** 2
             cost += st.move_weight * (w[j] - (w[j - 1] if j else w_prev)) ** 2
@@ -335,7 +337,8 @@ class NonlinearMPC:
             ubg[self._soft_max_rows] = self._soft_max_rel
         if self._soft_min_rel is not None:
             lbg[self._soft_min_rows] = self._soft_min_rel
-        params = np.concatenate([h, [tgt.w_s, im.f(ds_prev), tgt.y_s]])
+        rho = 0.0 if tgt.is_reachable else setpoint - self._p_nom - tgt.y_s
+        params = np.concatenate([h, [tgt.w_s, im.f(ds_prev), tgt.y_s, rho]])
         x0 = np.clip(self._x0, lbx, ubx)
         t0 = time.perf_counter()
         sol = self._solver(x0=x0, p=params, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)

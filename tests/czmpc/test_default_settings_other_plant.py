@@ -54,7 +54,7 @@ def test_the_heater_models_keep_their_defaults(name: str, horizon: int) -> None:
     assert step_response_scale(model) == 1.0        # the power steps by 1 at once, then sags
     assert immediate_fraction(model) == 1.0
     assert (settings.horizon_steps, settings.move_weight, settings.input_target_weight,
-            settings.validity_margin_pct) == (horizon, 0.1, 0.01, 5.0)
+            settings.validity_margin_pct) == (horizon, 0.1, 1e-3, 5.0)
     assert settings.max_move_pct_per_step == pytest.approx(1.6)   # 5 % of 33..65 %
 
 

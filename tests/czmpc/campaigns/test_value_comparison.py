@@ -16,6 +16,11 @@ from sysid.model import HammersteinModel
 from sysid.modelfile import load_model
 
 
+#: The shipped MPC's IAE on this noise-free sag before issue 40 [kW s] (measured at
+#: 317d35c; the issue's goal: at most 0.6 of it with the voltage measured).
+MPC_BEFORE_ISSUE_40_KW_S = 23.78
+
+
 @pytest.fixture(scope="module")
 def model() -> HammersteinModel:
     return load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
@@ -36,8 +41,10 @@ def _iae(model: HammersteinModel, table: TableSchedule, scenario: str, **keys: o
 def test_a_measured_sag_helps_both_sides(model: HammersteinModel, table: TableSchedule) -> None:
     blind = _iae(model, table, "voltage_sag")
     seen = _iae(model, table, "voltage_sag", measured_voltage=True)
-    # Noise-free heater: the MPC 23.8 -> 14.1 kW s, the table's PI 17.4 -> 14.2.
-    assert seen["mpc"] < 0.65 * blind["mpc"]
+    # Noise-free heater, seed 3: the MPC 18.3 -> 13.9 kW s (23.8 before issue 40, which
+    # took the sag's level change at the filter's rate); the table's PI 17.4 -> 14.2.
+    assert seen["mpc"] < 0.85 * blind["mpc"]
+    assert seen["mpc"] < 0.6 * MPC_BEFORE_ISSUE_40_KW_S
     assert seen["pi_table"] < 0.9 * blind["pi_table"]
     assert seen["mpc"] <= seen["pi_table"]
 
