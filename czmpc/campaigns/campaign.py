@@ -33,7 +33,7 @@ Spec (TOML)::
     # linear_model = "armax.json"    # linear_mpc only
 
     [[plants]]
-    kind = "model"                   # "model", "heater", "perturbed" or "sampled"
+    kind = "model"                   # "model", "heater", "thermal", "perturbed" or "sampled"
     [[plants]]
     kind = "perturbed"               # the Cartesian product of the three lists
     gain_factors = [0.8, 1.0, 1.2]
@@ -73,8 +73,8 @@ from czmpc.config_text import choices, shown
 from czmpc.errors import CzmpcError
 from sysid.atomic import file_sha256
 
-PlantKindName = Literal["model", "heater", "perturbed", "sampled"]
-PLANT_KINDS: tuple[str, ...] = ("model", "heater", "perturbed", "sampled")
+PlantKindName = Literal["model", "heater", "thermal", "perturbed", "sampled"]
+PLANT_KINDS: tuple[str, ...] = ("model", "heater", "thermal", "perturbed", "sampled")
 #: Controller kinds and their campaign spellings.
 PRESETS: tuple[str, ...] = (*CONTROLLERS, *PRESET_ALIASES)
 #: Columns that identify a run.
@@ -129,7 +129,7 @@ class PlantSpec:
     Parameters
     ----------
     kind :
-        ``"model"``, ``"heater"``, ``"perturbed"`` or ``"sampled"``.
+        ``"model"``, ``"heater"``, ``"thermal"``, ``"perturbed"`` or ``"sampled"``.
     gain_factor, time_constant_factor, extra_delay_steps :
         Perturbation of a ``"perturbed"`` plant (`sim.perturbed.perturb_model`);
         1, 1, 0 otherwise.
@@ -708,7 +708,7 @@ def simulate_run(run: RunSpec) -> SimulatedRun:
     allowed = allowed_triac_range(model, triac_min_pct=used.triac_min_pct,
                                   triac_max_pct=used.triac_max_pct,
                                   validity_margin_pct=used.validity_margin_pct)
-    gain = (math.nan if run.plant.kind == "heater" else float(
+    gain = (math.nan if run.plant.kind in ("heater", "thermal") else float(
         static_gain_kw_per_pct(plant_model, np.array(model.operating_point.triac_pct))))
     return SimulatedRun(result=result, power_at=power_at,
                         allowed_triac_range_pct=(float(allowed[0]), float(allowed[1])),

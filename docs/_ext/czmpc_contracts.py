@@ -278,6 +278,8 @@ CAMPAIGN_CONTROLLER_KEYS: dict[str, tuple[str, str, str]] = {
 CAMPAIGN_PLANT_KEYS: dict[str, tuple[str, str, str]] = {
     "kind": ("string", "required",
              "``model`` (the model's own equation), ``heater`` (the virtual heater), "
+             "``thermal`` (the furnace zone `sim.thermal_plant`, for a model identified "
+             "from it), "
              "``sampled`` (plants drawn from the model's parameter covariance; its keys "
              "in the next table) or ``perturbed`` (the model perturbed; the three factor "
              "keys below, only for this kind)."),
