@@ -197,8 +197,8 @@ class OffsetFreeMPC:
         self._voltage = VoltageDeadband()
         self._scaled: tuple[InputMap, float, InputMap] | None = None  # (map, v^2, v^2 f)
         self._ref_cost = self._qp.reference_cost
-        self._ref = np.empty(2 * settings.horizon_steps - 1)     # [rho; sigma], reused
-        self._traj = np.empty(settings.horizon_steps + 2)         # [r_{k+1..k+N}; c_y; c_w]
+        self._ref = np.empty(2 * settings.horizon_steps)          # [rho; sigma_-1..N-1], reused
+        self._traj = np.empty(settings.horizon_steps + 3)         # [r_{k..k+N}; c_y; c_w]
         self._traj_cost = self._ref_cost @ _trajectory_map(settings.horizon_steps,
                                                              self._ssm.static_gain)
         self.reset()
@@ -435,12 +435,13 @@ class OffsetFreeMPC:
         if preview is not None and n_preview:
             tgt = compute_target(self._ssm, setpoint=float(preview.values_kw[-1]) - self._p_nom,
                                  disturbance=d, w_min=w_min, w_max=w_max)
-            q_offset = self._reference_cost(preview, tgt, w_min, w_max)
+            q_offset = self._reference_cost(sp.used_kw, preview, tgt, w_min, w_max)
         else:
             tgt = compute_target(self._ssm, setpoint=sp.used_kw - self._p_nom, disturbance=d,
                                  w_min=w_min, w_max=w_max)
             q_offset = (None if tgt.is_reachable else self._reference_cost(
-                ShapedPreview(np.array([sp.used_kw]), sp.used_kw, sp.used_kw), tgt, w_min, w_max))
+                sp.used_kw, ShapedPreview(np.array([sp.used_kw]), sp.used_kw, sp.used_kw), tgt,
+                w_min, w_max))
         ds_prev = self._ds_prev
         plan = self._solve_or_fall_back(z, eps, tgt, em, em_v, q_offset)
         sol, w0, fallback, _, _, solver_shed = plan
@@ -522,33 +523,36 @@ class OffsetFreeMPC:
             cached = self._scaled = (em, v2, scaled)
         return cached[2]
 
-    def _reference_cost(self, preview: ShapedPreview, tgt: Target, w_min: float,
-                        w_max: float) -> FloatArray:
-        """Stage 2: the QP's linear cost for the setpoints of samples ``k+1, ...`` [kW], held
-        past their end; ``tgt`` is the last one's target (`czmpc.qp.MPCQP.solve`'s
-        ``q_offset``; ``docs/theory.rst``, C8).
+    def _reference_cost(self, setpoint_kw: float, preview: ShapedPreview, tgt: Target,
+                        w_min: float, w_max: float) -> FloatArray:
+        """Stage 2: the QP's linear cost for the setpoint now and those of samples ``k+1,
+        ...`` [kW], held past their end; ``tgt`` is the last one's target
+        (`czmpc.qp.MPCQP.solve`'s ``q_offset``; ``docs/theory.rst``, C8).
 
         The output references are the setpoints themselves, so a setpoint the target
         cannot reach pulls the output towards it, not towards the reachable target. The
-        input targets follow the setpoints through the static gain, clipped to the bounds.
-        Where none is clipped, the cost is one product with the trajectory.
+        input targets follow the setpoints through the static gain, clipped to the bounds,
+        and the moves they make cost nothing. Where none is clipped, the cost is one
+        product with the trajectory.
         """
         n, n_values = self._horizon, preview.values_kw.size
         traj = self._traj
-        traj[:n_values] = preview.values_kw
+        traj[0] = setpoint_kw
+        traj[1 : n_values + 1] = preview.values_kw
         r_end = float(preview.values_kw[-1])
         if n_values < n:
-            traj[n_values:n] = r_end
+            traj[n_values + 1 : n + 1] = r_end
         inv_g = 1.0 / self._ssm.static_gain
-        if (w_min <= tgt.w_unclipped + (preview.low_kw - r_end) * inv_g
-                and tgt.w_unclipped + (preview.high_kw - r_end) * inv_g <= w_max):
-            traj[n] = self._p_nom + tgt.y_s
-            traj[n + 1] = tgt.w_unclipped - tgt.w_s
+        low, high = min(preview.low_kw, setpoint_kw), max(preview.high_kw, setpoint_kw)
+        if (w_min <= tgt.w_unclipped + (low - r_end) * inv_g
+                and tgt.w_unclipped + (high - r_end) * inv_g <= w_max):
+            traj[n + 1] = self._p_nom + tgt.y_s
+            traj[n + 2] = tgt.w_unclipped - tgt.w_s
             out: FloatArray = self._traj_cost.dot(traj)
             return out
         ref = self._ref
-        np.subtract(traj[: n - 1], self._p_nom + tgt.y_s, out=ref[: n - 1])
-        sigma = np.clip(tgt.w_unclipped + (traj[:n] - r_end) * inv_g, w_min, w_max)
+        np.subtract(traj[1:n], self._p_nom + tgt.y_s, out=ref[: n - 1])
+        sigma = np.clip(tgt.w_unclipped + (traj[: n + 1] - r_end) * inv_g, w_min, w_max)
         np.subtract(sigma, tgt.w_s, out=ref[n - 1 :])
         cost: FloatArray = self._ref_cost.dot(ref)
         return cost
@@ -708,17 +712,17 @@ class OffsetFreeMPC:
 
 
 def _trajectory_map(horizon_steps: int, static_gain: float) -> FloatArray:
-    """(2N-1, N+2) ``T`` with ``[rho; sigma] = T [r_{k+1..k+N}; c_y; c_w]`` when no input
+    """(2N, N+3) ``T`` with ``[rho; sigma] = T [r_{k..k+N}; c_y; c_w]`` when no input
     target is clipped: ``rho_j = r_{k+j} - c_y`` (``j = 1..N-1``) and ``sigma_j =
-    (r_{k+j+1} - r_{k+N}) / g + c_w`` (``j = 0..N-1``), ``c_y = P_nom + y_s``,
+    (r_{k+j+1} - r_{k+N}) / g + c_w`` (``j = -1..N-1``), ``c_y = P_nom + y_s``,
     ``c_w = w_unclipped - w_s`` (`OffsetFreeMPC._reference_cost`)."""
     n = horizon_steps
-    t = np.zeros((2 * n - 1, n + 2))
-    t[: n - 1, : n - 1] = np.eye(n - 1)
-    t[: n - 1, n] = -1.0
-    t[n - 1 :, :n] = np.eye(n) / static_gain
-    t[n - 1 :, n - 1] -= 1.0 / static_gain
-    t[n - 1 :, n + 1] = 1.0
+    t = np.zeros((2 * n, n + 3))
+    t[: n - 1, 1:n] = np.eye(n - 1)
+    t[: n - 1, n + 1] = -1.0
+    t[n - 1 :, : n + 1] = np.eye(n + 1) / static_gain
+    t[n - 1 :, n] -= 1.0 / static_gain
+    t[n - 1 :, n + 2] = 1.0
     return t
 
 

@@ -459,9 +459,14 @@ class MPCQP:
         #: (k,) where `solve` reads ``h_terms`` from when given this very array (no copy).
         self.h_input: FloatArray = self._params[:-2]
         self._terminal_P: FloatArray = P_f
-        #: (N, 2N-1) ``q`` per ``[rho; sigma]`` (`reference_cost`).
-        self.reference_cost: FloatArray = np.hstack([-2.0 * output_weight * Ey.T,
-                                                     -2.0 * input_target_weight * np.eye(N)])
+        # (N, 2N) q per [rho; sigma_-1; sigma] (`solve`'s q_offset): the linear terms of
+        # q_y (C dx_j - rho_j)^2, q_u (dW_j - sigma_j)^2 and q_dw (w_j - w_{j-1} - m_j)^2,
+        # m_j = sigma_j - sigma_{j-1}, beyond those of rho = sigma = 0.
+        D_ext = np.eye(N, N + 1, k=1) - np.eye(N, N + 1)
+        #: (N, 2N) ``q`` per ``[rho; sigma_-1; sigma]`` (`solve`'s ``q_offset``).
+        self.reference_cost: FloatArray = np.hstack([
+            -2.0 * output_weight * Ey.T,
+            -2.0 * input_target_weight * np.eye(N, N + 1, k=1) - 2.0 * move_weight * D.T @ D_ext])
         self._Cgam_rowsum = Cgam.sum(axis=1)
         self._Cphi_map = Cphi @ h_map  # C Phi_j h = (C Phi_j M) t
         self._cost_hessian: FloatArray = np.asarray(H, dtype=float)
@@ -618,9 +623,11 @@ class MPCQP:
         q_offset :
             (N,) added to the plan's linear cost: ``reference_cost @ [rho; sigma]`` for
             output references ``y_s + rho_j`` (``j = 1..N-1``) and input targets ``w_s +
-            sigma_j`` (``j = 0..N-1``), i.e. stage costs ``q_y (C dx_j - rho_j)^2`` and
-            ``q_u (dW_j - sigma_j)^2`` (a setpoint trajectory, or a setpoint the target
-            cannot reach); None for zeros.
+            sigma_j`` (``j = -1..N-1``; ``sigma_-1`` that of the input applied now), i.e.
+            stage costs ``q_y (C dx_j - rho_j)^2``, ``q_u (dW_j - sigma_j)^2`` and
+            ``q_dw (w_j - w_{j-1} - (sigma_j - sigma_{j-1}))^2``: a move the targets make
+            costs nothing (a setpoint trajectory, or a setpoint the target cannot reach);
+            None for zeros.
 
         Notes
         -----

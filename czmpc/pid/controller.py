@@ -3,7 +3,8 @@
 `ScheduledPID` satisfies the controller protocol of `sim.protocols.Controller`
 (``ts_s``, ``step(power_kw, setpoint_kw) -> triac_pct``, ``reset()``, ``last_step``), so
 `sim.loop`, ``czmpc simulate``, campaigns and regression suites run it like the MPC.
-`controller_frequency_response` is the same law as a transfer function, for the margins.
+`czmpc.pid.discretization.controller_frequency_response` (``form="forward"``) is the same
+law as a transfer function, for the margins.
 
 Notation
 --------
@@ -30,12 +31,9 @@ import math
 from dataclasses import dataclass
 from typing import Protocol
 
-import numpy as np
-
 from czmpc.pid.errors import PIDTuningError
 from czmpc.pid.rules import PIDTuning
 from czmpc.voltage import VoltageCharacterizer, VoltageDeadband
-from sysid._typing import FloatArray
 
 
 class TuningSchedule(Protocol):
@@ -267,26 +265,4 @@ class ScheduledPID:
         return u
 
 
-def controller_frequency_response(tuning: PIDTuning, ts_s: float,
-                                  w_rad_per_s: FloatArray) -> FloatArray:
-    """``C(e^{j w Ts})`` [%/kW] of `ScheduledPID`'s law (module notes) from ``-y`` to ``u``.
-
-    Parameters
-    ----------
-    tuning :
-        The tuning in force.
-    ts_s :
-        Sampling time [s].
-    w_rad_per_s :
-        Angular frequencies [rad/s], below ``pi/ts_s``.
-    """
-    zinv = np.exp(-1j * np.asarray(w_rad_per_s, dtype=float) * ts_s)
-    out = 1.0 + (ts_s / tuning.ti_s) * zinv / (1.0 - zinv)
-    if tuning.td_s > 0:
-        out = out + tuning.td_s * (1.0 - zinv) / (tuning.td_filter_s + ts_s
-                                                  - tuning.td_filter_s * zinv)
-    return np.asarray(tuning.kc_pct_per_kw * out)
-
-
-__all__ = ["PIDStep", "ScheduledPID", "TableSchedule", "TuningSchedule",
-           "controller_frequency_response"]
+__all__ = ["PIDStep", "ScheduledPID", "TableSchedule", "TuningSchedule"]

@@ -96,15 +96,19 @@ def test_the_preview_plan_minimises_the_tracking_cost(top_kw: float) -> None:
     x_s = xw * w_s
     x0 = xw * 0.0                               # at rest at the operating point
     w_targets = np.clip(w_free + (r - r[-1]) / g, im.w_min, im.w_max)  # of w_j: r_{k+j+1}
+    w_now = float(np.clip(w_free + (0.0 - r[-1]) / g, im.w_min, im.w_max))  # of r_k = 45 kW
     P_f = mpc.qp.terminal_weight
     q_y, q_u, q_dw = settings.output_weight, settings.input_target_weight, settings.move_weight
 
     def cost(w: np.ndarray) -> float:
         x = A @ x0 + B * w[0]
-        total = q_u * (w[0] - w_targets[0]) ** 2 + q_dw * (w[0] - 0.0) ** 2
+        # A move the input targets make costs nothing: the move penalty is on the rest.
+        total = (q_u * (w[0] - w_targets[0]) ** 2
+                 + q_dw * (w[0] - 0.0 - (w_targets[0] - w_now)) ** 2)
         for j in range(1, n):
             total += q_y * (C @ x - r[j - 1]) ** 2
-            total += q_u * (w[j] - w_targets[j]) ** 2 + q_dw * (w[j] - w[j - 1]) ** 2
+            total += (q_u * (w[j] - w_targets[j]) ** 2
+                      + q_dw * (w[j] - w[j - 1] - (w_targets[j] - w_targets[j - 1])) ** 2)
             x = A @ x + B * w[j]
         xi = np.append(x - x_s, w[-1] - w_s)
         return float(total + xi @ P_f @ xi)

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from czmpc.pid.controller import ScheduledPID, TableSchedule, controller_frequency_response
+from czmpc.pid.controller import ScheduledPID, TableSchedule
+from czmpc.pid.discretization import controller_frequency_response
 from czmpc.pid.errors import PIDTuningError
 from czmpc.pid.rules import PIDTuning
 from sim.protocols import Controller
@@ -94,7 +95,7 @@ def test_transfer_function_is_the_law_run_step_by_step() -> None:
     moves = np.diff(u)
     w = np.linspace(0.01, 0.99, 9) * np.pi / ts
     dtft = np.array([np.sum(moves * np.exp(-1j * wi * ts * np.arange(n))) for wi in w])
-    expected = (1 - np.exp(-1j * w * ts)) * controller_frequency_response(PID, ts, w)
+    expected = (1 - np.exp(-1j * w * ts)) * controller_frequency_response(PID, ts, w, "forward")
     # setpoint weight acts on r only (r = 0 here)
     np.testing.assert_allclose(dtft, expected, rtol=1e-10, atol=1e-12)
 
