@@ -15,7 +15,6 @@ from sim.scenario import load_scenario
 from sysid.model import HammersteinModel
 from sysid.modelfile import load_model
 
-
 #: The shipped MPC's IAE on this noise-free sag before issue 40 [kW s] (measured at
 #: 317d35c; the issue's goal: at most 0.6 of it with the voltage measured).
 MPC_BEFORE_ISSUE_40_KW_S = 23.78
