@@ -41,7 +41,7 @@ from czmpc._records import record_from_fields
 from czmpc.diagnostics import Fallback, StepDiagnostics
 from czmpc.errors import DesignError, SettingsError
 from czmpc.inversion import InputMap, build_input_map, clamp, slope
-from czmpc.kalman import Estimator, SteadyStateKalman
+from czmpc.kalman import Estimator, LevelChangeRule, SteadyStateKalman
 from czmpc.mismatch import InnovationMonitor, monitored_noise_std_kw
 from czmpc.modes import Mode, ModeTransition, Status, transition
 from czmpc.qp import MPCQP, QPSolution
@@ -141,6 +141,7 @@ class OffsetFreeMPC:
                               noise_std_kw=monitored_noise_std_kw(model),
                               max_gap=rel.max_predicted_samples + 1,
                               history_samples=4 * max(rel.stuck_samples, 1) + 1)
+        self._level_change = LevelChangeRule(rel.level_change_k_sigma)
         self._ssm: SteadyStateMap = steady_state_map(base, settings.disturbance_model)
         _check_static_gain(model, self._ssm.static_gain, im)
         n = self._n_x = base.n_states
@@ -294,7 +295,7 @@ class OffsetFreeMPC:
         self._est.restart(np.append(self._ssm.xw * w_eff, 0.0))
         self._w_eff_assumed = w_eff   # the effective input the estimator's last predict took
         self._warm = 0
-        self._jump_sign = 0
+        self._level_change.reset()
         self._stuck_rolled = False
         self._checker.reset()
         self._monitor.reset()
@@ -579,17 +580,10 @@ class OffsetFreeMPC:
         else:
             self._stuck_rolled = False
         used = check.verdict is Verdict.VALID and est.update(power - self._p_nom)
+        self._level_change.observe(est, std_kw, used)
         if used:
             self._warm += 1
-            k_sigma = self._rel.level_change_k_sigma
-            sign = (0 if k_sigma is None or not abs(est.eps) > k_sigma * std_kw
-                    else 1 if est.eps > 0 else -1)
-            if sign and sign == self._jump_sign:   # the second in a row: a level change
-                est.absorb_level_change()
-                sign = 0
-            self._jump_sign = sign
         else:
-            self._jump_sign = 0
             if check.verdict is not Verdict.VALID:
                 est.skip()
             self._n_rejected += 1

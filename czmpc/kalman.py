@@ -363,9 +363,67 @@ class Estimator:
         return frozen
 
 
+class LevelChangeRule:
+    """A level change told from a spike: two used samples in a row whose innovations
+    exceed ``k_sigma`` predicted standard deviations, with one sign.
+
+    At the second, an output disturbance takes the whole innovation left after the
+    update (`Estimator.absorb_level_change`) instead of the filter's share: a grid sag
+    without a voltage reading is taken at once. A lone spike moves the estimate by the
+    filter's share only. Every controller with an `Estimator` runs it the same way
+    (`czmpc.settings.ReliabilitySettings.level_change_k_sigma`).
+
+    Parameters
+    ----------
+    k_sigma :
+        The threshold [predicted standard deviations]; None never takes a level change
+        (the textbook filter).
+    """
+
+    __slots__ = ("_sign", "k_sigma")
+
+    def __init__(self, k_sigma: float | None) -> None:
+        self.k_sigma = k_sigma
+        self._sign = 0
+
+    def reset(self) -> None:
+        """Forget the last innovation's sign."""
+        self._sign = 0
+
+    def observe(self, est: Estimator, std_kw: float, used: bool) -> bool:
+        """After this sample's measurement update: take a level change if this is the second.
+
+        Parameters
+        ----------
+        est :
+            The estimator, its `Estimator.update` just run (or not).
+        std_kw :
+            The innovation's predicted standard deviation before the update [kW].
+        used :
+            Whether the update ran with a measurement; a sample without one ends a run.
+
+        Returns
+        -------
+        bool
+            True when the estimate was moved as a level change.
+        """
+        k_sigma = self.k_sigma
+        if not used or k_sigma is None:
+            self._sign = 0
+            return False
+        eps = est.eps
+        sign = 0 if not abs(eps) > k_sigma * std_kw else 1 if eps > 0 else -1
+        if sign and sign == self._sign:
+            self._sign = 0
+            return est.absorb_level_change()
+        self._sign = sign
+        return False
+
+
 __all__ = [
     "MAX_INNOVATION_KW",
     "Estimator",
+    "LevelChangeRule",
     "SteadyStateKalman",
     "design_estimator",
     "innovation_variance_after_gap",

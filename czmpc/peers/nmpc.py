@@ -40,7 +40,7 @@ import numpy as np
 
 from czmpc.errors import DesignError, SettingsError
 from czmpc.inversion import InputMap, build_input_map
-from czmpc.kalman import Estimator
+from czmpc.kalman import Estimator, LevelChangeRule
 from czmpc.qp import terminal_cost
 from czmpc.realization import augment, innovations_form
 from czmpc.settings import MPCSettings
@@ -166,6 +166,7 @@ class NonlinearMPC:
         base = innovations_form(model)
         self._est = Estimator(augment(base, settings.disturbance_model),
                               settings.disturbance_noise, noise_std_kw=model.noise_std_kw)
+        self._level_change = LevelChangeRule(settings.reliability.level_change_k_sigma)
         self._ssm: SteadyStateMap = steady_state_map(base, settings.disturbance_model)
         s_init = self._s_nom if settings.initial_triac_pct is None else settings.initial_triac_pct
         im = self._input_map
@@ -267,6 +268,7 @@ class NonlinearMPC:
         z = np.zeros(self._n_x + 1)
         z[: self._n_x] = self._ssm.xw * w0
         self._est.restart(z)
+        self._level_change.reset()
         self._ds_prev = self._ds_init
         self._setpoint_kw = self._p_nom + self._ssm.static_gain * w0
         self._k = 0
@@ -311,7 +313,9 @@ class NonlinearMPC:
 
         # 1. measurement update (skipped for a missing or absurd sample)
         est = self._est
+        std_kw = est.innovation_std_kw
         used = math.isfinite(power) and est.update(power - self._p_nom)
+        self._level_change.observe(est, std_kw, used)   # as OffsetFreeMPC does
         if not math.isfinite(power):
             est.skip()
         z, eps = est.z, est.eps
