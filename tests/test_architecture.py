@@ -36,6 +36,7 @@ LAYERS: dict[str, float] = {
     "czmpc.pid": 1.5,
     "czmpc.peers": 2,
     "czmpc.reports": 2,
+    "czmpc.codegen": 2,
     "czmpc.campaigns": 3,
     "czmpc.runtime": 3,
     "czmpc.commissioning": 4,

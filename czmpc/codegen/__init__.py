@@ -1,0 +1,42 @@
+"""Generated C of the whole controller step, proven equal to the Python controller (issue 42).
+
+Layer 2, beside `czmpc.peers`: it reads the composed controller's stages and data; no
+core module imports it.
+
+Generate, build, use::
+
+    czmpc codegen model.json --settings settings.toml --out step/   # C99 + OSQP's solver
+    make -C step/                     # *.o, libczmpc.a and step/example
+    printf '45.0,46.0\\nnan,46.0\\n' | step/example   # triac_pct,mode,status,... per line
+
+From Python (builds ``libczmpc.so`` on demand with the system's C compiler)::
+
+    from czmpc.codegen import load_controller
+    c = load_controller("step/")
+    triac_pct = c.step(power_kw=45.0, setpoint_kw=46.0)
+    c.last.status, c.last.n_iterations
+
+- `czmpc.codegen.generate`: the templates (``templates/*.c, *.h, *.in``, C as C) filled
+  with the controller's numbers, and OSQP's generated solver from the controller's own
+  OSQP problem (``parameters='matrices'``);
+- `czmpc.codegen.build`: ``make`` with the system compiler (``-ffp-contract=off``);
+- `czmpc.codegen.loader`: the compiled step behind ctypes, a `sim.protocols.Controller`.
+
+What is in the C: every stage of `czmpc.controller.OffsetFreeMPC.step` (setpoint shaper
+with preview, limit ramp, measured voltage, measurement checks, estimator with roll-back
+and level change, target, reference cost, QP vectors, OSQP, fallbacks, guard, inversion,
+modes, statuses), `reset`, `request_mode` and `set_triac_limits`. Not in C: the mismatch
+monitor (`czmpc.mismatch`, diagnostics only: it changes no output) and the log of mode
+transitions. OSQP polishing and solver time limits are refused (OSQP's embedded code
+has neither). Only the OSQP solver is generated.
+"""
+
+from __future__ import annotations
+
+from czmpc.codegen.build import build
+from czmpc.codegen.errors import BuildError, CodegenError
+from czmpc.codegen.generate import GeneratedStep, generate_step
+from czmpc.codegen.loader import CController, StepRecord, load_controller
+
+__all__ = ["BuildError", "CController", "CodegenError", "GeneratedStep", "StepRecord", "build",
+           "generate_step", "load_controller"]

@@ -1,0 +1,312 @@
+"""Write the C99 step of one controller: templates filled with the controller's own data.
+
+The C lives in ``czmpc/codegen/templates`` as C (`TEMPLATES`); this module only fills in
+numbers: the model's and settings' constants and the QP's matrices, read from an
+`czmpc.controller.OffsetFreeMPC` built from the same model and settings, each written as
+an exact hexadecimal literal. The QP solver is OSQP's own generated code, generated from
+that controller's OSQP problem with ``parameters='matrices'`` (adaptive rho kept: with
+``'vectors'`` 63 % of the plans differ, issue 42).
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import string
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import osqp
+
+from czmpc.codegen.errors import CodegenError
+from czmpc.controller import OffsetFreeMPC
+from czmpc.settings import MPCSettings
+from sysid._typing import FloatArray
+from sysid._version import __version__
+from sysid.model import HammersteinModel
+
+#: Template files and the names they are written under (``.in``: filled in).
+TEMPLATES: dict[str, str] = {
+    "czmpc_step.h": "czmpc_step.h",
+    "czmpc_step.c": "czmpc_step.c",
+    "czmpc_example.c": "czmpc_example.c",
+    "czmpc_model.h.in": "czmpc_model.h",
+    "Makefile.in": "Makefile",
+}
+#: Prefix of OSQP's generated globals (``czmpc_qp_solver``) and workspace files.
+OSQP_PREFIX = "czmpc_qp_"
+#: Sub-directory of the output that holds OSQP's generated code.
+OSQP_DIR = "osqp"
+#: Files of OSQP's code generator this project builds its own way (its Makefile calls
+#: gcc, its example main is not ours).
+_OSQP_UNUSED = ("Makefile", "emosqp.c")
+
+_MODES = {"off": 0, "predict": 1, "on": 2}
+
+
+@dataclass(frozen=True, kw_only=True)
+class GeneratedStep:
+    """What `generate_step` wrote.
+
+    Parameters
+    ----------
+    directory :
+        The output directory.
+    horizon_steps :
+        ``N`` of the controller.
+    n_variables, n_constraints :
+        Size of the QP.
+    float32 :
+        True if the step and OSQP use ``float``.
+    files :
+        The files written at the top of the directory (OSQP's code is under ``osqp/``).
+    """
+
+    directory: Path
+    horizon_steps: int
+    n_variables: int
+    n_constraints: int
+    float32: bool
+    files: tuple[str, ...]
+
+
+def c_number(value: float) -> str:
+    """``value`` as an exact C99 hexadecimal literal in parentheses.
+
+    Raises
+    ------
+    CodegenError
+        If ``value`` is not finite (C has no literal for it).
+    """
+    v = float(value)
+    if not math.isfinite(v):
+        raise CodegenError(f"codegen: every constant must be finite; got {v!r}")
+    return f"({v.hex()})"
+
+
+def c_array(values: Iterable[float] | FloatArray) -> str:
+    """A C initializer list body: 1-d arrays flat, 2-d arrays as rows in braces."""
+    arr = np.asarray(values, dtype=float)
+    if arr.ndim == 2:
+        return "\n    " + ",\n    ".join("{" + ", ".join(c_number(v) for v in row) + "}" for row in arr)
+    return ", ".join(c_number(v) for v in arr.ravel())
+
+
+def check_supported(settings: MPCSettings) -> None:
+    """Refuse settings the generated step cannot reproduce.
+
+    Raises
+    ------
+    CodegenError
+        OSQP polishing or a solver time limit (neither exists in OSQP's embedded code), or
+        a QP solver other than OSQP.
+    """
+    if settings.osqp.polishing:
+        raise CodegenError(
+            "codegen: OSQPOptions.polishing must be false (OSQP's generated code has no "
+            "polishing); got true: set [osqp] polishing = false in the settings file")
+    if settings.osqp.time_limit_s is not None:
+        raise CodegenError(
+            "codegen: OSQPOptions.time_limit_s must be unset (OSQP's generated code has no "
+            f"timer, and a time limit makes results depend on machine speed); got "
+            f"{settings.osqp.time_limit_s!r}")
+    solver = getattr(settings, "solver", "osqp")
+    if solver != "osqp":
+        raise CodegenError(f"codegen: only the OSQP solver is generated so far; got solver = {solver!r}")
+
+
+def _flag(value: object) -> str:
+    return "1" if value else "0"
+
+
+def _optional(value: float | None) -> tuple[str, str]:
+    """``(HAS, value)`` macros of an optional number (0 when absent)."""
+    return ("0", c_number(0.0)) if value is None else ("1", c_number(value))
+
+
+def template_values(mpc: OffsetFreeMPC, *, model_source: str, settings_source: str,
+                    float32: bool) -> dict[str, str]:
+    """The values `TEMPLATES` are filled with, read from ``mpc`` (a fresh controller).
+
+    Parameters
+    ----------
+    mpc :
+        The Python controller the C must equal.
+    model_source, settings_source :
+        Where the model and settings came from (the header says it).
+    float32 :
+        ``float`` instead of ``double``.
+    """
+    s = mpc.settings
+    rel = s.reliability
+    qp = mpc.qp
+    im = mpc.input_map
+    est = mpc._est
+    ssm = mpc._ssm
+    aug = mpc.augmented_model
+    n_x = aug.base.n_states
+    n = qp.horizon_steps
+    s_nom = im.operating_triac_pct
+    p_nom = mpc.model.operating_point.power_kw
+    abg = np.column_stack([aug.A, aug.B, est.gains.G])
+    abg_c = np.vstack([abg, aug.C @ abg])
+    has_min, power_min = _optional(rel.power_min_kw)
+    has_max, power_max = _optional(rel.power_max_kw)
+    has_change, max_change = _optional(rel.max_change_kw_per_sample)
+    has_gate, k_sigma = _optional(rel.spike_gate_k_sigma)
+    has_level, level_k = _optional(rel.level_change_k_sigma)
+    has_ramp = rel.setpoint_ramp_kw_per_s is not None
+    shaper = mpc._shaper
+    lo_ok = -1e6 if rel.power_min_kw is None else max(rel.power_min_kw, -1e6)
+    hi_ok = 1e6 if rel.power_max_kw is None else min(rel.power_max_kw, 1e6)
+    values: dict[str, str] = {
+        "MODEL_SOURCE": model_source,
+        "SETTINGS_SOURCE": settings_source,
+        "CZMPC_VERSION": __version__,
+        "OSQP_VERSION": osqp.__version__,
+        "REAL_TYPEDEF": ("typedef float czmpc_real;\n#define CZMPC_FLOAT32 1" if float32
+                         else "typedef double czmpc_real;"),
+        "REAL_FLAG": "-DCZMPC_FLOAT32" if float32 else "",
+        "HORIZON_STEPS": str(n),
+        "N_STATES": str(n_x),
+        "N_COEFFICIENTS": str(len(im.coefficients)),
+        "N_CRITICAL_POINTS": str(len(im.slope_critical_points_pct)),
+        "N_VARIABLES": str(qp.n_variables),
+        "N_CONSTRAINTS": str(qp.n_constraints),
+        "HISTORY_SAMPLES": str(4 * max(rel.stuck_samples, 1) + 1),
+        "N_STD": str(len(est._std_kw)),
+        "HAS_RATE_LIMIT": _flag(qp.has_rate_limit),
+        "HAS_SOFT_MIN": _flag(qp.has_soft_min),
+        "HAS_SOFT_MAX": _flag(qp.has_soft_max),
+        "DISTURBANCE_INPUT": _flag(s.disturbance_model == "input"),
+        "ROW_SOFT": str(qp._row_soft),
+        "TS_S": c_number(mpc.ts_s),
+        "S_NOM": c_number(s_nom),
+        "P_NOM": c_number(p_nom),
+        "DS_INIT": c_number(mpc._ds_init),
+        "DS_MIN": c_number(im.ds_min_pct),
+        "DS_MAX": c_number(im.ds_max_pct),
+        "W_MIN": c_number(im.w_min),
+        "W_MAX": c_number(im.w_max),
+        "ALLOWED_MIN": c_number(mpc.allowed_triac_range_pct[0]),
+        "ALLOWED_MAX": c_number(mpc.allowed_triac_range_pct[1]),
+        "STATIC_GAIN": c_number(ssm.static_gain),
+        "INV_STATIC_GAIN": c_number(1.0 / ssm.static_gain),
+        "W0_ABS": c_number(mpc._w0_abs),
+        "D_POWER_GAIN": c_number(aug.disturbance_power_gain),
+        "CM": c_number(float(aug.C @ est.gains.M)),
+        "C_D": c_number(float(aug.C[-1])),
+        "INITIAL_MODE": str(_MODES[rel.initial_mode]),
+        "WARMUP_SAMPLES": str(rel.warmup_samples),
+        "HAS_POWER_MIN": has_min, "POWER_MIN": power_min,
+        "HAS_POWER_MAX": has_max, "POWER_MAX": power_max,
+        "HAS_MAX_CHANGE": has_change, "MAX_CHANGE": max_change,
+        "STUCK_SAMPLES": str(rel.stuck_samples),
+        "STUCK_MIN_CHANGE": c_number(rel.stuck_min_predicted_change_kw),
+        "HAS_SPIKE_GATE": has_gate, "SPIKE_K_SIGMA": k_sigma,
+        "SPIKE_FLOOR": c_number(rel.spike_gate_floor_kw),
+        "REOPEN_AFTER": str(rel.reopen_after_samples),
+        "HAS_LEVEL_CHANGE": has_level, "LEVEL_CHANGE_K_SIGMA": level_k,
+        "MAX_PREDICTED": str(rel.max_predicted_samples),
+        "HAS_SHED": _flag(mpc._shed_ds is not None),
+        "SHED_DS": c_number(mpc._shed_ds if mpc._shed_ds is not None else 0.0),
+        "MAX_BAD_SOLVES": str(rel.max_bad_solves),
+        "BOUND_TOL": c_number(qp.bound_tol_kw),
+        "HAS_SETPOINT_RAMP": _flag(has_ramp),
+        "SETPOINT_MAX_STEP": c_number(shaper._max_step if shaper._max_step is not None else 0.0),
+        "SETPOINT_ALPHA": c_number(shaper._alpha),
+        "PREVIEW_LO_OK": c_number(lo_ok),
+        "PREVIEW_HI_OK": c_number(hi_ok),
+        "LIMIT_RAMP": c_number(mpc._limits._step),
+        "MAX_MOVE": c_number(0.0 if s.max_move_pct_per_step is None else s.max_move_pct_per_step),
+        "SOFT_MIN_REL": c_number(mpc._soft_min_rel or 0.0),
+        "SOFT_MAX_REL": c_number(mpc._soft_max_rel or 0.0),
+        "SOFT_LINEAR_WEIGHT": c_number(s.soft_limit_linear_weight),
+        "OSQP_RHO": c_number(qp._solver.settings.rho),
+        "COEF": c_array(im.coefficients),
+        "CRIT": c_array(im.slope_critical_points_pct or (0.0,)),
+        "XW": c_array(ssm.xw),
+        "A_AUG": c_array(aug.A),
+        "B_AUG": c_array(aug.B),
+        "C_AUG": c_array(aug.C),
+        "M": c_array(est.gains.M),
+        "G": c_array(est.gains.G),
+        "ABG_C": c_array(abg_c),
+        "STD_KW": c_array(est._std_kw),
+        "Q_PARAMS": c_array(qp._q_params),
+        "TRAJ_COST": c_array(mpc._traj_cost),
+        "REF_COST": c_array(mpc._ref_cost),
+        "CPHI_MAP": c_array(qp._Cphi_map),
+        "CGAM_ROWSUM": c_array(qp._Cgam_rowsum),
+    }
+    return values
+
+
+def generate_step(model: HammersteinModel, settings: MPCSettings | None, out_dir: Path, *,
+                  float32: bool = False, model_source: str = "<memory>",
+                  settings_source: str = "defaults for the model (MPCSettings.default_for)",
+                  progress: Callable[[str], None] | None = None) -> GeneratedStep:
+    """Write the C99 step of ``OffsetFreeMPC(model, settings)`` and its Makefile into ``out_dir``.
+
+    Parameters
+    ----------
+    model :
+        The identified model.
+    settings :
+        The controller settings; None: `MPCSettings.default_for` ``(model)``, as
+        ``OffsetFreeMPC(model)``.
+    out_dir :
+        The output directory (created; files of the same names are replaced).
+    float32 :
+        Generate the step and OSQP in ``float`` (single precision).
+    model_source, settings_source :
+        Where model and settings came from, for the generated header.
+    progress :
+        Called with a line per stage.
+
+    Raises
+    ------
+    CodegenError
+        Settings the generated step cannot reproduce (`check_supported`).
+    DesignError, SettingsError
+        As ``OffsetFreeMPC(model, settings)`` raises them.
+    OSError
+        The directory cannot be written.
+    """
+    say = progress if progress is not None else (lambda _msg: None)
+    mpc = OffsetFreeMPC(model, settings)
+    check_supported(mpc.settings)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    osqp_dir = out_dir / OSQP_DIR
+    say(f"generating OSQP's solver for the QP ({mpc.qp.n_variables} variables, "
+        f"{mpc.qp.n_constraints} constraints) into {osqp_dir}")
+    if osqp_dir.exists():
+        shutil.rmtree(osqp_dir)
+    mpc.qp._solver.codegen(str(osqp_dir), parameters="matrices", extension_name=None,
+                           force_rewrite=True, use_float=float32, prefix=OSQP_PREFIX,
+                           include_codegen_src=True, compile=False)
+    for name in _OSQP_UNUSED:
+        (osqp_dir / name).unlink(missing_ok=True)
+    sources = sorted(p.stem for p in (osqp_dir / "src").glob("*.c"))
+    say(f"writing the step (horizon {mpc.qp.horizon_steps}, "
+        f"{'float' if float32 else 'double'}) into {out_dir}")
+    values = template_values(mpc, model_source=model_source, settings_source=settings_source,
+                             float32=float32)
+    values["OSQP_OBJECTS"] = " ".join(f"osqp_{name}.o" for name in sources)
+    folder = resources.files("czmpc.codegen") / "templates"
+    for template, target in TEMPLATES.items():
+        text = (folder / template).read_text(encoding="utf-8")
+        if template.endswith(".in"):
+            text = string.Template(text).substitute(values)
+        (out_dir / target).write_text(text, encoding="utf-8")
+    return GeneratedStep(directory=out_dir, horizon_steps=mpc.qp.horizon_steps,
+                         n_variables=mpc.qp.n_variables, n_constraints=mpc.qp.n_constraints,
+                         float32=float32, files=tuple(TEMPLATES.values()))
+
+
+__all__ = ["OSQP_DIR", "OSQP_PREFIX", "TEMPLATES", "GeneratedStep", "c_array", "c_number",
+           "check_supported", "generate_step", "template_values"]
