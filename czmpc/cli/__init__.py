@@ -53,7 +53,7 @@ COMMAND_GROUPS: dict[str, tuple[str, ...]] = {
     "identify: from a logged data set to a checked model": (
         "inspect", "design-test", "experiment", "identify", "show-model", "check-model"),
     "control: tune, simulate and test the controller": (
-        "simulate", "settings", "tune-pid", "regress", "campaign"),
+        "simulate", "settings", "tune-pid", "regress", "campaign", "codegen"),
     "plant: commission and run the MPC on a live plant": (
         "commission", "run", "run-report", "plant", "pki"),
 }

@@ -21,7 +21,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 
 import numpy as np
 
@@ -40,7 +40,7 @@ VOLTAGE_VERDICTS = ("not measured", "valid", "implausible")
 _OK, _ERR_RANGE, _ERR_NOT_READY, _ERR_UNKNOWN = 0, -1, -2, -3
 
 
-_Real = type[ctypes._SimpleCData[Any]]
+_Real: TypeAlias = "type[ctypes._SimpleCData[Any]]"
 
 
 def _structures(real: _Real) -> tuple[type[ctypes.Structure], type[ctypes.Structure]]:
