@@ -45,6 +45,7 @@ from czmpc.kalman import Estimator, LevelChangeRule, SteadyStateKalman
 from czmpc.mismatch import InnovationMonitor, monitored_noise_std_kw
 from czmpc.modes import Mode, ModeTransition, Status, transition
 from czmpc.qp import MPCQP, QPSolution
+from czmpc.qp_daqp import DAQPMPCQP
 from czmpc.realization import AugmentedModel, augment, innovations_form
 from czmpc.settings import MPCSettings
 from czmpc.supervision import LimitRamp, SetpointShaper, ShapedPreview, ShapedSetpoint
@@ -148,7 +149,8 @@ class OffsetFreeMPC:
         # h = A (x - x_s) + G_x eps (`czmpc.qp`) = [A, 0, -A, G_x] [z; x_s; eps]: the QP
         # folds the map into its own products and reads the terms from its h_input.
         h_map = np.hstack([base.A, np.zeros((n, 1)), -base.A, self._est.gains.G[:n].reshape(n, 1)])
-        self._qp = MPCQP(
+        qp_class = DAQPMPCQP if settings.solver == "daqp" else MPCQP  # the same QP
+        self._qp = qp_class(
             A=base.A, B=base.B, C=base.C, horizon_steps=settings.horizon_steps,
             output_weight=settings.output_weight,
             input_target_weight=settings.input_target_weight,

@@ -27,6 +27,8 @@ from sysid.polynomials import slowest_time_constant_samples
 
 DisturbanceModel = Literal["input", "output"]
 PresetName = Literal["default", "aggressive", "smooth"]
+#: The QP solvers of `MPCSettings.solver`.
+QPSolverName = Literal["osqp", "daqp"]
 
 #: Fraction of the slow time constant the default horizon covers (see `default_for`).
 HORIZON_FRACTION_OF_SLOW_MODE = 0.3
@@ -353,8 +355,17 @@ class MPCSettings:
     ts_s :
         The sampling time [s] these settings were tuned for, or None; if given it must
         equal the model's.
+    solver :
+        The QP solver: "osqp" (ADMM, to the osqp table's tolerances) or "daqp" (dual
+        active set, exact, from the daqp extra).
+        ``"daqp"`` needs ``pip install 'czmpc[daqp]'``; it solves the same QP from the
+        same data (`czmpc.qp_daqp`), to its optimal active set instead of OSQP's
+        ``eps``, hot-started from the previous step's. Measured on the shipped
+        staircase (N = 50; BENCHMARKS.md, "Controller step time and 24 h simulation"):
+        DAQP's update and solve take about a third of OSQP's, and the plans differ by a
+        few 1e-4 kW, OSQP's tolerance.
     osqp :
-        Solver options.
+        Solver options (``solver = "osqp"``).
     reliability :
         Fault, bad-data and solver-trouble behaviour (`ReliabilitySettings`).
 
@@ -380,6 +391,7 @@ class MPCSettings:
     soft_limit_linear_weight: float = 1e2
     initial_triac_pct: float | None = None
     ts_s: float | None = None
+    solver: QPSolverName = "osqp"
     osqp: OSQPOptions = OSQPOptions()
     reliability: ReliabilitySettings = ReliabilitySettings()
 
@@ -402,6 +414,11 @@ class MPCSettings:
             raise SettingsError(
                 f"{owner}.disturbance_model must be 'input' or 'output'; "
                 f"got {self.disturbance_model!r}"
+            )
+        if self.solver not in get_args(QPSolverName):
+            raise SettingsError(
+                f"{owner}.solver must be 'osqp' (the default) or 'daqp' (pip install "
+                f"'czmpc[daqp]'); got {self.solver!r}"
             )
         if not self.triac_min_pct < self.triac_max_pct <= 100.0:
             raise SettingsError(
@@ -553,5 +570,5 @@ class MPCSettings:
 
 __all__ = ["DEFAULT_INPUT_TARGET_WEIGHT", "DEFAULT_MOVE_WEIGHT", "DEFAULT_RATE_FRACTION_OF_RANGE",
            "RATE_LIMIT_MIN_IMMEDIATE_FRACTION", "DisturbanceModel", "MPCSettings", "ModeName",
-           "OSQPOptions", "PresetName", "ReliabilitySettings", "immediate_fraction",
+           "OSQPOptions", "PresetName", "QPSolverName", "ReliabilitySettings", "immediate_fraction",
            "step_response_scale"]
