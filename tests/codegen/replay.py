@@ -161,18 +161,21 @@ def fault_replay(py: OffsetFreeMPC, c: CController, *, n_steps: int, rng: np.ran
     stuck_value: float | None = None
     for k in range(n_steps):
         if modes:
+            # request_mode: Python's transition lands in the mode asked for <=> C's True
             if k == 40:
-                py.request_mode("predict"), c.request_mode("predict")
+                assert _now(py, "predict") == c.request_mode("predict") is True
             elif k == 42:
-                assert py.request_mode("on").accepted == c.request_mode("on")   # refused: not warm
+                assert _now(py, "on") == c.request_mode("on") is True   # warm since the start
             elif k == 60:
-                assert py.request_mode("on").accepted == c.request_mode("on")
+                assert _now(py, "on") == c.request_mode("on") is True   # already on
             elif k == 150:
-                py.request_mode("off"), c.request_mode("off")
+                assert _now(py, "off") == c.request_mode("off") is True
             elif k == 160:
-                py.request_mode("predict"), c.request_mode("predict")
-            elif k == 175:
-                assert py.request_mode("on").accepted == c.request_mode("on")
+                assert _now(py, "predict") == c.request_mode("predict") is True
+            elif k == 162:
+                assert _now(py, "on") == c.request_mode("on") is False  # restarted: not warm
+            elif k == 185:
+                assert _now(py, "on") == c.request_mode("on") is True
             elif k == 100:
                 lo, hi = py.allowed_triac_range_pct
                 py.set_triac_limits(lo + 0.3 * (hi - lo), hi - 0.3 * (hi - lo))
@@ -235,6 +238,11 @@ def fault_replay(py: OffsetFreeMPC, c: CController, *, n_steps: int, rng: np.ran
         target = p_nom + v * v * gain * (u - s_nom)
         power += 0.3 * (target - power)
     return cmp, samples
+
+
+def _now(py: OffsetFreeMPC, mode: str) -> bool:
+    """Request ``mode`` of the Python controller; True if it is the mode now."""
+    return py.request_mode(mode).to_mode.value == mode
 
 
 def example_lines(samples: list[Sample]) -> str:

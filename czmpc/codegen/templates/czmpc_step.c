@@ -659,6 +659,8 @@ static void move_bounds(czmpc_state *s, const czmpc_map *m, czmpc_real ds_prev)
     for (j = 1; j < CZMPC_N; ++j) {
         czmpc_real rate;
 #if CZMPC_NC == 1
+        (void)ds_lo;
+        (void)ds_hi;
         rate = m->c[0];
 #elif CZMPC_NC == 2
         rate = (m->c[1] >= ZERO ? ds_lo[j] : ds_hi[j]) * ((czmpc_real)2 * m->c[1]) + m->c[0];
@@ -829,6 +831,7 @@ static czmpc_real guard_input(const czmpc_state *s, czmpc_real w0, czmpc_real ds
     if (measurement_shed) {
 #if CZMPC_HAS_SHED_INPUT
         (void)t;
+        (void)s;
         *ds_raw = CZMPC_SHED_DS_PCT;
 #else
         *ds_raw = inverse(em, t->w_s - s->v_offset);
