@@ -68,6 +68,7 @@ class Comparison:
     worst_triac_pct: float = 0.0
     mismatches: list[str] = field(default_factory=list)
     n_iterations_py: int = 0
+    max_iterations_py: int = 0
     statuses: dict[str, int] = field(default_factory=dict)
 
     def add(self, py: OffsetFreeMPC, c: CController, u_py: float, u_c: float) -> None:
@@ -80,6 +81,7 @@ class Comparison:
         if not dev <= self.worst_triac_pct:
             self.worst_triac_pct = dev if math.isfinite(dev) else math.inf
         self.n_iterations_py += d.n_iterations
+        self.max_iterations_py = max(self.max_iterations_py, d.n_iterations)
         self.statuses[d.status.value] = self.statuses.get(d.status.value, 0) + 1
         pairs = (("mode", d.mode.value, r.mode), ("status", d.status.value, r.status),
                  ("fallback", d.fallback, r.fallback), ("n_iterations", d.n_iterations, r.n_iterations),
@@ -100,6 +102,7 @@ class Comparison:
         self.worst_triac_pct = max(self.worst_triac_pct, other.worst_triac_pct)
         self.mismatches += other.mismatches
         self.n_iterations_py += other.n_iterations_py
+        self.max_iterations_py = max(self.max_iterations_py, other.max_iterations_py)
         for k, v in other.statuses.items():
             self.statuses[k] = self.statuses.get(k, 0) + v
 

@@ -153,7 +153,7 @@ def test_sanitized_example_replays_the_faults_clean_and_equal(
 
 def _g17(value: float) -> str:
     """C's ``%.17g`` of a finite double."""
-    return "%.17g" % value
+    return f"{value:.17g}"
 
 
 def test_example_reads_power_and_setpoint_lines_and_prints_the_triac_input_first(
