@@ -48,6 +48,13 @@ setpoints of the coming 60 s (a recipe), and measured_voltage = true gives every
 controller the grid voltage measured over the last sample (the PIs divide their drive by
 v^2 through the model's characterizer, as a DCS would). See docs/theory.rst, C8 and C9.
 
+The generated C step (czmpc codegen): --controller c:DIR builds DIR with the system's C
+compiler and runs it beside the Python MPC of the model and settings DIR was generated
+from (give DIR/model.json as --model); DIR then holds c_step/ and mpc/ with the three
+files above, and the command prints both runs' metrics and the largest difference of
+their inputs [%], the samples where they are bit-equal and where mode, status or
+fallback differ.
+
 A plant that differs from the model: --gain-factor, --tau-s, --extra-delay-samples and
 --drift as for 'czmpc plant serve' (see sim.drift); the plant then starts at the nominal
 plant's input for the initial setpoint.
@@ -77,6 +84,8 @@ HELP = "run the offset-free MPC through a scenario on a plant; write trajectory,
 
 #: A run reports its progress on stderr once it has taken this long [s].
 PROGRESS_AFTER_S = 1.0
+#: ``--controller c:DIR``: a directory written by ``czmpc codegen``.
+C_STEP_PREFIX = "c:"
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -120,9 +129,12 @@ def register(parser: argparse.ArgumentParser) -> None:
              "files of those names are replaced)",
     )
     parser.add_argument(
-        "--controller", metavar="pid_table.csv", type=Path, default=None,
-        help="run this PID table (czmpc tune-pid) beside the MPC and a fixed-gain PI at the "
-             "operating point, and compare them (default: the MPC alone)",
+        "--controller", metavar="pid_table.csv|c:DIR", type=Path, default=None,
+        help="pid_table.csv: run this PID table (czmpc tune-pid) beside the MPC and a "
+             "fixed-gain PI at the operating point, and compare them; c:DIR: run the C step "
+             "'czmpc codegen' wrote into DIR (built with the system's C compiler) beside the "
+             "Python MPC of DIR/model.json and DIR/settings.toml, and say how far their inputs "
+             "are apart (default: the MPC alone)",
     )
     _variation.add_variation_options(parser)
 
@@ -139,6 +151,9 @@ def run(args: argparse.Namespace) -> int:
         scenario = scenario.shortened(args.short)
     noise = scenario.plant_noise if args.noise is None else bool(args.noise)
     settings = _argtypes.settings_for(args, model)
+    if args.controller is not None and str(args.controller).startswith(C_STEP_PREFIX):
+        return _compare_generated(args, model, scenario, noise,
+                                  Path(str(args.controller)[len(C_STEP_PREFIX):]))
     if args.controller is not None:
         return _compare(args, model, scenario, noise, settings)
     outcome = run_simulation(model, scenario, plant=args.plant, seed=args.seed,
@@ -177,5 +192,30 @@ def _compare(args: argparse.Namespace, model: HammersteinModel, scenario: Scenar
         f"{'on' if noise else 'off'}, setpoint preview {scenario.setpoint_preview_s:g} s, "
         f"voltage {'measured' if scenario.measured_voltage else 'not measured'}; "
         f"table {args.controller}")))
+    print_written(files)
+    return 0
+
+
+def _compare_generated(args: argparse.Namespace, model: HammersteinModel, scenario: Scenario,
+                       noise: bool, directory: Path) -> int:
+    """Run the generated C step and the Python MPC; write each run and print how they differ."""
+    from czmpc.campaigns.generated_comparison import COMPARED, compare_generated
+    from czmpc.campaigns.simulation import write_outputs
+
+    if args.settings is not None or args.preset != "default":
+        raise SettingsError(f"simulate: --controller c:{directory} runs the settings compiled into "
+                            f"the C step ({directory}/settings.toml); drop --settings/--preset")
+    if not _variation.variation(args).is_nominal:
+        raise SettingsError("simulate: --controller compares on the nominal plant; drop the "
+                            "plant-variation options (--gain-factor, --tau-s, ...)")
+    comparison = compare_generated(
+        model, directory, scenario, plant=args.plant, seed=args.seed, noise=noise,
+        progress=partial(Progress(quiet_for_s=PROGRESS_AFTER_S).fraction, what="simulating"))
+    files: list[Path] = []
+    for name, outcome in zip(COMPARED, (comparison.c_step, comparison.mpc), strict=True):
+        files += write_outputs(outcome, args.out / name, model_path=args.model)
+    print(f"scenario '{scenario.name}', plant '{args.plant}', seed {args.seed}, noise "
+          f"{'on' if noise else 'off'}; C step {directory}")
+    print(comparison.table())
     print_written(files)
     return 0

@@ -24,9 +24,11 @@ import osqp
 from czmpc.codegen.errors import CodegenError
 from czmpc.controller import OffsetFreeMPC
 from czmpc.settings import MPCSettings
+from czmpc.settings_file import load_settings, settings_to_toml
 from sysid._typing import FloatArray
 from sysid._version import __version__
 from sysid.model import HammersteinModel
+from sysid.modelfile import load_model, save_model
 
 #: Template files and the names they are written under (``.in``: filled in).
 TEMPLATES: dict[str, str] = {
@@ -36,6 +38,11 @@ TEMPLATES: dict[str, str] = {
     "czmpc_model.h.in": "czmpc_model.h",
     "Makefile.in": "Makefile",
 }
+#: The model and the effective settings the step was generated from, written beside it
+#: (`read_sources`): a user sees what the C holds, and ``czmpc simulate --controller
+#: c:DIR`` runs the Python controller of the same model and settings beside it.
+MODEL_FILE = "model.json"
+SETTINGS_FILE = "settings.toml"
 #: Prefix of OSQP's generated globals (``czmpc_qp_solver``) and workspace files.
 OSQP_PREFIX = "czmpc_qp_"
 #: Sub-directory of the output that holds OSQP's generated code.
@@ -303,10 +310,35 @@ def generate_step(model: HammersteinModel, settings: MPCSettings | None, out_dir
         if template.endswith(".in"):
             text = string.Template(text).substitute(values)
         (out_dir / target).write_text(text, encoding="utf-8")
+    save_model(model, out_dir / MODEL_FILE)
+    (out_dir / SETTINGS_FILE).write_text(settings_to_toml(mpc.settings), encoding="utf-8")
     return GeneratedStep(directory=out_dir, horizon_steps=mpc.qp.horizon_steps,
                          n_variables=mpc.qp.n_variables, n_constraints=mpc.qp.n_constraints,
-                         float32=float32, files=tuple(TEMPLATES.values()))
+                         float32=float32,
+                         files=(*TEMPLATES.values(), MODEL_FILE, SETTINGS_FILE))
 
 
-__all__ = ["OSQP_DIR", "OSQP_PREFIX", "TEMPLATES", "GeneratedStep", "c_array", "c_number",
-           "check_supported", "generate_step", "template_values"]
+def read_sources(directory: str | Path) -> tuple[HammersteinModel, MPCSettings]:
+    """The model and settings a directory of `generate_step` was generated from.
+
+    Raises
+    ------
+    CodegenError
+        ``directory`` holds no generated step (or one written before they were kept).
+    ModelFileError, SettingsError
+        As `sysid.modelfile.load_model` and `czmpc.settings_file.load_settings` raise them.
+    """
+    folder = Path(directory)
+    missing = [name for name in (MODEL_FILE, SETTINGS_FILE, "czmpc_step.c")
+               if not (folder / name).is_file()]
+    if missing:
+        raise CodegenError(f"{folder}: not a directory written by 'czmpc codegen' (no "
+                           f"{', '.join(missing)}); generate it with 'czmpc codegen MODEL.json "
+                           f"--out {folder}'")
+    model = load_model(folder / MODEL_FILE)
+    return model, load_settings(folder / SETTINGS_FILE, model)
+
+
+__all__ = ["MODEL_FILE", "OSQP_DIR", "OSQP_PREFIX", "SETTINGS_FILE", "TEMPLATES", "GeneratedStep",
+           "c_array", "c_number", "check_supported", "generate_step", "read_sources",
+           "template_values"]

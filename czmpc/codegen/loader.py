@@ -290,6 +290,12 @@ class CController:
         """Steps reported SHED since init/reset."""
         return int(self._lib.czmpc_n_shed_steps(self._state))
 
+    @property
+    def last_step(self) -> StepRecord | None:
+        """`last` under the Python controller's name, so that `sim.loop.run_closed_loop`
+        records each step's mode, status and fallback as it does the MPC's."""
+        return self.last
+
 
 def _voltage(value: float | None) -> float:
     """The C input for a voltage reading: NaN for none; a value that is no number: inf
