@@ -592,6 +592,40 @@ class MPCQP:
         """Start the next solve from zero instead of the previous solution."""
         self._needs_cold_start = True
 
+    def _write_problem(self, h_terms: FloatArray, w_prev: float, w_target: float,
+                       y_target: float, w_lo: FloatArray, w_hi: FloatArray,
+                       rate: FloatArray | None, soft_min_rel_kw: float | None,
+                       soft_max_rel_kw: float | None, q_offset: FloatArray | None) -> bool:
+        """Write ``q``, ``l``, ``u`` of one step (`solve`'s parameters) into the kept arrays;
+        return whether they are all finite. Every solver's `solve` starts here."""
+        N = self.horizon_steps
+        params = self._params
+        if h_terms is not self.h_input:
+            self.h_input[...] = h_terms
+        params[-2] = w_prev
+        params[-1] = w_target
+        self._q_params.dot(params, out=self._q_w)  # ndarray.dot: less call overhead than np.dot
+        if q_offset is not None:
+            self._q_w += q_offset
+        if w_lo is not self._l_box:
+            self._l_box[...] = w_lo  # [...]: no slice object made
+        if w_hi is not self._u_box:
+            self._u_box[...] = w_hi
+        if self.has_rate_limit and rate is not None and rate is not self._u_rate:
+            np.negative(rate, out=self._l_rate)
+            self._u_rate[...] = rate
+        if self.has_soft:
+            # C dx_j = Cphi_j h + Cgam_j w - (Cgam_j 1) w_s ; y_j = y_s + C dx_j.
+            base = self._Cphi_map @ h_terms - self._Cgam_rowsum * w_target + y_target
+            r0 = self._row_soft
+            if self.has_soft_max and soft_max_rel_kw is not None:
+                self._u[r0 : r0 + N] = soft_max_rel_kw - base
+                r0 += N
+            if self.has_soft_min and soft_min_rel_kw is not None:
+                self._l[r0 : r0 + N] = soft_min_rel_kw - base
+        # 0 * v is 0 for every finite v and NaN for inf or NaN: one product checks them all.
+        return bool(self._data_zeros.dot(self._data) == 0.0)
+
     def solve(
         self, *, h_terms: FloatArray, w_prev: float, w_target: float, y_target: float,
         w_lo: FloatArray, w_hi: FloatArray, rate: FloatArray | None = None,
@@ -635,35 +669,11 @@ class MPCQP:
         solved-inaccurate, is not usable and makes the next solve cold-start.
         """
         N = self.horizon_steps
-        params = self._params
-        if h_terms is not self.h_input:
-            self.h_input[...] = h_terms
-        params[-2] = w_prev
-        params[-1] = w_target
-        self._q_params.dot(params, out=self._q_w)  # ndarray.dot: less call overhead than np.dot
-        if q_offset is not None:
-            self._q_w += q_offset
-        if w_lo is not self._l_box:
-            self._l_box[...] = w_lo  # [...]: no slice object made
-        if w_hi is not self._u_box:
-            self._u_box[...] = w_hi
-        if self.has_rate_limit and rate is not None and rate is not self._u_rate:
-            np.negative(rate, out=self._l_rate)
-            self._u_rate[...] = rate
+        if not self._write_problem(h_terms, w_prev, w_target, y_target, w_lo, w_hi, rate,
+                                   soft_min_rel_kw, soft_max_rel_kw, q_offset):
+            return self._failed("non-finite problem data")
         lo = self._l
         up = self._u
-        if self.has_soft:
-            # C dx_j = Cphi_j h + Cgam_j w - (Cgam_j 1) w_s ; y_j = y_s + C dx_j.
-            base = self._Cphi_map @ h_terms - self._Cgam_rowsum * w_target + y_target
-            r0 = self._row_soft
-            if self.has_soft_max and soft_max_rel_kw is not None:
-                up[r0 : r0 + N] = soft_max_rel_kw - base
-                r0 += N
-            if self.has_soft_min and soft_min_rel_kw is not None:
-                lo[r0 : r0 + N] = soft_min_rel_kw - base
-        # 0 * v is 0 for every finite v and NaN for inf or NaN: one product checks them all.
-        if not self._data_zeros.dot(self._data) == 0.0:
-            return self._failed("non-finite problem data")
         ext = self._ext
         try:
             ext.update_data_vec(self._q, lo, up)  # (q, l, u): keywords cost more

@@ -245,31 +245,8 @@ soft_max_rel_kw, q_offset :
         own time; a solve that is not usable makes the next one cold-start.
         """
         N = self.horizon_steps
-        # --- q, l, u: the same operations as MPCQP.solve, in the same order -------------
-        params = self._params
-        if h_terms is not self.h_input:
-            self.h_input[...] = h_terms
-        params[-2] = w_prev
-        params[-1] = w_target
-        self._q_params.dot(params, out=self._q_w)
-        if q_offset is not None:
-            self._q_w += q_offset
-        if w_lo is not self._l_box:
-            self._l_box[...] = w_lo
-        if w_hi is not self._u_box:
-            self._u_box[...] = w_hi
-        if self.has_rate_limit and rate is not None and rate is not self._u_rate:
-            np.negative(rate, out=self._l_rate)
-            self._u_rate[...] = rate
-        if self.has_soft:
-            base = self._Cphi_map @ h_terms - self._Cgam_rowsum * w_target + y_target
-            r0 = self._row_soft
-            if self.has_soft_max and soft_max_rel_kw is not None:
-                self._u[r0 : r0 + N] = soft_max_rel_kw - base
-                r0 += N
-            if self.has_soft_min and soft_min_rel_kw is not None:
-                self._l[r0 : r0 + N] = soft_min_rel_kw - base
-        if not self._data_zeros.dot(self._data) == 0.0:
+        if not self._write_problem(h_terms, w_prev, w_target, y_target, w_lo, w_hi, rate,
+                                   soft_min_rel_kw, soft_max_rel_kw, q_offset):
             return self._failed("non-finite problem data")
         # --- DAQP ----------------------------------------------------------------------
         model = self._model
