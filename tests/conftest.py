@@ -20,6 +20,39 @@ REPO = Path(__file__).resolve().parents[1]
 SHIPPED_EXPERIMENT = REPO / "data" / "cz_heater_experiment.csv"
 
 
+#: Test files whose tests `make test`'s workers share out by the log they identify (a
+#: test id's parameters, ``[exchanger]``) instead of taking the whole file at once: the
+#: real-log identifications are the suite's heaviest file, and the runs of one log share
+#: a module-level cache, so a log's tests stay together (`_scope`).
+SPLIT_BY_LOG = frozenset({"tests/czmpc/cli/test_identify_real_logs.py"})
+
+
+def _scope(nodeid: str) -> str:
+    """The unit ``--dist loadfile`` hands a worker: a test file, or for `SPLIT_BY_LOG`
+    the file and the test's parameters (its function without any)."""
+    path, _, rest = nodeid.partition("::")
+    if path not in SPLIT_BY_LOG:
+        return path
+    function, _, params = rest.partition("[")
+    return f"{path}[{params}" if params else f"{path}::{function}"
+
+
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
+    """``--dist loadfile`` (`tools/run_suite.sh`) by `_scope` rather than by file only.
+
+    (``--dist loadgroup`` cannot do it: xdist 3.8 renames the node ids that pytest 9 no
+    longer reads, so its groups are ignored.)"""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class _ScopeScheduling(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return _scope(nodeid)
+
+    return _ScopeScheduling(config, log)  # type: ignore[arg-type]
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(20261121)

@@ -15,7 +15,7 @@ set -u
 py=$1
 mkdir -p out
 (
-    nice -n 10 "$py" -m pytest -q -p no:cacheprovider -n 2 --dist loadfile -m "not realtime" \
+    nice -n 10 "$py" -m pytest -q -p no:cacheprovider -n 2 --dist loadfile --durations=30 -m "not realtime" \
         > out/test-workers.log 2>&1
     echo $? > out/test-workers.rc
 ) &
