@@ -11,13 +11,25 @@ Controllers (`build_controller`, kinds `CONTROLLERS`). Fairness: every controlle
 the Hammerstein MPC's allowed input range (the identified range widened by the validity
 margin, inside the scenario's TRIAC limits), the scenario's rate limit and the plant's
 start input (`controller_settings`).
+
+``c_step`` is the MPC step as C (a directory written by ``czmpc codegen``, built on demand
+with the system's C compiler: `build_c_step`). Its model and settings are compiled in,
+so a scenario whose limits would change them is refused (`check_compiled_settings`)
+rather than run with other limits than the scenario's; only the start input is the
+plant's. Its tight-solver reference (``tight=True``, a regression suite's re-run) is the
+Python MPC of the same model and settings at `TIGHT_OSQP`: the compiled solver's
+tolerances cannot change, and the C replays the Python MPC at the default ones to the
+solver's rounding (issue 42), so a golden ``c_step`` case gets the tolerance an ``mpc``
+case of the same model and settings gets.
 """
 
 from __future__ import annotations
 
+import fcntl
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 from scipy.optimize import brentq
@@ -44,6 +56,7 @@ CONTROLLERS: dict[str, str] = {
     "pi": "PI, anti-windup, fixed gain",
     "pi_table": "PI scheduled by a czmpc.pid table (SIMC, Ms <= 1.4 per row), velocity form",
     "open_loop": "open-loop inversion of the steady state (no feedback)",
+    "c_step": "the offset-free MPC's step as C from czmpc codegen (a directory), compiled",
 }
 #: Campaign spellings of the kinds (``preset = "pi-scheduled"``) -> kind.
 PRESET_ALIASES: dict[str, str] = {"pi-scheduled": "pi_gs", "linear-mpc": "linear_mpc",
@@ -55,6 +68,9 @@ PI_TABLE_MS = 1.4
 #: tolerance allows.
 TIGHT_OSQP = OSQPOptions(eps_abs=1e-9, eps_rel=1e-9, max_iter=100_000)
 TIGHT_IPOPT_TOL = 1e-11
+#: Lock file a ``c_step`` build holds in its directory, so that runs on parallel workers
+#: do not run ``make`` in one directory at once.
+C_STEP_BUILD_LOCK = ".czmpc-build.lock"
 
 
 class BuildError(CzmpcError, ValueError):
@@ -217,6 +233,7 @@ def build_controller(
     kind: str, model: HammersteinModel, scenario: Scenario, *, initial_triac_pct: float,
     linear_model: HammersteinModel | None = None, settings_doc: Mapping[str, object] | None = None,
     settings: MPCSettings | None = None, tight: bool = False, mutation: str | None = None,
+    c_step_directory: str | None = None,
 ) -> Controller:
     """Controller ``kind`` (a key of `CONTROLLERS`) set up for ``scenario``.
 
@@ -242,13 +259,24 @@ def build_controller(
         Solve at `TIGHT_OSQP` / `TIGHT_IPOPT_TOL` (the reference re-run of a suite).
     mutation :
         A key of `MUTATIONS` applied to an ``mpc``'s final settings, or None.
+    c_step_directory :
+        The directory of a ``c_step`` (written by ``czmpc codegen``): its own model and
+        settings are run; ``model`` must be its model, ``settings_doc`` and ``settings``
+        are not used. With ``tight``, the Python MPC of that model and those settings at
+        `TIGHT_OSQP` (module notes).
 
     Raises
     ------
     BuildError
-        An unknown kind, or ``linear_mpc`` without a linear model.
+        An unknown kind, ``linear_mpc`` without a linear model, ``c_step`` without a
+        directory.
     MutationNotApplicable
         The mutation does not change this controller.
+    SettingsError
+        A ``c_step`` whose scenario changes its compiled settings, or whose directory
+        holds another model than ``model``.
+    czmpc.codegen.BuildError
+        A ``c_step`` directory that cannot be built (no C compiler or make).
     """
     from czmpc.controller import OffsetFreeMPC
     from czmpc.settings_file import settings_from_dict
@@ -266,6 +294,12 @@ def build_controller(
     if kind not in CONTROLLERS:
         raise BuildError(f"build_controller: expected a controller among {', '.join(CONTROLLERS)}; "
                          f"got {kind!r}")
+    if kind == "c_step":
+        if c_step_directory is None:
+            raise BuildError("build_controller: c_step needs the directory 'czmpc codegen' wrote")
+        if mutation is not None:
+            raise MutationNotApplicable(mutation)
+        return _c_step(Path(c_step_directory), model, scenario, initial_triac_pct, tight=tight)
     if kind == "linear_mpc":
         if linear_model is None:
             raise BuildError("build_controller: linear_mpc needs a linear model")
@@ -279,6 +313,87 @@ def build_controller(
             return NonlinearMPC(model, settings, ipopt_tol=TIGHT_IPOPT_TOL)
         return NonlinearMPC(model, settings)
     return _classic(kind, model, settings)
+
+
+def check_compiled_settings(directory: Path, compiled: MPCSettings, used: MPCSettings, *,
+                            what: str) -> None:
+    """Refuse settings completed for a run that differ from a C step's compiled ones.
+
+    Only ``initial_triac_pct`` may differ (the C step starts at any input in its allowed
+    range).
+
+    Parameters
+    ----------
+    directory :
+        The C step's directory (for the message).
+    compiled :
+        Its settings (``settings.toml`` there).
+    used :
+        ``compiled`` completed for the run (`controller_settings`).
+    what :
+        What completed them, e.g. ``"scenario 'staircase'"``.
+
+    Raises
+    ------
+    SettingsError
+        Another limit, rate limit or anything else, naming the settings that changed and
+        the command that generates a C step with them.
+    """
+    from czmpc.errors import SettingsError
+
+    if replace(used, initial_triac_pct=compiled.initial_triac_pct) == compiled:
+        return
+    differing = [f"{name} {getattr(compiled, name)!r} -> {getattr(used, name)!r}"
+                 for name in ("triac_min_pct", "triac_max_pct", "max_move_pct_per_step")
+                 if getattr(compiled, name) != getattr(used, name)]
+    raise SettingsError(
+        f"{directory}: {what} changes settings compiled into the C step "
+        f"({'; '.join(differing) or 'see czmpc settings --show'}); write them into a settings "
+        f"file and generate again with 'czmpc codegen MODEL.json --settings FILE --out "
+        f"{directory}'")
+
+
+def build_c_step(directory: Path, *, initial_triac_pct: float | None = None) -> Controller:
+    """``directory``'s compiled step (`czmpc.codegen.load_controller`), built on demand.
+
+    The build holds `C_STEP_BUILD_LOCK` in the directory, so that parallel workers of a
+    campaign build it once and load it after.
+
+    Raises
+    ------
+    czmpc.codegen.BuildError
+        No C compiler or make, or a failed build.
+    SettingsError
+        ``initial_triac_pct`` outside the allowed range.
+    """
+    from czmpc.codegen import load_controller
+
+    with open(directory / C_STEP_BUILD_LOCK, "a", encoding="utf-8") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            return load_controller(directory, initial_triac_pct=initial_triac_pct)
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+def _c_step(directory: Path, model: HammersteinModel, scenario: Scenario,
+            initial_triac_pct: float, *, tight: bool) -> Controller:
+    """A ``c_step`` set up for ``scenario`` (or its tight reference: module notes)."""
+    from czmpc.codegen.generate import MODEL_FILE, read_sources
+    from czmpc.controller import OffsetFreeMPC
+    from czmpc.errors import SettingsError
+    from sysid.modelfile import model_to_dict
+
+    c_model, compiled = read_sources(directory)
+    if model_to_dict(c_model) != model_to_dict(model):
+        raise SettingsError(f"{directory}: the C step was generated from another model than the "
+                            f"one given; run it with {directory / MODEL_FILE}")
+    used = controller_settings(model, scenario, initial_triac_pct=initial_triac_pct,
+                               settings=compiled)
+    check_compiled_settings(directory, compiled, used, what=f"scenario '{scenario.name}'")
+    if tight:
+        return OffsetFreeMPC(model, used.with_updates(osqp=TIGHT_OSQP))
+    return build_c_step(directory, initial_triac_pct=used.initial_triac_pct)
 
 
 def _classic(kind: str, model: HammersteinModel, settings: MPCSettings) -> Controller:
@@ -303,6 +418,7 @@ def _classic(kind: str, model: HammersteinModel, settings: MPCSettings) -> Contr
     return OpenLoopInversion(model, validity_margin_pct=settings.validity_margin_pct, **common)
 
 
-__all__ = ["CONTROLLERS", "MUTATED_KINDS", "MUTATIONS", "PI_TABLE_MS", "PRESET_ALIASES", "TIGHT_IPOPT_TOL",
-           "TIGHT_OSQP", "BuildError", "MutationNotApplicable", "build_controller", "build_plant",
-           "controller_settings", "heater_steady_state_triac_pct"]
+__all__ = ["CONTROLLERS", "C_STEP_BUILD_LOCK", "MUTATED_KINDS", "MUTATIONS", "PI_TABLE_MS", "PRESET_ALIASES",
+           "TIGHT_IPOPT_TOL", "TIGHT_OSQP", "BuildError", "MutationNotApplicable", "build_c_step",
+           "build_controller", "build_plant", "check_compiled_settings", "controller_settings",
+           "heater_steady_state_triac_pct"]

@@ -26,11 +26,16 @@ Spec (TOML)::
 
     [[controllers]]
     name = "mpc"                     # default: the kind
-    kind = "mpc"                     # mpc, nmpc, linear_mpc, pi_gs, pi, pi_table, open_loop
-                                     # (or preset = "pi-scheduled", "linear-mpc", ...)
+    kind = "mpc"                     # mpc, nmpc, linear_mpc, pi_gs, pi, pi_table, open_loop,
+                                     # c_step (or preset = "pi-scheduled", "linear-mpc", ...)
     # settings = "file.toml"         # MPC settings file (`czmpc.settings_file`)
     # model = "puller7.json"         # this controller's model (and its plants'), default: model
     # linear_model = "armax.json"    # linear_mpc only
+    [[controllers]]
+    kind = "c_step"                  # the MPC step as C, built on demand with the system's
+    directory = "step/"              # C compiler; written by 'czmpc codegen' (relative to the
+                                     # spec); its model.json and settings.toml are the
+                                     # controller's model (and its plants') and settings
 
     [[plants]]
     kind = "model"                   # "model", "heater", "thermal", "perturbed" or "sampled"
@@ -112,6 +117,9 @@ class ControllerSpec:
         A settings file applied to each model's defaults and its SHA-256 when the spec
         was read (a resumed campaign whose settings changed is another spec); "" for the
         defaults.
+
+    A ``c_step``'s model and settings are the ``model.json`` and ``settings.toml`` of its
+    directory (`directory`).
     """
 
     name: str
@@ -120,6 +128,19 @@ class ControllerSpec:
     linear_model_path: str
     settings_path: str = ""
     settings_sha256: str = ""
+
+    @property
+    def directory(self) -> str:
+        """The directory 'czmpc codegen' wrote of a ``c_step`` (that of its model); "" else."""
+        return str(Path(self.model_path).parent) if self.kind == "c_step" else ""
+
+    def c_step_files(self) -> dict[str, str]:
+        """Role -> path of a ``c_step``'s generated C the runs compile (empty for other kinds):
+        ``c_step`` (the step) and ``c_constants`` (the model's and settings' numbers)."""
+        if self.kind != "c_step":
+            return {}
+        return {"c_step": str(Path(self.directory) / "czmpc_step.c"),
+                "c_constants": str(Path(self.directory) / "czmpc_model.h")}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -272,6 +293,7 @@ class CampaignSpec:
                 paths.append(c.linear_model_path)
             if c.settings_path:
                 paths.append(c.settings_path)
+            paths += c.c_step_files().values()
         paths += [s for s in self.scenarios if s.endswith(".toml")]
         return tuple(dict.fromkeys(paths))
 
@@ -355,7 +377,8 @@ def _controllers(doc: Any, base: Path, where: str, model: str, linear: str
     out: list[ControllerSpec] = []
     for i, table in enumerate(doc, start=1):
         here = f"{where} [[controllers]] #{i}"
-        _check_keys(table, ["name", "kind", "preset", "model", "settings", "linear_model"], here)
+        _check_keys(table, ["name", "kind", "preset", "model", "settings", "linear_model",
+                            "directory"], here)
         written = table.get("kind", table.get("preset", "mpc"))
         kind = PRESET_ALIASES.get(written, written) if isinstance(written, str) else written
         if kind not in CONTROLLERS:
@@ -366,6 +389,12 @@ def _controllers(doc: Any, base: Path, where: str, model: str, linear: str
         if "linear_model" in table and kind != "linear_mpc":
             raise CampaignError(f"{here}: 'linear_model' is for kind 'linear_mpc' only; "
                                 f"got kind {shown(kind)}")
+        if "directory" in table and kind != "c_step":
+            raise CampaignError(f"{here}: 'directory' is for kind 'c_step' only; "
+                                f"got kind {shown(kind)}")
+        if kind == "c_step":
+            out.append(_c_step_controller(table, name, base, here, linear))
+            continue
         model_path = (_file(table["model"], "model", base, here, shipped_ok=True)
                       if "model" in table else model)
         linear_path = (_file(table["linear_model"], "linear_model", base, here, shipped_ok=True)
@@ -388,6 +417,52 @@ def _controllers(doc: Any, base: Path, where: str, model: str, linear: str
     if len(set(names)) != len(names):
         raise CampaignError(f"{where}: controller names must differ; got {names}")
     return tuple(out)
+
+
+def _c_step_controller(table: Mapping[str, Any], name: str, base: Path, here: str,
+                       linear: str) -> ControllerSpec:
+    """A ``kind = "c_step"`` table: its directory, whose model and settings it runs."""
+    from czmpc.codegen.errors import CodegenError
+    from czmpc.codegen.generate import MODEL_FILE, SETTINGS_FILE, read_sources
+    from czmpc.errors import SettingsError
+    from sysid.errors import SysidError
+
+    given = [key for key in ("model", "settings") if key in table]
+    if given:
+        raise CampaignError(f"{here}: a c_step runs the model and settings it was generated "
+                            f"from ({MODEL_FILE} and {SETTINGS_FILE} in its directory); drop "
+                            f"{' and '.join(repr(k) for k in given)}")
+    text = table.get("directory")
+    if not isinstance(text, str) or not text:
+        raise CampaignError(f"{here}: expected 'directory' the directory 'czmpc codegen' wrote "
+                            f"(relative to the spec); got {shown(text)}")
+    folder = (Path(text) if Path(text).is_absolute() else base / text).resolve()
+    if not folder.is_dir():
+        raise CampaignError(f"{here}: directory = {shown(text)}: no such directory ({folder}); "
+                            f"write one with 'czmpc codegen MODEL.json --out {folder}'")
+    try:
+        read_sources(folder)
+    except (CodegenError, SettingsError, SysidError, OSError) as exc:
+        raise CampaignError(f"{here}: directory: {exc}") from None
+    settings = str(folder / SETTINGS_FILE)
+    return ControllerSpec(name=name, kind="c_step", model_path=str(folder / MODEL_FILE),
+                          linear_model_path=linear, settings_path=settings,
+                          settings_sha256=file_sha256(settings))
+
+
+def build_c_steps(spec: CampaignSpec) -> None:
+    """Build every ``c_step`` directory of ``spec`` once, before its runs (a missing compiler
+    is then one clear error, not one per run; the runs build on demand all the same).
+
+    Raises
+    ------
+    czmpc.codegen.BuildError
+        No C compiler or make, or a failed build.
+    """
+    from czmpc.campaigns.build import build_c_step
+
+    for directory in dict.fromkeys(c.directory for c in spec.controllers if c.kind == "c_step"):
+        build_c_step(Path(directory))
 
 
 def _scenarios(doc: object, base: Path, where: str) -> tuple[str, ...]:
@@ -701,7 +776,7 @@ def simulate_run(run: RunSpec) -> SimulatedRun:
     controller = build_controller(
         c.kind, model, scenario, initial_triac_pct=s0, settings_doc=doc, tight=run.tight,
         linear_model=load_model_cached(c.linear_model_path) if c.kind == "linear_mpc" else None,
-        mutation=run.mutation)
+        mutation=run.mutation, c_step_directory=c.directory or None)
     result = run_closed_loop(plant, controller, scenario, rng=run_seed(run))
     base = MPCSettings.default_for(model) if doc is None else settings_from_dict(doc, model)
     used = controller_settings(model, scenario, initial_triac_pct=s0, settings=base)
@@ -760,5 +835,5 @@ def execute_run(run: RunSpec) -> dict[str, Any]:
 
 __all__ = ["DETERMINISTIC_COLUMNS", "KEY_COLUMNS", "PLANT_KINDS", "PRESETS", "RESULT_COLUMNS", "ROW_COLUMNS",
            "CampaignError", "CampaignSpec", "ControllerSpec", "PlantSpec", "RunSpec", "SimulatedRun",
-           "Tolerance", "error_text", "execute_run", "load_model_cached", "load_spec", "run_scenario",
-           "run_seed", "simulate_run", "spec_from_dict"]
+           "Tolerance", "build_c_steps", "error_text", "execute_run", "load_model_cached", "load_spec",
+           "run_scenario", "run_seed", "simulate_run", "spec_from_dict"]

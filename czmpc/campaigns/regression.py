@@ -30,6 +30,13 @@ sets replaces the derived one. The trajectory band of each signal is derived the
 from the largest difference over the run, plus the float32 rounding of the stored
 trajectory.
 
+A ``c_step`` case (the MPC step as C, `czmpc.campaigns.build`) has no tight solver of its
+own: its compiled solver's tolerances are fixed. Its reference re-run is the Python MPC of
+the same model and settings at the tight tolerances, so its tolerances are those an
+``mpc`` case of that model and settings gets (the C replays the Python MPC to the
+solver's rounding). Its generated C (``czmpc_step.c``, ``czmpc_model.h``) is an input file
+like its model and settings: regenerated C is named as a likely cause of a failure.
+
 `check_golden` re-runs every case with the input files as they are now; a case fails when
 a metric leaves its tolerance or the run raises. For every case it also finds the first
 time the new trajectory leaves the golden band. `audit_golden` re-runs the cases with the
@@ -59,6 +66,7 @@ from czmpc.campaigns.campaign import (
     CampaignError,
     CampaignSpec,
     RunSpec,
+    build_c_steps,
     error_text,
     load_model_cached,
     simulate_run,
@@ -268,6 +276,7 @@ def _case_inputs(case: RunSpec) -> dict[str, str]:
         out["linear_model"] = c.linear_model_path
     if c.settings_path:
         out["settings"] = c.settings_path
+    out |= c.c_step_files()
     if case.scenario.endswith(".toml"):
         out["scenario"] = case.scenario
     return out
@@ -278,17 +287,20 @@ def _finite(value: float) -> float | None:
 
 
 def validate_inputs(suite: CampaignSpec) -> None:
-    """Read every controller's model once, before any case runs.
+    """Read every controller's model once and build every ``c_step``, before any case runs.
 
     Raises
     ------
     SysidError
         A model file that cannot be used (bad input, not a failed case).
+    czmpc.codegen.BuildError
+        A ``c_step`` directory that cannot be built (no C compiler or make).
     """
     for entry in suite.controllers:
         load_model_cached(entry.model_path)
         if entry.kind == "linear_mpc":
             load_model_cached(entry.linear_model_path)
+    build_c_steps(suite)
 
 
 # --- record ----------------------------------------------------------------------------------
@@ -333,6 +345,8 @@ def record_suite(
         Invalid suite, an existing directory without ``force``.
     RegressRunError
         A case raised (the message lists every failed case); nothing is written.
+    czmpc.codegen.BuildError
+        A ``c_step`` directory cannot be built (no C compiler or make).
     """
     suite_file = Path(suite_path)
     suite = load_suite(suite_file)
@@ -735,6 +749,8 @@ def check_golden(
     ------
     RegressError
         Not a golden directory, unknown case ids or mutation.
+    czmpc.codegen.BuildError
+        A ``c_step`` directory cannot be built (no C compiler or make).
     """
     import time
 

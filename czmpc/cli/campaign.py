@@ -18,6 +18,12 @@ campaign_bench.toml (the six controllers of the tracking benchmark, the NMPC inc
 campaign_throughput.toml. --samples, --time-scale and --controllers change a spec for
 one run (e.g. a quick look at the Monte Carlo: --samples 5 --time-scale 0.05).
 
+The MPC step as C (czmpc codegen) is a controller like the others: kind = "c_step" with
+directory = "step/" (relative to the spec); it runs the model and settings the directory
+was generated from and is built once, before the runs, with the system's C compiler (a
+missing compiler is an error, exit 2). A scenario whose limits would change its compiled
+settings is refused in its runs.
+
 `report` writes DIR/report.md, DIR/iae_distribution.png, DIR/iae_heatmap.png (perturbed
 plants: IAE ratio to the nominal plant per gain, time constant and delay, offset-free
 failures marked), DIR/montecarlo_iae.png (sampled plants: offset-free and within-limits
@@ -90,12 +96,13 @@ def register(parser: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace) -> int:
     import sys
 
-    from czmpc.campaigns.campaign import load_spec
+    from czmpc.campaigns.campaign import build_c_steps, load_spec
     from czmpc.campaigns.runner import run_campaign, save_trajectories, worst_runs
     from czmpc.cli._progress import Progress
 
     spec = load_spec(_argtypes.file_or_shipped(args.spec, "campaign spec"), samples=args.samples,
                      time_scale=args.time_scale, controllers=args.controllers)
+    build_c_steps(spec)   # a missing C compiler: one error now, not one per run
     for message in spec.warnings:
         print(f"czmpc: warning: {message}", file=sys.stderr)
     progress = Progress()

@@ -14,6 +14,9 @@ perturbed, sampled), seeds and the metrics to hold. A minimal suite (paths relat
     kind = "mpc"              # or nmpc, linear_mpc, pi_gs, pi, pi_table, open_loop
     model = "my_model.json"
     settings = "my_settings.toml"
+    [[controllers]]
+    kind = "c_step"           # the MPC step as C that 'czmpc codegen ... --out step/' wrote,
+    directory = "step/"       # built with the system's C compiler; its model and settings
     [[plants]]
     kind = "model"            # or "heater", or "perturbed" with gain_factors = [...]
 
@@ -26,7 +29,10 @@ shipped suite regress_project_golden.toml.
 `record` runs every case twice (default and tight solver tolerances) and writes
 GOLDEN_DIR: the metrics with derived tolerances, a compact trajectory per case, the
 czmpc version, the SHA-256 of every model, settings and scenario file, and a copy of
-the suite. It refuses to replace an existing GOLDEN_DIR without --force.
+the suite. It refuses to replace an existing GOLDEN_DIR without --force. A c_step (whose
+compiled solver tolerances are fixed) is re-run as the Python MPC of its model and
+settings at the tight tolerances, so it gets the tolerances an mpc of those gets; its
+generated C is an input file like the model (regenerated C is named as a likely cause).
 
 `check` re-runs every case with your files as they are now and prints, for each failing
 case, the metric, golden value, tolerance, new value and the first time the trajectory

@@ -265,15 +265,22 @@ CAMPAIGN_CONTROLLER_KEYS: dict[str, tuple[str, str, str]] = {
     "name": ("string without ``|`` or ``/``", "the preset",
              "Name of the controller in the rows; unique."),
     "preset": ("string", "``mpc``",
-               "``mpc``, ``pi``, ``pi-scheduled``, ``pi-table``, ``linear-mpc``, ``nmpc`` or "
-               "``open-loop`` (or ``pi_gs``, ``pi_table``, ``linear_mpc``, ``open_loop``), "
-               "each built by the one controller builder of the campaign engine."),
+               "``mpc``, ``pi``, ``pi-scheduled``, ``pi-table``, ``linear-mpc``, ``nmpc``, "
+               "``open-loop`` (or ``pi_gs``, ``pi_table``, ``linear_mpc``, ``open_loop``) or "
+               "``c_step`` (the MPC step as C, from the key directory), each built by the one "
+               "controller builder of the campaign engine."),
     "kind": ("string", "``mpc``", "The same as ``preset`` (the word regression suites use)."),
     "model": ("string (file)", "the spec's ``model``", "This controller's model (and its plants')."),
     "linear_model": ("string (file)", "the spec's ``linear_model``", "``linear-mpc`` only."),
     "settings": ("string (file)", "none (defaults from the model)",
                  "MPC settings file (:doc:`settings_file`) for ``mpc``, ``linear-mpc`` and "
                  "``nmpc``; its SHA-256 is part of the spec's identity."),
+    "directory": ("string (directory)", "required for ``c_step``",
+                  "``c_step`` only: a directory ``czmpc codegen`` wrote, built on demand with "
+                  "the system's C compiler. Its ``model.json`` and ``settings.toml`` are the "
+                  "controller's model (and its plants') and settings, so ``model`` and "
+                  "``settings`` are refused; a scenario whose limits would change the "
+                  "compiled settings is refused too (generate with those settings)."),
 }
 CAMPAIGN_PLANT_KEYS: dict[str, tuple[str, str, str]] = {
     "kind": ("string", "required",

@@ -33,6 +33,8 @@ def test_every_controller_kind_starts_at_the_plants_input_inside_the_shared_rang
     assert abs(plant.reset(np.random.default_rng(0)) - 20.0) < 0.5   # at the initial setpoint
     assert power_at(s0) == pytest.approx(20.0, abs=1e-6)
     for kind in CONTROLLERS:
+        if kind == "c_step":    # needs a generated directory: test_c_step_kind.py
+            continue
         ctrl = build_controller(kind, model, scenario, initial_triac_pct=s0,
                                 linear_model=load_model(shipped_path(ARMAX_MODEL_JSON)))
         assert isinstance(ctrl, Controller)
