@@ -11,6 +11,7 @@ that controller's OSQP problem with ``parameters='matrices'`` (adaptive rho kept
 from __future__ import annotations
 
 import math
+import re
 import shutil
 import string
 from collections.abc import Callable, Iterable
@@ -20,9 +21,11 @@ from pathlib import Path
 
 import numpy as np
 import osqp
+import scipy.sparse as sp
 
 from czmpc.codegen.errors import CodegenError
 from czmpc.controller import OffsetFreeMPC
+from czmpc.qp import MPCQP
 from czmpc.settings import MPCSettings
 from czmpc.settings_file import load_settings, settings_to_toml
 from sysid._typing import FloatArray
@@ -232,7 +235,7 @@ def template_values(mpc: OffsetFreeMPC, *, model_source: str, settings_source: s
         "SOFT_MIN_REL": c_number(mpc._soft_min_rel or 0.0),
         "SOFT_MAX_REL": c_number(mpc._soft_max_rel or 0.0),
         "SOFT_LINEAR_WEIGHT": c_number(s.soft_limit_linear_weight),
-        "OSQP_RHO": c_number(qp._solver.settings.rho),
+        **osqp_values(qp),
         "COEF": c_array(im.coefficients),
         "CRIT": c_array(im.slope_critical_points_pct or (0.0,)),
         "XW": c_array(ssm.xw),
@@ -250,6 +253,64 @@ def template_values(mpc: OffsetFreeMPC, *, model_source: str, settings_source: s
         "CGAM_ROWSUM": c_array(qp._Cgam_rowsum),
     }
     return values
+
+
+#: OSQP's float settings the C sets exactly at init (its generator prints them as "%.20f").
+OSQP_FLOAT_SETTINGS = ("rho", "sigma", "alpha", "eps_abs", "eps_rel", "eps_prim_inf",
+                       "eps_dual_inf", "adaptive_rho_tolerance", "adaptive_rho_fraction")
+
+
+def osqp_problem(qp: MPCQP) -> tuple[sp.csc_matrix, sp.csc_matrix]:
+    """``(P, A)`` exactly as ``qp``'s OSQP object was set up with (upper triangle, CSC).
+
+    Raises
+    ------
+    CodegenError
+        If the OSQP object does not hold them (another osqp version).
+    """
+    cache = getattr(qp._solver, "_derivative_cache", None)
+    if not isinstance(cache, dict) or "P" not in cache or "A" not in cache:
+        raise CodegenError(f"codegen: the QP's OSQP object (osqp {osqp.__version__}) must keep the "
+                           "P and A it was set up with (osqp 1.x's _derivative_cache); got none")
+    return sp.csc_matrix(cache["P"]), sp.csc_matrix(cache["A"])
+
+
+def osqp_values(qp: MPCQP) -> dict[str, str]:
+    """The QP's exact ``P`` and ``A`` values and OSQP's float settings (template values).
+
+    OSQP's code generator writes its workspace with ``"%.20f"``: a number below 1e-4 in
+    magnitude loses digits (measured: the scaled matrices, scaling vectors and KKT
+    factor of the fuzz set's QPs). The C sets the solver up again from these at init
+    (``czmpc_step.c``, ``qp_setup_exact``), as ``osqp_setup`` did in Python.
+    """
+    P, A = osqp_problem(qp)
+    st = qp._solver.settings
+    values = {"QP_NNZ_P": str(P.nnz), "QP_NNZ_A": str(A.nnz),
+              "QP_P_X": c_array(P.data), "QP_A_X": c_array(A.data)}
+    for name in OSQP_FLOAT_SETTINGS:
+        values[f"OSQP_{name.upper()}"] = c_number(getattr(st, name))
+    return values
+
+
+def check_osqp_structure(workspace: str, qp: MPCQP) -> None:
+    """Check that OSQP's generated ``workspace`` (C source) has ``qp``'s P and A pattern.
+
+    Raises
+    ------
+    CodegenError
+        If the column pointers or row indices differ (the exact values would be put in
+        the wrong places).
+    """
+    P, A = osqp_problem(qp)
+    for name, mat in (("P", P), ("A", A)):
+        for part, want in (("p", mat.indptr), ("i", mat.indices)):
+            var = f"{OSQP_PREFIX}data_{name}_csc_{part}"
+            found = re.search(rf"{var}\[\d+\] = \{{([^}}]*)\}}", workspace)
+            got = None if found is None else [int(v) for v in found.group(1).replace(",", " ").split()]
+            if got != [int(v) for v in want]:
+                raise CodegenError(f"codegen: OSQP's generated {var} must be the pattern of the "
+                                   f"QP's {name} ({mat.nnz} nonzeros); got "
+                                   f"{'none' if got is None else f'{len(got)} entries that differ'}")
 
 
 def generate_step(model: HammersteinModel, settings: MPCSettings | None, out_dir: Path, *,
@@ -298,6 +359,8 @@ def generate_step(model: HammersteinModel, settings: MPCSettings | None, out_dir
                            include_codegen_src=True, compile=False)
     for name in _OSQP_UNUSED:
         (osqp_dir / name).unlink(missing_ok=True)
+    check_osqp_structure((osqp_dir / f"{OSQP_PREFIX}workspace.c").read_text(encoding="utf-8"),
+                         mpc.qp)
     sources = sorted(p.stem for p in (osqp_dir / "src").glob("*.c"))
     say(f"writing the step (horizon {mpc.qp.horizon_steps}, "
         f"{'float' if float32 else 'double'}) into {out_dir}")

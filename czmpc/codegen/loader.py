@@ -183,11 +183,14 @@ class CController:
         lib.czmpc_planned_w.restype = ctypes.POINTER(real)
         for name in ("n_fallbacks", "n_inaccurate", "n_rejected_measurements", "n_shed_steps"):
             getattr(lib, f"czmpc_{name}").restype = ctypes.c_long
-        if initial_triac_pct is None:
-            lib.czmpc_init(self._state)
-        elif lib.czmpc_init_at(self._state, float(initial_triac_pct)) != _OK:
+        code = (lib.czmpc_init(self._state) if initial_triac_pct is None
+                else lib.czmpc_init_at(self._state, float(initial_triac_pct)))
+        if code == _ERR_RANGE:
             raise SettingsError(f"CController: initial_triac_pct must lie in the allowed range of "
                                 f"{library.parent}; got {initial_triac_pct!r}")
+        if code != _OK:
+            raise BuildError(f"{library}: the generated QP solver could not be set up (czmpc_init "
+                             f"returned {code}: its KKT matrix was not factored)")
         self.last: StepRecord | None = None
 
     def reset(self) -> None:

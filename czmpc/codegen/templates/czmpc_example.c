@@ -55,14 +55,20 @@ int main(int argc, char **argv)
     czmpc_outputs out;
     long line_no = 0;
     if (argc > 1) {
-        if (czmpc_init_at(&state, (czmpc_real)strtod(argv[1], NULL)) != CZMPC_OK) {
+        int rc = czmpc_init_at(&state, (czmpc_real)strtod(argv[1], NULL));
+        if (rc == CZMPC_ERR_RANGE) {
             fprintf(stderr, "example: initial TRIAC input must lie in [%g, %g] %%; got %s\n",
                     (double)CZMPC_ALLOWED_TRIAC_MIN_PCT, (double)CZMPC_ALLOWED_TRIAC_MAX_PCT,
                     argv[1]);
             return 2;
         }
-    } else {
-        czmpc_init(&state);
+        if (rc != CZMPC_OK) {
+            fprintf(stderr, "example: the QP solver could not be set up (code %d)\n", rc);
+            return 2;
+        }
+    } else if (czmpc_init(&state) != CZMPC_OK) {
+        fprintf(stderr, "example: the QP solver could not be set up\n");
+        return 2;
     }
     while (fgets(line, sizeof line, stdin) != NULL) {
         char *cursor = line;

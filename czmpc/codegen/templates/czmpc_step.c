@@ -3,8 +3,10 @@
  *
  * Each function is the C of one Python stage, named after it, with the same
  * arithmetic in the same order (build with -ffp-contract=off: a fused multiply-add
- * changes the results). The only differences from Python are the order of the sums
- * in matrix-vector products (numpy's BLAS blocks them), which moves results by an ulp.
+ * changes the results). Matrix-vector products sum in column order from the first
+ * term (gemv), as the Python controller's do (czmpc.ordered), and OSQP's workspace is
+ * set up again from the exact problem at init (qp_setup_exact): in double precision
+ * the step is bit-equal to the Python controller's (tests/codegen).
  */
 #define CZMPC_MODEL_DATA
 #include "czmpc_step.h"
@@ -13,6 +15,11 @@
 
 #include "osqp.h"
 #include "czmpc_qp_workspace.h"
+/* OSQP's private headers, for qp_setup_exact only */
+#include "algebra_impl.h"
+#include "auxil.h"
+#include "scaling.h"
+#include "types.h"
 
 #ifdef CZMPC_FLOAT32
 #define CZMPC_SQRT sqrtf
@@ -61,7 +68,8 @@ static int all_finite(const czmpc_real *v, int n)
     return 1;
 }
 
-/* y = M x for a row-major (rows x cols) matrix. */
+/* y = M x for a row-major (rows x cols) matrix, each row summed from its first term
+   (czmpc.ordered.OrderedProduct: the Python controller's order). */
 static void gemv(const czmpc_real *m, int rows, int cols, const czmpc_real *x, czmpc_real *y)
 {
     int i, j;
@@ -861,6 +869,51 @@ static int judge(czmpc_state *s, int used, const plan_t *p, const target_t *t, c
     return CZMPC_STATUS_GOOD;
 }
 
+/* ---- the QP solver's workspace, exact ---- */
+
+/* Set OSQP's generated workspace up again from the exact problem, as osqp_setup did for
+   the Python controller: float settings, unscaled P and A, the initial q, l, u (from
+   czmpc_init_at), then scaling, rho vector, KKT matrix and its factorization. OSQP's
+   code generator prints every number as "%.20f", which drops digits of those below
+   1e-4 in magnitude (scaled matrices, scaling vectors, KKT factor): without this the
+   solver's iterates differ from Python's in the last digits and, over a run, in the
+   iteration counts. Uses only functions of OSQP's embedded code (no heap). Returns
+   CZMPC_OK, or CZMPC_ERR_SOLVER if the KKT matrix cannot be factored. */
+static int qp_setup_exact(const czmpc_state *s)
+{
+    OSQPSolver *solver = &czmpc_qp_solver;
+    OSQPWorkspace *work = solver->work;
+    OSQPSettings *st = solver->settings;
+    OSQPFloat *px = work->data->P->csc->x, *ax = work->data->A->csc->x;
+    OSQPFloat *q = work->data->q->values, *l = work->data->l->values, *u = work->data->u->values;
+    int i, bad;
+    st->rho = (czmpc_real)CZMPC_OSQP_RHO;
+    st->sigma = (czmpc_real)CZMPC_OSQP_SIGMA;
+    st->alpha = (czmpc_real)CZMPC_OSQP_ALPHA;
+    st->eps_abs = (czmpc_real)CZMPC_OSQP_EPS_ABS;
+    st->eps_rel = (czmpc_real)CZMPC_OSQP_EPS_REL;
+    st->eps_prim_inf = (czmpc_real)CZMPC_OSQP_EPS_PRIM_INF;
+    st->eps_dual_inf = (czmpc_real)CZMPC_OSQP_EPS_DUAL_INF;
+    st->adaptive_rho_tolerance = (czmpc_real)CZMPC_OSQP_ADAPTIVE_RHO_TOLERANCE;
+    st->adaptive_rho_fraction = (czmpc_real)CZMPC_OSQP_ADAPTIVE_RHO_FRACTION;
+    for (i = 0; i < CZMPC_QP_NNZ_P; ++i) px[i] = CZMPC_QP_P_X[i];
+    for (i = 0; i < CZMPC_QP_NNZ_A; ++i) ax[i] = CZMPC_QP_A_X[i];
+    for (i = 0; i < CZMPC_NVAR; ++i) q[i] = s->q[i];
+    for (i = 0; i < CZMPC_NCON; ++i) {
+        l[i] = s->l[i];
+        u[i] = s->u[i];
+    }
+    if (st->scaling) scale_data(solver);
+    set_rho_vec(solver);
+    bad = work->linsys_solver->update_matrices(work->linsys_solver, work->data->P, OSQP_NULL,
+                                               CZMPC_QP_NNZ_P, work->data->A, OSQP_NULL,
+                                               CZMPC_QP_NNZ_A) != 0;
+    bad |= work->linsys_solver->update_rho_vec(work->linsys_solver, work->rho_vec, st->rho) != 0;
+    reset_info(solver->info);
+    osqp_cold_start(solver);
+    return bad ? CZMPC_ERR_SOLVER : CZMPC_OK;
+}
+
 /* ---- public API ---- */
 
 void czmpc_reset(czmpc_state *s)
@@ -906,10 +959,8 @@ int czmpc_init_at(czmpc_state *s, czmpc_real initial_triac_pct)
     s->q[CZMPC_N] = CZMPC_SOFT_LINEAR_WEIGHT;
     s->l[CZMPC_NCON - 1] = ZERO;
 #endif
-    /* The solver's step size back to its start (adaptive rho may have moved it). */
-    if (czmpc_qp_solver.settings->rho != (czmpc_real)CZMPC_OSQP_RHO) {
-        (void)osqp_update_rho(&czmpc_qp_solver, (czmpc_real)CZMPC_OSQP_RHO);
-    }
+    /* The solver as set up in Python (its step size back to the start, too). */
+    if (qp_setup_exact(s) != CZMPC_OK) return CZMPC_ERR_SOLVER;
     czmpc_reset(s);
     return CZMPC_OK;
 }

@@ -86,6 +86,7 @@ extern "C" {
 #define CZMPC_ERR_RANGE (-1)     /* a value outside its allowed range */
 #define CZMPC_ERR_NOT_READY (-2) /* ON refused: the estimator is not warm (run PREDICT first) */
 #define CZMPC_ERR_UNKNOWN (-3)   /* not a mode */
+#define CZMPC_ERR_SOLVER (-4)    /* init: the QP's KKT matrix could not be factored */
 
 /* Inputs of one step. Set them all (czmpc_inputs_default gives "nothing but power
    and setpoint"). */
@@ -187,12 +188,15 @@ typedef struct {
 } czmpc_state;
 
 /* Initialize at the settings' initial input (as OffsetFreeMPC(model, settings)); also
-   restores the QP solver's step size. Returns CZMPC_OK. */
+   sets the QP solver up as the Python controller's was (exact data, its step size
+   back to the start). Returns CZMPC_OK, or CZMPC_ERR_SOLVER if the solver's KKT
+   matrix cannot be factored (not seen for a problem Python set up). */
 int czmpc_init(czmpc_state *s);
 
 /* Initialize at another initial input [%] for a bumpless start (OffsetFreeMPC's
    initial_triac_pct); CZMPC_ERR_RANGE (nothing changed) outside the allowed range
-   CZMPC_ALLOWED_TRIAC_MIN_PCT .. CZMPC_ALLOWED_TRIAC_MAX_PCT. */
+   CZMPC_ALLOWED_TRIAC_MIN_PCT .. CZMPC_ALLOWED_TRIAC_MAX_PCT; CZMPC_ERR_SOLVER as
+   czmpc_init. */
 int czmpc_init_at(czmpc_state *s, czmpc_real initial_triac_pct);
 
 /* Forget all state, as if newly initialized (the solver cold-starts; its step size
