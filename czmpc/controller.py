@@ -44,6 +44,7 @@ from czmpc.inversion import InputMap, build_input_map, clamp, slope
 from czmpc.kalman import Estimator, LevelChangeRule, SteadyStateKalman
 from czmpc.mismatch import InnovationMonitor, monitored_noise_std_kw
 from czmpc.modes import Mode, ModeTransition, Status, transition
+from czmpc.ordered import OrderedProduct
 from czmpc.qp import MPCQP, QPSolution
 from czmpc.qp_daqp import DAQPMPCQP
 from czmpc.realization import AugmentedModel, augment, innovations_form
@@ -204,6 +205,9 @@ class OffsetFreeMPC:
         self._traj = np.empty(settings.horizon_steps + 3)         # [r_{k..k+N}; c_y; c_w]
         self._traj_cost = self._ref_cost @ _trajectory_map(settings.horizon_steps,
                                                              self._ssm.static_gain)
+        # The step's products in one fixed order (`czmpc.ordered`): the generated C's.
+        self._traj_product = OrderedProduct(self._traj_cost)
+        self._ref_product = OrderedProduct(self._ref_cost)
         self.reset()
 
     # --- public state -----------------------------------------------------------
@@ -551,14 +555,12 @@ class OffsetFreeMPC:
                 and tgt.w_unclipped + (high - r_end) * inv_g <= w_max):
             traj[n + 1] = self._p_nom + tgt.y_s
             traj[n + 2] = tgt.w_unclipped - tgt.w_s
-            out: FloatArray = self._traj_cost.dot(traj)
-            return out
+            return self._traj_product(traj)
         ref = self._ref
         np.subtract(traj[1:n], self._p_nom + tgt.y_s, out=ref[: n - 1])
         sigma = np.clip(tgt.w_unclipped + (traj[: n + 1] - r_end) * inv_g, w_min, w_max)
         np.subtract(sigma, tgt.w_s, out=ref[n - 1 :])
-        cost: FloatArray = self._ref_cost.dot(ref)
-        return cost
+        return self._ref_product(ref)
 
     def _measurement_update(self, power: float) -> tuple[MeasurementCheck, bool, float, int]:
         """Stage 1: validity checks, then the measurement update with a valid sample only.

@@ -34,6 +34,7 @@ import numpy as np
 import scipy.linalg
 
 from czmpc.errors import DesignError
+from czmpc.ordered import OrderedProduct, ordered_dot
 from czmpc.realization import AugmentedModel
 from sysid._arrays import readonly_array as _readonly
 from sysid._typing import FloatArray
@@ -235,6 +236,11 @@ class Estimator:
         # [z+; C z+] = [[A, B, G]; C [A, B, G]] [z; w; eps]: one product per step.
         ABG = np.column_stack([self._A, self._B, self._G])
         self._ABG_C = np.vstack([ABG, self._C @ ABG])
+        # The step's products in one fixed order (`czmpc.ordered`): the generated C's.
+        self._predict_product = OrderedProduct(self._ABG_C)
+        self._a_product = OrderedProduct(self._A)
+        self._c_list = self._C.tolist()
+        self._cm = ordered_dot(self._c_list, self._M.tolist())  # C M: the update's share
         self._v = np.empty(model.n_states + 2)
         self._v_z = self._v[:-2]  # a view, taken once
         self._eps = np.array(0.0)  # eps as a 0-d array: numpy converts a float on every call
@@ -252,7 +258,7 @@ class Estimator:
         z.setflags(write=False)  # handed out in diagnostics
         self._z = z
         self._z_shared = True
-        self._y_pred = float(self._C @ z)
+        self._y_pred = ordered_dot(self._c_list, z.tolist())
 
     @property
     def z(self) -> FloatArray:
@@ -304,7 +310,7 @@ class Estimator:
         c_d = float(self._C[-1])
         if c_d == 0.0 or self.gap or self.eps == 0.0:
             return False
-        residual = self.eps * (1.0 - float(self._C @ self._M))
+        residual = self.eps * (1.0 - self._cm)
         z = self._z.copy()
         z[-1] += residual / c_d
         self._z = z
@@ -323,7 +329,7 @@ class Estimator:
         self._v_z[...] = z
         v[-2] = w
         v[-1] = self.eps
-        out = self._ABG_C.dot(v)  # the same BLAS product as @, with less call overhead
+        out = self._predict_product(v)
         values = out.tolist()  # math.isfinite on n + 1 floats beats np.isfinite on a tiny array
         if all(map(math.isfinite, values)):
             self._z = out[:-1]
@@ -352,9 +358,9 @@ class Estimator:
             return 0
         traces = list(self._history)[-steps_back:]
         z_post, eps, w = traces[0]
-        z = self._A @ z_post + self._B * w + self._G * eps
+        z = self._a_product(z_post) + self._B * w + self._G * eps
         for _, _, w in traces[1:]:
-            z = self._A @ z + self._B * w
+            z = self._a_product(z) + self._B * w
         if not np.isfinite(z).all():
             return 0
         self._set(z)

@@ -55,6 +55,7 @@ from czmpc._records import record_from_fields
 from czmpc.errors import DesignError
 from czmpc.inversion import InputMap
 from czmpc.inversion import slope as slope_at
+from czmpc.ordered import OrderedProduct
 from czmpc.settings import OSQPOptions
 from sysid._typing import FloatArray
 
@@ -469,6 +470,9 @@ class MPCQP:
             -2.0 * input_target_weight * np.eye(N, N + 1, k=1) - 2.0 * move_weight * D.T @ D_ext])
         self._Cgam_rowsum = Cgam.sum(axis=1)
         self._Cphi_map = Cphi @ h_map  # C Phi_j h = (C Phi_j M) t
+        # The step's products in one fixed order (`czmpc.ordered`): the generated C's.
+        self._q_product = OrderedProduct(self._q_params)
+        self._cphi_product = OrderedProduct(self._Cphi_map)
         self._cost_hessian: FloatArray = np.asarray(H, dtype=float)
 
         n_var = N + (1 if self.has_soft else 0)
@@ -604,7 +608,7 @@ class MPCQP:
             self.h_input[...] = h_terms
         params[-2] = w_prev
         params[-1] = w_target
-        self._q_params.dot(params, out=self._q_w)  # ndarray.dot: less call overhead than np.dot
+        self._q_product(params, out=self._q_w)  # in the generated C's order (`czmpc.ordered`)
         if q_offset is not None:
             self._q_w += q_offset
         if w_lo is not self._l_box:
@@ -616,7 +620,7 @@ class MPCQP:
             self._u_rate[...] = rate
         if self.has_soft:
             # C dx_j = Cphi_j h + Cgam_j w - (Cgam_j 1) w_s ; y_j = y_s + C dx_j.
-            base = self._Cphi_map @ h_terms - self._Cgam_rowsum * w_target + y_target
+            base = self._cphi_product(h_terms) - self._Cgam_rowsum * w_target + y_target
             r0 = self._row_soft
             if self.has_soft_max and soft_max_rel_kw is not None:
                 self._u[r0 : r0 + N] = soft_max_rel_kw - base

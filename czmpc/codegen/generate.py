@@ -207,7 +207,7 @@ def template_values(mpc: OffsetFreeMPC, *, model_source: str, settings_source: s
         "INV_STATIC_GAIN": c_number(1.0 / ssm.static_gain),
         "W0_ABS": c_number(mpc._w0_abs),
         "D_POWER_GAIN": c_number(aug.disturbance_power_gain),
-        "CM": c_number(float(aug.C @ est.gains.M)),
+        "CM": c_number(est._cm),
         "C_D": c_number(float(aug.C[-1])),
         "INITIAL_MODE": str(_MODES[rel.initial_mode]),
         "WARMUP_SAMPLES": str(rel.warmup_samples),

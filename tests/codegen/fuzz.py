@@ -7,8 +7,10 @@ every reliability guard on or off, an OSQP iteration cap that may bite), builds 
 step, and replays both controllers through `tests.codegen.replay.fault_replay` with a
 random stream (noise, spikes, gaps, stuck runs, bad setpoints, previews, voltage, modes).
 
-A case *diverges* when OSQP's termination test flips on an ulp of q (numpy's BLAS sums
-in another order than the C: issue 42's known gap); it must be equal up to that step.
+Required of every step (issue 42): `tests.codegen.replay.Comparison`'s checks (TRIAC
+within 1e-6 %, equal iteration counts, mode, status, fallback). Measured: every step
+bit-equal, since the C's OSQP is set up from the exact problem (OSQP's generator prints
+"%.20f") and the Python controller sums its products in the C's order (`czmpc.ordered`).
 
 As a benchmark (prints the counts; ``--steps`` per case)::
 
@@ -20,6 +22,7 @@ from __future__ import annotations
 import argparse
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -92,7 +95,6 @@ class FuzzResult:
 
     n_cases: int = 0
     n_rejected_designs: int = 0
-    n_diverged: int = 0
     n_bad: int = 0
     total: Comparison = field(default_factory=Comparison)
     max_iterations: int = 0
@@ -100,14 +102,17 @@ class FuzzResult:
 
     def summary(self) -> str:
         """One paragraph of counts."""
+        share = self.total.n_bit_equal / max(self.total.n_steps, 1)
         return (f"{self.n_cases} cases ({self.n_rejected_designs} random designs refused by "
-                f"the controller and redrawn), {self.total.summary()}; diverged at an OSQP "
-                f"termination flip: {self.n_diverged}; other differences: {self.n_bad}; "
-                f"largest iteration count {self.max_iterations}")
+                f"the controller and redrawn), {self.total.summary()}; bit-equal share "
+                f"{share:.6f}; cases with a difference: {self.n_bad}; largest iteration "
+                f"count {self.max_iterations}")
 
 
-def fuzz(builder: StepBuilder, *, n_cases: int, n_steps: int, seed: int) -> FuzzResult:
-    """Run ``n_cases`` random controllers for ``n_steps`` each (module notes)."""
+def fuzz(builder: StepBuilder, *, n_cases: int, n_steps: int, seed: int,
+         progress: Callable[[str], None] | None = None) -> FuzzResult:
+    """Run ``n_cases`` random controllers for ``n_steps`` each (module notes); ``progress``
+    is called with the counts after every case."""
     rng = np.random.default_rng(seed)
     out = FuzzResult()
     while out.n_cases < n_cases:
@@ -120,16 +125,15 @@ def fuzz(builder: StepBuilder, *, n_cases: int, n_steps: int, seed: int) -> Fuzz
             continue
         directory = builder.build(model, settings, name=f"fuzz{out.n_cases:05d}")
         c = CController(directory / "libczmpc.so")
-        cmp, _ = fault_replay(py, c, n_steps=n_steps, rng=rng)
+        cmp, _ = fault_replay(py, c, n_steps=n_steps, rng=rng, expect_modes=False)
         out.n_cases += 1
         out.max_iterations = max(out.max_iterations, cmp.max_iterations_py)
         if cmp.mismatches:
-            if "n_iterations" in cmp.mismatches[0]:
-                out.n_diverged += 1
-            else:
-                out.n_bad += 1
-                out.bad.append(f"case {out.n_cases - 1}: {cmp.mismatches[:3]}")
+            out.n_bad += 1
+            out.bad.append(f"case {out.n_cases - 1}: {cmp.mismatches[:3]}")
         out.total.merge(cmp)
+        if progress is not None:
+            progress(f"case {out.n_cases - 1}: {cmp.summary()}; so far: {out.summary()}")
         for p in directory.glob("*.o"):      # keep the disk use of 1e6 steps small
             if not p.name.startswith("osqp_"):
                 p.unlink()
@@ -141,10 +145,12 @@ def main() -> None:  # pragma: no cover - the benchmark entry point
     parser.add_argument("--cases", type=int, default=400)
     parser.add_argument("--steps", type=int, default=2500)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--progress", action="store_true", help="a line of counts per case")
     args = parser.parse_args()
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="czmpc_fuzz_") as tmp:
-        result = fuzz(StepBuilder(Path(tmp)), n_cases=args.cases, n_steps=args.steps, seed=args.seed)
+        result = fuzz(StepBuilder(Path(tmp)), n_cases=args.cases, n_steps=args.steps, seed=args.seed,
+                      progress=(lambda line: print(line, flush=True)) if args.progress else None)
     print(result.summary())
     for line in result.bad[:20]:
         print("  ", line)
