@@ -29,6 +29,24 @@ modes, statuses), `reset`, `request_mode` and `set_triac_limits`. Not in C: the 
 monitor (`czmpc.mismatch`, diagnostics only: it changes no output) and the log of mode
 transitions. OSQP polishing and solver time limits are refused (OSQP's embedded code
 has neither). Only the OSQP solver is generated.
+
+Equal, measured (tests/codegen). In double precision the C step is bit-equal to the
+Python controller: every step of the golden suite's 28 MPC cases (7,440 steps, and 7,440
+more with a 60 s preview and a measured voltage), of the fault classes and of the fuzz
+set (20,000 steps in CI; 1e6 with ``python -m tests.codegen.fuzz``). Two things make it
+so: the C sets OSQP up again at init from the exact problem (OSQP's generator prints its
+workspace as ``"%.20f"``, which drops digits below 1e-4: ``generate.osqp_values``), and
+the Python controller sums its matrix-vector products in the C's order
+(`czmpc.ordered`; BLAS's order depends on the CPU). Before both, 5 of 8 fuzzed
+controllers drifted from their C step within 25 to 376 samples.
+
+``--float32`` (float step and float OSQP against the double Python controller), measured
+on the same 2 x 7,440 golden steps: TRIAC within 0.0034 % (0.0025 % with preview and
+voltage); mode, fallback, solver status and measurement checks equal at every step;
+iteration counts differ on 886 (626) steps; the status differs on 23 (91) steps, always
+GOOD against CLAMPED and only where the plan's first move lies within 1.5e-4
+kW-equivalent of its bound: the CLAMPED test's tolerance (`czmpc.controller.CLAMP_TOL`,
+1e-6) is finer than float's resolution there (an ulp of 40 is 3.8e-6) and than OSQP's.
 """
 
 from __future__ import annotations
