@@ -254,13 +254,17 @@ class FuzzWorst:
         The fuzz set's seed.
     max_iterations :
         Largest iteration count of the Python controller over all steps (the C step's
-        equal where the two agree; the cap drawn per case is 25, 200 or 4,000).
+        equal where the two agree; the cap drawn per case is 25, 200 or 4,000), or None
+        if the fuzz set stopped.
+    error :
+        Why the fuzz set stopped (its exception), or None.
     """
 
     n_cases: int
     n_steps: int
     seed: int
-    max_iterations: int
+    max_iterations: int | None
+    error: str | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -658,19 +662,32 @@ def measure(model: HammersteinModel, directory: Path, *, repeats: int, n_steps: 
 def fuzz_worst_iterations(n_cases: int, progress: Progress | None = None) -> FuzzWorst:
     """The worst Python iteration count of ``tests/codegen/fuzz.py``'s set (seed 1).
 
-    Needs the repository's tests (run from its root) and builds one C step per case.
+    Needs the repository's tests (run from its root) and builds one C step per case. The
+    fuzz set is the tests' code: if it stops (an exception, an assertion of its replay),
+    the result says so instead of losing the timings measured before it.
     """
     # The repository's tests, not a package of this project: imported by name, so that
     # type checking `benchmarks` stays out of them.
     fuzz = importlib.import_module("tests.codegen.fuzz")
     replay = importlib.import_module("tests.codegen.replay")
-    with tempfile.TemporaryDirectory(prefix="czmpc_bench_fuzz_") as tmp:
-        result = fuzz.fuzz(replay.StepBuilder(Path(tmp)), n_cases=n_cases,
-                           n_steps=FUZZ_STEPS_PER_CASE, seed=FUZZ_SEED)
-    worst = FuzzWorst(n_cases=result.n_cases, n_steps=result.total.n_steps, seed=FUZZ_SEED,
-                      max_iterations=int(result.max_iterations))
+    try:
+        with tempfile.TemporaryDirectory(prefix="czmpc_bench_fuzz_") as tmp:
+            result = fuzz.fuzz(replay.StepBuilder(Path(tmp)), n_cases=n_cases,
+                               n_steps=FUZZ_STEPS_PER_CASE, seed=FUZZ_SEED)
+    except Exception as exc:  # the tests' code: any failure is reported, not raised
+        where = exc.__traceback__
+        while where is not None and where.tb_next is not None:
+            where = where.tb_next
+        place = (f" at {Path(where.tb_frame.f_code.co_filename).name}:{where.tb_lineno}"
+                 if where is not None else "")
+        worst = FuzzWorst(n_cases=n_cases, n_steps=0, seed=FUZZ_SEED, max_iterations=None,
+                          error=f"{type(exc).__name__}{place}: {exc}".rstrip(": "))
+    else:
+        worst = FuzzWorst(n_cases=result.n_cases, n_steps=result.total.n_steps, seed=FUZZ_SEED,
+                          max_iterations=int(result.max_iterations))
     if progress is not None:
-        progress(f"fuzz set: {worst.n_steps} steps, worst iteration count {worst.max_iterations}")
+        progress(f"fuzz set: {worst.n_steps} steps, worst iteration count {worst.max_iterations}"
+                 + (f" (stopped: {worst.error})" if worst.error else ""))
     return worst
 
 
@@ -881,11 +898,15 @@ def _summary(bench: CodegenBenchmark) -> list[str]:
     if bench.fuzz is None:
         lines.append("- Worst iteration count on the fuzz set (`tests/codegen/fuzz.py`): not "
                      "measured here (`--fuzz-cases 400` runs its 1e6-step set).")
+    elif bench.fuzz.max_iterations is None:
+        lines.append(f"- Worst iteration count on the fuzz set (`tests/codegen/fuzz.py`, seed "
+                     f"{bench.fuzz.seed}, {bench.fuzz.n_cases} cases asked): not measured, the "
+                     f"fuzz set stopped ({bench.fuzz.error}).")
     else:
         f = bench.fuzz
         lines.append(f"- Worst iteration count on the fuzz set (`tests/codegen/fuzz.py`, seed "
                      f"{f.seed}, {f.n_cases} random controllers x {FUZZ_STEPS_PER_CASE} steps = "
-                     f"{f.n_steps} steps; each case's cap is 25, 200 or 4000): **{f.max_iterations}**.")
+                     f"{f.n_steps:,} steps; each case's cap is 25, 200 or 4000): **{f.max_iterations}**.")
     if bench.float32:
         worst_dev = max(r.worst_triac_all_pct for r in runs)
         lines.append(f"- float32: the C step's TRIAC input is at most {worst_dev:.2e} % from the "

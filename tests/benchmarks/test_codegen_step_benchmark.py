@@ -12,6 +12,7 @@ import math
 import re
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -241,3 +242,21 @@ def test_help_says_what_is_measured(capsys: pytest.CaptureFixture[str]) -> None:
     out = capsys.readouterr().out
     assert "What does one step of the controller cost once it is C" in out
     assert "--float32" in out and "--repeats N" in out and "99.9th percentile" in out
+
+
+def test_a_fuzz_set_that_stops_is_reported_not_raised(monkeypatch: pytest.MonkeyPatch) -> None:
+    def stops(*args: object, **kwargs: object) -> None:
+        raise AssertionError("mode 'on' refused")
+
+    fake = {"tests.codegen.fuzz": SimpleNamespace(fuzz=stops),
+            "tests.codegen.replay": SimpleNamespace(StepBuilder=lambda root: root)}
+    monkeypatch.setattr(cg.importlib, "import_module", fake.__getitem__)
+    worst = cg.fuzz_worst_iterations(400)
+    assert worst.max_iterations is None and worst.n_cases == 400 and worst.n_steps == 0
+    assert worst.error is not None and worst.error.startswith("AssertionError at ")
+    assert worst.error.endswith(": mode 'on' refused")
+    text = cg.format_report(replace(_bench((_run(),)), fuzz=worst))
+    assert "400 cases asked): not measured, the fuzz set stopped (AssertionError at" in text
+    done = cg.FuzzWorst(n_cases=400, n_steps=1_000_000, seed=1, max_iterations=1915)
+    assert "1,000,000 steps; each case's cap is 25, 200 or 4000): **1915**" in cg.format_report(
+        replace(_bench((_run(),)), fuzz=done))
