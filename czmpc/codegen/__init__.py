@@ -7,6 +7,7 @@ Generate, build, use::
 
     czmpc codegen model.json --settings settings.toml --out step/   # C99 + OSQP's solver
     make -C step/                     # *.o, libczmpc.a and step/example
+    cmake -S step/ -B step/build && cmake --build step/build   # the same, with CMake
     printf '45.0,46.0\\nnan,46.0\\n' | step/example   # triac_pct,mode,status,... per line
 
 From Python (builds ``libczmpc.so`` on demand with the system's C compiler)::

@@ -40,6 +40,7 @@ TEMPLATES: dict[str, str] = {
     "czmpc_example.c": "czmpc_example.c",
     "czmpc_model.h.in": "czmpc_model.h",
     "Makefile.in": "Makefile",
+    "CMakeLists.txt.in": "CMakeLists.txt",
 }
 #: The model and the effective settings the step was generated from, written beside it
 #: (`read_sources`): a user sees what the C holds, and ``czmpc simulate --controller
@@ -180,6 +181,8 @@ def template_values(mpc: OffsetFreeMPC, *, model_source: str, settings_source: s
         "REAL_TYPEDEF": ("typedef float czmpc_real;\n#define CZMPC_FLOAT32 1" if float32
                          else "typedef double czmpc_real;"),
         "REAL_FLAG": "-DCZMPC_FLOAT32" if float32 else "",
+        "REAL_CMAKE": ("target_compile_definitions(czmpc PUBLIC CZMPC_FLOAT32)" if float32
+                       else "# double precision: czmpc_real is double"),
         "HORIZON_STEPS": str(n),
         "N_STATES": str(n_x),
         "N_COEFFICIENTS": str(len(im.coefficients)),
@@ -367,6 +370,7 @@ def generate_step(model: HammersteinModel, settings: MPCSettings | None, out_dir
     values = template_values(mpc, model_source=model_source, settings_source=settings_source,
                              float32=float32)
     values["OSQP_OBJECTS"] = " ".join(f"osqp_{name}.o" for name in sources)
+    values["OSQP_SOURCES"] = " ".join(f"osqp/src/{name}.c" for name in sources)
     folder = resources.files("czmpc.codegen") / "templates"
     for template, target in TEMPLATES.items():
         text = (folder / template).read_text(encoding="utf-8")
