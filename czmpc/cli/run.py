@@ -12,6 +12,15 @@ in PREDICT only unless --force. --test plays an open-loop identification test an
 --check only checks the nodes. Guides: docs/guides/plant_link.rst (typed nodes, refused
 writes, lost links), docs/guides/service.rst (events, log files, one writer per plant).
 
+--controller c:DIR runs the MPC step 'czmpc codegen' wrote as C into DIR instead of the
+Python MPC: built with the system's C compiler (a missing compiler is an error, exit 2)
+and loaded with ctypes. [controller] model must be the model DIR was generated from
+(DIR/model.json; the health monitor and a shadow candidate use it), and [controller]
+settings, if given, the settings compiled into it (DIR/settings.toml); otherwise the run
+is refused with what to generate. The switch-on rule, modes, log columns and state nodes
+are the Python MPC's; the log's meta file records DIR and the SHA-256 of its C and
+library (docs/guides/codegen.rst).
+
 Exit codes: 0 done or stopped by a signal; 2 bad config, model or settings, or a node
 the server will not accept as configured; 1 the plant could not be reached at the
 start, a test or run was aborted, or the controller meant to write and the plant
@@ -75,16 +84,30 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--force", action="store_true",
                         help="switch ON even with a model 'czmpc check-model' judged not ready "
                              "(said on stderr at the start and in the run summary)")
+    parser.add_argument("--controller", metavar="c:DIR", default=None,
+                        help="run the MPC step 'czmpc codegen' wrote as C into DIR (built with "
+                             "the system's C compiler, loaded with ctypes) instead of the Python "
+                             "MPC; DIR/model.json must be [controller] model, and [controller] "
+                             "settings, if given, its compiled settings (default: the Python MPC)")
 
 
 def run(args: argparse.Namespace) -> int:
     """Load the config and the model, build the controller, run the loop."""
     import dataclasses
 
+    from czmpc.controller import OffsetFreeMPC
+    from czmpc.errors import SettingsError
+    from czmpc.runtime.c_step import c_step_directory
     from czmpc.runtime.config import load_run_config
     from czmpc.runtime.loop import tty_status
     from czmpc.runtime.session import open_run
 
+    c_step = None if args.controller is None else c_step_directory(args.controller)
+    if c_step is not None and (args.test is not None or args.dither_pct is not None):
+        other = ("--test plays its schedule without a controller" if args.test is not None
+                 else "--dither-pct dithers the Python MPC")
+        raise SettingsError(f"run: --controller {args.controller} runs the C step in closed "
+                            f"loop; {other}: drop one of them")
     config = load_run_config(args.config)
     changes: dict[str, object] = {}
     if args.duration_s is not None:
@@ -107,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
         schedule = load_input_schedule(args.test)
         loop = make_test_loop(config, schedule, status=tty_status())
     else:
-        opened = open_run(config, force=args.force, log=_log)
+        opened = open_run(config, force=args.force, log=_log, c_step=c_step)
         forced = opened.switch_on.forced
         if args.dither_pct is None:
             loop = opened.loop(provenance={"kind": "MPC run", "closed_loop": True},
@@ -115,6 +138,8 @@ def run(args: argparse.Namespace) -> int:
         else:
             from czmpc.commissioning.dither import DitheredMPC, dominant_time_constant_s
 
+            if not isinstance(opened.mpc, OffsetFreeMPC):   # refused above
+                raise SettingsError("run: --dither-pct dithers the Python MPC only")
             dithered = DitheredMPC(opened.mpc, amplitude_pct=args.dither_pct,
                                    switch_time_s=dominant_time_constant_s(opened.mpc.model),
                                    rng=args.dither_seed)

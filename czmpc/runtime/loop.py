@@ -12,7 +12,8 @@ skips periods, never catches up. A lost link keeps the controller predicting and
 reconnects with a doubling backoff (up to `MAX_BACKOFF_S`), bumpless from the applied
 input. A stop writes the ``[safety]`` action; a ``[test]`` limit left aborts the run to
 ``safe_triac_pct``. The loop drives any `LoopController`: the MPC (`MPCDriver`), a test
-schedule or a dithered MPC (`czmpc.commissioning`); docs/guides/plant_link.rst and
+schedule or a dithered MPC (`czmpc.commissioning`), or the MPC step generated as C
+(`czmpc.runtime.c_step.CStepDriver`); docs/guides/plant_link.rst and
 docs/guides/service.rst show each case.
 """
 
@@ -35,6 +36,7 @@ from czmpc.controller import OffsetFreeMPC
 from czmpc.health import RUNTIME_HEALTH, HealthSettings, ModelHealth, ModelHealthMonitor
 from czmpc.modes import Mode
 from czmpc.runtime import alignment, refusals
+from czmpc.runtime.c_step import CStepDriver, CStepMPC
 from czmpc.runtime.config import RunConfig
 from czmpc.runtime.link import HEALTH_TOP, CheckReport, LinkLostError, PlantLink
 from czmpc.runtime.logfiles import (
@@ -281,8 +283,8 @@ class ControlLoop:
     config :
         The run configuration.
     controller :
-        The MPC (its ``ts_s`` must equal ``config.ts_s``; wrapped in `MPCDriver`) or any
-        `LoopController`.
+        The MPC (its ``ts_s`` must equal ``config.ts_s``; wrapped in `MPCDriver`), the
+        generated C step (wrapped in `CStepDriver`) or any `LoopController`.
     status :
         Called with a one-line status after each step (None: silent).
     step_delay_s :
@@ -295,14 +297,15 @@ class ControlLoop:
         SHA-256), for ``<log>.meta.json``.
     """
 
-    def __init__(self, config: RunConfig, controller: OffsetFreeMPC | LoopController, *,
+    def __init__(self, config: RunConfig, controller: OffsetFreeMPC | CStepMPC | LoopController, *,
                  status: Callable[[str], None] | None = None,
                  step_delay_s: dict[int, float] | None = None,
                  health_settings: HealthSettings | None = None,
                  provenance: Mapping[str, object] | None = None) -> None:
         self.config = config
-        self.ctrl: LoopController = (MPCDriver(controller) if isinstance(controller, OffsetFreeMPC)
-                                     else controller)
+        self.ctrl: LoopController = (
+            MPCDriver(controller) if isinstance(controller, OffsetFreeMPC)
+            else CStepDriver(controller) if isinstance(controller, CStepMPC) else controller)
         self._provenance = dict(provenance or {})
         self._bad_run = 0
         self.link = PlantLink(config)
@@ -333,7 +336,7 @@ class ControlLoop:
         self._ages_s: list[float] = []   # good samples' ages since the last phase estimate
         self._last_time: dt.datetime | None = None
         # a test schedule has no MPC, so no health monitor
-        self._mpc: OffsetFreeMPC | None = getattr(self.ctrl, "mpc", None)
+        self._mpc: OffsetFreeMPC | CStepMPC | None = getattr(self.ctrl, "mpc", None)
         self.health = (None if self._mpc is None
                        else ModelHealthMonitor(self._mpc.model, health_settings or RUNTIME_HEALTH))
         #: The candidate model in shadow (config `[controller] candidate`): its own

@@ -17,6 +17,10 @@ never checked or changed   ON, with a warning          PREDICT only
 
 PREDICT only: the MPC starts in PREDICT and refuses the plant's requests for ON; nothing
 is written (a shadow run).
+
+The MPC is the Python `czmpc.controller.OffsetFreeMPC`, or the step ``czmpc codegen``
+wrote as C (``czmpc run --controller c:DIR``: `czmpc.runtime.c_step`), which must hold
+the configuration's model (and settings, if it names any); the rule is the same.
 """
 
 from __future__ import annotations
@@ -31,6 +35,8 @@ from typing import Literal
 
 from czmpc.controller import OffsetFreeMPC
 from czmpc.errors import SettingsError
+from czmpc.modes import Mode
+from czmpc.runtime.c_step import CStepMPC, load_c_step
 from czmpc.runtime.config import RunConfig, RunConfigError
 from czmpc.runtime.loop import ControlLoop
 from czmpc.runtime.step import LoopController
@@ -147,14 +153,15 @@ class OpenedRun:
     config :
         The run configuration.
     mpc :
-        The controller of ``[controller] model``; it starts in PREDICT when
+        The controller of ``[controller] model`` (the Python MPC, or the generated C
+        step of ``open_run``'s ``c_step``); it starts in PREDICT when
         ``switch_on.allowed`` is False.
     switch_on :
         The rule's answer.
     """
 
     config: RunConfig
-    mpc: OffsetFreeMPC
+    mpc: OffsetFreeMPC | CStepMPC
     switch_on: SwitchOn
 
     def loop(self, controller: LoopController | None = None, *,
@@ -167,10 +174,13 @@ class OpenedRun:
         controller :
             A `LoopController` wrapping `mpc` (a dithered MPC), or None for the MPC.
         provenance :
-            What drives the input, for the run log's meta file.
+            What drives the input, for the run log's meta file (a C step adds its
+            directory and the SHA-256 of its C and library, `CStepMPC.provenance`).
         status :
             The live status line (`czmpc.runtime.loop.ControlLoop`).
         """
+        if controller is None and isinstance(self.mpc, CStepMPC):
+            provenance = {**(provenance or {}), **self.mpc.provenance()}
         loop = ControlLoop(self.config, self.mpc if controller is None else controller,
                            status=status, provenance=provenance)
         loop.allow_on = self.switch_on.allowed
@@ -178,7 +188,7 @@ class OpenedRun:
 
 
 def open_run(config: RunConfig, *, force: bool = False, unattended: bool = False,
-             log: logging.Logger | None = None) -> OpenedRun:
+             log: logging.Logger | None = None, c_step: Path | None = None) -> OpenedRun:
     """Load the model, check it fits the config, apply the switch-on rule, build the MPC.
 
     Parameters
@@ -190,15 +200,21 @@ def open_run(config: RunConfig, *, force: bool = False, unattended: bool = False
         As `switch_on_rule`.
     log :
         Where the rule's notes and the candidate's are said (None: this module's logger).
+    c_step :
+        A directory ``czmpc codegen`` wrote: its compiled step is the MPC
+        (`czmpc.runtime.c_step.load_c_step`, built on demand); None: the Python MPC.
 
     Raises
     ------
     RunConfigError
         No ``[controller] model``.
     SettingsError
-        The model's or the candidate's sampling time is not the config's.
+        The model's or the candidate's sampling time is not the config's; a ``c_step``
+        generated from another model or with other settings than the config names.
     DesignError
         The controller refuses the model (`OffsetFreeMPC`).
+    CodegenError, BuildError
+        ``c_step`` is no generated directory, or cannot be built (no C compiler).
     """
     say = log or logging.getLogger(__name__)
     if config.model_path is None:
@@ -214,6 +230,16 @@ def open_run(config: RunConfig, *, force: bool = False, unattended: bool = False
                  config.candidate_path)
         say.info("candidate model %s in shadow (logged, compared, never driving)",
                  config.candidate_path)
+    if c_step is not None:
+        compiled = load_c_step(
+            c_step, model=model, model_path=config.model_path, settings_path=config.settings_path,
+            settings=None if config.settings_path is None else load_settings(config.settings_path,
+                                                                             model))
+        say.info("the MPC is the C step in %s (%s, settings %s)", c_step,
+                 "float" if compiled.float32 else "double", c_step / "settings.toml")
+        if not rule.allowed and compiled.mode is not Mode.PREDICT:
+            compiled.request_mode(Mode.PREDICT)   # as the Python MPC's initial_mode below
+        return OpenedRun(config=config, mpc=compiled, switch_on=rule)
     settings = (MPCSettings.default_for(model) if config.settings_path is None
                 else load_settings(config.settings_path, model))
     if not rule.allowed:
