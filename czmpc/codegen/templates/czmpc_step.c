@@ -904,7 +904,12 @@ static int qp_setup_exact(const czmpc_state *s)
         u[i] = s->u[i];
     }
     if (st->scaling) scale_data(solver);
-    set_rho_vec(solver);
+    if (st->rho_is_vec) {
+        set_rho_vec(solver);
+    } else {   /* as osqp_setup */
+        st->rho = st->rho < OSQP_RHO_MIN ? OSQP_RHO_MIN : (st->rho > OSQP_RHO_MAX ? OSQP_RHO_MAX : st->rho);
+        work->rho_inv = 1. / st->rho;
+    }
     bad = work->linsys_solver->update_matrices(work->linsys_solver, work->data->P, OSQP_NULL,
                                                CZMPC_QP_NNZ_P, work->data->A, OSQP_NULL,
                                                CZMPC_QP_NNZ_A) != 0;
