@@ -249,3 +249,24 @@ def test_the_tight_reference_of_a_c_step_is_the_python_mpc_at_tight_tolerances(
     with pytest.raises(SettingsError, match="another model than the one given"):
         build_controller("c_step", other, scenario, initial_triac_pct=s0,
                          c_step_directory=str(folder))
+
+
+def test_the_codegen_guides_suite_passes_the_validator(tmp_path: Path, step_source: Path) -> None:
+    import textwrap
+    import tomllib
+
+    guide = Path(__file__).resolve().parents[3] / "docs" / "guides" / "codegen.rst"
+    section = guide.read_text(encoding="utf-8").split("6. In a regression suite", 1)[1]
+    block = section.split("::\n\n", 1)[1]
+    lines = []
+    for line in block.splitlines():
+        if line and not line.startswith("    "):
+            break
+        lines.append(line)
+    doc = tomllib.loads(textwrap.dedent("\n".join(lines)))
+    shutil.copytree(step_source, tmp_path / "step")
+    suite = suite_from_dict(doc, source=str(tmp_path / "suite.toml"), base_dir=tmp_path)
+    assert [(c.kind, c.model_path) for c in suite.controllers] == [
+        ("c_step", str((tmp_path / "step" / "model.json").resolve())),
+        ("mpc", str((tmp_path / "step" / "model.json").resolve()))]
+    assert len(suite.expand()) == 2 * 2      # 2 controllers x 2 scenarios on the heater
