@@ -17,11 +17,12 @@ with what to generate instead.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from czmpc.campaigns.build import check_compiled_settings
 from czmpc.campaigns.simulation import PlantKind, SimulationOutcome, run_simulation
 from czmpc.codegen import load_controller
 from czmpc.codegen.generate import MODEL_FILE, read_sources
@@ -99,19 +100,6 @@ def _statuses(outcome: SimulationOutcome) -> list[tuple[str, str, str]]:
                   for name in ("mode", "status", "fallback")) for d in diags]
 
 
-def _check_same(directory: Path, settings: MPCSettings, used: MPCSettings) -> None:
-    """Refuse a run whose completed settings differ from the compiled ones but for the start."""
-    if replace(used, initial_triac_pct=settings.initial_triac_pct) != settings:
-        differing = [f"{name} {getattr(settings, name)!r} -> {getattr(used, name)!r}"
-                     for name in ("triac_min_pct", "triac_max_pct", "max_move_pct_per_step")
-                     if getattr(settings, name) != getattr(used, name)]
-        raise SettingsError(
-            f"{directory}: the scenario changes settings compiled into the C step "
-            f"({'; '.join(differing) or 'see czmpc settings --show'}); write them into a "
-            f"settings file and generate again with 'czmpc codegen MODEL.json --settings "
-            f"FILE --out {directory}'")
-
-
 def compare_generated(model: HammersteinModel, directory: str | Path, scenario: Scenario, *,
                       plant: PlantKind, seed: int, noise: bool,
                       progress: ProgressCallback | None = None) -> GeneratedComparison:
@@ -148,7 +136,7 @@ def compare_generated(model: HammersteinModel, directory: str | Path, scenario: 
 
     def build(used: MPCSettings, _allowed: tuple[float, float]) -> Controller:
         nonlocal float32
-        _check_same(folder, settings, used)
+        check_compiled_settings(folder, settings, used, what=f"scenario '{scenario.name}'")
         controller = load_controller(folder, initial_triac_pct=used.initial_triac_pct)
         float32 = controller.float32
         return controller
