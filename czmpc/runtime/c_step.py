@@ -8,9 +8,9 @@ compiler, loaded with ctypes) as a `CStepMPC`: what the loop uses of
 settings (``model.json``, ``settings.toml``: what the C was generated from). The loop
 feeds its model-health monitor and shadow candidate from that model as it does for the
 Python MPC, and reads the same step fields (status, verdict, target input, disturbance
-as power, voltage and preview used) from the C step's record. `CStepDriver` is the
-`czmpc.runtime.step.LoopController` that drives it, as `czmpc.runtime.loop.MPCDriver`
-drives the Python MPC.
+as power, voltage and preview used) from the C step's record.
+`czmpc.runtime.loop.CStepDriver`, the Python MPC's driver with the record's words read
+as text, drives it in the loop.
 
 The C carries its model and settings compiled in: a run configuration whose
 ``[controller] model`` or ``settings`` differ from them is refused (`load_c_step`), never
@@ -27,9 +27,8 @@ from pathlib import Path
 from czmpc.codegen import CController, StepRecord, load_controller
 from czmpc.codegen.generate import MODEL_FILE, SETTINGS_FILE, read_sources
 from czmpc.errors import SettingsError
-from czmpc.modes import Mode, Status
+from czmpc.modes import Mode
 from czmpc.settings import MPCSettings
-from czmpc.validation import Verdict
 from sysid.atomic import file_sha256
 from sysid.model import HammersteinModel
 from sysid.modelfile import model_to_dict
@@ -127,60 +126,6 @@ class CStepMPC:
                                       if path.is_file()}}}
 
 
-class CStepDriver:
-    """A `CStepMPC` as a `czmpc.runtime.step.LoopController` (it never finishes or aborts).
-
-    Parameters
-    ----------
-    mpc :
-        The compiled step; the loop reads its ``model`` and ``last_step`` (health, log).
-    """
-
-    def __init__(self, mpc: CStepMPC) -> None:
-        self.mpc = mpc
-
-    @property
-    def mode(self) -> Mode:
-        """The step's mode."""
-        return self.mpc.mode
-
-    def request_mode(self, mode: Mode) -> object:
-        """Pass the request to the step."""
-        return self.mpc.request_mode(mode)
-
-    def step(self, power_kw: float, setpoint_kw: float, *,
-             applied_triac_pct: float | None = None,
-             setpoint_preview_kw: Sequence[float] | None = None,
-             grid_voltage_factor: float | None = None) -> float:
-        """One C step, told the coming setpoints and the grid voltage when the run has them."""
-        return self.mpc.step(power_kw, setpoint_kw, applied_triac_pct=applied_triac_pct,
-                             setpoint_preview_kw=setpoint_preview_kw,
-                             grid_voltage_factor=grid_voltage_factor)
-
-    def status_words(self) -> tuple[str, str]:
-        """Status and measurement verdict of the last step, as the Python MPC's names."""
-        record = self.mpc.last_step
-        if record is None:
-            return ("", "")
-        return (Status(record.status).name, Verdict(record.verdict).name)
-
-    @property
-    def rate_limit_pct_per_step(self) -> float | None:
-        """The compiled settings' ``max_move_pct_per_step``."""
-        return self.mpc.settings.max_move_pct_per_step
-
-    def skipped(self, n_periods: int) -> None:
-        """Nothing: the estimator predicts from the next measurement on."""
-
-    def finished(self) -> str | None:
-        """Never: the step runs until the duration or a signal."""
-        return None
-
-    def abort_reason(self) -> str | None:
-        """Never."""
-        return None
-
-
 def c_step_directory(text: str) -> Path:
     """The directory of a ``--controller c:DIR`` value.
 
@@ -243,4 +188,4 @@ def load_c_step(directory: str | os.PathLike[str], *, model: HammersteinModel,
     return CStepMPC(load_controller(folder), model=c_model, settings=compiled, directory=folder)
 
 
-__all__ = ["C_STEP_PREFIX", "CStepDriver", "CStepMPC", "c_step_directory", "load_c_step"]
+__all__ = ["C_STEP_PREFIX", "CStepMPC", "c_step_directory", "load_c_step"]

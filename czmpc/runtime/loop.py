@@ -13,7 +13,7 @@ reconnects with a doubling backoff (up to `MAX_BACKOFF_S`), bumpless from the ap
 input. A stop writes the ``[safety]`` action; a ``[test]`` limit left aborts the run to
 ``safe_triac_pct``. The loop drives any `LoopController`: the MPC (`MPCDriver`), a test
 schedule or a dithered MPC (`czmpc.commissioning`), or the MPC step generated as C
-(`czmpc.runtime.c_step.CStepDriver`); docs/guides/plant_link.rst and
+(`CStepDriver`); docs/guides/plant_link.rst and
 docs/guides/service.rst show each case.
 """
 
@@ -34,9 +34,9 @@ from typing import Any
 
 from czmpc.controller import OffsetFreeMPC
 from czmpc.health import RUNTIME_HEALTH, HealthSettings, ModelHealth, ModelHealthMonitor
-from czmpc.modes import Mode
+from czmpc.modes import Mode, Status
 from czmpc.runtime import alignment, refusals
-from czmpc.runtime.c_step import CStepDriver, CStepMPC
+from czmpc.runtime.c_step import CStepMPC
 from czmpc.runtime.config import RunConfig
 from czmpc.runtime.link import HEALTH_TOP, CheckReport, LinkLostError, PlantLink
 from czmpc.runtime.logfiles import (
@@ -59,6 +59,7 @@ from czmpc.runtime.step import (
     refused_in_row,
     transitions,
 )
+from czmpc.validation import Verdict
 from sysid._version import __version__
 from sysid.atomic import file_sha256
 from sysid.modelfile import load_model
@@ -273,6 +274,21 @@ class RunSummary:
                 f"({self.n_repeated} read twice), {self.n_overruns} overruns, "
                 f"{self.n_link_losses} link losses, {self.n_reconnects} reconnects; "
                 f"stopped by {self.stopped_by}")
+
+
+class CStepDriver(MPCDriver):
+    """The generated C step (`czmpc.runtime.c_step.CStepMPC`) as a `LoopController`: the
+    MPC's driver, whose step record gives its status and verdict as text."""
+
+    def __init__(self, mpc: CStepMPC) -> None:
+        super().__init__(mpc)  # type: ignore[arg-type]   # the same interface, compiled
+
+    def status_words(self) -> tuple[str, str]:
+        """Status and measurement verdict of the last step, as the Python MPC's names."""
+        record = self.mpc.last_step
+        if record is None:
+            return ("", "")
+        return (Status(str(record.status)).name, Verdict(str(record.verdict)).name)
 
 
 class ControlLoop:

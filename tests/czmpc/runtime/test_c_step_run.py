@@ -27,9 +27,9 @@ from czmpc.commissioning.check import ModelCheck, write_check
 from czmpc.controller import OffsetFreeMPC
 from czmpc.errors import SettingsError
 from czmpc.modes import Mode, Status
-from czmpc.runtime.c_step import CStepDriver, CStepMPC, c_step_directory, load_c_step
+from czmpc.runtime.c_step import CStepMPC, c_step_directory, load_c_step
 from czmpc.runtime.config import RunConfig
-from czmpc.runtime.loop import CONTEXT_ARGS, MPCDriver
+from czmpc.runtime.loop import CONTEXT_ARGS, CStepDriver, MPCDriver
 from czmpc.runtime.session import open_run
 from czmpc.runtime.step import Sample, decide
 from czmpc.settings import MPCSettings
