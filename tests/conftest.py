@@ -53,6 +53,15 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
     return _ScopeScheduling(config, log)  # type: ignore[arg-type]
 
 
+@pytest.fixture(scope="session")
+def shipped_model() -> HammersteinModel:
+    """The shipped model of the paper's heater (`czmpc.shipped.HAMMERSTEIN_MODEL_JSON`)."""
+    from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
+    from sysid.modelfile import load_model
+
+    return load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(20261121)

@@ -51,7 +51,6 @@ from sim.metrics import compute_metrics
 from sim.model_plant import ModelPlant
 from sim.scenario import Scenario, load_scenario, scenario_from_dict
 from sysid.model import HammersteinModel
-from sysid.modelfile import load_model
 
 #: HiGHS's default primal/dual feasibility tolerance is 1e-7; the LP's optimum is exact
 #: to that on problems of unit size (a few samples of kW-sized errors).
@@ -64,11 +63,6 @@ BOUND_TIGHTNESS = 1.02
 #: The replay runs the same difference equation in another order of float operations on
 #: ~45 kW levels, plus the inverse of f (stable root formula): 1e-9 kW per sample.
 REPLAY_ATOL_KW = 1e-7
-
-
-@pytest.fixture(scope="module")
-def shipped_model() -> HammersteinModel:
-    return load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
 
 
 # --- the LP against independent answers -------------------------------------------------

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
+from sysid.model import HammersteinModel
 
 #: The user's settings file (weights written out, so a test can double one).
 SETTINGS = """\
@@ -71,3 +72,20 @@ def user_suite(tmp_path: Path) -> Path:
     suite.write_text(SUITE, encoding="utf-8")
     return suite
 
+
+@pytest.fixture(scope="session")
+def generated_step(tmp_path_factory: pytest.TempPathFactory, shipped_model: HammersteinModel) -> Path:
+    """``czmpc codegen`` of the shipped model at its default settings, as ``.../step`` (not
+    yet built: the first `czmpc.codegen.load_controller` builds it); skips without a C
+    toolchain. Copy it before changing its files."""
+    from czmpc.codegen import generate_step
+    from czmpc.codegen.build import find_tools
+    from czmpc.codegen.errors import BuildError
+
+    try:
+        find_tools()
+    except BuildError as exc:   # pragma: no cover - CI has cc and make
+        pytest.skip(str(exc))
+    folder = tmp_path_factory.mktemp("c_step") / "step"
+    generate_step(shipped_model, None, folder)
+    return folder

@@ -18,12 +18,10 @@ from czmpc.qp import MPCQP
 from czmpc.qp_daqp import DAQP_PRIMAL_TOL_KW, DAQPMPCQP, general_rows
 from czmpc.realization import innovations_form
 from czmpc.settings import MPCSettings, OSQPOptions
-from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
 from sim.model_plant import ModelPlant
 from sim.protocols import NOMINAL
 from sim.scenario import load_scenario
 from sysid.model import HammersteinModel
-from sysid.modelfile import load_model
 
 pytest.importorskip("daqp")
 
@@ -42,11 +40,6 @@ OBJECTIVE_RTOL = 1e-8
 REPLAY_SAMPLES = 1400
 #: A row within this of its bound counts as active [kW-equivalent].
 ACTIVE_ATOL_KW = 1e-9
-
-
-@pytest.fixture(scope="module")
-def shipped_model() -> HammersteinModel:
-    return load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
 
 
 def _copy(value: object) -> object:

@@ -26,11 +26,6 @@ from sysid.model import HammersteinModel
 from sysid.modelfile import load_model
 
 
-@pytest.fixture(scope="module")
-def shipped_model() -> HammersteinModel:
-    return load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
-
-
 def _write(tmp_path: Path, text: str) -> Path:
     path = tmp_path / "settings.toml"
     path.write_text(text, encoding="utf-8")

@@ -15,16 +15,9 @@ from czmpc.qp import MPCQP
 from czmpc.qp_daqp import DAQPMPCQP
 from czmpc.settings import MPCSettings
 from czmpc.settings_file import load_settings, settings_from_dict, settings_to_toml
-from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
 from sysid.model import HammersteinModel
-from sysid.modelfile import load_model
 
 PIP_HINT = "pip install 'czmpc[daqp]'"
-
-
-@pytest.fixture(scope="module")
-def shipped_model() -> HammersteinModel:
-    return load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
 
 
 def _write(tmp_path: Path, text: str) -> Path:

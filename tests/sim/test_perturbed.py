@@ -13,8 +13,6 @@ from sim.errors import PlantError
 from sim.model_plant import ModelPlant
 from sim.perturbed import perturb_model, scale_slow_time_constant, slow_pole
 from sysid.model import HammersteinModel, OperatingPoint
-from sysid.modelfile import load_model
-from tests.conftest import REPO
 from tests.tolerances import IDENTITY_RTOL
 
 TS_S = 2.0
@@ -129,11 +127,6 @@ def test_perturbations_are_recorded_in_the_provenance(paper_armax_model: Hammers
 def test_shipped_model_slow_time_constant_is_about_four_minutes(shipped_model: HammersteinModel) -> None:
     _, tau_s = slow_pole(shipped_model.a, ts_s=shipped_model.ts_s)
     assert 200.0 < tau_s < 300.0
-
-
-@pytest.fixture(scope="module")
-def shipped_model() -> HammersteinModel:
-    return load_model(REPO / "data" / "cz_heater_model.json")
 
 
 @pytest.mark.parametrize(

@@ -28,15 +28,12 @@ from czmpc.campaigns.regression import (
 from czmpc.campaigns.runner import run_campaign
 from czmpc.cli import main
 from czmpc.codegen import generate_step
-from czmpc.codegen.build import find_tools
 from czmpc.codegen.errors import BuildError
 from czmpc.controller import OffsetFreeMPC
 from czmpc.errors import SettingsError
 from czmpc.settings import MPCSettings
-from czmpc.shipped import HAMMERSTEIN_MODEL_JSON, shipped_path
 from sim.scenario import load_scenario
 from sysid.model import HammersteinModel
-from sysid.modelfile import load_model
 
 #: A c_step (the C) and an mpc (Python) of the same model and settings, on the model plant
 #: and the heater; the staircase at a tenth of its length (390 samples, two steps).
@@ -62,33 +59,16 @@ kind = "heater"
 SAME_TOLERANCE_RTOL = 1e-6
 
 
-@pytest.fixture(scope="module")
-def shipped_model() -> HammersteinModel:
-    return load_model(shipped_path(HAMMERSTEIN_MODEL_JSON))
-
-
-@pytest.fixture(scope="module")
-def step_source(tmp_path_factory: pytest.TempPathFactory, shipped_model: HammersteinModel) -> Path:
-    """A generated (not yet built) step of the shipped model with its default settings."""
-    try:
-        find_tools()
-    except BuildError as exc:   # pragma: no cover - CI has cc and make
-        pytest.skip(str(exc))
-    folder = tmp_path_factory.mktemp("c_step_source") / "step"
-    generate_step(shipped_model, None, folder)
-    return folder
-
-
-def _suite_dir(tmp_path: Path, step_source: Path, text: str = SUITE) -> Path:
+def _suite_dir(tmp_path: Path, generated_step: Path, text: str = SUITE) -> Path:
     """``tmp_path`` with ``suite.toml`` and a copy of the generated step as ``step/``."""
-    shutil.copytree(step_source, tmp_path / "step")
+    shutil.copytree(generated_step, tmp_path / "step")
     (tmp_path / "suite.toml").write_text(text, encoding="utf-8")
     return tmp_path
 
 
 def test_a_suite_with_a_c_step_records_within_the_tolerances_of_the_mpc_it_came_from(
-        tmp_path: Path, step_source: Path) -> None:
-    root = _suite_dir(tmp_path, step_source)
+        tmp_path: Path, generated_step: Path) -> None:
+    root = _suite_dir(tmp_path, generated_step)
     doc = json.loads(record_suite(root / "suite.toml", root / "golden").read_text())
     cases = doc["cases"]
     assert sorted(cases) == ["c_step/heater/staircase/s7", "c_step/model/staircase/s7",
@@ -111,9 +91,9 @@ def test_a_suite_with_a_c_step_records_within_the_tolerances_of_the_mpc_it_came_
 
 
 def test_regenerated_c_with_other_settings_fails_the_check_and_is_named(
-        tmp_path: Path, step_source: Path, shipped_model: HammersteinModel) -> None:
+        tmp_path: Path, generated_step: Path, shipped_model: HammersteinModel) -> None:
     text = SUITE.replace('[[plants]]\nkind = "heater"\n', "")
-    root = _suite_dir(tmp_path, step_source, text)
+    root = _suite_dir(tmp_path, generated_step, text)
     record_suite(root / "suite.toml", root / "golden")
     slower = MPCSettings.default_for(shipped_model)
     slower = slower.with_updates(move_weight=4.0 * slower.move_weight)
@@ -129,10 +109,10 @@ def test_regenerated_c_with_other_settings_fails_the_check_and_is_named(
 
 
 def test_a_campaign_spec_with_a_c_step_runs_on_parallel_workers_from_an_unbuilt_directory(
-        tmp_path: Path, step_source: Path) -> None:
+        tmp_path: Path, generated_step: Path) -> None:
     # Two spawned workers load the same unbuilt directory: the build lock makes one build
     # it and the other load it after (make run twice at once in one directory garbles it).
-    root = _suite_dir(tmp_path, step_source, SUITE.replace("seeds = [7]", "seeds = 2"))
+    root = _suite_dir(tmp_path, generated_step, SUITE.replace("seeds = [7]", "seeds = 2"))
     assert not (root / "step" / "libczmpc.so").exists()
     spec = load_spec(root / "suite.toml")
     outcome = run_campaign(spec, root / "campaign", executor="processes", workers=2)
@@ -150,16 +130,16 @@ def test_a_campaign_spec_with_a_c_step_runs_on_parallel_workers_from_an_unbuilt_
     assert (root / "step" / "libczmpc.so").is_file()
 
 
-def test_the_campaign_command_runs_a_c_step(tmp_path: Path, step_source: Path,
+def test_the_campaign_command_runs_a_c_step(tmp_path: Path, generated_step: Path,
                                             capsys: pytest.CaptureFixture[str]) -> None:
-    root = _suite_dir(tmp_path, step_source, SUITE.replace('[[plants]]\nkind = "heater"\n', ""))
+    root = _suite_dir(tmp_path, generated_step, SUITE.replace('[[plants]]\nkind = "heater"\n', ""))
     rc = main(["campaign", "run", str(root / "suite.toml"), "--out", str(root / "out")])
     assert rc == 0, capsys.readouterr().err
     assert "2 runs (2 run now, 0 resumed), 0 crashed" in capsys.readouterr().out
 
 
-def test_a_c_step_table_is_checked_when_the_spec_is_read(tmp_path: Path, step_source: Path) -> None:
-    root = _suite_dir(tmp_path, step_source)
+def test_a_c_step_table_is_checked_when_the_spec_is_read(tmp_path: Path, generated_step: Path) -> None:
+    root = _suite_dir(tmp_path, generated_step)
     base = {"scenarios": ["staircase"], "plants": [{"kind": "model"}]}
 
     def refused(table: dict[str, object]) -> str:
@@ -198,9 +178,9 @@ def _no_compiler(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_without_a_c_compiler_a_suite_or_campaign_says_what_to_install(
-        tmp_path: Path, step_source: Path, monkeypatch: pytest.MonkeyPatch,
+        tmp_path: Path, generated_step: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
-    root = _suite_dir(tmp_path, step_source)
+    root = _suite_dir(tmp_path, generated_step)
     _no_compiler(monkeypatch)
     with pytest.raises(BuildError, match=r"a C compiler \('czmpc-no-such-compiler'\).*build-essential"):
         record_suite(root / "suite.toml", root / "golden")
@@ -215,9 +195,9 @@ def test_without_a_c_compiler_a_suite_or_campaign_says_what_to_install(
 
 
 def test_a_scenario_that_changes_the_compiled_limits_is_refused_with_what_to_generate(
-        tmp_path: Path, step_source: Path) -> None:
+        tmp_path: Path, generated_step: Path) -> None:
     text = SUITE.replace('scenarios = ["staircase"]', 'scenarios = ["narrow.toml"]')
-    root = _suite_dir(tmp_path, step_source, text)
+    root = _suite_dir(tmp_path, generated_step, text)
     (root / "narrow.toml").write_text(
         'name = "narrow"\nduration_s = 400\nts_s = 2.0\ninitial_setpoint_kw = 45.0\n'
         "[limits]\ntriac_min_pct = 20.0\ntriac_max_pct = 70.0\n", encoding="utf-8")
@@ -229,9 +209,9 @@ def test_a_scenario_that_changes_the_compiled_limits_is_refused_with_what_to_gen
 
 
 def test_the_tight_reference_of_a_c_step_is_the_python_mpc_at_tight_tolerances(
-        tmp_path: Path, step_source: Path, shipped_model: HammersteinModel) -> None:
+        tmp_path: Path, generated_step: Path, shipped_model: HammersteinModel) -> None:
     folder = tmp_path / "step"
-    shutil.copytree(step_source, folder)
+    shutil.copytree(generated_step, folder)
     scenario = load_scenario("meltdown_ramp").shortened(0.02)
     plant, s0, _ = build_plant("heater", shipped_model, scenario, noise=True)
     tight = build_controller("c_step", shipped_model, scenario, initial_triac_pct=s0, tight=True,
@@ -251,7 +231,7 @@ def test_the_tight_reference_of_a_c_step_is_the_python_mpc_at_tight_tolerances(
                          c_step_directory=str(folder))
 
 
-def test_the_codegen_guides_suite_passes_the_validator(tmp_path: Path, step_source: Path) -> None:
+def test_the_codegen_guides_suite_passes_the_validator(tmp_path: Path, generated_step: Path) -> None:
     import textwrap
     import tomllib
 
@@ -264,7 +244,7 @@ def test_the_codegen_guides_suite_passes_the_validator(tmp_path: Path, step_sour
             break
         lines.append(line)
     doc = tomllib.loads(textwrap.dedent("\n".join(lines)))
-    shutil.copytree(step_source, tmp_path / "step")
+    shutil.copytree(generated_step, tmp_path / "step")
     suite = suite_from_dict(doc, source=str(tmp_path / "suite.toml"), base_dir=tmp_path)
     assert [(c.kind, c.model_path) for c in suite.controllers] == [
         ("c_step", str((tmp_path / "step" / "model.json").resolve())),

@@ -20,9 +20,7 @@ import pytest
 from plant_rig import make_config
 
 from czmpc.cli import main
-from czmpc.codegen import generate_step
-from czmpc.codegen.build import find_tools
-from czmpc.codegen.errors import BuildError, CodegenError
+from czmpc.codegen.errors import CodegenError
 from czmpc.commissioning.check import ModelCheck, write_check
 from czmpc.controller import OffsetFreeMPC
 from czmpc.errors import SettingsError
@@ -39,7 +37,7 @@ from czmpc.validation import Verdict
 from sim.model_plant import ModelPlant
 from sysid.atomic import file_sha256
 from sysid.model import HammersteinModel
-from sysid.modelfile import load_model, save_model
+from sysid.modelfile import save_model
 
 SHIPPED = shipped_path(HAMMERSTEIN_MODEL_JSON)
 #: Issue 42's bound on the C step's input against Python's, in double precision [%].
@@ -47,22 +45,6 @@ SAME_INPUT_PCT = 1e-6
 #: The disturbance as power and the target input through the same arithmetic: a few
 #: ulps of ~10 kW and ~50 % (measured: equal to the last bit here).
 SAME_DIAGNOSTIC = 1e-9
-
-
-@pytest.fixture(scope="module")
-def shipped_model() -> HammersteinModel:
-    return load_model(SHIPPED)
-
-
-@pytest.fixture(scope="module")
-def step_dir(tmp_path_factory: pytest.TempPathFactory, shipped_model: HammersteinModel) -> Path:
-    try:
-        find_tools()
-    except BuildError as exc:   # pragma: no cover - CI has cc and make
-        pytest.skip(str(exc))
-    folder = tmp_path_factory.mktemp("c_step_run") / "step"
-    generate_step(shipped_model, None, folder)
-    return folder
 
 
 def _config(tmp_path: Path, model_path: Path, **changes: object) -> RunConfig:
@@ -78,10 +60,10 @@ def _operator_mode(k: int) -> Mode | None:
 
 
 def test_the_c_driver_decides_as_the_python_mpc_driver_through_modes_gaps_and_a_bad_value(
-        step_dir: Path, shipped_model: HammersteinModel) -> None:
+        generated_step: Path, shipped_model: HammersteinModel) -> None:
     settings = MPCSettings.default_for(shipped_model)
     py = MPCDriver(OffsetFreeMPC(shipped_model, settings))
-    c = CStepDriver(load_c_step(step_dir, model=shipped_model, model_path=SHIPPED))
+    c = CStepDriver(load_c_step(generated_step, model=shipped_model, model_path=SHIPPED))
     plant = ModelPlant(shipped_model, noise=True, initial_triac_pct=settings.initial_triac_pct)
     power = plant.reset(np.random.default_rng(11))
     u_plant = settings.initial_triac_pct
@@ -124,8 +106,8 @@ def test_the_c_driver_decides_as_the_python_mpc_driver_through_modes_gaps_and_a_
 
 
 def test_mode_requests_are_tracked_as_the_c_step_answers_them(
-        step_dir: Path, shipped_model: HammersteinModel) -> None:
-    mpc = load_c_step(step_dir, model=shipped_model, model_path=SHIPPED)
+        generated_step: Path, shipped_model: HammersteinModel) -> None:
+    mpc = load_c_step(generated_step, model=shipped_model, model_path=SHIPPED)
     assert mpc.mode is Mode.ON and mpc.last_step is None and not mpc.float32
     assert mpc.ts_s == shipped_model.ts_s
     assert mpc.request_mode("off") is True and mpc.mode is Mode.OFF
@@ -150,13 +132,13 @@ def test_every_status_and_verdict_word_of_the_c_step_names_a_python_one() -> Non
 
 
 def test_open_run_with_a_c_step_applies_the_switch_on_rule_and_feeds_the_health_monitor(
-        tmp_path: Path, step_dir: Path, caplog: pytest.LogCaptureFixture) -> None:
+        tmp_path: Path, generated_step: Path, caplog: pytest.LogCaptureFixture) -> None:
     caplog.set_level(logging.INFO, logger="czmpc.runtime.session")
     model_path = tmp_path / "model.json"
-    model_path.write_bytes((step_dir / "model.json").read_bytes())
-    opened = open_run(_config(tmp_path, model_path), c_step=step_dir)
+    model_path.write_bytes((generated_step / "model.json").read_bytes())
+    opened = open_run(_config(tmp_path, model_path), c_step=generated_step)
     assert isinstance(opened.mpc, CStepMPC) and opened.mpc.mode is Mode.ON
-    assert f"the MPC is the C step in {step_dir} (double" in caplog.text
+    assert f"the MPC is the C step in {generated_step} (double" in caplog.text
     loop = opened.loop(provenance={"kind": "MPC run", "closed_loop": True})
     assert isinstance(loop.ctrl, CStepDriver) and loop.allow_on
     assert loop.context_args == frozenset(CONTEXT_ARGS)
@@ -164,14 +146,14 @@ def test_open_run_with_a_c_step_applies_the_switch_on_rule_and_feeds_the_health_
     meta = loop._meta()
     assert meta["kind"] == "C step run" and meta["model_sha256"] == file_sha256(model_path)
     c_step = meta["c_step"]
-    assert isinstance(c_step, dict) and c_step["directory"] == str(step_dir)
+    assert isinstance(c_step, dict) and c_step["directory"] == str(generated_step)
     assert c_step["precision"] == "double"
-    assert c_step["sha256"]["libczmpc.so"] == file_sha256(step_dir / "libczmpc.so")
-    assert c_step["sha256"]["czmpc_model.h"] == file_sha256(step_dir / "czmpc_model.h")
+    assert c_step["sha256"]["libczmpc.so"] == file_sha256(generated_step / "libczmpc.so")
+    assert c_step["sha256"]["czmpc_model.h"] == file_sha256(generated_step / "czmpc_model.h")
     json.dumps(meta)
     write_check(ModelCheck(verdict="not ready", reasons=("a reason",), items=(),
                            model_sha256=file_sha256(model_path)), model_path)
-    shadow = open_run(_config(tmp_path, model_path), c_step=step_dir)
+    shadow = open_run(_config(tmp_path, model_path), c_step=generated_step)
     assert not shadow.switch_on.allowed and shadow.mpc.mode is Mode.PREDICT
     assert shadow.loop().allow_on is False
     shadow.mpc.step(45.0, 46.0)
@@ -179,48 +161,48 @@ def test_open_run_with_a_c_step_applies_the_switch_on_rule_and_feeds_the_health_
 
 
 def test_a_config_whose_model_or_settings_differ_from_the_c_step_is_refused(
-        tmp_path: Path, step_dir: Path, shipped_model: HammersteinModel) -> None:
+        tmp_path: Path, generated_step: Path, shipped_model: HammersteinModel) -> None:
     other = tmp_path / "other.json"
     save_model(dataclasses.replace(shipped_model, noise_std_kw=2 * shipped_model.noise_std_kw), other)
     with pytest.raises(SettingsError, match=rf"\[controller\] model {other} is not the model the C "
-                                            rf"step in {step_dir} was generated from.*czmpc codegen"):
-        open_run(_config(tmp_path, other), c_step=step_dir)
+                                            rf"step in {generated_step} was generated from.*czmpc codegen"):
+        open_run(_config(tmp_path, other), c_step=generated_step)
     base = MPCSettings.default_for(shipped_model)
     smooth = tmp_path / "smooth.toml"
     smooth.write_text(settings_to_toml(base.with_updates(move_weight=2 * base.move_weight)),
                       encoding="utf-8")
     with pytest.raises(SettingsError, match=r"differ from the settings compiled into the C step .*"
                                             r"move_weight: .* -> .*drop \[controller\] settings"):
-        open_run(_config(tmp_path, SHIPPED, settings_path=smooth), c_step=step_dir)
+        open_run(_config(tmp_path, SHIPPED, settings_path=smooth), c_step=generated_step)
     same = tmp_path / "same.toml"
     same.write_text(settings_to_toml(base), encoding="utf-8")
     assert isinstance(open_run(_config(tmp_path, SHIPPED, settings_path=same),
-                               c_step=step_dir).mpc, CStepMPC)
+                               c_step=generated_step).mpc, CStepMPC)
     with pytest.raises(CodegenError, match="not a directory written by 'czmpc codegen'"):
         open_run(_config(tmp_path, SHIPPED), c_step=tmp_path)
 
 
 def test_the_run_command_refuses_what_it_cannot_run_with_a_c_step(
-        tmp_path: Path, step_dir: Path, monkeypatch: pytest.MonkeyPatch,
+        tmp_path: Path, generated_step: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SettingsError, match="expected c:DIR"):
-        c_step_directory(str(step_dir))
-    assert c_step_directory(f"c:{step_dir}") == step_dir
+        c_step_directory(str(generated_step))
+    assert c_step_directory(f"c:{generated_step}") == generated_step
     config = tmp_path / "run.toml"
     config.write_text(
         '[plant]\nendpoint = "opc.tcp://127.0.0.1:4840/czmpc/"\nts_s = 2.0\n[nodes]\n'
         'power_kw = "ns=2;s=P"\ntriac_pct = "ns=2;s=U"\n'
         f'[controller]\nmodel = "{SHIPPED}"\n[run]\nsetpoint_kw = 45.0\n', encoding="utf-8")
-    for extra, said in ((["--controller", str(step_dir)], "expected c:DIR"),
-                        (["--controller", f"c:{step_dir}", "--dither-pct", "1"],
+    for extra, said in ((["--controller", str(generated_step)], "expected c:DIR"),
+                        (["--controller", f"c:{generated_step}", "--dither-pct", "1"],
                          "--dither-pct dithers the Python MPC: drop one of them"),
-                        (["--controller", f"c:{step_dir}", "--test", "t.csv"],
+                        (["--controller", f"c:{generated_step}", "--test", "t.csv"],
                          "--test plays its schedule without a controller")):
         assert main(["run", str(config), *extra]) == 2
         assert said in capsys.readouterr().err
     module = sys.modules["czmpc.codegen.build"]
     real = module.find_tools
     monkeypatch.setattr(module, "find_tools", lambda env=None: real({"CC": "czmpc-no-such-cc"}))
-    assert main(["run", str(config), "--controller", f"c:{step_dir}"]) == 2
+    assert main(["run", str(config), "--controller", f"c:{generated_step}"]) == 2
     assert ("czmpc: error: building the generated C step needs a C compiler ('czmpc-no-such-cc')"
             in capsys.readouterr().err)
