@@ -22,6 +22,7 @@ From Python (builds ``libczmpc.so`` on demand with the system's C compiler)::
   OSQP problem (``parameters='matrices'``);
 - `czmpc.codegen.build`: ``make`` with the system compiler (``-ffp-contract=off``);
 - `czmpc.codegen.loader`: the compiled step behind ctypes, a `sim.protocols.Controller`.
+- `czmpc.codegen.daqp_source`: DAQP's C sources for ``solver = "daqp"`` (sdist, cache).
 
 What is in the C: every stage of `czmpc.controller.OffsetFreeMPC.step` (setpoint shaper
 with preview, limit ramp, measured voltage, measurement checks, estimator with roll-back
@@ -29,10 +30,12 @@ and level change, target, reference cost, QP vectors, OSQP, fallbacks, guard, in
 modes, statuses), `reset`, `request_mode` and `set_triac_limits`. Not in C: the mismatch
 monitor (`czmpc.mismatch`, diagnostics only: it changes no output) and the log of mode
 transitions. OSQP polishing and solver time limits are refused (OSQP's embedded code
-has neither). Only the OSQP solver is generated.
+has neither). With ``solver = "daqp"`` the QP is solved by DAQP's C instead
+(`czmpc.codegen.daqp_source`: the installed version's sdist, cached; set up at init in a
+static arena, ``templates/czmpc_daqp_heap.c``), in double precision only.
 
-Equal, measured (tests/codegen). In double precision the C step is bit-equal to the
-Python controller: every step of the golden suite's 28 MPC cases (7,440 steps, and 7,440
+Equal, measured (tests/codegen). In double precision, with OSQP, the C step is bit-equal
+to the Python controller: every step of the golden suite's 28 MPC cases (7,440 steps, and 7,440
 more with a 60 s preview and a measured voltage), of the fault classes and of the fuzz
 set (20,000 steps in CI; 1e6 with ``python -m tests.codegen.fuzz``). Two things make it
 so: the C sets OSQP up again at init from the exact problem (OSQP's generator prints its
@@ -48,6 +51,12 @@ iteration counts differ on 886 (626) steps; the status differs on 23 (91) steps,
 GOOD against CLAMPED and only where the plan's first move lies within 1.5e-4
 kW-equivalent of its bound: the CLAMPED test's tolerance (`czmpc.controller.CLAMP_TOL`,
 1e-6) is finer than float's resolution there (an ulp of 40 is 3.8e-6) and than OSQP's.
+
+With DAQP (tests/codegen/test_codegen_daqp.py): the same modes, statuses, fallbacks and
+iteration counts at every step of the golden suite's 7,440 MPC steps and of 2,000
+fault-stream steps, the TRIAC input within 1.2e-13 %; bit-equal on about 40 % of the
+steps only, because the ``daqp`` wheel's C is compiled with ``-O3 -fassociative-math``
+(reordered sums), the step's with ``-ffp-contract=off`` and no reassociation.
 """
 
 from __future__ import annotations

@@ -5,7 +5,10 @@ numbers: the model's and settings' constants and the QP's matrices, read from an
 `czmpc.controller.OffsetFreeMPC` built from the same model and settings, each written as
 an exact hexadecimal literal. The QP solver is OSQP's own generated code, generated from
 that controller's OSQP problem with ``parameters='matrices'`` (adaptive rho kept: with
-``'vectors'`` 63 % of the plans differ, issue 42).
+``'vectors'`` 63 % of the plans differ, issue 42). With ``solver = "daqp"`` it is DAQP's C,
+from the installed daqp version's sdist (`czmpc.codegen.daqp_source`), set up at init
+from the exact ``H`` and rows of the controller's `czmpc.qp_daqp.DAQPMPCQP`
+(`DAQP_TEMPLATES`).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
+from czmpc.codegen.daqp_source import copy_daqp, daqp_version
 from czmpc.codegen.errors import CodegenError
 from czmpc.controller import OffsetFreeMPC
 from czmpc.qp import MPCQP
@@ -42,6 +46,21 @@ TEMPLATES: dict[str, str] = {
     "Makefile.in": "Makefile",
     "CMakeLists.txt.in": "CMakeLists.txt",
 }
+#: Templates of a step with ``solver = "daqp"``: the step's own and DAQP's build files,
+#: the problem's data and the static arena DAQP's set-up takes its workspace from.
+DAQP_TEMPLATES: dict[str, str] = {
+    "czmpc_step.h": "czmpc_step.h",
+    "czmpc_step.c": "czmpc_step.c",
+    "czmpc_example.c": "czmpc_example.c",
+    "czmpc_model.h.in": "czmpc_model.h",
+    "czmpc_daqp.h.in": "czmpc_daqp.h",
+    "czmpc_daqp_heap.h": "czmpc_daqp_heap.h",
+    "czmpc_daqp_heap.c": "czmpc_daqp_heap.c",
+    "Makefile.daqp.in": "Makefile",
+    "CMakeLists.daqp.txt.in": "CMakeLists.txt",
+}
+#: Sub-directory of the output that holds DAQP's C sources and licence.
+DAQP_DIR = "daqp"
 #: The model and the effective settings the step was generated from, written beside it
 #: (`read_sources`): a user sees what the C holds, and ``czmpc simulate --controller
 #: c:DIR`` runs the Python controller of the same model and settings beside it.
@@ -106,15 +125,24 @@ def c_array(values: Iterable[float] | FloatArray) -> str:
     return ", ".join(c_number(v) for v in arr.ravel())
 
 
-def check_supported(settings: MPCSettings) -> None:
+def check_supported(settings: MPCSettings, *, float32: bool = False) -> None:
     """Refuse settings the generated step cannot reproduce.
 
     Raises
     ------
     CodegenError
-        OSQP polishing or a solver time limit (neither exists in OSQP's embedded code), or
-        a QP solver other than OSQP.
+        With OSQP: polishing or a solver time limit (neither exists in OSQP's embedded
+        code). With DAQP: ``float32`` (DAQP's single precision is not generated). A QP
+        solver other than OSQP and DAQP.
     """
+    solver = getattr(settings, "solver", "osqp")
+    if solver == "daqp":
+        if float32:
+            raise CodegenError("codegen: solver = 'daqp' is generated in double precision only; "
+                               "got --float32 (use solver = 'osqp' for a float step)")
+        return
+    if solver != "osqp":
+        raise CodegenError(f"codegen: solver must be 'osqp' or 'daqp'; got {solver!r}")
     if settings.osqp.polishing:
         raise CodegenError(
             "codegen: OSQPOptions.polishing must be false (OSQP's generated code has no "
@@ -124,9 +152,6 @@ def check_supported(settings: MPCSettings) -> None:
             "codegen: OSQPOptions.time_limit_s must be unset (OSQP's generated code has no "
             f"timer, and a time limit makes results depend on machine speed); got "
             f"{settings.osqp.time_limit_s!r}")
-    solver = getattr(settings, "solver", "osqp")
-    if solver != "osqp":
-        raise CodegenError(f"codegen: only the OSQP solver is generated so far; got solver = {solver!r}")
 
 
 def _flag(value: object) -> str:
@@ -183,6 +208,7 @@ def template_values(mpc: OffsetFreeMPC, *, model_source: str, settings_source: s
         "REAL_FLAG": "-DCZMPC_FLOAT32" if float32 else "",
         "REAL_CMAKE": ("target_compile_definitions(czmpc PUBLIC CZMPC_FLOAT32)" if float32
                        else "# double precision: czmpc_real is double"),
+        "SOLVER_DAQP": _flag(getattr(s, "solver", "osqp") == "daqp"),
         "HORIZON_STEPS": str(n),
         "N_STATES": str(n_x),
         "N_COEFFICIENTS": str(len(im.coefficients)),
@@ -295,6 +321,46 @@ def osqp_values(qp: MPCQP) -> dict[str, str]:
     return values
 
 
+def daqp_values(qp: MPCQP) -> dict[str, str]:
+    """The template values of ``czmpc_daqp.h``: ``qp``'s DAQP problem, exact.
+
+    ``qp`` is a `czmpc.qp_daqp.DAQPMPCQP`: its Hessian and general rows are the arrays its
+    ``daqp.Model`` was set up with; the arena's size is an upper bound of what DAQP's
+    set-up asks for (``allocate_daqp_workspace`` and ``allocate_daqp_ldp``, 16-byte pieces).
+
+    Raises
+    ------
+    CodegenError
+        If ``qp`` is not a DAQP QP.
+    """
+    from czmpc import qp_daqp
+
+    if not isinstance(qp, qp_daqp.DAQPMPCQP):
+        raise CodegenError(f"codegen: solver = 'daqp' needs the controller's DAQPMPCQP; got "
+                           f"{type(qp).__name__}")
+    hessian = np.asarray(qp._daqp_hessian, dtype=float)
+    rows = np.asarray(qp._daqp_rows, dtype=float)
+    n, m, ms = hessian.shape[0], qp.n_constraints, qp.horizon_steps
+    n_doubles = (5 * (n + 1) + (n + 1) * (n + 2) // 2 + 3 * n + n * (n + 1) // 2
+                 + n * (m - ms) + 4 * m)
+    n_ints = 2 * (n + 1) + m
+    n_blocks = 24
+    arena = 8 * n_doubles + 4 * n_ints + 16 * n_blocks + 1024   # 1 kB to spare
+    status = ",\n".join(f'    {{{flag}, "{qp_daqp.daqp_status(flag)}"}}' for flag in range(-8, 6)
+                        if flag != 0)
+    return {
+        "DAQP_VERSION": daqp_version(),
+        "DAQP_N": str(n), "DAQP_M": str(m), "DAQP_MS": str(ms),
+        "DAQP_ITER_LIMIT": str(qp_daqp.DAQP_ITER_LIMIT),
+        "DAQP_PRIMAL_TOL": c_number(qp_daqp.DAQP_PRIMAL_TOL_KW),
+        "DAQP_CHECK_BOUNDS": _flag(qp._check_bounds),
+        "DAQP_ARENA_BYTES": str(arena),
+        "DAQP_H": c_array(hessian.ravel()),
+        "DAQP_A": c_array(np.append(rows.ravel(), 0.0)),
+        "DAQP_STATUS": status,
+    }
+
+
 def check_osqp_structure(workspace: str, qp: MPCQP) -> None:
     """Check that OSQP's generated ``workspace`` (C source) has ``qp``'s P and A pattern.
 
@@ -319,7 +385,8 @@ def check_osqp_structure(workspace: str, qp: MPCQP) -> None:
 def generate_step(model: HammersteinModel, settings: MPCSettings | None, out_dir: Path, *,
                   float32: bool = False, model_source: str = "<memory>",
                   settings_source: str = "defaults for the model (MPCSettings.default_for)",
-                  progress: Callable[[str], None] | None = None) -> GeneratedStep:
+                  progress: Callable[[str], None] | None = None,
+                  daqp_sdist: str | Path | None = None) -> GeneratedStep:
     """Write the C99 step of ``OffsetFreeMPC(model, settings)`` and its Makefile into ``out_dir``.
 
     Parameters
@@ -337,6 +404,10 @@ def generate_step(model: HammersteinModel, settings: MPCSettings | None, out_dir
         Where model and settings came from, for the generated header.
     progress :
         Called with a line per stage.
+    daqp_sdist :
+        With ``solver = "daqp"``: a downloaded sdist of the installed daqp version, for
+        generating offline (`czmpc.codegen.daqp_source.daqp_sources`); None: the
+        environment variable ``CZMPC_DAQP_SDIST``, the cache, or a download with pip.
 
     Raises
     ------
@@ -349,9 +420,12 @@ def generate_step(model: HammersteinModel, settings: MPCSettings | None, out_dir
     """
     say = progress if progress is not None else (lambda _msg: None)
     mpc = OffsetFreeMPC(model, settings)
-    check_supported(mpc.settings)
+    check_supported(mpc.settings, float32=float32)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    if getattr(mpc.settings, "solver", "osqp") == "daqp":
+        return _generate_daqp_step(mpc, model, out_dir, model_source=model_source,
+                                   settings_source=settings_source, say=say, sdist=daqp_sdist)
     osqp_dir = out_dir / OSQP_DIR
     say(f"generating OSQP's solver for the QP ({mpc.qp.n_variables} variables, "
         f"{mpc.qp.n_constraints} constraints) into {osqp_dir}")
@@ -385,6 +459,38 @@ def generate_step(model: HammersteinModel, settings: MPCSettings | None, out_dir
                          files=(*TEMPLATES.values(), MODEL_FILE, SETTINGS_FILE))
 
 
+def _write_templates(templates: dict[str, str], values: dict[str, str], out_dir: Path) -> None:
+    folder = resources.files("czmpc.codegen") / "templates"
+    for template, target in templates.items():
+        text = (folder / template).read_text(encoding="utf-8")
+        if template.endswith(".in"):
+            text = string.Template(text).substitute(values)
+        (out_dir / target).write_text(text, encoding="utf-8")
+
+
+def _generate_daqp_step(mpc: OffsetFreeMPC, model: HammersteinModel, out_dir: Path, *,
+                        model_source: str, settings_source: str, say: Callable[[str], None],
+                        sdist: str | Path | None) -> GeneratedStep:
+    """`generate_step` with ``solver = "daqp"``: DAQP's sources instead of OSQP's code."""
+    say(f"copying DAQP {daqp_version()}'s C sources (its sdist) into {out_dir / DAQP_DIR}")
+    sources = copy_daqp(out_dir, sdist)
+    if (out_dir / OSQP_DIR).exists():
+        shutil.rmtree(out_dir / OSQP_DIR)
+    say(f"writing the step (horizon {mpc.qp.horizon_steps}, DAQP, double) into {out_dir}")
+    values = template_values(mpc, model_source=model_source, settings_source=settings_source,
+                             float32=False)
+    values.update(daqp_values(mpc.qp))
+    values["DAQP_OBJECTS"] = " ".join(f"daqp_{name}.o" for name in sources)
+    values["DAQP_SOURCES"] = " ".join(f"daqp/src/{name}.c" for name in sources)
+    _write_templates(DAQP_TEMPLATES, values, out_dir)
+    save_model(model, out_dir / MODEL_FILE)
+    (out_dir / SETTINGS_FILE).write_text(settings_to_toml(mpc.settings), encoding="utf-8")
+    return GeneratedStep(directory=out_dir, horizon_steps=mpc.qp.horizon_steps,
+                         n_variables=mpc.qp.n_variables, n_constraints=mpc.qp.n_constraints,
+                         float32=False,
+                         files=(*DAQP_TEMPLATES.values(), MODEL_FILE, SETTINGS_FILE))
+
+
 def read_sources(directory: str | Path) -> tuple[HammersteinModel, MPCSettings]:
     """The model and settings a directory of `generate_step` was generated from.
 
@@ -406,6 +512,7 @@ def read_sources(directory: str | Path) -> tuple[HammersteinModel, MPCSettings]:
     return model, load_settings(folder / SETTINGS_FILE, model)
 
 
-__all__ = ["MODEL_FILE", "OSQP_DIR", "OSQP_PREFIX", "SETTINGS_FILE", "TEMPLATES", "GeneratedStep",
-           "c_array", "c_number", "check_supported", "generate_step", "read_sources",
+__all__ = ["DAQP_DIR", "DAQP_TEMPLATES", "MODEL_FILE", "OSQP_DIR", "OSQP_PREFIX", "SETTINGS_FILE",
+           "TEMPLATES", "GeneratedStep",
+           "c_array", "c_number", "check_supported", "daqp_values", "generate_step", "read_sources",
            "template_values"]

@@ -30,6 +30,8 @@ from czmpc.codegen.errors import BuildError
 from czmpc.errors import SettingsError
 from sysid._typing import FloatArray
 
+#: Characters of the C output's solver status text (CZMPC_STATUS_CHARS, its NUL included).
+STATUS_CHARS = 64
 MODES = ("off", "predict", "on")
 STATUSES = ("good", "predicted", "clamped", "held", "shed")
 FALLBACKS = ("none", "shifted_plan", "target")
@@ -65,7 +67,7 @@ def _structures(real: _Real) -> tuple[type[ctypes.Structure], type[ctypes.Struct
 
     fields: list[tuple[str, Any]] = [("k", c_long), ("triac_pct", real)]
     fields += [(n, c_int) for n in int_fields]
-    fields += [("solver_status", ctypes.c_char * 32)] + [(n, real) for n in real_fields]
+    fields += [("solver_status", ctypes.c_char * STATUS_CHARS)] + [(n, real) for n in real_fields]
 
     class Outputs(ctypes.Structure):
         _fields_ = fields

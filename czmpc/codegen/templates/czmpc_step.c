@@ -13,6 +13,25 @@
 
 #include <math.h>
 
+#if CZMPC_SOLVER_DAQP
+/* DAQP (solver "daqp", czmpc.qp_daqp): its API and the problem's data */
+#include "api.h"
+#include "utils.h"
+#include "czmpc_daqp.h"
+#include "czmpc_daqp_heap.h"
+#include <string.h>
+
+/* DAQP's problem and workspace: static; the workspace's arrays come from the arena
+   (czmpc_daqp_heap.c), filled by DAQP's setup_daqp at init. */
+static DAQPProblem daqp_qp;
+static DAQPWorkspace daqp_work;
+static DAQPSettings daqp_settings;
+static double daqp_H[CZMPC_DAQP_N * CZMPC_DAQP_N];
+static double daqp_A[(CZMPC_DAQP_M - CZMPC_DAQP_MS) * CZMPC_DAQP_N + 1];
+static int daqp_sense0[CZMPC_DAQP_M];
+static double daqp_x[CZMPC_DAQP_N];
+static double daqp_lam[CZMPC_DAQP_M];
+#else
 #include "osqp.h"
 #include "czmpc_qp_workspace.h"
 /* OSQP's private headers, for qp_setup_exact only */
@@ -20,6 +39,7 @@
 #include "auxil.h"
 #include "scaling.h"
 #include "types.h"
+#endif
 
 #ifdef CZMPC_FLOAT32
 #define CZMPC_SQRT sqrtf
@@ -84,7 +104,7 @@ static void gemv(const czmpc_real *m, int rows, int cols, const czmpc_real *x, c
 static void copy_status(char *dst, const char *src)
 {
     int i;
-    for (i = 0; i < 31 && src[i] != '\0'; ++i) dst[i] = src[i];
+    for (i = 0; i < CZMPC_STATUS_CHARS - 1 && src[i] != '\0'; ++i) dst[i] = src[i];
     dst[i] = '\0';
 }
 
@@ -692,11 +712,33 @@ static void move_bounds(czmpc_state *s, const czmpc_map *m, czmpc_real ds_prev)
 #endif
 }
 
+#if CZMPC_SOLVER_DAQP && CZMPC_DAQP_CHECK_BOUNDS
+/* czmpc.qp.MPCQP._bound_violation: the largest violation of the box and rate rows by w. */
+static czmpc_real bound_violation(const czmpc_state *s, const czmpc_real *w)
+{
+    czmpc_real worst = ZERO;
+    int j;
+    for (j = 0; j < CZMPC_N; ++j) {
+        if (s->l[j] - w[j] > worst) worst = s->l[j] - w[j];
+        if (w[j] - s->u[j] > worst) worst = w[j] - s->u[j];
+    }
+#if CZMPC_HAS_RATE_LIMIT
+    for (j = 1; j < CZMPC_N; ++j) {
+        czmpc_real v = CZMPC_FABS(w[j] - w[j - 1]) - s->u[CZMPC_N + j - 1];
+        if (v > worst) worst = v;
+    }
+#endif
+    return worst;
+}
+#endif
+
 /* Stage 3: czmpc.qp.MPCQP.solve on the vectors in s (box and rate rows written). */
 static void qp_solve(czmpc_state *s, czmpc_real w_prev, const target_t *t, int has_q_offset,
                      plan_t *p)
 {
+#if !CZMPC_SOLVER_DAQP
     const OSQPSolution *sol;
+#endif
     int j;
     s->params[CZMPC_NPAR - 2] = w_prev;
     s->params[CZMPC_NPAR - 1] = t->w_s;
@@ -730,6 +772,60 @@ static void qp_solve(czmpc_state *s, czmpc_real w_prev, const target_t *t, int h
         s->needs_cold_start = 1;
         return;
     }
+#if CZMPC_SOLVER_DAQP
+    /* czmpc.qp_daqp.DAQPMPCQP.solve: update f, bupper, blower (and the working set
+       cleared on a cold start), then DAQP from the previous working set. */
+    {
+        int mask = DAQP_UPDATE_v | DAQP_UPDATE_d, flag;
+        DAQPResult res;
+        daqp_qp.f = s->q;
+        daqp_qp.bupper = s->u;
+        daqp_qp.blower = s->l;
+        if (s->needs_cold_start) {
+            for (j = 0; j < CZMPC_DAQP_M; ++j) daqp_sense0[j] = 0;
+            daqp_qp.sense = daqp_sense0;
+            mask |= DAQP_UPDATE_sense;
+            s->needs_cold_start = 0;
+        }
+        flag = daqp_update_ldp(mask, &daqp_work, &daqp_qp);
+        if (flag < 0) {
+            p->status_val = CZMPC_SOLVER_DAQP_EXIT(flag);
+            s->needs_cold_start = 1;
+            return;
+        }
+        res.x = daqp_x;
+        res.lam = daqp_lam;
+        res.fval = 0;
+        res.soft_slack = 0;
+        res.exitflag = 0;
+        res.iter = 0;
+        res.nodes = 0;
+        res.solve_time = 0;
+        res.setup_time = 0;
+        daqp_solve(&res, &daqp_work);
+        p->status_val = CZMPC_SOLVER_DAQP_EXIT(res.exitflag);
+        p->n_iterations = res.iter;
+        p->usable = res.exitflag == CZMPC_DAQP_EXIT_OPTIMAL && all_finite(daqp_x, CZMPC_NVAR);
+#if CZMPC_DAQP_CHECK_BOUNDS
+        if (p->usable) {
+            czmpc_real worst = bound_violation(s, daqp_x);
+            if (worst > (czmpc_real)CZMPC_SOLVER_BOUND_TOL_KW) {
+                p->usable = 0;
+                p->outside_bounds_kw = worst;
+            }
+        }
+#endif
+        if (p->usable) {
+            p->w = daqp_x;
+            p->accurate = 1;
+#if CZMPC_HAS_SOFT
+            p->slack_kw = py_max(ZERO, daqp_x[CZMPC_N]);
+#endif
+        } else {
+            s->needs_cold_start = 1;
+        }
+    }
+#else
     /* Python ignores osqp_update_data_vec's exit flag (l > u): so does this. */
     (void)osqp_update_data_vec(&czmpc_qp_solver, s->q, s->l, s->u);
     if (s->needs_cold_start) {
@@ -772,6 +868,7 @@ static void qp_solve(czmpc_state *s, czmpc_real w_prev, const target_t *t, int h
     } else {
         s->needs_cold_start = 1;
     }
+#endif
 }
 
 /* Stage 3: OffsetFreeMPC._solve_or_fall_back */
@@ -871,6 +968,55 @@ static int judge(czmpc_state *s, int used, const plan_t *p, const target_t *t, c
 
 /* ---- the QP solver's workspace, exact ---- */
 
+#if CZMPC_SOLVER_DAQP
+/* Set DAQP up as daqp.Model.setup did for the Python controller (czmpc.qp_daqp): the
+   settings (DAQP's defaults, iter_limit and primal_tol as DAQPMPCQP sets them), the
+   exact H and general rows, the initial f, bupper, blower (from czmpc_init_at) and an
+   empty working set; DAQP's own setup_daqp forms the LDP (Cholesky factor of H, its
+   inverse, M = R^-T A^T, normalisation) in the static arena of czmpc_daqp_heap.c, which
+   is sealed afterwards: nothing is allocated after init. Returns CZMPC_OK, or
+   CZMPC_ERR_SOLVER if DAQP refuses the problem or the arena is too small. */
+static int qp_setup_exact(const czmpc_state *s)
+{
+    int i, flag;
+    (void)s;
+    for (i = 0; i < CZMPC_DAQP_N * CZMPC_DAQP_N; ++i) daqp_H[i] = CZMPC_DAQP_H0[i];
+    for (i = 0; i < (CZMPC_DAQP_M - CZMPC_DAQP_MS) * CZMPC_DAQP_N; ++i) daqp_A[i] = CZMPC_DAQP_A0[i];
+    for (i = 0; i < CZMPC_DAQP_M; ++i) daqp_sense0[i] = 0;
+    daqp_default_settings(&daqp_settings);
+    daqp_settings.iter_limit = CZMPC_DAQP_ITER_LIMIT;
+    daqp_settings.primal_tol = CZMPC_DAQP_PRIMAL_TOL;
+    memset(&daqp_work, 0, sizeof daqp_work);
+    daqp_work.settings = &daqp_settings;
+    daqp_qp.n = CZMPC_DAQP_N;
+    daqp_qp.m = CZMPC_DAQP_M;
+    daqp_qp.ms = CZMPC_DAQP_MS;
+    daqp_qp.H = daqp_H;
+    daqp_qp.f = (double *)s->q;
+    daqp_qp.A = daqp_A;
+    daqp_qp.bupper = (double *)s->u;
+    daqp_qp.blower = (double *)s->l;
+    daqp_qp.sense = daqp_sense0;
+    daqp_qp.break_points = NULL;
+    daqp_qp.nh = 0;
+    daqp_qp.problem_type = 0;
+    czmpc_daqp_arena_open();
+    flag = setup_daqp(&daqp_qp, &daqp_work, NULL);
+    czmpc_daqp_arena_seal();
+    return flag < 0 || czmpc_daqp_arena_refused() != 0 ? CZMPC_ERR_SOLVER : CZMPC_OK;
+}
+
+/* The status text of a DAQP solve, as czmpc.qp_daqp.daqp_status. */
+static const char *daqp_status_text(int status_val)
+{
+    int i, flag = status_val - CZMPC_SOLVER_DAQP_EXIT(0);
+    for (i = 0; i < CZMPC_DAQP_N_STATUS; ++i) {
+        if (CZMPC_DAQP_STATUS[i].exitflag == flag) return CZMPC_DAQP_STATUS[i].text;
+    }
+    return "unknown exit flag";
+}
+#else
+
 /* Set OSQP's generated workspace up again from the exact problem, as osqp_setup did for
    the Python controller: float settings, unscaled P and A, the initial q, l, u (from
    czmpc_init_at), then scaling, rho vector, KKT matrix and its factorization. OSQP's
@@ -918,6 +1064,7 @@ static int qp_setup_exact(const czmpc_state *s)
     osqp_cold_start(solver);
     return bad ? CZMPC_ERR_SOLVER : CZMPC_OK;
 }
+#endif
 
 /* ---- public API ---- */
 
@@ -1157,7 +1304,11 @@ czmpc_real czmpc_step(czmpc_state *s, const czmpc_inputs *in, czmpc_outputs *out
         if (p.status_val == CZMPC_SOLVER_NONFINITE_DATA) {
             copy_status(out->solver_status, "non-finite problem data");
         } else {
+#if CZMPC_SOLVER_DAQP
+            copy_status(out->solver_status, daqp_status_text(p.status_val));
+#else
             copy_status(out->solver_status, czmpc_qp_solver.info->status);
+#endif
         }
         out->solver_outside_bounds_kw = p.outside_bounds_kw;
         out->setpoint_kw = in->setpoint_kw;

@@ -80,6 +80,11 @@ extern "C" {
    osqp/inc/public/osqp_api_constants.h) or one of these. */
 #define CZMPC_SOLVER_SKIPPED 0             /* mode OFF: no solve */
 #define CZMPC_SOLVER_NONFINITE_DATA (-1)   /* the QP's vectors were not finite: no solve */
+/* With solver "daqp": DAQP's exit flag plus 100 (101 optimal, 99 infeasible, 96 iteration
+   cap, ...; czmpc.qp_daqp.DAQP_STATUS), so that no flag is one of the values above. */
+#define CZMPC_SOLVER_DAQP_EXIT(flag) (100 + (flag))
+/* Characters of czmpc_output.solver_status, its terminating NUL included. */
+#define CZMPC_STATUS_CHARS 64
 
 /* Return codes of czmpc_init_at, czmpc_request_mode and czmpc_set_triac_limits. */
 #define CZMPC_OK 0
@@ -118,15 +123,15 @@ typedef struct {
     int level_change_accepted;       /* 1 if accepted only as a level change (re-opened check) */
     int setpoint_verdict;            /* CZMPC_SETPOINT_* */
     int voltage_verdict;             /* CZMPC_VOLTAGE_* */
-    int solver_status_val;           /* OSQP status_val or CZMPC_SOLVER_* */
-    int n_iterations;                /* OSQP iterations of this step's solve */
+    int solver_status_val;           /* OSQP status_val, CZMPC_SOLVER_DAQP_EXIT(flag) or CZMPC_SOLVER_* */
+    int n_iterations;                /* solver iterations of this step's solve (DAQP: active-set changes) */
     int setpoint_reachable;          /* 0 if the target had to clip its input */
     int samples_without_measurement; /* estimator gap [samples] */
     int bad_solves_in_row;           /* unusable QP results in a row */
     int rolled_back_samples;         /* frozen samples undone this step (stuck sensor) */
     int preview_samples;             /* preview entries used */
-    char solver_status[32];          /* OSQP's status text, "non-finite problem data" or
-                                        "skipped (mode off)" */
+    char solver_status[CZMPC_STATUS_CHARS]; /* the solver's status text (czmpc.qp, czmpc.qp_daqp),
+                                        "non-finite problem data" or "skipped (mode off)" */
     czmpc_real solver_outside_bounds_kw; /* > 0: the plan left its bounds by this much
                                         [kW-equivalent] and was not used */
     czmpc_real setpoint_kw;          /* as received [kW] */
