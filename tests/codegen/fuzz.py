@@ -110,15 +110,16 @@ class FuzzResult:
 
 
 def fuzz(builder: StepBuilder, *, n_cases: int, n_steps: int, seed: int,
-         progress: Callable[[str], None] | None = None) -> FuzzResult:
+         progress: Callable[[str], None] | None = None, solver: str = "osqp") -> FuzzResult:
     """Run ``n_cases`` random controllers for ``n_steps`` each (module notes); ``progress``
-    is called with the counts after every case."""
+    is called with the counts after every case. ``solver``: `MPCSettings.solver` of every
+    case (the same random draws either way)."""
     rng = np.random.default_rng(seed)
     out = FuzzResult()
     while out.n_cases < n_cases:
         try:
             model = random_model(rng)
-            settings = random_settings(model, rng)
+            settings = random_settings(model, rng).with_updates(solver=solver)
             py = OffsetFreeMPC(model, settings)
         except (CzmpcError, SysidError):
             out.n_rejected_designs += 1
@@ -146,11 +147,13 @@ def main() -> None:  # pragma: no cover - the benchmark entry point
     parser.add_argument("--steps", type=int, default=2500)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--progress", action="store_true", help="a line of counts per case")
+    parser.add_argument("--solver", choices=("osqp", "daqp"), default="osqp")
     args = parser.parse_args()
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="czmpc_fuzz_") as tmp:
         result = fuzz(StepBuilder(Path(tmp)), n_cases=args.cases, n_steps=args.steps, seed=args.seed,
-                      progress=(lambda line: print(line, flush=True)) if args.progress else None)
+                      progress=(lambda line: print(line, flush=True)) if args.progress else None,
+                      solver=args.solver)
     print(result.summary())
     for line in result.bad[:20]:
         print("  ", line)
