@@ -37,15 +37,22 @@ from tests.codegen.replay import TRIAC_ATOL_PCT, Comparison, StepBuilder, fault_
 from tests.codegen.test_codegen_faults import ALLOCATORS, ALLOWED_EXTERNAL, guarded_settings
 
 
-#: Settings of the replays: the defaults, and every guard on with soft power limits (the
-#: slack variable and DAQP's general soft rows) and a rate limit.
+#: Settings of the replays: the defaults; every guard on with soft power limits (the
+#: slack variable and DAQP's general soft rows) and a rate limit; box bounds only.
 def _guarded_with_rate_limit(model: HammersteinModel) -> MPCSettings:
     return guarded_settings(model).with_updates(max_move_pct_per_step=1.5)
+
+
+def _box_only(model: HammersteinModel) -> MPCSettings:
+    """No rate and no soft limits: DAQP's simple bounds only, no general rows (its set-up
+    asks for a 0 x n matrix: malloc(0), which the arena must grant; fuzz seed 1, case 20)."""
+    return MPCSettings.default_for(model).with_updates(max_move_pct_per_step=None)
 
 
 SETTINGS: dict[str, Callable[[HammersteinModel], MPCSettings]] = {
     "default": MPCSettings.default_for,
     "guarded": _guarded_with_rate_limit,
+    "box_only": _box_only,
 }
 #: What DAQP's objects need beyond the OSQP step's: libm's fmax (daqp_prox.c).
 DAQP_EXTERNAL = {"fmax"}

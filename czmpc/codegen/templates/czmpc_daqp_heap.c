@@ -25,9 +25,11 @@ static unsigned long n_refused = 0;
 
 void *czmpc_daqp_malloc(size_t size)
 {
-    size_t pieces = (size + PIECE - 1u) / PIECE;
+    /* malloc(0) (a QP without general rows asks for its 0 x n matrix) gets a piece of its
+       own: a pointer DAQP may keep and never reads, as the C library's malloc would give */
+    size_t pieces = size == 0 ? 1u : (size + PIECE - 1u) / PIECE;
     void *out;
-    if (!is_open || size == 0 || pieces > N_PIECES - next_piece) {
+    if (!is_open || pieces > N_PIECES - next_piece) {
         ++n_refused;
         return NULL;
     }
