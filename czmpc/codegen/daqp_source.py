@@ -29,8 +29,9 @@ from czmpc.codegen.errors import CodegenError
 
 #: Environment variable naming a downloaded ``daqp-VERSION.tar.gz`` (offline generation).
 SDIST_ENV = "CZMPC_DAQP_SDIST"
-#: PyPI's JSON metadata of one release (sha256 of its files).
-PYPI_JSON = "https://pypi.org/pypi/daqp/{version}/json"
+#: PyPI's JSON metadata of the project (``releases``: sha256 of every release's files; the
+#: per-version address answered 404 for daqp 0.11.0 when measured).
+PYPI_JSON = "https://pypi.org/pypi/daqp/json"
 #: Seconds to wait for PyPI.
 TIMEOUT_S = 60.0
 
@@ -66,13 +67,13 @@ def _offline_hint(version: str) -> str:
 def _pypi_sha256(version: str, filename: str) -> str | None:
     """PyPI's sha256 of ``filename``, or None if its JSON metadata cannot be read (an index
     mirror without the JSON API: pip has then checked the hash the index lists)."""
-    url = PYPI_JSON.format(version=version)
+    url = PYPI_JSON
     try:
         with urllib.request.urlopen(url, timeout=TIMEOUT_S) as response:  # noqa: S310 - https constant
             info = json.load(response)
     except (OSError, ValueError):
         return None
-    for entry in info.get("urls", []):
+    for entry in info.get("releases", {}).get(version, []):
         if entry.get("filename") == filename:
             return str(entry["digests"]["sha256"])
     raise CodegenError(f"codegen: PyPI lists no file {filename} for daqp {version}")

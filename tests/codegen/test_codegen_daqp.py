@@ -242,3 +242,26 @@ def test_fuzzed_c_daqp_steps_equal_python_daqp(step_builder: StepBuilder, daqp_s
     assert result.total.worst_triac_pct <= TRIAC_ATOL_PCT
     assert 10 <= result.max_iterations <= DAQP_ITER_LIMIT
     assert set(result.total.statuses) == {"good", "predicted", "clamped", "held", "shed"}
+
+
+def test_daqp_sdist_is_downloaded_and_checked_against_pypi(
+        tmp_path: Path, daqp_source: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A fresh cache: pip downloads the sdist, whose sha256 is PyPI's (network)."""
+    import hashlib
+
+    from czmpc.codegen.daqp_source import SDIST_ENV, _pypi_sha256, daqp_version, download_sdist
+
+    monkeypatch.delenv(SDIST_ENV, raising=False)
+    version = daqp_version()
+    try:
+        sdist = download_sdist(version, tmp_path)
+    except CodegenError as exc:   # pragma: no cover - CI reaches PyPI
+        pytest.skip(f"needs the network (PyPI): {exc}")
+    want = _pypi_sha256(version, sdist.name)
+    if want is None:   # pragma: no cover - an index without PyPI's JSON API
+        pytest.skip("PyPI's JSON metadata is not reachable")
+    assert hashlib.sha256(sdist.read_bytes()).hexdigest() == want
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    monkeypatch.setenv(SDIST_ENV, str(sdist))
+    got = daqp_sources()
+    assert (got / "LICENSE").read_bytes() == (daqp_source / "LICENSE").read_bytes()
