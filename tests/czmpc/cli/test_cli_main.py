@@ -9,8 +9,9 @@ import pytest
 
 from czmpc.cli import COMMAND_GROUPS, UNGROUPED, _command_modules, command_groups, main
 
-#: The issue's bound on the commands a user meets (issue 30).
-MAX_COMMANDS = 17
+#: The bound on the commands a user meets: issue 30's 17, plus `czmpc codegen`, which
+#: issue 42 names as a command of its own (a task of its own: the step for a PLC).
+MAX_COMMANDS = 18
 #: Commands that left the CLI for benchmarks/ or another command (CHANGELOG.md).
 REMOVED = ("bench", "bench-identify", "bench-mpc", "bench-health", "bench-commission",
            "robustness", "history")
@@ -23,7 +24,7 @@ def _help(capsys: pytest.CaptureFixture[str], *argv: str) -> str:
     return capsys.readouterr().out
 
 
-def test_every_command_is_in_exactly_one_group_and_there_are_at_most_17() -> None:
+def test_every_command_is_in_exactly_one_group_and_there_are_at_most_18() -> None:
     registered = sorted(_command_modules())
     grouped = [c for names in COMMAND_GROUPS.values() for c in names]
     assert sorted(grouped) == registered            # a new command needs a group
