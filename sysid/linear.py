@@ -120,7 +120,8 @@ def lagged(x: FloatArray, lag: int) -> FloatArray:
         return np.array(x, dtype=float, copy=True)
     z = np.empty_like(x, dtype=float)
     z[:lag] = x[0]
-    z[lag:] = x[: x.size - lag]
+    if lag < x.size:   # else x[: size - lag] would count from the end
+        z[lag:] = x[: x.size - lag]
     return z
 
 
@@ -454,7 +455,8 @@ def _shift_into(out: FloatArray, x: FloatArray, lags: range) -> FloatArray:
     """Fill column ``i`` of `out` with ``q^-lags[i] x`` (zeros before the record); return `out`."""
     for col, lag in enumerate(lags):
         out[:lag, col] = 0.0
-        out[lag:, col] = x[: x.size - lag]
+        if lag < x.size:   # else x[: size - lag] would count from the end
+            out[lag:, col] = x[: x.size - lag]
     return out
 
 

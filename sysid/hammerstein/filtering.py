@@ -173,8 +173,11 @@ def _powers(ds: FloatArray, degree: int) -> FloatArray:
 
 
 def _put_lag(out: FloatArray, col: int, x: FloatArray, lag: int, sign: float = 1.0) -> None:
-    """``out[:, col] = sign * x[k - lag]`` with zeros before the start."""
+    """``out[:, col] = sign * x[k - lag]`` with zeros before the start (all of a segment
+    no longer than ``lag``)."""
     out[:lag, col] = 0.0
+    if lag >= x.size:   # x[: size - lag] would count from the end
+        return
     if sign == 1.0:
         out[lag:, col] = x[: x.size - lag]
     else:

@@ -424,3 +424,14 @@ def test_the_iv_estimate_removes_the_arx_bias_on_an_output_error_truth(seed: int
     assert iv is not None
     assert abs(iv[1] + 0.9) < 0.01
     assert iv[0] / (1.0 + iv[1]) == pytest.approx(0.5 / 0.1, rel=0.05)
+
+
+@pytest.mark.parametrize("lag", [0, 1, 2, 3, 4, 6])
+def test_lagged_holds_the_past_even_for_a_record_shorter_than_the_lag(lag: int) -> None:
+    # A 3-sample segment (a plant link's gaps leave such) with a lag of 4 raised a
+    # broadcast error: x[: 3 - 4] counts from the end.
+    from sysid.linear import lagged
+
+    x = np.array([5.0, 7.0, 11.0])
+    expected = [x[k - lag] if k >= lag else x[0] for k in range(x.size)]
+    assert lagged(x, lag).tolist() == expected
