@@ -2,19 +2,19 @@
 
 The project keeps no copy of DAQP's sources. ``czmpc codegen`` with ``solver = "daqp"``
 takes them from the source distribution of the *installed* ``daqp`` version (the Python
-controller's solver), which carries them under ``csrc/``: downloaded with pip by the
-running interpreter, its sha256 checked against PyPI's JSON metadata, unpacked into a
+controller's solver), which carries them under ``csrc/``: downloaded from the address
+PyPI's JSON metadata gives and checked against its sha256 (with pip where an index has
+no JSON API), unpacked into a
 cache keyed by version (`cache_dir`: ``$XDG_CACHE_HOME/czmpc/daqp-VERSION``, else
 ``~/.cache/czmpc/daqp-VERSION``). Offline: download the sdist elsewhere
 (``pip download daqp==VERSION --no-binary :all: --no-deps``) and give its path as
 ``daqp_sdist`` to `czmpc.codegen.generate_step`, or in the environment variable
 `SDIST_ENV`.
 
-pip reads a sdist's metadata before it saves it: with an empty pip cache it first fetches
-daqp's build requirements (setuptools, Cython) into an isolated environment. Measured here:
-about 10 s with pip's cache warm; with ``XDG_CACHE_HOME`` pointing at an empty directory
-(pip's cache empty too) the download had not finished after 300 s. The sdist is fetched
-once per daqp version.
+Not with pip first: pip reads a sdist's metadata before it saves it, and with an empty
+pip cache it first fetches daqp's build requirements (setuptools, Cython); measured here,
+that had not finished after 300 s, against about a second for the direct download. The
+sdist is fetched once per daqp version.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ import subprocess
 import sys
 import tarfile
 import tempfile
+import urllib.parse
 import urllib.request
 from importlib import metadata
 from pathlib import Path
@@ -70,44 +71,58 @@ def _offline_hint(version: str) -> str:
             f"generate_step(..., daqp_sdist=PATH))")
 
 
-def _pypi_sha256(version: str, filename: str) -> str | None:
-    """PyPI's sha256 of ``filename``, or None if its JSON metadata cannot be read (an index
-    mirror without the JSON API: pip has then checked the hash the index lists)."""
-    url = PYPI_JSON
+def _pypi_sdist(version: str) -> tuple[str, str] | None:
+    """The address and sha256 of ``daqp`` ``version``'s sdist from PyPI's JSON metadata, or
+    None if that cannot be read (an index mirror without the JSON API)."""
     try:
-        with urllib.request.urlopen(url, timeout=TIMEOUT_S) as response:  # noqa: S310 - https constant
+        with urllib.request.urlopen(PYPI_JSON, timeout=TIMEOUT_S) as response:  # noqa: S310 - https constant
             info = json.load(response)
     except (OSError, ValueError):
         return None
     for entry in info.get("releases", {}).get(version, []):
-        if entry.get("filename") == filename:
-            return str(entry["digests"]["sha256"])
-    raise CodegenError(f"codegen: PyPI lists no file {filename} for daqp {version}")
+        if entry.get("packagetype") == "sdist":
+            # The address may be relative to the JSON's (a proxy of PyPI).
+            return (urllib.parse.urljoin(PYPI_JSON, str(entry["url"])),
+                    str(entry["digests"]["sha256"]))
+    raise CodegenError(f"codegen: PyPI lists no sdist for daqp {version}; {_offline_hint(version)}")
 
 
 def download_sdist(version: str, directory: Path) -> Path:
-    """Download the sdist of ``daqp`` ``version`` into ``directory`` with pip; check its sha256
-    against PyPI's JSON metadata where that is reachable.
+    """Download the sdist of ``daqp`` ``version`` into ``directory`` and check its sha256.
+
+    From the address PyPI's JSON metadata gives, checked against its sha256 (seconds; pip
+    would first build daqp's metadata, fetching setuptools and Cython: minutes with an
+    empty pip cache). Where the JSON API cannot be read, with pip (which checks the hash
+    the index lists).
 
     Raises
     ------
     CodegenError
-        pip fails (no network: the message says what to do offline) or the hash differs.
+        No network (the message says what to do offline), or a hash that differs.
     """
+    found = _pypi_sdist(version)
+    if found is not None:
+        url, want = found
+        sdist = directory / f"daqp-{version}.tar.gz"
+        try:
+            with urllib.request.urlopen(url, timeout=TIMEOUT_S) as response:  # noqa: S310 - PyPI's address
+                sdist.write_bytes(response.read())
+        except OSError as exc:
+            raise CodegenError(f"codegen: could not download {url}: {exc}; "
+                               f"{_offline_hint(version)}") from exc
+        got = hashlib.sha256(sdist.read_bytes()).hexdigest()
+        if got != want:
+            raise CodegenError(f"codegen: {sdist.name} must have PyPI's sha256 {want}; got {got}")
+        return sdist
     cmd = [sys.executable, "-m", "pip", "download", f"daqp=={version}", "--no-binary", ":all:",
            "--no-deps", "--disable-pip-version-check", "-d", str(directory)]
     done = subprocess.run(cmd, capture_output=True, text=True, check=False)
-    found = sorted(directory.glob(f"daqp-{version}.tar.gz"))
-    if done.returncode != 0 or not found:
+    downloaded = sorted(directory.glob(f"daqp-{version}.tar.gz"))
+    if done.returncode != 0 or not downloaded:
         tail = (done.stderr or done.stdout).strip().splitlines()[-3:]
         raise CodegenError(f"codegen: pip must download the sdist of daqp {version}; got exit "
                            f"{done.returncode}: {' | '.join(tail)}; {_offline_hint(version)}")
-    sdist = found[0]
-    want = _pypi_sha256(version, sdist.name)
-    got = hashlib.sha256(sdist.read_bytes()).hexdigest()
-    if want is not None and got != want:
-        raise CodegenError(f"codegen: {sdist.name} must have PyPI's sha256 {want}; got {got}")
-    return sdist
+    return downloaded[0]
 
 
 def unpack_sdist(sdist: Path, version: str, target: Path) -> Path:

@@ -246,22 +246,28 @@ def test_fuzzed_c_daqp_steps_equal_python_daqp(step_builder: StepBuilder, daqp_s
 
 def test_daqp_sdist_is_downloaded_and_checked_against_pypi(
         tmp_path: Path, daqp_source: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """A fresh cache: pip downloads the sdist, whose sha256 is PyPI's (network)."""
+    """A fresh cache: the sdist from PyPI's address, its sha256 PyPI's; a file whose hash
+    differs is refused (network)."""
     import hashlib
 
-    from czmpc.codegen.daqp_source import SDIST_ENV, _pypi_sha256, daqp_version, download_sdist
+    from czmpc.codegen import daqp_source as source
 
-    monkeypatch.delenv(SDIST_ENV, raising=False)
-    version = daqp_version()
+    monkeypatch.delenv(source.SDIST_ENV, raising=False)
+    version = source.daqp_version()
+    found = source._pypi_sdist(version)
+    if found is None:   # pragma: no cover - CI reaches PyPI's JSON API
+        pytest.skip("needs the network (PyPI's JSON metadata)")
     try:
-        sdist = download_sdist(version, tmp_path)
+        sdist = source.download_sdist(version, tmp_path)
     except CodegenError as exc:   # pragma: no cover - CI reaches PyPI
         pytest.skip(f"needs the network (PyPI): {exc}")
-    want = _pypi_sha256(version, sdist.name)
-    if want is None:   # pragma: no cover - an index without PyPI's JSON API
-        pytest.skip("PyPI's JSON metadata is not reachable")
-    assert hashlib.sha256(sdist.read_bytes()).hexdigest() == want
+    assert hashlib.sha256(sdist.read_bytes()).hexdigest() == found[1]
+    (tmp_path / "tampered").mkdir()
+    monkeypatch.setattr(source, "_pypi_sdist", lambda _v: (found[0], "0" * 64))
+    with pytest.raises(CodegenError, match="must have PyPI's sha256 0{64}; got"):
+        source.download_sdist(version, tmp_path / "tampered")
+    monkeypatch.undo()
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    monkeypatch.setenv(SDIST_ENV, str(sdist))
+    monkeypatch.setenv(source.SDIST_ENV, str(sdist))
     got = daqp_sources()
     assert (got / "LICENSE").read_bytes() == (daqp_source / "LICENSE").read_bytes()
