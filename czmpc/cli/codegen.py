@@ -15,7 +15,10 @@ inversion, modes and statuses), with the QP solved by OSQP's own generated code:
                    first field is the TRIAC input [%]
   Makefile         'make -C DIR' builds the objects (*.o, in DIR), libczmpc.a and
                    DIR/example; 'make -C DIR libczmpc.so' a shared library
-  osqp/            OSQP's generated solver of this controller's QP
+  osqp/            OSQP's generated solver of this controller's QP, or with
+  daqp/            solver = "daqp" in the settings: DAQP's C sources and licence, from
+                   the installed daqp version's source distribution (fetched from PyPI
+                   once and cached; --daqp-sdist for a machine without PyPI)
 
 Try it:
 
@@ -50,6 +53,11 @@ def register(parser: argparse.ArgumentParser) -> None:
     _argtypes.add_settings_options(parser)
     parser.add_argument("--out", metavar="DIR", type=Path, required=True,
                         help="output directory (created; the generated files in it are replaced)")
+    parser.add_argument("--daqp-sdist", metavar="daqp-VERSION.tar.gz", type=Path, default=None,
+                        help="with solver = \"daqp\" in the settings: DAQP's source distribution "
+                             "for the installed daqp version, for a machine without PyPI "
+                             "(default: the cache, else downloaded from PyPI; get it elsewhere "
+                             "with 'pip download daqp==VERSION --no-binary :all: --no-deps')")
     parser.add_argument("--float32", action="store_true",
                         help="compute in float instead of double (the step and OSQP); results "
                              "then differ from the Python controller's")
@@ -70,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
               else f"preset '{args.preset}' for the model")
     step = generate_step(model, settings, args.out, float32=args.float32,
                          model_source=str(args.model), settings_source=source,
-                         progress=progress)
-    print_written([step.directory / name for name in step.files] + [step.directory / "osqp"])
+                         progress=progress, daqp_sdist=args.daqp_sdist)
+    print_written([step.directory / name for name in step.files])
     print(f"build: make -C {step.directory}   (then: printf '45,46\\n' | {step.directory}/example)")
     return 0

@@ -92,7 +92,8 @@ class GeneratedStep:
     float32 :
         True if the step and OSQP use ``float``.
     files :
-        The files written at the top of the directory (OSQP's code is under ``osqp/``).
+        What was written at the top of the directory, the solver's folder last
+        (``osqp/``: OSQP's generated code; ``daqp/``: DAQP's sources).
     """
 
     directory: Path
@@ -407,7 +408,7 @@ def generate_step(model: HammersteinModel, settings: MPCSettings | None, out_dir
     daqp_sdist :
         With ``solver = "daqp"``: a downloaded sdist of the installed daqp version, for
         generating offline (`czmpc.codegen.daqp_source.daqp_sources`); None: the
-        environment variable ``CZMPC_DAQP_SDIST``, the cache, or a download with pip.
+        environment variable ``CZMPC_DAQP_SDIST``, the cache, or a download from PyPI.
 
     Raises
     ------
@@ -445,18 +446,13 @@ def generate_step(model: HammersteinModel, settings: MPCSettings | None, out_dir
                              float32=float32)
     values["OSQP_OBJECTS"] = " ".join(f"osqp_{name}.o" for name in sources)
     values["OSQP_SOURCES"] = " ".join(f"osqp/src/{name}.c" for name in sources)
-    folder = resources.files("czmpc.codegen") / "templates"
-    for template, target in TEMPLATES.items():
-        text = (folder / template).read_text(encoding="utf-8")
-        if template.endswith(".in"):
-            text = string.Template(text).substitute(values)
-        (out_dir / target).write_text(text, encoding="utf-8")
+    _write_templates(TEMPLATES, values, out_dir)
     save_model(model, out_dir / MODEL_FILE)
     (out_dir / SETTINGS_FILE).write_text(settings_to_toml(mpc.settings), encoding="utf-8")
     return GeneratedStep(directory=out_dir, horizon_steps=mpc.qp.horizon_steps,
                          n_variables=mpc.qp.n_variables, n_constraints=mpc.qp.n_constraints,
                          float32=float32,
-                         files=(*TEMPLATES.values(), MODEL_FILE, SETTINGS_FILE))
+                         files=(*TEMPLATES.values(), MODEL_FILE, SETTINGS_FILE, OSQP_DIR))
 
 
 def _write_templates(templates: dict[str, str], values: dict[str, str], out_dir: Path) -> None:
@@ -488,7 +484,7 @@ def _generate_daqp_step(mpc: OffsetFreeMPC, model: HammersteinModel, out_dir: Pa
     return GeneratedStep(directory=out_dir, horizon_steps=mpc.qp.horizon_steps,
                          n_variables=mpc.qp.n_variables, n_constraints=mpc.qp.n_constraints,
                          float32=False,
-                         files=(*DAQP_TEMPLATES.values(), MODEL_FILE, SETTINGS_FILE))
+                         files=(*DAQP_TEMPLATES.values(), MODEL_FILE, SETTINGS_FILE, "daqp"))
 
 
 def read_sources(directory: str | Path) -> tuple[HammersteinModel, MPCSettings]:
