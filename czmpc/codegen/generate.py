@@ -446,22 +446,27 @@ def generate_step(model: HammersteinModel, settings: MPCSettings | None, out_dir
                              float32=float32)
     values["OSQP_OBJECTS"] = " ".join(f"osqp_{name}.o" for name in sources)
     values["OSQP_SOURCES"] = " ".join(f"osqp/src/{name}.c" for name in sources)
-    _write_templates(TEMPLATES, values, out_dir)
-    save_model(model, out_dir / MODEL_FILE)
-    (out_dir / SETTINGS_FILE).write_text(settings_to_toml(mpc.settings), encoding="utf-8")
-    return GeneratedStep(directory=out_dir, horizon_steps=mpc.qp.horizon_steps,
-                         n_variables=mpc.qp.n_variables, n_constraints=mpc.qp.n_constraints,
-                         float32=float32,
-                         files=(*TEMPLATES.values(), MODEL_FILE, SETTINGS_FILE, OSQP_DIR))
+    return _write_step(mpc, model, out_dir, TEMPLATES, values, float32=float32,
+                       solver_dir=OSQP_DIR)
 
 
-def _write_templates(templates: dict[str, str], values: dict[str, str], out_dir: Path) -> None:
+def _write_step(mpc: OffsetFreeMPC, model: HammersteinModel, out_dir: Path,
+                templates: dict[str, str], values: dict[str, str], *, float32: bool,
+                solver_dir: str) -> GeneratedStep:
+    """Fill ``templates`` with ``values`` into ``out_dir``, keep the model and settings
+    beside them (`read_sources`), and say what was written (the solver's folder last)."""
     folder = resources.files("czmpc.codegen") / "templates"
     for template, target in templates.items():
         text = (folder / template).read_text(encoding="utf-8")
         if template.endswith(".in"):
             text = string.Template(text).substitute(values)
         (out_dir / target).write_text(text, encoding="utf-8")
+    save_model(model, out_dir / MODEL_FILE)
+    (out_dir / SETTINGS_FILE).write_text(settings_to_toml(mpc.settings), encoding="utf-8")
+    return GeneratedStep(directory=out_dir, horizon_steps=mpc.qp.horizon_steps,
+                         n_variables=mpc.qp.n_variables, n_constraints=mpc.qp.n_constraints,
+                         float32=float32,
+                         files=(*templates.values(), MODEL_FILE, SETTINGS_FILE, solver_dir))
 
 
 def _generate_daqp_step(mpc: OffsetFreeMPC, model: HammersteinModel, out_dir: Path, *,
@@ -478,13 +483,8 @@ def _generate_daqp_step(mpc: OffsetFreeMPC, model: HammersteinModel, out_dir: Pa
     values.update(daqp_values(mpc.qp))
     values["DAQP_OBJECTS"] = " ".join(f"daqp_{name}.o" for name in sources)
     values["DAQP_SOURCES"] = " ".join(f"daqp/src/{name}.c" for name in sources)
-    _write_templates(DAQP_TEMPLATES, values, out_dir)
-    save_model(model, out_dir / MODEL_FILE)
-    (out_dir / SETTINGS_FILE).write_text(settings_to_toml(mpc.settings), encoding="utf-8")
-    return GeneratedStep(directory=out_dir, horizon_steps=mpc.qp.horizon_steps,
-                         n_variables=mpc.qp.n_variables, n_constraints=mpc.qp.n_constraints,
-                         float32=False,
-                         files=(*DAQP_TEMPLATES.values(), MODEL_FILE, SETTINGS_FILE, "daqp"))
+    return _write_step(mpc, model, out_dir, DAQP_TEMPLATES, values, float32=False,
+                       solver_dir=DAQP_DIR)
 
 
 def read_sources(directory: str | Path) -> tuple[HammersteinModel, MPCSettings]:
