@@ -712,7 +712,7 @@ static void move_bounds(czmpc_state *s, const czmpc_map *m, czmpc_real ds_prev)
 #endif
 }
 
-#if CZMPC_SOLVER_DAQP && CZMPC_DAQP_CHECK_BOUNDS
+#if !CZMPC_SOLVER_DAQP || CZMPC_DAQP_CHECK_BOUNDS
 /* czmpc.qp.MPCQP._bound_violation: the largest violation of the box and rate rows by w. */
 static czmpc_real bound_violation(const czmpc_state *s, const czmpc_real *w)
 {
@@ -841,18 +841,7 @@ static void qp_solve(czmpc_state *s, czmpc_real w_prev, const target_t *t, int h
         if (!all_finite(sol->x, CZMPC_NVAR)) {
             p->usable = 0;
         } else {
-            czmpc_real worst = ZERO;
-            const czmpc_real *w = sol->x;
-            for (j = 0; j < CZMPC_N; ++j) {
-                if (s->l[j] - w[j] > worst) worst = s->l[j] - w[j];
-                if (w[j] - s->u[j] > worst) worst = w[j] - s->u[j];
-            }
-#if CZMPC_HAS_RATE_LIMIT
-            for (j = 1; j < CZMPC_N; ++j) {
-                czmpc_real v = CZMPC_FABS(w[j] - w[j - 1]) - s->u[CZMPC_N + j - 1];
-                if (v > worst) worst = v;
-            }
-#endif
+            czmpc_real worst = bound_violation(s, sol->x);
             if (worst > (czmpc_real)CZMPC_SOLVER_BOUND_TOL_KW) {
                 p->usable = 0;
                 p->outside_bounds_kw = worst;
