@@ -1,16 +1,18 @@
 """The generated-C cost benchmark (`python -m benchmarks.codegen_step`, issue 42 item 5).
 
-Run tiny (a few steps, one repeat, one harness round) into a temporary BENCHMARKS.md:
-the section's tables have their structure, every time is positive and finite, and the
-timed C run computed what the Python controller did (the harness prints each step's
-TRIAC input). Speed is never asserted.
+Run tiny (a few steps, one repeat, two harness rounds) into a temporary BENCHMARKS.md,
+once per solver (OSQP, and DAQP with ``--solver daqp``): the section's tables have their
+structure, every time is positive and finite, the timed C run computed what the Python
+controller did (the harness prints each step's TRIAC input) and the bare solver's
+replay solved the step's QPs as the step did (its iteration counts and its plans, bit
+for bit). Speed is never asserted.
 """
 
 from __future__ import annotations
 
 import math
 import re
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -20,7 +22,9 @@ import pytest
 import benchmarks.codegen_step as cg
 from benchmarks._md import machine_info
 from czmpc.codegen.build import find_tools
-from czmpc.codegen.errors import BuildError
+from czmpc.codegen.daqp_source import daqp_sources
+from czmpc.codegen.errors import BuildError, CodegenError
+from czmpc.qp_daqp import DAQP_ITER_LIMIT
 
 #: Steps per closed loop of the tiny run (the staircase's first setpoint change is at
 #: 600 s = step 300, so the loops hold 45 kW against plant noise: the QP is solved and
@@ -29,11 +33,42 @@ TINY_STEPS = 40
 OTHER_SECTIONS = "# Benchmarks\n\n## Identification pipeline\n\nkeep me\n\n## Other\n\nkeep me too\n"
 
 
-def _toolchain() -> None:
+@dataclass(frozen=True, kw_only=True)
+class Expected:
+    """What a tiny run of one solver must report besides the numbers."""
+
+    name: str            # the solver in the tables' headers
+    max_iter: int        # its iteration cap
+    data_object: str     # the object of its data (second row of the sizes table)
+    data_section: int    # the section that data lies in: 2 .data (OSQP), 3 .bss (DAQP's arena)
+    objects: str         # its objects (third row)
+    cap: str             # the worst-case solve's line (a regular expression)
+    goal: str            # the goal's line
+
+
+EXPECTED = {
+    "osqp": Expected(
+        name="OSQP", max_iter=4000, data_object="`czmpc_qp_workspace.o`", data_section=2,
+        objects="`osqp_*.o`", cap=r"only the cap stops OSQP: 4000 iterations \(status_val 7\)",
+        goal="(the C step with DAQP within 2 of DAQP's bare solve): `--solver daqp`, in its "
+             "own section."),
+    "daqp": Expected(
+        name="DAQP", max_iter=DAQP_ITER_LIMIT, data_object="`czmpc_daqp_heap.o`", data_section=3,
+        objects="`daqp_*.o`", cap=r"not at its cap\): [1-9]\d* iterations \(exit flag 1\)",
+        goal="the C step with DAQP within 2 of DAQP's bare solve, on the same QPs: **"),
+}
+
+
+def _toolchain(solver: str = "osqp") -> None:
     try:
         find_tools()
     except BuildError as exc:   # pragma: no cover - CI has cc and make
         pytest.skip(str(exc))
+    if solver == "daqp":
+        try:
+            daqp_sources()
+        except CodegenError as exc:   # pragma: no cover - CI reaches PyPI
+            pytest.skip(f"needs the network (daqp's sdist from PyPI) or CZMPC_DAQP_SDIST: {exc}")
 
 
 def _tables(section: str) -> dict[str, list[list[str]]]:
@@ -62,38 +97,60 @@ def _numbers(cell: str) -> list[float]:
     return [float(v) for v in re.findall(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?", cell)]
 
 
-@pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[int, str, Path]:
-    """``(exit code, BENCHMARKS.md text, generated directory)`` of one tiny run."""
-    _toolchain()
-    tmp = tmp_path_factory.mktemp("codegen_bench")
+@dataclass(frozen=True, kw_only=True)
+class TinyRun:
+    """One tiny run of the benchmark."""
+
+    solver: str
+    code: int               # its exit code
+    text: str               # the BENCHMARKS.md it wrote
+    directory: Path         # the generated step
+
+    @property
+    def section(self) -> str:
+        """The run's own section of ``text``."""
+        return self.text.split(cg.section_heading(solver=self.solver), 1)[1]
+
+    @property
+    def expected(self) -> Expected:
+        return EXPECTED[self.solver]
+
+
+@pytest.fixture(scope="module", params=["osqp", "daqp"])
+def tiny_run(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> TinyRun:
+    """One tiny run with the solver of the parameter."""
+    solver = request.param
+    _toolchain(solver)
+    tmp = tmp_path_factory.mktemp(f"codegen_bench_{solver}")
     md = tmp / "BENCHMARKS.md"
     md.write_text(OTHER_SECTIONS, encoding="utf-8")
     code = cg.main(["--repeats", "1", "--steps", str(TINY_STEPS), "--rounds", "2",
-                    "--out", str(tmp / "step"), "--benchmarks-md", str(md)])
-    return code, md.read_text(encoding="utf-8"), tmp / "step"
+                    "--solver", solver, "--out", str(tmp / "step"), "--benchmarks-md", str(md)])
+    return TinyRun(solver=solver, code=code, text=md.read_text(encoding="utf-8"),
+                   directory=tmp / "step")
 
 
-def test_the_tiny_run_records_its_own_section_and_keeps_the_others(
-        tiny_run: tuple[int, str, Path]) -> None:
-    code, text, _ = tiny_run
-    assert code == 0
-    assert text.count(cg.SECTION_HEADING) == 1
+def test_the_tiny_run_records_its_own_section_and_keeps_the_others(tiny_run: TinyRun) -> None:
+    assert tiny_run.code == 0
+    text = tiny_run.text
+    headings = {cg.SECTION_HEADING, cg.SECTION_HEADING_FLOAT32, cg.SECTION_HEADING_DAQP}
+    own = cg.section_heading(solver=tiny_run.solver)
+    assert [text.count(f"{h}\n") for h in sorted(headings)] == [int(h == own) for h in sorted(headings)]
     assert "## Identification pipeline\n\nkeep me\n" in text and "## Other\n\nkeep me too\n" in text
-    section = text.split(cg.SECTION_HEADING, 1)[1]
-    assert "python -m benchmarks.codegen_step --repeats 1 --steps 40" in section
+    section = tiny_run.section
+    assert (f"python -m benchmarks.codegen_step --repeats 1 --steps 40 --rounds 2 --solver "
+            f"{tiny_run.solver}") in section
     assert "-ffp-contract=off" in section and "N = 39" in section
 
 
-def test_the_timing_tables_have_one_row_per_run_of_positive_finite_times(
-        tiny_run: tuple[int, str, Path]) -> None:
-    _, text, _ = tiny_run
-    tables = _tables(text.split(cg.SECTION_HEADING, 1)[1])
+def test_the_timing_tables_have_one_row_per_run_of_positive_finite_times(tiny_run: TinyRun) -> None:
+    tables = _tables(tiny_run.section)
     timing = [t for key, t in tables.items() if "Python step" in " ".join(t[0])]
     assert len(timing) == 2   # without, then with preview and voltage
     for table in timing:
         header, *rows = table
         assert len(header) == 7 and len(rows) == 1 and rows[0][0] == "1"
+        assert header[4] == f"bare {tiny_run.expected.name} solve: median / p99.9 [us]"
         times = [_numbers(cell) for cell in rows[0][1:5]]   # median / p99.9 of four paths
         for median, p999 in times:
             assert math.isfinite(median) and math.isfinite(p999)
@@ -103,16 +160,19 @@ def test_the_timing_tables_have_one_row_per_run_of_positive_finite_times(
         assert python_over_c == pytest.approx(times[0][0] / times[1][0], rel=0.02)
 
 
-def test_the_timed_c_run_computed_what_python_did(tiny_run: tuple[int, str, Path]) -> None:
-    _, text, _ = tiny_run
-    tables = _tables(text.split(cg.SECTION_HEADING, 1)[1])
-    agreement = [t for t in tables.values() if "bare replay: same iterations" in t[0]]
+def test_the_timed_c_run_computed_what_python_did_and_the_bare_replay_what_c_did(
+        tiny_run: TinyRun) -> None:
+    expected = tiny_run.expected
+    agreement = [t for t in _tables(tiny_run.section).values()
+                 if "bare replay: same iterations" in t[0]]
     assert len(agreement) == 2
     for header, row in agreement:
         cell = dict(zip(header, row, strict=True))
-        mean_it, max_it = _numbers(cell["OSQP iterations mean / max"])
-        assert 1.0 <= mean_it <= max_it < 4000
+        mean_it, max_it = _numbers(cell[f"{expected.name} iterations mean / max"])
+        assert 1.0 <= mean_it <= max_it < expected.max_iter
+        # The bare solver's replay took the step's iterations and found its plans, bit for bit.
         assert cell["bare replay: same iterations"] == "100.0%"
+        assert cell["bare replay: same plan"] == "100.0%"
         # Within issue 42's tolerance; a flipped OSQP termination test would be counted.
         differences = int(_numbers(cell["other iteration count than Python: steps (first at k)"])[0])
         assert differences == 0
@@ -123,35 +183,33 @@ def test_the_timed_c_run_computed_what_python_did(tiny_run: tuple[int, str, Path
         assert cell["ctypes = harness"] == f"{TINY_STEPS} of {TINY_STEPS}"
 
 
-def test_the_summary_and_the_sizes_are_measured(tiny_run: tuple[int, str, Path]) -> None:
-    _, text, directory = tiny_run
-    section = text.split(cg.SECTION_HEADING, 1)[1]
-    assert "only the cap stops OSQP: 4000 iterations (status_val 7)" in section
+def test_the_summary_and_the_sizes_are_measured(tiny_run: TinyRun) -> None:
+    expected, section = tiny_run.expected, tiny_run.section
+    assert re.search(expected.cap, section) is not None
+    assert expected.goal in section
     assert "fuzz set (`tests/codegen/fuzz.py`): not measured here" in section
-    assert "DAQP" in section and "is not measured" in section
     state = re.search(r"one `czmpc_state`: (\d+) bytes", section)
     assert state is not None and int(state.group(1)) > 1000
     (header, *rows), = [t for t in _tables(section).values() if t[0][0] == "part"]
     assert header == ["part", "objects", ".text", ".rodata", ".data", ".bss", "total"]
-    assert [r[1] for r in rows[:2]] == ["`czmpc_step.o`", "`czmpc_qp_workspace.o`"]
+    assert [r[1] for r in rows[:3]] == ["`czmpc_step.o`", expected.data_object, expected.objects]
     sizes = np.array([[int(v) for v in r[2:]] for r in rows])
     assert sizes[0, 0] > 0 and sizes[0, 1] > 0        # the step: code and its matrices
-    assert sizes[1, 2] > 0                             # OSQP's workspace: initialised data
-    assert sizes[2, 0] > 0                             # OSQP's code
+    assert sizes[1, expected.data_section] > 0         # the solver's data
+    assert sizes[2, 0] > 0                             # the solver's code
     assert (sizes[:3, :4].sum(axis=1) == sizes[:3, 4]).all()
     assert (sizes[:3].sum(axis=0) == sizes[3]).all()
     # The same numbers as binutils gives for the step's object, section by section.
-    (step,) = cg.object_sizes(directory)[:1]
+    (step,) = cg.object_sizes(tiny_run.directory)[:1]
     assert [step.text, step.rodata, step.data, step.bss] == list(sizes[0, :4])
 
 
 def test_the_harness_refuses_an_input_file_of_another_format(
-        tiny_run: tuple[int, str, Path], tmp_path: Path) -> None:
-    _, _, directory = tiny_run
+        tiny_run: TinyRun, tmp_path: Path) -> None:
     bad = tmp_path / "inputs.txt"
     bad.write_text("power,setpoint\n45.0,46.0\n", encoding="ascii")
     with pytest.raises(BuildError, match="exited 2.*expected 'czmpc-timing-inputs/1'"):
-        cg.run_harness(directory, bad, n_variables=39, n_constraints=77, float32=False)
+        cg.run_harness(tiny_run.directory, bad, n_variables=39, n_constraints=77, float32=False)
 
 
 def test_float32_goes_to_its_own_section_with_the_deviation_stated(tmp_path: Path) -> None:
@@ -166,6 +224,16 @@ def test_float32_goes_to_its_own_section_with_the_deviation_stated(tmp_path: Pat
     assert dev is not None and 0.0 <= float(dev.group(1)) < 0.1
 
 
+def test_daqp_in_float32_is_refused_before_anything_is_recorded(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    md = tmp_path / "BENCHMARKS.md"
+    md.write_text(OTHER_SECTIONS, encoding="utf-8")
+    assert cg.main(["--float32", "--solver", "daqp", "--out", str(tmp_path / "step"),
+                    "--benchmarks-md", str(md)]) == 2
+    assert "daqp' is generated in double precision only" in capsys.readouterr().err
+    assert md.read_text(encoding="utf-8") == OTHER_SECTIONS
+
+
 # --- the pieces, without a compiler --------------------------------------------------------
 
 
@@ -177,19 +245,20 @@ def _run(*, c_us: float = 22.0, bare_us: float = 20.0, worst: float = 0.0) -> cg
     return cg.CodegenRun(
         n_steps=10, python=_timing(60.0), c_step=_timing(c_us), c_ctypes=_timing(30.0),
         bare=_timing(bare_us), mean_iterations=6.0, max_iterations=15, bare_same_iterations=1.0,
-        n_iteration_differences=0, first_difference_k=None, worst_triac_pct=worst,
+        bare_same_plan=1.0, n_iteration_differences=0, first_difference_k=None, worst_triac_pct=worst,
         worst_triac_all_pct=worst, n_bit_equal=10, qp_max_rel_diff=0.0, ctypes_equal=10,
         cap=cg.CapSolve(k=0, n_iterations=4000, status_val=7, median_ms=20.0, max_ms=25.0))
 
 
-def _bench(runs: tuple[cg.CodegenRun, ...]) -> cg.CodegenBenchmark:
+def _bench(runs: tuple[cg.CodegenRun, ...], solver: str = "osqp") -> cg.CodegenBenchmark:
     size = cg.ObjectSize(part="p", files=("a.o",), text=1, rodata=2, data=3, bss=4)
     return cg.CodegenBenchmark(
         machine=replace(machine_info(), n_cpus=2, load_average=0.1), model_label="m",
         command="python -m benchmarks.codegen_step", revision="abc", compiler="cc",
         compile_command="cc -O2", float32=False, horizon_steps=39, n_variables=39,
         n_constraints=77, max_iter=4000, rounds=3, runs=runs, context_runs=runs,
-        sizes=(size, size, size), state_bytes=5000)
+        sizes=(size, size, size), state_bytes=5000, solver=solver,  # type: ignore[arg-type]
+        solver_version="0.11.0" if solver == "daqp" else "")
 
 
 def test_the_goal_is_judged_on_the_median_ratio_of_each_half() -> None:
@@ -199,6 +268,17 @@ def test_the_goal_is_judged_on_the_median_ratio_of_each_half() -> None:
     missed = _bench((_run(c_us=24.0),))
     assert not missed.goal_met
     assert "**missed**" in cg.format_report(missed)
+
+
+def test_the_daqp_goal_is_2x_its_bare_solve() -> None:
+    met = _bench((_run(c_us=7.0, bare_us=5.0), _run(c_us=9.9, bare_us=5.0)), "daqp")
+    assert met.goal == cg.C_OVER_BARE_GOAL_DAQP == 2.0 and met.goal_met
+    text = cg.format_report(met)
+    assert "within 2 of DAQP's bare solve, on the same QPs: **met**" in text
+    assert "DAQP 0.11.0 with 39 variables and 77 rows" in text and "eps 1e-5" not in text
+    missed = _bench((_run(c_us=10.1, bare_us=5.0),), "daqp")
+    assert not missed.goal_met and "**missed**" in cg.format_report(missed)
+    assert cg.section_heading(solver="daqp") == cg.SECTION_HEADING_DAQP
 
 
 def test_agreement_counts_only_the_steps_before_the_first_iteration_difference() -> None:
@@ -211,17 +291,25 @@ def test_agreement_counts_only_the_steps_before_the_first_iteration_difference()
     harness = cg._HarnessRun(
         triac_pct=loop.triac_pct + np.array([0.0, 1e-13, 0.0, 2e-3, 1e-4, 0.0]),
         iterations=np.array([5, 5, 5, 15, 5, 5]), status_val=np.ones(n, dtype=int),
-        step_s=np.full(2 * n, 2e-5), bare_k=np.arange(n), bare_iterations=np.array([5, 5, 5, 15, 5, 6]),
-        bare_s=np.full(n, 1e-5), cap=None, sent=np.zeros((n, 3)))
+        step_s=np.full(2 * n, 2e-5), bare_k=np.arange(n), bare_iterations=np.array([5, 5, 5, 15, 5, 5]),
+        bare_plan=np.array([1, 1, 1, 1, -1, 1]), bare_s=np.full(n, 1e-5), cap=None,
+        sent=np.zeros((n, 3)))
     run = cg.compare_run(loop, harness, harness.triac_pct.copy(), np.full(n, 3e-5))
     assert run.first_difference_k == 3 and run.n_iteration_differences == 1
     assert run.worst_triac_pct == pytest.approx(1e-13) and run.worst_triac_all_pct == pytest.approx(2e-3)
     assert run.n_bit_equal == 3 and run.ctypes_equal == n
-    assert run.bare_same_iterations == pytest.approx(5 / 6)
+    assert run.bare_same_iterations == 1.0 and run.bare_same_plan == 1.0   # k = 4 had no plan
     assert run.c_step.n == 2 * n and run.c_over_bare == pytest.approx(2.0)
     assert run.agrees(float32=False)
     early = replace(harness, triac_pct=loop.triac_pct + 1e-5)   # 1e-5 % before k = 3
     assert not cg.compare_run(loop, early, early.triac_pct.copy(), np.full(n, 3e-5)).agrees(False)
+    # A bare replay that solved a QP otherwise than the step: its ratio is not recorded.
+    other_iterations = replace(harness, bare_iterations=np.array([5, 5, 5, 15, 5, 6]))
+    run = cg.compare_run(loop, other_iterations, harness.triac_pct.copy(), np.full(n, 3e-5))
+    assert run.bare_same_iterations == pytest.approx(5 / 6) and not run.agrees(False)
+    other_plan = replace(harness, bare_plan=np.array([1, 1, 0, 1, -1, 1]))
+    run = cg.compare_run(loop, other_plan, harness.triac_pct.copy(), np.full(n, 3e-5))
+    assert run.bare_same_plan == pytest.approx(4 / 5) and not run.agrees(False)
 
 
 def test_a_run_that_computed_otherwise_is_not_recorded(
@@ -242,6 +330,7 @@ def test_help_says_what_is_measured(capsys: pytest.CaptureFixture[str]) -> None:
     out = capsys.readouterr().out
     assert "What does one step of the controller cost once it is C" in out
     assert "--float32" in out and "--repeats N" in out and "99.9th percentile" in out
+    assert "--solver {osqp,daqp}" in out and "DAQP within 2x DAQP's bare solve" in out
 
 
 def test_a_fuzz_set_that_stops_is_reported_not_raised(monkeypatch: pytest.MonkeyPatch) -> None:
