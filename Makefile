@@ -49,6 +49,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.identify --repeats 5 --with-sippy --out out/bench/identify
 	$(PY) -m benchmarks.mpc_step --repeats 5
 	$(PY) -m benchmarks.codegen_step --repeats 5 --fuzz-cases 400
+	$(PY) -m benchmarks.codegen_step --solver daqp --repeats 5
 	$(PY) -m benchmarks.tracking --out out/bench/tracking
 	$(PY) -m benchmarks.value_case --out out/bench/value
 	$(PY) -m benchmarks.robustness --full --out out/bench/robustness
