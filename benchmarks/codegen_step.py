@@ -913,6 +913,11 @@ def _median(values: Sequence[float]) -> float:
     return float(np.median(list(values)))
 
 
+def _ms(value: float) -> str:
+    """A time [ms]: two decimals, three significant digits below 1 ms (DAQP's solves)."""
+    return f"{value:.2f}" if value >= 1.0 else f"{value:.3g}"
+
+
 def format_report(bench: CodegenBenchmark) -> str:
     """The numbers as Markdown (stdout and BENCHMARKS.md share it)."""
     real = "float" if bench.float32 else "double"
@@ -1034,9 +1039,9 @@ def _summary(bench: CodegenBenchmark) -> list[str]:
         hardest = max(caps, key=lambda c: c.median_ms)
         line += (f" The hardest QP of each run {words.cap}: {hardest.n_iterations} iterations "
                  f"({words.status} {hardest.status_val - words.status_offset}) in "
-                 f"{_median([c.median_ms for c in caps]):.2f} ms (median over the runs; slowest "
-                 f"run {hardest.median_ms:.2f} ms, single worst "
-                 f"{max(c.max_ms for c in caps):.2f} ms): {words.cap_meaning}.")
+                 f"{_ms(_median([c.median_ms for c in caps]))} ms (median over the runs; slowest "
+                 f"run {_ms(hardest.median_ms)} ms, single worst "
+                 f"{_ms(max(c.max_ms for c in caps))} ms): {words.cap_meaning}.")
     lines.append(line)
     if bench.fuzz is None:
         lines.append("- Worst iteration count on the fuzz set (`tests/codegen/fuzz.py`): not "

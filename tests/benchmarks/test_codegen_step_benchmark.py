@@ -278,6 +278,11 @@ def test_the_daqp_goal_is_2x_its_bare_solve() -> None:
     assert "DAQP 0.11.0 with 39 variables and 77 rows" in text and "eps 1e-5" not in text
     missed = _bench((_run(c_us=10.1, bare_us=5.0),), "daqp")
     assert not missed.goal_met and "**missed**" in cg.format_report(missed)
+    # A cold DAQP solve takes microseconds: its time keeps three significant digits.
+    cold = cg.CapSolve(k=3, n_iterations=4, status_val=101, median_ms=0.01234, max_ms=0.0456)
+    text = cg.format_report(_bench((replace(_run(), cap=cold),), "daqp"))
+    assert ("not at its cap): 4 iterations (exit flag 1) in 0.0123 ms (median over the runs; "
+            "slowest run 0.0123 ms, single worst 0.0456 ms)") in text
     assert cg.section_heading(solver="daqp") == cg.SECTION_HEADING_DAQP
 
 
