@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import fcntl
 import functools
 import hashlib
 import io
@@ -301,28 +302,48 @@ Identified = Callable[[str], tuple[int, str, Path]]
 
 
 @pytest.fixture(scope="module")
-def identified(tmp_path_factory: pytest.TempPathFactory) -> Identified:
-    """``czmpc identify LOG --out DIR`` with default options on a real log, once per module."""
+def identified(tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> Identified:
+    """``czmpc identify LOG --out DIR`` with default options on a real log, once per run of
+    the suite: `make test` hands a log's tests to either worker (`tests.conftest._scope`),
+    and both read the first one's output, a lock per log making the other wait for it
+    (the full logs are each needed by three groups: their own, and their 5 % and 10 %
+    end cuts)."""
+    root = tmp_path_factory.getbasetemp()
+    shared = (root if worker_id == "master" else root.parent) / "identified"
+
     @functools.cache
     def run(name: str) -> tuple[int, str, Path]:
-        folder = tmp_path_factory.mktemp(name)
-        reading: list[str] = []
-        if name == "lamp":   # as logged, through a column mapping and the units (no fit option)
-            raw = np.loadtxt(REAL / "daisy_heating_system.dat")
-            lines = ["t,u_V,y_degC"] + [f"{t:g},{u:g},{y:g}" for t, u, y in raw.tolist()]
-            (folder / "log.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
-            reading = ["--columns", "time_s=t,triac_pct=u_V,power_kw=y_degC",
-                       "--input-unit", "V", "--output-unit", "degC"]
-        else:
-            write_csv({**READERS, **END_CUTS, **OTHER_END_CUTS, **START_CUTS, **EXCERPTS,
-                       **HELD, **FASTER}[name](),
-                      folder / "log.csv")
-        err = io.StringIO()
-        with contextlib.redirect_stderr(err):
-            code = main(["identify", str(folder / "log.csv"), "--out", str(folder / "id"),
-                         *reading])
-        return code, err.getvalue(), folder / "id"
+        folder = shared / name
+        folder.mkdir(parents=True, exist_ok=True)
+        with open(folder / "lock", "w", encoding="utf-8") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)     # released when the file closes
+            result = folder / "result.json"
+            if not result.exists():
+                result.write_text(json.dumps(_identify(name, folder)), encoding="utf-8")
+            code, err = json.loads(result.read_text(encoding="utf-8"))
+        return code, err, folder / "id"
     return run
+
+
+def _identify(name: str, folder: Path) -> tuple[int, str]:
+    """Write the log ``name`` to ``folder/log.csv``, identify it into ``folder/id``;
+    return the exit code and stderr."""
+    reading: list[str] = []
+    if name == "lamp":   # as logged, through a column mapping and the units (no fit option)
+        raw = np.loadtxt(REAL / "daisy_heating_system.dat")
+        lines = ["t,u_V,y_degC"] + [f"{t:g},{u:g},{y:g}" for t, u, y in raw.tolist()]
+        (folder / "log.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+        reading = ["--columns", "time_s=t,triac_pct=u_V,power_kw=y_degC",
+                   "--input-unit", "V", "--output-unit", "degC"]
+    else:
+        write_csv({**READERS, **END_CUTS, **OTHER_END_CUTS, **START_CUTS, **EXCERPTS,
+                   **HELD, **FASTER}[name](),
+                  folder / "log.csv")
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        code = main(["identify", str(folder / "log.csv"), "--out", str(folder / "id"),
+                     *reading])
+    return code, err.getvalue()
 
 
 @pytest.mark.slow

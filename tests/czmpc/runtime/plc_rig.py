@@ -110,8 +110,9 @@ def plc_server(tmp: Path, pki: Pki) -> Iterator[PlcServer]:
         },
     }
     (tmp / "plc_server.json").write_text(json.dumps(config), encoding="utf-8")
+    node = _node()   # refuses first: a log opened before it leaked into a later test
     log = open(tmp / "plc_server.log", "w", encoding="utf-8")  # noqa: SIM115
-    process = subprocess.Popen([_node(), str(SERVER_DIR / "plc_server.js"),
+    process = subprocess.Popen([node, str(SERVER_DIR / "plc_server.js"),
                                 str(tmp / "plc_server.json")], stdout=subprocess.PIPE,
                                stderr=log, text=True, cwd=SERVER_DIR)
     try:
