@@ -24,9 +24,9 @@ demo: $(STAMP)
 	$(VENV)/bin/czmpc demo --out out/demo
 
 # CI runs `make test` only (.ci/run), so the documentation site is built here too.
-# tools/run_suite.sh: the suite on two workers (pytest-xdist) at nice 10, while the
-# wall-clock loops against a served plant (marker realtime) run at normal priority, so
-# that the workers never delay a loop period, and then the docs build.
+# tools/run_suite.sh: the suite on two workers (pytest-xdist) and the docs build, both at
+# nice 10, while the wall-clock loops against a served plant (marker realtime) run at
+# normal priority, so that the niced jobs never delay a loop period.
 test: $(STAMP) $(PLC_STAMP)
 	$(VENV)/bin/ruff check sysid sim czmpc benchmarks tests docs
 	$(VENV)/bin/mypy sysid sim czmpc benchmarks
