@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import io
+import json
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +56,54 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
             return _scope(nodeid)
 
     return _ScopeScheduling(config, log)  # type: ignore[arg-type]
+
+
+#: What `once_per_run` keeps of a job: its exit code and stderr.
+RunResult = tuple[int, str]
+
+
+def once_per_run(tmp_path_factory: pytest.TempPathFactory, worker_id: str, key: str,
+                 job: Callable[[Path], RunResult]) -> tuple[int, str, Path]:
+    """``job(folder)`` once per run of the suite, whichever worker asks first.
+
+    The workers of `make test` share the run's base folder: the first to ask for ``key``
+    runs the job in ``folder`` (its output files there) under a lock on ``key``, and
+    every later ask, on either worker, waits for it and reads what it kept. For jobs
+    that several test files or groups need whole (a ``czmpc identify``), as `--dist
+    loadfile` may hand them to both workers. Returns ``(code, stderr, folder)``.
+    """
+    root = tmp_path_factory.getbasetemp()
+    folder = (root if worker_id == "master" else root.parent) / "once" / key
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / "lock", "w", encoding="utf-8") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)     # released when the file closes
+        kept = folder / "result.json"
+        if not kept.exists():
+            kept.write_text(json.dumps(job(folder)), encoding="utf-8")
+        code, err = json.loads(kept.read_text(encoding="utf-8"))
+    return code, err, folder
+
+
+def run_cli(argv: list[str]) -> RunResult:
+    """``czmpc ARGV`` in this process: its exit code and stderr (stdout let through)."""
+    from czmpc.cli import main
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        code = main(argv)
+    return code, err.getvalue()
+
+
+@pytest.fixture(scope="session")
+def shipped_identified(tmp_path_factory: pytest.TempPathFactory,
+                       worker_id: str) -> tuple[int, str, Path]:
+    """``czmpc identify`` of the shipped experiment with default options, once per run:
+    ``(code, stderr, out)``, the output folder read-only to its users."""
+    code, err, folder = once_per_run(
+        tmp_path_factory, worker_id, "shipped_experiment",
+        lambda folder: run_cli(["identify", str(SHIPPED_EXPERIMENT), "--out",
+                                str(folder / "out")]))
+    return code, err, folder / "out"
 
 
 @pytest.fixture(scope="session")

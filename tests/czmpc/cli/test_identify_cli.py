@@ -238,15 +238,15 @@ def _finding_lines(report: str) -> list[str]:
 
 @pytest.mark.slow
 def test_shipped_experiment_shows_the_papers_findings(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    shipped_identified: tuple[int, str, Path],
 ) -> None:
-    rc, _, _ = _run(["identify", str(SHIPPED), "--out", str(tmp_path)], capsys)
-    assert rc == 0
-    lines = _finding_lines((tmp_path / "report.md").read_text())
+    rc, err, out = shipped_identified
+    assert rc == 0, err
+    lines = _finding_lines((out / "report.md").read_text())
     assert len(lines) == 5
 
     def crit(name: str) -> tuple[float, float]:
-        c = load_model(tmp_path / "models" / f"{name}.json").criteria
+        c = load_model(out / "models" / f"{name}.json").criteria
         assert c.ballistic_mse_kw2 is not None and c.one_step_mse_kw2 is not None
         return c.ballistic_mse_kw2, c.one_step_mse_kw2
 
@@ -254,7 +254,7 @@ def test_shipped_experiment_shows_the_papers_findings(
     v = {n: crit(n)[0] for n in ("arx_1_2", "arx_2_3", "armax_1_2_1", "armax_2_3_2", "oe_2_1",
                                  "oe_3_2", "hammerstein_oe")}
     w_armax, w_noise = crit("armax_1_2_1")[1], crit("hammerstein_armax")[1]
-    fin, zer = (load_model(tmp_path / "models" / f"{n}.json")
+    fin, zer = (load_model(out / "models" / f"{n}.json")
                 for n in ("hammerstein_oe", "hammerstein_oe_from_zeros"))
     p_fin = np.concatenate([fin.a[1:], fin.b[2:], fin.input_poly])
     p_zer = np.concatenate([zer.a[1:], zer.b[2:], zer.input_poly])

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import fcntl
 import functools
 import hashlib
 import io
@@ -41,6 +40,7 @@ from sysid.model import OperatingPoint
 from sysid.modelfile import load_model
 from sysid.pipeline import run_paper_pipeline
 from sysid.rest_oe import search_oe_from_rest
+from tests.conftest import once_per_run, run_cli
 from tests.sysid.reallogs import (
     read_cascaded_tanks,
     read_daisy_exchanger,
@@ -304,23 +304,13 @@ Identified = Callable[[str], tuple[int, str, Path]]
 @pytest.fixture(scope="module")
 def identified(tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> Identified:
     """``czmpc identify LOG --out DIR`` with default options on a real log, once per run of
-    the suite: `make test` hands a log's tests to either worker (`tests.conftest._scope`),
-    and both read the first one's output, a lock per log making the other wait for it
-    (the full logs are each needed by three groups: their own, and their 5 % and 10 %
-    end cuts)."""
-    root = tmp_path_factory.getbasetemp()
-    shared = (root if worker_id == "master" else root.parent) / "identified"
-
+    the suite (`tests.conftest.once_per_run`): `make test` hands a log's tests to either
+    worker (`tests.conftest._scope`), and a full log is needed by three groups, its own
+    and its 5 % and 10 % end cuts."""
     @functools.cache
     def run(name: str) -> tuple[int, str, Path]:
-        folder = shared / name
-        folder.mkdir(parents=True, exist_ok=True)
-        with open(folder / "lock", "w", encoding="utf-8") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)     # released when the file closes
-            result = folder / "result.json"
-            if not result.exists():
-                result.write_text(json.dumps(_identify(name, folder)), encoding="utf-8")
-            code, err = json.loads(result.read_text(encoding="utf-8"))
+        code, err, folder = once_per_run(tmp_path_factory, worker_id, f"real_log_{name}",
+                                         lambda folder: _identify(name, folder))
         return code, err, folder / "id"
     return run
 
@@ -339,11 +329,7 @@ def _identify(name: str, folder: Path) -> tuple[int, str]:
         write_csv({**READERS, **END_CUTS, **OTHER_END_CUTS, **START_CUTS, **EXCERPTS,
                    **HELD, **FASTER}[name](),
                   folder / "log.csv")
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err):
-        code = main(["identify", str(folder / "log.csv"), "--out", str(folder / "id"),
-                     *reading])
-    return code, err.getvalue()
+    return run_cli(["identify", str(folder / "log.csv"), "--out", str(folder / "id"), *reading])
 
 
 @pytest.mark.slow

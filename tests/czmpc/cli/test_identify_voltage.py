@@ -135,11 +135,11 @@ def _differences(before: object, now: object, path: str = "") -> list[str]:
     return [] if before == now else [f"{path}: {before!r} != {now!r}"]
 
 
-def test_a_log_without_the_column_is_identified_exactly_as_before(tmp_path: Path) -> None:
-    rc, _, err = _run(["identify", str(REPO / "data" / "cz_heater_experiment.csv"), "--out",
-                       str(tmp_path / "out")])
+def test_a_log_without_the_column_is_identified_exactly_as_before(
+        shipped_identified: tuple[int, str, Path]) -> None:
+    rc, err, out = shipped_identified
     assert rc == 0, err
-    now = json.loads((tmp_path / "out" / "model.json").read_text())
+    now = json.loads((out / "model.json").read_text())
     before = json.loads(BEFORE.read_text())
     for model in (now, before):
         del model["provenance"]["created_utc"]
