@@ -85,4 +85,44 @@ def build(directory: Path, targets: Sequence[str] = (SHARED_LIBRARY,), *,
                          f"{done.returncode}):\n" + "\n".join(lines))
 
 
-__all__ = ["EXAMPLE", "SHARED_LIBRARY", "STATIC_LIBRARY", "build", "find_tools"]
+def build_or_use_built(directory: Path, target: str) -> None:
+    """`build` ``target`` in ``directory``, or, without the tools, use it as built.
+
+    A plant's controller host may have no compiler: the directory is then built where
+    one is (``make -C DIR TARGET``) and copied there whole. Without ``make`` or the
+    compiler, a ``target`` that exists and is newer than every C source, header and
+    Makefile under ``directory`` (make's own rule) is used as it is.
+
+    Raises
+    ------
+    BuildError
+        As `build`; without the tools, when ``target`` is missing or older than a source
+        (the file named), with where to build it.
+    """
+    directory = Path(directory)
+    try:
+        find_tools()
+    except BuildError as missing:
+        built = directory / target
+        if not built.is_file():
+            raise BuildError(f"{missing}; or build {built} where they are ('make -C {directory} "
+                             f"{target}') and copy the directory here") from None
+        newer = _newer_sources(built)
+        if newer:
+            more = f" and {len(newer) - 1} more file(s)" if len(newer) > 1 else ""
+            raise BuildError(f"{built} is older than {newer[0]}{more}, and this machine cannot "
+                             f"rebuild it: {missing}; or rebuild it where they are ('make -C "
+                             f"{directory} {target}') and copy the directory here") from None
+        return
+    build(directory, (target,))
+
+
+def _newer_sources(built: Path) -> list[Path]:
+    """The C sources, headers and Makefile under ``built``'s folder modified after it."""
+    when = built.stat().st_mtime
+    return [p for p in sorted(built.parent.rglob("*"))
+            if (p.suffix in (".c", ".h") or p.name == "Makefile") and p.stat().st_mtime > when]
+
+
+__all__ = ["EXAMPLE", "SHARED_LIBRARY", "STATIC_LIBRARY", "build", "build_or_use_built",
+           "find_tools"]

@@ -25,7 +25,7 @@ from typing import Any, TypeAlias
 
 import numpy as np
 
-from czmpc.codegen.build import SHARED_LIBRARY, build
+from czmpc.codegen.build import SHARED_LIBRARY, build, build_or_use_built
 from czmpc.codegen.errors import BuildError
 from czmpc.errors import SettingsError
 from sysid._typing import FloatArray
@@ -342,6 +342,10 @@ def load_controller(directory: str | os.PathLike[str], *, initial_triac_pct: flo
                     cflags: str | None = None, ldflags: str | None = None) -> CController:
     """Build ``directory``'s ``libczmpc.so`` if needed (make) and load it.
 
+    Without flags, on a machine without ``make`` or a C compiler (a plant's controller
+    host), a library built in the directory elsewhere is used as it is, if it is current
+    (`czmpc.codegen.build.build_or_use_built`).
+
     Parameters
     ----------
     directory :
@@ -354,12 +358,16 @@ def load_controller(directory: str | os.PathLike[str], *, initial_triac_pct: flo
     Raises
     ------
     BuildError
-        No compiler or make, a failed build, or a library this loader cannot use.
+        No compiler or make and no current library, a failed build, or a library this
+        loader cannot use.
     SettingsError
         ``initial_triac_pct`` outside the allowed range.
     """
     path = Path(directory)
-    build(path, (SHARED_LIBRARY,), cflags=cflags, ldflags=ldflags)
+    if cflags is None and ldflags is None:
+        build_or_use_built(path, SHARED_LIBRARY)
+    else:
+        build(path, (SHARED_LIBRARY,), cflags=cflags, ldflags=ldflags)
     return CController(path / SHARED_LIBRARY, initial_triac_pct=initial_triac_pct)
 
 

@@ -12,6 +12,8 @@ import dataclasses
 import json
 import logging
 import math
+import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -20,7 +22,9 @@ import pytest
 from plant_rig import make_config
 
 from czmpc.cli import main
-from czmpc.codegen.errors import CodegenError
+from czmpc.codegen import load_controller
+from czmpc.codegen.build import SHARED_LIBRARY
+from czmpc.codegen.errors import BuildError, CodegenError
 from czmpc.commissioning.check import ModelCheck, write_check
 from czmpc.controller import OffsetFreeMPC
 from czmpc.errors import SettingsError
@@ -200,9 +204,40 @@ def test_the_run_command_refuses_what_it_cannot_run_with_a_c_step(
                          "--test plays its schedule without a controller")):
         assert main(["run", str(config), *extra]) == 2
         assert said in capsys.readouterr().err
+    unbuilt = _copy_step(generated_step, tmp_path / "unbuilt")
+    (unbuilt / SHARED_LIBRARY).unlink(missing_ok=True)
+    _without_a_compiler(monkeypatch)
+    assert main(["run", str(config), "--controller", f"c:{unbuilt}"]) == 2
+    err = capsys.readouterr().err
+    assert ("czmpc: error: building the generated C step needs a C compiler ('czmpc-no-such-cc')"
+            in err)
+    assert f"or build {unbuilt / SHARED_LIBRARY} where they are ('make -C {unbuilt}" in err
+
+
+def _copy_step(step: Path, to: Path) -> Path:
+    """A copy of a generated step directory, its files' times kept (make reads them)."""
+    shutil.copytree(step, to)
+    return to
+
+
+def _without_a_compiler(monkeypatch: pytest.MonkeyPatch) -> None:
+    """From here on, the build finds no C compiler (a plant's controller host)."""
     module = sys.modules["czmpc.codegen.build"]
     real = module.find_tools
     monkeypatch.setattr(module, "find_tools", lambda env=None: real({"CC": "czmpc-no-such-cc"}))
-    assert main(["run", str(config), "--controller", f"c:{generated_step}"]) == 2
-    assert ("czmpc: error: building the generated C step needs a C compiler ('czmpc-no-such-cc')"
-            in capsys.readouterr().err)
+
+
+def test_a_host_without_a_compiler_uses_the_step_built_elsewhere_while_it_is_current(
+        tmp_path: Path, generated_step: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    step = _copy_step(generated_step, tmp_path / "step")
+    expected = load_controller(step).step(30.0, 31.0)      # built here, with the compiler
+    _without_a_compiler(monkeypatch)
+    assert load_controller(step).step(30.0, 31.0) == expected
+    source = step / "czmpc_step.c"
+    later = (step / SHARED_LIBRARY).stat().st_mtime + 10.0
+    os.utime(source, (later, later))
+    with pytest.raises(BuildError, match=rf"{step / SHARED_LIBRARY} is older than {source}, "
+                                         r"and this machine cannot rebuild it: .*czmpc-no-such-cc"):
+        load_controller(step)
+    with pytest.raises(BuildError, match="needs a C compiler"):
+        load_controller(step, cflags="-O3")     # flags need the compiler
