@@ -5,15 +5,20 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import io
-import json
+import pickle
+import warnings
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 import pytest
 from hypothesis import settings
 
 from sysid import HammersteinModel, OperatingPoint
+
+if TYPE_CHECKING:
+    from sysid.pipeline import PipelineResult
 
 # No per-example deadline: `make test` runs the suite on two workers on a shared 2-core
 # machine, where an example's wall time says nothing about the code (speed goals live
@@ -58,30 +63,32 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
     return _ScopeScheduling(config, log)  # type: ignore[arg-type]
 
 
-#: What `once_per_run` keeps of a job: its exit code and stderr.
+#: A CLI run's exit code and stderr (`run_cli`).
 RunResult = tuple[int, str]
+Kept = TypeVar("Kept")
 
 
 def once_per_run(tmp_path_factory: pytest.TempPathFactory, worker_id: str, key: str,
-                 job: Callable[[Path], RunResult]) -> tuple[int, str, Path]:
+                 job: Callable[[Path], Kept]) -> tuple[Kept, Path]:
     """``job(folder)`` once per run of the suite, whichever worker asks first.
 
     The workers of `make test` share the run's base folder: the first to ask for ``key``
-    runs the job in ``folder`` (its output files there) under a lock on ``key``, and
-    every later ask, on either worker, waits for it and reads what it kept. For jobs
-    that several test files or groups need whole (a ``czmpc identify``), as `--dist
-    loadfile` may hand them to both workers. Returns ``(code, stderr, folder)``.
+    runs the job in ``folder`` (its output files there) under a lock on ``key`` and
+    keeps what it returns (pickled: this run's own file), and every later ask, on either
+    worker, waits for it and reads that. For jobs that several test files or groups need
+    whole (a ``czmpc identify``, the paper's pipeline), as `--dist loadfile` may hand
+    them to both workers. Returns ``(job's value, folder)``.
     """
     root = tmp_path_factory.getbasetemp()
     folder = (root if worker_id == "master" else root.parent) / "once" / key
     folder.mkdir(parents=True, exist_ok=True)
     with open(folder / "lock", "w", encoding="utf-8") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)     # released when the file closes
-        kept = folder / "result.json"
+        kept = folder / "kept.pickle"
         if not kept.exists():
-            kept.write_text(json.dumps(job(folder)), encoding="utf-8")
-        code, err = json.loads(kept.read_text(encoding="utf-8"))
-    return code, err, folder
+            kept.write_bytes(pickle.dumps(job(folder)))
+        value: Kept = pickle.loads(kept.read_bytes())
+    return value, folder
 
 
 def run_cli(argv: list[str]) -> RunResult:
@@ -99,11 +106,26 @@ def shipped_identified(tmp_path_factory: pytest.TempPathFactory,
                        worker_id: str) -> tuple[int, str, Path]:
     """``czmpc identify`` of the shipped experiment with default options, once per run:
     ``(code, stderr, out)``, the output folder read-only to its users."""
-    code, err, folder = once_per_run(
+    (code, err), folder = once_per_run(
         tmp_path_factory, worker_id, "shipped_experiment",
         lambda folder: run_cli(["identify", str(SHIPPED_EXPERIMENT), "--out",
                                 str(folder / "out")]))
     return code, err, folder / "out"
+
+
+@pytest.fixture(scope="session")
+def shipped_pipeline(tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> PipelineResult:
+    """`sysid.pipeline.run_paper_pipeline` of the shipped experiment with ``orders="auto"``
+    (the CLI's default), once per run; its warnings (non-convergence, reported in the
+    result) silenced."""
+    def job(_: Path) -> PipelineResult:
+        from sysid.data import read_csv
+        from sysid.pipeline import run_paper_pipeline
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return run_paper_pipeline(read_csv(SHIPPED_EXPERIMENT), orders="auto")
+    return once_per_run(tmp_path_factory, worker_id, "shipped_pipeline", job)[0]
 
 
 @pytest.fixture(scope="session")

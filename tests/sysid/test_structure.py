@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from sysid.data import read_csv
 from sysid.errors import IdentificationError
-from sysid.pipeline import run_paper_pipeline
+from sysid.pipeline import PipelineResult
 from sysid.structure import (
     MIN_POLE_ZERO_SHARE,
     PAPER_ORDERS,
@@ -141,11 +139,9 @@ def test_the_refinement_bases_put_the_fewest_parameters_first_among_near_equals(
 
 # ---------------------------------------------------------------- the done-when
 @pytest.mark.slow
-def test_shipped_experiment_keeps_the_papers_structure_and_findings() -> None:
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        result = run_paper_pipeline(read_csv(REPO / "data" / "cz_heater_experiment.csv"),
-                                    orders="auto")
+def test_shipped_experiment_keeps_the_papers_structure_and_findings(
+        shipped_pipeline: PipelineResult) -> None:
+    result = shipped_pipeline
     assert result.structure is not None
     chosen, paper = result.structure.chosen, result.structure.paper
     assert paper is not None

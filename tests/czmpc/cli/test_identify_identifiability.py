@@ -169,17 +169,21 @@ REAL_LOGS = ["daisy", "tclab", "tanks", "shipped"]
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", REAL_LOGS)
-def test_every_real_log_and_the_shipped_experiment_still_identify(name: str) -> None:
+def test_every_real_log_and_the_shipped_experiment_still_identify(
+        name: str, request: pytest.FixtureRequest) -> None:
     """The judgement `identify_to_directory` makes, on the pipeline it runs (no figures)."""
     data, op = _real(name)
     degree, nb, n_par, what = structure_before_fit("auto")
     before = assess_data(data, degree=degree, nb=nb, n_parameters=n_par, what=what)
     assert before.is_identifiable
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")          # non-convergence is reported in the result
-        result = run_paper_pipeline(
-            data, operating_point=None if op is None else OperatingPoint(
-                triac_pct=op[0], power_kw=op[1]), orders="auto")
+    if name == "shipped":     # the same run as tests/sysid/test_structure.py's, shared
+        result = request.getfixturevalue("shipped_pipeline")
+    else:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")      # non-convergence is reported in the result
+            result = run_paper_pipeline(
+                data, operating_point=None if op is None else OperatingPoint(
+                    triac_pct=op[0], power_kw=op[1]), orders="auto")
     assert result.final is not None
     judged = before + assess_model(result.final.model, result.data)
     assert judged.is_identifiable, [c.message for c in judged.refusals]

@@ -309,8 +309,8 @@ def identified(tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> Iden
     and its 5 % and 10 % end cuts."""
     @functools.cache
     def run(name: str) -> tuple[int, str, Path]:
-        code, err, folder = once_per_run(tmp_path_factory, worker_id, f"real_log_{name}",
-                                         lambda folder: _identify(name, folder))
+        (code, err), folder = once_per_run(tmp_path_factory, worker_id, f"real_log_{name}",
+                                           lambda folder: _identify(name, folder))
         return code, err, folder / "id"
     return run
 
