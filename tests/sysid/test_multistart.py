@@ -9,9 +9,10 @@ import pytest
 from scipy.signal import lfilter
 
 from sysid.errors import IdentificationError
-from sysid.hammerstein import run_hammerstein_route
-from sysid.hammerstein.route import fixed_pole_starts, pole_start_time_constants
+from sysid.hammerstein import route, run_hammerstein_route
+from sysid.hammerstein.route import _catch_up_watch, fixed_pole_starts, pole_start_time_constants
 from sysid.model import OperatingPoint
+from sysid.optimize import PROGRESS_WINDOW
 
 #: B is an exact least-squares solution when F is the truth and there is no noise.
 EXACT_ATOL = 1e-9
@@ -65,3 +66,59 @@ def test_multistart_keeps_the_routes_own_fit_at_an_equal_minimum_and_finds_the_t
     assert values["d2"] == pytest.approx(-0.02, rel=0.05)
     assert values["b2"] == pytest.approx(-0.5, abs=0.01)
     assert values["f1"] == pytest.approx(-0.9, abs=0.002)
+
+
+def _watched(costs: list[float], target: float, cap: int = 1000) -> tuple[list[float], int]:
+    """Feed ``costs`` as iterations 1, 2, ... to a catch-up watch; return what it passed
+    on and the iteration it abandoned at (0: never)."""
+    seen: list[float] = []
+    watch = _catch_up_watch(target, cap, lambda _, cost: seen.append(cost))
+    for k, cost in enumerate(costs, start=1):
+        try:
+            watch(k, cost)
+        except IdentificationError as exc:
+            assert f"cannot reach {target:.6g} within {cap} iterations" in str(exc)
+            return seen, k
+    return seen, 0
+
+
+def test_a_search_that_cannot_catch_up_is_abandoned_once_its_window_is_full() -> None:
+    # the exchanger log at 4x its rate: V 0.2597 falling by about 2.3e-7 per iteration
+    # against an incumbent of 0.1906; at 10 times that fall it would need 3e4 iterations
+    crawl = [0.2600 - 2.3e-7 * k for k in range(1, 900)]
+    seen, at = _watched(crawl, 0.1906)
+    assert at == PROGRESS_WINDOW + 1 and seen == crawl[:at]   # the progress still shown
+    # the same crawl 0.0001 above the incumbent: at 10 times its fall it would reach it
+    # in time (and it does, at iteration 435)
+    assert _watched([0.1907 - 2.3e-7 * k for k in range(1, 900)], 0.1906)[1] == 0
+    # 0.0005 above: at 10 times its fall it would, until the cap comes too near
+    assert _watched([0.1911 - 2.3e-7 * k for k in range(1, 900)], 0.1906)[1] == 870
+    # a fast fall is never abandoned, nor a search below the target
+    assert _watched([1.0 * 0.99 ** k for k in range(1, 300)], 0.1906)[1] == 0
+    assert _watched([0.1 + 1e-12 * (900 - k) for k in range(1, 900)], 0.1906)[1] == 0
+    # a new search (iteration 1 again) starts its window afresh: the voltage refits
+    watch = _catch_up_watch(0.1906, 1000, None)
+    for k in range(1, PROGRESS_WINDOW + 1):
+        watch(k, 0.26)
+    watch(1, 0.26)            # a full window of the first search would abandon here
+    for k in range(2, PROGRESS_WINDOW + 1):
+        watch(k, 0.26)
+    with pytest.raises(IdentificationError):
+        watch(PROGRESS_WINDOW + 1, 0.26)
+
+
+def test_abandoned_starts_leave_the_multistart_fit_as_it_was(rng: np.random.Generator) -> None:
+    ds, w = _record(rng, 2400)
+    y = lfilter([0.0, 1.0, -0.5], [1.0, -0.9], w) + 0.05 * rng.standard_normal(ds.size)
+    op = OperatingPoint(triac_pct=50.0, power_kw=10.0)
+    kept = []
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(route, "ABANDON_RATE_FACTOR", float("inf"))   # never abandon
+        never = run_hammerstein_route(y, ds, steps=(), operating_point=op, noise_model=False,
+                                      pole_starts=6, progress=lambda stage, k, v: kept.append(k))
+    seen = []
+    now = run_hammerstein_route(y, ds, steps=(), operating_point=op, noise_model=False,
+                                pole_starts=6, progress=lambda stage, k, v: seen.append(k))
+    assert now.final_oe.cost == never.final_oe.cost
+    np.testing.assert_array_equal(now.final_oe.parameters, never.final_oe.parameters)
+    assert len(seen) < len(kept)
